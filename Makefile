@@ -1,0 +1,32 @@
+# `make bench` and `make test` do all the set-up on a fresh machine.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+BENCH_OUT ?= results/default
+
+.PHONY: bench test venv clean
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	@if ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
+		echo "OpenCL: system ICD found in /etc/OpenCL/vendors"; \
+	else \
+		echo "hint: no system OpenCL driver found; installing the pip PoCL (generic target)."; \
+		echo "hint: Debian's 'apt-get install -y pocl-opencl-icd' runs about 10x faster on this CPU."; \
+		$(PY) -m pip install -q -e '.[test,pocl]'; \
+	fi
+	touch $(STAMP)
+
+bench: $(STAMP)
+	$(VENV)/bin/iblbench run --out $(BENCH_OUT)
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+clean:
+	rm -rf $(VENV) build *.egg-info

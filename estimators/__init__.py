@@ -1,0 +1,1 @@
+"""Estimators: one module per estimator, each with its OpenCL kernel beside it."""

@@ -1,0 +1,1 @@
+"""Harness: CLI, device selection, runner, frame cache, reference, metrics and results."""

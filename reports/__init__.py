@@ -1,0 +1,1 @@
+"""Reports: image previews, plots and the HTML report."""

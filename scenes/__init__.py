@@ -1,0 +1,1 @@
+"""Scenes: cube maps, skies, environment and mesh I/O, the Embree G-buffer and the scene registry."""
