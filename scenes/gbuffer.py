@@ -1,11 +1,25 @@
-"""The G-buffer: per-pixel surface data from Embree primary rays, traced once per scene."""
+"""The G-buffer: per-pixel surface data from Embree primary rays, traced once per scene.
+
+Camera: a pinhole at ``eye`` looking at ``target``; one ray per pixel through the pixel centre,
+rows top to bottom, ``fov_y`` the full vertical field of view, aspect = width / height.
+
+Shading normal: Embree's barycentrics (u, v) weight the vertex normals as
+(1 − u − v)·n0 + u·n1 + v·n2.  Surfaces are two-sided: the normal is first turned to the side
+of the triangle's geometric normal (so inverted vertex normals do not matter), then flipped with
+it when the camera sees the triangle's back.  Interpolated normals can still lean slightly away
+from the camera near silhouettes; those are bent towards ``view`` just enough that
+n·view = MIN_COS_VIEW, so every covered pixel has n·view > 0.
+"""
 from __future__ import annotations
 
 import dataclasses
+import os
+import tempfile
 
 import numpy as np
 
 GBUFFER_ARRAYS = ("mask", "position", "normal", "view", "kd", "ks", "shininess")
+MIN_COS_VIEW = 1e-3
 
 
 @dataclasses.dataclass
@@ -60,3 +74,85 @@ class GBuffer:
             ks=vec(ks),
             shininess=np.broadcast_to(np.asarray(shininess, np.float32), shape).copy(),
         )
+
+    def save_npz(self, path: str | os.PathLike) -> None:
+        """Write the arrays to ``path`` atomically (a temporary file, then ``os.replace``)."""
+        folder = os.path.dirname(os.path.abspath(path))
+        with tempfile.NamedTemporaryFile(dir=folder, suffix=".npz.tmp", delete=False) as handle:
+            try:
+                np.savez(handle, **self.arrays())
+            except BaseException:
+                os.unlink(handle.name)
+                raise
+        os.replace(handle.name, path)
+
+    @classmethod
+    def load_npz(cls, path: str | os.PathLike) -> "GBuffer":
+        with np.load(path) as data:
+            return cls(**{name: data[name] for name in GBUFFER_ARRAYS})
+
+
+def camera_rays(camera, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Origins and unit directions ``[H*W, 3]`` (float64) of the pixel-centre primary rays."""
+    eye = np.asarray(camera.eye, np.float64)
+    forward = np.asarray(camera.target, np.float64) - eye
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, camera.up)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    half_height = np.tan(np.radians(camera.fov_y) / 2.0)
+    x = ((np.arange(width) + 0.5) / width * 2.0 - 1.0) * half_height * width / height
+    y = (1.0 - (np.arange(height) + 0.5) / height * 2.0) * half_height
+    dirs = forward + x[None, :, None] * right + y[:, None, None] * up
+    dirs = dirs.reshape(-1, 3)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    return np.broadcast_to(eye, dirs.shape), dirs
+
+
+def intersect(mesh, origins: np.ndarray, dirs: np.ndarray) -> dict[str, np.ndarray]:
+    """Embree closest hits: ``primID`` (-1 for a miss), barycentrics ``u``, ``v`` and ``tfar``."""
+    from embreex import rtcore_scene as rtcs
+    from embreex.mesh_construction import TriangleMesh
+
+    scene = rtcs.EmbreeScene()
+    TriangleMesh(scene, np.ascontiguousarray(mesh.vertices, np.float32), np.ascontiguousarray(mesh.faces, np.int32))
+    return scene.run(np.ascontiguousarray(origins, np.float32), np.ascontiguousarray(dirs, np.float32), output=1)
+
+
+def shading_normals(mesh, prim: np.ndarray, u: np.ndarray, v: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """Unit two-sided shading normals facing the camera (see the module docstring)."""
+    corners = np.asarray(mesh.vertex_normals)[np.asarray(mesh.faces)[prim]]
+    normal = (1.0 - u - v)[:, None] * corners[:, 0] + u[:, None] * corners[:, 1] + v[:, None] * corners[:, 2]
+    geometric = np.asarray(mesh.face_normals)[prim]
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.where(length > 1e-12, normal / np.maximum(length, 1e-300), geometric)
+    facing = np.sign(np.einsum("ij,ij->i", normal, geometric)) * np.sign(np.einsum("ij,ij->i", geometric, view))
+    normal *= np.where(facing == 0.0, 1.0, facing)[:, None]
+    cos_view = np.einsum("ij,ij->i", normal, view)
+    normal += np.maximum(MIN_COS_VIEW - cos_view, 0.0)[:, None] * view
+    return normal / np.linalg.norm(normal, axis=1, keepdims=True)
+
+
+def trace_gbuffer(mesh, material, camera, width: int, height: int) -> GBuffer:
+    """Trace one primary ray per pixel with Embree and fill the G-buffer (float32, zeros off-mesh)."""
+    origins, dirs = camera_rays(camera, width, height)
+    hits = intersect(mesh, origins, dirs)
+    mask = hits["primID"] >= 0
+    prim = hits["primID"][mask]
+    u, v = hits["u"][mask].astype(np.float64), hits["v"][mask].astype(np.float64)
+    view = -dirs[mask]
+
+    def per_pixel(values: np.ndarray, channels: tuple[int, ...] = (3,)) -> np.ndarray:
+        image = np.zeros((height * width, *channels), np.float32)
+        image[mask] = values
+        return image.reshape(height, width, *channels)
+
+    return GBuffer(
+        mask=mask.reshape(height, width),
+        position=per_pixel(origins[mask] + hits["tfar"][mask, None] * dirs[mask]),
+        normal=per_pixel(shading_normals(mesh, prim, u, v, view)),
+        view=per_pixel(view),
+        kd=per_pixel(np.asarray(material.kd, np.float32)),
+        ks=per_pixel(np.asarray(material.ks, np.float32)),
+        shininess=per_pixel(np.float32(material.shininess), ()),
+    )

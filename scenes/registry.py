@@ -1,0 +1,252 @@
+"""Built-in scenes by name, and user scenes from TOML files.
+
+``load_scene(name_or_path)`` takes a built-in name (case-insensitive) or a path ending in ``.toml``.
+
+User scene format (paths are relative to the TOML file's folder)::
+
+    [mesh]
+    path = "bunny.obj"              # required: OBJ, PLY or GLB (multi-object files are merged)
+
+    [environment]
+    path = "sky.exr"                # required: EXR/HDR lat-long, cross or faces, or a .npy [6,R,R,3]
+    layout = "auto"                 # optional, passed to envmap.load_environment
+    res = 64                        # optional cube face resolution
+
+    [material]                      # optional; defaults kd = 0.5, ks = 0.3, shininess = 150
+    kd = [0.6, 0.5, 0.4]            # a number or an RGB triple; kd + ks <= 1 per channel
+    ks = 0.2
+    shininess = 80
+
+    [camera]
+    eye = [0.0, 0.5, 3.0]           # required
+    target = [0.0, 0.0, 0.0]        # required
+    up = [0.0, 1.0, 0.0]            # optional
+    fov_y = 45.0                    # optional, full vertical field of view in degrees
+
+    [render]                        # optional
+    width = 128
+    height = 128
+
+Unknown sections or keys are errors (they are usually typos).  Every problem is an ``InputError``
+naming the TOML file, or the referenced file when that file is the problem.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from . import meshes, sky
+from .errors import InputError
+from .scene import Camera, EnvSequence, Material, Scene
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python < 3.11
+    import tomli as tomllib
+
+DEFAULT_ENV_RES = 64
+
+
+def _sphere_sun(env_res: int | None) -> Scene:
+    return Scene(
+        name="sphere-sun",
+        mesh=meshes.sphere(),
+        material=Material(kd=(0.5, 0.5, 0.5), ks=(0.3, 0.3, 0.3), shininess=150.0),
+        # The unit sphere spans 87% of the frame height from (0, 0, 3) with a 45° vertical fov.
+        camera=Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0),
+        environment=EnvSequence.static(sky.sun_sky(res=env_res or DEFAULT_ENV_RES), source="preetham-sun-sky"),
+        resolution=(128, 128),
+        source="builtin:sphere-sun",
+    )
+
+
+BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {"sphere-sun": _sphere_sun}
+
+
+def scene_names() -> list[str]:
+    return sorted(BUILTIN_SCENES)
+
+
+def builtin_scene(name: str, env_res: int | None = None) -> Scene:
+    """A built-in scene by case-insensitive name; an unknown name lists the valid ones."""
+    factory = BUILTIN_SCENES.get(name.lower())
+    if factory is None:
+        raise InputError(None, f"unknown scene {name!r}; valid scenes: {', '.join(scene_names())}")
+    return factory(env_res)
+
+
+def load_scene(name_or_path: str | os.PathLike, sanitize: bool = False, env_res: int | None = None) -> Scene:
+    """A built-in scene by name, or a user scene from a ``.toml`` file.
+
+    ``env_res`` overrides the environment's cube face resolution; ``sanitize`` lets the environment
+    loader repair NaN, Inf and negative texels instead of refusing them.
+    """
+    text = os.fspath(name_or_path)
+    if text.lower().endswith(".toml"):
+        return _toml_scene(Path(text), sanitize, env_res)
+    return builtin_scene(text, env_res)
+
+
+# --- TOML scenes -------------------------------------------------------------------------------
+
+_SECTIONS = {
+    "mesh": ({"path"}, set()),
+    "environment": ({"path"}, {"layout", "res"}),
+    "material": (set(), {"kd", "ks", "shininess"}),
+    "camera": ({"eye", "target"}, {"up", "fov_y"}),
+    "render": (set(), {"width", "height"}),
+}
+
+
+class _Fields:
+    """Typed access to one TOML table; every problem is an InputError naming the TOML file."""
+
+    def __init__(self, toml_path: Path, section: str, table: Any):
+        self.toml_path, self.section = toml_path, section
+        if not isinstance(table, dict):
+            self.fail(f"[{section}] must be a table")
+        required, optional = _SECTIONS[section]
+        unknown = set(table) - required - optional
+        if unknown:
+            self.fail(f"unknown key {sorted(unknown)[0]!r} in [{section}]; valid keys: {', '.join(sorted(required | optional))}")
+        missing = required - set(table)
+        if missing:
+            self.fail(f"missing required key {sorted(missing)[0]!r} in [{section}]")
+        self.table = table
+
+    def fail(self, problem: str):
+        raise InputError(self.toml_path, problem)
+
+    def has(self, key: str) -> bool:
+        return key in self.table
+
+    def _where(self, key: str) -> str:
+        return f"{self.section}.{key}"
+
+    def number(self, key: str, minimum: float | None = None) -> float:
+        value = self.table[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+            self.fail(f"{self._where(key)} must be a finite number, got {value!r}")
+        if minimum is not None and value < minimum:
+            self.fail(f"{self._where(key)} must be >= {minimum}, got {value!r}")
+        return float(value)
+
+    def positive_int(self, key: str) -> int:
+        value = self.table[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+            self.fail(f"{self._where(key)} must be a positive integer, got {value!r}")
+        return value
+
+    def string(self, key: str) -> str:
+        value = self.table[key]
+        if not isinstance(value, str) or not value:
+            self.fail(f"{self._where(key)} must be a non-empty string, got {value!r}")
+        return value
+
+    def vector(self, key: str) -> tuple[float, float, float]:
+        value = self.table[key]
+        if not (isinstance(value, list) and len(value) == 3) or not all(
+            isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in value
+        ):
+            self.fail(f"{self._where(key)} must be a list of 3 finite numbers, got {value!r}")
+        return tuple(float(c) for c in value)
+
+    def rgb(self, key: str) -> tuple[float, float, float]:
+        """A number (grey) or an RGB triple, each channel >= 0."""
+        value = self.table[key]
+        rgb = (self.number(key),) * 3 if not isinstance(value, list) else self.vector(key)
+        if min(rgb) < 0:
+            self.fail(f"{self._where(key)} must be non-negative, got {value!r}")
+        return rgb
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        with open(path, "rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise InputError(path, "scene file not found") from None
+    except tomllib.TOMLDecodeError as error:
+        raise InputError(path, f"TOML syntax error: {error}") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise InputError(path, f"cannot read scene file: {error}") from None
+
+
+def _toml_scene(path: Path, sanitize: bool, env_res: int | None) -> Scene:
+    document = _read_toml(path)
+    unknown = set(document) - set(_SECTIONS)
+    if unknown:
+        raise InputError(path, f"unknown section [{sorted(unknown)[0]}]; valid sections: {', '.join(_SECTIONS)}")
+    for section in ("mesh", "environment", "camera"):
+        if section not in document:
+            raise InputError(path, f"missing required section [{section}]")
+    fields = {section: _Fields(path, section, document.get(section, {})) for section in _SECTIONS}
+    folder = path.parent
+    material = _material(fields["material"])
+    camera = _camera(fields["camera"])
+    environment = _environment(fields["environment"], folder, sanitize, env_res)
+    mesh = meshes.load_mesh(folder / fields["mesh"].string("path"))
+    render = fields["render"]
+    resolution = tuple(render.positive_int(k) if render.has(k) else 128 for k in ("width", "height"))
+    return Scene(path.stem, mesh, material, camera, environment, resolution, source=os.fspath(path))
+
+
+def _material(fields: _Fields) -> Material:
+    default = Material()
+    kd = fields.rgb("kd") if fields.has("kd") else default.kd
+    ks = fields.rgb("ks") if fields.has("ks") else default.ks
+    if max(d + s for d, s in zip(kd, ks)) > 1.0 + 1e-9:
+        fields.fail(f"material kd + ks must be <= 1 per channel (energy conservation), got kd={kd}, ks={ks}")
+    shininess = fields.number("shininess", minimum=0.0) if fields.has("shininess") else default.shininess
+    return Material(kd=kd, ks=ks, shininess=shininess)
+
+
+def _camera(fields: _Fields) -> Camera:
+    default = Camera()
+    eye, target = fields.vector("eye"), fields.vector("target")
+    up = fields.vector("up") if fields.has("up") else default.up
+    fov_y = fields.number("fov_y") if fields.has("fov_y") else default.fov_y
+    if not 0.0 < fov_y < 180.0:
+        fields.fail(f"camera.fov_y must be in (0, 180) degrees, got {fov_y}")
+    forward = np.subtract(target, eye)
+    if np.linalg.norm(forward) == 0.0:
+        fields.fail("camera.eye and camera.target must differ")
+    if np.linalg.norm(np.cross(forward, up)) == 0.0:
+        fields.fail("camera.up must not be parallel to the viewing direction")
+    return Camera(eye=eye, target=target, up=up, fov_y=fov_y)
+
+
+def _environment(fields: _Fields, folder: Path, sanitize: bool, env_res: int | None) -> EnvSequence:
+    source = folder / fields.string("path")
+    layout = fields.string("layout") if fields.has("layout") else "auto"
+    res = env_res or (fields.positive_int("res") if fields.has("res") else None)
+    if not source.is_file():
+        raise InputError(source, "environment file not found")
+    if source.suffix.lower() == ".npy":
+        env = _load_npy_environment(source, res, sanitize)
+    else:
+        from .envmap import load_environment  # written alongside; imported only when a file needs it
+
+        env, _report = load_environment(source, layout=layout, res=res, sanitize=sanitize)
+    return EnvSequence.static(env, source=os.fspath(source))
+
+
+def _load_npy_environment(path: Path, res: int | None, sanitize: bool) -> np.ndarray:
+    """A cube map saved as ``[6, R, R, 3]``; bad texels are refused unless ``sanitize`` zeroes them."""
+    try:
+        env = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as error:
+        raise InputError(path, f"cannot read .npy environment: {error}") from None
+    if env.ndim != 4 or env.shape[0] != 6 or env.shape[1] != env.shape[2] or env.shape[3] != 3:
+        raise InputError(path, f"a .npy environment must have shape [6, R, R, 3], got {list(env.shape)}")
+    if not np.issubdtype(env.dtype, np.floating):
+        raise InputError(path, f"a .npy environment must hold floats, got {env.dtype}")
+    if res is not None and res != env.shape[1]:
+        raise InputError(path, f"a .npy environment is used as stored: res {res} differs from its R = {env.shape[1]}")
+    bad = ~np.isfinite(env) | (env < 0)
+    if bad.any() and not sanitize:
+        raise InputError(path, f"{int(bad.sum())} NaN, Inf or negative texel values (use --sanitize to zero them)")
+    return np.where(bad, 0.0, env).astype(np.float32)

@@ -1,0 +1,297 @@
+"""Scenes: Preetham sun + sky, procedural meshes, the Embree G-buffer and the scene registry."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from iblbench.scenes import cubemap, gbuffer, meshes, registry, sky
+from iblbench.scenes.errors import InputError
+from iblbench.scenes.scene import Camera, Material
+
+# --- G-buffer ----------------------------------------------------------------------------------
+
+
+def sphere_gbuffer(width=128, height=128, distance=3.0, fov_y=45.0):
+    camera = Camera(eye=(0.0, 0.0, distance), fov_y=fov_y)
+    return gbuffer.trace_gbuffer(meshes.sphere(), Material(), camera, width, height), camera
+
+
+@pytest.mark.parametrize("width, height", [(128, 128), (160, 120)])
+def test_sphere_mask_covers_the_projected_disc(width, height):
+    distance, fov_y = 3.0, 45.0
+    buffer, _ = sphere_gbuffer(width, height, distance, fov_y)
+    # The silhouette is a cone of half-angle asin(r/D); on the image plane at distance 1 it is a
+    # disc of radius tan(asin(r/D)), inside a (2 tan(fov/2)·aspect) × (2 tan(fov/2)) rectangle.
+    disc_radius = math.tan(math.asin(1.0 / distance))
+    half_height = math.tan(math.radians(fov_y) / 2)
+    expected = math.pi * disc_radius**2 / (4 * half_height**2 * width / height)
+    assert buffer.mask.shape == (height, width)
+    assert buffer.mask.mean() == pytest.approx(expected, rel=0.03)
+
+
+def test_sphere_normals_positions_and_views():
+    buffer, camera = sphere_gbuffer()
+    covered = buffer.mask
+    position, normal, view = (getattr(buffer, k)[covered].astype(np.float64) for k in ("position", "normal", "view"))
+    radius = np.linalg.norm(position, axis=1)
+    assert radius.max() <= 1.0 + 1e-5 and radius.min() > 0.99  # inscribed icosphere, 5120 faces
+    assert np.degrees(np.arccos(np.clip(np.sum(normal * position / radius[:, None], 1), -1, 1))).max() < 0.5
+    assert np.allclose(np.linalg.norm(normal, axis=1), 1.0, atol=1e-5)
+    assert np.allclose(np.linalg.norm(view, axis=1), 1.0, atol=1e-5)
+    to_eye = np.asarray(camera.eye) - position
+    assert np.allclose(view, to_eye / np.linalg.norm(to_eye, axis=1, keepdims=True), atol=1e-5)
+    assert np.all(np.sum(normal * view, axis=1) > 0)
+    assert not buffer.normal[~covered].any() and not buffer.kd[~covered].any()
+    assert np.allclose(buffer.kd[covered], 0.5) and np.allclose(buffer.shininess[covered], 150.0)
+    assert all(a.dtype == np.float32 for name, a in buffer.arrays().items() if name != "mask")
+
+
+def test_sphere_is_symmetric_about_the_image_centre():
+    buffer, _ = sphere_gbuffer()
+    assert np.array_equal(buffer.mask, buffer.mask[::-1, ::-1])
+    top = np.argwhere(buffer.mask)[0]  # the first covered row is at the top of the image: +Y up
+    assert buffer.position[tuple(top)][1] > 0.9
+
+
+def single_triangle(vertex_normals):
+    vertices = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    return trimesh.Trimesh(vertices, [[0, 1, 2]], vertex_normals=vertex_normals, process=False)
+
+
+def test_embree_barycentrics_weight_vertex_normals_as_1_minus_u_minus_v_u_v():
+    n = np.array([[0, 0, 1], [1, 0, 1], [0, 1, 1]], float)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    hit = np.array([0.2, 0.3, 0.0])  # barycentrics (0.5, 0.2, 0.3) of (v0, v1, v2)
+    camera = Camera(eye=tuple(hit + [0, 0, 5]), target=tuple(hit), up=(0, 1, 0), fov_y=10.0)
+    buffer = gbuffer.trace_gbuffer(single_triangle(n), Material(), camera, 1, 1)
+    expected = 0.5 * n[0] + 0.2 * n[1] + 0.3 * n[2]
+    assert buffer.mask[0, 0]
+    assert np.allclose(buffer.position[0, 0], hit, atol=1e-6)
+    assert np.allclose(buffer.normal[0, 0], expected / np.linalg.norm(expected), atol=1e-5)
+
+
+@pytest.mark.parametrize("eye_z, normal_sign", [(5.0, 1.0), (-5.0, -1.0)])
+def test_two_sided_normals_face_the_camera(eye_z, normal_sign):
+    inverted = np.tile([0.0, 0.0, -1.0], (3, 1))  # vertex normals against the winding
+    camera = Camera(eye=(0.2, 0.3, eye_z), target=(0.2, 0.3, 0.0), up=(0, 1, 0), fov_y=10.0)
+    buffer = gbuffer.trace_gbuffer(single_triangle(inverted), Material(), camera, 1, 1)
+    assert np.allclose(buffer.normal[0, 0], [0, 0, normal_sign], atol=1e-6)
+
+
+def test_gbuffer_npz_round_trip_leaves_no_temporary(tmp_path):
+    buffer, _ = sphere_gbuffer(32, 24)
+    path = tmp_path / "gbuffer.npz"
+    buffer.save_npz(path)
+    assert [p.name for p in tmp_path.iterdir()] == ["gbuffer.npz"]
+    loaded = gbuffer.GBuffer.load_npz(path)
+    for name, array in buffer.arrays().items():
+        assert np.array_equal(getattr(loaded, name), array), name
+
+
+# --- sky ---------------------------------------------------------------------------------------
+
+
+def test_preetham_zenith_luminance_by_hand():
+    # T = 2, θ_s = 60° = π/3:  χ = (4/9 − 2/120)(π − 2π/3) = 0.427778 · 1.047198 = 0.447968,
+    # tan χ = 0.480551;  Y_z = (4.0453·2 − 4.9710)·0.480551 − 0.2155·2 + 2.4192
+    #                        = 3.1196 · 0.480551 + 1.9882 = 1.499127 + 1.9882 = 3.487327 kcd/m².
+    assert sky.zenith_luminance(2.0, math.pi / 3) == pytest.approx(3.487327, abs=1e-5)
+
+
+def test_sky_at_zenith_has_the_zenith_luminance():
+    sun = sky.sun_direction(35.0, 60.0)
+    zenith_rgb = sky.sky_radiance(np.array([0.0, 1.0, 0.0]), sun, turbidity=3.0)
+    assert cubemap.luminance(zenith_rgb) == pytest.approx(sky.zenith_luminance(3.0, math.radians(55.0)), rel=1e-3)
+    assert zenith_rgb[2] > zenith_rgb[0]  # a clear sky is blue
+
+
+def test_sun_direction_is_y_up():
+    assert np.allclose(sky.sun_direction(90.0, 123.0), [0, 1, 0])
+    assert np.allclose(sky.sun_direction(0.0, 0.0), [0, 0, 1])
+    assert np.allclose(sky.sun_direction(0.0, 90.0), [1, 0, 0])
+
+
+def test_sun_sky_shape_values_and_sun_position():
+    env = sky.sun_sky(res=32)
+    assert env.shape == (6, 32, 32, 3) and env.dtype == np.float32
+    assert np.all(np.isfinite(env)) and env.min() >= 0
+    face, row, col = np.unravel_index(np.argmax(cubemap.luminance(env)), env.shape[:3])
+    brightest = cubemap.texel_directions(32)[face, row, col]
+    sun = sky.sun_direction(sky.DEFAULT_SUN_ELEVATION_DEG, sky.DEFAULT_SUN_AZIMUTH_DEG)
+    assert np.degrees(np.arccos(brightest @ sun)) < 3.0  # within one texel at R = 32
+
+
+def test_sun_peak_dominates_the_sky_median():
+    luminance = cubemap.luminance(sky.sun_sky())
+    assert luminance.max() >= 1e4 * np.median(luminance)
+
+
+def sun_power(res):
+    return cubemap.integrate(sky.sun_sky(res=res)) - cubemap.integrate(sky.sun_sky(res=res, sun_luminance=0.0))
+
+
+def test_sun_power_is_independent_of_resolution():
+    coarse, fine = sun_power(32), sun_power(128)
+    assert np.allclose(coarse, fine, rtol=0.02)
+    half_angle = math.radians(sky.SUN_ANGULAR_RADIUS_DEG)
+    disc_solid_angle = 2 * math.pi * (1 - math.cos(half_angle))
+    assert cubemap.luminance(fine) == pytest.approx(sky.SUN_LUMINANCE * disc_solid_angle, rel=0.02)
+    assert np.allclose(cubemap.integrate(sky.sun_sky(res=32)), cubemap.integrate(sky.sun_sky(res=128)), rtol=0.02)
+
+
+# --- meshes ------------------------------------------------------------------------------------
+
+
+def test_sphere_mesh_normals_are_normalised_positions():
+    mesh = meshes.sphere(subdivisions=2, radius=2.0)
+    assert np.allclose(np.linalg.norm(mesh.vertices, axis=1), 2.0)
+    assert np.allclose(mesh.vertex_normals, mesh.vertices / 2.0)
+
+
+def test_load_mesh_merges_a_multi_object_file(tmp_path):
+    path = tmp_path / "two.glb"
+    trimesh.Scene([trimesh.creation.box(), trimesh.creation.icosphere(1).apply_translation([3, 0, 0])]).export(path)
+    assert len(meshes.load_mesh(path).faces) == 12 + 80
+
+
+@pytest.mark.parametrize(
+    "name, content, problem",
+    [
+        ("missing.obj", None, "not found"),
+        ("empty.obj", "# nothing\n", "no triangles"),
+        ("corrupt.glb", b"\x00garbage", "cannot read"),
+        ("mesh.xyz", "1 2 3\n", "unsupported"),
+    ],
+)
+def test_load_mesh_errors_name_the_file(tmp_path, name, content, problem):
+    path = tmp_path / name
+    if content is not None:
+        path.write_bytes(content if isinstance(content, bytes) else content.encode())
+    with pytest.raises(InputError, match=problem) as error:
+        meshes.load_mesh(path)
+    assert error.value.source == str(path)
+
+
+# --- registry ----------------------------------------------------------------------------------
+
+
+def test_builtin_sphere_sun_scene_is_case_insensitive():
+    scene = registry.load_scene("Sphere-Sun", env_res=16)
+    assert scene.name == "sphere-sun" and scene.resolution == (128, 128)
+    assert scene.material == Material(kd=(0.5,) * 3, ks=(0.3,) * 3, shininess=150.0)
+    assert scene.environment.is_static and scene.environment.frame(0).shape == (6, 16, 16, 3)
+
+
+def test_unknown_scene_lists_the_valid_names():
+    with pytest.raises(InputError, match=r"unknown scene 'nope'; valid scenes: .*sphere-sun"):
+        registry.load_scene("nope")
+
+
+SCENE_TOML = """
+[mesh]
+path = "ball.obj"
+
+[environment]
+path = "env.npy"
+
+[material]
+kd = [0.6, 0.5, 0.4]
+ks = 0.2
+shininess = 80
+
+[camera]
+eye = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+fov_y = 40
+
+[render]
+width = 48
+height = 32
+"""
+
+
+@pytest.fixture
+def scene_folder(tmp_path):
+    trimesh.creation.icosphere(2).export(tmp_path / "ball.obj")
+    np.save(tmp_path / "env.npy", np.full((6, 8, 8, 3), 0.5, np.float32))
+    (tmp_path / "scene.toml").write_text(SCENE_TOML)
+    return tmp_path
+
+
+def test_toml_scene_round_trip(scene_folder):
+    scene = registry.load_scene(scene_folder / "scene.toml")
+    assert scene.name == "scene" and scene.resolution == (48, 32)
+    assert scene.material == Material(kd=(0.6, 0.5, 0.4), ks=(0.2, 0.2, 0.2), shininess=80.0)
+    assert scene.camera == Camera(eye=(0.0, 0.0, 4.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=40.0)
+    assert len(scene.mesh.faces) == 320
+    assert np.array_equal(scene.environment.frame(0), np.full((6, 8, 8, 3), 0.5, np.float32))
+    buffer = gbuffer.trace_gbuffer(scene.mesh, scene.material, scene.camera, *scene.resolution)
+    assert buffer.mask.shape == (32, 48) and buffer.covered > 0
+
+
+def edit(text, old, new):
+    assert old in text
+    return text.replace(old, new)
+
+
+@pytest.mark.parametrize(
+    "change, problem",
+    [
+        (lambda t: t + "[oops\n", "TOML syntax error"),
+        (lambda t: edit(t, "[camera]", "[camera]\nfov = 3"), "unknown key 'fov' in \\[camera\\]"),
+        (lambda t: edit(t, "[render]", "[lights]"), "unknown section \\[lights\\]"),
+        (lambda t: edit(t, 'eye = [0.0, 0.0, 4.0]', ""), "missing required key 'eye' in \\[camera\\]"),
+        (lambda t: edit(t, '[mesh]\npath = "ball.obj"', ""), "missing required section \\[mesh\\]"),
+        (lambda t: edit(t, "eye = [0.0, 0.0, 4.0]", 'eye = "far"'), "camera.eye must be a list of 3"),
+        (lambda t: edit(t, "width = 48", "width = 4.5"), "render.width must be a positive integer"),
+        (lambda t: edit(t, "shininess = 80", "shininess = true"), "material.shininess must be a finite number"),
+        (lambda t: edit(t, "ks = 0.2", "ks = 0.6"), "kd \\+ ks must be <= 1"),
+        (lambda t: edit(t, "fov_y = 40", "fov_y = 180"), "fov_y must be in"),
+        (lambda t: edit(t, "target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 4.0]"), "must differ"),
+    ],
+)
+def test_toml_errors_name_the_scene_file(scene_folder, change, problem):
+    path = scene_folder / "scene.toml"
+    path.write_text(change(SCENE_TOML))
+    with pytest.raises(InputError, match=problem) as error:
+        registry.load_scene(path)
+    assert error.value.source == str(path)
+
+
+@pytest.mark.parametrize(
+    "referenced, content, problem",
+    [
+        ("ball.obj", None, "mesh file not found"),
+        ("ball.obj", "v 0 0 0\n", "no triangles"),
+        ("env.npy", None, "environment file not found"),
+        ("env.npy", np.zeros((6, 8, 4, 3), np.float32), r"shape \[6, R, R, 3\]"),
+        ("env.npy", np.full((6, 8, 8, 3), np.nan, np.float32), "NaN, Inf or negative"),
+    ],
+)
+def test_toml_errors_name_the_referenced_file(scene_folder, referenced, content, problem):
+    target = scene_folder / referenced
+    target.unlink()
+    if isinstance(content, np.ndarray):
+        np.save(target, content)
+    elif content is not None:
+        target.write_text(content)
+    with pytest.raises(InputError, match=problem) as error:
+        registry.load_scene(scene_folder / "scene.toml")
+    assert error.value.source == str(target)
+
+
+def test_sanitize_zeroes_bad_npy_texels(scene_folder):
+    env = np.full((6, 8, 8, 3), 0.5, np.float32)
+    env[0, 0, 0] = [np.nan, -1.0, np.inf]
+    np.save(scene_folder / "env.npy", env)
+    frame = registry.load_scene(scene_folder / "scene.toml", sanitize=True).environment.frame(0)
+    assert np.all(frame[0, 0, 0] == 0) and frame[1:].min() == 0.5
+
+
+def test_missing_toml_file(tmp_path):
+    with pytest.raises(InputError, match="scene file not found"):
+        registry.load_scene(tmp_path / "absent.toml")
