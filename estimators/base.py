@@ -1,0 +1,109 @@
+"""The estimator contract of DESIGN §4: parameters, capability tags, requirements, kernels.
+
+A plugin subclasses :class:`Estimator`, sets ``name``, ``Params`` (a dataclass with documented
+defaults), ``tags``, ``requires`` and ``kernel_files``, and implements ``render``.  The optional
+``sample_directions``/``pdf`` hooks feed the χ² test of ``check_estimator``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import inspect
+from typing import ClassVar
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Tags:
+    """Capabilities that decide which conformance checks apply."""
+
+    unbiased: bool = True          # mean over seeds equals the reference (z-test)
+    temporal: bool = False         # keeps state across frames; reset() clears it
+    has_pdf: bool = False          # sample_directions/pdf hooks exist (χ² test)
+    deterministic: bool = True     # same seed, same device → same image
+
+
+@dataclasses.dataclass
+class Estimate:
+    """One rendered frame.
+
+    ``radiance`` float32 ``[H, W, 3]``; ``used`` and ``effective`` float32 ``[H, W]``: the β-weighted
+    counts of evaluated samples and of those with a strictly positive cosine (Lu 2013);
+    ``evaluations``: integrand evaluations per covered pixel (mean); ``nonfinite``: count of
+    non-finite output values; ``timings_ms``: device time per stage (``sample``, ``shade``).
+    """
+
+    radiance: np.ndarray
+    used: np.ndarray
+    effective: np.ndarray
+    evaluations: float
+    nonfinite: int
+    timings_ms: dict[str, float]
+
+
+@dataclasses.dataclass(frozen=True)
+class NoParams:
+    """This estimator has no parameters."""
+
+
+class Estimator:
+    name: ClassVar[str] = ""
+    Params: ClassVar[type] = NoParams
+    tags: ClassVar[Tags] = Tags()
+    requires: ClassVar[tuple[str, ...]] = ()
+    kernel_files: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, params=None, **overrides):
+        base = params if params is not None else self.Params()
+        self.params = dataclasses.replace(base, **overrides)
+
+    def render(self, gbuffer, cache, spp: int, seed: int) -> Estimate:
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        """Forget state carried across frames (temporal estimators)."""
+
+    @classmethod
+    def version(cls) -> str:
+        return estimator_version(cls)
+
+    @classmethod
+    def kernel_package(cls) -> str:
+        """The package whose data holds ``kernel_files`` (the estimator's own package)."""
+        return cls.__module__.rpartition(".")[0]
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.params})"
+
+
+@functools.lru_cache(maxsize=None)
+def estimator_version(cls: type) -> str:
+    """Hash of the estimator's Python source, its kernels and the shared kernels they include."""
+    from iblbench.harness.device import kernel_path
+
+    digest = hashlib.sha256()
+    for klass in cls.__mro__:
+        if klass is object:
+            continue
+        digest.update(inspect.getsource(inspect.getmodule(klass)).encode())
+    for filename in cls.kernel_files:
+        digest.update(kernel_path(cls.kernel_package(), filename).read_bytes())
+    digest.update(kernel_path("iblbench.estimators", "kernels/common.cl").read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def read_estimate(compute, gbuffer, radiance, counts, evaluations: float,
+                  timings_ms: dict[str, float]) -> Estimate:
+    """Copy a kernel's per-pixel outputs (float4 radiance, float2 used/effective) into an Estimate."""
+    rgb = compute.to_host(radiance, (gbuffer.count, 4), np.float32)[:, :3]
+    used_effective = compute.to_host(counts, (gbuffer.count, 2), np.float32)
+    return Estimate(
+        radiance=gbuffer.scatter(rgb),
+        used=gbuffer.scatter(used_effective[:, 0]),
+        effective=gbuffer.scatter(used_effective[:, 1]),
+        evaluations=float(evaluations),
+        nonfinite=int(np.count_nonzero(~np.isfinite(rgb))),
+        timings_ms=timings_ms,
+    )

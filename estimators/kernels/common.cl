@@ -1,0 +1,143 @@
+/* Shared conventions of DESIGN §3: cube map, light pdf, Phong BRDF, Philox RNG, CDF search.
+ * The Python twin of the cube-map functions is iblbench.scenes.cubemap; tests pin that they agree. */
+#ifndef IBLBENCH_COMMON_CL
+#define IBLBENCH_COMMON_CL
+
+#include <pyopencl-random123/philox.cl>
+
+#define IBL_PI 3.14159265358979323846f
+
+/* ---- accumulation ---------------------------------------------------------------------------- */
+
+/* Long sums (CDF scans, the reference) use double where the device has it (-DHAVE_FP64, set by
+ * the harness) and are Kahan-compensated either way. */
+#ifdef HAVE_FP64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double acc_t;
+#else
+typedef float acc_t;
+#endif
+
+typedef struct { acc_t sum, carry; } kahan_t;
+
+inline void kahan_add(kahan_t *k, acc_t x)
+{
+    acc_t y = x - k->carry;
+    acc_t t = k->sum + y;
+    k->carry = (t - k->sum) - y;
+    k->sum = t;
+}
+
+inline float luminance(float3 c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+
+/* ---- cube map ------------------------------------------------------------------------------ */
+
+/* Direction -> face and (s, t) in [0, 1] by the OpenGL table; ties go to x, then y. */
+inline int dir_to_face_st(float3 d, float *s, float *t)
+{
+    float3 a = fabs(d);
+    int face;
+    float sc, tc, ma;
+    if (a.x >= a.y && a.x >= a.z) {
+        ma = a.x;
+        if (d.x >= 0.0f) { face = 0; sc = -d.z; tc = -d.y; }
+        else             { face = 1; sc =  d.z; tc = -d.y; }
+    } else if (a.y >= a.z) {
+        ma = a.y;
+        if (d.y >= 0.0f) { face = 2; sc = d.x; tc =  d.z; }
+        else             { face = 3; sc = d.x; tc = -d.z; }
+    } else {
+        ma = a.z;
+        if (d.z >= 0.0f) { face = 4; sc =  d.x; tc = -d.y; }
+        else             { face = 5; sc = -d.x; tc = -d.y; }
+    }
+    *s = (sc / ma + 1.0f) * 0.5f;
+    *t = (tc / ma + 1.0f) * 0.5f;
+    return face;
+}
+
+/* Face-plane point (u, v) = (2s-1, 2t-1) -> (unnormalised) direction on the cube. */
+inline float3 face_uv_to_dir(int face, float u, float v)
+{
+    switch (face) {
+    case 0:  return (float3)( 1.0f, -v, -u);
+    case 1:  return (float3)(-1.0f, -v,  u);
+    case 2:  return (float3)( u,  1.0f,  v);
+    case 3:  return (float3)( u, -1.0f, -v);
+    case 4:  return (float3)( u, -v,  1.0f);
+    default: return (float3)(-u, -v, -1.0f);
+    }
+}
+
+inline int clamp_index(float x, int res) { return clamp((int)floor(x * res), 0, res - 1); }
+
+inline int texel_index(int face, int row, int col, int res) { return (face * res + row) * res + col; }
+
+/* dA/dω at face-plane point (u, v): solid angle → face area Jacobian (1+u²+v²)^{3/2}. */
+inline float area_per_solid_angle(float u, float v)
+{
+    float q = 1.0f + u * u + v * v;
+    return q * sqrt(q);
+}
+
+/* ---- CDF search and light sampling --------------------------------------------------------- */
+
+/* First i with cdf[i] > u; cdf is inclusive and ends at exactly 1, so zero-width bins are never
+ * chosen and the result is < n for u in [0, 1). */
+inline int cdf_search(__global const float *cdf, int n, float u)
+{
+    int lo = 0, hi = n - 1;
+    while (lo < hi) {
+        int mid = (lo + hi) >> 1;
+        if (cdf[mid] > u) hi = mid; else lo = mid + 1;
+    }
+    return lo;
+}
+
+inline float cdf_bin(__global const float *cdf, int i) { return cdf[i] - (i > 0 ? cdf[i - 1] : 0.0f); }
+
+/* Sample face `face` by its marginal (rows) and conditional (columns | row) CDFs, then a point
+ * uniform in the texel's face square.  Returns pdf_L(ω|f) in solid angle (DESIGN §3):
+ * P(texel|f) · (1+u²+v²)^{3/2} / a_texel with a_texel = (2/R)².  *texel gets the texel index. */
+inline float sample_face(__global const float *marginal, __global const float *conditional,
+                         int face, int res, float4 xi, float3 *dir, int *texel)
+{
+    __global const float *rows = marginal + face * res;
+    int row = cdf_search(rows, res, xi.x);
+    __global const float *cols = conditional + (face * res + row) * res;
+    int col = cdf_search(cols, res, xi.y);
+    float u = -1.0f + 2.0f * ((float)col + xi.z) / res;
+    float v = -1.0f + 2.0f * ((float)row + xi.w) / res;
+    *dir = normalize(face_uv_to_dir(face, u, v));
+    *texel = texel_index(face, row, col, res);
+    float texel_area = 4.0f / ((float)res * (float)res);
+    return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(u, v) / texel_area;
+}
+
+/* ---- Phong BRDF (energy-conserving, Lafortune) --------------------------------------------- */
+
+/* Mirror of the view direction about n: r = 2(n·v)n − v. */
+inline float3 reflect_view(float3 n, float3 v) { return 2.0f * dot(n, v) * n - v; }
+
+/* ρ = kd/π + ks·(m+2)/(2π)·max(0, r·ω)^m (no cosine). */
+inline float3 phong_brdf(float3 r, float3 w, float3 kd, float3 ks, float m)
+{
+    float c = max(dot(r, w), 0.0f);
+    float lobe = (c > 0.0f) ? (m + 2.0f) / (2.0f * IBL_PI) * pow(c, m) : 0.0f;
+    return kd / IBL_PI + ks * lobe;
+}
+
+/* ---- Random numbers -------------------------------------------------------------------------- */
+
+/* Four uniforms in [0, 1) from Philox4x32 keyed by (seed, frame·2^8 + stream) and countered by
+ * (pixel, sample, draw).  24-bit mantissas keep u < 1 exactly. */
+inline float4 rng_uniform4(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
+{
+    philox4x32_key_t key = {{seed, (frame << 8) | (stream & 0xffu)}};
+    philox4x32_ctr_t ctr = {{pixel, sample, draw, 0u}};
+    philox4x32_ctr_t r = philox4x32(ctr, key);
+    return (float4)((float)(r.v[0] >> 8), (float)(r.v[1] >> 8),
+                    (float)(r.v[2] >> 8), (float)(r.v[3] >> 8)) * (1.0f / 16777216.0f);
+}
+
+#endif

@@ -1,0 +1,43 @@
+/* `uniform`: Lu 2013's baseline, μ_f = 1/6 (Sec. 2.1), with the estimator of Eq. 4:
+ *   L ≈ 1/N_s Σ_f Σ_{i < N_f + 1} β_i s(ω_i) / (μ_f pdf_L(ω_i|f)),  N_f = μ_f N_s,
+ * and β_i of Eq. 5 (1, or frac(N_f) for the last sample).  Faces with I_f = 0 are skipped:
+ * their integrand is zero everywhere, so skipping them changes nothing but the work done. */
+#include "common.cl"
+
+__kernel void render_uniform(__global const float4 *normal, __global const float4 *view,
+                             __global const float4 *kd, __global const float4 *ks_m,
+                             __global const float4 *env, __global const float *marginal,
+                             __global const float *conditional, __global const float *face_integral,
+                             const int res, const int spp, const uint seed, const uint frame,
+                             __global float4 *radiance, __global float2 *counts)
+{
+    int p = get_global_id(0);
+    float3 n = normal[p].xyz, v = view[p].xyz;
+    float3 r = reflect_view(n, v);
+    float3 rho_d = kd[p].xyz, rho_s = ks_m[p].xyz;
+    float m = ks_m[p].w;
+    const float mu = 1.0f / 6.0f;
+    float n_face = mu * spp;                       /* N_f, floating (Eq. 5) */
+    int n_draw = (int)ceil(n_face);
+    float3 sum = 0.0f;
+    float used = 0.0f, effective = 0.0f;
+    for (int f = 0; f < 6; ++f) {
+        if (!(face_integral[f] > 0.0f)) continue;
+        for (int i = 0; i < n_draw; ++i) {
+            float beta = (i + 1 <= n_face) ? 1.0f : n_face - floor(n_face);
+            float4 xi = rng_uniform4(seed, frame, 0u, (uint)p, (uint)(f * n_draw + i), 0u);
+            float3 w;
+            int texel;
+            float pdf = sample_face(marginal, conditional, f, res, xi, &w, &texel);
+            float cosine = dot(n, w);
+            used += beta;
+            if (cosine > 0.0f && pdf > 0.0f) {
+                effective += beta;
+                float3 s = phong_brdf(r, w, rho_d, rho_s, m) * cosine * env[texel].xyz;
+                sum += beta * s / (mu * pdf);
+            }
+        }
+    }
+    radiance[p] = (float4)(sum / (float)spp, 0.0f);
+    counts[p] = (float2)(used, effective);
+}

@@ -1,0 +1,206 @@
+"""OpenCL device selection and the per-context program cache.
+
+Preference (DESIGN §7): a GPU first, then the fastest CPU platform.  Two CPU platforms are common
+here — Debian's PoCL (LLVM host-CPU target) and the pip ``pocl-binary-distribution`` (generic
+target) — and both report the same platform name, so CPU platforms are ranked by a short
+measured FLOP rate, cached on disk per (platform version, device, driver).
+``IBLBENCH_DEVICE`` or ``--device`` picks by a case-insensitive substring of
+"platform name / platform version / device name".
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib.resources
+import json
+import os
+import pathlib
+import time
+
+import numpy as np
+import pyopencl as cl
+
+from iblbench.scenes.errors import InputError
+
+ENV_DEVICE = "IBLBENCH_DEVICE"
+
+
+def cache_dir() -> pathlib.Path:
+    """Where references and device measurements are cached (``IBLBENCH_CACHE`` overrides)."""
+    root = os.environ.get("IBLBENCH_CACHE") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "iblbench")
+    path = pathlib.Path(root)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+@dataclasses.dataclass(frozen=True)
+class DeviceInfo:
+    platform: cl.Platform
+    device: cl.Device
+
+    @property
+    def is_gpu(self) -> bool:
+        return bool(self.device.type & cl.device_type.GPU)
+
+    @property
+    def label(self) -> str:
+        return f"{self.platform.name} / {self.platform.version} / {self.device.name}"
+
+    @property
+    def short_name(self) -> str:
+        return f"{self.device.name.strip()} ({self.platform.version.strip()})"
+
+    @property
+    def key(self) -> str:
+        return f"{self.platform.version}|{self.device.name}|{self.device.driver_version}"
+
+    @property
+    def has_fp64(self) -> bool:
+        return "cl_khr_fp64" in self.device.extensions
+
+
+def all_devices() -> list[DeviceInfo]:
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error:
+        return []
+    return [DeviceInfo(p, d) for p in platforms for d in p.get_devices()]
+
+
+_FLOP_KERNEL = """
+__kernel void fma_loop(__global float *out, const int n) {
+    float a = get_global_id(0) * 1e-6f, b = 0.999f, c = 1e-3f;
+    for (int i = 0; i < n; ++i) { a = fma(a, b, c); c = fma(c, b, a); }
+    out[get_global_id(0)] = a + c;
+}
+"""
+
+
+def _measure_gflops(info: DeviceInfo) -> float:
+    """FLOP rate of a short FMA loop (compile and a warm-up run excluded)."""
+    ctx = cl.Context([info.device])
+    queue = cl.CommandQueue(ctx)
+    prg = cl.Program(ctx, _FLOP_KERNEL).build()
+    items, loops = 1 << 14, 2000
+    out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 * items)
+    prg.fma_loop(queue, (items,), None, out, np.int32(loops // 10)).wait()
+    start = time.perf_counter()
+    prg.fma_loop(queue, (items,), None, out, np.int32(loops)).wait()
+    return 4.0 * items * loops / (time.perf_counter() - start) / 1e9
+
+
+def measured_gflops(info: DeviceInfo) -> float:
+    """Cached FLOP rate of a device (measured once per platform/device/driver)."""
+    path = cache_dir() / "device_speed.json"
+    try:
+        table = json.loads(path.read_text())
+    except (OSError, ValueError):
+        table = {}
+    if info.key not in table:
+        table[info.key] = _measure_gflops(info)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(table, indent=1))
+        os.replace(tmp, path)
+    return float(table[info.key])
+
+
+def choose_device(spec: str | None = None) -> DeviceInfo:
+    """The device to run on: ``spec`` (or ``IBLBENCH_DEVICE``) substring, else GPU, else fastest CPU."""
+    devices = all_devices()
+    if not devices:
+        raise InputError(None, "no OpenCL platform found; install pocl-opencl-icd "
+                               "(apt) or pocl-binary-distribution (pip)")
+    spec = spec or os.environ.get(ENV_DEVICE)
+    if spec:
+        matches = [d for d in devices if spec.lower() in d.label.lower()]
+        if not matches:
+            valid = "; ".join(d.label for d in devices)
+            raise InputError(None, f"no OpenCL device matches '{spec}'; devices: {valid}")
+        return matches[0]
+    gpus = [d for d in devices if d.is_gpu]
+    if gpus:
+        return gpus[0]
+    if len(devices) == 1:
+        return devices[0]
+    return max(devices, key=measured_gflops)
+
+
+class Compute:
+    """A context and a profiling queue on one device, with a program cache for ``.cl`` files.
+
+    Programs are built once per (files, defines) from package data with ``-I`` include
+    directories (``estimators/kernels`` and pyopencl's Random123 headers) and ``-D`` options.
+    """
+
+    def __init__(self, info: DeviceInfo):
+        self.info = info
+        self.context = cl.Context([info.device])
+        self.queue = cl.CommandQueue(
+            self.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
+        self._programs: dict[tuple, cl.Program] = {}
+        self._kernels: dict[tuple, cl.Kernel] = {}
+
+    @property
+    def device_name(self) -> str:
+        return self.info.short_name
+
+    def program(self, package: str, filename: str, defines: dict | None = None) -> cl.Program:
+        key = (package, filename, tuple(sorted((defines or {}).items())))
+        if key not in self._programs:
+            source = kernel_path(package, filename).read_text()
+            options = [f"-I{d}" for d in include_dirs()]
+            options += [f"-D{name}={value}" for name, value in sorted((defines or {}).items())]
+            if self.info.has_fp64:
+                options.append("-DHAVE_FP64=1")
+            self._programs[key] = cl.Program(self.context, source).build(options=options)
+        return self._programs[key]
+
+    def kernel(self, package: str, filename: str, name: str, defines: dict | None = None) -> cl.Kernel:
+        """A kernel of a cached program, itself cached (retrieving kernels is not free)."""
+        key = (package, filename, name, tuple(sorted((defines or {}).items())))
+        if key not in self._kernels:
+            self._kernels[key] = cl.Kernel(self.program(package, filename, defines), name)
+        return self._kernels[key]
+
+    def run(self, kernel: cl.Kernel, size: int, *args) -> cl.Event:
+        """Launch a 1-D kernel over ``size`` work items and wait; returns the profiled event."""
+        kernel.set_args(*args)
+        event = cl.enqueue_nd_range_kernel(self.queue, kernel, (int(size),), None)
+        event.wait()
+        return event
+
+    def to_device(self, array: np.ndarray) -> cl.Buffer:
+        array = np.ascontiguousarray(array)
+        return cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                         hostbuf=array)
+
+    def empty(self, nbytes: int) -> cl.Buffer:
+        return cl.Buffer(self.context, cl.mem_flags.READ_WRITE, max(int(nbytes), 4))
+
+    def to_host(self, buffer: cl.Buffer, shape, dtype) -> np.ndarray:
+        out = np.empty(shape, dtype)
+        cl.enqueue_copy(self.queue, out, buffer).wait()
+        return out
+
+
+def kernel_path(package: str, filename: str) -> pathlib.Path:
+    return pathlib.Path(str(importlib.resources.files(package) / filename))
+
+
+@functools.lru_cache(maxsize=1)
+def include_dirs() -> tuple[str, ...]:
+    import pyopencl
+    return (str(kernel_path("iblbench.estimators", "kernels")),
+            os.path.join(os.path.dirname(pyopencl.__file__), "cl"))
+
+
+def event_ms(event: cl.Event) -> float:
+    """Device time of a profiled event in milliseconds."""
+    return (event.profile.end - event.profile.start) * 1e-6
+
+
+@functools.lru_cache(maxsize=None)
+def get_compute(spec: str | None = None) -> Compute:
+    """One shared Compute per device choice, so programs are built once per context."""
+    return Compute(choose_device(spec))

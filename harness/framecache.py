@@ -1,0 +1,99 @@
+"""Per-frame device products, built lazily: only what the chosen estimators ``require``.
+
+Products:
+- ``env``: the frame's radiance as a float4 device buffer ``[6·R·R]`` (always uploaded);
+- ``cdf``: per-face marginal (rows) and conditional (columns | row) luminance CDFs and the face
+  luminance integrals I_f (Lu 2013 Eq. 3), built on the device.
+
+Each build is timed by OpenCL profiling events (``timings_ms``); ``built`` lists what was built,
+so the runner can record which stages were skipped.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from iblbench.harness.device import Compute, event_ms
+from iblbench.scenes import cubemap
+
+PRODUCTS = ("env", "cdf")
+
+
+class FrameCache:
+    def __init__(self, compute: Compute, env: np.ndarray, frame: int = 0):
+        env = np.asarray(env, dtype=np.float32)
+        if env.ndim != 4 or env.shape[0] != 6 or env.shape[1] != env.shape[2] or env.shape[3] != 3:
+            raise ValueError(f"environment must be [6, R, R, 3], got {env.shape}")
+        self.compute = compute
+        self.env = env
+        self.frame = frame
+        self.res = env.shape[1]
+        self.timings_ms: dict[str, float] = {}
+        self._env_buffer = self._upload_env()
+        self._cdf: tuple | None = None
+
+    @property
+    def built(self) -> list[str]:
+        return ["env"] + (["cdf"] if self._cdf is not None else [])
+
+    def require(self, products) -> None:
+        """Build every named product that is not built yet."""
+        for name in products:
+            if name not in PRODUCTS:
+                raise KeyError(f"unknown frame-cache product '{name}'; valid: {', '.join(PRODUCTS)}")
+            if name == "cdf":
+                self._build_cdf()
+
+    @property
+    def env_buffer(self) -> cl.Buffer:
+        return self._env_buffer
+
+    @property
+    def marginal(self) -> cl.Buffer:
+        return self._build_cdf()[0]
+
+    @property
+    def conditional(self) -> cl.Buffer:
+        return self._build_cdf()[1]
+
+    @property
+    def face_integral_buffer(self) -> cl.Buffer:
+        return self._build_cdf()[2]
+
+    @property
+    def face_integrals(self) -> np.ndarray:
+        """I_f = Σ Y·Ω per face, float32 ``[6]`` (host copy)."""
+        return self._build_cdf()[3]
+
+    def _upload_env(self) -> cl.Buffer:
+        padded = np.zeros(self.env.shape[:3] + (4,), np.float32)
+        padded[..., :3] = self.env
+        buffer = self.compute.empty(padded.nbytes)
+        event = cl.enqueue_copy(self.compute.queue, buffer, padded)
+        event.wait()
+        self.timings_ms["upload"] = event_ms(event)
+        return buffer
+
+    def _build_cdf(self) -> tuple:
+        if self._cdf is None:
+            c, res = self.compute, self.res
+            omega = c.to_device(cubemap.texel_solid_angles(res).astype(np.float32))
+            conditional = c.empty(6 * res * res * 4)
+            row_weight = c.empty(6 * res * 4)
+            marginal = c.empty(6 * res * 4)
+            integral = c.empty(6 * 4)
+            rows = c.run(c.kernel("iblbench.harness", "framecache.cl", "row_cdfs"), 6 * res,
+                         self._env_buffer, omega, np.int32(res), conditional, row_weight)
+            faces = c.run(c.kernel("iblbench.harness", "framecache.cl", "face_cdfs"), 6,
+                          row_weight, np.int32(res), marginal, integral)
+            face_integrals = c.to_host(integral, (6,), np.float32)
+            self.timings_ms["cdf"] = event_ms(rows) + event_ms(faces)
+            self._cdf = (marginal, conditional, integral, face_integrals)
+        return self._cdf
+
+    def host_cdfs(self) -> tuple[np.ndarray, np.ndarray]:
+        """(marginal ``[6, R]``, conditional ``[6, R, R]``) copied back, for tests and checks."""
+        marginal, conditional = self._build_cdf()[:2]
+        res = self.res
+        return (self.compute.to_host(marginal, (6, res), np.float32),
+                self.compute.to_host(conditional, (6, res, res), np.float32))

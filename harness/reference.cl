@@ -1,0 +1,125 @@
+/* Exact reference of DESIGN §3: Σ_texels L_t ∫_texel ρ cos⁺ dω for the piecewise-constant map.
+ *
+ * Diffuse part: exact.  ∫_texel cos⁺ dω = n · Φ_t for a texel wholly above the horizon, with
+ * Φ_t = ∫_texel ω dω its vector irradiance (Lambert/Arvo polygon formula, precomputed in float64
+ * on the host); a texel cut by the horizon is clipped to n·x ≥ 0 and the same formula applied.
+ * Specular part: sub-texel midpoint quadrature, with as many sub-cells as the lobe's width
+ * asks for (REF_DENSITY sub-cells per lobe width 1/√m across the texel's angular radius).
+ * Sums are compensated, in double where the device has it. */
+#include "common.cl"
+
+#ifndef REF_DENSITY
+#define REF_DENSITY 16
+#endif
+
+#ifdef HAVE_FP64
+typedef double3 real3;
+#define REAL3(x) convert_double3(x)
+#else
+typedef float3 real3;
+#define REAL3(x) (x)
+#endif
+
+/* ∫ ω dω over the spherical polygon through p[0..k) (any positive scale):
+ * (1/2) Σ θ_i γ_i, with θ_i the edge's arc and γ_i its unit plane normal (Arvo 1995). */
+inline real3 polygon_vector(const real3 *p, int k)
+{
+    real3 phi = (real3)(0, 0, 0);
+    for (int i = 0; i < k; ++i) {
+        real3 a = normalize(p[i]), b = normalize(p[(i + 1) % k]);
+        real3 c = cross(a, b);
+        acc_t s = length(c);
+        if (s > 0) phi += atan2(s, dot(a, b)) / s * c;
+    }
+    return 0.5 * phi;
+}
+
+/* ∫ cos⁺ dω over a texel the horizon cuts: clip its face square to n·x ≥ 0 (Sutherland-
+ * Hodgman on the planar quad, whose edges are great-circle arcs) and apply the polygon formula. */
+inline acc_t clipped_cosine(float3 n, int face, int row, int col, int res)
+{
+    float u0 = -1.0f + 2.0f * col / res, u1 = -1.0f + 2.0f * (col + 1) / res;
+    float v0 = -1.0f + 2.0f * row / res, v1 = -1.0f + 2.0f * (row + 1) / res;
+    real3 quad[4] = {REAL3(face_uv_to_dir(face, u0, v0)), REAL3(face_uv_to_dir(face, u1, v0)),
+                     REAL3(face_uv_to_dir(face, u1, v1)), REAL3(face_uv_to_dir(face, u0, v1))};
+    real3 nn = REAL3(n);
+    real3 clipped[5];
+    int k = 0;
+    for (int i = 0; i < 4; ++i) {
+        real3 a = quad[i], b = quad[(i + 1) % 4];
+        acc_t da = dot(nn, a), db = dot(nn, b);
+        if (da >= 0) clipped[k++] = a;
+        if ((da >= 0) != (db >= 0)) clipped[k++] = a + (b - a) * (da / (da - db));
+    }
+    if (k < 3) return 0;
+    /* The orientation of the quad fixes the sign of the whole sum; the integral is ≥ 0. */
+    return fabs(dot(nn, polygon_vector(clipped, k)));
+}
+
+/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by midpoint quadrature on sub-cells of the face square. */
+inline float specular_integral(float3 n, float3 r, float m, int face, int row, int col, int res,
+                               float4 centre, float alpha, int cut_by_horizon)
+{
+    /* Upper bound of the lobe over the texel: the closest point of the texel's cap to r. */
+    float cr = dot(r, centre.xyz), sin_a = centre.w, cos_a = cos(alpha);
+    float cos_min = (cr >= cos_a) ? 1.0f : cr * cos_a + sqrt(max(0.0f, 1.0f - cr * cr)) * sin_a;
+    if (cos_min <= 0.0f) return 0.0f;
+    int cells = 1;
+    if (pow(cos_min, m) > 1e-7f) {
+        cells = clamp((int)ceil(REF_DENSITY * alpha * sqrt(m)), 2, 64);
+        if (cut_by_horizon) cells = max(cells, 8);
+    }
+    float step = 2.0f / (res * cells);
+    kahan_t sum = {0, 0};
+    for (int i = 0; i < cells; ++i) {
+        float v = -1.0f + 2.0f * row / res + (i + 0.5f) * step;
+        for (int j = 0; j < cells; ++j) {
+            float u = -1.0f + 2.0f * col / res + (j + 0.5f) * step;
+            float3 w = normalize(face_uv_to_dir(face, u, v));
+            float c_r = dot(r, w), c_n = dot(n, w);
+            if (c_r > 0.0f && c_n > 0.0f)
+                kahan_add(&sum, pow(c_r, m) * c_n * step * step / area_per_solid_angle(u, v));
+        }
+    }
+    return (float)sum.sum;
+}
+
+__kernel void reference(__global const float4 *normal, __global const float4 *view,
+                        __global const float4 *kd, __global const float4 *ks_m,
+                        __global const float4 *env, __global const float4 *texel_centre,
+                        __global const float4 *texel_vector, const int res,
+                        __global float4 *out)
+{
+    int p = get_global_id(0);
+    float3 n = normal[p].xyz, r = reflect_view(n, view[p].xyz);
+    float3 rho_s = ks_m[p].xyz;
+    float m = ks_m[p].w;
+    int specular = rho_s.x > 0.0f || rho_s.y > 0.0f || rho_s.z > 0.0f;
+    kahan_t diffuse[3] = {{0, 0}, {0, 0}, {0, 0}}, glossy[3] = {{0, 0}, {0, 0}, {0, 0}};
+    int texels = 6 * res * res;
+    for (int t = 0; t < texels; ++t) {
+        float3 radiance = env[t].xyz;
+        if (!(radiance.x + radiance.y + radiance.z > 0.0f)) continue;
+        float4 centre = texel_centre[t];
+        float cn = dot(n, centre.xyz);
+        if (cn <= -centre.w) continue;                 /* the texel's cap is below the horizon */
+        int face = t / (res * res), row = (t / res) % res, col = t % res;
+        int cut = cn < centre.w;
+        float4 phi = texel_vector[t];
+        acc_t cosine = cut ? clipped_cosine(n, face, row, col, res) : (acc_t)dot(n, phi.xyz);
+        kahan_add(&diffuse[0], cosine * radiance.x);
+        kahan_add(&diffuse[1], cosine * radiance.y);
+        kahan_add(&diffuse[2], cosine * radiance.z);
+        if (specular) {
+            acc_t lobe = specular_integral(n, r, m, face, row, col, res, centre, phi.w, cut);
+            kahan_add(&glossy[0], lobe * radiance.x);
+            kahan_add(&glossy[1], lobe * radiance.y);
+            kahan_add(&glossy[2], lobe * radiance.z);
+        }
+    }
+    float3 d = (float3)((float)diffuse[0].sum, (float)diffuse[1].sum, (float)diffuse[2].sum);
+    float3 s = (float3)((float)glossy[0].sum, (float)glossy[1].sum, (float)glossy[2].sum);
+    float3 result = kd[p].xyz / IBL_PI * d;
+    if (specular) result += rho_s * (m + 2.0f) / (2.0f * IBL_PI) * s;
+    out[p] = (float4)(result, 0.0f);
+}
