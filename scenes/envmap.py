@@ -1,0 +1,274 @@
+"""Load an environment image (lat-long, cross or six faces) as a cube map ``[6, R, R, 3]``.
+
+The cube map follows :mod:`iblbench.scenes.cubemap` (faces +X, −X, +Y, −Y, +Z, −Z; OpenGL
+face table; rows grow downward).
+
+Lat-long (equirectangular, aspect 2:1)
+    Pixel (0, 0) is the top-left corner; u, v ∈ [0, 1] run across columns and down rows.
+    Polar angle θ = π·v from +Y (up) at the top row; azimuth φ = 2π·(u − 0.5);
+    direction = (sin θ sin φ, cos θ, −sin θ cos φ). The image centre looks toward −Z,
+    u = 0.75 toward +X and u = 0.25 toward −X.
+
+Crosses (unfolded cube, seen from inside)
+    ``hcross`` (4 faces wide × 3 tall) and ``vcross`` (3 wide × 4 tall), in face-sized cells
+    (column, row): +Y at (1, 0); −X, +Z, +X at (0, 1), (1, 1), (2, 1); −Y at (1, 2); −Z at
+    (3, 1) in the horizontal cross, or at (1, 3) rotated 180° in the vertical one. With the
+    OpenGL face table these cells hold the faces exactly as stored (only the vertical cross's
+    −Z is turned), and the picture is continuous across every fold.
+
+Resampling (lat-long, or a cube at another resolution)
+    Each cube texel is the solid-angle-weighted mean of an n×n grid of sub-texel samples
+    (the box filter over the texel, by quadrature): weights are the exact sub-cell solid
+    angles, so a constant map stays exactly constant. Lat-long samples are bilinear
+    (wrapping in φ, clamped at the poles); cube samples are nearest (the map is piecewise
+    constant), which makes integer-factor cube downsampling exactly energy-preserving.
+    n is chosen so samples are at most a quarter of a source pixel apart at face centres.
+    The default lat-long R is H/2 rounded to a power of two, at most 512: texels then match
+    the lat-long pixels at the equator.
+
+Validation
+    NaN, ±Inf and negative texels are refused unless ``sanitize=True``, which replaces NaN,
+    −Inf and negatives by 0 and +Inf by the largest finite value of the map.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Callable, Sequence, Union
+
+import numpy as np
+
+from . import cubemap
+from .errors import InputError
+from .imageio import read_image
+
+LAYOUTS = ("auto", "latlong", "vcross", "hcross", "faces")
+FACE_FILE_NAMES = ("px", "nx", "py", "ny", "pz", "nz")
+MAX_DEFAULT_RES = 512
+MAX_SUBSAMPLES = 16
+_SAMPLES_PER_SOURCE_PIXEL = 4  # sub-texel samples per source pixel width (per axis)
+_SAMPLES_PER_BATCH = 1 << 20  # bounds temporary memory
+
+# Face cell (column, row) in each cross, and whether the face is stored rotated 180° there.
+_CROSS_CELLS = {
+    "hcross": ((2, 1), (0, 1), (1, 0), (1, 2), (1, 1), (3, 1)),
+    "vcross": ((2, 1), (0, 1), (1, 0), (1, 2), (1, 1), (1, 3)),
+}
+_CROSS_ROTATED = {"hcross": (), "vcross": (5,)}
+_CROSS_SHAPE = {"hcross": (3, 4), "vcross": (4, 3)}  # (rows, columns) of face cells
+
+PathLike = Union[str, os.PathLike]
+Source = Union[PathLike, Sequence[PathLike]]
+
+
+@dataclass(frozen=True)
+class EnvironmentReport:
+    """What :func:`load_environment` did."""
+
+    layout: str  # "latlong", "vcross", "hcross" or "faces"
+    paths: tuple[str, ...]  # the file(s) read
+    source_size: tuple[int, int]  # (width, height) of the image (of one face for "faces")
+    resolution: int  # R of the cube map returned
+    texels_fixed: int  # source texels replaced by sanitize
+
+
+def load_environment(
+    source: Source, layout: str = "auto", res: int | None = None, sanitize: bool = False
+) -> tuple[np.ndarray, EnvironmentReport]:
+    """Load ``source`` as a float32 cube map ``[6, R, R, 3]`` and a report.
+
+    ``source`` is one image path, six face paths (+X, −X, +Y, −Y, +Z, −Z), or a path with
+    ``{face}`` standing for px, nx, py, ny, pz, nz. ``layout`` is one of :data:`LAYOUTS`.
+    ``res`` sets R (default: the faces' own size, or the lat-long rule in the module doc).
+    """
+    if layout not in LAYOUTS:
+        raise InputError(None, f"unknown layout '{layout}' (choose from {', '.join(LAYOUTS)})")
+    if res is not None and (not isinstance(res, (int, np.integer)) or res < 1):
+        raise InputError(None, f"cube-map resolution must be a positive integer, got {res!r}")
+    paths = _source_paths(source)
+    images = [read_image(path) for path in paths]
+    if len(paths) == 6:
+        layout = _check_faces(paths, images, layout)
+    else:
+        layout = _check_single_layout(paths[0], images[0], layout)
+    fixed = _validate_texels(paths, images, sanitize)
+    env = _to_cube(images, layout, res)
+    height, width = images[0].shape[:2]
+    report = EnvironmentReport(layout, tuple(map(str, paths)), (width, height), env.shape[1], fixed)
+    return env, report
+
+
+def resample_latlong(image: np.ndarray, res: int) -> np.ndarray:
+    """Resample a lat-long image ``[H, 2H, 3]`` to a float32 cube map ``[6, res, res, 3]``."""
+    image = np.asarray(image, dtype=np.float32)
+    height = image.shape[0]
+
+    def lookup(face, s, t):
+        return _bilinear_latlong(image, cubemap.face_st_to_direction(face, s, t))
+
+    return _resample_to_cube(lookup, res, _subsamples(height / 2, res))
+
+
+def default_latlong_res(height: int) -> int:
+    """H/2 rounded to the nearest power of two, capped at :data:`MAX_DEFAULT_RES`."""
+    return min(MAX_DEFAULT_RES, 2 ** max(0, round(math.log2(max(height / 2, 1)))))
+
+
+# --- source paths and layout checks ---------------------------------------------------
+
+def _source_paths(source: Source) -> list[PathLike]:
+    if isinstance(source, (str, os.PathLike)):
+        text = os.fspath(source)
+        if "{face}" in text:
+            return [text.replace("{face}", name) for name in FACE_FILE_NAMES]
+        return [source]
+    paths = list(source)
+    if len(paths) != 6:
+        raise InputError(None, f"expected one image or six face files (+X,-X,+Y,-Y,+Z,-Z), got {len(paths)}")
+    return paths
+
+
+def _check_faces(paths, images, layout: str) -> str:
+    if layout not in ("auto", "faces"):
+        raise InputError(paths[0], f"layout '{layout}' takes one image, not six face files")
+    size = images[0].shape[:2]
+    for path, image in zip(paths, images):
+        height, width = image.shape[:2]
+        if height != width:
+            raise InputError(path, f"cube face is not square ({width}x{height})")
+        if image.shape[:2] != size:
+            raise InputError(path, f"face is {width}x{height} but {paths[0]} is {size[1]}x{size[0]}")
+    return "faces"
+
+
+def _check_single_layout(path, image: np.ndarray, layout: str) -> str:
+    height, width = image.shape[:2]
+    by_aspect = {(2, 1): "latlong", (3, 4): "vcross", (4, 3): "hcross"}
+    aspect = next((a for a in by_aspect if width * a[1] == height * a[0]), None)
+    if layout == "faces":
+        raise InputError(path, "layout 'faces' needs six face files (a list or a path with {face})")
+    if layout == "auto":
+        if aspect is None:
+            raise InputError(
+                path,
+                f"aspect ratio {width}x{height} matches no cube-map layout (lat-long 2:1, "
+                "vertical cross 3:4, horizontal cross 4:3, or six face files)",
+            )
+        return by_aspect[aspect]
+    if by_aspect.get(aspect) != layout:
+        wanted = next(f"{a[0]}:{a[1]}" for a, name in by_aspect.items() if name == layout)
+        raise InputError(path, f"layout '{layout}' needs aspect {wanted}, but the image is {width}x{height}")
+    return layout
+
+
+# --- texel validation -------------------------------------------------------------------
+
+def _validate_texels(paths, images: list[np.ndarray], sanitize: bool) -> int:
+    """Refuse (or, with ``sanitize``, fix in place) NaN, Inf and negative texels.
+
+    Each bad texel is counted once, in the first matching class: NaN, then Inf, then negative.
+    Returns the number of texels fixed.
+    """
+    masks = [_bad_texel_masks(image) for image in images]
+    if not sanitize:
+        for path, (nan, inf, negative) in zip(paths, masks):
+            if nan.any() or inf.any() or negative.any():
+                raise InputError(
+                    path,
+                    f"{nan.sum()} NaN, {inf.sum()} Inf and {negative.sum()} negative texels; "
+                    "pass --sanitize to replace them",
+                )
+        return 0
+    finite_max = max((float(image[np.isfinite(image)].max(initial=0.0)) for image in images))
+    for image in images:
+        np.nan_to_num(image, copy=False, nan=0.0, posinf=finite_max, neginf=0.0)
+        np.maximum(image, 0.0, out=image)
+    return sum(int(mask.sum()) for texel_masks in masks for mask in texel_masks)
+
+
+def _bad_texel_masks(image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    nan = np.isnan(image).any(axis=-1)
+    inf = np.isinf(image).any(axis=-1) & ~nan
+    negative = (image < 0).any(axis=-1) & ~nan & ~inf
+    return nan, inf, negative
+
+
+# --- conversion to a cube map -----------------------------------------------------------
+
+def _to_cube(images: list[np.ndarray], layout: str, res: int | None) -> np.ndarray:
+    if layout == "latlong":
+        image = images[0]
+        return resample_latlong(image, res or default_latlong_res(image.shape[0]))
+    faces = np.stack(images) if layout == "faces" else _extract_cross_faces(images[0], layout)
+    if res is None or res == faces.shape[1]:
+        return faces
+    return _resample_cube(faces, res)
+
+
+def _extract_cross_faces(cross: np.ndarray, layout: str) -> np.ndarray:
+    rows, columns = _CROSS_SHAPE[layout]
+    size = cross.shape[0] // rows
+    faces = np.empty((6, size, size, 3), dtype=np.float32)
+    for face, (column, row) in enumerate(_CROSS_CELLS[layout]):
+        cell = cross[row * size:(row + 1) * size, column * size:(column + 1) * size]
+        faces[face] = cell[::-1, ::-1] if face in _CROSS_ROTATED[layout] else cell
+    return faces
+
+
+def _resample_cube(faces: np.ndarray, res: int) -> np.ndarray:
+    source_res = faces.shape[1]
+
+    def lookup(face, s, t):
+        col = np.minimum((s * source_res).astype(np.int64), source_res - 1)
+        row = np.minimum((t * source_res).astype(np.int64), source_res - 1)
+        return faces[face, row, col]
+
+    return _resample_to_cube(lookup, res, _subsamples(source_res, res))
+
+
+def _subsamples(source_pixels_per_face: float, res: int) -> int:
+    """Sub-texel grid size n: samples ≤ 1/_SAMPLES_PER_SOURCE_PIXEL source pixel apart."""
+    wanted = math.ceil(_SAMPLES_PER_SOURCE_PIXEL * source_pixels_per_face / res)
+    return int(min(MAX_SUBSAMPLES, max(2, wanted)))
+
+
+def _resample_to_cube(
+    lookup: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray], res: int, n: int
+) -> np.ndarray:
+    """Box-filter ``lookup(face, s, t) -> rgb`` over each texel with n×n weighted samples."""
+    fine = res * n
+    weights = cubemap.texel_solid_angles(fine)  # exact solid angle of each sub-cell
+    texel_weights = weights.reshape(res, n, res, n).sum(axis=(1, 3))
+    centres = (np.arange(fine) + 0.5) / fine
+    texel_rows_per_batch = max(1, _SAMPLES_PER_BATCH // (fine * n))
+    env = np.empty((6, res, res, 3), dtype=np.float32)
+    for face in range(6):
+        for first in range(0, res, texel_rows_per_batch):
+            texel_rows = slice(first, min(res, first + texel_rows_per_batch))
+            rows = slice(texel_rows.start * n, texel_rows.stop * n)
+            t, s = np.meshgrid(centres[rows], centres, indexing="ij")
+            weighted = lookup(np.full(s.shape, face), s, t) * weights[rows, :, None]
+            texel_sums = weighted.reshape(-1, n, res, n, 3).sum(axis=(1, 3))
+            env[face, texel_rows] = texel_sums / texel_weights[texel_rows, :, None]
+    return env
+
+
+def _bilinear_latlong(image: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of a lat-long image at unit ``directions`` (wraps in φ, clamps at poles)."""
+    height, width = image.shape[:2]
+    x, y, z = directions[..., 0], directions[..., 1], directions[..., 2]
+    u = np.arctan2(x, -z) / (2 * np.pi) + 0.5
+    v = np.arccos(np.clip(y, -1.0, 1.0)) / np.pi
+    column = u * width - 0.5  # pixel centres sit at half-integers
+    row = np.clip(v * height - 0.5, 0.0, height - 1.0)
+    c0 = np.floor(column).astype(np.int64)
+    r0 = np.minimum(np.floor(row).astype(np.int64), max(height - 2, 0))
+    fc = (column - c0)[..., None]
+    fr = (row - r0)[..., None]
+    c0 %= width
+    c1 = (c0 + 1) % width
+    r1 = np.minimum(r0 + 1, height - 1)
+    top = image[r0, c0] * (1 - fc) + image[r0, c1] * fc
+    bottom = image[r1, c0] * (1 - fc) + image[r1, c1] * fc
+    return top * (1 - fr) + bottom * fr
