@@ -14,7 +14,10 @@ Crosses (unfolded cube, seen from inside)
     (column, row): +Y at (1, 0); −X, +Z, +X at (0, 1), (1, 1), (2, 1); −Y at (1, 2); −Z at
     (3, 1) in the horizontal cross, or at (1, 3) rotated 180° in the vertical one. With the
     OpenGL face table these cells hold the faces exactly as stored (only the vertical cross's
-    −Z is turned), and the picture is continuous across every fold.
+    −Z is turned), and the picture is continuous across every fold. Like OpenGL cube faces,
+    it is the inside view of a left-handed frame (+X to the right of +Z, +Y up), so a
+    panorama in the lat-long convention above (a right-handed inside view) shows mirrored
+    in a cross. Unused cells are ignored, except that they too must hold valid texels.
 
 Resampling (lat-long, or a cube at another resolution)
     Each cube texel is the solid-angle-weighted mean of an n×n grid of sub-texel samples
@@ -50,7 +53,7 @@ MAX_SUBSAMPLES = 16
 _SAMPLES_PER_SOURCE_PIXEL = 4  # sub-texel samples per source pixel width (per axis)
 _SAMPLES_PER_BATCH = 1 << 20  # bounds temporary memory
 
-# Face cell (column, row) in each cross, and whether the face is stored rotated 180° there.
+# Cell (column, row) of each face, in face order; faces in _CROSS_ROTATED are turned 180°.
 _CROSS_CELLS = {
     "hcross": ((2, 1), (0, 1), (1, 0), (1, 2), (1, 1), (3, 1)),
     "vcross": ((2, 1), (0, 1), (1, 0), (1, 2), (1, 1), (1, 3)),
