@@ -5,12 +5,15 @@
  * on the host); a texel cut by the horizon is clipped to n·x ≥ 0 and the same formula applied.
  * Specular part: sub-texel midpoint quadrature, with as many sub-cells as the lobe's width
  * asks for (REF_DENSITY sub-cells per lobe width 1/√m across the texel's angular radius).
+ * Texels whose bounding cap keeps the lobe below LOBE_CUTOFF of its peak are skipped: their
+ * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
  * Sums are compensated, in double where the device has it. */
 #include "common.cl"
 
 #ifndef REF_DENSITY
 #define REF_DENSITY 16
 #endif
+#define LOBE_CUTOFF 1e-9f
 
 #ifdef HAVE_FP64
 typedef double3 real3;
@@ -56,21 +59,15 @@ inline acc_t clipped_cosine(float3 n, int face, int row, int col, int res)
     return fabs(dot(nn, polygon_vector(clipped, k)));
 }
 
-/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by midpoint quadrature on sub-cells of the face square. */
+/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by midpoint quadrature on sub-cells of the face square;
+ * cells per side follow the lobe width 1/√m across the texel's angular radius α. */
 inline float specular_integral(float3 n, float3 r, float m, int face, int row, int col, int res,
-                               float4 centre, float alpha, int cut_by_horizon)
+                               float alpha, int cut_by_horizon)
 {
-    /* Upper bound of the lobe over the texel: the closest point of the texel's cap to r. */
-    float cr = dot(r, centre.xyz), sin_a = centre.w, cos_a = cos(alpha);
-    float cos_min = (cr >= cos_a) ? 1.0f : cr * cos_a + sqrt(max(0.0f, 1.0f - cr * cr)) * sin_a;
-    if (cos_min <= 0.0f) return 0.0f;
-    int cells = 1;
-    if (pow(cos_min, m) > 1e-7f) {
-        cells = clamp((int)ceil(REF_DENSITY * alpha * sqrt(m)), 2, 64);
-        if (cut_by_horizon) cells = max(cells, 8);
-    }
+    int cells = clamp((int)ceil(REF_DENSITY * alpha * sqrt(m)), 2, 64);
+    if (cut_by_horizon) cells = max(cells, 8);
     float step = 2.0f / (res * cells);
-    kahan_t sum = {0, 0};
+    float sum = 0.0f;   /* ≤ 64² positive terms: float is enough inside one texel */
     for (int i = 0; i < cells; ++i) {
         float v = -1.0f + 2.0f * row / res + (i + 0.5f) * step;
         for (int j = 0; j < cells; ++j) {
@@ -78,10 +75,10 @@ inline float specular_integral(float3 n, float3 r, float m, int face, int row, i
             float3 w = normalize(face_uv_to_dir(face, u, v));
             float c_r = dot(r, w), c_n = dot(n, w);
             if (c_r > 0.0f && c_n > 0.0f)
-                kahan_add(&sum, pow(c_r, m) * c_n * step * step / area_per_solid_angle(u, v));
+                sum += exp2(m * log2(c_r)) * c_n / area_per_solid_angle(u, v);
         }
     }
-    return (float)sum.sum;
+    return sum * step * step;
 }
 
 __kernel void reference(__global const float4 *normal, __global const float4 *view,
@@ -95,6 +92,8 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
     float3 rho_s = ks_m[p].xyz;
     float m = ks_m[p].w;
     int specular = rho_s.x > 0.0f || rho_s.y > 0.0f || rho_s.z > 0.0f;
+    /* The lobe falls below LOBE_CUTOFF beyond angle θ_cut from r. */
+    float cos_cut = exp(log(LOBE_CUTOFF) / m), sin_cut = sqrt(1.0f - cos_cut * cos_cut);
     kahan_t diffuse[3] = {{0, 0}, {0, 0}, {0, 0}}, glossy[3] = {{0, 0}, {0, 0}, {0, 0}};
     int texels = 6 * res * res;
     for (int t = 0; t < texels; ++t) {
@@ -110,8 +109,10 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
         kahan_add(&diffuse[0], cosine * radiance.x);
         kahan_add(&diffuse[1], cosine * radiance.y);
         kahan_add(&diffuse[2], cosine * radiance.z);
-        if (specular) {
-            acc_t lobe = specular_integral(n, r, m, face, row, col, res, centre, phi.w, cut);
+        /* Is any point of the cap within θ_cut of r?  cos(θ_cut + α) test. */
+        float sin_a = centre.w, cos_a = sqrt(1.0f - sin_a * sin_a);
+        if (specular && dot(r, centre.xyz) > cos_cut * cos_a - sin_cut * sin_a) {
+            acc_t lobe = specular_integral(n, r, m, face, row, col, res, phi.w, cut);
             kahan_add(&glossy[0], lobe * radiance.x);
             kahan_add(&glossy[1], lobe * radiance.y);
             kahan_add(&glossy[2], lobe * radiance.z);

@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tempfile
 
 import numpy as np
+
+from iblbench.scenes.atomic import atomic_path
 
 GBUFFER_ARRAYS = ("mask", "position", "normal", "view", "kd", "ks", "shininess")
 MIN_COS_VIEW = 1e-3
@@ -76,15 +77,9 @@ class GBuffer:
         )
 
     def save_npz(self, path: str | os.PathLike) -> None:
-        """Write the arrays to ``path`` atomically (a temporary file, then ``os.replace``)."""
-        folder = os.path.dirname(os.path.abspath(path))
-        with tempfile.NamedTemporaryFile(dir=folder, suffix=".npz.tmp", delete=False) as handle:
-            try:
-                np.savez(handle, **self.arrays())
-            except BaseException:
-                os.unlink(handle.name)
-                raise
-        os.replace(handle.name, path)
+        """Write the arrays to ``path`` atomically."""
+        with atomic_path(path) as tmp:
+            np.savez(tmp, **self.arrays())
 
     @classmethod
     def load_npz(cls, path: str | os.PathLike) -> "GBuffer":

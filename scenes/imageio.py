@@ -20,20 +20,19 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 import OpenEXR
 
+from .atomic import atomic_path
 from .errors import InputError
 
 _HDR_FORMAT = b"32-bit_rle_rgbe"
 _HDR_RESOLUTION = re.compile(rb"-Y (\d+) \+X (\d+)")
 _MAX_PIXELS = 1 << 28  # refuses absurd sizes from a corrupt header before allocating
 _MIN_RUN = 3  # shorter repeats are cheaper as literals in new-style RLE
-
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an ``.exr`` or ``.hdr`` file into float32 ``[H, W, 3]`` linear RGB."""
@@ -42,7 +41,6 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     if suffix not in readers:
         raise InputError(path, f"unsupported extension '{suffix}' (expected .exr or .hdr)")
     return readers[suffix](path)
-
 
 def read_exr(path: str | os.PathLike) -> np.ndarray:
     """Read the R, G, B channels of an OpenEXR file into float32 ``[H, W, 3]``."""
@@ -61,7 +59,6 @@ def read_exr(path: str | os.PathLike) -> np.ndarray:
         raise InputError(path, "R, G, B channels are not floating point")
     return np.stack(planes, axis=-1).astype(np.float32)
 
-
 def read_hdr(path: str | os.PathLike) -> np.ndarray:
     """Read a Radiance RGBE file into float32 ``[H, W, 3]``."""
     _require_file(path)
@@ -69,13 +66,11 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
     height, width, pos = _parse_hdr_header(data, path)
     return _rgbe_to_float(_decode_scanlines(data, pos, height, width, path))
 
-
 def write_exr(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write float32 RGB ``[H, W, 3]`` as a ZIP-compressed scanline OpenEXR file."""
     pixels = np.ascontiguousarray(_as_rgb(image, path), dtype=np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     _write_atomically(path, lambda tmp: OpenEXR.File(header, {"RGB": pixels}).write(tmp))
-
 
 def write_hdr(path: str | os.PathLike, image: np.ndarray, rle: bool = True) -> None:
     """Write RGB ``[H, W, 3]`` (finite, non-negative) as Radiance RGBE.
@@ -93,7 +88,6 @@ def write_hdr(path: str | os.PathLike, image: np.ndarray, rle: bool = True) -> N
 
     _write_atomically(path, write)
 
-
 # --- helpers: files ---------------------------------------------------------------------
 
 def _require_file(path: str | os.PathLike) -> None:
@@ -102,39 +96,25 @@ def _require_file(path: str | os.PathLike) -> None:
     if not Path(path).is_file():
         raise InputError(path, "not a regular file")
 
-
 def _read_bytes(path: str | os.PathLike) -> bytes:
     try:
         return Path(path).read_bytes()
     except OSError as exc:
         raise InputError(path, f"cannot read ({exc.strerror})") from None
 
-
 def _write_atomically(path: str | os.PathLike, write: Callable[[str], None]) -> None:
-    """Write through ``write(tmp_path)`` to a sibling temp file, then rename over ``path``.
-
-    Readers never see a half-written file, and a failed write leaves the old file intact.
-    """
-    target = Path(path)
+    """Write through ``write(tmp_path)`` with :func:`atomic_path`; failures name the file."""
     try:
-        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=".tmp-", suffix=target.suffix)
-        os.close(fd)
-    except OSError as exc:
-        raise InputError(path, f"cannot write ({exc.strerror})") from None
-    try:
-        write(tmp)
-        os.replace(tmp, target)
+        with atomic_path(path) as tmp:
+            write(str(tmp))
     except Exception as exc:
-        Path(tmp).unlink(missing_ok=True)
         raise InputError(path, f"cannot write ({exc})") from None
-
 
 def _as_rgb(image: np.ndarray, path: str | os.PathLike) -> np.ndarray:
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] != 3 or image.size == 0:
         raise InputError(path, f"expected an RGB image [H, W, 3], got shape {image.shape}")
     return image
-
 
 # --- helpers: Radiance RGBE -------------------------------------------------------------
 
@@ -160,13 +140,11 @@ def _parse_hdr_header(data: bytes, path) -> tuple[int, int, int]:
         raise InputError(path, f"implausible image size {width}x{height}")
     return height, width, pos
 
-
 def _next_line(data: bytes, pos: int, path) -> tuple[bytes, int]:
     end = data.find(b"\n", pos)
     if end < 0:
         raise InputError(path, "truncated Radiance header")
     return data[pos:end], end + 1
-
 
 def _decode_scanlines(data: bytes, pos: int, height: int, width: int, path) -> np.ndarray:
     """Decode ``height`` scanlines (each flat or new-style RLE) into uint8 ``[H, W, 4]``."""
@@ -182,7 +160,6 @@ def _decode_scanlines(data: bytes, pos: int, height: int, width: int, path) -> n
             rgbe[row] = np.frombuffer(data, np.uint8, 4 * width, pos).reshape(width, 4)
             pos = end
     return rgbe
-
 
 def _decode_rle_scanline(data: bytes, pos: int, out: np.ndarray, path, row: int) -> int:
     """Decode one new-style RLE scanline (four channels one after another) into ``out``."""
@@ -207,12 +184,10 @@ def _decode_rle_scanline(data: bytes, pos: int, out: np.ndarray, path, row: int)
         out[:, channel] = np.frombuffer(bytes(values), np.uint8)
     return pos
 
-
 def _encode_rle_scanline(rgbe_row: np.ndarray) -> bytes:
     width = rgbe_row.shape[0]
     marker = bytes((2, 2, width >> 8, width & 0xFF))
     return marker + b"".join(_encode_rle_channel(rgbe_row[:, c].tobytes()) for c in range(4))
-
 
 def _encode_rle_channel(values: bytes) -> bytes:
     """Runs of ≥ _MIN_RUN equal bytes become (128+n, byte); the rest literal chunks (n, bytes)."""
@@ -232,7 +207,6 @@ def _encode_rle_channel(values: bytes) -> bytes:
         i = j
     return bytes(out)
 
-
 def _run_length(values: bytes, start: int) -> int:
     """Length (≤ 127) of the run of bytes equal to ``values[start]``."""
     end = start + 1
@@ -240,12 +214,10 @@ def _run_length(values: bytes, start: int) -> int:
         end += 1
     return end - start
 
-
 def _rgbe_to_float(rgbe: np.ndarray) -> np.ndarray:
     exponent = rgbe[..., 3].astype(np.int32)
     scale = np.where(exponent > 0, np.ldexp(1.0, exponent - 136), 0.0)
     return (rgbe[..., :3] * scale[..., None]).astype(np.float32)
-
 
 def _float_to_rgbe(image: np.ndarray) -> np.ndarray:
     """A shared exponent from the largest channel (Radiance's setcolr), mantissas rounded."""

@@ -1,0 +1,152 @@
+"""The ``iblbench`` command line."""
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+
+from iblbench.scenes.errors import InputError
+
+DESCRIPTION = """\
+iblbench: comparative benchmarks of Monte Carlo estimators for image-based lighting.
+Meshes lit by HDR cube maps are shaded by pluggable OpenCL estimators and scored against an
+exact reference on Lab error (protocol lab-reinhard-v1), effective samples and device time."""
+
+EPILOG = """\
+examples:
+  iblbench run                                   small default suite on built-in scenes
+  iblbench run --scene sphere-sun --estimator uniform --spp 16,256 --seeds 2 --out runs/a
+  iblbench run --scene my/scene.toml --sanitize  a user scene (see README for the TOML format)
+  iblbench list devices                          OpenCL platforms/devices and which is chosen
+"""
+
+
+def _spp_list(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got '{text}'")
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"spp values must be positive integers, got '{text}'")
+    return values
+
+
+def _resolution(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(part) for part in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH such as 128x128, got '{text}'")
+    if width < 1 or height < 1:
+        raise argparse.ArgumentTypeError(f"resolution must be positive, got '{text}'")
+    return width, height
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'")
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from iblbench.harness import runner
+
+    parser = argparse.ArgumentParser(prog="iblbench", description=DESCRIPTION, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    run = commands.add_parser(
+        "run", help="benchmark estimators on scenes and write results, manifest and images",
+        description="Render every (scene, estimator, spp, seed) cell, score it against the exact "
+                    "reference and write results.parquet/.csv, manifest.json and "
+                    "images/<scene>/f<frame>/ (EXR + PNG previews + ΔE heat maps) into --out.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    run.add_argument("--scene", action="append", metavar="NAME|FILE",
+                     help="built-in scene name or a scene .toml file; repeatable "
+                          f"(default: {', '.join(runner.DEFAULT_SCENES)})")
+    run.add_argument("--estimator", action="append", metavar="NAME",
+                     help="estimator name; repeatable (default: "
+                          f"{', '.join(runner.DEFAULT_ESTIMATORS)}; see 'iblbench list estimators')")
+    run.add_argument("--spp", type=_spp_list, default=runner.DEFAULT_SPP, metavar="N,N,...",
+                     help="samples per pixel, comma-separated")
+    run.add_argument("--seeds", type=_positive_int, default=runner.DEFAULT_SEEDS,
+                     help="seeds per cell (0..N-1)")
+    run.add_argument("--res", type=_resolution, metavar="WxH",
+                     help="image resolution (default: the scene's own)")
+    run.add_argument("--env-res", type=_positive_int, metavar="R",
+                     help="cube face resolution for built-in skies and resampled maps")
+    run.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/latest"),
+                     help="output directory")
+    run.add_argument("--device", metavar="SUBSTRING",
+                     help="OpenCL platform/device substring (overrides IBLBENCH_DEVICE; default: "
+                          "a GPU, else the fastest CPU platform)")
+    run.add_argument("--save-inputs", action="store_true",
+                     help="also write inputs/<scene>/gbuffer.npz and env_f<frame>.npy")
+    run.add_argument("--sanitize", action="store_true",
+                     help="replace NaN/Inf/negative texels in environment maps instead of refusing")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    listing = commands.add_parser("list", help="list devices, estimators or scenes",
+                                  description="List OpenCL devices (and the one chosen), "
+                                              "registered estimators, or built-in scenes.")
+    listing.add_argument("what", choices=("devices", "estimators", "scenes"))
+    listing.add_argument("--device", metavar="SUBSTRING", help="as for 'run'")
+    return parser
+
+
+def _list(args) -> None:
+    if args.what == "devices":
+        from iblbench.harness.device import all_devices, choose_device, measured_gflops
+
+        chosen = choose_device(args.device)
+        for info in all_devices():
+            mark = "*" if info.key == chosen.key else " "
+            kind = "GPU" if info.is_gpu else "CPU"
+            speed = "" if info.is_gpu else f"  {measured_gflops(info):.1f} GFLOP/s"
+            print(f"{mark} [{kind}] {info.label}{speed}")
+        print("(* = chosen; override with --device or IBLBENCH_DEVICE)")
+    elif args.what == "estimators":
+        from iblbench.estimators.registry import get_estimator_class, estimator_names
+
+        for name in estimator_names():
+            doc = (get_estimator_class(name).__doc__ or "").strip().splitlines()[0]
+            print(f"{name:14s} {doc}")
+    else:
+        from iblbench.scenes.registry import scene_names
+
+        print("\n".join(scene_names()))
+
+
+def _run(args) -> None:
+    from iblbench.harness.runner import DEFAULT_ESTIMATORS, DEFAULT_SCENES, RunConfig, run
+
+    config = RunConfig(out=args.out, scenes=tuple(args.scene or DEFAULT_SCENES),
+                       estimators=tuple(args.estimator or DEFAULT_ESTIMATORS), spp=args.spp,
+                       seeds=args.seeds, resolution=args.res, device=args.device,
+                       save_inputs=args.save_inputs, sanitize=args.sanitize, env_res=args.env_res,
+                       progress=False if args.no_progress else None)
+    table = run(config)
+    summary = table.groupby(["scene", "estimator", "spp"])[
+        ["mean_delta_e76", "effective_samples", "used_samples", "nonfinite", "time_ms_shade"]].mean()
+    print(summary.to_string(float_format=lambda v: f"{v:.4g}"))
+    print(f"wrote {len(table)} rows to {args.out}/results.parquet")
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        {"run": _run, "list": _list}[args.command](args)
+    except InputError as error:
+        print(f"iblbench: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("iblbench: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,84 @@
+"""Scores of one estimate against its reference: protocol ``lab-reinhard-v1`` of DESIGN §3.
+
+1. Exposure k = 0.18 / log-average luminance of the reference over covered pixels, applied to both.
+2. Reinhard L/(1+L) on luminance, colour scaled by the same ratio.
+3. Linear sRGB → XYZ (D65) → L*a*b* with colour-science; mean ΔE76 and ΔE2000 over covered pixels.
+Plus relMSE in linear HDR, mean((x−r)²/(r²+0.01)), and the sample counts.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")   # colour warns about optional packages at import
+    import colour
+
+from iblbench.scenes.cubemap import luminance
+
+PROTOCOL = "lab-reinhard-v1"
+_D65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+_SRGB = colour.RGB_COLOURSPACES["sRGB"]
+_LOG_EPSILON = 1e-6   # keeps black pixels out of log(0) in the log-average
+
+
+def exposure(reference: np.ndarray, mask: np.ndarray) -> float:
+    """k = 0.18 / exp(mean(log(ε + Y))) over covered pixels of the reference."""
+    y = luminance(reference[mask])
+    if y.size == 0:
+        return 1.0
+    return float(0.18 / np.exp(np.mean(np.log(_LOG_EPSILON + np.maximum(y, 0.0)))))
+
+
+def tonemap(rgb: np.ndarray, k: float) -> np.ndarray:
+    """Reinhard on luminance: c·k/(1 + k·Y), which maps k·Y to k·Y/(1 + k·Y)."""
+    rgb = np.maximum(np.asarray(rgb, np.float64), 0.0)
+    return rgb * (k / (1.0 + k * luminance(rgb)))[..., None]
+
+
+def to_lab(display_rgb: np.ndarray) -> np.ndarray:
+    xyz = colour.RGB_to_XYZ(display_rgb, _SRGB, apply_cctf_decoding=False)
+    return colour.XYZ_to_Lab(xyz, _D65)
+
+
+def delta_e_images(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray):
+    """Per-pixel ΔE76 and ΔE2000 images (zero outside ``mask``)."""
+    k = exposure(reference, mask)
+    lab_est = to_lab(tonemap(estimate[mask], k))
+    lab_ref = to_lab(tonemap(reference[mask], k))
+    de76 = np.zeros(mask.shape)
+    de2000 = np.zeros(mask.shape)
+    de76[mask] = colour.delta_E(lab_est, lab_ref, method="CIE 1976")
+    de2000[mask] = colour.delta_E(lab_est, lab_ref, method="CIE 2000")
+    return de76, de2000
+
+
+def rel_mse(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
+    x = np.asarray(estimate[mask], np.float64)
+    r = np.asarray(reference[mask], np.float64)
+    return float(np.mean((x - r) ** 2 / (r * r + 0.01)))
+
+
+def score(estimate, reference: np.ndarray, mask: np.ndarray) -> tuple[dict, np.ndarray]:
+    """One results row's metrics for an :class:`Estimate`, and the ΔE76 image for a heat map.
+
+    Non-finite estimate values are counted (``nonfinite``) and scored as black, so one NaN
+    cannot hide the rest of the image's error.
+    """
+    radiance = np.where(np.isfinite(estimate.radiance), estimate.radiance, 0.0)
+    de76, de2000 = delta_e_images(radiance, reference, mask)
+    used = float(estimate.used[mask].mean()) if mask.any() else 0.0
+    effective = float(estimate.effective[mask].mean()) if mask.any() else 0.0
+    row = {
+        "mean_delta_e76": float(de76[mask].mean()),
+        "mean_delta_e2000": float(de2000[mask].mean()),
+        "rel_mse": rel_mse(radiance, reference, mask),
+        "flip": float("nan"),
+        "used_samples": used,
+        "effective_samples": effective,
+        "effective_ratio": effective / used if used > 0 else float("nan"),
+        "evaluations": estimate.evaluations,
+        "nonfinite": estimate.nonfinite,
+    }
+    return row, de76
