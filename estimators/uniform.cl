@@ -41,3 +41,26 @@ __kernel void render_uniform(__global const float4 *normal, __global const float
     radiance[p] = (float4)(sum / (float)spp, 0.0f);
     counts[p] = (float2)(used, effective);
 }
+
+/* χ² hooks.  The estimator draws N_s/6 samples from every lit face; pooled, its directions have
+ * the density of a uniform choice among the lit faces: Σ_{f lit} pdf_L(ω|f) / n_lit. */
+__kernel void sample_directions(__global const float *marginal, __global const float *conditional,
+                                __global const int *lit_faces, const int n_lit, const int res,
+                                const uint seed, __global float4 *out)
+{
+    int i = get_global_id(0);
+    float3 w;
+    int texel, face;
+    float4 xi = rng_uniform4(seed, 0u, 1u, (uint)i, 0u, 0u);
+    sample_face(marginal, conditional, lit_faces[i % n_lit], res, xi, &w, &texel);
+    out[i] = (float4)(w, light_pdf(marginal, conditional, res, w, &face) / n_lit);
+}
+
+__kernel void direction_pdf(__global const float *marginal, __global const float *conditional,
+                            __global const float *face_integral, const int n_lit, const int res,
+                            __global const float4 *dirs, __global float *out)
+{
+    int i = get_global_id(0), face;
+    float pdf = light_pdf(marginal, conditional, res, dirs[i].xyz, &face);
+    out[i] = face_integral[face] > 0.0f ? pdf / n_lit : 0.0f;
+}

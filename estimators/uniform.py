@@ -23,6 +23,30 @@ class Uniform(Estimator):
     requires = ("cdf",)
     kernel_files = ("uniform.cl",)
 
+    def sample_directions(self, cache, normal, view, n, seed):
+        """``n`` light-sample directions ``[n, 3]`` and their pooled pdf (normal-independent)."""
+        compute, lit = cache.compute, np.flatnonzero(cache.face_integrals > 0).astype(np.int32)
+        if len(lit) == 0:   # an all-black map has nothing to sample
+            return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
+        out = compute.empty(n * 16)
+        compute.run(compute.kernel(self.kernel_package(), "uniform.cl", "sample_directions"), n,
+                    cache.marginal, cache.conditional, compute.to_device(lit), np.int32(len(lit)),
+                    np.int32(cache.res), np.uint32(seed), out)
+        samples = compute.to_host(out, (n, 4), np.float32)
+        return samples[:, :3], samples[:, 3]
+
+    def pdf(self, cache, normal, view, dirs):
+        """Density of :meth:`sample_directions` at ``dirs`` ``[n, 3]``."""
+        compute, n = cache.compute, len(dirs)
+        padded = np.zeros((n, 4), np.float32)
+        padded[:, :3] = dirs
+        out = compute.empty(n * 4)
+        compute.run(compute.kernel(self.kernel_package(), "uniform.cl", "direction_pdf"), n,
+                    cache.marginal, cache.conditional, cache.face_integral_buffer,
+                    np.int32(np.count_nonzero(cache.face_integrals > 0)), np.int32(cache.res),
+                    compute.to_device(padded), out)
+        return compute.to_host(out, (n,), np.float32)
+
     def render(self, gbuffer, cache, spp, seed):
         compute = cache.compute
         kernel = compute.kernel(self.kernel_package(), "uniform.cl", "render_uniform")

@@ -82,7 +82,8 @@ def load_environment(
     """Load ``source`` as a float32 cube map ``[6, R, R, 3]`` and a report.
 
     ``source`` is one image path, six face paths (+X, −X, +Y, −Y, +Z, −Z), or a path with
-    ``{face}`` standing for px, nx, py, ny, pz, nz. ``layout`` is one of :data:`LAYOUTS`.
+    ``{face}`` standing for px, nx, py, ny, pz, nz, or a ``.npy`` cube map ``[6, R, R, 3]`` (as
+``iblbench run --save-inputs`` writes).  ``layout`` is one of :data:`LAYOUTS`.
     ``res`` sets R (default: the faces' own size, or the lat-long rule in the module doc).
     """
     if layout not in LAYOUTS:
@@ -90,7 +91,10 @@ def load_environment(
     if res is not None and (not isinstance(res, (int, np.integer)) or res < 1):
         raise InputError(None, f"cube-map resolution must be a positive integer, got {res!r}")
     paths = _source_paths(source)
-    images = [read_image(path) for path in paths]
+    if len(paths) == 1 and os.fspath(paths[0]).lower().endswith(".npy"):
+        images, paths = _read_cube_npy(paths[0]), paths * 6
+    else:
+        images = [read_image(path) for path in paths]
     if len(paths) == 6:
         layout = _check_faces(paths, images, layout)
     else:
@@ -130,6 +134,21 @@ def _source_paths(source: Source) -> list[PathLike]:
     if len(paths) != 6:
         raise InputError(None, f"expected one image or six face files (+X,-X,+Y,-Y,+Z,-Z), got {len(paths)}")
     return paths
+
+
+def _read_cube_npy(path: PathLike) -> list[np.ndarray]:
+    """The six faces of a cube map saved with numpy as ``[6, R, R, 3]`` floats."""
+    try:
+        cube = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise InputError(path, "file not found") from None
+    except (OSError, ValueError) as error:
+        raise InputError(path, f"cannot read .npy cube map ({error})") from None
+    if cube.ndim != 4 or cube.shape[0] != 6 or cube.shape[3] != 3:
+        raise InputError(path, f"a .npy cube map must have shape [6, R, R, 3], got {list(cube.shape)}")
+    if not np.issubdtype(cube.dtype, np.floating):
+        raise InputError(path, f"a .npy cube map must hold floats, got {cube.dtype}")
+    return [face.astype(np.float32) for face in cube]
 
 
 def _check_faces(paths, images, layout: str) -> str:

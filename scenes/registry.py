@@ -39,6 +39,7 @@ from typing import Any, Callable
 import numpy as np
 
 from . import meshes, sky
+from .envmap import load_environment
 from .errors import InputError
 from .scene import Camera, EnvSequence, Material, Scene
 
@@ -225,28 +226,5 @@ def _environment(fields: _Fields, folder: Path, sanitize: bool, env_res: int | N
     res = env_res or (fields.positive_int("res") if fields.has("res") else None)
     if not source.is_file():
         raise InputError(source, "environment file not found")
-    if source.suffix.lower() == ".npy":
-        env = _load_npy_environment(source, res, sanitize)
-    else:
-        from .envmap import load_environment  # written alongside; imported only when a file needs it
-
-        env, _report = load_environment(source, layout=layout, res=res, sanitize=sanitize)
-    return EnvSequence.static(env, source=os.fspath(source))
-
-
-def _load_npy_environment(path: Path, res: int | None, sanitize: bool) -> np.ndarray:
-    """A cube map saved as ``[6, R, R, 3]``; bad texels are refused unless ``sanitize`` zeroes them."""
-    try:
-        env = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as error:
-        raise InputError(path, f"cannot read .npy environment: {error}") from None
-    if env.ndim != 4 or env.shape[0] != 6 or env.shape[1] != env.shape[2] or env.shape[3] != 3:
-        raise InputError(path, f"a .npy environment must have shape [6, R, R, 3], got {list(env.shape)}")
-    if not np.issubdtype(env.dtype, np.floating):
-        raise InputError(path, f"a .npy environment must hold floats, got {env.dtype}")
-    if res is not None and res != env.shape[1]:
-        raise InputError(path, f"a .npy environment is used as stored: res {res} differs from its R = {env.shape[1]}")
-    bad = ~np.isfinite(env) | (env < 0)
-    if bad.any() and not sanitize:
-        raise InputError(path, f"{int(bad.sum())} NaN, Inf or negative texel values (use --sanitize to zero them)")
-    return np.where(bad, 0.0, env).astype(np.float32)
+    env, report = load_environment(source, layout=layout, res=res, sanitize=sanitize)
+    return EnvSequence.static(env, source=os.fspath(source), texels_fixed=report.texels_fixed)

@@ -40,6 +40,7 @@ class EnvSequence:
     num_frames: int
     make_frame: Callable[[int], np.ndarray]
     source: str = ""
+    texels_fixed: int = 0   # bad texels replaced by --sanitize while loading
 
     @property
     def is_static(self) -> bool:
@@ -49,8 +50,8 @@ class EnvSequence:
         return self.make_frame(index)
 
     @classmethod
-    def static(cls, env: np.ndarray, source: str = "") -> "EnvSequence":
-        return cls(1, lambda _index: env, source)
+    def static(cls, env: np.ndarray, source: str = "", texels_fixed: int = 0) -> "EnvSequence":
+        return cls(1, lambda _index: env, source, texels_fixed)
 
 
 @dataclasses.dataclass

@@ -268,8 +268,9 @@ def test_toml_errors_name_the_scene_file(scene_folder, change, problem):
         ("ball.obj", None, "mesh file not found"),
         ("ball.obj", "v 0 0 0\n", "no triangles"),
         ("env.npy", None, "environment file not found"),
-        ("env.npy", np.zeros((6, 8, 4, 3), np.float32), r"shape \[6, R, R, 3\]"),
-        ("env.npy", np.full((6, 8, 8, 3), np.nan, np.float32), "NaN, Inf or negative"),
+        ("env.npy", np.zeros((6, 8, 8, 4), np.float32), r"shape \[6, R, R, 3\]"),
+        ("env.npy", np.zeros((6, 8, 4, 3), np.float32), "not square"),
+        ("env.npy", np.full((6, 8, 8, 3), np.nan, np.float32), "64 NaN, 0 Inf and 0 negative texels; pass --sanitize"),
     ],
 )
 def test_toml_errors_name_the_referenced_file(scene_folder, referenced, content, problem):
@@ -284,12 +285,16 @@ def test_toml_errors_name_the_referenced_file(scene_folder, referenced, content,
     assert error.value.source == str(target)
 
 
-def test_sanitize_zeroes_bad_npy_texels(scene_folder):
+def test_sanitize_fixes_bad_npy_texels_and_counts_them(scene_folder):
     env = np.full((6, 8, 8, 3), 0.5, np.float32)
     env[0, 0, 0] = [np.nan, -1.0, np.inf]
+    env[2, 3, 4] = [-2.0, 0.5, 0.5]
     np.save(scene_folder / "env.npy", env)
-    frame = registry.load_scene(scene_folder / "scene.toml", sanitize=True).environment.frame(0)
-    assert np.all(frame[0, 0, 0] == 0) and frame[1:].min() == 0.5
+    sequence = registry.load_scene(scene_folder / "scene.toml", sanitize=True).environment
+    frame = sequence.frame(0)
+    # NaN and negatives become 0, +Inf the largest finite value (0.5); two texels were bad.
+    assert frame[0, 0, 0].tolist() == [0.0, 0.0, 0.5] and frame[2, 3, 4].tolist() == [0.0, 0.5, 0.5]
+    assert sequence.texels_fixed == 2
 
 
 def test_missing_toml_file(tmp_path):

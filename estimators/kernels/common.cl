@@ -114,6 +114,19 @@ inline float sample_face(__global const float *marginal, __global const float *c
     return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(u, v) / texel_area;
 }
 
+/* pdf_L(ω|f) of sample_face for the face f that holds ω (it is zero on every other face);
+ * *face gets f. */
+inline float light_pdf(__global const float *marginal, __global const float *conditional,
+                       int res, float3 w, int *face)
+{
+    float s, t;
+    int f = dir_to_face_st(w, &s, &t);
+    int row = clamp_index(t, res), col = clamp_index(s, res);
+    float p_texel = cdf_bin(marginal + f * res, row) * cdf_bin(conditional + (f * res + row) * res, col);
+    *face = f;
+    return p_texel * area_per_solid_angle(2.0f * s - 1.0f, 2.0f * t - 1.0f) * (float)(res * res) / 4.0f;
+}
+
 /* ---- Phong BRDF (energy-conserving, Lafortune) --------------------------------------------- */
 
 /* Mirror of the view direction about n: r = 2(n·v)n − v. */
