@@ -11,6 +11,7 @@ import datetime
 import pathlib
 import platform
 import subprocess
+import sys
 import time
 from importlib.metadata import PackageNotFoundError, version
 
@@ -87,6 +88,10 @@ class Runner:
         self.estimator_classes = [get_estimator_class(name) for name in config.estimators]
         self.scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
                        for name in config.scenes]
+        for scene in self.scenes:
+            if scene.environment.texels_fixed:
+                print(f"iblbench: --sanitize replaced {scene.environment.texels_fixed} bad texels "
+                      f"in {scene.environment.source}", file=sys.stderr)
         self.compute = get_compute(config.device)
         self.reference = Reference(self.compute)
         self.out = pathlib.Path(config.out)
@@ -107,6 +112,7 @@ class Runner:
                                                             "colour-science", "pandas")}},
             "estimator_versions": {cls.name: cls.version() for cls in self.estimator_classes},
             "device": _device_record(self.compute),
+            "sanitized": {s.name: s.environment.texels_fixed for s in self.scenes},
             "stages": [],
             "skipped": [],
         }

@@ -1,0 +1,18 @@
+"""Shared fixtures: one OpenCL context for the session, and a private reference cache."""
+import pytest
+
+from iblbench.harness.device import get_compute
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_cache(tmp_path_factory):
+    """Keep the tests' cached references and device measurements out of the user's cache."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("IBLBENCH_CACHE", str(tmp_path_factory.mktemp("iblbench-cache")))
+    yield
+    mp.undo()
+
+
+@pytest.fixture(scope="session")
+def compute():
+    return get_compute()
