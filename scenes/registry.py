@@ -8,9 +8,11 @@ User scene format (paths are relative to the TOML file's folder)::
     path = "bunny.obj"              # required: OBJ, PLY or GLB (multi-object files are merged)
 
     [environment]
-    path = "sky.exr"                # required: EXR/HDR lat-long, cross or faces, or a .npy [6,R,R,3]
-    layout = "auto"                 # optional, passed to envmap.load_environment
-    res = 64                        # optional cube face resolution
+    path = "sky.exr"                # required: EXR/HDR lat-long or cross, "sky_{face}.exr" for six
+                                    # faces (px, nx, py, ny, pz, nz), a .npy [6,R,R,3], or a glob
+                                    # ("day/*.exr") for a sequence, frames in sorted name order
+    layout = "auto"                 # optional: auto, latlong, vcross, hcross or faces
+    res = 64                        # optional cube face resolution (default: the source's own)
 
     [material]                      # optional; defaults kd = 0.5, ks = 0.3, shininess = 150
     kd = [0.6, 0.5, 0.4]            # a number or an RGB triple; kd + ks <= 1 per channel
@@ -32,6 +34,7 @@ naming the TOML file, or the referenced file when that file is the problem.
 """
 from __future__ import annotations
 
+import glob
 import os
 from pathlib import Path
 from typing import Any, Callable
@@ -39,7 +42,7 @@ from typing import Any, Callable
 import numpy as np
 
 from . import meshes, sky
-from .envmap import load_environment
+from .envmap import LAYOUTS, load_environment
 from .errors import InputError
 from .scene import Camera, EnvSequence, Material, Scene
 
@@ -221,10 +224,25 @@ def _camera(fields: _Fields) -> Camera:
 
 
 def _environment(fields: _Fields, folder: Path, sanitize: bool, env_res: int | None) -> EnvSequence:
-    source = folder / fields.string("path")
+    """One environment, or a sequence when the path is a glob (frames in sorted name order).
+
+    Frames are all loaded and validated here, so a bad frame is reported before any work starts.
+    """
+    pattern = os.fspath(folder / fields.string("path"))
     layout = fields.string("layout") if fields.has("layout") else "auto"
+    if layout not in LAYOUTS:
+        fields.fail(f"environment.layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     res = env_res or (fields.positive_int("res") if fields.has("res") else None)
-    if not source.is_file():
-        raise InputError(source, "environment file not found")
-    env, report = load_environment(source, layout=layout, res=res, sanitize=sanitize)
-    return EnvSequence.static(env, source=os.fspath(source), texels_fixed=report.texels_fixed)
+    paths = sorted(glob.glob(pattern)) if any(c in pattern for c in "*?") else [pattern]
+    if not paths:
+        fields.fail(f"environment.path {pattern!r} matches no files")
+    frames, texels_fixed = [], 0
+    for path in paths:
+        env, report = load_environment(path, layout=layout, res=res, sanitize=sanitize)
+        if frames and env.shape != frames[0].shape:
+            raise InputError(
+                path, f"frame faces are {env.shape[1]}² but {paths[0]} has {frames[0].shape[1]}²; set res to resample"
+            )
+        frames.append(env)
+        texels_fixed += report.texels_fixed
+    return EnvSequence(len(frames), frames.__getitem__, source=pattern, texels_fixed=texels_fixed)

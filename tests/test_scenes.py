@@ -243,6 +243,36 @@ def test_toml_scene_round_trip(scene_folder):
     assert buffer.mask.shape == (32, 48) and buffer.covered > 0
 
 
+def test_toml_scene_reads_an_hdr_environment_with_layout_and_res(scene_folder):
+    from iblbench.scenes.imageio import write_hdr
+
+    write_hdr(scene_folder / "sky.hdr", np.full((16, 32, 3), 2.0, np.float32))
+    text = edit(SCENE_TOML, 'path = "env.npy"', 'path = "sky.hdr"\nlayout = "latlong"\nres = 4')
+    (scene_folder / "scene.toml").write_text(text)
+    scene = registry.load_scene(scene_folder / "scene.toml")
+    assert np.allclose(scene.environment.frame(0), np.full((6, 4, 4, 3), 2.0))
+    assert registry.load_scene(scene_folder / "scene.toml", env_res=2).environment.frame(0).shape == (6, 2, 2, 3)
+
+
+def test_toml_glob_environment_is_a_sequence_in_name_order(scene_folder):
+    for index in range(3):
+        np.save(scene_folder / f"frame{index:02d}.npy", np.full((6, 4, 4, 3), index, np.float32))
+    (scene_folder / "scene.toml").write_text(edit(SCENE_TOML, '"env.npy"', '"frame*.npy"'))
+    sequence = registry.load_scene(scene_folder / "scene.toml").environment
+    assert sequence.num_frames == 3 and not sequence.is_static
+    assert [float(sequence.frame(i).max()) for i in range(3)] == [0.0, 1.0, 2.0]
+
+
+def test_toml_glob_frames_must_match_in_size(scene_folder):
+    np.save(scene_folder / "frame00.npy", np.zeros((6, 4, 4, 3), np.float32))
+    np.save(scene_folder / "frame01.npy", np.zeros((6, 8, 8, 3), np.float32))
+    (scene_folder / "scene.toml").write_text(edit(SCENE_TOML, '"env.npy"', '"frame*.npy"'))
+    with pytest.raises(InputError, match="frame faces are 8² but .*frame00.npy has 4²") as error:
+        registry.load_scene(scene_folder / "scene.toml")
+    assert error.value.source.endswith("frame01.npy")
+    assert registry.load_scene(scene_folder / "scene.toml", env_res=4).environment.num_frames == 2
+
+
 def edit(text, old, new):
     assert old in text
     return text.replace(old, new)
@@ -262,6 +292,8 @@ def edit(text, old, new):
         (lambda t: edit(t, "ks = 0.2", "ks = 0.6"), "kd \\+ ks must be <= 1"),
         (lambda t: edit(t, "fov_y = 40", "fov_y = 180"), "fov_y must be in"),
         (lambda t: edit(t, "target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 4.0]"), "must differ"),
+        (lambda t: edit(t, '"env.npy"', '"env.npy"\nlayout = "globe"'), "environment.layout must be one of"),
+        (lambda t: edit(t, '"env.npy"', '"day*.npy"'), "matches no files"),
     ],
 )
 def test_toml_errors_name_the_scene_file(scene_folder, change, problem):
@@ -277,7 +309,7 @@ def test_toml_errors_name_the_scene_file(scene_folder, change, problem):
     [
         ("ball.obj", None, "mesh file not found"),
         ("ball.obj", "v 0 0 0\n", "no triangles"),
-        ("env.npy", None, "environment file not found"),
+        ("env.npy", None, "file not found"),
         ("env.npy", np.zeros((6, 8, 8, 4), np.float32), r"shape \[6, R, R, 3\]"),
         ("env.npy", np.zeros((6, 8, 4, 3), np.float32), "not square"),
         ("env.npy", np.full((6, 8, 8, 3), np.nan, np.float32), "64 NaN, 0 Inf and 0 negative texels; pass --sanitize"),
