@@ -17,29 +17,31 @@ __kernel void render_uniform(__global const float4 *normal, __global const float
     float3 rho_d = kd[p].xyz, rho_s = ks_m[p].xyz;
     float m = ks_m[p].w;
     const float mu = 1.0f / 6.0f;
-    float n_face = mu * spp;                       /* N_f, floating (Eq. 5) */
-    int n_draw = (int)ceil(n_face);
+    /* N_f = spp/6 = whole + sixths/6; β of the last sample is sixths/6 (Eq. 5).  Counts are kept
+     * in sixths, as integers, so used and effective are exact and never exceed spp by rounding. */
+    int whole = spp / 6, sixths = spp % 6;
+    int n_draw = whole + (sixths > 0);
     float3 sum = 0.0f;
-    float used = 0.0f, effective = 0.0f;
+    int used6 = 0, effective6 = 0;
     for (int f = 0; f < 6; ++f) {
         if (!(face_integral[f] > 0.0f)) continue;
         for (int i = 0; i < n_draw; ++i) {
-            float beta = (i + 1 <= n_face) ? 1.0f : n_face - floor(n_face);
+            int beta6 = (i < whole) ? 6 : sixths;
             float4 xi = rng_uniform4(seed, frame, 0u, (uint)p, (uint)(f * n_draw + i), 0u);
             float3 w;
             int texel;
             float pdf = sample_face(marginal, conditional, f, res, xi, &w, &texel);
             float cosine = dot(n, w);
-            used += beta;
+            used6 += beta6;
             if (cosine > 0.0f && pdf > 0.0f) {
-                effective += beta;
+                effective6 += beta6;
                 float3 s = phong_brdf(r, w, rho_d, rho_s, m) * cosine * env[texel].xyz;
-                sum += beta * s / (mu * pdf);
+                sum += (beta6 / 6.0f) * s / (mu * pdf);
             }
         }
     }
     radiance[p] = (float4)(sum / (float)spp, 0.0f);
-    counts[p] = (float2)(used, effective);
+    counts[p] = (float2)(used6 / 6.0f, effective6 / 6.0f);
 }
 
 /* χ² hooks.  The estimator draws N_s/6 samples from every lit face; pooled, its directions have

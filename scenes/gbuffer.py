@@ -116,9 +116,7 @@ def intersect(mesh, origins: np.ndarray, dirs: np.ndarray) -> dict[str, np.ndarr
 
 def shading_normals(mesh, prim: np.ndarray, u: np.ndarray, v: np.ndarray, view: np.ndarray) -> np.ndarray:
     """Unit two-sided shading normals facing the camera (see the module docstring)."""
-    from .meshes import vertex_normals
-
-    corners = vertex_normals(mesh)[np.asarray(mesh.faces)[prim]]
+    corners = np.asarray(mesh.vertex_normals)[np.asarray(mesh.faces)[prim]]
     normal = (1.0 - u - v)[:, None] * corners[:, 0] + u[:, None] * corners[:, 1] + v[:, None] * corners[:, 2]
     geometric = np.asarray(mesh.face_normals)[prim]
     length = np.linalg.norm(normal, axis=1, keepdims=True)

@@ -19,24 +19,6 @@ def sphere(subdivisions: int = 4, radius: float = 1.0) -> trimesh.Trimesh:
     return trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_normals=normals, process=False)
 
 
-def vertex_normals(mesh: trimesh.Trimesh) -> np.ndarray:
-    """The mesh's own vertex normals when it has them, else area-weighted face normals, unit length.
-
-    trimesh would compute missing normals itself, but without scipy it falls back to a Python loop
-    (about a minute for 200k faces); this is a vectorised equivalent.
-    """
-    if "vertex_normals" in mesh._cache:  # loaded from the file or assigned
-        return np.asarray(mesh.vertex_normals)
-    corners = mesh.vertices[mesh.faces]
-    area_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    vertex_ids = np.asarray(mesh.faces).ravel()
-    summed = np.stack(
-        [np.bincount(vertex_ids, np.repeat(area_normals[:, k], 3), len(mesh.vertices)) for k in range(3)], axis=1
-    )
-    length = np.linalg.norm(summed, axis=1, keepdims=True)
-    return np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
-
-
 def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     """One triangle mesh from a file; a multi-object file is concatenated into a single mesh."""
     path = Path(path)

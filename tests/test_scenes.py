@@ -152,16 +152,6 @@ def test_sphere_mesh_normals_are_normalised_positions():
     assert np.allclose(mesh.vertex_normals, mesh.vertices / 2.0)
 
 
-def test_missing_vertex_normals_are_area_weighted_face_normals():
-    ball = trimesh.creation.icosphere(3)  # no cached normals: computed by meshes.vertex_normals
-    normals = meshes.vertex_normals(ball)
-    radial = ball.vertices / np.linalg.norm(ball.vertices, axis=1, keepdims=True)
-    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0)
-    assert np.degrees(np.arccos(np.clip(np.sum(normals * radial, axis=1), -1, 1))).max() < 1.0
-    tilted = single_triangle(np.tile([0.0, 0.6, 0.8], (3, 1)))  # given normals are kept
-    assert np.allclose(meshes.vertex_normals(tilted), [0.0, 0.6, 0.8])
-
-
 def test_load_mesh_merges_a_multi_object_file(tmp_path):
     path = tmp_path / "two.glb"
     trimesh.Scene([trimesh.creation.box(), trimesh.creation.icosphere(1).apply_translation([3, 0, 0])]).export(path)
