@@ -1,0 +1,334 @@
+"""The ``iblbench`` console entry point, run as a real subprocess.
+
+Every run uses a private ``IBLBENCH_CACHE`` and tiny sizes (16x16 pixels, 8x8 cube faces) so the
+whole file stays well under a minute on a 2-core CPU with PoCL.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+
+from iblbench.scenes.imageio import read_exr, write_exr, write_hdr
+
+TINY = ["--res", "16x16", "--env-res", "8", "--no-progress"]
+RUN_FLAGS = ("--scene", "--estimator", "--spp", "--seeds", "--res", "--env-res", "--out",
+             "--device", "--save-inputs", "--sanitize", "--no-progress")
+RESULT_COLUMNS = {
+    "scene", "estimator", "estimator_version", "spp", "frame", "seed", "mean_delta_e76",
+    "mean_delta_e2000", "rel_mse", "flip", "used_samples", "effective_samples", "effective_ratio",
+    "evaluations", "nonfinite", "time_ms_build", "time_ms_sample", "time_ms_shade",
+    "time_ms_frame", "device", "protocol",
+}
+
+
+# --- helpers -------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory) -> Path:
+    """One private cache for the module: device measurements and references are shared."""
+    return tmp_path_factory.mktemp("cli-cache")
+
+
+@pytest.fixture(scope="module")
+def cli(cache):
+    def run(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
+        env = dict(os.environ, IBLBENCH_CACHE=str(cache), PYTHONWARNINGS="ignore")
+        env.pop("IBLBENCH_DEVICE", None)
+        return subprocess.run([sys.executable, "-m", "iblbench.harness.cli", *map(str, args)],
+                              capture_output=True, text=True, env=env, timeout=timeout)
+    return run
+
+
+def assert_input_error(result: subprocess.CompletedProcess, out: Path | None, *needles: str) -> str:
+    """Exit 2, exactly one 'iblbench: error:' line on stderr with every needle, nothing in --out."""
+    context = f"stdout:\n{result.stdout}\nstderr:\n{result.stderr}"
+    assert result.returncode == 2, context
+    assert "Traceback" not in result.stderr, context
+    assert result.stderr.startswith("iblbench: error: "), context
+    assert result.stderr.endswith("\n") and result.stderr.count("\n") == 1, context
+    for needle in needles:
+        assert needle in result.stderr, f"{needle!r} missing from stderr:\n{result.stderr}"
+    if out is not None:
+        assert not (out / "results.parquet").exists()
+        written = [p for p in out.rglob("*") if p.is_file()] if out.exists() else []
+        assert written == [], f"files left in --out after an input error: {written}"
+    return result.stderr
+
+
+def write_scene(folder: Path, env_name: str, *, layout: str | None = None) -> Path:
+    """A scene TOML in ``folder``: a small icosphere seen from (0, 0, 3), lit by ``env_name``."""
+    trimesh.creation.icosphere(subdivisions=1).export(folder / "ball.obj")
+    layout_line = f'layout = "{layout}"\n' if layout else ""
+    toml = folder / "scene.toml"
+    toml.write_text(
+        '[mesh]\npath = "ball.obj"\n\n'
+        f'[environment]\npath = "{env_name}"\n{layout_line}\n'
+        "[camera]\neye = [0.0, 0.0, 3.0]\ntarget = [0.0, 0.0, 0.0]\n\n"
+        "[render]\nwidth = 16\nheight = 16\n"
+    )
+    return toml
+
+
+def latlong(height: int = 8) -> np.ndarray:
+    """A smooth, positive 2:1 lat-long image."""
+    rows = np.linspace(0.2, 2.0, height, dtype=np.float32)[:, None, None]
+    cols = np.linspace(0.5, 1.0, 2 * height, dtype=np.float32)[None, :, None]
+    return (rows * cols * np.array([1.0, 0.8, 0.6], np.float32)).astype(np.float32)
+
+
+def run_scene(cli, toml: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
+    return cli("run", "--scene", toml, "--estimator", "uniform", "--spp", "4", "--seeds", "1",
+               "--out", out, *TINY, *extra)
+
+
+# --- help ----------------------------------------------------------------------------------------
+
+
+def test_top_level_help_lists_every_subcommand(cli):
+    result = cli("--help")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("usage: iblbench")
+    for command in ("run", "list"):
+        assert re.search(rf"^\s+{command}\s", result.stdout, re.M), result.stdout
+
+
+def test_run_help_lists_every_flag(cli):
+    result = cli("run", "--help")
+    assert result.returncode == 0, result.stderr
+    for flag in RUN_FLAGS:
+        assert flag in result.stdout, f"{flag} missing from 'run --help':\n{result.stdout}"
+
+
+def test_list_help_lists_every_choice(cli):
+    result = cli("list", "--help")
+    assert result.returncode == 0, result.stderr
+    for word in ("devices", "estimators", "scenes", "--device"):
+        assert word in result.stdout, result.stdout
+
+
+# --- bad input: one clean line, exit 2, nothing written ------------------------------------------
+
+
+def test_missing_environment_file(cli, tmp_path):
+    toml = write_scene(tmp_path, "nowhere.exr")
+    out = tmp_path / "out"
+    stderr = assert_input_error(run_scene(cli, toml, out), out, "nowhere.exr", "not found")
+    assert str(tmp_path / "nowhere.exr") in stderr
+
+
+def test_garbage_exr_environment(cli, tmp_path):
+    # The EXR magic number and version, then junk: the OpenEXR library itself must fail cleanly.
+    (tmp_path / "sky.exr").write_bytes(b"\x76\x2f\x31\x01\x02\x00\x00\x00" + b"\xff\x13junk" * 200)
+    toml = write_scene(tmp_path, "sky.exr")
+    out = tmp_path / "out"
+    assert_input_error(run_scene(cli, toml, out), out, str(tmp_path / "sky.exr"), "OpenEXR")
+
+
+def test_truncated_hdr_environment(cli, tmp_path):
+    path = tmp_path / "sky.hdr"
+    write_hdr(path, latlong(16))
+    data = path.read_bytes()
+    header_end = data.index(b"+X 32\n") + len(b"+X 32\n")
+    path.write_bytes(data[:header_end + (len(data) - header_end) // 2])  # cut mid-scanlines
+    toml = write_scene(tmp_path, "sky.hdr")
+    out = tmp_path / "out"
+    assert_input_error(run_scene(cli, toml, out), out, str(path), "truncated")
+
+
+@pytest.mark.parametrize("layout, needles", [
+    (None, ("24x8", "aspect")),
+    ("latlong", ("latlong", "2:1", "24x8")),
+])
+def test_wrong_aspect_environment(cli, tmp_path, layout, needles):
+    path = tmp_path / "wide.exr"
+    write_exr(path, np.ones((8, 24, 3), np.float32))  # 3:1
+    toml = write_scene(tmp_path, "wide.exr", layout=layout)
+    out = tmp_path / "out"
+    assert_input_error(run_scene(cli, toml, out), out, str(path), *needles)
+
+
+def bad_texel_environment(folder: Path) -> Path:
+    """A lat-long map with 2 NaN, 3 Inf and 1 negative texel (6 bad texels)."""
+    image = latlong(8)
+    image[0, 0, 0] = np.nan
+    image[1, 3, :] = np.nan          # one texel, even with three bad channels
+    image[2, 2, 1] = np.inf
+    image[3, 5, 2] = -np.inf
+    image[4, 7, 0] = np.inf
+    image[5, 9, 2] = -0.25
+    path = folder / "bad.exr"
+    write_exr(path, image)
+    return path
+
+
+def test_nonfinite_and_negative_texels_are_refused(cli, tmp_path):
+    path = bad_texel_environment(tmp_path)
+    toml = write_scene(tmp_path, "bad.exr")
+    out = tmp_path / "out"
+    stderr = assert_input_error(run_scene(cli, toml, out), out, str(path), "--sanitize")
+    assert re.search(r"\b2 NaN\b", stderr), stderr
+    assert re.search(r"\b3 Inf\b", stderr), stderr
+    assert re.search(r"\b1 negative\b", stderr), stderr
+
+
+def test_sanitize_runs_and_reports_the_fixed_texel_count(cli, tmp_path):
+    path = bad_texel_environment(tmp_path)
+    toml = write_scene(tmp_path, "bad.exr")
+    out = tmp_path / "out"
+    result = run_scene(cli, toml, out, "--sanitize")
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr
+    # The count reaches the user: a line on stderr naming --sanitize/sanitized and the number 6.
+    lines = [line for line in result.stderr.splitlines() if "sanitiz" in line.lower()]
+    assert any(re.search(r"\b6\b", line) for line in lines), result.stderr
+    assert any(str(path) in line for line in lines), result.stderr
+    table = pd.read_parquet(out / "results.parquet")
+    assert len(table) == 1 and table["nonfinite"].eq(0).all()
+    assert np.isfinite(table["mean_delta_e76"]).all()
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["config"]["sanitize"] is True
+    assert manifest.get("sanitized") == {"scene": 6}, manifest.get("sanitized")
+    reference = read_exr(out / "images" / "scene" / "f0" / "reference.exr")
+    assert reference.shape == (16, 16, 3) and np.isfinite(reference).all()
+
+
+def test_unknown_estimator_lists_the_valid_ones(cli, tmp_path):
+    out = tmp_path / "out"
+    result = cli("run", "--scene", "sphere-sun", "--estimator", "no-such-estimator", "--out", out,
+                 *TINY)
+    assert_input_error(result, out, "no-such-estimator", "uniform")
+
+
+def test_unknown_scene_lists_the_valid_ones(cli, tmp_path):
+    out = tmp_path / "out"
+    result = cli("run", "--scene", "no-such-scene", "--estimator", "uniform", "--out", out, *TINY)
+    assert_input_error(result, out, "no-such-scene", "sphere-sun")
+
+
+@pytest.mark.parametrize("flag, value", [("--spp", "0"), ("--res", "12")])
+def test_malformed_flags_exit_2(cli, tmp_path, flag, value):
+    out = tmp_path / "out"
+    result = cli("run", "--scene", "sphere-sun", "--out", out, "--no-progress", flag, value)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    assert f"argument {flag}" in result.stderr, result.stderr
+    assert not out.exists()
+
+
+# --- a tiny end-to-end run -----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tiny_run(cli, tmp_path_factory):
+    out = tmp_path_factory.mktemp("tiny-run") / "out"
+    result = cli("run", "--scene", "sphere-sun", "--estimator", "uniform", "--spp", "4,16",
+                 "--seeds", "2", "--out", out, "--save-inputs", *TINY)
+    return result, out
+
+
+def test_tiny_run_succeeds(tiny_run):
+    result, out = tiny_run
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr
+    assert f"wrote 4 rows to {out}" in result.stdout, result.stdout
+
+
+def test_tiny_run_results_table(tiny_run):
+    result, out = tiny_run
+    assert result.returncode == 0, result.stderr
+    table = pd.read_parquet(out / "results.parquet")
+    csv = pd.read_csv(out / "results.csv")
+    assert set(table.columns) == RESULT_COLUMNS
+    assert list(csv.columns) == list(table.columns)
+    assert len(table) == 4 and len(csv) == 4
+    pd.testing.assert_frame_equal(csv, table, check_dtype=False)
+    assert sorted(zip(table["spp"], table["seed"])) == [(4, 0), (4, 1), (16, 0), (16, 1)]
+    assert (table["scene"] == "sphere-sun").all() and (table["estimator"] == "uniform").all()
+    assert (table["frame"] == 0).all()
+    assert (table["protocol"] == "lab-reinhard-v1").all()
+    assert table["device"].str.len().gt(0).all()
+    assert (table["nonfinite"] == 0).all()
+    # Strict: a row claiming more samples than spp is wrong however small the excess.
+    assert (table["used_samples"] <= table["spp"]).all(), table[["spp", "used_samples"]]
+    assert (table["effective_samples"] <= table["used_samples"]).all(), table
+    assert (table["used_samples"] > 0).all()
+    assert (table["effective_samples"] >= 0).all()
+    for column in ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "time_ms_frame"):
+        assert np.isfinite(table[column]).all() and (table[column] >= 0).all(), column
+
+
+def test_tiny_run_manifest(tiny_run):
+    result, out = tiny_run
+    assert result.returncode == 0, result.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["protocol"] == "lab-reinhard-v1"
+    device = manifest["device"]
+    assert isinstance(device, dict) and device.get("name") and device.get("platform")
+    assert "uniform" in manifest["estimator_versions"]
+    table = pd.read_parquet(out / "results.parquet")
+    assert (table["estimator_version"].astype(str)
+            == str(manifest["estimator_versions"]["uniform"])).all()
+    assert manifest["config"]["spp"] == [4, 16] and manifest["config"]["seeds"] == 2
+
+
+def test_tiny_run_images(tiny_run):
+    result, out = tiny_run
+    assert result.returncode == 0, result.stderr
+    images = out / "images" / "sphere-sun" / "f0"
+    for name in ("reference.exr", "reference.png", "uniform_spp4_s0.exr", "uniform_spp4_s0.png",
+                 "uniform_spp16_s1.exr", "uniform_spp16_s1_de76.png"):
+        assert (images / name).is_file(), name
+    for name in ("reference.exr", "uniform_spp4_s0.exr"):
+        image = read_exr(images / name)
+        assert image.shape == (16, 16, 3) and np.isfinite(image).all() and image.max() > 0, name
+    assert not list(out.rglob("*.tmp*")), "temporary files left behind"
+
+
+def test_tiny_run_saved_inputs(tiny_run):
+    result, out = tiny_run
+    assert result.returncode == 0, result.stderr
+    inputs = out / "inputs" / "sphere-sun"
+    with np.load(inputs / "gbuffer.npz") as data:
+        arrays = {name: data[name] for name in data.files}
+    assert set(arrays) == {"mask", "position", "normal", "view", "kd", "ks", "shininess"}
+    mask = arrays["mask"]
+    assert mask.dtype == bool and mask.shape == (16, 16)
+    for name in ("position", "normal", "view", "kd", "ks"):
+        assert arrays[name].shape == (16, 16, 3), name
+    assert arrays["shininess"].shape == (16, 16)
+    assert 0 < mask.sum() < mask.size  # the sphere covers part of the frame
+    for name in ("normal", "view"):
+        lengths = np.linalg.norm(arrays[name][mask], axis=-1)
+        np.testing.assert_allclose(lengths, 1.0, atol=1e-4, err_msg=name)
+    assert (np.sum(arrays["normal"][mask] * arrays["view"][mask], axis=-1) > 0).all()
+    env = np.load(inputs / "env_f0.npy")
+    assert env.dtype == np.float32 and env.shape == (6, 8, 8, 3)
+    assert np.isfinite(env).all() and (env >= 0).all() and env.max() > 0
+
+
+# --- list ----------------------------------------------------------------------------------------
+
+
+def test_list_devices_marks_exactly_one(cli):
+    result = cli("list", "devices")
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    device_lines = [line for line in lines if line[:1] in ("*", " ") and "[" in line]
+    assert device_lines, result.stdout
+    assert sum(line.startswith("*") for line in lines) == 1, result.stdout
+
+
+def test_list_estimators(cli):
+    result = cli("list", "estimators")
+    assert result.returncode == 0, result.stderr
+    assert re.search(r"^uniform\b", result.stdout, re.M), result.stdout
