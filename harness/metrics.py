@@ -3,7 +3,8 @@
 1. Exposure k = 0.18 / log-average luminance of the reference over covered pixels, applied to both.
 2. Reinhard L/(1+L) on luminance, colour scaled by the same ratio.
 3. Linear sRGB → XYZ (D65) → L*a*b* with colour-science; mean ΔE76 and ΔE2000 over covered pixels.
-Plus relMSE in linear HDR, mean((x−r)²/(r²+0.01)), and the sample counts.
+Plus relMSE in linear HDR, mean((x−r)²/(r²+0.01)), HDR-FLIP (NVIDIA's flip-evaluator, where
+installed; NaN otherwise) as a mean over covered pixels, and the sample counts.
 """
 from __future__ import annotations
 
@@ -16,6 +17,11 @@ with warnings.catch_warnings():
     import colour
 
 from iblbench.scenes.cubemap import luminance
+
+try:
+    import flip_evaluator
+except ImportError:   # optional: `pip install iblbench[flip]`
+    flip_evaluator = None
 
 PROTOCOL = "lab-reinhard-v1"
 _D65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
@@ -60,6 +66,16 @@ def rel_mse(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> fl
     return float(np.mean((x - r) ** 2 / (r * r + 0.01)))
 
 
+def hdr_flip(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
+    """Mean HDR-FLIP error over covered pixels, or NaN when flip-evaluator is not installed."""
+    if flip_evaluator is None or not mask.any():
+        return float("nan")
+    error_map = flip_evaluator.evaluate(np.ascontiguousarray(reference, np.float32),
+                                        np.ascontiguousarray(estimate, np.float32), "HDR",
+                                        applyMagma=False)[0]
+    return float(error_map[..., 0][mask].mean())
+
+
 def score(estimate, reference: np.ndarray, mask: np.ndarray) -> tuple[dict, np.ndarray]:
     """One results row's metrics for an :class:`Estimate`, and the ΔE76 image for a heat map.
 
@@ -74,7 +90,7 @@ def score(estimate, reference: np.ndarray, mask: np.ndarray) -> tuple[dict, np.n
         "mean_delta_e76": float(de76[mask].mean()),
         "mean_delta_e2000": float(de2000[mask].mean()),
         "rel_mse": rel_mse(radiance, reference, mask),
-        "flip": float("nan"),
+        "flip": hdr_flip(radiance, reference, mask),
         "used_samples": used,
         "effective_samples": effective,
         "effective_ratio": effective / used if used > 0 else float("nan"),

@@ -1,0 +1,83 @@
+"""Protocol lab-reinhard-v1 against hand-computed values."""
+import numpy as np
+import pytest
+
+from iblbench.estimators.base import Estimate
+from iblbench.harness import metrics
+
+
+def cie_lightness(y):
+    """L* of relative luminance y (white = 1), the CIE 1976 formula."""
+    eps, kappa = 216 / 24389, 24389 / 27
+    return np.where(y > eps, 116 * np.cbrt(y) - 16, kappa * y)
+
+
+def grey_image(values, shape=(4, 4)):
+    image = np.empty(shape + (3,), np.float32)
+    image[...] = np.asarray(values, np.float32).reshape(-1, 1)[: shape[0] * shape[1]].reshape(shape + (1,))
+    return image
+
+
+def test_exposure_is_0_18_over_log_average():
+    reference = grey_image(np.repeat([0.5, 2.0], 8))
+    mask = np.ones((4, 4), bool)
+    assert metrics.exposure(reference, mask) == pytest.approx(0.18 / np.sqrt(0.5 * 2.0), rel=1e-5)
+    mask[:2] = False   # only covered pixels count: all 2.0 there
+    assert metrics.exposure(reference, mask) == pytest.approx(0.18 / 2.0, rel=1e-5)
+
+
+def test_reinhard_on_luminance_keeps_chromaticity():
+    rgb = np.array([[2.0, 1.0, 0.5]])
+    k = 0.3
+    out = metrics.tonemap(rgb, k)
+    y = 0.2126 * 2.0 + 0.7152 * 1.0 + 0.0722 * 0.5
+    assert metrics.luminance(out)[0] == pytest.approx(k * y / (1 + k * y))
+    assert out[0] / out[0, 1] == pytest.approx(rgb[0] / rgb[0, 1])
+
+
+def test_delta_e76_of_greys_is_the_lightness_difference():
+    reference = grey_image(np.full(16, 1.0))
+    estimate = grey_image(np.full(16, 1.5))
+    mask = np.ones((4, 4), bool)
+    de76, de2000 = metrics.delta_e_images(estimate, reference, mask)
+    k = 0.18   # log-average of the reference is 1
+    y_ref, y_est = k * 1.0 / (1 + k * 1.0), k * 1.5 / (1 + k * 1.5)
+    # sRGB grey is D65 white, so a* = b* = 0 and ΔE76 = |ΔL*|; ΔE2000 differs from ΔE76 for greys.
+    assert de76 == pytest.approx(abs(cie_lightness(y_est) - cie_lightness(y_ref)), rel=1e-4)
+    assert np.all(de2000 > 0) and not np.allclose(de2000, de76)
+    assert np.all(metrics.delta_e_images(reference, reference, mask)[0] == 0)
+
+
+def test_rel_mse_closed_form():
+    reference = grey_image(np.full(16, 0.1))
+    estimate = grey_image(np.full(16, 0.3))
+    mask = np.ones((4, 4), bool)
+    assert metrics.rel_mse(estimate, reference, mask) == pytest.approx(0.2 ** 2 / (0.01 + 0.01))
+
+
+def test_score_counts_nonfinite_and_scores_them_as_black():
+    reference = grey_image(np.full(16, 1.0))
+    radiance = reference.copy()
+    radiance[0, 0] = np.nan
+    mask = np.ones((4, 4), bool)
+    estimate = Estimate(radiance, np.full((4, 4), 8.0, np.float32), np.full((4, 4), 4.0, np.float32),
+                        8.0, 3, {"shade": 1.0})
+    row, de76 = metrics.score(estimate, reference, mask)
+    black = reference.copy()
+    black[0, 0] = 0
+    assert row["nonfinite"] == 3 and np.isfinite(row["mean_delta_e76"])
+    assert row["mean_delta_e76"] == pytest.approx(metrics.delta_e_images(black, reference, mask)[0].mean())
+    assert de76[0, 0] > 0 and np.all(de76.ravel()[1:] == 0)
+    assert row["effective_ratio"] == pytest.approx(0.5)
+
+
+def test_hdr_flip_is_zero_for_identical_images_and_grows_with_error():
+    pytest.importorskip("flip_evaluator")
+    rng = np.random.default_rng(0)
+    reference = rng.random((32, 32, 3)).astype(np.float32) * 4
+    mask = np.zeros((32, 32), bool)
+    mask[4:28, 4:28] = True
+    assert metrics.hdr_flip(reference, reference, mask) == 0
+    small = metrics.hdr_flip(reference * 1.05, reference, mask)
+    large = metrics.hdr_flip(reference * 1.5, reference, mask)
+    assert 0 < small < large
