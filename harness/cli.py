@@ -129,8 +129,10 @@ def _run(args) -> None:
                        save_inputs=args.save_inputs, sanitize=args.sanitize, env_res=args.env_res,
                        progress=False if args.no_progress else None)
     table = run(config)
-    summary = table.groupby(["scene", "estimator", "spp"])[
-        ["mean_delta_e76", "effective_samples", "used_samples", "nonfinite", "time_ms_shade"]].mean()
+    summary = table.groupby(["scene", "estimator", "spp"]).agg(
+        mean_delta_e76=("mean_delta_e76", "mean"), effective=("effective_samples", "mean"),
+        used=("used_samples", "mean"), nonfinite=("nonfinite", "sum"),
+        median_shade_ms=("time_ms_shade", "median"))
     print(summary.to_string(float_format=lambda v: f"{v:.4g}"))
     print(f"wrote {len(table)} rows to {args.out}/results.parquet")
 

@@ -49,7 +49,9 @@ class DeviceInfo:
 
     @property
     def short_name(self) -> str:
-        return f"{self.device.name.strip()} ({self.platform.version.strip()})"
+        """Device name, platform version and driver: what every results row records."""
+        return (f"{self.device.name.strip()} | {self.platform.version.strip()} | "
+                f"driver {self.device.driver_version.strip()}")
 
     @property
     def key(self) -> str:
