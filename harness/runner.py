@@ -124,12 +124,16 @@ class Runner:
 
     def run(self):
         self.out.mkdir(parents=True, exist_ok=True)
+        self.manifest["status"] = "running"     # a killed run leaves this, not a missing manifest
+        write_manifest(self.out, self.manifest)
         with tqdm(total=self.total_cells, unit="cell", disable=self._bar_disabled(),
                   desc="iblbench run") as bar:
             for scene in self.scenes:
                 self._run_scene(scene, bar)
+        table = write_results(self.out, self.rows)
+        self.manifest["status"] = "complete"
         write_manifest(self.out, self.manifest)
-        return write_results(self.out, self.rows)
+        return table
 
     def _bar_disabled(self):
         return None if self.config.progress is None else not self.config.progress

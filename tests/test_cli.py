@@ -271,7 +271,8 @@ def test_tiny_run_manifest(tiny_run):
     result, out = tiny_run
     assert result.returncode == 0, result.stderr
     manifest = json.loads((out / "manifest.json").read_text())
-    assert manifest["protocol"] == "lab-reinhard-v1"
+    assert manifest["protocol"] == "lab-reinhard-v1" and manifest["status"] == "complete"
+    assert manifest["git_revision"] and manifest["versions"]["pyopencl"]
     device = manifest["device"]
     assert isinstance(device, dict) and device.get("name") and device.get("platform")
     assert "uniform" in manifest["estimator_versions"]
