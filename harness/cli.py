@@ -17,6 +17,7 @@ examples:
   iblbench run                                   small default suite on built-in scenes
   iblbench run --scene sphere-sun --estimator uniform --spp 16,256 --seeds 2 --out runs/a
   iblbench run --scene my/scene.toml --sanitize  a user scene (see README for the TOML format)
+  iblbench reproduce lu2013 --out runs/lu2013    Lu 2013's figures and claims, with verdicts
   iblbench list devices                          OpenCL platforms/devices and which is chosen
 """
 
@@ -89,6 +90,19 @@ def build_parser() -> argparse.ArgumentParser:
                      help="replace NaN/Inf/negative texels in environment maps instead of refusing")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+    repro = commands.add_parser(
+        "reproduce", help="re-run a paper's experiments and judge its claims (e.g. lu2013)",
+        description="Run a paper's experiments on built-in scenes through the ordinary runner, "
+                    "then write summary.md and summary.html (tables, plots, and one verdict per "
+                    "claim: holds / partly holds / does not hold) beside results.parquet.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    repro.add_argument("paper", metavar="PAPER", help="which reproduction: lu2013")
+    repro.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/reproduce"),
+                       help="output directory")
+    repro.add_argument("--seeds", type=_positive_int, default=3, help="seeds per cell")
+    repro.add_argument("--device", metavar="SUBSTRING", help="as for 'run'")
+    repro.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     listing = commands.add_parser("list", help="list devices, estimators or scenes",
                                   description="List OpenCL devices (and the one chosen), "
                                               "registered estimators, or built-in scenes.")
@@ -137,10 +151,19 @@ def _run(args) -> None:
     print(f"wrote {len(table)} rows to {args.out}/results.parquet")
 
 
+def _reproduce(args) -> None:
+    from iblbench.harness.reproduce import reproduce
+
+    summary = reproduce(args.paper, args.out, seeds=args.seeds, device=args.device,
+                        progress=False if args.no_progress else None)
+    print(summary.read_text(encoding="utf-8").split("## Fig. 2")[0].strip())
+    print(f"wrote {summary} and {summary.with_suffix('.html')}")
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        {"run": _run, "list": _list}[args.command](args)
+        {"run": _run, "reproduce": _reproduce, "list": _list}[args.command](args)
     except InputError as error:
         print(f"iblbench: error: {error}", file=sys.stderr)
         return 2
