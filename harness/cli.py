@@ -58,13 +58,20 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="iblbench", description=DESCRIPTION, epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    # Flags every rendering command shares.
+    device = argparse.ArgumentParser(add_help=False)
+    device.add_argument("--device", metavar="SUBSTRING",
+                        help="OpenCL platform/device substring (overrides IBLBENCH_DEVICE; default: "
+                             "a GPU, else the fastest CPU platform)")
+    rendering = argparse.ArgumentParser(add_help=False, parents=[device])
+    rendering.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     run = commands.add_parser(
         "run", help="benchmark estimators on scenes and write results, manifest and images",
         description="Render every (scene, estimator, spp, seed) cell, score it against the exact "
                     "reference and write results.parquet/.csv, manifest.json and "
                     "images/<scene>/f<frame>/ (EXR + PNG previews + ΔE heat maps) into --out.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        parents=[rendering])
     run.add_argument("--scene", action="append", metavar="NAME|FILE",
                      help="built-in scene name or a scene .toml file; repeatable "
                           f"(default: {', '.join(runner.DEFAULT_SCENES)})")
@@ -72,42 +79,38 @@ def build_parser() -> argparse.ArgumentParser:
                      help="estimator name; repeatable (default: "
                           f"{', '.join(runner.DEFAULT_ESTIMATORS)}; see 'iblbench list estimators')")
     run.add_argument("--spp", type=_spp_list, default=runner.DEFAULT_SPP, metavar="N,N,...",
-                     help="samples per pixel, comma-separated")
+                     help="samples per pixel, comma-separated (default: "
+                          f"{','.join(map(str, runner.DEFAULT_SPP))})")
     run.add_argument("--seeds", type=_positive_int, default=runner.DEFAULT_SEEDS,
-                     help="seeds per cell (0..N-1)")
+                     help=f"seeds per cell, 0..N-1 (default: {runner.DEFAULT_SEEDS})")
     run.add_argument("--res", type=_resolution, metavar="WxH",
                      help="image resolution (default: the scene's own)")
     run.add_argument("--env-res", type=_positive_int, metavar="R",
                      help="cube face resolution for built-in skies and resampled maps")
     run.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/latest"),
-                     help="output directory")
-    run.add_argument("--device", metavar="SUBSTRING",
-                     help="OpenCL platform/device substring (overrides IBLBENCH_DEVICE; default: "
-                          "a GPU, else the fastest CPU platform)")
+                     help="output directory (default: results/latest)")
     run.add_argument("--save-inputs", action="store_true",
                      help="also write inputs/<scene>/gbuffer.npz and env_f<frame>.npy")
     run.add_argument("--sanitize", action="store_true",
                      help="replace NaN/Inf/negative texels in environment maps instead of refusing")
-    run.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     repro = commands.add_parser(
         "reproduce", help="re-run a paper's experiments and judge its claims (e.g. lu2013)",
         description="Run a paper's experiments on built-in scenes through the ordinary runner, "
                     "then write summary.md and summary.html (tables, plots, and one verdict per "
                     "claim: holds / partly holds / does not hold) beside results.parquet.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        parents=[rendering])
     repro.add_argument("paper", metavar="PAPER", help="which reproduction: lu2013")
     repro.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/reproduce"),
-                       help="output directory")
-    repro.add_argument("--seeds", type=_positive_int, default=3, help="seeds per cell")
-    repro.add_argument("--device", metavar="SUBSTRING", help="as for 'run'")
-    repro.add_argument("--no-progress", action="store_true", help="no progress bar")
+                       help="output directory (default: results/reproduce)")
+    repro.add_argument("--seeds", type=_positive_int, default=3,
+                       help="seeds per cell (default: 3)")
 
     listing = commands.add_parser("list", help="list devices, estimators or scenes",
                                   description="List OpenCL devices (and the one chosen), "
-                                              "registered estimators, or built-in scenes.")
+                                              "registered estimators, or built-in scenes.",
+                                  parents=[device])
     listing.add_argument("what", choices=("devices", "estimators", "scenes"))
-    listing.add_argument("--device", metavar="SUBSTRING", help="as for 'run'")
     return parser
 
 
