@@ -1,6 +1,7 @@
 """Procedural meshes and mesh files (OBJ/PLY/GLB through trimesh)."""
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
@@ -17,6 +18,68 @@ def sphere(subdivisions: int = 4, radius: float = 1.0) -> trimesh.Trimesh:
     mesh = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
     normals = mesh.vertices / np.linalg.norm(mesh.vertices, axis=1, keepdims=True)
     return trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_normals=normals, process=False)
+
+
+BLOB_SUBDIVISIONS = 7     # 20·4^7 = 327,680 triangles
+BLOB_AMPLITUDE = 0.15     # radial displacement scale: the radius stays within 1 ± amplitude (0.885..1.119)
+
+
+def blob_displacement(directions: np.ndarray) -> np.ndarray:
+    """Smooth radial displacement in [-1, 1] for unit ``directions [N, 3]``: a few low-frequency sines.
+
+    Its second derivatives (~16 × the amplitude) exceed the sphere's curvature, so the displaced
+    surface has both convex bumps and concave dents.  Deterministic: no random numbers.
+    """
+    x, y, z = directions[:, 0], directions[:, 1], directions[:, 2]
+    value = (
+        np.sin(4.0 * x + 0.3) * np.cos(3.0 * y - 0.7)
+        + 0.7 * np.sin(5.0 * z + 1.1) * np.cos(2.0 * x)
+        + 0.5 * np.sin(3.0 * (x + y + z))
+    )
+    return value / 2.2  # |value| <= 1 + 0.7 + 0.5
+
+
+@functools.lru_cache(maxsize=4)
+def _blob_arrays(subdivisions: int, amplitude: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices, faces and smooth vertex normals of the blob (read-only; cached by parameters)."""
+    base = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    directions = base.vertices / np.linalg.norm(base.vertices, axis=1, keepdims=True)
+    vertices = directions * (1.0 + amplitude * blob_displacement(directions))[:, None]
+    faces = np.asarray(base.faces, np.int64)
+    # Smooth normals of the displaced surface: the area-weighted sum of the adjacent face normals
+    # (the cross product of two edges is twice the area times the unit face normal).
+    corners = vertices[faces]
+    weighted = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(normals, faces[:, k], weighted)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    for array in (vertices, faces, normals):
+        array.flags.writeable = False
+    return vertices, faces, normals
+
+
+def blob(subdivisions: int = BLOB_SUBDIVISIONS, amplitude: float = BLOB_AMPLITUDE) -> trimesh.Trimesh:
+    """A unit icosphere displaced radially by ``amplitude × blob_displacement`` (outward winding).
+
+    The default has 327,680 triangles.  The geometry is cached per (subdivisions, amplitude); each
+    call returns a fresh ``Trimesh`` over copies of it, so callers may modify their mesh.
+    """
+    vertices, faces, normals = _blob_arrays(int(subdivisions), float(amplitude))
+    return trimesh.Trimesh(vertices.copy(), faces.copy(), vertex_normals=normals.copy(), process=False)
+
+
+def torus(major_radius: float = 1.0, minor_radius: float = 0.4, major_sections: int = 96, minor_sections: int = 48) -> trimesh.Trimesh:
+    """Torus around the +Y axis (the ring lies in the XZ plane) with exact analytic vertex normals."""
+    mesh = trimesh.creation.torus(major_radius, minor_radius, major_sections, minor_sections)
+    # trimesh builds the ring around +Z; rotate +Z onto +Y.
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1.0, 0.0, 0.0]))
+    vertices = np.asarray(mesh.vertices)
+    ring = vertices * [1.0, 0.0, 1.0]
+    ring *= major_radius / np.linalg.norm(ring, axis=1, keepdims=True)
+    normals = (vertices - ring) / minor_radius
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return trimesh.Trimesh(vertices, mesh.faces, vertex_normals=normals, process=False)
 
 
 def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:

@@ -2,6 +2,15 @@
 
 ``load_scene(name_or_path)`` takes a built-in name (case-insensitive) or a path ending in ``.toml``.
 
+Built-in scenes (static Preetham sun + sky, kd = 0.5, ks = 0.3, shininess = 150, 128 × 128):
+
+- ``sphere-sun``: the baseline; a smooth sphere, sun at 35° front-right.
+- ``sphere-backlit``: the same sphere with the sun at 5° behind it, below the horizon of every
+  visible normal: where per-normal balancing of environment sampling (Lu 2013) should matter most.
+- ``blob-sun``: a displaced icosphere of 327,680 triangles (bumps and dents, varied normals) for
+  scale and normal variety.
+- ``torus-sun``: a torus seen from above; inner faces point down and back at the tube.
+
 User scene format (paths are relative to the TOML file's folder)::
 
     [mesh]
@@ -54,20 +63,82 @@ except ModuleNotFoundError:  # Python < 3.11
 DEFAULT_ENV_RES = 64
 
 
-def _sphere_sun(env_res: int | None) -> Scene:
+_MATERIAL = Material(kd=(0.5, 0.5, 0.5), ks=(0.3, 0.3, 0.3), shininess=150.0)
+
+# Sun low behind the sphere-backlit sphere: elevation 5°, azimuth 180° (towards −Z, away from the
+# camera at +Z).
+BACKLIT_SUN_ELEVATION_DEG = 5.0
+BACKLIT_SUN_AZIMUTH_DEG = 180.0
+
+
+def _sun_sky_scene(name: str, mesh, camera: Camera, env_res: int | None, **sun) -> Scene:
+    """A static Preetham sun + sky scene with the default material at 128 × 128."""
+    env = sky.sun_sky(res=env_res or DEFAULT_ENV_RES, **sun)
     return Scene(
-        name="sphere-sun",
-        mesh=meshes.sphere(),
-        material=Material(kd=(0.5, 0.5, 0.5), ks=(0.3, 0.3, 0.3), shininess=150.0),
-        # The unit sphere spans 87% of the frame height from (0, 0, 3) with a 45° vertical fov.
-        camera=Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0),
-        environment=EnvSequence.static(sky.sun_sky(res=env_res or DEFAULT_ENV_RES), source="preetham-sun-sky"),
+        name=name,
+        mesh=mesh,
+        material=_MATERIAL,
+        camera=camera,
+        environment=EnvSequence.static(env, source="preetham-sun-sky"),
         resolution=(128, 128),
-        source="builtin:sphere-sun",
+        source=f"builtin:{name}",
     )
 
 
-BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {"sphere-sun": _sphere_sun}
+def _sphere_sun(env_res: int | None) -> Scene:
+    """The baseline: a smooth sphere, the sun at 35° elevation front-right (its lit side is partly visible)."""
+    # The unit sphere spans 87% of the frame height from (0, 0, 3) with a 45° vertical fov.
+    camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    return _sun_sky_scene("sphere-sun", meshes.sphere(), camera, env_res)
+
+
+def _sphere_backlit(env_res: int | None) -> Scene:
+    """The sphere-sun sphere and camera with the sun low (5°) and behind the sphere.
+
+    From 3 radii away only normals with n_z > 1/3 are visible, and for all of them the sun is below
+    the horizon (n·sun <= 0.087·0.943 − 0.996/3 ≈ −0.25, i.e. at least 14° below).  All the light
+    reaching the camera comes from the dim sky and ground while nearly all the environment's power
+    is in the sun: the case where balancing environment sampling per normal (Lu et al. 2013) should
+    matter most, and where plain environment-importance sampling wastes most of its samples.
+    """
+    camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    return _sun_sky_scene(
+        "sphere-backlit", meshes.sphere(), camera, env_res,
+        sun_elevation_deg=BACKLIT_SUN_ELEVATION_DEG, sun_azimuth_deg=BACKLIT_SUN_AZIMUTH_DEG,
+    )
+
+
+def _blob_sun(env_res: int | None) -> Scene:
+    """A displaced icosphere of 327,680 triangles under the sphere-sun sky.
+
+    Tests scale (a G-buffer and BVH over > 100k triangles) and normal variety: its bumps and dents
+    give concave regions and rapidly varying normals, so neighbouring pixels see the sun at very
+    different angles, unlike the smooth sphere.
+    """
+    # The blob's radius is within 0.885..1.119; from 3 away its silhouette is at most 21.9° off
+    # axis, inside the 22.5° half fov: it covers 57% of the frame and is nowhere cut.
+    camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    return _sun_sky_scene("blob-sun", meshes.blob(), camera, env_res)
+
+
+def _torus_sun(env_res: int | None) -> Scene:
+    """A torus (ring radius 1, tube 0.4) lying in the XZ plane, seen from 34° above, default sky.
+
+    A genus-1 shape: the inner side of the ring faces away from the sun and back towards the tube,
+    giving normals that point down and inwards as well as the sphere's outward ones.
+    """
+    camera = Camera(eye=(0.0, 2.2, 3.3), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    return _sun_sky_scene("torus-sun", meshes.torus(), camera, env_res)
+
+
+# Every built-in scene: static Preetham sun + sky, kd = 0.5, ks = 0.3, shininess = 150, 128 × 128,
+# cube faces DEFAULT_ENV_RES² unless env_res says otherwise.
+BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {
+    "sphere-sun": _sphere_sun,
+    "sphere-backlit": _sphere_backlit,
+    "blob-sun": _blob_sun,
+    "torus-sun": _torus_sun,
+}
 
 
 def scene_names() -> list[str]:

@@ -186,6 +186,96 @@ def test_builtin_sphere_sun_scene_is_case_insensitive():
     assert scene.environment.is_static and scene.environment.frame(0).shape == (6, 16, 16, 3)
 
 
+EXPECTED_SCENES = ("blob-sun", "sphere-backlit", "sphere-sun", "torus-sun")
+
+
+def test_scene_names_lists_every_builtin_scene():
+    assert registry.scene_names() == sorted(EXPECTED_SCENES)
+    assert set(registry.BUILTIN_SCENES) == set(EXPECTED_SCENES)
+
+
+@pytest.mark.parametrize("name", EXPECTED_SCENES)
+def test_every_builtin_scene_loads_by_name(name):
+    scene = registry.load_scene(name.upper(), env_res=8)
+    assert scene.name == name and scene.source == f"builtin:{name}" and scene.resolution == (128, 128)
+    assert scene.material == Material(kd=(0.5,) * 3, ks=(0.3,) * 3, shininess=150.0)
+    assert scene.environment.is_static and scene.environment.frame(0).shape == (6, 8, 8, 3)
+    assert registry.load_scene(name).environment.frame(0).shape == (6, 64, 64, 3)  # DEFAULT_ENV_RES
+    normals = np.asarray(scene.mesh.vertex_normals)
+    assert normals.shape == scene.mesh.vertices.shape
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
+    assert np.all(np.isfinite(scene.mesh.vertices))
+
+
+def scene_gbuffer(name, size=64):
+    scene = registry.load_scene(name, env_res=32)
+    return scene, gbuffer.trace_gbuffer(scene.mesh, scene.material, scene.camera, size, size)
+
+
+def brightest_direction(env):
+    luminance = cubemap.luminance(env)
+    face, row, col = np.unravel_index(np.argmax(luminance), luminance.shape)
+    return cubemap.texel_directions(env.shape[1])[face, row, col]
+
+
+def test_blob_has_over_100k_triangles_and_smooth_normals_of_the_displaced_surface():
+    mesh = registry.load_scene("blob-sun", env_res=8).mesh
+    assert len(mesh.faces) > 100_000
+    radius = np.linalg.norm(mesh.vertices, axis=1)
+    assert radius.min() < 0.95 and radius.max() > 1.05  # really displaced, not a sphere
+    assert radius.min() > 1 - meshes.BLOB_AMPLITUDE and radius.max() < 1 + meshes.BLOB_AMPLITUDE
+    vertex_normals = np.asarray(mesh.vertex_normals)
+    assert np.allclose(np.linalg.norm(vertex_normals, axis=1), 1.0, atol=1e-6)
+    # Each corner's vertex normal agrees with the face's geometric normal (outward winding).
+    cosines = np.einsum("fkj,fj->fk", vertex_normals[mesh.faces], mesh.face_normals)
+    angles = np.degrees(np.arccos(np.clip(cosines, -1.0, 1.0)))
+    assert angles.mean() < 1.0 and angles.max() < 5.0
+    # The normals are those of the displaced surface, not the sphere's radial directions.
+    radial = mesh.vertices / radius[:, None]
+    assert np.degrees(np.arccos(np.clip(np.sum(vertex_normals * radial, 1), -1, 1))).max() > 10.0
+    # Both convex and concave regions: some adjacent face pairs fold inwards.
+    assert 0.02 < 1.0 - mesh.face_adjacency_convex.mean() < 0.5
+
+
+def test_blob_is_deterministic_and_callers_get_their_own_copy():
+    first, second = meshes.blob(), meshes.blob()
+    assert first is not second and np.array_equal(first.vertices, second.vertices)
+    first.vertices[0] = [9.0, 9.0, 9.0]
+    assert not np.array_equal(meshes.blob().vertices[0], [9.0, 9.0, 9.0])
+
+
+def test_blob_gbuffer_fills_most_of_the_frame_without_being_cut():
+    _, buffer = scene_gbuffer("blob-sun")
+    mask = buffer.mask
+    assert 0.4 < mask.mean() < 0.8
+    assert not (mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+    assert np.allclose(np.linalg.norm(buffer.normal[mask], axis=1), 1.0, atol=1e-5)
+
+
+def sun_facing_away_fraction(name):
+    scene, buffer = scene_gbuffer(name)
+    sun = brightest_direction(scene.environment.frame(0))
+    return np.mean(buffer.normal[buffer.mask] @ sun <= 0.02), sun
+
+
+def test_sphere_backlit_sun_is_low_behind_the_sphere_and_below_most_visible_normals():
+    away, sun = sun_facing_away_fraction("sphere-backlit")
+    expected = sky.sun_direction(registry.BACKLIT_SUN_ELEVATION_DEG, registry.BACKLIT_SUN_AZIMUTH_DEG)
+    assert np.degrees(np.arccos(sun @ expected)) < 3.0
+    assert 0.0 < sun[1] < 0.2 and sun[2] < -0.9  # low, on the far side from the camera at +Z
+    assert away > 0.5
+    sun_side_away, _ = sun_facing_away_fraction("sphere-sun")
+    assert sun_side_away < 0.5  # the contrast: in sphere-sun most visible normals see the sun
+
+
+def test_torus_is_in_frame_and_has_a_hole():
+    scene, buffer = scene_gbuffer("torus-sun")
+    mask = buffer.mask
+    assert len(scene.mesh.faces) > 1000 and 0.2 < mask.mean() < 0.8
+    assert not (mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+    assert not mask[32, 32]  # the camera looks at the centre of the hole
+
+
 def test_unknown_scene_lists_the_valid_names():
     with pytest.raises(InputError, match=r"unknown scene 'nope'; valid scenes: .*sphere-sun"):
         registry.load_scene("nope")
