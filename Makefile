@@ -4,6 +4,8 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 BENCH_OUT ?= results/default
+# Where the system OpenCL loader looks for drivers (it honours OCL_ICD_VENDORS too).
+OPENCL_VENDORS ?= $(or $(OCL_ICD_VENDORS),/etc/OpenCL/vendors)
 
 .PHONY: bench test venv clean
 
@@ -13,8 +15,8 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
-	@if ls /etc/OpenCL/vendors/*.icd >/dev/null 2>&1; then \
-		echo "OpenCL: system ICD found in /etc/OpenCL/vendors"; \
+	@if ls $(OPENCL_VENDORS)/*.icd >/dev/null 2>&1; then \
+		echo "OpenCL: system driver found in $(OPENCL_VENDORS)"; \
 	else \
 		echo "hint: no system OpenCL driver found; installing the pip PoCL (generic target)."; \
 		echo "hint: Debian's 'apt-get install -y pocl-opencl-icd' runs about 10x faster on this CPU."; \
