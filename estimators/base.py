@@ -80,17 +80,22 @@ class Estimator:
 
 @functools.lru_cache(maxsize=None)
 def estimator_version(cls: type) -> str:
-    """Hash of the estimator's Python source, its kernels and the shared kernels they include."""
+    """Hash of everything an estimator's output depends on: its Python source (and its bases'),
+    its kernels, every shared kernel include, and the frame-cache code when it requires products."""
+    import iblbench.harness.framecache as framecache
     from iblbench.harness.device import kernel_path
 
     digest = hashlib.sha256()
     for klass in cls.__mro__:
-        if klass is object:
-            continue
-        digest.update(inspect.getsource(inspect.getmodule(klass)).encode())
+        if klass is not object:
+            digest.update(inspect.getsource(inspect.getmodule(klass)).encode())
     for filename in cls.kernel_files:
         digest.update(kernel_path(cls.kernel_package(), filename).read_bytes())
-    digest.update(kernel_path("iblbench.estimators", "kernels/common.cl").read_bytes())
+    for shared in sorted(kernel_path("iblbench.estimators", "kernels").glob("*.cl")):
+        digest.update(shared.read_bytes())
+    if cls.requires:
+        digest.update(inspect.getsource(framecache).encode())
+        digest.update(kernel_path("iblbench.harness", "framecache.cl").read_bytes())
     return digest.hexdigest()[:12]
 
 

@@ -6,6 +6,7 @@ whose object is an :class:`~iblbench.estimators.base.Estimator` subclass.
 from __future__ import annotations
 
 import functools
+import warnings
 from importlib.metadata import entry_points
 
 from iblbench.estimators.base import Estimator
@@ -30,7 +31,11 @@ def _load_all() -> None:
     for cls in _BUILTINS:
         register(cls)
     for entry in entry_points(group=ENTRY_POINT_GROUP):
-        register(entry.load())
+        try:
+            register(entry.load())
+        except Exception as error:   # one broken plugin must not disable the others
+            warnings.warn(f"iblbench: skipping estimator plugin '{entry.name}' ({entry.value}): "
+                          f"{error}", stacklevel=2)
 
 
 def estimator_names() -> list[str]:

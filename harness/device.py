@@ -67,7 +67,13 @@ def all_devices() -> list[DeviceInfo]:
         platforms = cl.get_platforms()
     except cl.Error:
         return []
-    return [DeviceInfo(p, d) for p in platforms for d in p.get_devices()]
+    devices = []
+    for platform in platforms:
+        try:
+            devices += [DeviceInfo(platform, d) for d in platform.get_devices()]
+        except cl.Error:   # a platform with no usable device (e.g. a GPU driver without a GPU)
+            continue
+    return devices
 
 
 # Straight-line code (no loop in the kernel body) so that a vectorising CPU compiler can run
@@ -116,18 +122,18 @@ def measured_gflops(info: DeviceInfo) -> float:
 
 
 def choose_device(spec: str | None = None) -> DeviceInfo:
-    """The device to run on: ``spec`` (or ``IBLBENCH_DEVICE``) substring, else GPU, else fastest CPU."""
+    """The device to run on: among those matching ``spec`` (or ``IBLBENCH_DEVICE``) as a substring,
+    if given, a GPU, else the fastest CPU."""
     devices = all_devices()
     if not devices:
         raise InputError(None, "no OpenCL platform found; install pocl-opencl-icd "
                                "(apt) or pocl-binary-distribution (pip)")
     spec = spec or os.environ.get(ENV_DEVICE)
     if spec:
-        matches = [d for d in devices if spec.lower() in d.label.lower()]
-        if not matches:
-            valid = "; ".join(d.label for d in devices)
+        devices = [d for d in devices if spec.lower() in d.label.lower()]
+        if not devices:
+            valid = "; ".join(d.label for d in all_devices())
             raise InputError(None, f"no OpenCL device matches '{spec}'; devices: {valid}")
-        return matches[0]
     gpus = [d for d in devices if d.is_gpu]
     if gpus:
         return gpus[0]
@@ -159,7 +165,8 @@ class Compute:
         key = (package, filename, tuple(sorted((defines or {}).items())))
         if key not in self._programs:
             source = kernel_path(package, filename).read_text()
-            options = [f"-I{d}" for d in include_dirs()]
+            # The kernel's own folder first, so a plugin's .cl files can include their siblings.
+            options = [f"-I{kernel_path(package, filename).parent}"] + [f"-I{d}" for d in include_dirs()]
             options += [f"-D{name}={value}" for name, value in sorted((defines or {}).items())]
             if self.info.has_fp64:
                 options.append("-DHAVE_FP64=1")

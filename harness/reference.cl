@@ -34,7 +34,7 @@ inline real3 polygon_vector(const real3 *p, int k)
         acc_t s = length(c);
         if (s > 0) phi += atan2(s, dot(a, b)) / s * c;
     }
-    return 0.5 * phi;
+    return (acc_t)0.5 * phi;
 }
 
 /* ∫ cos⁺ dω over a texel the horizon cuts: clip its face square to n·x ≥ 0 (Sutherland-

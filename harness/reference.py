@@ -4,6 +4,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
+import pathlib
 
 import numpy as np
 
@@ -68,7 +69,8 @@ class Reference:
         digest = hashlib.sha256()
         digest.update(kernel_path("iblbench.harness", "reference.cl").read_bytes())
         digest.update(kernel_path("iblbench.estimators", "kernels/common.cl").read_bytes())
-        digest.update(f"density={self.density}".encode())
+        digest.update(pathlib.Path(__file__).read_bytes())   # the host-side texel tables
+        digest.update(f"density={self.density} fp64={self.compute.info.has_fp64}".encode())
         g = gbuffer.gbuffer
         for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],
                       g.shininess[g.mask], np.ascontiguousarray(env, np.float32)):

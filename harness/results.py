@@ -8,6 +8,7 @@ import pathlib
 import pandas as pd
 
 from iblbench.scenes.atomic import atomic_path
+from iblbench.scenes.errors import InputError
 
 KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed"]
 METRIC_COLUMNS = [
@@ -21,6 +22,22 @@ COLUMNS = KEY_COLUMNS + ["estimator_version"] + METRIC_COLUMNS + ["device", "pro
 def results_frame(rows: list[dict]) -> pd.DataFrame:
     frame = pd.DataFrame(rows, columns=COLUMNS)
     return frame.astype({"spp": "int64", "frame": "int64", "seed": "int64", "nonfinite": "int64"})
+
+
+def read_results(out_dir: pathlib.Path) -> list[dict]:
+    """The rows of an earlier run in ``out_dir`` (none if it has no results table)."""
+    path = out_dir / "results.parquet"
+    if not path.exists():
+        return []
+    try:
+        return pd.read_parquet(path).to_dict("records")
+    except Exception as error:   # pyarrow raises several types for damaged files
+        raise InputError(path, f"cannot read the existing results table ({error}); "
+                               "use a new --out") from None
+
+
+def cell_key(row: dict) -> tuple:
+    return tuple(row[column] for column in KEY_COLUMNS)
 
 
 def write_results(out_dir: pathlib.Path, rows: list[dict]) -> pd.DataFrame:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import os
 import pathlib
 import platform
 import subprocess
@@ -24,7 +25,7 @@ from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
 from iblbench.harness.metrics import PROTOCOL, exposure, score
 from iblbench.harness.reference import Reference
-from iblbench.harness.results import write_manifest, write_results
+from iblbench.harness.results import cell_key, read_results, write_manifest, write_results
 from iblbench.reports.previews import write_heat_map, write_preview
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
@@ -62,10 +63,16 @@ def _package_version(name: str) -> str:
 
 
 def _git_revision() -> str:
-    here = pathlib.Path(__file__).resolve().parent
+    """The source checkout's revision, "-dirty" with uncommitted changes; "unknown" when the
+    package is not running from its own checkout (a site-packages install)."""
+    package_root = pathlib.Path(__file__).resolve().parent.parent
     try:
-        return subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True,
-                              text=True, check=True, timeout=10).stdout.strip()
+        top = subprocess.run(["git", "-C", str(package_root), "rev-parse", "--show-toplevel"],
+                             capture_output=True, text=True, check=True, timeout=10).stdout.strip()
+        if pathlib.Path(top).resolve() != package_root:
+            return "unknown"
+        return subprocess.run(["git", "-C", top, "describe", "--always", "--dirty", "--abbrev=40"],
+                              capture_output=True, text=True, check=True, timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return "unknown"
 
@@ -77,7 +84,34 @@ def _device_record(compute) -> dict:
             "driver": info.device.driver_version.strip(), "fp64": info.has_fp64}
 
 
+def _require_unique_names(scenes) -> None:
+    """Scene names key the results rows and the image folders, so two scenes may not share one."""
+    seen = {}
+    for scene in scenes:
+        if scene.name in seen:
+            raise InputError(scene.source or scene.name,
+                             f"scene name '{scene.name}' is also the name of "
+                             f"{seen[scene.name] or 'a built-in scene'}; rename one of the files")
+        seen[scene.name] = scene.source
+
+
+def _prepare_out(out: pathlib.Path) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(out, f"cannot create the output directory ({error.strerror})") from None
+    if not os.access(out, os.W_OK):
+        raise InputError(out, "the output directory is not writable")
+
+
 class Runner:
+    """Runs every cell not already in ``out``'s results table.
+
+    A cell counts as done when a row with its (scene, estimator, spp, frame, seed) was made by the
+    same estimator version on the same device; such rows are kept and not recomputed, so an
+    interrupted run resumes and a rerun with more spp or seeds adds to the table.
+    """
+
     def __init__(self, config: RunConfig):
         for spp in config.spp:
             if spp < 1:
@@ -88,6 +122,7 @@ class Runner:
         self.estimator_classes = [get_estimator_class(name) for name in config.estimators]
         self.scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
                        for name in config.scenes]
+        _require_unique_names(self.scenes)
         for scene in self.scenes:
             if scene.environment.texels_fixed:
                 print(f"iblbench: --sanitize replaced {scene.environment.texels_fixed} bad texels "
@@ -95,7 +130,10 @@ class Runner:
         self.compute = get_compute(config.device)
         self.reference = Reference(self.compute)
         self.out = pathlib.Path(config.out)
-        self.rows: list[dict] = []
+        if self.out.exists() and not self.out.is_dir():
+            raise InputError(self.out, "--out exists and is not a directory")
+        self.rows = {cell_key(row): row for row in read_results(self.out)}
+        self.resumed = 0
         self.manifest = self._new_manifest()
 
     def _new_manifest(self) -> dict:
@@ -123,15 +161,16 @@ class Runner:
         return frames * len(self.estimator_classes) * len(self.config.spp) * self.config.seeds
 
     def run(self):
-        self.out.mkdir(parents=True, exist_ok=True)
+        _prepare_out(self.out)
         self.manifest["status"] = "running"     # a killed run leaves this, not a missing manifest
         write_manifest(self.out, self.manifest)
         with tqdm(total=self.total_cells, unit="cell", disable=self._bar_disabled(),
                   desc="iblbench run") as bar:
             for scene in self.scenes:
                 self._run_scene(scene, bar)
-        table = write_results(self.out, self.rows)
+        table = write_results(self.out, list(self.rows.values()))
         self.manifest["status"] = "complete"
+        self.manifest["resumed_cells"] = self.resumed
         write_manifest(self.out, self.manifest)
         return table
 
@@ -181,31 +220,42 @@ class Runner:
         write_exr(images / "reference.exr", reference)
         write_preview(images / "reference.png", reference, k)
         for cls in self.estimator_classes:
+            cells = [(spp, seed) for spp in self.config.spp for seed in range(self.config.seeds)
+                     if not self._done(scene_name, cls, spp, cache.frame, seed)]
+            self.resumed += self.config.seeds * len(self.config.spp) - len(cells)
+            bar.update(self.config.seeds * len(self.config.spp) - len(cells))
+            if not cells:
+                continue
             estimator = cls()
             estimator.render(gbuffer, cache, min(self.config.spp), WARMUP_SEED)  # untimed warm-up
             build_ms = sum(cache.timings_ms.get(p, 0.0) for p in ("upload",) + cls.requires)
-            for spp in self.config.spp:
-                for seed in range(self.config.seeds):
-                    start = time.perf_counter()
-                    estimate = estimator.render(gbuffer, cache, spp, seed)
-                    frame_ms = (time.perf_counter() - start) * 1e3
-                    metrics, delta_e = score(estimate, reference, mask)
-                    stem = f"{cls.name}_spp{spp}_s{seed}"
-                    write_exr(images / f"{stem}.exr", estimate.radiance)
-                    write_preview(images / f"{stem}.png", estimate.radiance, k)
-                    write_heat_map(images / f"{stem}_de76.png", delta_e)
-                    self.rows.append({
-                        "scene": scene_name, "estimator": cls.name, "spp": spp,
-                        "frame": cache.frame, "seed": seed, "estimator_version": cls.version(),
-                        **metrics,
-                        "time_ms_build": build_ms,
-                        "time_ms_sample": estimate.timings_ms.get("sample", float("nan")),
-                        "time_ms_shade": estimate.timings_ms.get("shade", float("nan")),
-                        "time_ms_frame": frame_ms,
-                        "device": self.compute.device_name, "protocol": PROTOCOL,
-                    })
-                    bar.update()
-            write_results(self.out, self.rows)
+            for spp, seed in cells:
+                start = time.perf_counter()
+                estimate = estimator.render(gbuffer, cache, spp, seed)
+                frame_ms = (time.perf_counter() - start) * 1e3
+                metrics, delta_e = score(estimate, reference, mask)
+                stem = f"{cls.name}_spp{spp}_s{seed}"
+                write_exr(images / f"{stem}.exr", estimate.radiance)
+                write_preview(images / f"{stem}.png", estimate.radiance, k)
+                write_heat_map(images / f"{stem}_de76.png", delta_e)
+                row = {
+                    "scene": scene_name, "estimator": cls.name, "spp": spp,
+                    "frame": cache.frame, "seed": seed, "estimator_version": cls.version(),
+                    **metrics,
+                    "time_ms_build": build_ms,
+                    "time_ms_sample": estimate.timings_ms.get("sample", float("nan")),
+                    "time_ms_shade": estimate.timings_ms.get("shade", float("nan")),
+                    "time_ms_frame": frame_ms,
+                    "device": self.compute.device_name, "protocol": PROTOCOL,
+                }
+                self.rows[cell_key(row)] = row
+                bar.update()
+            write_results(self.out, list(self.rows.values()))
+
+    def _done(self, scene: str, cls, spp: int, frame: int, seed: int) -> bool:
+        row = self.rows.get((scene, cls.name, spp, frame, seed))
+        return (row is not None and row["estimator_version"] == cls.version()
+                and row["device"] == self.compute.device_name)
 
 
 def run(config: RunConfig):

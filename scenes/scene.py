@@ -15,10 +15,6 @@ class Material:
     ks: tuple[float, float, float] = (0.3, 0.3, 0.3)
     shininess: float = 150.0
 
-    @property
-    def is_diffuse(self) -> bool:
-        return max(self.ks) == 0.0
-
 
 @dataclasses.dataclass(frozen=True)
 class Camera:

@@ -146,3 +146,22 @@ def test_hdr_unsupported_variants(tmp_path, header, match):
 def test_unsupported_extension(tmp_path):
     (tmp_path / "a.png").write_bytes(b"\x89PNG")
     _assert_input_error(tmp_path / "a.png", r"unsupported extension '\.png'")
+
+
+def test_atomic_writes_leave_readable_files_and_no_temporaries(tmp_path):
+    import os
+    import stat
+
+    from iblbench.scenes.atomic import atomic_path
+
+    target = tmp_path / "sub" / "result.txt"
+    with atomic_path(target) as tmp:
+        tmp.write_text("done")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert stat.S_IMODE(target.stat().st_mode) == 0o666 & ~mask
+    with pytest.raises(RuntimeError):
+        with atomic_path(target) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("killed mid-write")
+    assert target.read_text() == "done" and [p.name for p in target.parent.iterdir()] == ["result.txt"]

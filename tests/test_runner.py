@@ -1,0 +1,56 @@
+"""The runner in-process: resumption, refusing ambiguous scenes and unusable --out, the ΔE trend."""
+import numpy as np
+import pytest
+import trimesh
+
+from iblbench.harness.runner import RunConfig, run
+from iblbench.scenes.errors import InputError
+
+
+def tiny(out, **overrides):
+    config = dict(out=out, scenes=("sphere-sun",), estimators=("uniform",), spp=(4,), seeds=1,
+                  resolution=(16, 16), env_res=8, progress=False)
+    config.update(overrides)
+    return RunConfig(**config)
+
+
+def test_rerun_keeps_finished_cells_and_adds_new_ones(tmp_path):
+    first = run(tiny(tmp_path))
+    second = run(tiny(tmp_path, spp=(4, 8)))
+    assert sorted(second.spp) == [4, 8]
+    kept = second[second.spp == 4].iloc[0]
+    # Not recomputed: the wall time of the first render is carried over unchanged.
+    assert kept.time_ms_frame == first.iloc[0].time_ms_frame
+    third = run(tiny(tmp_path, spp=(8,)))
+    assert sorted(third.spp) == [4, 8]   # a narrower rerun does not drop other cells
+
+
+def test_error_falls_with_spp(tmp_path):
+    table = run(tiny(tmp_path, spp=(4, 64), seeds=2, resolution=(24, 24)))
+    means = table.groupby("spp").mean_delta_e76.mean()
+    assert means[64] < means[4]
+    assert (table.nonfinite == 0).all()
+    assert np.all((table.effective_samples <= table.used_samples) & (table.used_samples <= table.spp))
+
+
+def test_two_scenes_with_one_name_are_refused(tmp_path):
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        np.save(tmp_path / folder / "env.npy", np.full((6, 4, 4, 3), 0.5, np.float32))
+        trimesh.creation.icosphere(1).export(tmp_path / folder / "ball.obj")
+        (tmp_path / folder / "scene.toml").write_text(
+            '[mesh]\npath = "ball.obj"\n[environment]\npath = "env.npy"\n'
+            '[camera]\neye = [0, 0, 3]\ntarget = [0, 0, 0]\n')
+    scenes = (str(tmp_path / "a" / "scene.toml"), str(tmp_path / "b" / "scene.toml"))
+    with pytest.raises(InputError, match="scene name 'scene' is also the name of"):
+        run(tiny(tmp_path / "out", scenes=scenes))
+    assert not (tmp_path / "out").exists()
+
+
+def test_out_that_is_a_file_is_refused(tmp_path):
+    target = tmp_path / "file"
+    target.write_text("not a folder")
+    with pytest.raises(InputError, match="not a directory"):
+        run(tiny(target))
+    with pytest.raises(InputError, match="cannot create the output directory"):
+        run(tiny(target / "below"))
