@@ -52,10 +52,10 @@ __kernel void sample_directions(__global const float *marginal, __global const f
 {
     int i = get_global_id(0);
     float3 w;
-    int texel, face;
+    int texel;
     float4 xi = rng_uniform4(seed, 0u, 1u, (uint)i, 0u, 0u);
-    sample_face(marginal, conditional, lit_faces[i % n_lit], res, xi, &w, &texel);
-    out[i] = (float4)(w, light_pdf(marginal, conditional, res, w, &face) / n_lit);
+    float pdf = sample_face(marginal, conditional, lit_faces[i % n_lit], res, xi, &w, &texel);
+    out[i] = (float4)(w, pdf / n_lit);   /* the pdf render uses, checked against direction_pdf */
 }
 
 __kernel void direction_pdf(__global const float *marginal, __global const float *conditional,

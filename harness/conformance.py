@@ -43,10 +43,11 @@ def fibonacci_directions(n: int) -> np.ndarray:
 
 
 def smooth_map(res: int = 8) -> np.ndarray:
-    """A smooth, coloured, strictly positive map (χ² and z-tests need no hard edges)."""
-    d = cubemap.texel_directions(res)
-    base = 1.0 + 0.6 * d[..., 1:2] + 0.4 * d[..., 0:1] ** 2
-    return (base * np.array([1.0, 0.8, 0.6])).astype(np.float32)
+    """A smooth, strictly positive map whose channels vary differently (χ² and z-tests need no
+    hard edges, and a bias in one channel must not hide behind the others)."""
+    x, y, z = np.moveaxis(cubemap.texel_directions(res), -1, 0)
+    return np.stack([1.0 + 0.6 * y + 0.4 * x * x, 0.8 + 0.5 * x * z, 0.6 - 0.4 * y + 0.3 * z],
+                    axis=-1).astype(np.float32)
 
 
 def constant_map(value: float = 0.7, res: int = 8) -> np.ndarray:
@@ -66,12 +67,12 @@ def stress_maps(res: int = 16) -> dict[str, np.ndarray]:
             "all-black": np.zeros((6, res, res, 3), np.float32), "black-faces": black_faces}
 
 
-def glossy_gbuffer(size: int = 8, shininess: float = 20.0, ks: float = 0.3) -> GBuffer:
+def glossy_gbuffer(size: int = 8, shininess: float = 20.0, ks: float = 0.3, kd: float = 0.5) -> GBuffer:
     """Normals over the whole sphere, views tilted off each normal, a Phong material."""
     n = fibonacci_directions(size * size).reshape(size, size, 3)
     tilt = np.roll(n, 1, axis=-1)
     view = n + 0.6 * (tilt - np.sum(tilt * n, -1, keepdims=True) * n)
-    return GBuffer.from_pixels(n, view, 0.5, ks, shininess)
+    return GBuffer.from_pixels(n, view, kd, ks, shininess)
 
 
 def grazing_gbuffer(size: int = 8) -> GBuffer:
@@ -174,24 +175,31 @@ def _sidak_z(tests: int, alpha: float = ALPHA_Z) -> float:
 
 
 def check_unbiased(estimator, h: Harness) -> None:
-    """z-tests of the mean over seeds against the exact reference, Šidák-corrected as one family:
-    per pixel and channel, and pooled over the image per channel (the pooled test sees a small
-    bias that per-pixel noise hides)."""
-    seeds, spp = 64, 8
-    gbuffer, cache = h.inputs(glossy_gbuffer(), smooth_map())
-    reference = h.reference(gbuffer, cache)
-    samples = np.stack([h.render(estimator, gbuffer, cache, spp, s).radiance for s in range(seeds)])
-    pooled = (samples - reference).sum(axis=(1, 2)) / reference.sum(axis=(0, 1))   # [seeds, 3]
-    pooled_z = pooled.mean(0) / (pooled.std(0, ddof=1) / np.sqrt(seeds))
-    se = samples.std(0, ddof=1) / np.sqrt(seeds) + 1e-6 * np.abs(reference)
-    z = (samples.mean(0) - reference) / se
-    limit = _sidak_z(z.size + pooled_z.size)
-    assert np.abs(pooled_z).max() < limit, (
-        f"biased: image mean off by {100 * pooled.mean(0)}% (z = {pooled_z}, limit {limit:.2f})")
-    worst = np.unravel_index(np.argmax(np.abs(z)), z.shape)
-    assert np.abs(z).max() < limit, (
-        f"biased: |z| = {np.abs(z).max():.2f} ≥ {limit:.2f} at pixel {worst[:2]} "
-        f"(mean {samples.mean(0)[worst]:.5g}, reference {reference[worst]:.5g})")
+    """z-tests of the mean over seeds against the exact reference, on a glossy, a purely specular
+    and a black-faces case.  Two families, each at α = 1e-3 with Šidák correction: the image mean
+    per channel (it sees a bias of about 1%) and every pixel and channel."""
+    seeds, spp = 1000, 8
+    cases = {"glossy": (glossy_gbuffer(), smooth_map()),
+             "specular-only": (glossy_gbuffer(ks=0.8, kd=0.0), smooth_map()),
+             "black-faces": (glossy_gbuffer(), stress_maps(8)["black-faces"])}
+    failures = []
+    for case, (gb, env) in cases.items():
+        gbuffer, cache = h.inputs(gb, env)
+        reference = h.reference(gbuffer, cache)
+        samples = np.stack([h.render(estimator, gbuffer, cache, spp, s).radiance
+                            for s in range(seeds)]).astype(np.float64)
+        pooled = (samples - reference).sum(axis=(1, 2)) / reference.sum(axis=(0, 1))  # [seeds, 3]
+        pooled_z = pooled.mean(0) / (pooled.std(0, ddof=1) / np.sqrt(seeds))
+        se = samples.std(0, ddof=1) / np.sqrt(seeds) + 1e-6 * np.abs(reference)
+        z = (samples.mean(0) - reference) / se
+        if np.abs(pooled_z).max() >= _sidak_z(3):
+            failures.append(f"{case}: image mean off by {np.round(100 * pooled.mean(0), 3)}% "
+                            f"(z = {np.round(pooled_z, 2)})")
+        if np.abs(z).max() >= _sidak_z(z.size):
+            worst = np.unravel_index(np.argmax(np.abs(z)), z.shape)
+            failures.append(f"{case}: |z| = {np.abs(z).max():.2f} at pixel {worst[:2]} (mean "
+                            f"{samples.mean(0)[worst]:.5g}, reference {reference[worst]:.5g})")
+    assert not failures, "biased: " + "; ".join(failures)
 
 
 def check_convergence(estimator, h: Harness) -> None:
@@ -256,8 +264,11 @@ def check_chi2_sampling(estimator, h: Harness) -> None:
     for case, (normal, view) in enumerate(cases):
         dirs, sample_pdf = estimator.sample_directions(cache, normal, view, n, 7 + case)
         hook_pdf = estimator.pdf(cache, normal, view, dirs)
-        assert np.allclose(sample_pdf, hook_pdf, rtol=1e-4, atol=0), \
-            "the pdf returned with the samples differs from the pdf hook"
+        # A sample within float rounding of a texel border may be looked up in its neighbour;
+        # a wrong Jacobian or texel probability makes (nearly) every sample disagree.
+        agree = np.isclose(sample_pdf, hook_pdf, rtol=1e-4, atol=0)
+        assert agree.mean() > 0.999, (f"the pdf returned with the samples differs from the pdf "
+                                      f"hook for {100 * (1 - agree.mean()):.2f}% of samples")
         expected = n * _bin_probabilities(lambda d: estimator.pdf(cache, normal, view, d),
                                           n_z, n_phi, sub)
         assert abs(expected.sum() / n - 1) < 0.01, f"pdf integrates to {expected.sum() / n:.4f}, not 1"
