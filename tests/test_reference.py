@@ -128,3 +128,27 @@ def test_reference_is_cached_by_content(compute):
     env[0, 0, 0] += 1.0
     changed = reference.image(gbuffer, FrameCache(compute, env))
     assert reference.last_ms is not None and not np.array_equal(first, changed)
+
+
+@pytest.mark.parametrize("shininess", [20.0, 150.0, 1e4])
+def test_lobe_tail_texels_are_not_skipped(compute, shininess):
+    """A lit texel where the lobe is 1e-6 of its peak (above the 1e-9 skip cutoff) still counts."""
+    res = 32
+    r = np.array([0.3, 0.5, 0.81])
+    r /= np.linalg.norm(r)
+    theta = np.arccos(1e-6 ** (1 / shininess))
+    side = np.cross(r, [0.0, 0.0, 1.0])
+    side /= np.linalg.norm(side)
+    direction = np.cos(theta) * r + np.sin(theta) * side
+    face, row, col = (int(i) for i in cubemap.direction_to_texel(direction, res))
+    normal = (r + direction) / np.linalg.norm(r + direction)
+    view = 2 * np.dot(normal, r) * normal - r
+    image = _reference(compute, GBuffer.from_pixels(normal[None, None], view, 0.0, 1.0, shininess),
+                       _one_texel_map(res, face, row, col))
+    lobe = lambda w: ((shininess + 2) / (2 * np.pi) * np.maximum(w @ r, 0) ** shininess
+                      * np.maximum(w @ normal, 0))
+    expected = brute_force(res, face, row, col, lobe, sub=600)
+    assert expected > 0
+    # Skipping would give 0.  In the far tail the lobe changes by e^3 across a texel, so the
+    # reference's few sub-cells there are only good to ~1%: 1e-8 of the peak, far below MC noise.
+    assert image[0, 0, 0] == pytest.approx(expected, rel=3e-2)
