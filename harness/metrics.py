@@ -48,15 +48,19 @@ def to_lab(display_rgb: np.ndarray) -> np.ndarray:
     return colour.XYZ_to_Lab(xyz, _D65)
 
 
+def lab_differences(lab_a: np.ndarray, lab_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """ΔE76 and ΔE2000 between L*a*b* arrays ``[..., 3]``."""
+    return (colour.delta_E(lab_a, lab_b, method="CIE 1976"),
+            colour.delta_E(lab_a, lab_b, method="CIE 2000"))
+
+
 def delta_e_images(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray):
     """Per-pixel ΔE76 and ΔE2000 images (zero outside ``mask``)."""
     k = exposure(reference, mask)
-    lab_est = to_lab(tonemap(estimate[mask], k))
-    lab_ref = to_lab(tonemap(reference[mask], k))
     de76 = np.zeros(mask.shape)
     de2000 = np.zeros(mask.shape)
-    de76[mask] = colour.delta_E(lab_est, lab_ref, method="CIE 1976")
-    de2000[mask] = colour.delta_E(lab_est, lab_ref, method="CIE 2000")
+    de76[mask], de2000[mask] = lab_differences(to_lab(tonemap(estimate[mask], k)),
+                                               to_lab(tonemap(reference[mask], k)))
     return de76, de2000
 
 

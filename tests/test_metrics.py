@@ -81,3 +81,19 @@ def test_hdr_flip_is_zero_for_identical_images_and_grows_with_error():
     small = metrics.hdr_flip(reference * 1.05, reference, mask)
     large = metrics.hdr_flip(reference * 1.5, reference, mask)
     assert 0 < small < large
+
+
+# Sharma, Wu & Dalal (2005), "The CIEDE2000 color-difference formula", Table 1 (pairs 1, 2, 7, 17).
+SHARMA_PAIRS = [
+    ((50.0, 2.6772, -79.7751), (50.0, 0.0, -82.7485), 2.0425),
+    ((50.0, 3.1571, -77.2803), (50.0, 0.0, -82.7485), 2.8615),
+    ((50.0, 0.0, 0.0), (50.0, -1.0, 2.0), 2.3669),
+    ((50.0, 2.5, 0.0), (73.0, 25.0, -18.0), 27.1492),
+]
+
+
+@pytest.mark.parametrize("lab_a, lab_b, expected", SHARMA_PAIRS)
+def test_delta_e2000_matches_sharma_test_data(lab_a, lab_b, expected):
+    de76, de2000 = metrics.lab_differences(np.array(lab_a), np.array(lab_b))
+    assert de2000 == pytest.approx(expected, abs=1e-4)
+    assert de76 == pytest.approx(np.linalg.norm(np.subtract(lab_a, lab_b)))
