@@ -71,12 +71,20 @@ def rel_mse(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> fl
 
 
 def hdr_flip(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
-    """Mean HDR-FLIP error over covered pixels, or NaN when flip-evaluator is not installed."""
+    """Mean HDR-FLIP error over covered pixels, or NaN when flip-evaluator is not installed.
+
+    FLIP picks its exposure range from the reference's luminance; background pixels (zero) would
+    stretch it, so the range is taken from the covered pixels alone.
+    """
     if flip_evaluator is None or not mask.any():
         return float("nan")
-    error_map = flip_evaluator.evaluate(np.ascontiguousarray(reference, np.float32),
-                                        np.ascontiguousarray(estimate, np.float32), "HDR",
-                                        applyMagma=False)[0]
+    reference = np.ascontiguousarray(reference, np.float32)
+    covered = np.ascontiguousarray(reference[mask][None])
+    exposures = flip_evaluator.evaluate(covered, covered, "HDR", applyMagma=False,
+                                        computeMeanError=False)[2]
+    parameters = {key: exposures[key] for key in ("startExposure", "stopExposure", "numExposures")}
+    error_map = flip_evaluator.evaluate(reference, np.ascontiguousarray(estimate, np.float32), "HDR",
+                                        applyMagma=False, parameters=parameters)[0]
     return float(error_map[..., 0][mask].mean())
 
 

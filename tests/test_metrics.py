@@ -97,3 +97,4 @@ def test_delta_e2000_matches_sharma_test_data(lab_a, lab_b, expected):
     de76, de2000 = metrics.lab_differences(np.array(lab_a), np.array(lab_b))
     assert de2000 == pytest.approx(expected, abs=1e-4)
     assert de76 == pytest.approx(np.linalg.norm(np.subtract(lab_a, lab_b)))
+
