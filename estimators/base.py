@@ -80,7 +80,7 @@ class Estimator:
 
 @functools.lru_cache(maxsize=None)
 def estimator_version(cls: type) -> str:
-    """Hash of the estimator's Python source, its kernels and the shared kernels they include."""
+    """Hash of the estimator's Python source, its kernels and the shared kernels (kernels/*.cl)."""
     from iblbench.harness.device import kernel_path
 
     digest = hashlib.sha256()
@@ -90,7 +90,8 @@ def estimator_version(cls: type) -> str:
         digest.update(inspect.getsource(inspect.getmodule(klass)).encode())
     for filename in cls.kernel_files:
         digest.update(kernel_path(cls.kernel_package(), filename).read_bytes())
-    digest.update(kernel_path("iblbench.estimators", "kernels/common.cl").read_bytes())
+    for shared in sorted(kernel_path("iblbench.estimators", "kernels").glob("*.cl")):
+        digest.update(shared.read_bytes())
     return digest.hexdigest()[:12]
 
 
