@@ -26,18 +26,14 @@ class Balanced(PoolEstimator):
     Faces with F_f = 0 lie wholly below the horizon and get no samples (proof in light_pool.cl);
     all-black faces (I_f = 0) get none either.
 
-    Pool size: N_s per face, not the paper's N_s/2 (Sec. 2.2): without BRDF samples one face can
-    take the whole budget (μ_f → 1 when it holds all the light above the horizon), and a smaller
-    pool would have to reuse samples.
+    Pool size: N_s + 1 per face, not the paper's N_s/2 (Sec. 2.2): without BRDF samples one face
+    can take the whole budget (μ_f → 1 when it holds all the light above the horizon), and a
+    smaller pool would have to reuse samples (see ``PoolEstimator.pool_size``).
     """
 
     name = "balanced"
     Params = BalancedParams
     kernel_files = ("balanced.cl",)
-
-    @property
-    def max_face_share(self) -> float:
-        return 1.0 / 6.0 if self.params.uniform_faces else 1.0
 
     def defines(self, gbuffer=None) -> dict:
         return {"LU_BALANCED_FACES": 0} if self.params.uniform_faces else {}

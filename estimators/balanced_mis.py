@@ -24,15 +24,15 @@ class BalancedMIS(PoolEstimator):
     is, and a face with μ_f = 0 has s = 0 on it), and because E[Σ_i β_i h(ω_i)] = N_k E_k[h]
     with the same fractional N_k in the denominator.  Deviations from the paper: none in the
     estimator; the counts N_k are rounded to 1/65536 of a sample (light_pool.cl) and the
-    denominators use the rounded counts, which keeps the balance exact.  Pool size: ⌈N_s/2⌉
-    per face, as in the paper's Algorithm 1.
+    denominators use the rounded counts, which keeps the balance exact; the pool holds N_s + 1
+    samples per face where the paper's Algorithm 1 draws N_s/2 (shared with the other pool
+    estimators, see ``PoolEstimator.pool_size``).
 
     All-diffuse G-buffers build the kernel with the specular-lobe sampling branch compiled out.
     """
 
     name = "balanced_mis"
     kernel_files = ("balanced_mis.cl",)
-    max_face_share = 0.5
 
     def defines(self, gbuffer=None) -> dict:
         return {"SPECULAR_LOBE": 0} if gbuffer is not None and gbuffer.is_diffuse else {}

@@ -39,21 +39,25 @@ class PoolParams:
 
 
 class PoolEstimator(Estimator):
-    """A Lu 2013 estimator over the light-sample pool; subclasses set the kernel file and the
-    largest share of the budget one face can get (which sizes the pool)."""
+    """A Lu 2013 estimator over the light-sample pool; subclasses set the kernel file, which
+    configures the shared kernels of ``kernels/light_pool_kernels.cl``."""
 
     Params = PoolParams
     tags = Tags(unbiased=True, has_pdf=True)
     requires = ("cdf", "pool")
-    max_face_share: float = 1.0   # largest N_f / N_s the split can give one face
 
-    def pool_size(self, spp: int) -> int:
-        """Pool samples per face: at least the draws ⌈N_f⌉ of any face for any normal.
+    @staticmethod
+    def pool_size(spp: int) -> int:
+        """Pool samples per face: N_s + 1, the same for every pool estimator.
 
-        The integer split gives a face at most ⌈share·Q·N_s⌉ + 1 ticks (Q = TICKS_PER_SAMPLE),
-        which needs at most ⌊share·N_s⌋ + 1 draws.
+        Enough for the most draws ⌈N_f⌉ any split gives one face (N_s for ``balanced``, whose one
+        face may hold all the light above the horizon; the integer split never exceeds it), where
+        Lu 2013 draw N_s/2, which suffices only for Eq. 6's half budget.  The extra room also
+        serves the interleaved reads: a pixel's window of ⌈N_f⌉ ≤ N_s/6 (uniform) entries starts
+        anywhere in N_s + 1, so neighbours share few samples.  Shared-sequence reads use a prefix,
+        so they do not depend on the size.
         """
-        return int(np.floor(self.max_face_share * spp)) + 1
+        return spp + 1
 
     def defines(self, gbuffer=None) -> dict:
         """Compile-time options of the kernels (for this G-buffer, when one is given)."""

@@ -16,4 +16,3 @@ class Uniform(PoolEstimator):
 
     name = "uniform"
     kernel_files = ("uniform.cl",)
-    max_face_share = 1.0 / 6.0
