@@ -150,22 +150,28 @@ inline int beta_ticks(int ticks, int i)
 
 /* Light samples of every face (Eq. 4, or the g_{f,i} of Eq. 6).  A pixel reads draws_for(t_f)
  * consecutive pool entries of face f from `offset` (0 for the shared sequence), wrapping at
- * pool_size; the pool holds at least that many (min() only guards memory). */
+ * pool_size; the pool holds at least that many (min() only guards memory).  One loop over all
+ * the pixel's draws, not one per face: its trip count (≈ N_s whatever μ_f(n)) is nearly the same
+ * for every pixel, so the work items of a vector or warp stay in step (Lu's Algorithm 2 bounds
+ * the loop for the same reason). */
 inline void shade_light_faces(accumulator_t *acc, const surface_t *s, const int ticks[7],
                               __global const float4 *pool_dir_pdf, __global const float4 *pool_radiance,
                               int pool_size, int offset)
 {
+    int draws[6], total = 0;
     for (int f = 0; f < 6; ++f) {
-        int draws = min(draws_for(ticks[f]), pool_size);
-        for (int i = 0; i < draws; ++i) {
-            int entry = f * pool_size + (offset + i) % pool_size;
-            float4 dir_pdf = pool_dir_pdf[entry];
-            float3 w = dir_pdf.xyz;
-            float denominator = (float)ticks[f] * dir_pdf.w;
-            if (ticks[6] > 0)
-                denominator += (float)ticks[6] * phong_pdf(s->n, s->r, s->p_spec, s->m, w);
-            add_sample(acc, s, beta_ticks(ticks[f], i), w, pool_radiance[entry].xyz, denominator);
-        }
+        draws[f] = min(draws_for(ticks[f]), pool_size);
+        total += draws[f];
+    }
+    for (int j = 0, f = 0, i = 0; j < total; ++j, ++i) {
+        while (i >= draws[f]) { ++f; i = 0; }
+        int entry = f * pool_size + (offset + i) % pool_size;
+        float4 dir_pdf = pool_dir_pdf[entry];
+        float3 w = dir_pdf.xyz;
+        float denominator = (float)ticks[f] * dir_pdf.w;
+        if (ticks[6] > 0)
+            denominator += (float)ticks[6] * phong_pdf(s->n, s->r, s->p_spec, s->m, w);
+        add_sample(acc, s, beta_ticks(ticks[f], i), w, pool_radiance[entry].xyz, denominator);
     }
 }
 
