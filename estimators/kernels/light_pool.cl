@@ -5,8 +5,9 @@
  * N_s samples is Q·N_s ticks (Q = TICKS_PER_SAMPLE), split among the strategies (six faces, and
  * the BRDF for Eq. 6) as integers that sum to exactly Q·N_s.  A strategy with t ticks has the
  * floating count N = t/Q: floor(N) samples of weight β = 1 and one of β = frac(N) (Eq. 5).
- * used and effective are summed in integer ticks, so they never exceed N_s, not even by float
- * rounding: Q·N_s ≤ 2^31 (N_s < 32768) and float(t)/Q is exact or rounds down past Q·N_s. */
+ * used and effective are summed in integer ticks (≤ Q·N_s < 2^31 for N_s < 32768), so they never
+ * exceed N_s, not even by float rounding: int → float rounding is monotone, Q·N_s is exactly a
+ * float, and dividing by Q = 2^16 is exact. */
 #ifndef IBLBENCH_LIGHT_POOL_CL
 #define IBLBENCH_LIGHT_POOL_CL
 
