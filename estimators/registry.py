@@ -9,12 +9,14 @@ import functools
 import warnings
 from importlib.metadata import entry_points
 
+from iblbench.estimators.balanced import Balanced
+from iblbench.estimators.balanced_mis import BalancedMIS
 from iblbench.estimators.base import Estimator
 from iblbench.estimators.uniform import Uniform
 from iblbench.scenes.errors import InputError
 
 ENTRY_POINT_GROUP = "iblbench.estimators"
-_BUILTINS: tuple[type[Estimator], ...] = (Uniform,)
+_BUILTINS: tuple[type[Estimator], ...] = (Uniform, Balanced, BalancedMIS)
 _registry: dict[str, type[Estimator]] = {}
 
 

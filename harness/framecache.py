@@ -3,7 +3,12 @@
 Products:
 - ``env``: the frame's radiance as a float4 device buffer ``[6·R·R]`` (always uploaded);
 - ``cdf``: per-face marginal (rows) and conditional (columns | row) luminance CDFs and the face
-  luminance integrals I_f (Lu 2013 Eq. 3), built on the device.
+  luminance integrals I_f (Lu 2013 Eq. 3), built on the device;
+- ``pool``: Lu 2013's shared light-sample pool (Algorithm 1, line 10): per lit face, samples
+  drawn from that face's CDFs, each storing direction, pdf_L(ω|f) and radiance.  Its size
+  depends on the estimator's budget and its random rotation on the render seed, so
+  ``require("pool")`` builds only its input (``cdf``) and :meth:`FrameCache.light_pool` draws a
+  pool per (size, seed) on first use; its device time is ``timings_ms["pool"]``.
 
 Each build is timed by OpenCL profiling events (``timings_ms``); ``built`` lists what was built,
 so the runner can record which stages were skipped.
@@ -13,10 +18,25 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+import dataclasses
+
 from iblbench.harness.device import Compute, event_ms
 from iblbench.scenes import cubemap
 
-PRODUCTS = ("env", "cdf")
+PRODUCTS = ("env", "cdf", "pool")
+POOLS_KEPT = 4   # pools of recent (size, seed) kept resident
+
+
+@dataclasses.dataclass(frozen=True)
+class LightPool:
+    """``per_face`` entries per face, face-major: ``dir_pdf`` float4 (ω, pdf_L(ω|f)) and
+    ``radiance`` float4; ``build_ms`` is the device time that drew it."""
+
+    dir_pdf: cl.Buffer
+    radiance: cl.Buffer
+    per_face: int
+    seed: int
+    build_ms: float
 
 
 class FrameCache:
@@ -31,17 +51,19 @@ class FrameCache:
         self.timings_ms: dict[str, float] = {}
         self._env_buffer = self._upload_env()
         self._cdf: tuple | None = None
+        self._pools: dict[tuple[int, int], LightPool] = {}
 
     @property
     def built(self) -> list[str]:
-        return ["env"] + (["cdf"] if self._cdf is not None else [])
+        return (["env"] + (["cdf"] if self._cdf is not None else [])
+                + (["pool"] if self._pools else []))
 
     def require(self, products) -> None:
         """Build every named product that is not built yet."""
         for name in products:
             if name not in PRODUCTS:
                 raise KeyError(f"unknown frame-cache product '{name}'; valid: {', '.join(PRODUCTS)}")
-            if name == "cdf":
+            if name in ("cdf", "pool"):
                 self._build_cdf()
 
     @property
@@ -90,6 +112,26 @@ class FrameCache:
             self.timings_ms["cdf"] = event_ms(rows) + event_ms(faces)
             self._cdf = (marginal, conditional, integral, face_integrals)
         return self._cdf
+
+    def light_pool(self, per_face: int, seed: int) -> LightPool:
+        """The pool of ``per_face`` samples per face for render seed ``seed`` (drawn on first use).
+
+        The seed and frame pick the random rotation of the pool's fixed 2-D sequence, so each
+        render seed sees an independent, unbiased pool.
+        """
+        key = (int(per_face), int(seed))
+        if key not in self._pools:
+            marginal, conditional, integral, _ = self._build_cdf()
+            c, count = self.compute, 6 * key[0]
+            dir_pdf, radiance = c.empty(count * 16), c.empty(count * 16)
+            event = c.run(c.kernel("iblbench.harness", "framecache.cl", "build_light_pool"), count,
+                          self._env_buffer, marginal, conditional, integral, np.int32(self.res),
+                          np.int32(key[0]), np.uint32(seed), np.uint32(self.frame), dir_pdf, radiance)
+            self.timings_ms["pool"] = event_ms(event)
+            if len(self._pools) >= POOLS_KEPT:
+                del self._pools[next(iter(self._pools))]
+            self._pools[key] = LightPool(dir_pdf, radiance, key[0], key[1], self.timings_ms["pool"])
+        return self._pools[key]
 
     def host_cdfs(self) -> tuple[np.ndarray, np.ndarray]:
         """(marginal ``[6, R]``, conditional ``[6, R, R]``) copied back, for tests and checks."""

@@ -98,34 +98,43 @@ inline int cdf_search(__global const float *cdf, int n, float u)
 
 inline float cdf_bin(__global const float *cdf, int i) { return cdf[i] - (i > 0 ? cdf[i - 1] : 0.0f); }
 
-/* Sample face `face` by its marginal (rows) and conditional (columns | row) CDFs, then a point
- * uniform in the texel's face square.  Returns pdf_L(ω|f) in solid angle (DESIGN §3):
- * P(texel|f) · (1+u²+v²)^{3/2} / a_texel with a_texel = (2/R)².  *texel gets the texel index. */
+/* Position of u within bin i of `cdf`, in [0, 1): the continuous inversion that lets one uniform
+ * pick both the bin and the point inside it, so a 2-D point set maps to directions. */
+inline float cdf_bin_position(__global const float *cdf, int i, float u)
+{
+    float lo = i > 0 ? cdf[i - 1] : 0.0f;
+    return clamp((u - lo) / (cdf[i] - lo), 0.0f, 0x1.fffffep-1f);
+}
+
+/* Sample face `face` from the 2-D point u by its marginal (rows) and conditional (columns | row)
+ * CDFs; the position of u inside the chosen bins is the point in the texel's face square.
+ * Returns pdf_L(ω|f) in solid angle (DESIGN §3): P(texel|f) · (1+u²+v²)^{3/2} / a_texel with
+ * a_texel = (2/R)².  *texel gets the texel index. */
 inline float sample_face(__global const float *marginal, __global const float *conditional,
-                         int face, int res, float4 xi, float3 *dir, int *texel)
+                         int face, int res, float2 u, float3 *dir, int *texel)
 {
     __global const float *rows = marginal + face * res;
-    int row = cdf_search(rows, res, xi.x);
+    int row = cdf_search(rows, res, u.x);
     __global const float *cols = conditional + (face * res + row) * res;
-    int col = cdf_search(cols, res, xi.y);
-    float u = -1.0f + 2.0f * ((float)col + xi.z) / res;
-    float v = -1.0f + 2.0f * ((float)row + xi.w) / res;
-    *dir = normalize(face_uv_to_dir(face, u, v));
+    int col = cdf_search(cols, res, u.y);
+    float x = -1.0f + 2.0f * ((float)col + cdf_bin_position(cols, col, u.y)) / res;
+    float y = -1.0f + 2.0f * ((float)row + cdf_bin_position(rows, row, u.x)) / res;
+    *dir = normalize(face_uv_to_dir(face, x, y));
     *texel = texel_index(face, row, col, res);
     float texel_area = 4.0f / ((float)res * (float)res);
-    return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(u, v) / texel_area;
+    return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(x, y) / texel_area;
 }
 
 /* pdf_L(ω|f) of sample_face for the face f that holds ω (it is zero on every other face);
- * *face gets f. */
+ * *texel gets the texel that holds ω (its face is texel / R²). */
 inline float light_pdf(__global const float *marginal, __global const float *conditional,
-                       int res, float3 w, int *face)
+                       int res, float3 w, int *texel)
 {
     float s, t;
     int f = dir_to_face_st(w, &s, &t);
     int row = clamp_index(t, res), col = clamp_index(s, res);
     float p_texel = cdf_bin(marginal + f * res, row) * cdf_bin(conditional + (f * res + row) * res, col);
-    *face = f;
+    *texel = texel_index(f, row, col, res);
     return p_texel * area_per_solid_angle(2.0f * s - 1.0f, 2.0f * t - 1.0f) * (float)(res * res) / 4.0f;
 }
 
@@ -141,6 +150,61 @@ inline float3 phong_brdf(float3 r, float3 w, float3 kd, float3 ks, float m)
     float c = max(dot(r, w), 0.0f);
     float lobe = (c > 0.0f) ? (m + 2.0f) / (2.0f * IBL_PI) * exp2(m * log2(c)) : 0.0f;
     return kd / IBL_PI + ks * lobe;
+}
+
+/* BRDF sampling compiles its specular-lobe branch only with SPECULAR_LOBE=1 (the default); a
+ * G-buffer without any ks > 0 builds with SPECULAR_LOBE=0, so all-diffuse scenes never run it. */
+#ifndef SPECULAR_LOBE
+#define SPECULAR_LOBE 1
+#endif
+
+/* Probability of sampling the specular lobe: its luminance weight Y(ks) / (Y(kd) + Y(ks)). */
+inline float specular_lobe_probability(float3 kd, float3 ks)
+{
+    float yd = luminance(kd), ys = luminance(ks);
+    return ys > 0.0f ? ys / (yd + ys) : 0.0f;
+}
+
+/* Unit direction at polar cosine cos_theta and azimuth 2π·u about the unit axis z
+ * (branchless orthonormal basis of Duff et al. 2017). */
+inline float3 direction_about(float3 z, float cos_theta, float u)
+{
+    float sign = copysign(1.0f, z.z);
+    float a = -1.0f / (sign + z.z);
+    float c = z.x * z.y * a;
+    float3 t = (float3)(1.0f + sign * z.x * z.x * a, sign * c, -sign * z.x);
+    float3 b = (float3)(c, sign + z.y * z.y * a, -z.y);
+    float sin_theta = sqrt(max(0.0f, 1.0f - cos_theta * cos_theta));
+    float phi = 2.0f * IBL_PI * u;
+    return normalize(sin_theta * (cos(phi) * t + sin(phi) * b) + cos_theta * z);
+}
+
+/* Mixture pdf of sample_phong in solid angle:
+ * (1 − p_s)·cos⁺(n,ω)/π + p_s·(m+1)/(2π)·cos⁺(r,ω)^m.  The specular lobe's mass below the surface
+ * counts: those directions are sampled (and get a zero integrand). */
+inline float phong_pdf(float3 n, float3 r, float p_spec, float m, float3 w)
+{
+    float pdf = (1.0f - p_spec) * max(dot(n, w), 0.0f) / IBL_PI;
+#if SPECULAR_LOBE
+    float c = max(dot(r, w), 0.0f);
+    if (p_spec > 0.0f && c > 0.0f)
+        pdf += p_spec * (m + 1.0f) / (2.0f * IBL_PI) * exp2(m * log2(c));
+#endif
+    return pdf;
+}
+
+/* Sample the Phong BRDF (DESIGN §3): the lobe by luminance weight (xi.z), the diffuse lobe
+ * cosine-weighted (cos θ = √ξ), the specular lobe ∝ cos^m about r (cos θ = ξ^{1/(m+1)}).
+ * Returns the mixture pdf of the direction. */
+inline float sample_phong(float3 n, float3 r, float p_spec, float m, float3 xi, float3 *w)
+{
+#if SPECULAR_LOBE
+    if (xi.z < p_spec)
+        *w = direction_about(r, exp2(log2(xi.x) / (m + 1.0f)), xi.y);
+    else
+#endif
+        *w = direction_about(n, sqrt(xi.x), xi.y);
+    return phong_pdf(n, r, p_spec, m, *w);
 }
 
 /* ---- Random numbers -------------------------------------------------------------------------- */

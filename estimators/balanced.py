@@ -1,0 +1,39 @@
+"""``balanced``: Lu 2013's dynamic per-normal face balancing (Eq. 3-5)."""
+from __future__ import annotations
+
+import dataclasses
+
+from iblbench.estimators.light_pool import PoolEstimator, PoolParams
+
+
+@dataclasses.dataclass(frozen=True)
+class BalancedParams(PoolParams):
+    """``shared_sequence``: see :class:`~iblbench.estimators.light_pool.PoolParams`.
+
+    ``uniform_faces`` (debug switch, default False): force μ_f = 1/6 instead of Eq. 3, which must
+    reproduce ``uniform`` exactly on the same seed.
+    """
+
+    uniform_faces: bool = False
+
+
+class Balanced(PoolEstimator):
+    """Light importance sampling with the face split balanced per normal (Lu 2013 Eq. 3-5).
+
+    μ_f(n) = F_f(n) I_f / Σ_f F_f(n) I_f (Eq. 3), F_f(n) the clamped cosines of the face's four
+    normalised corners and I_f its luminance integral; N_f(n) = μ_f(n) N_s samples of face f read
+    from the shared pool, the last weighted by β = frac(N_f) (Eq. 5), in the estimator of Eq. 4.
+    Faces with F_f = 0 lie wholly below the horizon and get no samples (proof in light_pool.cl);
+    all-black faces (I_f = 0) get none either.
+
+    Pool size: N_s + 1 per face, not the paper's N_s/2 (Sec. 2.2): without BRDF samples one face
+    can take the whole budget (μ_f → 1 when it holds all the light above the horizon), and a
+    smaller pool would have to reuse samples (see ``PoolEstimator.pool_size``).
+    """
+
+    name = "balanced"
+    Params = BalancedParams
+    kernel_files = ("balanced.cl",)
+
+    def defines(self, gbuffer=None) -> dict:
+        return {"LU_BALANCED_FACES": 0} if self.params.uniform_faces else {}

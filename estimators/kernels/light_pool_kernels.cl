@@ -1,0 +1,88 @@
+/* Kernels of the pool estimators (Lu 2013 Algorithm 2), configured by the estimator file that
+ * includes this one:
+ *   LU_BALANCED_FACES  0: μ_f = 1/6 (Sec. 2.1);  1: μ_f(n) of Eq. 3
+ *   LU_BRDF_SAMPLES    0: light samples only (Eq. 4);  1: half the budget to BRDF samples (Eq. 6)
+ * `render_light_pool` shades one pixel per work item; `pooled_directions`/`pooled_direction_pdf`
+ * are the χ² hooks; `split_strategies` exposes the per-normal split for tests. */
+#include "light_pool.cl"
+
+__kernel void render_light_pool(__global const float4 *normal, __global const float4 *view,
+                                __global const float4 *kd, __global const float4 *ks_m,
+                                __global const float4 *env, __global const float *marginal,
+                                __global const float *conditional, __global const float *face_integral,
+                                __global const float4 *pool_dir_pdf, __global const float4 *pool_radiance,
+                                const int res, const int pool_size, const int spp,
+                                const int shared_sequence, const uint seed, const uint frame,
+                                __global float4 *radiance, __global float2 *counts,
+                                __global int *evaluations)
+{
+    int p = get_global_id(0);
+    surface_t s = make_surface(normal[p], view[p], kd[p], ks_m[p]);
+    int ticks[7];
+    strategy_ticks(s.n, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
+    /* Shared: every pixel reads the same pool entries and BRDF numbers (Lu Sec. 2.2).
+     * Interleaved: a per-pixel offset into the pool and per-pixel BRDF streams. */
+    uint stream_pixel = shared_sequence ? 0u : (uint)p;
+    int offset = shared_sequence ? 0
+               : (int)(rng_uniform4(seed, frame, STREAM_POOL_OFFSET, (uint)p, 0u, 0u).x * pool_size);
+    accumulator_t acc = {(float3)(0.0f), 0, 0, 0};
+    shade_light_faces(&acc, &s, ticks, pool_dir_pdf, pool_radiance, pool_size, offset);
+#if LU_BRDF_SAMPLES
+    shade_brdf(&acc, &s, ticks, env, marginal, conditional, res, seed, frame, stream_pixel);
+#endif
+    radiance[p] = (float4)(acc.sum, 0.0f);
+    counts[p] = (float2)((float)acc.used, (float)acc.effective) * (1.0f / TICKS_PER_SAMPLE);
+    evaluations[p] = acc.evaluations;
+}
+
+/* surface[0..3] = normal, view, kd, (ks, m) of one pixel; n directions drawn as the estimator
+ * draws them (a strategy with probability ∝ its ticks; light samples through pool_point), each
+ * with pooled_pdf. */
+__kernel void pooled_directions(__global const float4 *surface, __global const float *marginal,
+                                __global const float *conditional, __global const float *face_integral,
+                                const int res, const int spp, const uint seed, __global float4 *out)
+{
+    int i = get_global_id(0);
+    surface_t s = make_surface(surface[0], surface[1], surface[2], surface[3]);
+    int ticks[7], total = 0;
+    strategy_ticks(s.n, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
+    for (int k = 0; k < 7; ++k) total += ticks[k];
+    float4 xi = rng_uniform4(seed, 0u, STREAM_HOOK, (uint)i, 0u, 0u);
+    int pick = min((int)(xi.x * (float)total), total - 1), strategy = 0;
+    while (pick >= ticks[strategy]) pick -= ticks[strategy++];
+    float3 w;
+    float pdf;
+    if (strategy < 6) {
+        /* The pdf sample_face returns (the one render uses), not a lookup: the χ² check then
+         * compares it with pooled_direction_pdf's texel lookup. */
+        int texel;
+        float pdf_light = sample_face(marginal, conditional, strategy, res,
+                                      pool_point(strategy, i, seed, 0u), &w, &texel);
+        pdf = pooled_density(&s, ticks, strategy, pdf_light, w);
+    } else {
+        sample_phong(s.n, s.r, s.p_spec, s.m, xi.yzw, &w);
+        pdf = pooled_pdf(&s, ticks, marginal, conditional, res, w);
+    }
+    out[i] = (float4)(w, pdf);
+}
+
+__kernel void pooled_direction_pdf(__global const float4 *surface, __global const float *marginal,
+                                   __global const float *conditional, __global const float *face_integral,
+                                   const int res, const int spp, __global const float4 *dirs,
+                                   __global float *out)
+{
+    int i = get_global_id(0);
+    surface_t s = make_surface(surface[0], surface[1], surface[2], surface[3]);
+    int ticks[7];
+    strategy_ticks(s.n, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
+    out[i] = pooled_pdf(&s, ticks, marginal, conditional, res, dirs[i].xyz);
+}
+
+/* Ticks of the seven strategies (six faces, BRDF) for each normal. */
+__kernel void split_strategies(__global const float4 *normal, __global const float *face_integral,
+                               const int spp, __global int *out)
+{
+    int p = get_global_id(0), ticks[7];
+    strategy_ticks(normal[p].xyz, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
+    for (int k = 0; k < 7; ++k) out[7 * p + k] = ticks[k];
+}

@@ -1,0 +1,133 @@
+"""What ``uniform``, ``balanced`` and ``balanced_mis`` share: Lu 2013's light-sample pool
+(Algorithm 1) read by a per-pixel estimator (Algorithm 2, Eq. 4-6) in ``kernels/light_pool.cl``.
+
+The pool is a FrameCache product: per frame and render seed, ``pool_size(spp)`` samples of each
+lit face, drawn on the device from the face's CDFs.  Its 2-D points are a fixed random sequence
+(Lu's "precomputed random sequence") rotated modulo 1 per (seed, frame, face), so every pool
+entry is an unbiased sample of pdf_L(ω|f).  A random fixed sequence, not Hammersley: the
+estimator reads a *prefix* of N_f(n) ≤ pool size points, and a Hammersley set's prefix covers
+only the first N_f/size of the unit square, while any prefix of a random sequence is random.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from iblbench.estimators.base import Estimator, Tags, read_estimate
+from iblbench.harness.device import event_ms
+
+TICKS_PER_SAMPLE = 65536   # fixed point of the sample counts (light_pool.cl)
+MAX_SPP = 2 ** 31 // TICKS_PER_SAMPLE - 1
+HOOK_SPP = 64              # budget whose split the χ² hooks sample
+
+
+@dataclasses.dataclass(frozen=True)
+class PoolParams:
+    """Parameters of the pool estimators.
+
+    ``shared_sequence`` (default True): every pixel reads the same first N_f(n) pool samples of
+    each face, as in Lu 2013 Sec. 2.2; the per-(seed, frame) rotation of the pool keeps each
+    pixel's estimate unbiased over seeds.  The default is the paper's set-up, which this
+    benchmark reproduces; it is also the coherent, cache-friendly read the paper chose for
+    speed.  Its noise is correlated across pixels (smooth, structured error instead of grain).
+    False: pixel p reads pool samples from a hashed per-pixel offset (mod the pool size) and
+    draws its own BRDF numbers, the interleaved sampling Lu suggest to decorrelate neighbours.
+    """
+
+    shared_sequence: bool = True
+
+
+class PoolEstimator(Estimator):
+    """A Lu 2013 estimator over the light-sample pool; subclasses set the kernel file, which
+    configures the shared kernels of ``kernels/light_pool_kernels.cl``."""
+
+    Params = PoolParams
+    tags = Tags(unbiased=True, has_pdf=True)
+    requires = ("cdf", "pool")
+
+    @staticmethod
+    def pool_size(spp: int) -> int:
+        """Pool samples per face: N_s + 1, the same for every pool estimator.
+
+        Enough for the most draws ⌈N_f⌉ any split gives one face (N_s for ``balanced``, whose one
+        face may hold all the light above the horizon; the integer split never exceeds it), where
+        Lu 2013 draw N_s/2, which suffices only for Eq. 6's half budget.  The extra room also
+        serves the interleaved reads: a pixel's window of ⌈N_f⌉ ≤ N_s/6 (uniform) entries starts
+        anywhere in N_s + 1, so neighbours share few samples.  Shared-sequence reads use a prefix,
+        so they do not depend on the size.
+        """
+        return spp + 1
+
+    def defines(self, gbuffer=None) -> dict:
+        """Compile-time options of the kernels (for this G-buffer, when one is given)."""
+        return {}
+
+    def _kernel(self, compute, name: str, gbuffer=None):
+        return compute.kernel(self.kernel_package(), self.kernel_files[0], name, self.defines(gbuffer))
+
+    def render(self, gbuffer, cache, spp, seed):
+        if not 1 <= spp <= MAX_SPP:
+            raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
+        compute = cache.compute
+        pool = cache.light_pool(self.pool_size(spp), seed)
+        kernel = self._kernel(compute, "render_light_pool", gbuffer)
+        radiance = compute.empty(gbuffer.count * 16)
+        counts = compute.empty(gbuffer.count * 8)
+        evaluations = compute.empty(gbuffer.count * 4)
+        event = compute.run(
+            kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
+            cache.env_buffer, cache.marginal, cache.conditional, cache.face_integral_buffer,
+            pool.dir_pdf, pool.radiance, np.int32(cache.res), np.int32(pool.per_face),
+            np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),
+            np.uint32(cache.frame), radiance, counts, evaluations)
+        mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean()
+        return read_estimate(compute, gbuffer, radiance, counts, mean_evaluations,
+                             {"sample": pool.build_ms, "shade": event_ms(event)})
+
+    # ---- χ² hooks and the per-normal split ---------------------------------------------------
+
+    def _surface(self, cache, normal, view, kd=0.5, ks=0.3, shininess=20.0):
+        surface = np.zeros((4, 4), np.float32)
+        surface[0, :3] = normal / np.linalg.norm(normal)
+        surface[1, :3] = view / np.linalg.norm(view)
+        surface[2, :3], surface[3, :3], surface[3, 3] = kd, ks, shininess
+        return cache.compute.to_device(surface)
+
+    def sample_directions(self, cache, normal, view, n, seed):
+        """``n`` directions ``[n, 3]`` distributed as all the samples the estimator draws for
+        one pixel pooled (Σ_k N_k p_k / Σ_k N_k over its strategies), and that density.
+
+        The material is the conformance suite's glossy one (kd 0.5, ks 0.3, m 20).
+        """
+        compute = cache.compute
+        if not np.any(cache.face_integrals > 0):   # an all-black map has nothing to sample
+            return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
+        out = compute.empty(n * 16)
+        compute.run(self._kernel(compute, "pooled_directions"), n, self._surface(cache, normal, view),
+                    cache.marginal, cache.conditional, cache.face_integral_buffer, np.int32(cache.res),
+                    np.int32(HOOK_SPP), np.uint32(seed), out)
+        samples = compute.to_host(out, (n, 4), np.float32)
+        return samples[:, :3], samples[:, 3]
+
+    def pdf(self, cache, normal, view, dirs):
+        """Density of :meth:`sample_directions` at ``dirs`` ``[n, 3]``."""
+        compute, n = cache.compute, len(dirs)
+        padded = np.zeros((n, 4), np.float32)
+        padded[:, :3] = dirs
+        out = compute.empty(n * 4)
+        compute.run(self._kernel(compute, "pooled_direction_pdf"), n, self._surface(cache, normal, view),
+                    cache.marginal, cache.conditional, cache.face_integral_buffer, np.int32(cache.res),
+                    np.int32(HOOK_SPP), compute.to_device(padded), out)
+        return compute.to_host(out, (n,), np.float32)
+
+    def strategy_ticks(self, cache, normals, spp) -> np.ndarray:
+        """Per normal ``[n, 3]``, the ticks of the six faces and the BRDF, int ``[n, 7]``:
+        N_k = ticks / TICKS_PER_SAMPLE samples of strategy k (for tests and inspection)."""
+        compute, n = cache.compute, len(normals)
+        padded = np.zeros((n, 4), np.float32)
+        padded[:, :3] = normals
+        out = compute.empty(n * 7 * 4)
+        compute.run(self._kernel(compute, "split_strategies"), n, compute.to_device(padded),
+                    cache.face_integral_buffer, np.int32(spp), out)
+        return compute.to_host(out, (n, 7), np.int32)
