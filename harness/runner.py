@@ -228,7 +228,9 @@ class Runner:
                 continue
             estimator = cls()
             estimator.render(gbuffer, cache, min(self.config.spp), WARMUP_SEED)  # untimed warm-up
-            build_ms = sum(cache.timings_ms.get(p, 0.0) for p in ("upload",) + cls.requires)
+            # Per-frame builds only; a pool is drawn per render and timed as its "sample" stage.
+            build_ms = sum(cache.timings_ms.get(p, 0.0) for p in ("upload",) + cls.requires
+                           if p != "pool")
             for spp, seed in cells:
                 start = time.perf_counter()
                 estimate = estimator.render(gbuffer, cache, spp, seed)
