@@ -129,11 +129,15 @@ def lu2013_verdicts(cells: pd.DataFrame, scenes) -> list[Verdict]:
 
 
 def lu2013(out: pathlib.Path, seeds: int, device: str | None, progress: bool | None,
-           scenes=LU2013_SCENES) -> Reproduction:
-    """Fig. 2 and Fig. 3 analogues, timings and the verdicts on the paper's four claims."""
+           scenes=LU2013_SCENES, resolution=None, env_res=None) -> Reproduction:
+    """Fig. 2 and Fig. 3 analogues, timings and the verdicts on the paper's four claims.
+
+    ``resolution`` and ``env_res`` shrink the sweep (tests); the defaults are the scenes' own.
+    """
     table = run(RunConfig(out=out, scenes=tuple(scenes),
                           estimators=("uniform", "balanced", "balanced_mis"), spp=LU2013_SPP,
-                          seeds=seeds, device=device, progress=progress))
+                          seeds=seeds, device=device, progress=progress, resolution=resolution,
+                          env_res=env_res))
     cells = _cell_means(table)
     fig2 = cells[((cells.estimator == "balanced") & (cells.spp == 60))
                  | ((cells.estimator == "uniform") & cells.spp.isin([60, 180]))]

@@ -68,3 +68,17 @@ def test_summary_has_verdict_table_and_plots(tmp_path):
     assert html.count('class="holds"') == 4 and "<table>" in html
     for plot in ("fig3_error_vs_spp.png", "fig2_samples.png"):
         assert (tmp_path / plot).stat().st_size > 1000 and plot in md and plot in html
+
+
+def test_lu2013_end_to_end_on_tiny_images(tmp_path):
+    summary = reproduce.reproduce("lu2013", tmp_path, seeds=1, progress=False,
+                                  resolution=(10, 10), env_res=8)
+    text = summary.read_text()
+    verdicts = [line for line in text.splitlines() if line.startswith("| ") and "**" in line]
+    assert len(verdicts) == 4
+    assert all(any(v in line for v in ("**holds**", "**partly holds**", "**does not hold**"))
+               for line in verdicts)
+    table = pd.read_parquet(tmp_path / "results.parquet")
+    assert set(table.estimator) == {"uniform", "balanced", "balanced_mis"}
+    assert set(table.scene) == set(reproduce.LU2013_SCENES)
+    assert (table.nonfinite == 0).all() and (tmp_path / "summary.html").exists()
