@@ -8,6 +8,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
@@ -36,6 +37,8 @@ def plot_error_vs_spp(path: pathlib.Path, table) -> None:
     spp = np.array(sorted(table.spp.unique()), float)
     start = table[table.spp == spp[0]].mean_delta_e76.max()
     ax.loglog(spp, start * (spp / spp[0]) ** -0.5, "k--", label="slope −½")
+    ax.set_xticks(spp, [str(int(v)) for v in spp])
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_xlabel("samples per pixel")
     ax.set_ylabel("mean ΔE76")
     ax.legend()
@@ -52,7 +55,7 @@ def plot_effective_samples(path: pathlib.Path, table) -> None:
     fig, ax = plt.subplots(figsize=(max(6, 0.9 * len(labels)), 4.5))
     ax.bar(x - 0.2, table.used, 0.4, label="used")
     ax.bar(x + 0.2, table.effective, 0.4, label="effective (cos > 0)")
-    ax.set_xticks(x, labels, fontsize=7)
+    ax.set_xticks(x, labels, fontsize=7, rotation=45, ha="right")
     ax.set_ylabel("samples per pixel")
     ax.legend()
     with atomic_path(path) as tmp:
