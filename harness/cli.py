@@ -19,6 +19,7 @@ examples:
   iblbench run --scene my/scene.toml --sanitize  a user scene (see README for the TOML format)
   iblbench reproduce lu2013 --out runs/lu2013    Lu 2013's figures and claims, with verdicts
   iblbench list devices                          OpenCL platforms/devices and which is chosen
+  iblbench check runs/a --budgets budgets.toml   CI gate: exit 1 if any error budget fails
 """
 
 
@@ -111,6 +112,19 @@ def build_parser() -> argparse.ArgumentParser:
                                               "registered estimators, or built-in scenes.",
                                   parents=[device])
     listing.add_argument("what", choices=("devices", "estimators", "scenes"))
+
+    check = commands.add_parser(
+        "check", help="gate on error budgets: exit 0 when every budget holds, 1 when any fails",
+        description="Check DIR/results.parquet against the rules of a budgets file (per scene glob, "
+                    "estimator glob and spp: max mean ΔE76, max relMSE, min effective ratio, "
+                    "nonfinite == 0, max time ratio to a baseline estimator of the same run; "
+                    "format in harness/budgets.py). Prints every rule x cell with value, budget "
+                    "and PASS/FAIL, then a verdict. A missing cell fails. Exit 0 all pass, 1 any "
+                    "fails, 2 bad input.")
+    check.add_argument("dir", type=pathlib.Path, metavar="DIR",
+                       help="a run's output directory (holds results.parquet)")
+    check.add_argument("--budgets", type=pathlib.Path, default=pathlib.Path("budgets.toml"),
+                       metavar="FILE", help="budgets TOML file (default: budgets.toml)")
     return parser
 
 
@@ -163,17 +177,30 @@ def _reproduce(args) -> None:
     print(f"wrote {summary} and {summary.with_suffix('.html')}")
 
 
+def _check(args) -> int:
+    import pandas as pd
+
+    from iblbench.harness.budgets import check
+
+    checks, verdict, status = check(args.dir, args.budgets)
+    with pd.option_context("display.width", 250, "display.max_colwidth", 60):
+        print(checks.to_string(index=False))
+    print(verdict)
+    return status
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        {"run": _run, "reproduce": _reproduce, "list": _list}[args.command](args)
+        status = {"run": _run, "reproduce": _reproduce, "list": _list,
+                  "check": _check}[args.command](args)
     except InputError as error:
         print(f"iblbench: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("iblbench: interrupted", file=sys.stderr)
         return 130
-    return 0
+    return status or 0
 
 
 if __name__ == "__main__":
