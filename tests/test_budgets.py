@@ -265,6 +265,19 @@ max_mean_delta_e76 = 100
     assert result[("b", "mean_delta_e76")] == ("nan", "FAIL")   # NaN never passes
 
 
+def test_equal_time_rows_are_left_out(tmp_path):
+    rows = [row("s", "a", 16, mean_delta_e76=1.0) | {"time_budget_ms": math.nan},
+            row("s", "a", 16, mean_delta_e76=9.0) | {"time_budget_ms": 5.0},
+            row("s", "b", 16, mean_delta_e76=9.0) | {"time_budget_ms": 5.0}]
+    budgets = tmp_path / "b.toml"
+    budgets.write_text("[[rule]]\nscene = 's'\nestimator = '*'\nspp = 16\n"
+                       "max_mean_delta_e76 = 2\n", encoding="utf-8")
+    checks = evaluate(load_budgets(budgets), pd.DataFrame(rows))
+    # 'a' is judged on its equal-spp row only; 'b' has only an equal-time row, so it is
+    # not in the equal-spp sweep and the glob does not expect it.
+    assert list(zip(checks.estimator, checks.value, checks.result)) == [("a", "1", "PASS")]
+
+
 @pytest.mark.parametrize("text, needle", [
     ("[[rule]]\nscene = 'a'\nestimator = 'b'\nspp = 16\nmax_delta_e = 3\n", "max_delta_e"),
     ("[[rule]]\nscene = 'a'\nestimator = 'b'\nspp = 16\nmax_time_ms_frame = 3\n",
