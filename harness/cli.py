@@ -18,6 +18,7 @@ examples:
   iblbench run --scene sphere-sun --estimator uniform --spp 16,256 --seeds 2 --out runs/a
   iblbench run --scene my/scene.toml --sanitize  a user scene (see README for the TOML format)
   iblbench reproduce lu2013 --out runs/lu2013    Lu 2013's figures and claims, with verdicts
+  iblbench report runs/a                         runs/a/report/index.html (open it from disk)
   iblbench list devices                          OpenCL platforms/devices and which is chosen
   iblbench check runs/a --budgets budgets.toml   CI gate: exit 1 if any error budget fails
 """
@@ -51,6 +52,14 @@ def _positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got '{text}'")
     return value
+
+
+def _pixel(text: str) -> tuple[int, int]:
+    try:
+        x, y = (int(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y such as 64,40, got '{text}'")
+    return x, y
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -106,6 +115,23 @@ def build_parser() -> argparse.ArgumentParser:
                        help="output directory (default: results/reproduce)")
     repro.add_argument("--seeds", type=_positive_int, default=3,
                        help="seeds per cell (default: 3)")
+
+    report = commands.add_parser(
+        "report", help="write a self-contained HTML report of a run (DIR/report/index.html)",
+        description="Summarise a run directory in DIR/report/index.html: tables per scene, error "
+                    "against time with the Pareto front, convergence, effective samples, image "
+                    "grids with ΔE heat maps, Lu 2013's sample picture, and the manifest. The "
+                    "page opens from disk (no server, no external files).",
+        parents=[device])
+    report.add_argument("dir", type=pathlib.Path, metavar="DIR", help="an 'iblbench run' --out")
+    report.add_argument("--spp", type=_positive_int, metavar="N",
+                        help="spp of the image grid and sample picture (default: the largest "
+                             "spp every estimator of the scene ran)")
+    report.add_argument("--seed", type=int, default=0, help="seed of the images shown (default: 0)")
+    report.add_argument("--frame", type=int, default=0, help="frame of the images shown (default: 0)")
+    report.add_argument("--pixel", type=_pixel, metavar="X,Y",
+                        help="pixel of the sample picture (default: the covered pixel nearest "
+                             "the image centre)")
 
     listing = commands.add_parser("list", help="list devices, estimators or scenes",
                                   description="List OpenCL devices (and the one chosen), "
@@ -189,11 +215,19 @@ def _check(args) -> int:
     return status
 
 
+def _report(args) -> None:
+    from iblbench.reports.report import write_report
+
+    context = write_report(args.dir, spp=args.spp, seed=args.seed, frame=args.frame,
+                           pixel=args.pixel, device=args.device)
+    print(f"wrote {context['path']}")
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         status = {"run": _run, "reproduce": _reproduce, "list": _list,
-                  "check": _check}[args.command](args)
+                  "check": _check, "report": _report}[args.command](args)
     except InputError as error:
         print(f"iblbench: error: {error}", file=sys.stderr)
         return 2

@@ -1,0 +1,216 @@
+"""Plots of the benchmark report (matplotlib, Agg): error against time with the Pareto front,
+convergence against spp, effective samples, error per frame, and the ΔE colour bar.
+
+Every plot takes the per-cell summary of one scene (``summary`` from :mod:`.report`: one row per
+(estimator, spp) with ``time_ms``, ``rel_mse``, ``mean_delta_e76``, ``used_samples``,
+``effective_samples``, ``effective_ratio``) and writes a PNG atomically.
+"""
+from __future__ import annotations
+
+import pathlib
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
+import numpy as np  # noqa: E402
+
+from iblbench.reports.previews import HEAT_MAX  # noqa: E402
+from iblbench.scenes.atomic import atomic_path  # noqa: E402
+
+HEAT_CMAP = "inferno"   # the colormap of previews.write_heat_map
+DPI = 100
+
+# (column, axis label) of the two error measures the report plots.
+ERRORS = (("rel_mse", "relMSE (linear HDR, dimensionless)"),
+          ("mean_delta_e76", "mean ΔE76 (CIELAB units)"))
+
+
+def pareto_front(x, y) -> np.ndarray:
+    """Mask of the non-dominated points when both ``x`` and ``y`` are to be minimised.
+
+    Point i is dominated when some point j has x_j ≤ x_i and y_j ≤ y_i with at least one strict
+    inequality.  Points with a non-finite coordinate are never on the front (and dominate none).
+    """
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    finite = np.isfinite(x) & np.isfinite(y)
+    front = finite.copy()
+    for i in np.flatnonzero(finite):
+        others = finite & (x <= x[i]) & (y <= y[i]) & ((x < x[i]) | (y < y[i]))
+        front[i] = not others.any()
+    return front
+
+
+def _save(fig, path: pathlib.Path) -> None:
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=DPI, bbox_inches="tight")
+    plt.close(fig)
+
+
+def _estimators(summary) -> list[str]:
+    return list(dict.fromkeys(summary.estimator))
+
+
+def _colours(summary) -> dict[str, tuple]:
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    return {name: cycle[i % len(cycle)] for i, name in enumerate(_estimators(summary))}
+
+
+def _spp_ticks(ax, spp) -> None:
+    spp = sorted({int(v) for v in spp})
+    ax.set_xticks(spp, [str(v) for v in spp])
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+
+
+class _MinorLabels(matplotlib.ticker.Formatter):
+    """Labels at 2, 3 and 5 × 10^k, only on an axis spanning less than two decades."""
+
+    def __call__(self, value, pos=None) -> str:
+        low, high = sorted(self.axis.get_view_interval())
+        if low <= 0 or high / low >= 100.0:
+            return ""
+        return f"{value:.3g}" if f"{value:.1e}"[:3] in ("2.0", "3.0", "5.0") else ""
+
+
+def _plain_log_axes(ax, which: str = "xy") -> None:
+    """Log axes labelled with plain numbers (0.3, 6, 200), not 3×10⁻¹; minor ticks at 2, 3, 5
+    labelled too, so a short axis still has a few numbers."""
+    for name in which:
+        axis = ax.xaxis if name == "x" else ax.yaxis
+        axis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:.3g}"))
+        axis.set_minor_formatter(_MinorLabels())
+
+
+def _legend(ax) -> None:
+    """The legend under the axes, where it can hide no data."""
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.17), ncol=2, frameon=False)
+
+
+def _positive(values) -> np.ndarray:
+    values = np.asarray(values, float)
+    return np.where(values > 0, values, np.nan)   # log axes: zero/negative cannot be drawn
+
+
+def plot_error_vs_time(path: pathlib.Path, summary, scene: str) -> None:
+    """relMSE and mean ΔE76 against ms/frame, log-log, a curve per estimator (points labelled
+    with their spp), the Pareto front over all cells ringed and joined."""
+    colours = _colours(summary)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+    for ax, (column, label) in zip(axes, ERRORS):
+        for name in _estimators(summary):
+            rows = summary[summary.estimator == name].sort_values("spp")
+            ax.plot(rows.time_ms, _positive(rows[column]), "o-", color=colours[name], label=name)
+            for r in rows.itertuples():
+                ax.annotate(str(r.spp), (r.time_ms, getattr(r, column)), textcoords="offset points",
+                            xytext=(4, 4), fontsize=7, color=colours[name])
+        front = pareto_front(summary.time_ms, _positive(summary[column]))
+        cells = summary[front].sort_values("time_ms")
+        ax.step(cells.time_ms, cells[column], where="post", color="black", lw=1, ls=":",
+                zorder=1)
+        ax.plot(cells.time_ms, cells[column], "o", ms=12, mfc="none", mec="black",
+                label="Pareto front (non-dominated cells)")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        _plain_log_axes(ax, "xy")
+        ax.set_xlabel("time per frame (ms, median over seeds)")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+        _legend(ax)
+    fig.suptitle(f"{scene}: error against time (labels: spp)")
+    _save(fig, path)
+
+
+def _guide(ax, spp, anchor: float, slope: float, label: str) -> None:
+    spp = np.array(sorted(set(spp)), float)
+    if len(spp) and np.isfinite(anchor) and anchor > 0:
+        ax.plot(spp, anchor * (spp / spp[0]) ** slope, "k--", lw=1, label=label)
+
+
+def plot_convergence(path: pathlib.Path, summary, scene: str) -> None:
+    """Error against spp, log-log.  Mean ΔE76 (an absolute, RMSE-like error) with a slope −½
+    guide; relMSE (a squared error) with a slope −1 guide, which is the −½ of √relMSE."""
+    colours = _colours(summary)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+    guides = {"mean_delta_e76": (-0.5, r"slope −½ (ideal Monte Carlo: error $\propto$ spp$^{-1/2}$)"),
+              "rel_mse": (-1.0, r"slope −1 (ideal: relMSE $\propto$ spp$^{-1}$, "
+                                r"i.e. $\sqrt{\mathrm{relMSE}} \propto$ spp$^{-1/2}$)")}
+    for ax, (column, label) in zip(axes, ERRORS):
+        for name in _estimators(summary):
+            rows = summary[summary.estimator == name].sort_values("spp")
+            ax.plot(rows.spp, _positive(rows[column]), "o-", color=colours[name], label=name)
+        first = summary[summary.spp == summary.spp.min()]
+        slope, text = guides[column]
+        _guide(ax, summary.spp, np.nanmax(_positive(first[column])), slope, text)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        _plain_log_axes(ax, "y")
+        _spp_ticks(ax, summary.spp)
+        ax.set_xlabel("samples per pixel (spp)")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+        _legend(ax)
+    fig.suptitle(f"{scene}: convergence")
+    _save(fig, path)
+
+
+def plot_effective(path: pathlib.Path, summary, scene: str) -> None:
+    """Used and effective (cos > 0) samples per pixel against spp (log-log, with the budget
+    line used = spp), and the effective ratio against spp."""
+    colours = _colours(summary)
+    fig, (ax, ratio) = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+    spp = np.array(sorted(set(summary.spp)), float)
+    ax.plot(spp, spp, color="grey", lw=1, ls="--", label="budget (= spp)")
+    for name in _estimators(summary):
+        rows = summary[summary.estimator == name].sort_values("spp")
+        ax.plot(rows.spp, _positive(rows.effective_samples), "o-", color=colours[name],
+                label=f"{name}: effective")
+        ax.plot(rows.spp, _positive(rows.used_samples), "x:", color=colours[name],
+                label=f"{name}: used")
+        ratio.plot(rows.spp, rows.effective_ratio, "o-", color=colours[name], label=name)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    _plain_log_axes(ax, "y")
+    _spp_ticks(ax, summary.spp)
+    ax.set_xlabel("samples per pixel (spp)")
+    ax.set_ylabel("samples per pixel (mean over covered pixels)")
+    _legend(ax)
+    ax.grid(True, which="both", alpha=0.3)
+    ratio.set_xscale("log")
+    _spp_ticks(ratio, summary.spp)
+    ratio.set_ylim(0, 1.05)
+    ratio.set_xlabel("samples per pixel (spp)")
+    ratio.set_ylabel("effective ratio (effective / used, fraction)")
+    _legend(ratio)
+    ratio.grid(True, which="both", alpha=0.3)
+    fig.suptitle(f"{scene}: effective samples (cos > 0)")
+    _save(fig, path)
+
+
+def plot_per_frame(path: pathlib.Path, per_frame, scene: str, spp: int) -> None:
+    """Mean ΔE76 and relMSE per frame of a sequence (mean over seeds) at ``spp``."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+    colours = _colours(per_frame)
+    for ax, (column, label) in zip(axes, ERRORS):
+        for name in _estimators(per_frame):
+            rows = per_frame[per_frame.estimator == name].sort_values("frame")
+            ax.plot(rows.frame, _positive(rows[column]), ".-", color=colours[name], label=name)
+        ax.set_yscale("log")
+        _plain_log_axes(ax, "y")
+        ax.set_xlabel("frame (index in the sequence)")
+        ax.set_ylabel(label)
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+        ax.grid(True, which="both", alpha=0.3)
+        _legend(ax)
+    fig.suptitle(f"{scene}: error per frame at {spp} spp")
+    _save(fig, path)
+
+
+def write_colour_bar(path: pathlib.Path) -> None:
+    """The one colour bar of every ΔE76 heat map: 0..HEAT_MAX in the heat maps' colormap."""
+    fig, ax = plt.subplots(figsize=(6, 0.9))
+    norm = matplotlib.colors.Normalize(vmin=0.0, vmax=HEAT_MAX)
+    bar = fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=HEAT_CMAP), cax=ax,
+                       orientation="horizontal")
+    bar.set_label(f"ΔE76 per pixel (CIELAB units; ≥ {HEAT_MAX:g} shown as {HEAT_MAX:g})")
+    _save(fig, path)

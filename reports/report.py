@@ -1,0 +1,394 @@
+"""``iblbench report DIR``: a self-contained static HTML report of one run → ``DIR/report/``.
+
+``DIR/report/index.html`` opens from disk with no server: every image it shows (plots, the
+colour bar, the sample pictures and copies of the run's PNG previews) lies inside ``DIR/report``
+and is referenced by a relative path; the page loads no script, stylesheet or font.
+
+Contents, per scene: a summary table (estimator × spp), error against time with the Pareto front,
+convergence against spp, effective samples against spp, error per frame (sequences only), an
+image grid (reference, each estimator at one spp, ΔE76 heat maps with one shared colour bar) and
+Lu 2013 Fig. 1/2's sample picture (:mod:`.sample_picture`); then the run's manifest.
+
+Aggregation: a cell is (scene, estimator, spp).  Each seed's metrics are first averaged over the
+frames, then the cell's value is the median over seeds (robust to one unlucky seed); ms/frame is
+the host wall time of one render (``time_ms_frame``).  Efficiency = 1 / (relMSE · s per frame).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import shutil
+
+import jinja2
+import markupsafe
+import numpy as np
+import pandas as pd
+
+from iblbench.reports import plots
+from iblbench.scenes.atomic import atomic_path
+from iblbench.scenes.errors import InputError
+
+REQUIRED_COLUMNS = ("scene", "estimator", "spp", "frame", "seed", "mean_delta_e76",
+                    "mean_delta_e2000", "rel_mse", "used_samples", "effective_samples",
+                    "effective_ratio", "nonfinite", "time_ms_frame")
+MEAN_COLUMNS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "used_samples",
+                "effective_samples", "effective_ratio", "time_ms_frame")
+
+_TEMPLATES = jinja2.Environment(
+    loader=jinja2.PackageLoader("iblbench.reports", "templates"),
+    autoescape=jinja2.select_autoescape(["html", "j2"]), trim_blocks=True, lstrip_blocks=True)
+
+
+# ---- input ------------------------------------------------------------------------------------
+
+def load_run(run_dir: pathlib.Path) -> tuple[pd.DataFrame, dict | None]:
+    """The results table and the manifest (None when the run has none) of ``run_dir``."""
+    run_dir = pathlib.Path(run_dir)
+    if not run_dir.is_dir():
+        raise InputError(run_dir, "no such run directory")
+    path = run_dir / "results.parquet"
+    if not path.is_file():
+        raise InputError(path, "no results table; is this the --out of an 'iblbench run'?")
+    try:
+        table = pd.read_parquet(path)
+    except Exception as error:   # pyarrow raises several types for damaged files
+        raise InputError(path, f"cannot read the results table ({type(error).__name__})") from None
+    missing = [c for c in REQUIRED_COLUMNS if c not in table.columns]
+    if missing:
+        raise InputError(path, f"not an iblbench results table: missing columns {', '.join(missing)}")
+    if table.empty:
+        raise InputError(path, "the results table has no rows")
+    manifest = None
+    manifest_path = run_dir / "manifest.json"
+    if manifest_path.is_file():
+        try:
+            manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+            raise InputError(manifest_path, f"cannot read the manifest ({error})") from None
+        if not isinstance(manifest, dict):
+            raise InputError(manifest_path, "the manifest is not a JSON object")
+    return table, manifest
+
+
+def summarize(table: pd.DataFrame) -> pd.DataFrame:
+    """One row per (scene, estimator, spp): per seed the mean over frames, then the median over
+    seeds; ``seeds`` counts them, ``nonfinite`` sums every row's, ``efficiency`` = 1/(relMSE·s),
+    ``pareto_rel_mse``/``pareto_delta_e76`` mark the scene's non-dominated cells (time, error)."""
+    keys = ["scene", "estimator", "spp"]
+    per_seed = table.groupby(keys + ["seed"], sort=False)[list(MEAN_COLUMNS)].mean().reset_index()
+    cells = per_seed.groupby(keys, sort=False)[list(MEAN_COLUMNS)].median()
+    cells["seeds"] = per_seed.groupby(keys, sort=False).seed.nunique()
+    cells["nonfinite"] = table.groupby(keys, sort=False).nonfinite.sum()
+    cells = cells.reset_index().rename(columns={"time_ms_frame": "time_ms"})
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cells["efficiency"] = 1.0 / (cells.rel_mse * cells.time_ms / 1e3)
+    for column in ("rel_mse", "mean_delta_e76"):
+        cells[f"pareto_{column.replace('mean_', '')}"] = False
+        for _, rows in cells.groupby("scene", sort=False):
+            front = plots.pareto_front(rows.time_ms, rows[column])
+            cells.loc[rows.index, f"pareto_{column.replace('mean_', '')}"] = front
+    order = {name: i for i, name in enumerate(dict.fromkeys(table.estimator))}
+    cells["_order"] = cells.estimator.map(order)
+    scene_order = {name: i for i, name in enumerate(dict.fromkeys(table.scene))}
+    cells["_scene"] = cells.scene.map(scene_order)
+    return cells.sort_values(["_scene", "_order", "spp"]).drop(columns=["_order", "_scene"]) \
+        .reset_index(drop=True)
+
+
+_TABLE_COLUMNS = {   # summary column → header (with units)
+    "estimator": "estimator", "spp": "spp", "seeds": "seeds",
+    "mean_delta_e76": "mean ΔE76", "mean_delta_e2000": "mean ΔE2000", "rel_mse": "relMSE",
+    "effective_ratio": "effective ratio", "effective_samples": "effective spp",
+    "used_samples": "used spp", "time_ms": "ms/frame", "efficiency": "efficiency 1/(relMSE·s)",
+    "nonfinite": "non-finite px", "pareto_rel_mse": "Pareto (relMSE)",
+    "pareto_delta_e76": "Pareto (ΔE76)",
+}
+
+
+def _number(value) -> str:
+    if isinstance(value, (bool, np.bool_)):
+        return "◆" if value else ""
+    if isinstance(value, (float, np.floating)):
+        if not np.isfinite(value):
+            return "–"
+        return f"{value:.4g}"
+    return str(value)
+
+
+def summary_html(cells: pd.DataFrame) -> markupsafe.Markup:
+    """The summary table of one scene (pandas → escaped HTML)."""
+    frame = cells[list(_TABLE_COLUMNS)].rename(columns=_TABLE_COLUMNS)
+    text = frame.to_html(index=False, border=0, classes="summary", escape=True,
+                         formatters={c: _number for c in frame.columns})
+    return markupsafe.Markup(text)
+
+
+def _dict_table(mapping: dict) -> markupsafe.Markup:
+    frame = pd.DataFrame({"key": list(mapping), "value": [
+        json.dumps(v) if isinstance(v, (list, dict)) else ("–" if v is None else str(v))
+        for v in mapping.values()]})
+    return markupsafe.Markup(frame.to_html(index=False, header=False, border=0, classes="kv",
+                                           escape=True))
+
+
+def _frame_html(frame: pd.DataFrame) -> markupsafe.Markup:
+    return markupsafe.Markup(frame.to_html(index=False, border=0, classes="summary", escape=True,
+                                           formatters={c: _number for c in frame.columns}))
+
+
+# ---- images -----------------------------------------------------------------------------------
+
+def choose_spp(table: pd.DataFrame, scene: str, frame: int, seed: int, spp: int | None) -> dict:
+    """The spp shown per estimator: ``spp`` when given, else the largest spp every estimator
+    of the scene ran (at this frame and seed); an estimator without it shows its own largest."""
+    rows = table[(table.scene == scene) & (table.frame == frame) & (table.seed == seed)]
+    by_estimator = {name: set(g.spp) for name, g in rows.groupby("estimator", sort=False)}
+    if not by_estimator:
+        return {}
+    if spp is None:
+        common = set.intersection(*by_estimator.values())
+        spp = max(common) if common else None
+    return {name: (spp if spp in have else max(have)) for name, have in by_estimator.items()}
+
+
+def _copy(source: pathlib.Path, report: pathlib.Path, relative: str) -> str | None:
+    """Copy a run image into the report; its relative path there, or None if it is missing."""
+    if not source.is_file():
+        return None
+    target = report / relative
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(target) as tmp:
+        shutil.copyfile(source, tmp)
+    return relative
+
+
+def image_grid(run_dir, report, table, scene, frame, seed, spp) -> dict:
+    images = pathlib.Path(run_dir) / "images" / scene / f"f{frame}"
+    where = f"images/{scene}/f{frame}"
+    chosen = choose_spp(table, scene, frame, seed, spp)
+    rows = table[(table.scene == scene) & (table.frame == frame) & (table.seed == seed)]
+    tiles = [{"title": "reference", "subtitle": "exact quadrature",
+              "src": _copy(images / "reference.png", report, f"{where}/reference.png"),
+              "heat": None}]
+    for name, n in chosen.items():
+        stem = f"{name}_spp{n}_s{seed}"
+        row = rows[(rows.estimator == name) & (rows.spp == n)]
+        error = row.mean_delta_e76.iloc[0] if len(row) else float("nan")
+        tiles.append({"title": name, "subtitle": f"{n} spp, seed {seed}, mean ΔE76 {error:.3g}",
+                      "src": _copy(images / f"{stem}.png", report, f"{where}/{stem}.png"),
+                      "heat": _copy(images / f"{stem}_de76.png", report, f"{where}/{stem}_de76.png")})
+    return {"frame": frame, "seed": seed, "tiles": tiles,
+            "spp": sorted(set(chosen.values()))}
+
+
+# ---- the sample picture -----------------------------------------------------------------------
+
+@dataclasses.dataclass
+class SceneInputs:
+    normal: np.ndarray      # [H, W, 3]
+    mask: np.ndarray        # [H, W]
+    env: np.ndarray         # [6, R, R, 3]
+    source: str             # where they came from, for the report
+
+
+def scene_inputs(run_dir: pathlib.Path, manifest: dict | None, scene: str, frame: int) -> SceneInputs:
+    """The G-buffer and environment frame of ``scene``: the run's saved inputs
+    (``inputs/<scene>/gbuffer.npz`` and ``env_f<frame>.npy``, from ``run --save-inputs``) when
+    present, else rebuilt from the scene registry at the run's resolution and env resolution."""
+    from iblbench.scenes.gbuffer import GBuffer, trace_gbuffer
+    from iblbench.scenes.registry import load_scene
+
+    inputs = pathlib.Path(run_dir) / "inputs" / scene
+    gbuffer_path, env_path = inputs / "gbuffer.npz", inputs / f"env_f{frame}.npy"
+    if gbuffer_path.is_file() and env_path.is_file():
+        try:
+            gbuffer = GBuffer.load_npz(gbuffer_path)
+            env = np.load(env_path)
+        except Exception as error:
+            raise InputError(inputs, f"cannot read the saved inputs ({type(error).__name__})") from None
+        return SceneInputs(gbuffer.normal, gbuffer.mask, env,
+                           f"saved by the run ({gbuffer_path.parent.name}/gbuffer.npz, "
+                           f"{env_path.name})")
+    config = (manifest or {}).get("config", {})
+    for entry in config.get("scenes", [scene]):
+        loaded = load_scene(entry, sanitize=bool(config.get("sanitize")), env_res=config.get("env_res"))
+        if loaded.name == scene:
+            break
+    else:
+        raise InputError(None, f"scene '{scene}' is not in the manifest's scene list")
+    width, height = config.get("resolution") or loaded.resolution
+    gbuffer = trace_gbuffer(loaded.mesh, loaded.material, loaded.camera, int(width), int(height))
+    env = np.asarray(loaded.environment.frame(frame), np.float32)
+    return SceneInputs(gbuffer.normal, gbuffer.mask, env,
+                       f"rebuilt from the scene registry ({loaded.source or scene}) at "
+                       f"{width}×{height}, env faces {env.shape[1]}² (the run saved no inputs)")
+
+
+def default_pixel(mask: np.ndarray) -> tuple[int, int]:
+    """The covered pixel (x, y) nearest the image centre."""
+    ys, xs = np.nonzero(mask)
+    h, w = mask.shape
+    i = np.argmin((xs + 0.5 - w / 2) ** 2 + (ys + 0.5 - h / 2) ** 2)
+    return int(xs[i]), int(ys[i])
+
+
+def sample_picture(run_dir, report, manifest, table, scene, frame, spp, pixel, compute) -> dict:
+    """Compute and draw the sample picture of ``scene``; a dict for the template (``error``
+    says why there is none)."""
+    from iblbench.estimators.light_pool import PoolEstimator
+    from iblbench.estimators.registry import get_estimator_class
+    from iblbench.harness.framecache import FrameCache
+    from iblbench.reports.sample_picture import (cross_frames, cross_image, plot_sample_picture,
+                                                 pool_selection)
+
+    classes = []
+    for name in dict.fromkeys(table[table.scene == scene].estimator):
+        try:
+            cls = get_estimator_class(name)
+        except Exception:
+            continue
+        if issubclass(cls, PoolEstimator):
+            classes.append(cls)
+    if not classes:
+        return {"error": "no estimator of this scene reads Lu 2013's light-sample pool "
+                         "(uniform, balanced, balanced_mis)"}
+    chosen = choose_spp(table, scene, frame, 0, spp)
+    n = spp or max(chosen[c.name] for c in classes if c.name in chosen)
+    inputs = scene_inputs(run_dir, manifest, scene, frame)
+    if pixel is None:
+        pixel = default_pixel(inputs.mask)
+    x, y = pixel
+    h, w = inputs.mask.shape
+    if not (0 <= x < w and 0 <= y < h) or not inputs.mask[y, x]:
+        raise InputError(None, f"--pixel {x},{y} is not a covered pixel of {scene} ({w}×{h})")
+    normal = inputs.normal[y, x].astype(np.float64)
+    cache = FrameCache(compute(), inputs.env, frame)
+    selections = [pool_selection(cls, cache, normal, n, seed=0) for cls in classes]
+    frames = cross_frames(normal)
+    background = cross_image(inputs.env, normal / np.linalg.norm(normal), frames)
+    panels = []
+    for sel in selections:
+        relative = f"sample_picture_{_slug(scene)}_{_slug(sel.estimator)}.png"
+        plot_sample_picture(pathlib.Path(report) / relative, inputs.env, normal, sel, background)
+        panels.append(relative)
+    return {"panels": panels, "pixel": (x, y), "normal": normal, "spp": n, "source": inputs.source,
+            "selections": [{"estimator": s.estimator, **s.counts,
+                            "n_f": ", ".join(f"{v:.2f}" for v in s.n_f),
+                            "per_face": ", ".join(str(int(v)) for v in s.selected_per_face),
+                            "brdf": s.ticks[6] / 65536.0} for s in selections],
+            "data": selections}
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in text)
+
+
+# ---- the page ---------------------------------------------------------------------------------
+
+def _manifest_context(manifest: dict | None) -> dict | None:
+    if manifest is None:
+        return None
+    stages = pd.DataFrame(manifest.get("stages") or [], columns=["scene", "frame", "stage", "ms"])
+    if len(stages):
+        stages = stages.groupby(["scene", "stage"], sort=False).ms.agg(
+            frames="count", total_ms="sum", median_ms="median").reset_index()
+        stages.columns = ["scene", "stage", "times built", "total ms", "median ms"]
+    skipped = pd.DataFrame(manifest.get("skipped") or [])
+    if len(skipped):
+        for column in ("scene", "stage", "why"):
+            if column not in skipped:
+                skipped[column] = ""
+        skipped = skipped.groupby(["scene", "stage", "why"], sort=False).size() \
+            .reset_index(name="times")
+    keys = ("created", "status", "protocol", "git_revision", "resumed_cells")
+    return {
+        "run": _dict_table({k: manifest.get(k) for k in keys if k in manifest}),
+        "device": _dict_table(manifest.get("device") or {}),
+        "versions": _dict_table(manifest.get("versions") or {}),
+        "estimator_versions": _dict_table(manifest.get("estimator_versions") or {}),
+        "config": _dict_table(manifest.get("config") or {}),
+        "stages": _frame_html(stages) if len(stages) else None,
+        "skipped": _frame_html(skipped) if len(skipped) else None,
+        "status": manifest.get("status"),
+        "protocol": manifest.get("protocol"),
+        "git_revision": manifest.get("git_revision"),
+        "device_name": (manifest.get("device") or {}).get("name"),
+    }
+
+
+def write_report(run_dir, *, spp: int | None = None, seed: int = 0, frame: int = 0,
+                 pixel: tuple[int, int] | None = None, device: str | None = None) -> dict:
+    """Write ``run_dir/report/index.html`` and its images; returns the template context
+    (``path`` is the page).  ``spp``/``seed``/``frame`` pick the images shown and ``pixel``
+    (x, y) the sample picture's pixel (default: the covered pixel nearest the centre)."""
+    run_dir = pathlib.Path(run_dir)
+    table, manifest = load_run(run_dir)
+    if spp is not None and spp not in set(table.spp):
+        raise InputError(None, f"--spp {spp} is not in the run (spp: "
+                               f"{', '.join(map(str, sorted(set(table.spp))))})")
+    report = run_dir / "report"
+    try:
+        report.mkdir(exist_ok=True)
+    except OSError as error:
+        raise InputError(report, f"cannot create the report directory ({error.strerror})") from None
+    cells = summarize(table)
+    plots.write_colour_bar(report / "colour_bar.png")
+    compute_holder: dict = {}
+
+    def compute():
+        if "c" not in compute_holder:
+            from iblbench.harness.device import get_compute
+            compute_holder["c"] = get_compute(device)
+        return compute_holder["c"]
+
+    scenes = []
+    for scene in dict.fromkeys(table.scene):
+        scene_cells = cells[cells.scene == scene]
+        rows = table[table.scene == scene]
+        slug = _slug(scene)
+        figures = {"time": f"error_vs_time_{slug}.png", "spp": f"convergence_{slug}.png",
+                   "effective": f"effective_{slug}.png"}
+        plots.plot_error_vs_time(report / figures["time"], scene_cells, scene)
+        plots.plot_convergence(report / figures["spp"], scene_cells, scene)
+        plots.plot_effective(report / figures["effective"], scene_cells, scene)
+        frames = sorted(set(rows.frame))
+        scene_frame = frame if frame in frames else frames[0]
+        grid = image_grid(run_dir, report, table, scene, scene_frame, seed, spp)
+        per_frame = None
+        if len(frames) > 1:
+            shown = max(grid["spp"]) if grid["spp"] else int(rows.spp.max())
+            data = rows[rows.spp == shown].groupby(["estimator", "frame"], sort=False)[
+                ["mean_delta_e76", "rel_mse"]].mean().reset_index()
+            per_frame = f"per_frame_{slug}.png"
+            plots.plot_per_frame(report / per_frame, data, scene, shown)
+        try:
+            picture = sample_picture(run_dir, report, manifest, table, scene, scene_frame, spp,
+                                     pixel, compute)
+        except InputError as error:
+            if pixel is not None:
+                raise
+            picture = {"error": str(error)}
+        scenes.append({"name": scene, "slug": slug, "table": summary_html(scene_cells),
+                       "figures": figures, "per_frame": per_frame, "frames": len(frames),
+                       "grid": grid, "picture": picture,
+                       "estimators": list(dict.fromkeys(rows.estimator)),
+                       "spp": sorted(set(int(v) for v in rows.spp))})
+    context = {
+        "title": f"iblbench report: {run_dir.resolve().name}",
+        "run_dir": str(run_dir.resolve()),
+        "scenes": scenes,
+        "sequences": any(s["frames"] > 1 for s in scenes),
+        "manifest": _manifest_context(manifest),
+        "rows": len(table),
+        "colour_bar": "colour_bar.png",
+        "heat_max": plots.HEAT_MAX,
+    }
+    text = _TEMPLATES.get_template("report.html.j2").render(**context)
+    with atomic_path(report / "index.html") as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    context["path"] = report / "index.html"
+    return context
+
+
+__all__ = ["load_run", "summarize", "write_report", "choose_spp", "scene_inputs", "default_pixel"]

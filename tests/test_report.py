@@ -1,0 +1,282 @@
+"""``iblbench report``: the static HTML report of a run (tables, plots, images, sample picture).
+
+One tiny real run (24×24 pixels, 8×8 cube faces, uniform and balanced at 4 and 16 spp) is made
+in-process and reported once for the module; the browser test opens the page in Debian's
+headless Chromium when it is installed.
+"""
+from __future__ import annotations
+
+import html.parser
+import math
+import pathlib
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from iblbench.estimators.light_pool import TICKS_PER_SAMPLE
+from iblbench.harness import cli
+from iblbench.harness.runner import RunConfig, run
+from iblbench.reports.plots import pareto_front
+from iblbench.reports.report import default_pixel, load_run, scene_inputs, summarize, write_report
+from iblbench.scenes import cubemap
+from iblbench.scenes.errors import InputError
+from iblbench.scenes.gbuffer import GBuffer
+
+SPP = (4, 16)
+ESTIMATORS = ("uniform", "balanced")
+
+
+class _Page(html.parser.HTMLParser):
+    """Image sources, tags and the cells of every table of a page."""
+
+    def __init__(self):
+        super().__init__()
+        self.images: list[str] = []
+        self.tags: list[str] = []
+        self.tables: list[dict] = []
+        self.h3: list[str] = []
+        self._cell = None
+        self._in_h3 = False
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        self.tags.append(tag)
+        if tag == "img":
+            self.images.append(attrs.get("src"))
+        elif tag == "table":
+            self.tables.append({"class": attrs.get("class", ""), "rows": []})
+        elif tag == "tr" and self.tables:
+            self.tables[-1]["rows"].append([])
+        elif tag in ("td", "th"):
+            self._cell = ""
+        elif tag == "h3":
+            self._in_h3 = True
+            self.h3.append("")
+
+    def handle_endtag(self, tag):
+        if tag in ("td", "th") and self._cell is not None:
+            self.tables[-1]["rows"][-1].append(self._cell.strip())
+            self._cell = None
+        elif tag == "h3":
+            self._in_h3 = False
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell += data
+        if self._in_h3:
+            self.h3[-1] += data
+
+
+def _parse(path: pathlib.Path) -> _Page:
+    page = _Page()
+    page.feed(path.read_text(encoding="utf-8"))
+    return page
+
+
+@pytest.fixture(scope="module")
+def reported(tmp_path_factory):
+    out = tmp_path_factory.mktemp("report-run")
+    run(RunConfig(out=out, scenes=("sphere-sun",), estimators=ESTIMATORS, spp=SPP, seeds=1,
+                  resolution=(24, 24), env_res=8, save_inputs=True, progress=False))
+    return out, write_report(out)
+
+
+def test_page_is_self_contained(reported):
+    out, context = reported
+    index = out / "report" / "index.html"
+    assert context["path"] == index and index.is_file()
+    page = _parse(index)
+    assert "script" not in page.tags and "link" not in page.tags   # nothing external to load
+    assert len(page.images) >= 10                                   # 3 plots + grid + bar + picture
+    report = (out / "report").resolve()
+    for src in page.images:
+        assert src and "://" not in src and not src.startswith("/"), src
+        target = (report / src).resolve()
+        assert target.is_relative_to(report), src
+        assert target.is_file() and target.stat().st_size > 0, src
+    # The grid shows the reference, each estimator at the largest common spp and its heat map.
+    for name in ["reference.png"] + [f"{e}_spp16_s0{suffix}.png" for e in ESTIMATORS
+                                     for suffix in ("", "_de76")]:
+        assert f"images/sphere-sun/f0/{name}" in page.images, name
+    assert "colour_bar.png" in page.images
+
+
+def test_summary_table_lists_every_cell(reported):
+    out, _ = reported
+    page = _parse(out / "report" / "index.html")
+    summary = next(t for t in page.tables if "summary" in t["class"])
+    header, *rows = summary["rows"]
+    for column in ("estimator", "spp", "mean ΔE76", "mean ΔE2000", "relMSE", "effective ratio",
+                   "ms/frame", "efficiency 1/(relMSE·s)"):
+        assert column in header, column
+    cells = {(r[header.index("estimator")], int(r[header.index("spp")])) for r in rows}
+    assert cells == {(e, s) for e in ESTIMATORS for s in SPP}
+    # The efficiency column is 1/(relMSE·s) of the table's own relMSE and ms/frame.
+    table, _ = load_run(out)
+    for r in summarize(table).itertuples():
+        assert r.efficiency == pytest.approx(1e3 / (r.rel_mse * r.time_ms))
+
+
+def test_static_run_has_no_per_frame_section_and_shows_manifest(reported):
+    out, _ = reported
+    page = _parse(out / "report" / "index.html")
+    text = (out / "report" / "index.html").read_text(encoding="utf-8")
+    assert "Error per frame" not in page.h3
+    assert "static (one frame)" in text
+    for heading in ("Device", "Versions", "Stage timings", "Skipped stages", "Configuration"):
+        assert heading in page.h3, heading
+    assert "lab-reinhard-v1" in text
+
+
+def test_sequences_get_an_error_per_frame_plot(reported, tmp_path):
+    out, _ = reported
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    table = pd.read_parquet(copy / "results.parquet")
+    second = table.assign(frame=1, mean_delta_e76=table.mean_delta_e76 * 1.5)
+    pd.concat([table, second]).to_parquet(copy / "results.parquet", index=False)
+    context = write_report(copy)
+    page = _parse(context["path"])
+    assert "Error per frame" in page.h3
+    assert "per_frame_sphere-sun.png" in page.images
+    assert (copy / "report" / "per_frame_sphere-sun.png").is_file()
+
+
+def test_pareto_front_marks_only_non_dominated_points():
+    time = [1.0, 2.0, 3.0, 4.0, 2.0, 5.0]
+    error = [5.0, 3.0, 4.0, 1.0, 3.0, float("nan")]
+    # (3, 4) is dominated by (2, 3); the two equal (2, 3) points do not dominate each other;
+    # a NaN error is never on the front.
+    assert pareto_front(time, error).tolist() == [True, True, False, True, True, False]
+    assert pareto_front([1.0, 1.0], [2.0, 1.0]).tolist() == [False, True]   # tie in x, worse y
+
+
+def test_summary_marks_a_dominated_cell():
+    rows = []
+    for estimator, spp, ms, rel in (("a", 4, 1.0, 0.5), ("a", 16, 4.0, 0.1),
+                                    ("b", 4, 2.0, 0.6), ("b", 16, 3.0, 0.05)):
+        for seed in (0, 1):
+            rows.append({"scene": "s", "estimator": estimator, "spp": spp, "frame": 0,
+                         "seed": seed, "mean_delta_e76": rel * 10, "mean_delta_e2000": rel * 8,
+                         "rel_mse": rel, "used_samples": spp, "effective_samples": spp / 2,
+                         "effective_ratio": 0.5, "nonfinite": 0, "time_ms_frame": ms + seed * 0.1})
+    cells = summarize(pd.DataFrame(rows)).set_index(["estimator", "spp"])
+    # b@4 (2.05 ms, 0.6) is slower and worse than a@4 (1.05 ms, 0.5); a@16 (4.05 ms, 0.1) is
+    # slower and worse than b@16 (3.05 ms, 0.05).
+    assert cells.pareto_rel_mse.to_dict() == {("a", 4): True, ("a", 16): False,
+                                             ("b", 4): False, ("b", 16): True}
+    assert cells.loc[("a", 4), "time_ms"] == pytest.approx(1.05)   # median over seeds
+
+
+def _face_weights(normal: np.ndarray, env: np.ndarray) -> np.ndarray:
+    """Lu 2013 Eq. 3 in numpy: F_f(n)·I_f, F_f the clamped cosines of the face's unit corners."""
+    corners = cubemap.face_st_to_direction(np.repeat(np.arange(6), 4),
+                                           np.tile([0.0, 1.0, 0.0, 1.0], 6),
+                                           np.tile([0.0, 0.0, 1.0, 1.0], 6)).reshape(6, 4, 3)
+    form = np.maximum(corners @ normal, 0.0).sum(axis=1)
+    return form * cubemap.face_luminance_integrals(env)
+
+
+def test_sample_picture_counts_match_the_split(reported):
+    out, context = reported
+    picture = context["scenes"][0]["picture"]
+    assert [s.estimator for s in picture["data"]] == list(ESTIMATORS)
+    assert picture["spp"] == max(SPP)
+    gbuffer = GBuffer.load_npz(out / "inputs" / "sphere-sun" / "gbuffer.npz")
+    env = np.load(out / "inputs" / "sphere-sun" / "env_f0.npy")
+    x, y = picture["pixel"]
+    assert (x, y) == default_pixel(gbuffer.mask) and gbuffer.mask[y, x]
+    normal = gbuffer.normal[y, x].astype(np.float64)
+    np.testing.assert_allclose(picture["normal"], normal)
+    spp = picture["spp"]
+    lit = cubemap.face_luminance_integrals(env) > 0
+    expected = {"uniform": np.where(lit, spp / 6, 0.0)}
+    weights = _face_weights(normal / np.linalg.norm(normal), env)
+    expected["balanced"] = spp * weights / weights.sum()
+    for sel in picture["data"]:
+        per_face = len(sel.face) // 6
+        assert per_face == spp + 1                                # the estimators' pool size
+        # N_f(n) from the estimator's own split kernel agrees with Eq. 3 computed here.
+        np.testing.assert_allclose(sel.n_f, expected[sel.estimator], atol=2e-3)
+        assert sel.ticks[:6].sum() == spp * TICKS_PER_SAMPLE and sel.ticks[6] == 0
+        # Selected per face = ⌈N_f(n)⌉, the prefix of the face's pool entries.
+        counted = np.bincount(sel.face[sel.selected], minlength=6)
+        ceil = np.array([math.ceil(v - 1e-9) for v in sel.n_f])
+        np.testing.assert_array_equal(counted, ceil)
+        np.testing.assert_array_equal(sel.selected_per_face, ceil)
+        cos = sel.directions @ (normal / np.linalg.norm(normal))
+        np.testing.assert_array_equal(sel.effective, sel.selected & (cos > 0))
+        assert sel.counts["pool"] == 6 * per_face * lit.mean()
+    # Balancing moves samples above the horizon: balanced has more effective samples here.
+    effective = {s.estimator: s.counts["effective"] for s in picture["data"]}
+    assert effective["balanced"] > effective["uniform"]
+    for src in picture["panels"]:
+        assert (out / "report" / src).is_file()
+
+
+def test_inputs_are_rebuilt_from_the_registry_without_saved_inputs(reported, tmp_path):
+    out, _ = reported
+    _, manifest = load_run(out)
+    rebuilt = scene_inputs(tmp_path, manifest, "sphere-sun", 0)      # no inputs/ under tmp_path
+    assert "rebuilt from the scene registry" in rebuilt.source
+    saved = scene_inputs(out, manifest, "sphere-sun", 0)
+    assert "saved by the run" in saved.source
+    np.testing.assert_array_equal(rebuilt.mask, saved.mask)
+    np.testing.assert_allclose(rebuilt.normal, saved.normal, atol=1e-6)
+    np.testing.assert_allclose(rebuilt.env, saved.env, rtol=1e-6)
+
+
+def _cli_error(capsys, *argv) -> str:
+    assert cli.main(["report", *map(str, argv)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("iblbench: error: ") and err.count("\n") == 1, err
+    return err
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, reported):
+    assert "no such run directory" in _cli_error(capsys, tmp_path / "missing")
+    assert "no results table" in _cli_error(capsys, tmp_path)
+    (tmp_path / "results.parquet").write_bytes(b"PAR1 this is not parquet")
+    assert "cannot read the results table" in _cli_error(capsys, tmp_path)
+    pd.DataFrame({"scene": ["s"]}).to_parquet(tmp_path / "results.parquet")
+    assert "missing columns" in _cli_error(capsys, tmp_path)
+    out, _ = reported
+    assert "--spp 5 is not in the run" in _cli_error(capsys, out, "--spp", "5")
+    assert "not a covered pixel" in _cli_error(capsys, out, "--pixel", "0,0")
+    with pytest.raises(InputError):
+        load_run(tmp_path / "missing")
+
+
+def test_cli_writes_the_report(reported, capsys):
+    out, _ = reported
+    assert cli.main(["report", str(out), "--pixel", "12,12"]) == 0
+    assert "report/index.html" in capsys.readouterr().out
+    assert "x=12, y=12" in (out / "report" / "index.html").read_text(encoding="utf-8")
+
+
+CHROMIUM = shutil.which("chromium")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium installed (Debian package 'chromium')")
+def test_report_renders_in_headless_chromium(reported):
+    sync_api = pytest.importorskip("playwright.sync_api")
+    out, _ = reported
+    errors: list[str] = []
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        try:
+            page = browser.new_page()
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto((out / "report" / "index.html").resolve().as_uri())
+            page.wait_for_load_state("load")
+            images = page.evaluate("Array.from(document.images).map(i => "
+                                   "[i.getAttribute('src'), i.complete, i.naturalWidth])")
+        finally:
+            browser.close()
+    assert len(images) >= 10
+    broken = [src for src, complete, width in images if not complete or width == 0]
+    assert not broken, broken
+    assert not errors, errors
