@@ -195,7 +195,7 @@ def plot_sample_picture(path: pathlib.Path, env: np.ndarray, normal: np.ndarray,
     for side in ax.spines.values():
         side.set_visible(False)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100, bbox_inches="tight")
+        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
 
 
