@@ -25,7 +25,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 bench: $(STAMP)
-	$(VENV)/bin/iblbench run --out $(BENCH_OUT)
+	$(VENV)/bin/iblbench run --config default --out $(BENCH_OUT)
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -63,7 +63,7 @@ def _pixel(text: str) -> tuple[int, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from iblbench.harness import runner
+    from iblbench.harness import sweep
 
     parser = argparse.ArgumentParser(prog="iblbench", description=DESCRIPTION, epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -78,25 +78,36 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = commands.add_parser(
         "run", help="benchmark estimators on scenes and write results, manifest and images",
-        description="Render every (scene, estimator, spp, seed) cell, score it against the exact "
-                    "reference and write results.parquet/.csv, manifest.json and "
-                    "images/<scene>/f<frame>/ (EXR + PNG previews + ΔE heat maps) into --out.",
+        description="Render every (scene, estimator, spp, frame, seed) cell of a sweep, score it "
+                    "against the exact reference and write results.parquet/.csv, manifest.json "
+                    "and images/<scene>/f<frame>/ (EXR + PNG previews + ΔE heat maps) into --out. "
+                    "The sweep comes from --config (default: the shipped 'default'); each flag "
+                    "given replaces that field of the config. Re-running resumes: cells already "
+                    "in --out with the same configuration, code version and device are skipped.",
         parents=[rendering])
+    run.add_argument("--config", metavar="NAME|FILE",
+                     help="sweep config: a shipped one (quick, default, full) or a .toml file "
+                          "(default: default; see README for the format)")
     run.add_argument("--scene", action="append", metavar="NAME|FILE",
-                     help="built-in scene name or a scene .toml file; repeatable "
-                          f"(default: {', '.join(runner.DEFAULT_SCENES)})")
+                     help="built-in scene name or a scene .toml file; repeatable")
     run.add_argument("--estimator", action="append", metavar="NAME",
-                     help="estimator name; repeatable (default: "
-                          f"{', '.join(runner.DEFAULT_ESTIMATORS)}; see 'iblbench list estimators')")
-    run.add_argument("--spp", type=_spp_list, default=runner.DEFAULT_SPP, metavar="N,N,...",
-                     help="samples per pixel, comma-separated (default: "
-                          f"{','.join(map(str, runner.DEFAULT_SPP))})")
-    run.add_argument("--seeds", type=_positive_int, default=runner.DEFAULT_SEEDS,
-                     help=f"seeds per cell, 0..N-1 (default: {runner.DEFAULT_SEEDS})")
+                     help="estimator name, optionally with parameters as NAME{param=value,...}; "
+                          "repeatable (see 'iblbench list estimators')")
+    run.add_argument("--spp", type=_spp_list, metavar="N,N,...",
+                     help="samples per pixel, comma-separated")
+    run.add_argument("--seeds", type=_positive_int, help="seeds per cell, 0..N-1")
+    run.add_argument("--frames", type=sweep.frames_arg, metavar="all|A..B|N,N,...",
+                     help="frames of environment sequences (static scenes run frame 0)")
     run.add_argument("--res", type=_resolution, metavar="WxH",
                      help="image resolution (default: the scene's own)")
     run.add_argument("--env-res", type=_positive_int, metavar="R",
                      help="cube face resolution for built-in skies and resampled maps")
+    run.add_argument("--time-budget-ms", type=sweep.budgets_arg, metavar="T[,T...]",
+                     help="equal-time cells besides the spp list: per (scene, estimator), the "
+                          "largest spp whose calibrated device time (sample+shade) fits in T ms "
+                          "per frame")
+    run.add_argument("--force", action="store_true",
+                     help="recompute the selected cells even where --out already has them")
     run.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/latest"),
                      help="output directory (default: results/latest)")
     run.add_argument("--save-inputs", action="store_true",
@@ -178,19 +189,44 @@ def _list(args) -> None:
 
 
 def _run(args) -> None:
-    from iblbench.harness.runner import DEFAULT_ESTIMATORS, DEFAULT_SCENES, RunConfig, run
+    from iblbench.harness.runner import RunConfig, run
+    from iblbench.harness.sweep import load_sweep
 
-    config = RunConfig(out=args.out, scenes=tuple(args.scene or DEFAULT_SCENES),
-                       estimators=tuple(args.estimator or DEFAULT_ESTIMATORS), spp=args.spp,
-                       seeds=args.seeds, resolution=args.res, device=args.device,
-                       save_inputs=args.save_inputs, sanitize=args.sanitize, env_res=args.env_res,
-                       progress=False if args.no_progress else None)
+    sweep = load_sweep(args.config or "default")
+    sweep = sweep.replace(
+        scenes=tuple(args.scene) if args.scene else None,
+        estimators=tuple(args.estimator) if args.estimator else None, spp=args.spp,
+        seeds=args.seeds, frames=args.frames, resolution=args.res, env_res=args.env_res,
+        time_budget_ms=args.time_budget_ms, sanitize=True if args.sanitize else None)
+    flags = [flag for flag, value in (
+        ("--scene", args.scene), ("--estimator", args.estimator), ("--spp", args.spp),
+        ("--seeds", args.seeds), ("--frames", args.frames), ("--res", args.res),
+        ("--env-res", args.env_res), ("--time-budget-ms", args.time_budget_ms),
+        ("--sanitize", args.sanitize)) if value]
+    config = RunConfig(out=args.out, scenes=sweep.scenes, estimators=sweep.estimators,
+                       spp=sweep.spp, seeds=sweep.seeds, resolution=sweep.resolution,
+                       device=args.device, save_inputs=args.save_inputs, sanitize=sweep.sanitize,
+                       env_res=sweep.env_res, progress=False if args.no_progress else None,
+                       frames=sweep.frames, time_budget_ms=sweep.time_budget_ms, force=args.force,
+                       sweep={**sweep.to_manifest(), "overridden_by_flags": flags})
     table = run(config)
-    summary = table.groupby(["scene", "estimator", "spp"]).agg(
-        mean_delta_e76=("mean_delta_e76", "mean"), effective=("effective_samples", "mean"),
-        used=("used_samples", "mean"), nonfinite=("nonfinite", "sum"),
-        median_shade_ms=("time_ms_shade", "median"))
-    print(summary.to_string(float_format=lambda v: f"{v:.4g}"))
+    equal_spp = table[table.time_budget_ms.isna()]
+    if len(equal_spp):
+        summary = equal_spp.groupby(["scene", "estimator", "spp"]).agg(
+            mean_delta_e76=("mean_delta_e76", "mean"), effective=("effective_samples", "mean"),
+            used=("used_samples", "mean"), nonfinite=("nonfinite", "sum"),
+            median_shade_ms=("time_ms_shade", "median"))
+        print(summary.to_string(float_format=lambda v: f"{v:.4g}"))
+    equal_time = table[table.time_budget_ms.notna()].assign(
+        device_ms=lambda t: t.time_ms_sample.fillna(0) + t.time_ms_shade.fillna(0))
+    if len(equal_time):
+        summary = equal_time.groupby(["scene", "time_budget_ms", "estimator"]).agg(
+            spp=("spp", "first"), median_device_ms=("device_ms", "median"),
+            mean_delta_e76=("mean_delta_e76", "mean"), rel_mse=("rel_mse", "mean"),
+            nonfinite=("nonfinite", "sum"))
+        print("error at equal time (spp chosen so that the device time of the sample and shade "
+              "stages fits time_budget_ms per frame):")
+        print(summary.to_string(float_format=lambda v: f"{v:.4g}"))
     print(f"wrote {len(table)} rows to {args.out}/results.parquet")
 
 

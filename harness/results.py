@@ -1,32 +1,107 @@
-"""The tidy results table of DESIGN §6 and the run manifest, written atomically."""
+"""The tidy results table of DESIGN §6, its crash-safe journal, and the run manifest.
+
+Columns, in order (``COLUMNS``):
+
+- key: ``scene``, ``estimator`` (the label, with parameter overrides, e.g.
+  ``balanced_mis{shared_sequence=false}``), ``spp``, ``frame``, ``seed``, ``time_budget_ms``
+  (NaN for an equal-spp cell; for an equal-time cell the budget, and ``spp`` is the spp chosen
+  to fit it);
+- configuration: ``width``, ``height``, ``env_res`` (the effective image and cube face sizes),
+  ``estimator_params`` (every parameter as sorted JSON), ``estimator_version`` (hash of the
+  estimator's sources), ``schema_version`` (``SCHEMA_VERSION``);
+- metrics: ``mean_delta_e76`` … ``nonfinite`` and the stage times ``time_ms_*``;
+- ``device``, ``protocol``.
+
+Schema versions: 1 had no schema_version, time_budget_ms, width, height, env_res or
+estimator_params column; 2 is this one.  Rows of another schema never count as finished cells.
+
+Storage.  ``results.parquet`` and ``results.csv`` are replaced whole, each in one rename, so a
+reader never sees half a table.  While a run is going, each finished cell is appended to
+``results.journal.jsonl`` (one JSON line, flushed and fsynced before the next cell starts); the
+journal is folded into the table every ``FOLD_SECONDS``, at the end of a run, and when a run
+starts on a folder a killed run left behind.  A ``kill -9`` can cut only the line being written,
+which :func:`read_results` ignores: the cell in flight is lost, nothing else.
+"""
 from __future__ import annotations
 
 import json
 import math
+import os
 import pathlib
 
+import numpy as np
 import pandas as pd
 
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
-KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed"]
+SCHEMA_VERSION = 2
+KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed", "time_budget_ms"]
+CONFIG_COLUMNS = ["width", "height", "env_res", "estimator_params", "estimator_version",
+                  "schema_version"]
 METRIC_COLUMNS = [
     "mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip",
     "used_samples", "effective_samples", "effective_ratio", "evaluations", "nonfinite",
     "time_ms_build", "time_ms_sample", "time_ms_shade", "time_ms_frame",
 ]
-COLUMNS = KEY_COLUMNS + ["estimator_version"] + METRIC_COLUMNS + ["device", "protocol"]
+COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "protocol"]
+# Columns that are the same on every rerun of a cell on one device (renders are deterministic
+# per seed): everything but the times.
+DETERMINISTIC_COLUMNS = [c for c in COLUMNS if not c.startswith("time_ms_")]
+TABLE = "results.parquet"
+CSV = "results.csv"
+JOURNAL = "results.journal.jsonl"
+FOLD_SECONDS = 10.0
+_INTS = ("spp", "frame", "seed", "nonfinite", "width", "height", "env_res", "schema_version")
 
 
 def results_frame(rows: list[dict]) -> pd.DataFrame:
     frame = pd.DataFrame(rows, columns=COLUMNS)
-    return frame.astype({"spp": "int64", "frame": "int64", "seed": "int64", "nonfinite": "int64"})
+    frame["schema_version"] = frame["schema_version"].fillna(1)   # rows from before the column
+    frame["time_budget_ms"] = frame["time_budget_ms"].astype("float64")
+    ints = {c: "int64" for c in _INTS if not frame[c].isna().any()}
+    return frame.astype(ints)
 
 
-def read_results(out_dir: pathlib.Path) -> list[dict]:
-    """The rows of an earlier run in ``out_dir`` (none if it has no results table)."""
-    path = out_dir / "results.parquet"
+def budget_of(row: dict) -> float | None:
+    """The row's time budget in ms, None for an equal-spp cell."""
+    value = row.get("time_budget_ms")
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return None
+    return float(value)
+
+
+def row_key(row: dict) -> tuple:
+    """Identity of a cell: an equal-time cell is keyed by its budget, not the spp chosen for it."""
+    budget = budget_of(row)
+    spp = None if budget is not None else int(row["spp"])
+    return (row["scene"], row["estimator"], spp, int(row["frame"]), int(row["seed"]), budget)
+
+
+cell_key = row_key   # the name before issue 4
+
+
+def image_stem(row: dict) -> str:
+    """File stem of a cell's images under ``images/<scene>/f<frame>/``.
+
+    ``{estimator}_spp{spp}_s{seed}``, the label made file-name safe (``{`` → ``-``, ``,`` →
+    ``-``, ``}`` and quotes dropped) and ``_t{budget}ms`` before ``_spp`` for an equal-time cell.
+    """
+    label = str(row["estimator"])
+    safe = label.replace("{", "-").replace(",", "-").replace("}", "").replace('"', "")
+    budget = budget_of(row)
+    timed = f"_t{budget:g}ms" if budget is not None else ""
+    return f"{safe}{timed}_spp{int(row['spp'])}_s{int(row['seed'])}"
+
+
+def _plain(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _read_table(out_dir: pathlib.Path) -> list[dict]:
+    path = out_dir / TABLE
     if not path.exists():
         return []
     try:
@@ -36,21 +111,88 @@ def read_results(out_dir: pathlib.Path) -> list[dict]:
                                "use a new --out") from None
 
 
-def cell_key(row: dict) -> tuple:
-    return tuple(row[column] for column in KEY_COLUMNS)
+def read_journal(out_dir: pathlib.Path) -> list[dict]:
+    """Rows appended by a run that has not folded them yet; a torn last line is dropped."""
+    path = out_dir / JOURNAL
+    if not path.exists():
+        return []
+    lines = path.read_bytes().split(b"\n")
+    rows = []
+    for number, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            rows.append(json.loads(line))
+        except ValueError:
+            if number == len(lines) - 1:   # the line being written when the run was killed
+                break
+            raise InputError(path, f"line {number + 1} is damaged; move the journal away to "
+                                   "resume without its cells") from None
+    return rows
+
+
+def read_results(out_dir: pathlib.Path) -> list[dict]:
+    """Every row in ``out_dir``: the table, then the journal's rows (a journal row replaces the
+    table's row of the same cell)."""
+    rows = {row_key(row): row for row in _read_table(out_dir)}
+    rows.update((row_key(row), row) for row in read_journal(out_dir))
+    return list(rows.values())
 
 
 def write_results(out_dir: pathlib.Path, rows: list[dict]) -> pd.DataFrame:
-    """(Re)write ``results.parquet`` and ``results.csv``; each file is replaced in one step."""
+    """(Re)write ``results.parquet`` and ``results.csv`` (each replaced in one step, fsynced),
+    then drop the journal, whose rows ``rows`` must include."""
     frame = results_frame(rows)
-    with atomic_path(out_dir / "results.parquet") as tmp:
-        frame.to_parquet(tmp, index=False)
-    with atomic_path(out_dir / "results.csv") as tmp:
-        frame.to_csv(tmp, index=False)
+    for name, write in ((TABLE, lambda p: frame.to_parquet(p, index=False)),
+                        (CSV, lambda p: frame.to_csv(p, index=False))):
+        with atomic_path(out_dir / name) as tmp:
+            write(tmp)
+            _fsync(tmp)
+    journal = out_dir / JOURNAL
+    if journal.exists():
+        journal.unlink()
+    _fsync_dir(out_dir)
     return frame
 
 
+class Journal:
+    """Append-only, fsynced record of finished cells (``results.journal.jsonl``)."""
+
+    def __init__(self, out_dir: pathlib.Path):
+        self.path = out_dir / JOURNAL
+        self._fd: int | None = None
+
+    def append(self, row: dict) -> None:
+        if self._fd is None:
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        line = json.dumps({k: _plain(v) for k, v in row.items()}, allow_nan=True) + "\n"
+        os.write(self._fd, line.encode())
+        os.fsync(self._fd)
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+def _fsync(path: pathlib.Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(path: pathlib.Path) -> None:
+    try:
+        _fsync(path)
+    except OSError:   # some file systems cannot fsync a directory
+        pass
+
+
 def _json_safe(value):
+    if isinstance(value, np.generic):
+        value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
@@ -58,6 +200,14 @@ def _json_safe(value):
     if isinstance(value, (list, tuple)):
         return [_json_safe(v) for v in value]
     return value
+
+
+def read_manifest(out_dir: pathlib.Path) -> dict:
+    """The manifest of an earlier run in ``out_dir`` ({} if none or unreadable)."""
+    try:
+        return json.loads((out_dir / "manifest.json").read_text())
+    except (OSError, ValueError):
+        return {}
 
 
 def write_manifest(out_dir: pathlib.Path, manifest: dict) -> None:

@@ -1,13 +1,40 @@
-"""``iblbench run``: scenes × estimators × spp × seeds → results table, manifest and images.
+"""``iblbench run``: scenes × estimators × spp × frames × seeds → results table, manifest, images.
 
 The runner skips what a scene does not need (DESIGN §2): the G-buffer is traced once per scene,
 a frame cache builds only the products the chosen estimators require, and a cached reference is
 never recomputed.  Every skipped stage is recorded in the manifest.
+
+Resumption.  Before rendering, the runner plans every cell of the sweep and counts a cell as
+done when ``out`` already holds its row made with the same configuration (cell key, image size,
+cube face size, estimator parameters), the same code (``estimator_version``, ``schema_version``,
+protocol) and on the same device; it prints ``resumed: N cells already done, M to run`` and runs
+only the M (``force`` runs them all).  Each finished cell is appended to the results journal
+before the next one starts (see :mod:`iblbench.harness.results`), so a killed run, ``kill -9``
+included, loses only the cell in flight.  A scene none of whose cells is left is not even traced.
+
+The unit of work is a property of the estimator's ``Tags.temporal``.  A frame-by-frame estimator
+resumes cell by cell.  A temporal estimator carries state from frame to frame, so its unit of
+work and of resumption is the whole frame sequence of one (scene, estimator, spp, seed): unless
+every frame of that sequence is done, all of them are run again, in order, on one instance that
+starts from ``reset()`` (DESIGN §6).
+
+Equal time.  For each budget T in ``time_budget_ms`` and each (scene, estimator), the runner
+times renders on the scene's first frame to run (after a warm-up, ``CALIBRATION_REPEATS`` per
+spp, seeds no cell uses), at ``CALIBRATION_SPP`` and then at larger spp until the calibrated
+range brackets the choice.  It fits the median device time of the ``sample`` and ``shade``
+stages (OpenCL profiling events: the per-frame cost of the estimator, without the per-frame
+builds such as CDFs, host read-back or compilation) as ``a + b·spp`` by least squares on
+relative error, and runs the largest spp whose predicted time is ≤ T.  Those rows carry
+``time_budget_ms = T`` and the chosen ``spp``; the calibration runs and fits are in the
+manifest under ``time_budget``.  A resumed run reuses the spp its earlier rows chose.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
+import fcntl
+import math
 import os
 import pathlib
 import platform
@@ -19,13 +46,15 @@ from importlib.metadata import PackageNotFoundError, version
 import numpy as np
 from tqdm import tqdm
 
-from iblbench.estimators.registry import get_estimator_class
 from iblbench.harness.device import get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
 from iblbench.harness.metrics import PROTOCOL, exposure, score
 from iblbench.harness.reference import Reference
-from iblbench.harness.results import cell_key, read_results, write_manifest, write_results
+from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, image_stem,
+                                      read_manifest, read_results, row_key, write_manifest,
+                                      write_results)
+from iblbench.harness.sweep import parse_estimator
 from iblbench.reports.previews import write_heat_map, write_preview
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
@@ -38,13 +67,18 @@ DEFAULT_ESTIMATORS = ("uniform",)
 DEFAULT_SPP = (16, 64, 256)
 DEFAULT_SEEDS = 2
 WARMUP_SEED = 0xFFFFFFFF   # a seed no benchmark cell uses
+CALIBRATION_SEED = 0xFFFFFF00   # + repeat index: seeds no benchmark cell uses
+CALIBRATION_SPP = (1, 4, 16, 64)
+CALIBRATION_REPEATS = 3
+BUDGET_MAX_SPP = 32767     # the most spp an equal-time cell may choose (the pool estimators' limit)
+LOCK = ".iblbench.lock"
 
 
 @dataclasses.dataclass
 class RunConfig:
     out: pathlib.Path
     scenes: tuple[str, ...] = DEFAULT_SCENES
-    estimators: tuple[str, ...] = DEFAULT_ESTIMATORS
+    estimators: tuple[str, ...] = DEFAULT_ESTIMATORS   # labels: "name" or "name{param=value}"
     spp: tuple[int, ...] = DEFAULT_SPP
     seeds: int = DEFAULT_SEEDS
     resolution: tuple[int, int] | None = None
@@ -53,6 +87,10 @@ class RunConfig:
     sanitize: bool = False
     env_res: int | None = None
     progress: bool | None = None   # None: a bar only on a TTY
+    frames: tuple[int, ...] | None = None      # None: every frame; static scenes run frame 0
+    time_budget_ms: tuple[float, ...] = ()     # equal-time cells, besides the spp list
+    force: bool = False                        # recompute finished cells too
+    sweep: dict | None = None                  # the resolved sweep and its source (manifest)
 
 
 def _package_version(name: str) -> str:
@@ -104,13 +142,105 @@ def _prepare_out(out: pathlib.Path) -> None:
         raise InputError(out, "the output directory is not writable")
 
 
-class Runner:
-    """Runs every cell not already in ``out``'s results table.
+@contextlib.contextmanager
+def _locked(out: pathlib.Path):
+    """One run at a time per folder (the OS drops the lock when a killed run dies)."""
+    path = out / LOCK
+    handle = open(path, "a")
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise InputError(out, "another iblbench run is writing to this folder") from None
+        yield
+        path.unlink(missing_ok=True)
+    finally:
+        handle.close()
 
-    A cell counts as done when a row with its (scene, estimator, spp, frame, seed) was made by the
-    same estimator version on the same device; such rows are kept and not recomputed, so an
-    interrupted run resumes and a rerun with more spp or seeds adds to the table.
-    """
+
+def _remove_stale_temporaries(out: pathlib.Path) -> None:
+    """Temporary files of atomic writes a killed run left (``.<stem>.<random><suffix>``)."""
+    candidates = list(out.glob(".results.*")) + list(out.glob(".manifest.*"))
+    for folder in ("images", "inputs"):
+        if (out / folder).is_dir():
+            candidates += [p for p in (out / folder).rglob(".*") if p.is_file()]
+    for path in candidates:
+        path.unlink(missing_ok=True)
+
+
+@dataclasses.dataclass
+class _ScenePlan:
+    scene: object
+    width: int
+    height: int
+    env_res: int
+    frames: list[int]
+
+
+def fit_linear(runs: dict[int, list[float]]) -> tuple[float, float]:
+    """Least squares of median time ≈ a + b·spp on relative error; a ≥ 0, b > 0."""
+    spp = np.array(sorted(runs), float)
+    t = np.array([np.median(runs[int(s)]) for s in spp], float)
+    t = np.maximum(t, 1e-6)
+    (a, b), *_ = np.linalg.lstsq(np.stack([1 / t, spp / t], axis=1), np.ones_like(t), rcond=None)
+    if a < 0:   # noise at low spp: a line through the origin instead
+        a, b = 0.0, float(np.sum(spp / t) / np.sum((spp / t) ** 2))
+    return float(a), float(max(b, 1e-12))
+
+
+def choose_spp(a: float, b: float, budget_ms: float) -> int:
+    """The largest spp in [1, BUDGET_MAX_SPP] whose predicted time a + b·spp is ≤ the budget
+    (1 when even one sample is predicted over it)."""
+    return int(max(1, min(BUDGET_MAX_SPP, math.floor((budget_ms - a) / b + 1e-9))))
+
+
+class _Calibration:
+    """Timed renders of one (scene, estimator) on one frame, shared by every budget."""
+
+    MEASURE = "device time of the sample and shade stages (OpenCL profiling events), ms"
+
+    def __init__(self, estimator, gbuffer, cache):
+        self.estimator, self.gbuffer, self.cache = estimator, gbuffer, cache
+        self.runs: dict[int, list[float]] = {}
+        self.host: dict[int, list[float]] = {}
+
+    def measure(self, spp: int) -> None:
+        device, host = [], []
+        for repeat in range(CALIBRATION_REPEATS):
+            start = time.perf_counter()
+            estimate = self.estimator.render(self.gbuffer, self.cache, spp, CALIBRATION_SEED + repeat)
+            host.append((time.perf_counter() - start) * 1e3)
+            device.append(device_ms(estimate))
+        self.runs[spp], self.host[spp] = device, host
+
+    def choose(self, budget_ms: float) -> dict:
+        for spp in CALIBRATION_SPP:
+            if spp not in self.runs:
+                self.measure(spp)
+        a, b = fit_linear(self.runs)
+        chosen = choose_spp(a, b, budget_ms)
+        for _ in range(10):   # extend the calibrated range until it brackets the choice
+            top = max(self.runs)
+            if chosen <= 2 * top or top >= BUDGET_MAX_SPP:
+                break
+            self.measure(min(chosen, 4 * top, BUDGET_MAX_SPP))
+            a, b = fit_linear(self.runs)
+            chosen = choose_spp(a, b, budget_ms)
+        return {"budget_ms": budget_ms, "a_ms": a, "b_ms_per_spp": b, "chosen_spp": chosen,
+                "predicted_ms": a + b * chosen, "over_budget": a + b * chosen > budget_ms,
+                "runs": [{"spp": s, "device_ms": self.runs[s], "host_frame_ms": self.host[s],
+                          "median_device_ms": float(np.median(self.runs[s]))}
+                         for s in sorted(self.runs)]}
+
+
+def device_ms(estimate) -> float:
+    """The estimator's device time of one frame: its sample and shade stages."""
+    stages = [estimate.timings_ms.get(s, float("nan")) for s in ("sample", "shade")]
+    return float(sum(v for v in stages if math.isfinite(v)))
+
+
+class Runner:
+    """Runs every cell of the sweep not already in ``out`` (see the module docstring)."""
 
     def __init__(self, config: RunConfig):
         for spp in config.spp:
@@ -118,8 +248,16 @@ class Runner:
                 raise InputError(None, f"--spp values must be positive integers, got {spp}")
         if config.seeds < 1:
             raise InputError(None, f"--seeds must be at least 1, got {config.seeds}")
+        for budget in config.time_budget_ms:
+            if not (math.isfinite(budget) and budget > 0):
+                raise InputError(None, f"--time-budget-ms must be positive, got {budget}")
+        if not config.spp and not config.time_budget_ms:
+            raise InputError(None, "no spp and no time budget: the sweep has no cells")
         self.config = config
-        self.estimator_classes = [get_estimator_class(name) for name in config.estimators]
+        self.specs = [parse_estimator(label) for label in config.estimators]
+        labels = [spec.label for spec in self.specs]
+        if len(set(labels)) != len(labels):
+            raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
         self.scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
                        for name in config.scenes]
         _require_unique_names(self.scenes)
@@ -127,60 +265,173 @@ class Runner:
             if scene.environment.texels_fixed:
                 print(f"iblbench: --sanitize replaced {scene.environment.texels_fixed} bad texels "
                       f"in {scene.environment.source}", file=sys.stderr)
+        self.plans = [self._plan_scene(scene) for scene in self.scenes]
         self.compute = get_compute(config.device)
+        self.device_name = self.compute.device_name
         self.reference = Reference(self.compute)
         self.out = pathlib.Path(config.out)
         if self.out.exists() and not self.out.is_dir():
             raise InputError(self.out, "--out exists and is not a directory")
-        self.rows = {cell_key(row): row for row in read_results(self.out)}
-        self.resumed = 0
+        self.rows = {row_key(row): row for row in read_results(self.out)}
+        self.params = {spec.label: spec.params_json() for spec in self.specs}
+        self.previous_manifest = read_manifest(self.out)
+        self.todo, self.total, self.chosen = self._plan_cells()
+        self.resumed = self.total - len(self.todo)
         self.manifest = self._new_manifest()
+
+    def _plan_scene(self, scene) -> _ScenePlan:
+        frames_available = scene.environment.num_frames
+        if scene.environment.is_static:
+            frames = [0]
+        elif self.config.frames is None:
+            frames = list(range(frames_available))
+        else:
+            frames = list(self.config.frames)
+            if frames[-1] >= frames_available:
+                raise InputError(scene.source or scene.name,
+                                 f"frame {frames[-1]} selected, but scene '{scene.name}' has "
+                                 f"{frames_available} frames (0..{frames_available - 1})")
+        width, height = self.config.resolution or scene.resolution
+        env_res = int(np.shape(scene.environment.frame(frames[0]))[1])
+        return _ScenePlan(scene, int(width), int(height), env_res, frames)
+
+    # ---- planning ----------------------------------------------------------------------------
+
+    def _variants(self):
+        """(spp, budget) of each cell family: the spp list, then each time budget."""
+        return ([(spp, None) for spp in self.config.spp]
+                + [(None, float(b)) for b in self.config.time_budget_ms])
+
+    def _valid(self, row: dict | None, plan: _ScenePlan, spec) -> bool:
+        """A row made with this configuration, code and device."""
+        return (row is not None and row.get("schema_version") == SCHEMA_VERSION
+                and row.get("estimator_version") == spec.cls.version()
+                and row.get("estimator_params") == self.params[spec.label]
+                and row.get("device") == self.device_name and row.get("protocol") == PROTOCOL
+                and (row.get("width"), row.get("height"), row.get("env_res"))
+                == (plan.width, plan.height, plan.env_res))
+
+    def _plan_cells(self):
+        """The keys of the cells to run, how many cells the sweep has, and the spp earlier rows
+        chose for each (scene, estimator, budget)."""
+        todo, total, chosen = set(), 0, {}
+        for plan in self.plans:
+            for spec in self.specs:
+                for spp, budget in self._variants():
+                    for seed in range(self.config.seeds):
+                        keys = [(plan.scene.name, spec.label, spp, frame, seed, budget)
+                                for frame in plan.frames]
+                        total += len(keys)
+                        done = [not self.config.force and self._valid(self.rows.get(k), plan, spec)
+                                for k in keys]
+                        if spec.cls.tags.temporal and not all(done):
+                            todo.update(keys)       # a sequence is one unit of work
+                        else:
+                            todo.update(k for k, d in zip(keys, done) if not d)
+                        if budget is not None:
+                            for key, d in zip(keys, done):
+                                if d:
+                                    chosen[(plan.scene.name, spec.label, budget)] = int(
+                                        self.rows[key]["spp"])
+        return todo, total, chosen
 
     def _new_manifest(self) -> dict:
         c = self.config
+        sweep = c.sweep or {"source": "RunConfig (Python API)"}
         return {
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
-            "config": {"scenes": list(c.scenes), "estimators": list(c.estimators),
+            "config": {"scenes": list(c.scenes), "estimators": [s.label for s in self.specs],
                        "spp": list(c.spp), "seeds": c.seeds, "resolution": c.resolution,
+                       "frames": "all" if c.frames is None else list(c.frames),
+                       "time_budget_ms": list(c.time_budget_ms), "force": c.force,
                        "save_inputs": c.save_inputs, "sanitize": c.sanitize, "env_res": c.env_res},
+            "sweep": sweep,
             "protocol": PROTOCOL,
+            "schema_version": SCHEMA_VERSION,
             "git_revision": _git_revision(),
             "versions": {"iblbench": _package_version("iblbench"), "python": platform.python_version(),
                          **{p: _package_version(p) for p in ("numpy", "pyopencl", "embreex",
                                                             "colour-science", "pandas")}},
-            "estimator_versions": {cls.name: cls.version() for cls in self.estimator_classes},
+            "estimator_versions": {s.label: s.cls.version() for s in self.specs},
+            "estimator_params": dict(self.params),
             "device": _device_record(self.compute),
-            "sanitized": {s.name: s.environment.texels_fixed for s in self.scenes},
+            "sanitized": {p.scene.name: p.scene.environment.texels_fixed for p in self.plans},
+            "resumed_cells": self.resumed,
+            "cells_to_run": len(self.todo),
             "stages": [],
             "skipped": [],
+            "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": _Calibration.MEASURE,
+                             "model": "time = a_ms + b_ms_per_spp * spp, least squares on "
+                                      "relative error over the median of "
+                                      f"{CALIBRATION_REPEATS} renders per spp",
+                             "chosen": "the largest spp with predicted time <= budget",
+                             "calibrations": self._resumed_calibrations()}
+                            if c.time_budget_ms else None),
         }
+
+    def _resumed_calibrations(self) -> list[dict]:
+        """The earlier manifest's calibrations of the budgets whose spp resumed rows chose."""
+        old = (self.previous_manifest.get("time_budget") or {}).get("calibrations", [])
+        kept = []
+        for entry in old:
+            key = (entry.get("scene"), entry.get("estimator"), entry.get("budget_ms"))
+            if key in self.chosen and self.chosen[key] == entry.get("chosen_spp"):
+                kept.append(dict(entry, resumed=True))
+        return kept
 
     @property
     def total_cells(self) -> int:
-        frames = sum(scene.environment.num_frames for scene in self.scenes)
-        return frames * len(self.estimator_classes) * len(self.config.spp) * self.config.seeds
+        return self.total
+
+    # ---- running -----------------------------------------------------------------------------
 
     def run(self):
         _prepare_out(self.out)
-        self.manifest["status"] = "running"     # a killed run leaves this, not a missing manifest
-        write_manifest(self.out, self.manifest)
-        with tqdm(total=self.total_cells, unit="cell", disable=self._bar_disabled(),
-                  desc="iblbench run") as bar:
-            for scene in self.scenes:
-                self._run_scene(scene, bar)
-        table = write_results(self.out, list(self.rows.values()))
-        self.manifest["status"] = "complete"
-        self.manifest["resumed_cells"] = self.resumed
-        write_manifest(self.out, self.manifest)
+        with _locked(self.out):
+            if self.resumed:
+                print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
+                      file=sys.stderr)
+            _remove_stale_temporaries(self.out)
+            self.journal = Journal(self.out)
+            self._fold()   # a journal a killed run left becomes part of the table now
+            self._last_fold = time.monotonic()
+            self.manifest["status"] = "running"   # a killed run leaves this, not a missing manifest
+            write_manifest(self.out, self.manifest)
+            try:
+                with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
+                          desc="iblbench run") as bar:
+                    bar.update(self.resumed)
+                    for plan in self.plans:
+                        self._run_scene(plan, bar)
+            finally:
+                self.journal.close()
+            table = self._fold()
+            self.manifest["status"] = "complete"
+            write_manifest(self.out, self.manifest)
         return table
+
+    def _fold(self):
+        self.journal.close()
+        return write_results(self.out, list(self.rows.values()))
 
     def _bar_disabled(self):
         return None if self.config.progress is None else not self.config.progress
 
-    def _run_scene(self, scene, bar) -> None:
-        width, height = self.config.resolution or scene.resolution
+    def _scene_todo(self, name: str, frame: int | None = None) -> list[tuple]:
+        return sorted((k for k in self.todo if k[0] == name and (frame is None or k[3] == frame)),
+                      key=lambda k: (k[1], k[5] is not None, k[2] or 0, k[5] or 0, k[4]))
+
+    def _run_scene(self, plan: _ScenePlan, bar) -> None:
+        scene = plan.scene
+        if not self._scene_todo(scene.name):
+            self.manifest["skipped"].append({"scene": scene.name, "stage": "scene",
+                                             "why": "every cell already done (resumed)"})
+            self.manifest["stages"] += [dict(stage, resumed=True) for stage
+                                        in self.previous_manifest.get("stages", [])
+                                        if stage.get("scene") == scene.name]
+            return
         start = time.perf_counter()
-        gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, width, height)
+        gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, plan.width, plan.height)
         self._stage(scene.name, None, "gbuffer", (time.perf_counter() - start) * 1e3)
         if gbuffer.covered == 0:
             raise InputError(scene.source or scene.name, "the camera sees no geometry")
@@ -188,12 +439,18 @@ class Runner:
         if self.config.save_inputs:
             gbuffer.save_npz(inputs / "gbuffer.npz")
         device_gbuffer = DeviceGBuffer(self.compute, gbuffer)
-        required = {p for cls in self.estimator_classes for p in cls.requires}
+        required = {p for spec in self.specs for p in spec.cls.requires}
         for product in PRODUCTS:
             if product not in required and product != "env":
                 self.manifest["skipped"].append({"scene": scene.name, "stage": product,
                                                  "why": "no selected estimator requires it"})
-        for frame in range(scene.environment.num_frames):
+        sequences = {}   # temporal estimators: one instance per (label, spp, budget, seed)
+        for frame in plan.frames:
+            if not self._scene_todo(scene.name, frame):
+                self.manifest["skipped"].append({"scene": scene.name, "frame": frame,
+                                                 "stage": "frame",
+                                                 "why": "every cell already done (resumed)"})
+                continue
             env = scene.environment.frame(frame)
             if self.config.save_inputs:
                 with atomic_path(inputs / f"env_f{frame}.npy") as tmp:
@@ -202,12 +459,14 @@ class Runner:
             cache.require(sorted(required))
             for stage, ms in cache.timings_ms.items():
                 self._stage(scene.name, frame, stage, ms)
-            self._run_frame(scene.name, device_gbuffer, cache, bar)
+            self._run_frame(plan, device_gbuffer, cache, bar, sequences)
 
     def _stage(self, scene: str, frame, stage: str, ms: float) -> None:
         self.manifest["stages"].append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
 
-    def _run_frame(self, scene_name: str, gbuffer: DeviceGBuffer, cache: FrameCache, bar) -> None:
+    def _run_frame(self, plan: _ScenePlan, gbuffer: DeviceGBuffer, cache: FrameCache, bar,
+                   sequences: dict) -> None:
+        scene_name = plan.scene.name
         images = self.out / "images" / scene_name / f"f{cache.frame}"
         reference = self.reference.image(gbuffer, cache)
         if self.reference.last_ms is None:
@@ -219,45 +478,81 @@ class Runner:
         k = exposure(reference, mask)
         write_exr(images / "reference.exr", reference)
         write_preview(images / "reference.png", reference, k)
-        for cls in self.estimator_classes:
-            cells = [(spp, seed) for spp in self.config.spp for seed in range(self.config.seeds)
-                     if not self._done(scene_name, cls, spp, cache.frame, seed)]
-            self.resumed += self.config.seeds * len(self.config.spp) - len(cells)
-            bar.update(self.config.seeds * len(self.config.spp) - len(cells))
+        todo = self._scene_todo(scene_name, cache.frame)
+        for spec in self.specs:
+            cells = [key for key in todo if key[1] == spec.label]
             if not cells:
                 continue
-            estimator = cls()
-            estimator.render(gbuffer, cache, min(self.config.spp), WARMUP_SEED)  # untimed warm-up
+            estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
+            estimator.render(gbuffer, cache, min(self.config.spp or (16,)), WARMUP_SEED)  # untimed
+            estimator.reset()
+            self._calibrate(spec, estimator, gbuffer, cache, cells)
+            for spp in sorted({self.chosen[(scene_name, spec.label, key[5])]
+                               for key in cells if key[5] is not None}):
+                # A new spp can mean new work-group sizes to compile (PoCL): keep it untimed.
+                estimator.render(gbuffer, cache, spp, WARMUP_SEED)
+                estimator.reset()
             # Per-frame builds only; a pool is drawn per render and timed as its "sample" stage.
-            build_ms = sum(cache.timings_ms.get(p, 0.0) for p in ("upload",) + cls.requires
+            build_ms = sum(cache.timings_ms.get(p, 0.0) for p in ("upload",) + spec.cls.requires
                            if p != "pool")
-            for spp, seed in cells:
+            for key in cells:
+                _, label, spp, frame, seed, budget = key
+                if budget is not None:
+                    spp = self.chosen[(scene_name, label, budget)]
+                if spec.cls.tags.temporal:
+                    sequence = (label, key[2], budget, seed)
+                    if sequence not in sequences:
+                        sequences[sequence] = spec.make()
+                        sequences[sequence].reset()
+                    renderer = sequences[sequence]
+                else:
+                    renderer = estimator
                 start = time.perf_counter()
-                estimate = estimator.render(gbuffer, cache, spp, seed)
+                estimate = renderer.render(gbuffer, cache, spp, seed)
                 frame_ms = (time.perf_counter() - start) * 1e3
                 metrics, delta_e = score(estimate, reference, mask)
-                stem = f"{cls.name}_spp{spp}_s{seed}"
-                write_exr(images / f"{stem}.exr", estimate.radiance)
-                write_preview(images / f"{stem}.png", estimate.radiance, k)
-                write_heat_map(images / f"{stem}_de76.png", delta_e)
                 row = {
-                    "scene": scene_name, "estimator": cls.name, "spp": spp,
-                    "frame": cache.frame, "seed": seed, "estimator_version": cls.version(),
+                    "scene": scene_name, "estimator": label, "spp": int(spp), "frame": frame,
+                    "seed": seed, "time_budget_ms": float("nan") if budget is None else budget,
+                    "width": plan.width, "height": plan.height, "env_res": plan.env_res,
+                    "estimator_params": self.params[label],
+                    "estimator_version": spec.cls.version(), "schema_version": SCHEMA_VERSION,
                     **metrics,
                     "time_ms_build": build_ms,
                     "time_ms_sample": estimate.timings_ms.get("sample", float("nan")),
                     "time_ms_shade": estimate.timings_ms.get("shade", float("nan")),
                     "time_ms_frame": frame_ms,
-                    "device": self.compute.device_name, "protocol": PROTOCOL,
+                    "device": self.device_name, "protocol": PROTOCOL,
                 }
-                self.rows[cell_key(row)] = row
+                stem = image_stem(row)
+                write_exr(images / f"{stem}.exr", estimate.radiance)
+                write_preview(images / f"{stem}.png", estimate.radiance, k)
+                write_heat_map(images / f"{stem}_de76.png", delta_e)
+                # The row goes to the journal after its images: a journaled cell is complete.
+                self.journal.append(row)
+                self.rows[row_key(row)] = row
                 bar.update()
-            write_results(self.out, list(self.rows.values()))
+                if time.monotonic() - self._last_fold > FOLD_SECONDS:
+                    self._fold()
+                    self._last_fold = time.monotonic()
 
-    def _done(self, scene: str, cls, spp: int, frame: int, seed: int) -> bool:
-        row = self.rows.get((scene, cls.name, spp, frame, seed))
-        return (row is not None and row["estimator_version"] == cls.version()
-                and row["device"] == self.compute.device_name)
+    def _calibrate(self, spec, estimator, gbuffer, cache, cells) -> None:
+        """Choose the spp of every budget of this estimator not chosen yet (module docstring)."""
+        scene_name = cells[0][0]
+        budgets = sorted({key[5] for key in cells if key[5] is not None
+                          and (scene_name, spec.label, key[5]) not in self.chosen})
+        calibration = _Calibration(estimator, gbuffer, cache) if budgets else None
+        for budget in budgets:
+            fit = calibration.choose(budget)
+            self.chosen[(scene_name, spec.label, budget)] = fit["chosen_spp"]
+            self.manifest["time_budget"]["calibrations"].append(
+                {"scene": scene_name, "estimator": spec.label, "frame": cache.frame, **fit})
+            if fit["over_budget"]:
+                print(f"iblbench: {spec.label} on {scene_name}: even 1 spp is predicted to take "
+                      f"{fit['predicted_ms']:.3g} ms > the {budget:g} ms budget; running 1 spp",
+                      file=sys.stderr)
+        if calibration is not None:
+            estimator.reset()
 
 
 def run(config: RunConfig):

@@ -1,0 +1,211 @@
+"""Sweep configs: estimator overrides, the shipped configs, every config error, CLI overrides."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+
+from iblbench.harness.cli import main
+from iblbench.harness.sweep import load_sweep, parse_estimator
+from iblbench.scenes.errors import InputError
+
+VALID = """\
+protocol = "lab-reinhard-v1"
+scenes = ["sphere-sun"]
+estimators = ["uniform"]
+spp = [4]
+seeds = 1
+resolution = "16x16"
+env_res = 8
+"""
+
+
+def write(folder: Path, text: str, name: str = "sweep.toml") -> Path:
+    path = folder / name
+    path.write_text(text)
+    return path
+
+
+# ---- estimator overrides ------------------------------------------------------------------------
+
+
+def test_override_label_is_canonical_and_builds_the_parameter():
+    spec = parse_estimator("Balanced_MIS{ shared_sequence = false }")
+    assert spec.label == "balanced_mis{shared_sequence=false}"
+    assert spec.make().params.shared_sequence is False
+    assert json.loads(spec.params_json()) == {"shared_sequence": False}
+    plain = parse_estimator("balanced_mis")
+    assert plain.label == "balanced_mis" and plain.make().params.shared_sequence is True
+    assert parse_estimator("uniform{}").label == "uniform"
+
+
+@pytest.mark.parametrize("text, needles", [
+    ("balanced_mis{shared_seq=false}", ("'balanced_mis' has no parameter 'shared_seq'",
+                                        "valid parameters: shared_sequence")),
+    ("balanced_mis{shared_sequence=3}", ("shared_sequence", "must be bool", "got 3")),
+    ("balanced_mis{shared_sequence=}", ("cannot read the parameters",)),
+    ("balanced_mis{shared_sequence=[true]}", ("must be a TOML scalar",)),
+    ("no_such{x=1}", ("unknown estimator 'no_such'", "uniform")),
+    ("uniform{", ("cannot read estimator",)),
+])
+def test_bad_overrides(text, needles):
+    with pytest.raises(InputError) as error:
+        parse_estimator(text)
+    for needle in needles:
+        assert needle in str(error.value), str(error.value)
+
+
+# ---- shipped configs ----------------------------------------------------------------------------
+
+
+def test_quick_is_the_documented_sweep():
+    quick = load_sweep("quick")
+    assert quick.scenes == ("sphere-sun", "sphere-backlit")
+    assert quick.estimators == ("uniform", "balanced", "balanced_mis")
+    assert quick.spp == (16, 64) and quick.seeds == 2
+    assert quick.resolution == (48, 48) and quick.env_res == 32
+    assert quick.frames is None and quick.time_budget_ms == () and not quick.sanitize
+    assert quick.protocol == "lab-reinhard-v1" and quick.source == "shipped:quick"
+
+
+def test_default_and_full_parse():
+    default = load_sweep("default")
+    assert set(default.estimators) == {"uniform", "balanced", "balanced_mis"}
+    assert default.spp == (16, 64, 256) and default.seeds == 2
+    full = load_sweep("full")
+    assert "balanced_mis{shared_sequence=false}" in full.estimators
+    assert "balanced_mis" in full.estimators and full.seeds == 8
+    assert full.resolution == (256, 256) and min(full.spp) == 15 and max(full.spp) == 1024
+    from iblbench.scenes.registry import scene_names
+    assert sorted(full.scenes) == scene_names()
+
+
+def test_config_fields(tmp_path):
+    sweep = load_sweep(write(tmp_path, VALID.replace('resolution = "16x16"', "resolution = [20, 12]")
+                             + 'frames = "2..4"\ntime_budget_ms = 5\nsanitize = true\n'
+                             'description = "d"\n'))
+    assert sweep.resolution == (20, 12) and sweep.frames == (2, 3, 4)
+    assert sweep.time_budget_ms == (5.0,) and sweep.sanitize and sweep.description == "d"
+    assert load_sweep(write(tmp_path, VALID + "frames = [3, 1]\n")).frames == (1, 3)
+
+
+def test_relative_scene_files_are_found_from_the_config_folder(tmp_path):
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "ball.toml").write_text("")
+    sweep = load_sweep(write(tmp_path, VALID.replace('["sphere-sun"]', '["sub/ball.toml"]')))
+    assert sweep.scenes == (str(tmp_path / "sub" / "ball.toml"),)
+
+
+# ---- config errors: InputError naming the file and the problem ----------------------------------
+
+
+@pytest.mark.parametrize("edit, needle", [
+    (lambda t: t + "colour = 1\n", "unknown key 'colour'"),
+    (lambda t: t + "spp = [8]\n", "TOML syntax error"),            # a key given twice
+    (lambda t: t.replace("seeds = 1\n", ""), "missing required key 'seeds'"),
+    (lambda t: t.replace("spp = [4]\n", ""), "missing required key 'spp'"),
+    (lambda t: t.replace("lab-reinhard-v1", "srgb-v0"), "protocol must be 'lab-reinhard-v1'"),
+    (lambda t: t.replace("spp = [4]", 'spp = "4"'), "spp must be a list of positive integers"),
+    (lambda t: t.replace("spp = [4]", "spp = [0]"), "spp must be a list of positive integers"),
+    (lambda t: t.replace("seeds = 1", "seeds = 0"), "seeds must be a positive integer"),
+    (lambda t: t.replace("seeds = 1", "seeds = true"), "seeds must be a positive integer"),
+    (lambda t: t.replace('"16x16"', '"16"'), "resolution must be"),
+    (lambda t: t.replace("env_res = 8", "env_res = 2.5"), "env_res must be a positive integer"),
+    (lambda t: t + 'frames = "some"\n', "frames must be"),
+    (lambda t: t + "time_budget_ms = -1\n", "time_budget_ms must be a positive number"),
+    (lambda t: t + 'sanitize = "yes"\n', "sanitize must be true or false"),
+    (lambda t: t.replace('["sphere-sun"]', '["no-such-scene"]'), "unknown scene 'no-such-scene'"),
+    (lambda t: t.replace('["sphere-sun"]', '["missing.toml"]'), "not found"),
+    (lambda t: t.replace('["sphere-sun"]', "[]"), "scenes must be a non-empty list"),
+    (lambda t: t.replace('["uniform"]', '["nope"]'), "unknown estimator 'nope'"),
+    (lambda t: t.replace('["uniform"]', '["uniform{beta=1}"]'), "valid parameters: shared_sequence"),
+    (lambda t: t.replace('["uniform"]', '["uniform", "Uniform"]'), "lists an estimator twice"),
+])
+def test_bad_config(tmp_path, edit, needle):
+    path = write(tmp_path, edit(VALID))
+    with pytest.raises(InputError) as error:
+        load_sweep(path)
+    assert error.value.source == str(path)
+    assert needle in str(error.value), str(error.value)
+
+
+def test_missing_config_and_unknown_name(tmp_path):
+    with pytest.raises(InputError, match="sweep config not found") as error:
+        load_sweep(tmp_path / "nowhere.toml")
+    assert str(tmp_path / "nowhere.toml") in str(error.value)
+    with pytest.raises(InputError, match="shipped configs: quick, default, full"):
+        load_sweep("quik")
+
+
+def test_cli_bad_config_exits_2_and_writes_nothing(tmp_path, capsys):
+    path = write(tmp_path, VALID + "colour = 1\n")
+    out = tmp_path / "out"
+    assert main(["run", "--config", str(path), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("iblbench: error: ") and str(path) in err and "colour" in err
+    assert err.count("\n") == 1 and not out.exists()
+    assert main(["run", "--config", "quick", "--estimator", "uniform{x=1}", "--out", str(out)]) == 2
+    assert "valid parameters: shared_sequence" in capsys.readouterr().err and not out.exists()
+
+
+# ---- the CLI: config fields, overridden by flags ------------------------------------------------
+
+
+def test_flags_override_config_fields(tmp_path, capsys):
+    path = write(tmp_path, VALID.replace("seeds = 1", "seeds = 2"))
+    out = tmp_path / "out"
+    code = main(["run", "--config", str(path), "--spp", "8", "--estimator",
+                 "uniform{shared_sequence=false}", "--out", str(out), "--no-progress"])
+    assert code == 0, capsys.readouterr().err
+    table = pd.read_parquet(out / "results.parquet")
+    # spp and estimator from the flags, seeds and sizes from the file.
+    assert sorted(zip(table.estimator, table.spp, table.seed)) == [
+        ("uniform{shared_sequence=false}", 8, 0), ("uniform{shared_sequence=false}", 8, 1)]
+    assert (table.width == 16).all() and (table.height == 16).all() and (table.env_res == 8).all()
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["sweep"]["source"] == str(path.resolve())
+    assert manifest["sweep"]["overridden_by_flags"] == ["--estimator", "--spp"]
+    assert manifest["sweep"]["spp"] == [8] and manifest["sweep"]["seeds"] == 2
+    assert manifest["estimator_params"] == {"uniform{shared_sequence=false}":
+                                            '{"shared_sequence": false}'}
+    images = out / "images" / "sphere-sun" / "f0"
+    assert (images / "uniform-shared_sequence=false_spp8_s1.png").is_file()
+
+
+def test_both_variants_share_one_table(tmp_path, capsys):
+    path = write(tmp_path, VALID.replace('["uniform"]',
+                                         '["balanced_mis", "balanced_mis{shared_sequence=false}"]'))
+    out = tmp_path / "out"
+    assert main(["run", "--config", str(path), "--out", str(out), "--no-progress"]) == 0
+    table = pd.read_parquet(out / "results.parquet").set_index("estimator")
+    assert sorted(table.index) == ["balanced_mis", "balanced_mis{shared_sequence=false}"]
+    shared, interleaved = (table.loc[label] for label in table.index)
+    assert shared.estimator_version == interleaved.estimator_version
+    # The parameter reaches the kernel: one seed, one spp, different images.
+    assert shared.mean_delta_e76 != interleaved.mean_delta_e76
+    assert "balanced_mis{shared_sequence=false}" in capsys.readouterr().out
+
+
+def test_static_scene_runs_frame_0_whatever_frames_says(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["run", "--config", str(write(tmp_path, VALID)), "--frames", "3..5",
+                 "--out", str(out), "--no-progress"]) == 0
+    assert list(pd.read_parquet(out / "results.parquet").frame) == [0]
+
+
+def test_frames_beyond_a_sequence_are_refused(tmp_path, capsys):
+    (tmp_path / "day").mkdir()
+    for index in range(2):
+        np.save(tmp_path / "day" / f"f{index}.npy", np.full((6, 4, 4, 3), 0.5 + index, np.float32))
+    trimesh.creation.icosphere(1).export(tmp_path / "ball.obj")
+    scene = write(tmp_path, '[mesh]\npath = "ball.obj"\n[environment]\npath = "day/*.npy"\n'
+                            '[camera]\neye = [0, 0, 3]\ntarget = [0, 0, 0]\n', "seq.toml")
+    out = tmp_path / "out"
+    assert main(["run", "--config", str(write(tmp_path, VALID)), "--scene", str(scene),
+                 "--frames", "0,2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "frame 2 selected" in err and "2 frames" in err and not out.exists()
