@@ -96,6 +96,29 @@ def summarize(table: pd.DataFrame) -> pd.DataFrame:
         .reset_index(drop=True)
 
 
+def split_equal_time(table: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(equal-spp rows, equal-time rows): rows with a ``time_budget_ms`` are the cells of an
+    equal-time comparison (``run --time-budget-ms``), reported in their own table; a table of
+    only such rows is reported as ordinary cells too."""
+    if "time_budget_ms" not in table.columns:
+        return table, table.iloc[:0]
+    timed = table.time_budget_ms.notna()
+    if timed.all():
+        return table, table[timed]
+    return table[~timed], table[timed]
+
+
+def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
+    """Error at equal time: per (budget, estimator) the spp that fit, errors and ms/frame."""
+    keys = ["time_budget_ms", "estimator", "spp"]
+    columns = ["mean_delta_e76", "mean_delta_e2000", "rel_mse", "effective_ratio", "time_ms_frame"]
+    per_seed = rows.groupby(keys + ["seed"], sort=False)[columns].mean().reset_index()
+    cells = per_seed.groupby(keys, sort=False)[columns].median().reset_index()
+    cells.columns = ["budget (ms/frame)", "estimator", "spp that fits", "mean ΔE76",
+                     "mean ΔE2000", "relMSE", "effective ratio", "ms/frame (wall)"]
+    return _frame_html(cells.sort_values(["budget (ms/frame)", "relMSE"]))
+
+
 _TABLE_COLUMNS = {   # summary column → header (with units)
     "estimator": "estimator", "spp": "spp", "seeds": "seeds",
     "mean_delta_e76": "mean ΔE76", "mean_delta_e2000": "mean ΔE2000", "rel_mse": "relMSE",
@@ -172,8 +195,9 @@ def image_grid(run_dir, report, table, scene, frame, seed, spp) -> dict:
               "src": _copy(images / "reference.png", report, f"{where}/reference.png"),
               "heat": None}]
     for name, n in chosen.items():
-        stem = f"{name}_spp{n}_s{seed}"
         row = rows[(rows.estimator == name) & (rows.spp == n)]
+        stem = _image_stem(row.iloc[0].to_dict() if len(row) else
+                           {"estimator": name, "spp": n, "seed": seed})
         error = row.mean_delta_e76.iloc[0] if len(row) else float("nan")
         tiles.append({"title": name, "subtitle": f"{n} spp, seed {seed}, mean ΔE76 {error:.3g}",
                       "src": _copy(images / f"{stem}.png", report, f"{where}/{stem}.png"),
@@ -237,24 +261,30 @@ def sample_picture(run_dir, report, manifest, table, scene, frame, spp, pixel, c
     """Compute and draw the sample picture of ``scene``; a dict for the template (``error``
     says why there is none)."""
     from iblbench.estimators.light_pool import PoolEstimator
-    from iblbench.estimators.registry import get_estimator_class
     from iblbench.harness.framecache import FrameCache
     from iblbench.reports.sample_picture import (cross_frames, cross_image, plot_sample_picture,
                                                  pool_selection)
 
-    classes = []
+    estimators, notes = {}, []
     for name in dict.fromkeys(table[table.scene == scene].estimator):
         try:
-            cls = get_estimator_class(name)
+            instance = _estimator(name)
         except Exception:
+            notes.append(f"{name}: not a registered estimator here")
             continue
-        if issubclass(cls, PoolEstimator):
-            classes.append(cls)
-    if not classes:
-        return {"error": "no estimator of this scene reads Lu 2013's light-sample pool "
-                         "(uniform, balanced, balanced_mis)"}
+        if not isinstance(instance, PoolEstimator):
+            continue
+        if not instance.params.shared_sequence:
+            notes.append(f"{name}: each pixel reads the pool from its own hashed offset "
+                         "(interleaved), not shown")
+            continue
+        estimators[name] = instance
+    if not estimators:
+        return {"error": "no estimator of this scene reads Lu 2013's light-sample pool with the "
+                         "shared sequence (uniform, balanced, balanced_mis)"
+                         + (f" ({'; '.join(notes)})" if notes else "")}
     chosen = choose_spp(table, scene, frame, 0, spp)
-    n = spp or max(chosen[c.name] for c in classes if c.name in chosen)
+    n = spp or max(chosen.get(name, 0) for name in estimators) or int(table.spp.max())
     inputs = scene_inputs(run_dir, manifest, scene, frame)
     if pixel is None:
         pixel = default_pixel(inputs.mask)
@@ -264,7 +294,8 @@ def sample_picture(run_dir, report, manifest, table, scene, frame, spp, pixel, c
         raise InputError(None, f"--pixel {x},{y} is not a covered pixel of {scene} ({w}×{h})")
     normal = inputs.normal[y, x].astype(np.float64)
     cache = FrameCache(compute(), inputs.env, frame)
-    selections = [pool_selection(cls, cache, normal, n, seed=0) for cls in classes]
+    selections = [pool_selection(e, cache, normal, n, seed=0, label=name)
+                  for name, e in estimators.items()]
     frames = cross_frames(normal)
     background = cross_image(inputs.env, normal / np.linalg.norm(normal), frames)
     panels = []
@@ -272,12 +303,31 @@ def sample_picture(run_dir, report, manifest, table, scene, frame, spp, pixel, c
         relative = f"sample_picture_{_slug(scene)}_{_slug(sel.estimator)}.png"
         plot_sample_picture(pathlib.Path(report) / relative, inputs.env, normal, sel, background)
         panels.append(relative)
-    return {"panels": panels, "pixel": (x, y), "normal": normal, "spp": n, "source": inputs.source,
+    return {"panels": panels, "notes": notes, "pixel": (x, y), "normal": normal, "spp": n, "source": inputs.source,
             "selections": [{"estimator": s.estimator, **s.counts,
                             "n_f": ", ".join(f"{v:.2f}" for v in s.n_f),
                             "per_face": ", ".join(str(int(v)) for v in s.selected_per_face),
                             "brdf": s.ticks[6] / 65536.0} for s in selections],
             "data": selections}
+
+
+def _estimator(label: str):
+    """An estimator instance for a results label: ``name`` or ``name{param=value,...}``."""
+    try:
+        from iblbench.harness.sweep import parse_estimator
+    except ImportError:   # no parameter syntax in this version
+        from iblbench.estimators.registry import get_estimator_class
+        return get_estimator_class(label)()
+    return parse_estimator(label).make()
+
+
+def _image_stem(row: dict) -> str:
+    """The file stem the runner gave a cell's images."""
+    try:
+        from iblbench.harness.results import image_stem
+    except ImportError:
+        return f"{row['estimator']}_spp{int(row['spp'])}_s{int(row['seed'])}"
+    return image_stem(row)
 
 
 def _slug(text: str) -> str:
@@ -324,6 +374,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int = 0, frame: int =
     (x, y) the sample picture's pixel (default: the covered pixel nearest the centre)."""
     run_dir = pathlib.Path(run_dir)
     table, manifest = load_run(run_dir)
+    table, equal_time = split_equal_time(table)
     if spp is not None and spp not in set(table.spp):
         raise InputError(None, f"--spp {spp} is not in the run (spp: "
                                f"{', '.join(map(str, sorted(set(table.spp))))})")
@@ -369,7 +420,9 @@ def write_report(run_dir, *, spp: int | None = None, seed: int = 0, frame: int =
             if pixel is not None:
                 raise
             picture = {"error": str(error)}
+        timed = equal_time[equal_time.scene == scene]
         scenes.append({"name": scene, "slug": slug, "table": summary_html(scene_cells),
+                       "equal_time": equal_time_html(timed) if len(timed) else None,
                        "figures": figures, "per_frame": per_frame, "frames": len(frames),
                        "grid": grid, "picture": picture,
                        "estimators": list(dict.fromkeys(rows.estimator)),

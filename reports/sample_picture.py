@@ -59,12 +59,17 @@ class PoolSelection:
                 "effective": int(self.effective.sum())}
 
 
-def pool_selection(cls, cache: FrameCache, normal: np.ndarray, spp: int, seed: int = 0) -> PoolSelection:
-    """The pool a ``cls`` render at (``spp``, ``seed``) reads, and which entries a pixel with
-    ``normal`` selects, through the estimator's own pool and split kernels."""
-    if not (isinstance(cls, type) and issubclass(cls, PoolEstimator)):
+def pool_selection(cls, cache: FrameCache, normal: np.ndarray, spp: int, seed: int = 0,
+                   label: str | None = None) -> PoolSelection:
+    """The pool a render of ``cls`` (a pool estimator class, or an instance with its parameters)
+    at (``spp``, ``seed``) reads, and which entries a pixel with ``normal`` selects, through the
+    estimator's own pool and split kernels."""
+    estimator = cls() if isinstance(cls, type) else cls
+    if not isinstance(estimator, PoolEstimator):
         raise TypeError(f"{getattr(cls, 'name', cls)} does not read a light-sample pool")
-    estimator = cls()
+    if not estimator.params.shared_sequence:
+        raise ValueError("with shared_sequence=false each pixel reads from its own hashed pool "
+                         "offset; the picture shows the shared-sequence read only")
     normal = np.asarray(normal, np.float64)
     normal = normal / np.linalg.norm(normal)
     pool = cache.light_pool(estimator.pool_size(spp), seed)
@@ -78,7 +83,7 @@ def pool_selection(cls, cache: FrameCache, normal: np.ndarray, spp: int, seed: i
     selected = valid & (index < draws[face])
     directions = dir_pdf[:, :3].astype(np.float64)
     effective = selected & (directions @ normal > 0)
-    return PoolSelection(cls.name, spp, ticks, draws, directions, face, selected, effective, valid)
+    return PoolSelection(label or estimator.name, spp, ticks, draws, directions, face, selected, effective, valid)
 
 
 # ---- the unfolded cube (a cross seen from the centre of the cube) -----------------------------
