@@ -87,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
         parents=[rendering])
     run.add_argument("--config", metavar="NAME|FILE",
                      help="sweep config: a shipped one (quick, default, full) or a .toml file "
-                          "(default: default; see README for the format)")
+                          "(default: default; format: the docstring of iblbench.harness.sweep)")
     run.add_argument("--scene", action="append", metavar="NAME|FILE",
                      help="built-in scene name or a scene .toml file; repeatable")
     run.add_argument("--estimator", action="append", metavar="NAME",
