@@ -49,13 +49,9 @@ import pathlib
 
 import pandas as pd
 
-from iblbench.harness.results import METRIC_COLUMNS
+from iblbench.harness.results import METRIC_COLUMNS, load_table
 from iblbench.scenes.errors import InputError
-
-try:
-    import tomllib
-except ModuleNotFoundError:   # Python 3.10
-    import tomli as tomllib
+from iblbench.scenes.tomlfile import read_toml
 
 CELL = ["scene", "estimator", "spp"]
 TIME_METRICS = tuple(column for column in METRIC_COLUMNS if column.startswith("time_ms_"))
@@ -159,15 +155,7 @@ def _parse_rule(path, index: int, table) -> Rule:
 def load_budgets(path: str | pathlib.Path) -> list[Rule]:
     """The rules of a budgets file; :class:`InputError` naming the file if it is missing or bad."""
     path = pathlib.Path(path)
-    try:
-        with open(path, "rb") as handle:
-            document = tomllib.load(handle)
-    except FileNotFoundError:
-        raise InputError(path, "no such budgets file") from None
-    except OSError as error:
-        raise InputError(path, f"cannot read the budgets file ({error.strerror or error})") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
-        raise InputError(path, f"invalid TOML ({error})") from None
+    document = read_toml(path, "budgets file")
     unknown = sorted(set(document) - {"rule"})
     if unknown:
         raise InputError(path, f"unknown top-level key(s) {', '.join(map(repr, unknown))}; "
@@ -183,21 +171,7 @@ def load_budgets(path: str | pathlib.Path) -> list[Rule]:
 
 def load_results(out_dir: str | pathlib.Path) -> pd.DataFrame:
     """``DIR/results.parquet``; :class:`InputError` if it is missing, unreadable or incomplete."""
-    out_dir = pathlib.Path(out_dir)
-    if not out_dir.is_dir():
-        raise InputError(out_dir, "no such results directory")
-    path = out_dir / "results.parquet"
-    if not path.is_file():
-        raise InputError(path, "no results table; run 'iblbench run --out DIR' first")
-    try:
-        table = pd.read_parquet(path)
-    except Exception as error:   # pyarrow raises several types for damaged files
-        raise InputError(path, f"cannot read the results table ({error})") from None
-    needed = CELL + list(METRIC_COLUMNS)
-    missing = [column for column in needed if column not in table.columns]
-    if missing:
-        raise InputError(path, f"results table lacks column(s) {', '.join(missing)}")
-    return table
+    return load_table(out_dir, CELL + list(METRIC_COLUMNS))
 
 
 # --- evaluating ----------------------------------------------------------------------------------

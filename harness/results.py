@@ -100,6 +100,25 @@ def _plain(value):
     return value
 
 
+def load_table(run_dir: str | pathlib.Path, required_columns) -> pd.DataFrame:
+    """The results table of a run directory, for reading it (report, check); an
+    :class:`InputError` naming the path if it is missing, unreadable or lacks a column."""
+    run_dir = pathlib.Path(run_dir)
+    if not run_dir.is_dir():
+        raise InputError(run_dir, "no such run directory")
+    path = run_dir / TABLE
+    if not path.is_file():
+        raise InputError(path, "no results table; run 'iblbench run --out DIR' first")
+    try:
+        table = pd.read_parquet(path)
+    except Exception as error:   # pyarrow raises several types for damaged files
+        raise InputError(path, f"cannot read the results table ({type(error).__name__})") from None
+    missing = [column for column in required_columns if column not in table.columns]
+    if missing:
+        raise InputError(path, f"not an iblbench results table: missing columns {', '.join(missing)}")
+    return table
+
+
 def _read_table(out_dir: pathlib.Path) -> list[dict]:
     path = out_dir / TABLE
     if not path.exists():

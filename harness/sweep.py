@@ -45,6 +45,7 @@ from typing import Any
 
 from iblbench.harness.metrics import PROTOCOL
 from iblbench.scenes.errors import InputError
+from iblbench.scenes.tomlfile import read_toml
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -206,20 +207,6 @@ def config_path(name_or_path: str | os.PathLike) -> tuple[Path, str]:
     return Path(text), str(Path(text).resolve())
 
 
-def _read(path: Path) -> dict:
-    try:
-        with open(path, "rb") as handle:
-            return tomllib.load(handle)
-    except FileNotFoundError:
-        raise InputError(path, "sweep config not found") from None
-    except IsADirectoryError:
-        raise InputError(path, "sweep config is a directory, not a .toml file") from None
-    except tomllib.TOMLDecodeError as error:
-        raise InputError(path, f"TOML syntax error: {error}") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise InputError(path, f"cannot read sweep config: {error}") from None
-
-
 def _positive_int(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value > 0
 
@@ -338,7 +325,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
 def load_sweep(name_or_path: str | os.PathLike) -> Sweep:
     """A shipped config by name (quick, default, full) or a sweep .toml file."""
     path, source = config_path(name_or_path)
-    return parse_sweep(_read(path), path, source)
+    return parse_sweep(read_toml(path, "sweep config"), path, source)
 
 
 # ---- command-line values -----------------------------------------------------------------------

@@ -25,6 +25,7 @@ import markupsafe
 import numpy as np
 import pandas as pd
 
+from iblbench.harness.results import load_table
 from iblbench.reports import plots
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
@@ -45,20 +46,9 @@ _TEMPLATES = jinja2.Environment(
 def load_run(run_dir: pathlib.Path) -> tuple[pd.DataFrame, dict | None]:
     """The results table and the manifest (None when the run has none) of ``run_dir``."""
     run_dir = pathlib.Path(run_dir)
-    if not run_dir.is_dir():
-        raise InputError(run_dir, "no such run directory")
-    path = run_dir / "results.parquet"
-    if not path.is_file():
-        raise InputError(path, "no results table; is this the --out of an 'iblbench run'?")
-    try:
-        table = pd.read_parquet(path)
-    except Exception as error:   # pyarrow raises several types for damaged files
-        raise InputError(path, f"cannot read the results table ({type(error).__name__})") from None
-    missing = [c for c in REQUIRED_COLUMNS if c not in table.columns]
-    if missing:
-        raise InputError(path, f"not an iblbench results table: missing columns {', '.join(missing)}")
+    table = load_table(run_dir, REQUIRED_COLUMNS)
     if table.empty:
-        raise InputError(path, "the results table has no rows")
+        raise InputError(run_dir / "results.parquet", "the results table has no rows")
     manifest = None
     manifest_path = run_dir / "manifest.json"
     if manifest_path.is_file():

@@ -54,11 +54,7 @@ from . import meshes, sky
 from .envmap import LAYOUTS, load_environment
 from .errors import InputError
 from .scene import Camera, EnvSequence, Material, Scene
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python < 3.11
-    import tomli as tomllib
+from .tomlfile import read_toml
 
 DEFAULT_ENV_RES = 64
 
@@ -238,20 +234,8 @@ class _Fields:
         return rgb
 
 
-def _read_toml(path: Path) -> dict:
-    try:
-        with open(path, "rb") as handle:
-            return tomllib.load(handle)
-    except FileNotFoundError:
-        raise InputError(path, "scene file not found") from None
-    except tomllib.TOMLDecodeError as error:
-        raise InputError(path, f"TOML syntax error: {error}") from None
-    except (OSError, UnicodeDecodeError) as error:
-        raise InputError(path, f"cannot read scene file: {error}") from None
-
-
 def _toml_scene(path: Path, sanitize: bool, env_res: int | None) -> Scene:
-    document = _read_toml(path)
+    document = read_toml(path, "scene file")
     unknown = set(document) - set(_SECTIONS)
     if unknown:
         raise InputError(path, f"unknown section [{sorted(unknown)[0]}]; valid sections: {', '.join(_SECTIONS)}")

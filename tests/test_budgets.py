@@ -295,7 +295,7 @@ def test_equal_time_rows_are_left_out(tmp_path):
      "baseline"),
     ("[[rules]]\nscene = 'a'\n", "rules"),
     ("", "no [[rule]]"),
-    ("[[rule]\nscene = 'a'\n", "invalid TOML"),
+    ("[[rule]\nscene = 'a'\n", "TOML syntax error"),
 ])
 def test_bad_budgets_exit_2_naming_the_file(results_dir, capsys, text, needle):
     status, _, out, err = run_check(results_dir, text, capsys)
@@ -308,7 +308,7 @@ def test_bad_budgets_exit_2_naming_the_file(results_dir, capsys, text, needle):
 def test_bad_results_dir_exits_2(tmp_path, capsys):
     budgets = str(BUDGETS)
     assert cli.main(["check", str(tmp_path / "nope"), "--budgets", budgets]) == 2
-    assert "nope: no such results directory" in capsys.readouterr().err
+    assert "nope: no such run directory" in capsys.readouterr().err
     assert cli.main(["check", str(tmp_path), "--budgets", budgets]) == 2
     assert "results.parquet: no results table" in capsys.readouterr().err
     (tmp_path / "results.parquet").write_bytes(b"not parquet")
@@ -316,7 +316,7 @@ def test_bad_results_dir_exits_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "results.parquet: cannot read" in err and err.count("\n") == 1
     assert cli.main(["check", str(tmp_path), "--budgets", str(tmp_path / "none.toml")]) == 2
-    assert "none.toml: no such budgets file" in capsys.readouterr().err
+    assert "none.toml: budgets file not found" in capsys.readouterr().err
 
 
 def test_repo_budgets_cover_every_limit_kind():
