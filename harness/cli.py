@@ -99,7 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--frames", metavar="START:STOP[:STEP]",
                      help="frames of environment sequences, a Python slice of each sequence's "
                           "frames such as 0:67:6 or ::4 (default: all; also all, A..B inclusive "
-                          "or N,N,...); static scenes run frame 0")
+                          "or N,N,...; write --frames=-5: for a negative start); static scenes "
+                          "run frame 0")
     run.add_argument("--res", type=_resolution, metavar="WxH",
                      help="image resolution (default: the scene's own)")
     run.add_argument("--env-res", type=_positive_int, metavar="R",

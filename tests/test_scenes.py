@@ -186,7 +186,8 @@ def test_builtin_sphere_sun_scene_is_case_insensitive():
     assert scene.environment.is_static and scene.environment.frame(0).shape == (6, 16, 16, 3)
 
 
-EXPECTED_SCENES = ("blob-sun", "sphere-backlit", "sphere-sun", "torus-sun")
+EXPECTED_SCENES = ("blob-sun", "sphere-backlit", "sphere-sun", "torus-sun",
+                   "blob-day", "torus-moving", "sphere-switch")
 
 
 def test_scene_names_lists_every_builtin_scene():
