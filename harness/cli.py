@@ -96,8 +96,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--spp", type=_spp_list, metavar="N,N,...",
                      help="samples per pixel, comma-separated")
     run.add_argument("--seeds", type=_positive_int, help="seeds per cell, 0..N-1")
-    run.add_argument("--frames", type=sweep.frames_arg, metavar="all|A..B|N,N,...",
-                     help="frames of environment sequences (static scenes run frame 0)")
+    run.add_argument("--frames", metavar="START:STOP[:STEP]",
+                     help="frames of environment sequences, a Python slice of each sequence's "
+                          "frames such as 0:67:6 or ::4 (default: all; also all, A..B inclusive "
+                          "or N,N,...; write --frames=-5: for a negative start); static scenes "
+                          "run frame 0")
     run.add_argument("--res", type=_resolution, metavar="WxH",
                      help="image resolution (default: the scene's own)")
     run.add_argument("--env-res", type=_positive_int, metavar="R",
@@ -190,13 +193,15 @@ def _list(args) -> None:
 
 def _run(args) -> None:
     from iblbench.harness.runner import RunConfig, run
-    from iblbench.harness.sweep import load_sweep
+    from iblbench.harness.sweep import frames_arg, load_sweep
 
+    # "all" parses to None, which Sweep.replace would ignore: spell it as the full slice.
+    frames = None if args.frames is None else (frames_arg(args.frames) or slice(None))
     sweep = load_sweep(args.config or "default")
     sweep = sweep.replace(
         scenes=tuple(args.scene) if args.scene else None,
         estimators=tuple(args.estimator) if args.estimator else None, spp=args.spp,
-        seeds=args.seeds, frames=args.frames, resolution=args.res, env_res=args.env_res,
+        seeds=args.seeds, frames=frames, resolution=args.res, env_res=args.env_res,
         time_budget_ms=args.time_budget_ms, sanitize=True if args.sanitize else None)
     flags = [flag for flag, value in (
         ("--scene", args.scene), ("--estimator", args.estimator), ("--spp", args.spp),

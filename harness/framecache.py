@@ -53,6 +53,13 @@ class FrameCache:
         self._cdf: tuple | None = None
         self._pools: dict[tuple[int, int], LightPool] = {}
 
+    def retarget(self, frame: int) -> None:
+        """Serve frame ``frame``, whose environment is this cache's own (the same array): the
+        CDFs and the uploaded map stay; the light pools, whose random rotation depends on the
+        frame, are dropped so that they are drawn for the new frame."""
+        self.frame = frame
+        self._pools.clear()
+
     @property
     def built(self) -> list[str]:
         return (["env"] + (["cdf"] if self._cdf is not None else [])

@@ -3,7 +3,7 @@
 1. Exposure k = 0.18 / log-average luminance of the reference over covered pixels, applied to both.
 2. Reinhard L/(1+L) on luminance, colour scaled by the same ratio.
 3. Linear sRGB → XYZ (D65) → L*a*b* with colour-science; mean ΔE76 and ΔE2000 over covered pixels.
-Plus relMSE in linear HDR, mean((x−r)²/(r²+0.01)), HDR-FLIP (NVIDIA's flip-evaluator, where
+Plus relMSE in linear HDR, mean((x−r)²/(r²+0.01)), flicker between consecutive frames (:func:`flicker`), HDR-FLIP (NVIDIA's flip-evaluator, where
 installed; NaN otherwise) as a mean over covered pixels, and the sample counts.
 """
 from __future__ import annotations
@@ -64,6 +64,16 @@ def delta_e_images(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray
     return de76, de2000
 
 
+def flicker(delta_e: np.ndarray, previous_delta_e: np.ndarray | None, mask: np.ndarray) -> float:
+    """Temporal flicker between consecutive frames of one (scene, estimator, spp, seed): the mean
+    over covered pixels of |ΔE76(est_t, ref_t) − ΔE76(est_{t−1}, ref_{t−1})|, from the per-pixel
+    ΔE76 maps of :func:`delta_e_images`; NaN without a previous map (the first frame)."""
+    if previous_delta_e is None or not mask.any():
+        return float("nan")
+    return float(np.mean(np.abs(np.asarray(delta_e, np.float64)[mask]
+                                - np.asarray(previous_delta_e, np.float64)[mask])))
+
+
 def rel_mse(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
     x = np.asarray(estimate[mask], np.float64)
     r = np.asarray(reference[mask], np.float64)
@@ -103,6 +113,7 @@ def score(estimate, reference: np.ndarray, mask: np.ndarray) -> tuple[dict, np.n
         "mean_delta_e2000": float(de2000[mask].mean()),
         "rel_mse": rel_mse(radiance, reference, mask),
         "flip": hdr_flip(radiance, reference, mask),
+        "flicker": float("nan"),   # set by the runner, which knows the previous frame
         "used_samples": used,
         "effective_samples": effective,
         "effective_ratio": effective / used if used > 0 else float("nan"),

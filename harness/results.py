@@ -10,10 +10,13 @@ Columns, in order (``COLUMNS``):
   ``estimator_params`` (every parameter as sorted JSON), ``estimator_version`` (hash of the
   estimator's sources), ``schema_version`` (``SCHEMA_VERSION``);
 - metrics: ``mean_delta_e76`` … ``nonfinite`` and the stage times ``time_ms_*``;
+  ``flicker`` is the mean over covered pixels of |ΔE76(est_t, ref_t) − ΔE76(est_p, ref_p)|,
+  p the frame before t in the run's frame list, for the same (scene, estimator, spp, seed,
+  time_budget_ms); NaN on the first frame of the list (and so for a static scene);
 - ``device``, ``protocol``.
 
 Schema versions: 1 had no schema_version, time_budget_ms, width, height, env_res or
-estimator_params column; 2 is this one.  Rows of another schema never count as finished cells.
+estimator_params column; 2 had no flicker column; 3 is this one.  Rows of another schema never count as finished cells.
 
 Storage.  ``results.parquet`` and ``results.csv`` are replaced whole, each in one rename, so a
 reader never sees half a table.  While a run is going, each finished cell is appended to
@@ -35,12 +38,12 @@ import pandas as pd
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed", "time_budget_ms"]
 CONFIG_COLUMNS = ["width", "height", "env_res", "estimator_params", "estimator_version",
                   "schema_version"]
 METRIC_COLUMNS = [
-    "mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip",
+    "mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "flicker",
     "used_samples", "effective_samples", "effective_ratio", "evaluations", "nonfinite",
     "time_ms_build", "time_ms_sample", "time_ms_shade", "time_ms_frame",
 ]

@@ -18,6 +18,19 @@ work and of resumption is the whole frame sequence of one (scene, estimator, spp
 every frame of that sequence is done, all of them are run again, in order, on one instance that
 starts from ``reset()`` (DESIGN §6).
 
+Frames.  The frames run are ``RunConfig.frames`` (a Python slice of each sequence's frames, a
+list, or all); a static scene runs frame 0.  Each frame gets its own FrameCache, built on the
+device and timed per stage (manifest ``stages``), unless the sequence returns the very same
+array as the frame the cache was built for: then the cache is reused and the manifest's
+``skipped`` says so.  A static scene builds its one FrameCache once per run, shared by every
+estimator, spp and seed (also recorded in ``skipped``).
+
+Flicker.  Each row's ``flicker`` compares its per-pixel ΔE76 map with the one of the previous
+frame in the run's frame list for the same (scene, estimator, spp, budget, seed), kept in memory
+(frames are the outer loop); NaN on the first frame.  When the previous frame was done by an
+earlier run (resumption), its map is recomputed from that frame's saved estimate and reference
+EXRs (``images/<scene>/f<frame>/``), and flicker is NaN if they are gone.
+
 Equal time.  For each budget T in ``time_budget_ms`` and each (scene, estimator), the runner
 times renders on the scene's first frame to run (after a warm-up, ``CALIBRATION_REPEATS`` per
 spp, seeds no cell uses), at ``CALIBRATION_SPP`` and then at larger spp until the calibrated
@@ -49,17 +62,17 @@ from tqdm import tqdm
 from iblbench.harness.device import get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
-from iblbench.harness.metrics import PROTOCOL, exposure, score
+from iblbench.harness.metrics import PROTOCOL, delta_e_images, exposure, flicker, score
 from iblbench.harness.reference import Reference
 from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, image_stem,
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
-from iblbench.harness.sweep import parse_estimator
+from iblbench.harness.sweep import frames_text, parse_estimator, select_frames
 from iblbench.reports.previews import write_heat_map, write_preview
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.gbuffer import trace_gbuffer
-from iblbench.scenes.imageio import write_exr
+from iblbench.scenes.imageio import read_exr, write_exr
 from iblbench.scenes.registry import load_scene
 
 DEFAULT_SCENES = ("sphere-sun",)
@@ -87,7 +100,9 @@ class RunConfig:
     sanitize: bool = False
     env_res: int | None = None
     progress: bool | None = None   # None: a bar only on a TTY
-    frames: tuple[int, ...] | None = None      # None: every frame; static scenes run frame 0
+    frames: tuple[int, ...] | slice | None = None   # None: every frame; a slice: Python slice
+                                                    # semantics over each sequence's frames;
+                                                    # static scenes run frame 0
     time_budget_ms: tuple[float, ...] = ()     # equal-time cells, besides the spp list
     force: bool = False                        # recompute finished cells too
     sweep: dict | None = None                  # the resolved sweep and its source (manifest)
@@ -283,13 +298,15 @@ class Runner:
         frames_available = scene.environment.num_frames
         if scene.environment.is_static:
             frames = [0]
-        elif self.config.frames is None:
-            frames = list(range(frames_available))
         else:
-            frames = list(self.config.frames)
-            if frames[-1] >= frames_available:
+            frames = select_frames(self.config.frames, frames_available)
+            if not frames:
                 raise InputError(scene.source or scene.name,
-                                 f"frame {frames[-1]} selected, but scene '{scene.name}' has "
+                                 f"--frames {frames_text(self.config.frames)} selects no frame of "
+                                 f"scene '{scene.name}', which has {frames_available} frames")
+            if max(frames) >= frames_available:
+                raise InputError(scene.source or scene.name,
+                                 f"frame {max(frames)} selected, but scene '{scene.name}' has "
                                  f"{frames_available} frames (0..{frames_available - 1})")
         width, height = self.config.resolution or scene.resolution
         env_res = int(np.shape(scene.environment.frame(frames[0]))[1])
@@ -342,7 +359,7 @@ class Runner:
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
             "config": {"scenes": list(c.scenes), "estimators": [s.label for s in self.specs],
                        "spp": list(c.spp), "seeds": c.seeds, "resolution": c.resolution,
-                       "frames": "all" if c.frames is None else list(c.frames),
+                       "frames": frames_text(c.frames),
                        "time_budget_ms": list(c.time_budget_ms), "force": c.force,
                        "save_inputs": c.save_inputs, "sanitize": c.sanitize, "env_res": c.env_res},
             "sweep": sweep,
@@ -445,7 +462,9 @@ class Runner:
                 self.manifest["skipped"].append({"scene": scene.name, "stage": product,
                                                  "why": "no selected estimator requires it"})
         sequences = {}   # temporal estimators: one instance per (label, spp, budget, seed)
-        for frame in plan.frames:
+        self._previous_delta_e = {}   # (label, spp, budget, seed) → (frame, ΔE76 map): flicker
+        cache, cache_env, cache_frame = None, None, None
+        for index, frame in enumerate(plan.frames):
             if not self._scene_todo(scene.name, frame):
                 self.manifest["skipped"].append({"scene": scene.name, "frame": frame,
                                                  "stage": "frame",
@@ -455,17 +474,38 @@ class Runner:
             if self.config.save_inputs:
                 with atomic_path(inputs / f"env_f{frame}.npy") as tmp:
                     np.save(tmp, np.asarray(env, np.float32))
-            cache = FrameCache(self.compute, env, frame)
-            cache.require(sorted(required))
-            for stage, ms in cache.timings_ms.items():
-                self._stage(scene.name, frame, stage, ms)
-            self._run_frame(plan, device_gbuffer, cache, bar, sequences)
+            if cache is not None and env is cache_env:
+                # The sequence returned the very same map as the frame the cache was built for.
+                cache.retarget(frame)
+                built = False
+                self.manifest["skipped"].append({
+                    "scene": scene.name, "frame": frame, "stage": "framecache",
+                    "why": f"environment identical to frame {cache_frame}'s: its FrameCache "
+                           f"({', '.join(['upload'] + sorted(required))}) reused"})
+            else:
+                cache = None   # release the previous frame's device buffers first
+                cache = FrameCache(self.compute, env, frame)
+                cache.require(sorted(required))
+                cache_env, cache_frame, built = env, frame, True
+                for stage, ms in cache.timings_ms.items():
+                    self._stage(scene.name, frame, stage, ms)
+            previous = plan.frames[index - 1] if index > 0 else None
+            self._run_frame(plan, device_gbuffer, cache, bar, sequences, built, previous)
+        if scene.environment.is_static:
+            renders = sum(1 for key in self.todo if key[0] == scene.name)
+            self.manifest["skipped"].append({
+                "scene": scene.name, "stage": "framecache",
+                "why": f"static environment: one FrameCache built for frame 0 and reused by "
+                       f"every estimator, spp and seed ({renders} cells)"})
 
     def _stage(self, scene: str, frame, stage: str, ms: float) -> None:
         self.manifest["stages"].append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
 
     def _run_frame(self, plan: _ScenePlan, gbuffer: DeviceGBuffer, cache: FrameCache, bar,
-                   sequences: dict) -> None:
+                   sequences: dict, built: bool = True, previous_frame: int | None = None) -> None:
+        """Every cell of one frame; ``built``: whether ``cache`` was built for this frame (not
+        reused from an identical earlier frame); ``previous_frame``: the frame before this one in
+        the run's frame list (flicker), None on the first."""
         scene_name = plan.scene.name
         images = self.out / "images" / scene_name / f"f{cache.frame}"
         reference = self.reference.image(gbuffer, cache)
@@ -493,8 +533,9 @@ class Runner:
                 estimator.render(gbuffer, cache, spp, WARMUP_SEED)
                 estimator.reset()
             # Per-frame builds only; a pool is drawn per render and timed as its "sample" stage.
+            # 0 where this frame reused the cache of an identical earlier frame: nothing was built.
             build_ms = sum(cache.timings_ms.get(p, 0.0) for p in ("upload",) + spec.cls.requires
-                           if p != "pool")
+                           if p != "pool") if built else 0.0
             for key in cells:
                 _, label, spp, frame, seed, budget = key
                 if budget is not None:
@@ -511,6 +552,7 @@ class Runner:
                 estimate = renderer.render(gbuffer, cache, spp, seed)
                 frame_ms = (time.perf_counter() - start) * 1e3
                 metrics, delta_e = score(estimate, reference, mask)
+                sequence_key = (label, key[2], budget, seed)
                 row = {
                     "scene": scene_name, "estimator": label, "spp": int(spp), "frame": frame,
                     "seed": seed, "time_budget_ms": float("nan") if budget is None else budget,
@@ -525,6 +567,9 @@ class Runner:
                     "device": self.device_name, "protocol": PROTOCOL,
                 }
                 stem = image_stem(row)
+                row["flicker"] = flicker(delta_e, self._previous_map(
+                    plan, sequence_key, previous_frame, stem, mask), mask)
+                self._previous_delta_e[sequence_key] = (frame, delta_e.astype(np.float32))
                 write_exr(images / f"{stem}.exr", estimate.radiance)
                 write_preview(images / f"{stem}.png", estimate.radiance, k)
                 write_heat_map(images / f"{stem}_de76.png", delta_e)
@@ -535,6 +580,27 @@ class Runner:
                 if time.monotonic() - self._last_fold > FOLD_SECONDS:
                     self._fold()
                     self._last_fold = time.monotonic()
+
+    def _previous_map(self, plan: _ScenePlan, sequence_key: tuple, previous_frame: int | None,
+                      stem: str, mask: np.ndarray) -> np.ndarray | None:
+        """The ΔE76 map of ``previous_frame`` for one (estimator, spp, budget, seed): from memory,
+        or, when that frame was done by an earlier (resumed) run, recomputed from its saved
+        estimate and reference EXRs; None on the first frame or when those files are gone."""
+        if previous_frame is None:
+            return None
+        kept = self._previous_delta_e.get(sequence_key)
+        if kept is not None and kept[0] == previous_frame:
+            return kept[1]
+        folder = self.out / "images" / plan.scene.name / f"f{previous_frame}"
+        try:
+            estimate = read_exr(folder / f"{stem}.exr")
+            reference = read_exr(folder / "reference.exr")
+        except InputError:
+            return None
+        if estimate.shape[:2] != mask.shape or reference.shape[:2] != mask.shape:
+            return None
+        estimate = np.where(np.isfinite(estimate), estimate, 0.0)
+        return delta_e_images(estimate, reference, mask)[0]
 
     def _calibrate(self, spec, estimator, gbuffer, cache, cells) -> None:
         """Choose the spp of every budget of this estimator not chosen yet (module docstring)."""

@@ -15,7 +15,9 @@ Format (every key at the top level)::
     estimators = ["uniform", "balanced_mis{shared_sequence=false}"]   # required
     spp = [16, 64, 256]                 # required unless time_budget_ms is given
     seeds = 2                           # required: seeds 0..N-1
-    frames = "all"                      # optional: "all" (default), a list [0, 5, 9] or "A..B"
+    frames = "0:67:6"                   # optional: "START:STOP[:STEP]", a Python slice of each
+                                        # sequence's frames ("::6", "10:", "-5:" all work; the
+                                        # default "all" is ":"); also a list [0, 5, 9] or "A..B"
                                         # (inclusive); static environments always run frame 0
     resolution = "128x128"              # optional: "WxH" or [W, H]; default: each scene's own
     env_res = 64                        # optional cube face resolution; default: each scene's own
@@ -169,7 +171,7 @@ class Sweep:
     estimators: tuple[str, ...]              # canonical labels
     spp: tuple[int, ...]
     seeds: int
-    frames: tuple[int, ...] | None = None   # None: every frame
+    frames: tuple[int, ...] | slice | None = None   # None: every frame; a slice: of each sequence
     resolution: tuple[int, int] | None = None
     env_res: int | None = None
     time_budget_ms: tuple[float, ...] = ()
@@ -189,7 +191,7 @@ class Sweep:
         return {"source": self.source, "description": self.description,
                 "protocol": self.protocol, "scenes": list(self.scenes),
                 "estimators": list(self.estimators), "spp": list(self.spp), "seeds": self.seeds,
-                "frames": "all" if self.frames is None else list(self.frames),
+                "frames": frames_text(self.frames),
                 "resolution": None if self.resolution is None else list(self.resolution),
                 "env_res": self.env_res, "time_budget_ms": list(self.time_budget_ms),
                 "sanitize": self.sanitize}
@@ -222,19 +224,54 @@ def parse_resolution(value) -> tuple[int, int]:
     raise ValueError(f"resolution must be \"WxH\" or [W, H] with positive integers, got {value!r}")
 
 
-def parse_frames(value) -> tuple[int, ...] | None:
-    """``"all"`` → None; ``[0, 5]`` or ``"A..B"`` (inclusive) → frame indices; ValueError if bad."""
+_SLICE = re.compile(r"\s*(-?\d+)?\s*:\s*(-?\d+)?\s*(?::\s*(-?\d+)?\s*)?")
+
+
+def parse_frames(value) -> tuple[int, ...] | slice | None:
+    """A frame selection → None (every frame), a ``slice`` or a tuple of frame indices.
+
+    ``"START:STOP[:STEP]"`` is a Python slice over each sequence's frames (parts may be omitted
+    or negative: ``"::6"``, ``"10:"``, ``"-5:"``; ``":"`` is every frame); ``"all"`` → None;
+    ``"A..B"`` (inclusive) and a list ``[0, 5]`` → frame indices.  ValueError if malformed.
+    """
     if value == "all":
         return None
     if isinstance(value, str):
+        match = _SLICE.fullmatch(value)
+        if match:
+            start, stop, step = (None if part is None else int(part) for part in match.groups())
+            if step == 0:
+                raise ValueError(f"frames slice step must not be zero, got {value!r}")
+            if start is None and stop is None and step in (None, 1):
+                return None
+            return slice(start, stop, step)
         match = re.fullmatch(r"\s*(\d+)\s*\.\.\s*(\d+)\s*", value)
         if match and int(match[1]) <= int(match[2]):
             return tuple(range(int(match[1]), int(match[2]) + 1))
     elif (isinstance(value, list) and value and all(isinstance(v, int) and not isinstance(v, bool)
                                                      and v >= 0 for v in value)):
         return tuple(sorted(set(value)))
-    raise ValueError(f"frames must be \"all\", \"A..B\" or a list of frame indices >= 0, "
-                     f"got {value!r}")
+    raise ValueError(f"frames must be \"START:STOP[:STEP]\" (a Python slice such as 0:67:6), "
+                     f"\"all\", \"A..B\" or a list of frame indices >= 0, got {value!r}")
+
+
+def frames_text(frames) -> str | list[int]:
+    """The manifest's spelling of a frame selection."""
+    if frames is None or frames == slice(None):
+        return "all"
+    if isinstance(frames, slice):
+        parts = ["" if v is None else str(v) for v in (frames.start, frames.stop)]
+        return ":".join(parts + ([str(frames.step)] if frames.step is not None else []))
+    return list(frames)
+
+
+def select_frames(frames, num_frames: int) -> list[int]:
+    """The frame indices a selection picks from a sequence of ``num_frames`` (in run order)."""
+    if frames is None:
+        return list(range(num_frames))
+    if isinstance(frames, slice):
+        return list(range(num_frames))[frames]
+    return list(frames)
 
 
 def _scene(entry, folder: Path, path: Path) -> str:
@@ -330,17 +367,16 @@ def load_sweep(name_or_path: str | os.PathLike) -> Sweep:
 
 # ---- command-line values -----------------------------------------------------------------------
 
-def frames_arg(text: str) -> tuple[int, ...] | None:
-    """``--frames``: ``all``, ``A..B`` (inclusive) or ``N,N,...``."""
-    import argparse
-
+def frames_arg(text: str) -> tuple[int, ...] | slice | None:
+    """``--frames``: ``START:STOP[:STEP]`` (a Python slice), ``all``, ``A..B`` (inclusive) or
+    ``N,N,...``; a bad spec is an InputError (the CLI prints it on one line and exits 2)."""
     value: Any = text.strip()
     if re.fullmatch(r"\d+(\s*,\s*\d+)*", value):
         value = [int(part) for part in value.split(",")]
     try:
         return parse_frames(value)
     except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
+        raise InputError(None, f"--frames: {error}") from None
 
 
 def budgets_arg(text: str) -> tuple[float, ...]:

@@ -11,6 +11,15 @@ Built-in scenes (static Preetham sun + sky, kd = 0.5, ks = 0.3, shininess = 150,
   scale and normal variety.
 - ``torus-sun``: a torus seen from above; inner faces point down and back at the tube.
 
+Built-in scenes lit by environment sequences (:mod:`iblbench.scenes.sequences`):
+
+- ``blob-day``: the blob-sun blob (327,680 triangles, Phong m = 150) under ``day``, 67 frames of
+  a solar day at 45° N on June 21 from nautical twilight to nautical twilight: the analogue of
+  Lu et al. 2013, Fig. 1.
+- ``torus-moving``: the torus-sun torus and camera under ``moving-lights`` (4 lights, 48 frames).
+- ``sphere-switch``: the sphere-sun sphere and camera under ``switch`` (30 frames, a strong light
+  on in frames 10..19).
+
 User scene format (paths are relative to the TOML file's folder)::
 
     [mesh]
@@ -50,7 +59,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from . import meshes, sky
+from . import meshes, sequences, sky
 from .envmap import LAYOUTS, load_environment
 from .errors import InputError
 from .scene import Camera, EnvSequence, Material, Scene
@@ -127,13 +136,43 @@ def _torus_sun(env_res: int | None) -> Scene:
     return _sun_sky_scene("torus-sun", meshes.torus(), camera, env_res)
 
 
-# Every built-in scene: static Preetham sun + sky, kd = 0.5, ks = 0.3, shininess = 150, 128 × 128,
+def _sequence_scene(name: str, mesh, camera: Camera, environment: EnvSequence) -> Scene:
+    return Scene(name=name, mesh=mesh, material=_MATERIAL, camera=camera, environment=environment,
+                 resolution=(128, 128), source=f"builtin:{name}")
+
+
+def _blob_day(env_res: int | None) -> Scene:
+    """The blob-sun blob and camera under the 67-frame ``day`` sequence (Lu 2013, Fig. 1)."""
+    camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    return _sequence_scene("blob-day", meshes.blob(), camera,
+                           sequences.day(env_res or DEFAULT_ENV_RES))
+
+
+def _torus_moving(env_res: int | None) -> Scene:
+    """The torus-sun torus and camera under ``moving-lights``."""
+    camera = Camera(eye=(0.0, 2.2, 3.3), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    return _sequence_scene("torus-moving", meshes.torus(), camera,
+                           sequences.moving_lights(env_res or DEFAULT_ENV_RES))
+
+
+def _sphere_switch(env_res: int | None) -> Scene:
+    """The sphere-sun sphere and camera under ``switch`` (light on in frames 10..19)."""
+    camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    return _sequence_scene("sphere-switch", meshes.sphere(), camera,
+                           sequences.switch(env_res or DEFAULT_ENV_RES))
+
+
+# Every built-in scene: kd = 0.5, ks = 0.3, shininess = 150, 128 × 128; the *-sun ones static
+# Preetham sun + sky; kd = 0.5, ks = 0.3, shininess = 150, 128 × 128,
 # cube faces DEFAULT_ENV_RES² unless env_res says otherwise.
 BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {
     "sphere-sun": _sphere_sun,
     "sphere-backlit": _sphere_backlit,
     "blob-sun": _blob_sun,
     "torus-sun": _torus_sun,
+    "blob-day": _blob_day,
+    "torus-moving": _torus_moving,
+    "sphere-switch": _sphere_switch,
 }
 
 

@@ -24,7 +24,7 @@ RUN_FLAGS = ("--scene", "--estimator", "--spp", "--seeds", "--res", "--env-res",
              "--device", "--save-inputs", "--sanitize", "--no-progress")
 RESULT_COLUMNS = {
     "scene", "estimator", "estimator_version", "spp", "frame", "seed", "mean_delta_e76",
-    "mean_delta_e2000", "rel_mse", "flip", "used_samples", "effective_samples", "effective_ratio",
+    "mean_delta_e2000", "rel_mse", "flip", "flicker", "used_samples", "effective_samples", "effective_ratio",
     "evaluations", "nonfinite", "time_ms_build", "time_ms_sample", "time_ms_shade",
     "time_ms_frame", "device", "protocol", "schema_version", "time_budget_ms", "width", "height",
     "env_res", "estimator_params",

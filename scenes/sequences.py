@@ -1,0 +1,241 @@
+"""Built-in environment sequences (DESIGN §5): ``day``, ``moving-lights`` and ``switch``.
+
+Every sequence is an :class:`EnvSequence` whose frames are made on demand by ``make_frame(index)``
+and cached per (parameters, index), so a long sequence is never held whole and a frame asked for
+twice is made once.  A frame that repeats an earlier one is returned as the *same* array object,
+which lets the runner reuse that frame's FrameCache (DESIGN §2: a static environment builds its
+FrameCache once).  Units and coordinates are those of :mod:`iblbench.scenes.sky` (1.0 = 1 kcd/m²,
+Y up, azimuth 0 → +Z, 90° → +X).
+
+``day`` — 67 frames, like the 67 captures of a day in Lu et al. 2013, Fig. 1
+    The sun follows the real solar path of latitude ``DAY_LATITUDE_DEG`` = 45° N on the June
+    solstice (solar declination δ = +23.44°), in local apparent solar time from
+    ``DAY_START_HOUR`` = 3:00 to ``DAY_END_HOUR`` = 21:00 in 67 equal steps (16.4 min apart).
+    Hour angle H = 15°·(t − 12); elevation h from sin h = sin φ sin δ + cos φ cos δ cos H;
+    compass azimuth A (from north, clockwise) from cos A = (sin δ − sin h sin φ)/(cos h cos φ),
+    A > 180° in the afternoon.  The map's compass: +Z is south (the default camera at +Z looks
+    north, so the midday sun lights the side it sees), +X east, −Z north, −X west, i.e.
+    sky azimuth = 180° − A.  Sunrise is at 4:17 and sunset at 19:43 solar time; the first and
+    last frames have the sun 10.2° below the horizon (nautical twilight).
+
+    Sun above the horizon (h > 0): the Preetham sky of :func:`sky.sun_sky` (turbidity 3) plus the
+    sun disc, whose luminance is SUN_LUMINANCE attenuated by the extra air mass relative to the
+    zenith, exp(−DAY_OPTICAL_DEPTH·(m(h) − 1)) with Kasten & Young's (1989) air mass m(h), so the
+    sun reddens-out and dims continuously towards the horizon instead of popping in at full power.
+    Preetham is fitted for the sun above the horizon only, so the sky part always uses the sun at
+    ``max(h, DAY_MIN_SKY_ELEVATION_DEG)`` (1°).
+
+    Sun below the horizon (h ≤ 0), a documented twilight/night model, not Preetham: the sky of
+    the sun at 1° (the same sky as at sunrise, so the map is continuous through h = 0), without
+    the disc, scaled by ``10^(h / DAY_TWILIGHT_DECADE_DEG)`` (one decade of luminance per 2.5° of
+    solar depression, roughly the fall of twilight illuminance from sunset to −12°) plus a
+    floor ``DAY_NIGHT_FLOOR`` (1e-6: an airglow/starlight night sky, ~1 mcd/m²).  The night
+    frames are therefore dim (~1e-4 of the sunset sky) but finite, non-negative and never all
+    zero.  Total power Σ Y·Ω spans about six orders of magnitude over the day.
+
+``moving-lights`` — after Kronander et al.'s sequence of moving light sources
+    ``MOVING_LIGHTS`` = 4 small bright discs (angular radius 4°, each of power 1.5 in Σ Y·Ω,
+    about 10× the dim background's) in four colours, over a dim background (a vertical gradient,
+    0.02 at the nadir to 0.05 at the zenith).  Light i moves on a smooth closed path with period
+    ``MOVING_FRAMES`` = 48 frames: azimuth a_i + 360°·k_i·t/48 (k = 1, −1, 2, −1) and elevation
+    e_i + 20°·sin(2π t/48 + φ_i), so consecutive frames move a light by at most ~16°.  The
+    discs are splatted like the sun (:func:`sky.sun_disc`), so their power is the same at every
+    cube resolution.
+
+``switch`` — the hard case for temporal reuse
+    ``SWITCH_FRAMES`` = 30 frames of a static dim sky (the default Preetham sky without its
+    sun, × 0.05).  A strong light (a 2° disc at elevation 40°, azimuth 30°, power
+    ``SWITCH_POWER_RATIO`` = 100× the background's) is on in frames
+    ``SWITCH_ON`` = 10 … ``SWITCH_OFF`` − 1 = 19 and off otherwise.  Frames 0–9 and 20–29 are the
+    same array object, and so are frames 10–19.
+"""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from . import cubemap, sky
+from .scene import EnvSequence
+
+# ---- day --------------------------------------------------------------------------------------
+
+DAY_FRAMES = 67
+DAY_LATITUDE_DEG = 45.0
+DAY_DATE = "June 21 (summer solstice)"
+DAY_DECLINATION_DEG = 23.44
+DAY_START_HOUR = 3.0     # local apparent solar time
+DAY_END_HOUR = 21.0
+DAY_TURBIDITY = 3.0
+DAY_OPTICAL_DEPTH = 0.2            # broadband visible extinction per air mass
+DAY_MIN_SKY_ELEVATION_DEG = 1.0    # the Preetham sky is evaluated with the sun at least this high
+DAY_TWILIGHT_DECADE_DEG = 2.5      # one decade of sky luminance per 2.5° of solar depression
+DAY_NIGHT_FLOOR = 1e-6             # kcd/m²: the night sky (airglow, stars)
+
+
+def day_hours(frames: int = DAY_FRAMES) -> np.ndarray:
+    """Local apparent solar time (hours) of each frame of ``day``."""
+    return np.linspace(DAY_START_HOUR, DAY_END_HOUR, frames)
+
+
+def solar_position(hour: float, latitude_deg: float = DAY_LATITUDE_DEG,
+                   declination_deg: float = DAY_DECLINATION_DEG) -> tuple[float, float]:
+    """(elevation, compass azimuth from north clockwise) in degrees at solar time ``hour``."""
+    phi, delta = np.radians(latitude_deg), np.radians(declination_deg)
+    hour_angle = np.radians(15.0 * (hour - 12.0))
+    sin_h = np.sin(phi) * np.sin(delta) + np.cos(phi) * np.cos(delta) * np.cos(hour_angle)
+    h = np.arcsin(np.clip(sin_h, -1.0, 1.0))
+    cos_a = (np.sin(delta) - np.sin(h) * np.sin(phi)) / (np.cos(h) * np.cos(phi))
+    azimuth = np.degrees(np.arccos(np.clip(cos_a, -1.0, 1.0)))
+    if hour_angle > 0:
+        azimuth = 360.0 - azimuth
+    return float(np.degrees(h)), float(azimuth)
+
+
+def day_sun(index: int) -> tuple[float, float]:
+    """(elevation, sky azimuth) in degrees of the sun in frame ``index`` of ``day`` (sky.py's
+    azimuth convention: 0 → +Z = south, 90° → +X = east)."""
+    elevation, compass = solar_position(float(day_hours()[index]))
+    return elevation, (180.0 - compass) % 360.0
+
+
+def air_mass(elevation_deg: float) -> float:
+    """Kasten & Young (1989) relative optical air mass for the sun at ``elevation_deg`` ≥ 0."""
+    h = max(float(elevation_deg), 0.0)
+    return 1.0 / (np.sin(np.radians(h)) + 0.50572 * (h + 6.07995) ** -1.6364)
+
+
+def twilight_scale(elevation_deg: float) -> float:
+    """The sky's scale factor: 1 with the sun up, 10^(h/2.5°) below the horizon."""
+    return 1.0 if elevation_deg > 0 else float(10.0 ** (elevation_deg / DAY_TWILIGHT_DECADE_DEG))
+
+
+@functools.lru_cache(maxsize=256)
+def day_frame(index: int, res: int) -> np.ndarray:
+    """Frame ``index`` of ``day`` as ``[6, res, res, 3]`` float32 (see the module docstring)."""
+    if not 0 <= index < DAY_FRAMES:
+        raise IndexError(f"day has {DAY_FRAMES} frames, asked for {index}")
+    elevation, azimuth = day_sun(index)
+    env = sky.sun_sky(res=res, sun_elevation_deg=max(elevation, DAY_MIN_SKY_ELEVATION_DEG),
+                      sun_azimuth_deg=azimuth, turbidity=DAY_TURBIDITY, sun_luminance=0.0)
+    env = env.astype(np.float64) * twilight_scale(elevation) + DAY_NIGHT_FLOOR
+    if elevation > 0:
+        luminance = sky.SUN_LUMINANCE * np.exp(-DAY_OPTICAL_DEPTH * (air_mass(elevation) - 1.0))
+        env += sky.sun_disc(res, sky.sun_direction(elevation, azimuth), sky.sun_rgb(luminance))
+    env = env.astype(np.float32)
+    env.flags.writeable = False
+    return env
+
+
+def day(res: int = 64) -> EnvSequence:
+    return EnvSequence(DAY_FRAMES, lambda index: day_frame(int(index), int(res)),
+                       source=f"builtin:day ({DAY_LATITUDE_DEG:g}°N, {DAY_DATE}, "
+                              f"{DAY_START_HOUR:g}h-{DAY_END_HOUR:g}h solar time)")
+
+
+# ---- moving lights ----------------------------------------------------------------------------
+
+MOVING_FRAMES = 48
+MOVING_LIGHTS = 4
+MOVING_RADIUS_DEG = 4.0
+MOVING_POWER = 1.5            # Σ Y·Ω of each light
+MOVING_AMPLITUDE_DEG = 20.0   # elevation swing
+_MOVING_BASE = (  # (azimuth°, elevation°, azimuth turns per period, elevation phase, chromaticity)
+    (0.0, 30.0, 1, 0.0, (0.64, 0.33)),
+    (90.0, 50.0, -1, 1.3, (0.30, 0.60)),
+    (200.0, 15.0, 2, 2.9, (0.15, 0.06)),
+    (300.0, 60.0, -1, 4.4, (0.3127, 0.3290)),
+)
+MOVING_BACKGROUND = (0.02, 0.05)   # radiance at the nadir and the zenith (grey)
+
+
+def moving_light_positions(t: float) -> list[tuple[float, float]]:
+    """(elevation°, azimuth°) of each light at (possibly fractional) frame ``t``."""
+    phase = 2.0 * np.pi * t / MOVING_FRAMES
+    return [(e + MOVING_AMPLITUDE_DEG * np.sin(phase + p), (a + 360.0 * k * t / MOVING_FRAMES) % 360.0)
+            for a, e, k, p, _ in _MOVING_BASE]
+
+
+def _disc(res: int, direction: np.ndarray, radius_deg: float, power: float, xy) -> np.ndarray:
+    """A coverage-splatted disc whose Σ Y·Ω is ``power``."""
+    solid_angle = 2.0 * np.pi * (1.0 - np.cos(np.radians(radius_deg)))
+    half = np.radians(radius_deg)
+    face, row, col = cubemap.direction_to_texel(sky.cap_points(direction, half, 8192), res)
+    share = np.zeros((6, res, res))
+    np.add.at(share, (face, row, col), solid_angle / 8192)
+    coverage = share / cubemap.texel_solid_angles(res)
+    return coverage[..., None] * sky.xyY_to_rec709(*xy, power / solid_angle)
+
+
+@functools.lru_cache(maxsize=16)
+def _gradient_background(res: int, low: float, high: float) -> np.ndarray:
+    up = cubemap.texel_directions(res)[..., 1]
+    value = low + (high - low) * 0.5 * (1.0 + up)
+    return np.repeat(value[..., None], 3, axis=-1)
+
+
+@functools.lru_cache(maxsize=128)
+def moving_lights_frame(index: int, res: int) -> np.ndarray:
+    if not 0 <= index < MOVING_FRAMES:
+        raise IndexError(f"moving-lights has {MOVING_FRAMES} frames, asked for {index}")
+    env = _gradient_background(res, *MOVING_BACKGROUND).copy()
+    for (elevation, azimuth), base in zip(moving_light_positions(index), _MOVING_BASE):
+        env += _disc(res, sky.sun_direction(elevation, azimuth), MOVING_RADIUS_DEG, MOVING_POWER,
+                     base[4])
+    env = env.astype(np.float32)
+    env.flags.writeable = False
+    return env
+
+
+def moving_lights(res: int = 64) -> EnvSequence:
+    return EnvSequence(MOVING_FRAMES, lambda index: moving_lights_frame(int(index), int(res)),
+                       source=f"builtin:moving-lights ({MOVING_LIGHTS} lights, {MOVING_FRAMES} frames)")
+
+
+# ---- switch -----------------------------------------------------------------------------------
+
+SWITCH_FRAMES = 30
+SWITCH_ON = 10        # first frame with the light on
+SWITCH_OFF = 20       # first frame with the light off again
+SWITCH_BACKGROUND_SCALE = 0.05
+SWITCH_POWER_RATIO = 100.0
+SWITCH_LIGHT = (40.0, 30.0, 2.0)   # elevation°, azimuth°, angular radius°
+
+
+def total_power(env: np.ndarray) -> float:
+    """Σ Y·Ω over the cube map (luminance times texel solid angle)."""
+    res = env.shape[1]
+    return float(np.sum(cubemap.luminance(np.asarray(env, np.float64)) * cubemap.texel_solid_angles(res)))
+
+
+@functools.lru_cache(maxsize=16)
+def _switch_frames(res: int) -> tuple[np.ndarray, np.ndarray]:
+    off = (sky.sun_sky(res=res, sun_luminance=0.0).astype(np.float64) * SWITCH_BACKGROUND_SCALE)
+    elevation, azimuth, radius = SWITCH_LIGHT
+    on = off + _disc(res, sky.sun_direction(elevation, azimuth), radius,
+                     SWITCH_POWER_RATIO * total_power(off), sky.SUN_CHROMATICITY)
+    frames = []
+    for env in (off, on):
+        env = env.astype(np.float32)
+        env.flags.writeable = False
+        frames.append(env)
+    return frames[0], frames[1]
+
+
+def switch_is_on(index: int) -> bool:
+    return SWITCH_ON <= index < SWITCH_OFF
+
+
+def switch_frame(index: int, res: int) -> np.ndarray:
+    if not 0 <= index < SWITCH_FRAMES:
+        raise IndexError(f"switch has {SWITCH_FRAMES} frames, asked for {index}")
+    off, on = _switch_frames(res)
+    return on if switch_is_on(index) else off
+
+
+def switch(res: int = 64) -> EnvSequence:
+    return EnvSequence(SWITCH_FRAMES, lambda index: switch_frame(int(index), int(res)),
+                       source=f"builtin:switch (on {SWITCH_ON}..{SWITCH_OFF - 1} of {SWITCH_FRAMES})")
+
+
+SEQUENCES = {"day": day, "moving-lights": moving_lights, "switch": switch}
