@@ -524,6 +524,10 @@ class Runner:
                     "time_ms_frame": frame_ms,
                     "device": self.device_name, "protocol": PROTOCOL,
                 }
+                # Estimator-specific per-frame scalars (e.g. smc's ess, reinits): extra columns
+                # after the fixed ones; they never replace a fixed column.
+                row.update({name: float(value) for name, value in estimate.extras.items()
+                            if name not in row})
                 stem = image_stem(row)
                 write_exr(images / f"{stem}.exr", estimate.radiance)
                 write_preview(images / f"{stem}.png", estimate.radiance, k)
