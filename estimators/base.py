@@ -32,7 +32,9 @@ class Estimate:
     ``radiance`` float32 ``[H, W, 3]``; ``used`` and ``effective`` float32 ``[H, W]``: the β-weighted
     counts of evaluated samples and of those with a strictly positive cosine (Lu 2013);
     ``evaluations``: integrand evaluations per covered pixel (mean); ``nonfinite``: count of
-    non-finite output values; ``timings_ms``: device time per stage (``sample``, ``shade``).
+    non-finite output values; ``timings_ms``: device time per stage (``sample``, ``shade``);
+    ``extras``: estimator-specific per-frame scalars (e.g. ``smc``'s ``ess`` and ``reinits``),
+    which the runner writes as extra result columns after the fixed ones.
     """
 
     radiance: np.ndarray
@@ -41,6 +43,7 @@ class Estimate:
     evaluations: float
     nonfinite: int
     timings_ms: dict[str, float]
+    extras: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)

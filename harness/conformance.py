@@ -291,6 +291,40 @@ def check_chi2_sampling(estimator, h: Harness) -> None:
             raise AssertionError(f"χ² rejects the sampler: p = {p_value:.2e} < {limit:.2e}; plot: {plot}")
 
 
+def check_temporal_consistency(estimator, h: Harness) -> None:
+    """Temporal estimators (``Tags.temporal``): frame consistency over a static sequence.
+
+    The other checks render one frame after ``reset()``, which for a temporal estimator is
+    only its initialisation; this one runs 4 frames of a static map in order (frame index
+    0..3) and asks that (a) every frame is finite and non-negative; (b) ``reset()`` forgets the
+    state: the sequence replayed after it is bit-identical; (c) carried state does not drift on
+    a static map: the RMS error of the last frame, over 4 seeds, is at most twice the first's.
+    The z-test does not apply to temporal estimators tagged biased (their later frames depend
+    on the estimates of earlier ones), so this is where their later frames are checked."""
+    gb = glossy_gbuffer()
+    gbuffer = DeviceGBuffer(h.compute, gb)
+    env = smooth_map()
+    caches = [FrameCache(h.compute, env, frame) for frame in range(4)]
+    for cache in caches:
+        cache.require(type(estimator).requires)
+    reference = h.reference(gbuffer, caches[0])
+
+    def sequence(seed):
+        estimator.reset()
+        return [estimator.render(gbuffer, cache, 8, seed).radiance for cache in caches]
+
+    first = sequence(5)
+    for t, image in enumerate(first):
+        assert np.all(np.isfinite(image)) and np.all(image >= 0), f"frame {t}: non-finite or negative"
+    again = sequence(5)
+    assert all(np.array_equal(a, b) for a, b in zip(first, again)), \
+        "reset() must clear the state: a replayed sequence differs"
+    errors = np.array([[np.sqrt(np.mean((image - reference) ** 2)) for image in sequence(s)]
+                       for s in range(4)])
+    start, end = errors[:, 0].mean(), errors[:, -1].mean()
+    assert end <= 2.0 * start + 1e-6, f"error drifts on a static map: RMS {start:.4g} → {end:.4g}"
+
+
 def check_timing(estimator, h: Harness) -> None:
     gbuffer, cache = h.inputs(glossy_gbuffer(), smooth_map())
     timings = h.render(estimator, gbuffer, cache, 8, 0).timings_ms
@@ -313,6 +347,8 @@ def yield_checks(estimator) -> Iterator[Callable]:
         yield check_convergence
     if tags.has_pdf:
         yield check_chi2_sampling
+    if tags.temporal:
+        yield check_temporal_consistency
     yield check_timing
 
 

@@ -13,7 +13,11 @@ Columns, in order (``COLUMNS``):
   ``flicker`` is the mean over covered pixels of |ΔE76(est_t, ref_t) − ΔE76(est_p, ref_p)|,
   p the frame before t in the run's frame list, for the same (scene, estimator, spp, seed,
   time_budget_ms); NaN on the first frame of the list (and so for a static scene);
-- ``device``, ``protocol``.
+- ``device``, ``protocol``;
+- then any *extra* columns: estimator-specific per-frame scalars from ``Estimate.extras``
+  (e.g. ``smc``'s ``ess``, ``reinits``, ``resample_steps``), sorted by name, NaN in the rows of
+  estimators that do not report them.  They are not part of the cell key or of ``COLUMNS``
+  (which stays fixed), and a row without them is still a finished cell.
 
 Schema versions: 1 had no schema_version, time_budget_ms, width, height, env_res or
 estimator_params column; 2 had no flicker column; 3 is this one.  Rows of another schema never count as finished cells.
@@ -58,8 +62,14 @@ FOLD_SECONDS = 10.0
 _INTS = ("spp", "frame", "seed", "nonfinite", "width", "height", "env_res", "schema_version")
 
 
+def extra_columns(rows: list[dict]) -> list[str]:
+    """Columns of ``rows`` beyond the fixed ``COLUMNS`` (estimator extras), sorted."""
+    fixed = set(COLUMNS)
+    return sorted({name for row in rows for name in row if name not in fixed})
+
+
 def results_frame(rows: list[dict]) -> pd.DataFrame:
-    frame = pd.DataFrame(rows, columns=COLUMNS)
+    frame = pd.DataFrame(rows, columns=COLUMNS + extra_columns(rows))
     frame["schema_version"] = frame["schema_version"].fillna(1)   # rows from before the column
     frame["time_budget_ms"] = frame["time_budget_ms"].astype("float64")
     ints = {c: "int64" for c in _INTS if not frame[c].isna().any()}

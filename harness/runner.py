@@ -566,6 +566,10 @@ class Runner:
                     "time_ms_frame": frame_ms,
                     "device": self.device_name, "protocol": PROTOCOL,
                 }
+                # Estimator-specific per-frame scalars (e.g. smc's ess, reinits): extra columns
+                # after the fixed ones; they never replace a fixed column.
+                row.update({name: float(value) for name, value in estimate.extras.items()
+                            if name not in row})
                 stem = image_stem(row)
                 row["flicker"] = flicker(delta_e, self._previous_map(
                     plan, sequence_key, previous_frame, stem, mask), mask)

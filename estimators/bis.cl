@@ -1,0 +1,41 @@
+/* `bis`: Burke 2005 bidirectional importance sampling by SIR (Kronander §5, Eq. 3-4); the
+ * algorithm is documented in sir.cl.  One work item per covered pixel. */
+#include "sir.cl"
+
+__kernel void render_bis(__global const float4 *normal, __global const float4 *view,
+                         __global const float4 *kd, __global const float4 *ks_m,
+                         __global const float4 *env, const int res, const int M, const int N,
+                         const uint seed, const uint frame,
+                         __global float4 *radiance, __global float2 *counts)
+{
+    int p = get_global_id(0);
+    sir_surface_t s = make_sir_surface(normal[p], view[p], kd[p], ks_m[p]);
+    float3 sum;
+    float z = bis_pixel(&s, env, res, M, N, seed, frame, (uint)p, &sum, 0, 0);
+    radiance[p] = (float4)(z / (float)N * sum, 0.0f);
+    /* Every resampled sample has γ > 0, hence a positive cosine; none exist when Ẑ = 0. */
+    float used = z > 0.0f ? (float)N : 0.0f;
+    counts[p] = (float2)(used, used);
+}
+
+/* Debug twin for the tests: the M candidates (ω, w) of pixel 0 and the resampling uniform. */
+__kernel void bis_candidates(__global const float4 *normal, __global const float4 *view,
+                             __global const float4 *kd, __global const float4 *ks_m,
+                             __global const float4 *env, const int res, const uint seed,
+                             const uint frame, __global float4 *out, __global float *u)
+{
+    int i = get_global_id(0);
+    sir_surface_t s = make_sir_surface(normal[0], view[0], kd[0], ks_m[0]);
+    float3 w, radiance;
+    float gamma;
+    float weight = sir_candidate(&s, env, res, seed, frame, 0u, i, &w, &gamma, &radiance);
+    out[i] = (float4)(w, weight);
+    if (i == 0) u[0] = rng_uniform4(seed, frame, STREAM_SIR_RESAMPLE, 0u, 0u, 0u).x;
+}
+
+/* Systematic resampling of one weight vector (tests). */
+__kernel void resample_systematic(__global const float *weights, const int n, const float u,
+                                  __global int *out)
+{
+    if (get_global_id(0) == 0) systematic_indices(weights, n, u, out);
+}

@@ -1,0 +1,165 @@
+"""`bis` and `smc` (issue 5 items 4-5): resampling and ESS on known weights, BIS against a
+NumPy SIR twin and the reference, SMC convergence in N, re-initialisation on a power jump, and
+the per-frame extras columns in the runner's table."""
+import numpy as np
+import pytest
+
+from iblbench.estimators.bis import BIS, effective_sample_size, systematic_resample
+from iblbench.estimators.smc import SMC
+from iblbench.harness.conformance import (Harness, check_unbiased, glossy_gbuffer, smooth_map)
+from iblbench.harness.device_gbuffer import DeviceGBuffer
+from iblbench.harness.framecache import FrameCache
+from iblbench.harness.reference import Reference
+from iblbench.harness.runner import RunConfig, run
+from iblbench.scenes import cubemap
+
+WEIGHTS = np.array([0.05, 0.0, 0.3, 0.15, 0.0, 0.02, 0.28, 0.2], np.float32)
+
+
+def test_ess_of_a_known_weight_vector():
+    assert effective_sample_size([1, 1, 1, 1]) == pytest.approx(4.0)
+    assert effective_sample_size([1, 0, 0, 0]) == pytest.approx(1.0)
+    w = WEIGHTS / WEIGHTS.sum()
+    assert effective_sample_size(WEIGHTS) == pytest.approx(1.0 / np.sum(w.astype(np.float64) ** 2))
+    assert effective_sample_size(2.0 * WEIGHTS) == pytest.approx(effective_sample_size(WEIGHTS))
+    # 1/Σ W² for W = (.05, 0, .3, .15, 0, .02, .28, .2): 1/0.2338
+    assert effective_sample_size(WEIGHTS) == pytest.approx(1 / 0.2338, rel=1e-4)
+
+
+@pytest.mark.parametrize("u", [0.0, 0.1234, 0.5, 0.999])
+def test_systematic_resampling_device_matches_numpy_and_expected_counts(compute, u):
+    n = len(WEIGHTS)
+    kernel = compute.kernel("iblbench.estimators", "bis.cl", "resample_systematic")
+    out = compute.empty(n * 4)
+    compute.run(kernel, 1, compute.to_device(WEIGHTS), np.int32(n), np.float32(u), out)
+    device = compute.to_host(out, (n,), np.int32)
+    twin = systematic_resample(WEIGHTS, u)
+    np.testing.assert_array_equal(device, twin)
+    counts = np.bincount(device, minlength=n)
+    expected = n * WEIGHTS / WEIGHTS.sum()
+    assert np.all(counts >= np.floor(expected) - 1e-9) and np.all(counts <= np.ceil(expected) + 1e-9)
+    assert counts[WEIGHTS == 0].sum() == 0
+    # Over u, the mean count is exactly N·W (systematic resampling is unbiased).
+    mean = np.mean([np.bincount(systematic_resample(WEIGHTS, v), minlength=n)
+                    for v in (np.arange(4000) + 0.5) / 4000], axis=0)
+    np.testing.assert_allclose(mean, expected, atol=2e-3)
+
+
+def _phong_numpy(n, v, kd, ks, m, w):
+    r = 2 * np.dot(n, v) * n - v
+    c = np.maximum(w @ r, 0.0)
+    lobe = (m + 2) / (2 * np.pi) * c ** m
+    rho = kd / np.pi + ks * lobe[:, None]
+    y = np.array([0.2126, 0.7152, 0.0722])
+    p_spec = ks @ y / (kd @ y + ks @ y)
+    pdf = (1 - p_spec) * np.maximum(w @ n, 0) / np.pi + p_spec * (m + 1) / (2 * np.pi) * c ** m
+    return rho, pdf
+
+
+def test_bis_matches_a_numpy_sir_on_one_pixel(compute):
+    """The kernel's candidates, reweighted, resampled and combined in NumPy (Eq. 4 with the
+    candidates' Ẑ), give the kernel's estimate for that pixel."""
+    gb = glossy_gbuffer(2)
+    env = smooth_map()
+    gbuffer, cache = DeviceGBuffer(compute, gb), FrameCache(compute, env, frame=3)
+    bis = BIS()
+    spp, seed = 6, 11
+    M, N = bis.budget(spp)
+    assert (M, N) == (120, 6)
+    out, u = compute.empty(M * 16), compute.empty(4)
+    compute.run(compute.kernel("iblbench.estimators", "bis.cl", "bis_candidates"), M, gbuffer.normal,
+                gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer, np.int32(cache.res),
+                np.uint32(seed), np.uint32(3), out, u)
+    cand = compute.to_host(out, (M, 4), np.float32).astype(np.float64)
+    u = float(compute.to_host(u, (1,), np.float32)[0])
+    dirs, weights = cand[:, :3], cand[:, 3]
+    pixel = np.flatnonzero(gb.mask)[0]
+    n, v = gb.normal.reshape(-1, 3)[pixel], gb.view.reshape(-1, 3)[pixel]
+    kd, ks = gb.kd.reshape(-1, 3)[pixel], gb.ks.reshape(-1, 3)[pixel]
+    m = float(gb.shininess.reshape(-1)[pixel])
+    face, row, col = cubemap.direction_to_texel(dirs, cache.res)
+    radiance = env[face, row, col].astype(np.float64)
+    rho, pdf = _phong_numpy(n, v, kd, ks, m, dirs)
+    y = np.array([0.2126, 0.7152, 0.0722])
+    gamma = (radiance @ y) * (rho @ y) * np.maximum(dirs @ n, 0)
+    twin_w = np.where((pdf > 0) & (gamma > 0), gamma / np.where(pdf > 0, pdf, 1), 0)
+    np.testing.assert_allclose(weights, twin_w, rtol=2e-3, atol=1e-7)
+    chosen = systematic_resample(weights, u, N)
+    ratio = radiance[chosen] * rho[chosen] / ((radiance[chosen] @ y) * (rho[chosen] @ y))[:, None]
+    twin = weights.mean() / N * ratio.sum(0)
+    estimate = bis.render(gbuffer, cache, spp, seed)
+    np.testing.assert_allclose(estimate.radiance.reshape(-1, 3)[pixel], twin, rtol=1e-4)
+    assert estimate.evaluations == M + N
+
+
+def test_bis_is_unbiased_by_the_conformance_z_test(compute):
+    check_unbiased(BIS(), Harness(compute))
+
+
+def test_smc_init_frame_is_bis(compute):
+    gbuffer = DeviceGBuffer(compute, glossy_gbuffer())
+    cache = FrameCache(compute, smooth_map(), frame=0)
+    smc = SMC()
+    first = smc.render(gbuffer, cache, 8, 2)
+    bis = BIS().render(gbuffer, cache, 8, 2)   # M = 20·8 = init_candidates·N
+    np.testing.assert_array_equal(first.radiance, bis.radiance)
+    assert first.extras["reinits"] == 0 and np.isnan(first.extras["ess"])
+
+
+def _sequence_errors(compute, N, frames=4, seeds=range(3)):
+    gbuffer = DeviceGBuffer(compute, glossy_gbuffer())
+    env = smooth_map()
+    caches = [FrameCache(compute, env, frame=t) for t in range(frames)]
+    reference = Reference(compute, use_cache=False).image(gbuffer, caches[0])
+    errors = []
+    for seed in seeds:
+        smc = SMC(N=N)
+        for cache in caches:
+            cache.require(SMC.requires)
+            est = smc.render(gbuffer, cache, 1, seed)
+            errors.append(np.sqrt(np.mean((est.radiance - reference) ** 2)))
+    return np.array(errors).reshape(len(seeds), frames)
+
+
+def test_smc_converges_toward_the_reference_as_n_grows(compute):
+    small, large = _sequence_errors(compute, 4), _sequence_errors(compute, 32)
+    # Every frame, continuing frames included, and by a margin near √8.
+    assert np.all(large.mean(0) < small.mean(0))
+    assert large[:, 1:].mean() < 0.6 * small[:, 1:].mean()
+
+
+def test_smc_reinitialises_on_a_power_jump_and_not_on_a_static_repeat(compute):
+    gbuffer = DeviceGBuffer(compute, glossy_gbuffer())
+    env = smooth_map()
+    smc = SMC()
+    frames = [env, env, 1e3 * env, 1e3 * env]
+    extras = []
+    for t, frame_env in enumerate(frames):
+        cache = FrameCache(compute, frame_env, frame=t)
+        cache.require(SMC.requires)
+        est = smc.render(gbuffer, cache, 8, 1)
+        assert est.nonfinite == 0
+        extras.append(est.extras)
+    assert extras[0]["reinits"] == 0            # the init frame is not a re-init
+    assert extras[1]["reinits"] == 0            # static repeat
+    assert extras[2]["reinits"] == gbuffer.count   # ×1e3: Z_t/Z_{t−1} = 1e3 > 4 everywhere
+    assert extras[3]["reinits"] == 0
+    assert 0 < extras[1]["ess"] <= 8
+    # A re-init costs a BIS on top of the frame's SMC work.
+    smc_static = SMC()
+    costs = []
+    for t, frame_env in enumerate([env, env, env]):
+        cache = FrameCache(compute, frame_env, frame=t)
+        costs.append(smc_static.render(gbuffer, cache, 8, 1).evaluations)
+    assert costs[0] == 20 * 8 + 8 and costs[1] == 8 * (1 + 2 * 3 + 1 + 1)
+
+
+def test_runner_writes_smc_extras_as_columns(tmp_path):
+    table = run(RunConfig(out=tmp_path, scenes=("sphere-sun",), estimators=("uniform", "smc"),
+                          spp=(4,), seeds=1, resolution=(12, 12), env_res=8, progress=False))
+    for column in ("ess", "reinits", "resample_steps"):
+        assert column in table.columns
+    smc = table[table.estimator == "smc"].iloc[0]
+    assert smc.reinits == 0 and np.isnan(table[table.estimator == "uniform"].iloc[0].reinits)
+    assert list(table.columns[:5]) == ["scene", "estimator", "spp", "frame", "seed"]
+    assert (table.nonfinite == 0).all()
