@@ -30,6 +30,10 @@ Per pixel, N weighted particles {ω_i, W_i} (W normalised) approximate the targe
    jumped), or a reweighting sum is 0/non-finite (every particle lost its target, e.g. the
    light went out), or a weighted particle has γ_{t−1} = 0 (guard), or Z_{t−1} = 0 (the pixel
    saw black last frame), the pixel is re-initialised by BIS on frame t (step 1).
+   Added to Kronander's per-pixel rule: when the map's total luminance power Σ_f I_f jumps by
+   more than the same threshold between frames, every pixel is re-initialised.  A small light
+   switching on changes Z by less than ×4 (or not at all) at pixels none of whose particles
+   sees it, and Eq. 5 alone never notices it there; the map-level test catches the switch.
 6. **Estimate** (Eq. 7): L̂ = Z_t Σ_i W_i f(ω_i)/γ_t(ω_i).
 
 Budget.  N = ``spp`` particles (``N`` > 0 fixes it; Kronander's N = 8 is spp 8); ``used`` = N
@@ -105,6 +109,16 @@ class SMC(Estimator):
         self._key = None
         self._buffers = None
         self._prev_env = None
+        self._prev_power = None
+
+    def _map_jumped(self, power: float) -> bool:
+        """Did the map's total power leave [1/threshold, threshold]× last frame's?"""
+        previous, threshold = self._prev_power, self.params.reinit_threshold
+        if previous is None:
+            return False
+        if previous <= 0.0 or power <= 0.0:
+            return previous != power
+        return not 1.0 / threshold <= power / previous <= threshold
 
     def defines(self, gbuffer=None) -> dict:
         return {"SPECULAR_LOBE": 0} if gbuffer is not None and gbuffer.is_diffuse else {}
@@ -119,7 +133,10 @@ class SMC(Estimator):
         N = self.particles(spp)
         M = p.init_candidates * N
         key = (id(gbuffer), gbuffer.count, N, cache.res, int(seed))
-        have_state = key == self._key
+        power = float(np.sum(cache.face_integrals, dtype=np.float64))
+        map_jump = key == self._key and self._map_jumped(power)
+        have_state = key == self._key and not map_jump
+        self._prev_power = power
         if not have_state:
             count = gbuffer.count
             self._buffers = [compute.empty(count * N * 16), compute.empty(count * N * 8),
@@ -147,7 +164,7 @@ class SMC(Estimator):
                                  {"shade": event_ms(event) + event_ms(copy)})
         estimate.extras = {
             "ess": float(st[carried, 0].mean()) if carried.any() else float("nan"),
-            "reinits": float(st[:, 1].sum()),
+            "reinits": float(gbuffer.count if map_jump else st[:, 1].sum()),
             "resample_steps": float(st[:, 3].mean()),
         }
         return estimate

@@ -163,3 +163,15 @@ def test_runner_writes_smc_extras_as_columns(tmp_path):
     assert smc.reinits == 0 and np.isnan(table[table.estimator == "uniform"].iloc[0].reinits)
     assert list(table.columns[:5]) == ["scene", "estimator", "spp", "frame", "seed"]
     assert (table.nonfinite == 0).all()
+
+
+def test_smc_reinitialises_at_the_switch_frames(tmp_path):
+    """sphere-switch: a light 100× the sky turns on at frame 10 and off at 20 (scenes.sequences)."""
+    from iblbench.harness.runner import RunConfig, run
+
+    table = run(RunConfig(out=tmp_path, scenes=("sphere-switch",), estimators=("smc",), spp=(8,),
+                          seeds=1, resolution=(16, 16), env_res=16, frames=slice(8, 23), progress=False))
+    reinits = table.set_index("frame").reinits
+    covered = reinits.max()
+    assert reinits[10] == covered and reinits[20] == covered
+    assert all(reinits[f] < covered for f in (9, 11, 12, 19, 21, 22))
