@@ -228,6 +228,8 @@ def fir_filter(directions: list[np.ndarray], weights: list[np.ndarray], taps) ->
     filtered as vectors and renormalised (falling back to the newest one where the sum
     vanishes)."""
     n = min(len(taps), len(directions))
+    if n == 1:                   # no history (or no filter): the identity, bit for bit
+        return directions[0], weights[0]
     a = np.asarray(taps[:n], np.float64)
     a = a / a.sum()
     d = sum(a[j] * directions[j] for j in range(n))
