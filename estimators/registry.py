@@ -12,13 +12,14 @@ from importlib.metadata import entry_points
 from iblbench.estimators.balanced import Balanced
 from iblbench.estimators.balanced_mis import BalancedMIS
 from iblbench.estimators.base import Estimator
-from iblbench.estimators.smc import SMC
 from iblbench.estimators.bis import BIS
+from iblbench.estimators.havran import Havran
+from iblbench.estimators.smc import SMC
 from iblbench.estimators.uniform import Uniform
 from iblbench.scenes.errors import InputError
 
 ENTRY_POINT_GROUP = "iblbench.estimators"
-_BUILTINS: tuple[type[Estimator], ...] = (Uniform, Balanced, BalancedMIS, BIS, SMC)
+_BUILTINS: tuple[type[Estimator], ...] = (Uniform, Balanced, BalancedMIS, Havran, BIS, SMC)
 _registry: dict[str, type[Estimator]] = {}
 
 

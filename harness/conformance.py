@@ -204,8 +204,8 @@ def check_unbiased(estimator, h: Harness) -> None:
     assert not failures, "biased: " + "; ".join(failures)
 
 
-def check_convergence(estimator, h: Harness) -> None:
-    """RMS error falls about as 1/√spp: 16× the samples gives 2.5-6.5× less error (ideal 4)."""
+def _error_ratio_8_to_128(estimator, h: Harness) -> float:
+    """RMS error over 6 seeds at 8 spp divided by that at 128 spp (16× the samples)."""
     gbuffer, cache = h.inputs(glossy_gbuffer(), smooth_map())
     reference = h.reference(gbuffer, cache)
 
@@ -213,8 +213,23 @@ def check_convergence(estimator, h: Harness) -> None:
         errors = [h.render(estimator, gbuffer, cache, spp, s).radiance - reference for s in range(6)]
         return float(np.sqrt(np.mean(np.square(errors))))
 
-    ratio = rms(8) / rms(128)
+    return rms(8) / rms(128)
+
+
+def check_convergence(estimator, h: Harness) -> None:
+    """RMS error falls about as 1/√spp: 16× the samples gives 2.5-6.5× less error (ideal 4)."""
+    ratio = _error_ratio_8_to_128(estimator, h)
     assert 2.5 <= ratio <= 6.5, f"error ratio 8→128 spp is {ratio:.2f}, expected ≈ 4"
+
+
+def check_error_falls(estimator, h: Harness) -> None:
+    """For estimators that are not unbiased (``tags.unbiased = False``, e.g. ``havran``'s
+    filtered, quasi-random lights): the 1/√spp law need not hold (a stratified or quasi-random
+    estimator converges faster, a biased one may level off at its bias), so the check asks only
+    that the RMS error falls: 16× the samples gives at least 2.5× less error (as the unbiased
+    check's lower bound), on a static map where the error must go to zero with the budget."""
+    ratio = _error_ratio_8_to_128(estimator, h)
+    assert ratio >= 2.5, f"error ratio 8→128 spp is {ratio:.2f}, expected the error to fall ≥ 2.5×"
 
 
 def _sphere_bins(dirs: np.ndarray, n_z: int, n_phi: int) -> np.ndarray:
@@ -345,6 +360,8 @@ def yield_checks(estimator) -> Iterator[Callable]:
     if tags.unbiased:
         yield check_unbiased
         yield check_convergence
+    else:                       # no z-test, and no 1/√spp law: only that the error falls
+        yield check_error_falls
     if tags.has_pdf:
         yield check_chi2_sampling
     if tags.temporal:

@@ -1,0 +1,353 @@
+"""``havran``: Havran et al. 2005, "Importance Sampling for Video Environment Maps".
+
+Each frame is decomposed into K = spp directional lights, shaded per pixel in ``havran.cl``.
+
+**Point set.**  A fixed 2-D set: the Halton (2, 3) sequence, Lloyd-relaxed once (per process,
+memoised) on the unit *torus*.  Relaxation is hierarchical, which makes it progressive: level l
+holds the first 2^l Halton points; the first 2^(l-1) are the already relaxed points of level
+l-1 and stay fixed, and only the new 2^(l-1) points take ``LLOYD_ITERATIONS`` Lloyd steps, each
+moving a point to the centroid of its toroidal Voronoi cell, estimated on a regular grid of
+about ``LLOYD_SAMPLES_PER_POINT`` samples per point.  So the first K points are the same for
+every larger K (adding lights never moves existing ones), and every power-of-two prefix is
+relaxed.  Beyond ``RELAX_MAX`` points the raw Halton points follow (still progressive).
+Toroidal rather than clamped so that the relaxed set stays blue noise under the per-seed
+Cranley–Patterson rotation below (a rotation mod 1 is an isometry of the torus, not of the
+square).
+
+**Seed.**  The render seed picks one Cranley–Patterson shift of the whole set, fixed for the
+sequence (the runner keeps the seed per sequence): the same initial points every frame, as the
+paper asks, and each point uniform on [0, 1)² over seeds, so on a static map the estimate is
+unbiased over seeds (the FIR filter of identical frames is the identity).  On a changing map the
+filter mixes past frames: biased by design.
+
+**Mapping (bicontinuous).**  A face-wise cube-map CDF inversion jumps where the face changes, so
+the map's pdf is built on one 2-D parameterisation of the sphere: Lambert's cylindrical
+equal-area map, (x, y) ∈ [0, 1]² → φ = 2πx, cos θ = 1 − 2y, with +Y (the map's up) as the pole:
+ω = (sin θ cos φ, cos θ, sin θ sin φ), dω = 4π dx dy.  On an ``NZ × NPHI`` grid (NZ = 2R,
+NPHI = 4R for faces of R texels, capped) each cell (all have equal solid angle) gets a mass
+from ``SUPERSAMPLE``² nearest-texel luminance lookups: (1 − γ)·their mean + γ·a conservative
+bound, the max of the lookups (and of the texels whose centres fall in the cell) over the 3×3
+cells around it (γ = ``CONSERVATIVE`` = 0.1).  The mean alone makes p ∝ Y only up to the grid
+mismatch: a sun texel that overlaps a cell but none of its lookups gets the cell's tiny
+density, so L/p explodes (measured: L/p up to 5000× its mean on sphere-sun at R = 64, and ΔE
+*rising* from K = 64 to 256); the bound keeps L/p ≲ 1/γ of the ideal (measured ≤ 20×).  A
+uniform density of weight ``DEFENSIVE`` = 0.01 is mixed in, so the pdf is positive everywhere
+and an all-black map gives uniform lights.  Inversion:
+
+- y from the rows' marginal CDF, linear within a row (piecewise-constant marginal density);
+- x from the *blend* of the conditional CDFs of the two rows whose centres bracket y, linearly
+  in y (clamped at the first and last half-row), inverted linearly within a column.
+
+Every CDF is strictly increasing and continuous, the blended CDF is continuous in y (at a row
+centre the blend is exactly that row's CDF, from either side), so (u1, u2) → (x, y) is a
+homeomorphism of the square, and (x, y) → ω is continuous: nearby points give nearby
+directions everywhere, including across cube faces (the test pins it).  The density of this
+map is exact and is what the weights use:
+
+    p(ω) = m_i·NZ · ((1 − t)·c_{i0,j} + t·c_{i1,j})·NPHI / (4π)
+
+with m_i the row probability, c the column probabilities per row, t the blend.
+
+**Lights.**  Light k: ω_k from point k, weight (L(ω_k)/p(ω_k))/K with L the cube-map texel of
+ω_k (nearest lookup, DESIGN §3).  **FIR filter**: per light, a causal low-pass filter over its
+last ``len(fir_taps)`` frames: direction normalize(Σ a_j ω_k(t−j)), weight Σ a_j W_k(t−j);
+where less history exists (the first frames of a sequence) the available taps are
+renormalised.  ``reset()`` clears the history (so does a change of seed or K, or a frame index
+that does not increase; rendering the same frame again replaces its entry).
+
+**Shading.**  L ≈ Σ_k W_k ρ(ω_k) cos⁺(n, ω_k) over the lights with n·ω_k > 0 (per-normal
+culling).  used = K, effective = the lights above the horizon, evaluations = the lights shaded.
+The ``sample`` timing is the host time (NumPy) that builds the frame's map CDFs (once per
+frame, but counted in every render, as a light pool's build is) plus the lights and the
+filter; the ``shade`` timing is the kernel's device time.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+import weakref
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from iblbench.estimators.base import Estimator, Tags, read_estimate
+from iblbench.harness.device import event_ms
+from iblbench.scenes import cubemap
+
+LLOYD_ITERATIONS = 4
+LLOYD_SAMPLES_PER_POINT = 64
+RELAX_MAX = 4096          # points beyond this are raw Halton (relaxing them costs seconds)
+MAX_K = 1 << 20
+GRID_MAX_NZ = 512         # equal-area grid rows at most (columns = 2 × rows)
+SUPERSAMPLE = 3           # lookups per cell and axis
+CONSERVATIVE = 0.1        # share of the cell mass from the 3×3-dilated max (bounds L/p)
+DEFENSIVE = 0.01          # uniform share of the map's pdf
+SEED_SALT = 0x2005
+
+
+# ---- the point set -------------------------------------------------------------------------------
+
+def radical_inverse(index: np.ndarray, base: int) -> np.ndarray:
+    index = np.asarray(index, np.int64).copy()
+    result = np.zeros(index.shape, np.float64)
+    scale = 1.0 / base
+    while np.any(index > 0):
+        result += (index % base) * scale
+        index //= base
+        scale /= base
+    return result
+
+
+def halton(n: int) -> np.ndarray:
+    """The first ``n`` points of the Halton (2, 3) sequence, ``[n, 2]``."""
+    i = np.arange(n)
+    return np.stack([radical_inverse(i, 2), radical_inverse(i, 3)], axis=-1)
+
+
+def lloyd_step(points: np.ndarray, movable: np.ndarray, samples_per_point: int = LLOYD_SAMPLES_PER_POINT
+               ) -> np.ndarray:
+    """One toroidal Lloyd step: each movable point goes to the centroid of its Voronoi cell on the
+    unit torus, estimated on a regular grid of about ``samples_per_point`` samples per point."""
+    n = len(points)
+    side = int(min(2048, max(32, np.ceil(np.sqrt(samples_per_point * n)))))
+    g = (np.arange(side) + 0.5) / side
+    grid = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    _, nearest = cKDTree(points % 1.0, boxsize=1.0).query(grid)
+    offset = grid - points[nearest]
+    offset -= np.round(offset)                   # shortest way round the torus
+    count = np.bincount(nearest, minlength=n)
+    shift = np.stack([np.bincount(nearest, offset[:, a], minlength=n) for a in (0, 1)], -1)
+    shift /= np.maximum(count, 1)[:, None]
+    out = points.copy()
+    out[movable] = (points[movable] + shift[movable]) % 1.0
+    return out
+
+
+_relaxed = [halton(1)]   # _relaxed[l]: the relaxed 2^l-point level
+
+
+def relaxed_points(k: int, iterations: int = LLOYD_ITERATIONS) -> np.ndarray:
+    """The first ``k`` points of the hierarchically Lloyd-relaxed Halton set, ``[k, 2]``.
+
+    Prefix-stable: ``relaxed_points(k) == relaxed_points(k2)[:k]`` for every k ≤ k2."""
+    if not 1 <= k <= MAX_K:
+        raise ValueError(f"K must be in [1, {MAX_K}], got {k}")
+    levels = _relaxed if iterations == LLOYD_ITERATIONS else [halton(1)]
+    top = min(k, RELAX_MAX)
+    while len(levels[-1]) < top:
+        old = levels[-1]
+        n = 2 * len(old)
+        points = np.concatenate([old, halton(n)[len(old):]])
+        movable = np.arange(n) >= len(old)
+        for _ in range(iterations):
+            points = lloyd_step(points, movable)
+        levels.append(points)
+    level = next(p for p in levels if len(p) >= top)
+    if k <= len(level):
+        return level[:k].copy()
+    return np.concatenate([level, halton(k)[len(level):]])
+
+
+def seed_shift(seed: int) -> np.ndarray:
+    """The Cranley–Patterson rotation of the point set for a render seed (fixed per sequence)."""
+    return np.random.default_rng([SEED_SALT, int(seed)]).random(2)
+
+
+# ---- the bicontinuous map of the frame's pdf -------------------------------------------------------
+
+def equal_area_to_direction(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(x, y) ∈ [0, 1]² → unit direction; +Y is the pole, dω = 4π dx dy."""
+    x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+    cos_t = 1.0 - 2.0 * y
+    sin_t = np.sqrt(np.clip(1.0 - cos_t * cos_t, 0.0, None))
+    phi = 2.0 * np.pi * x
+    return np.stack([sin_t * np.cos(phi), cos_t, sin_t * np.sin(phi)], -1)
+
+
+def direction_to_equal_area(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`equal_area_to_direction` for unit directions ``[..., 3]``."""
+    d = np.asarray(d, np.float64)
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    x = (np.arctan2(d[..., 2], d[..., 0]) / (2.0 * np.pi)) % 1.0
+    y = np.clip((1.0 - d[..., 1]) / 2.0, 0.0, 1.0)
+    return x, y
+
+
+class EqualAreaMap:
+    """The frame's luminance pdf on the equal-area grid and its continuous inversion."""
+
+    def __init__(self, env: np.ndarray):
+        start = time.perf_counter()
+        res = env.shape[1]
+        self.nz = int(min(2 * res, GRID_MAX_NZ))
+        self.nphi = 2 * self.nz
+        self.env = env
+        s = SUPERSAMPLE
+        x = (np.arange(self.nphi * s) + 0.5) / (self.nphi * s)
+        y = (np.arange(self.nz * s) + 0.5) / (self.nz * s)
+        dirs = equal_area_to_direction(x[None, :], y[:, None])
+        face, row, col = cubemap.direction_to_texel(dirs.reshape(-1, 3), res)
+        texel_lum = np.maximum(cubemap.luminance(env.astype(np.float64)), 0.0)
+        lookups = texel_lum[face, row, col].reshape(self.nz, s, self.nphi, s)
+        mean, value = lookups.mean(axis=(1, 3)), lookups.max(axis=(1, 3))
+        # Every texel also counts in the cell that holds its centre (small texels near the poles).
+        cx, cy = direction_to_equal_area(cubemap.texel_directions(res).reshape(-1, 3))
+        cells = (np.minimum((cy * self.nz).astype(np.int64), self.nz - 1) * self.nphi
+                 + np.minimum((cx * self.nphi).astype(np.int64), self.nphi - 1))
+        np.maximum.at(value.reshape(-1), cells, texel_lum.reshape(-1))
+        # Conservative: a 3×3 max filter (φ wraps), so a texel that overlaps a cell but none of
+        # its lookups still bounds that cell's density from below, and L/p stays bounded.
+        padded = np.pad(value, ((1, 1), (0, 0)), mode="edge")
+        padded = np.concatenate([padded[:, -1:], padded, padded[:, :1]], axis=1)
+        bound = np.max([padded[1 + a:1 + a + self.nz, 1 + b:1 + b + self.nphi]
+                        for a in (-1, 0, 1) for b in (-1, 0, 1)], axis=0)
+        mass = (1.0 - CONSERVATIVE) * mean + CONSERVATIVE * bound
+        total = mass.sum()
+        uniform = np.full_like(mass, 1.0 / mass.size)
+        if total > 0 and np.isfinite(total):
+            prob = (1.0 - DEFENSIVE) * mass / total + DEFENSIVE * uniform
+        else:
+            prob = uniform
+        self.row_prob = prob.sum(axis=1)                              # m_i
+        self.row_cdf = np.cumsum(self.row_prob)
+        self.row_cdf /= self.row_cdf[-1]
+        self.col_prob = prob / self.row_prob[:, None]                 # c_{i,j}
+        self.col_cdf = np.cumsum(self.col_prob, axis=1)
+        self.col_cdf /= self.col_cdf[:, -1:]
+        self.build_ms = (time.perf_counter() - start) * 1e3
+
+    def sample(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Points ``[n, 2]`` in [0, 1)² → (directions ``[n, 3]``, pdf in solid angle ``[n]``)."""
+        u = np.asarray(u, np.float64)
+        u1, u2 = u[:, 0], u[:, 1]
+        i = np.minimum(np.searchsorted(self.row_cdf, u1, side="right"), self.nz - 1)
+        lo = np.where(i > 0, self.row_cdf[np.maximum(i - 1, 0)], 0.0)
+        y = (i + np.clip((u1 - lo) / self.row_prob[i], 0.0, 1.0)) / self.nz
+        centre = y * self.nz - 0.5
+        i0 = np.floor(centre).astype(np.int64)
+        t = centre - i0
+        r0, r1 = np.clip(i0, 0, self.nz - 1), np.clip(i0 + 1, 0, self.nz - 1)
+        blend = (1.0 - t)[:, None] * self.col_cdf[r0] + t[:, None] * self.col_cdf[r1]
+        j = np.minimum((blend <= u2[:, None]).sum(axis=1), self.nphi - 1)
+        rows = np.arange(len(u))
+        lo = np.where(j > 0, blend[rows, np.maximum(j - 1, 0)], 0.0)
+        width = (1.0 - t) * self.col_prob[r0, j] + t * self.col_prob[r1, j]
+        x = (j + np.clip((u2 - lo) / width, 0.0, 1.0)) / self.nphi
+        pdf = self.row_prob[i] * self.nz * width * self.nphi / (4.0 * np.pi)
+        return equal_area_to_direction(x, y), pdf
+
+    def radiance(self, dirs: np.ndarray) -> np.ndarray:
+        face, row, col = cubemap.direction_to_texel(dirs, self.env.shape[1])
+        return self.env[face, row, col].astype(np.float64)
+
+
+_maps: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def frame_map(cache) -> EqualAreaMap:
+    """The map of a FrameCache's frame, built once per cache."""
+    if cache not in _maps:
+        _maps[cache] = EqualAreaMap(cache.env)
+    return _maps[cache]
+
+
+# ---- the FIR filter ------------------------------------------------------------------------------
+
+def fir_filter(directions: list[np.ndarray], weights: list[np.ndarray], taps) -> tuple[np.ndarray, np.ndarray]:
+    """Causal FIR over a light trajectory, newest first: ``directions[j]``/``weights[j]`` is
+    frame t−j.  Uses the first min(len(taps), len(history)) taps, renormalised; directions are
+    filtered as vectors and renormalised (falling back to the newest one where the sum
+    vanishes)."""
+    n = min(len(taps), len(directions))
+    if n == 1:                   # no history (or no filter): the identity, bit for bit
+        return directions[0], weights[0]
+    a = np.asarray(taps[:n], np.float64)
+    a = a / a.sum()
+    d = sum(a[j] * directions[j] for j in range(n))
+    norm = np.linalg.norm(d, axis=-1, keepdims=True)
+    d = np.where(norm > 1e-9, d / np.maximum(norm, 1e-300), directions[0])
+    w = sum(a[j] * weights[j] for j in range(n))
+    return d, w
+
+
+# ---- the estimator -------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class HavranParams:
+    """Parameters of ``havran``.
+
+    ``fir_taps`` (default (0.5, 0.3, 0.2)): the causal low-pass filter's taps, newest frame
+    first; its length is the filter's length (``(1.0,)`` turns filtering off).  Taps must be
+    non-negative with a positive sum; they are renormalised over the history that exists.
+    """
+
+    fir_taps: tuple[float, ...] = (0.5, 0.3, 0.2)
+
+
+class Havran(Estimator):
+    """Halton + Lloyd-relaxed inverse-transform directional lights (Havran et al. 2005), with
+    FIR-filtered trajectories and power and per-normal culling; K = spp lights."""
+
+    name = "havran"
+    Params = HavranParams
+    tags = Tags(unbiased=False, temporal=True, has_pdf=False)
+    requires = ()
+    kernel_files = ("havran.cl",)
+
+    def __init__(self, params=None, **overrides):
+        super().__init__(params, **overrides)
+        taps = np.asarray(self.params.fir_taps, np.float64)
+        if taps.ndim != 1 or len(taps) < 1 or np.any(taps < 0) or not taps.sum() > 0:
+            raise ValueError(f"fir_taps must be non-negative with a positive sum, got {self.params.fir_taps}")
+        self.reset()
+
+    def reset(self) -> None:
+        self._key = None          # (seed, K) of the history
+        self._frame = None        # frame of the newest entry
+        self._history: list[tuple[np.ndarray, np.ndarray]] = []   # newest first
+
+    def raw_lights(self, cache, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """This frame's unfiltered lights: directions ``[k, 3]`` and weights L/(p·K) ``[k, 3]``."""
+        points = (relaxed_points(k) + seed_shift(seed)) % 1.0
+        envmap = frame_map(cache)
+        dirs, pdf = envmap.sample(points)
+        weights = envmap.radiance(dirs) / (pdf[:, None] * k)
+        return dirs, weights
+
+    def lights(self, cache, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """The filtered lights of this frame, updating the history."""
+        dirs, weights = self.raw_lights(cache, k, seed)
+        frame = int(cache.frame)
+        if self._key != (int(seed), k) or (self._frame is not None and frame < self._frame):
+            self.reset()
+        if self._frame is not None and frame == self._frame:
+            self._history[0] = (dirs, weights)
+        else:
+            self._history.insert(0, (dirs, weights))
+        self._key, self._frame = (int(seed), k), frame
+        del self._history[len(self.params.fir_taps):]
+        return fir_filter([h[0] for h in self._history], [h[1] for h in self._history],
+                          self.params.fir_taps)
+
+    def render(self, gbuffer, cache, spp, seed):
+        if not 1 <= spp <= MAX_K:
+            raise ValueError(f"spp (K lights) must be in [1, {MAX_K}], got {spp}")
+        compute = cache.compute
+        start = time.perf_counter()
+        dirs, weights = self.lights(cache, int(spp), seed)
+        packed = np.zeros((2, spp, 4), np.float32)
+        packed[0, :, :3], packed[1, :, :3] = dirs, weights
+        # Like a light pool's build_ms, the frame's map build counts in every render's "sample"
+        # stage, though it is built once per frame and reused.
+        sample_ms = (time.perf_counter() - start) * 1e3 + frame_map(cache).build_ms
+        kernel = compute.kernel(self.kernel_package(), self.kernel_files[0], "render_havran")
+        radiance = compute.empty(gbuffer.count * 16)
+        counts = compute.empty(gbuffer.count * 8)
+        evaluations = compute.empty(gbuffer.count * 4)
+        event = compute.run(kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd,
+                            gbuffer.ks, compute.to_device(packed[0]), compute.to_device(packed[1]),
+                            np.int32(spp), radiance, counts, evaluations)
+        mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean() \
+            if gbuffer.count else 0.0
+        return read_estimate(compute, gbuffer, radiance, counts, mean_evaluations,
+                             {"sample": sample_ms, "shade": event_ms(event)})
