@@ -5,13 +5,14 @@
  * no visibility: DESIGN §3's reference has none).  f/γ = L ρ / (L_Y ρ_Y) wherever γ > 0, and
  * γ = 0 ⇒ f = 0 (a non-negative colour of zero luminance is black), so γ covers f's support.
  *
- * BIS of one pixel (bis_pixel): M candidates ω_i ~ p_B (the Phong mixture of common.cl), weights
- * w_i = γ(ω_i)/p_B(ω_i), Ẑ = (1/M) Σ w_i; N samples resampled from the candidates by
+ * BIS of one pixel (bis_pixel): M candidates ω_i ~ q (sir_proposal_t: Burke's p_B, the Phong
+ * mixture of common.cl, or that mixed with map sampling), weights w_i = γ(ω_i)/q(ω_i),
+ * Ẑ = (1/M) Σ w_i; N samples resampled from the candidates by
  * SYSTEMATIC resampling (one uniform u, positions (k + u)/N, k < N, on the normalised cumulative
  * weights: candidate i gets ⌊·⌋ or ⌈·⌉ of N·w_i/Σw copies, E[copies] = N·w_i/Σw exactly);
  * estimate (Eq. 4 with the candidates' Ẑ)  L̂ = Ẑ/N · Σ_k f(ω_k)/γ(ω_k).
  * Unbiased: given the candidates, E[f(ω_k)/γ(ω_k)] = Σ_i (w_i/Σw) f(ω_i)/γ(ω_i)
- * = Σ_i (f/p_B)(ω_i) / Σw, so E[L̂ | candidates] = (1/M) Σ_i f(ω_i)/p_B(ω_i), the plain BRDF
+ * = Σ_i (f/q)(ω_i) / Σw, so E[L̂ | candidates] = (1/M) Σ_i f(ω_i)/q(ω_i), the plain
  * importance-sampling estimate, whose expectation is the integral.  (Kronander's Eq. 4 as printed
  * computes Ẑ from the resampled points, which is biased; Burke's and Talbot's use the candidates.)
  *
@@ -78,12 +79,68 @@ inline float3 sir_ratio(const sir_surface_t *s, float3 w, float3 radiance)
     return (radiance * rho) / (luminance(radiance) * phong_luminance(s, w));
 }
 
-/* Candidate i: direction, and weight γ/p_B (0 where p_B or γ vanish or the ratio overflows). */
-inline float sir_candidate(const sir_surface_t *s, __global const float4 *env, int res, uint seed,
-                           uint frame, uint pixel, int i, float3 *w, float *gamma, float3 *radiance)
+/* The proposal candidates are drawn from: the BRDF mixture p_B (Burke, env_pick = 0) or, with
+ * probability env_pick, the map (face f with probability μ_f = I_f/Σ I, then sample_face):
+ * q(ω) = (1 − env_pick) p_B(ω) + env_pick μ_{f(ω)} pdf_L(ω|f(ω)) (pdf_L vanishes off face f). */
+typedef struct {
+    __global const float *marginal, *conditional;
+    float mu[6];
+    float env_pick;
+} sir_proposal_t;
+
+inline sir_proposal_t make_proposal(__global const float *marginal, __global const float *conditional,
+                                    __global const float *face_integral, float env_pick)
 {
-    float3 xi = rng_uniform4(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 0u).xyz;
-    float pdf = sample_phong(s->n, s->r, s->p_spec, s->m, xi, w);
+    sir_proposal_t q;
+    q.marginal = marginal;
+    q.conditional = conditional;
+    float total = 0.0f;
+    for (int f = 0; f < 6; ++f) total += face_integral ? max(face_integral[f], 0.0f) : 0.0f;
+    for (int f = 0; f < 6; ++f) q.mu[f] = total > 0.0f ? max(face_integral[f], 0.0f) / total : 0.0f;
+    q.env_pick = total > 0.0f ? env_pick : 0.0f;   /* an all-black map: BRDF only */
+    return q;
+}
+
+inline float proposal_pdf(const sir_surface_t *s, const sir_proposal_t *q, int res, float3 w)
+{
+    float density = (1.0f - q->env_pick) * phong_pdf(s->n, s->r, s->p_spec, s->m, w);
+    if (q->env_pick > 0.0f) {
+        int texel;
+        float pl = light_pdf(q->marginal, q->conditional, res, w, &texel);
+        density += q->env_pick * q->mu[texel / (res * res)] * pl;
+    }
+    return density;
+}
+
+/* A direction from q with four uniforms; returns q(ω).  With env_pick = 0 this is exactly
+ * sample_phong on xi.xyz (Burke's candidates). */
+inline float proposal_sample(const sir_surface_t *s, const sir_proposal_t *q, int res, float4 xi,
+                             float3 *w)
+{
+    if (!(q->env_pick > 0.0f)) return sample_phong(s->n, s->r, s->p_spec, s->m, xi.xyz, w);
+    if (xi.w < q->env_pick) {
+        float cumulative = 0.0f;
+        int face = 0;
+        for (int f = 0; f < 6; ++f) {   /* the last face with μ > 0 takes any rounding remainder */
+            if (q->mu[f] > 0.0f) face = f;
+            cumulative += q->mu[f];
+            if (xi.x < cumulative && q->mu[f] > 0.0f) break;
+        }
+        int texel;
+        sample_face(q->marginal, q->conditional, face, res, xi.yz, w, &texel);
+    } else {
+        sample_phong(s->n, s->r, s->p_spec, s->m, xi.xyz, w);
+    }
+    return proposal_pdf(s, q, res, *w);
+}
+
+/* Candidate i: direction, and weight γ/q (0 where q or γ vanish or the ratio overflows). */
+inline float sir_candidate(const sir_surface_t *s, const sir_proposal_t *q,
+                           __global const float4 *env, int res, uint seed, uint frame, uint pixel,
+                           int i, float3 *w, float *gamma, float3 *radiance)
+{
+    float4 xi = rng_uniform4(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 0u);
+    float pdf = proposal_sample(s, q, res, xi, w);
     *gamma = sir_target(s, env, res, *w, radiance);
     float weight = (pdf > 0.0f && *gamma > 0.0f) ? *gamma / pdf : 0.0f;
     return isfinite(weight) ? weight : 0.0f;
@@ -98,8 +155,8 @@ inline acc_t systematic_position(int k, int n, float u, acc_t total)
 /* BIS of one pixel (see the header).  Returns Ẑ; *sum gets Σ_k f/γ over the N resampled
  * samples (0 when every weight is 0).  When `particles` is not null, resampled sample k is
  * written to particles[k] = (ω, 1/N) and gammas[k] = (γ(ω), 0). */
-inline float bis_pixel(const sir_surface_t *s, __global const float4 *env, int res, int M, int N,
-                       uint seed, uint frame, uint pixel, float3 *sum,
+inline float bis_pixel(const sir_surface_t *s, const sir_proposal_t *q, __global const float4 *env,
+                       int res, int M, int N, uint seed, uint frame, uint pixel, float3 *sum,
                        __global float4 *particles, __global float2 *gammas)
 {
     /* Compensated sums (double where the device has it): a zero-variance case (white furnace)
@@ -108,7 +165,7 @@ inline float bis_pixel(const sir_surface_t *s, __global const float4 *env, int r
     for (int i = 0; i < M; ++i) {
         float3 w, radiance;
         float gamma;
-        kahan_add(&acc, (acc_t)sir_candidate(s, env, res, seed, frame, pixel, i, &w, &gamma, &radiance));
+        kahan_add(&acc, (acc_t)sir_candidate(s, q, env, res, seed, frame, pixel, i, &w, &gamma, &radiance));
     }
     acc_t total = acc.sum;
     *sum = (float3)(0.0f);
@@ -128,7 +185,7 @@ inline float bis_pixel(const sir_surface_t *s, __global const float4 *env, int r
     for (int i = 0; i < M && k < N; ++i) {
         float3 w, radiance;
         float gamma;
-        float weight = sir_candidate(s, env, res, seed, frame, pixel, i, &w, &gamma, &radiance);
+        float weight = sir_candidate(s, q, env, res, seed, frame, pixel, i, &w, &gamma, &radiance);
         kahan_add(&cumulative, (acc_t)weight);
         if (weight > 0.0f) {
             last_w = w;

@@ -16,21 +16,6 @@ inline float tempered(float g0, float g1, float alpha)
     return exp((1.0f - alpha) * log(g0) + alpha * log(g1));
 }
 
-/* Density of the independent proposal: p_env with probability p_env_pick (face ∝ I_f, then
- * sample_face; density μ_{f(ω)}·pdf_L(ω|f(ω)) because pdf_L(ω|f) = 0 off face f), else p_B. */
-inline float independent_pdf(const sir_surface_t *s, __global const float *marginal,
-                             __global const float *conditional, const float mu[6], int res,
-                             float p_env_pick, float3 w)
-{
-    float q = (1.0f - p_env_pick) * phong_pdf(s->n, s->r, s->p_spec, s->m, w);
-    if (p_env_pick > 0.0f) {
-        int texel;
-        float pl = light_pdf(marginal, conditional, res, w, &texel);
-        q += p_env_pick * mu[texel / (res * res)] * pl;
-    }
-    return q;
-}
-
 /* Systematic resampling of the pixel's particles in place (through the scratch copies). */
 inline void resample_particles(__global float4 *particles, __global float2 *gammas,
                                __global float4 *scratch_p, __global float2 *scratch_g, int N, float u)
@@ -62,7 +47,8 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
                          __global const float4 *env, __global const float4 *prev_env,
                          __global const float *marginal, __global const float *conditional,
                          __global const float *face_integral, const int res, const int N,
-                         const int M_init, const int steps, const float nu, const float cos_delta,
+                         const int M_init, const float init_env_pick, const int steps,
+                         const float nu, const float cos_delta,
                          const float threshold, const int have_state, const uint seed,
                          const uint frame, __global float4 *all_particles,
                          __global float2 *all_gammas, __global float4 *all_scratch_p,
@@ -76,10 +62,9 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
     __global float4 *scratch_p = all_scratch_p + (size_t)p * N;
     __global float2 *scratch_g = all_scratch_g + (size_t)p * N;
 
-    float mu[6], total_i = 0.0f;
-    for (int f = 0; f < 6; ++f) total_i += max(face_integral[f], 0.0f);
-    for (int f = 0; f < 6; ++f) mu[f] = total_i > 0.0f ? max(face_integral[f], 0.0f) / total_i : 0.0f;
-    float p_env_pick = total_i > 0.0f ? 0.5f : 0.0f;
+    /* MH's independent proposal q_I = ½ p_env + ½ p_B; the (re-)init's BIS candidates. */
+    sir_proposal_t q_move = make_proposal(marginal, conditional, face_integral, 0.5f);
+    sir_proposal_t q_init = make_proposal(marginal, conditional, face_integral, init_env_pick);
 
     float z_prev = have_state ? state[p].x : 0.0f;
     int reinit = !(have_state && z_prev > 0.0f && isfinite(z_prev));
@@ -134,21 +119,11 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
                 float4 b = rng_uniform4(seed, frame, STREAM_SMC_MOVE, (uint)p, (uint)i, 2u * (uint)step + 1u);
                 float3 w = q.xyz, w_new;
                 int is_local = a.x < nu;
-                if (is_local) {
+                float q_new = 0.0f;
+                if (is_local)
                     w_new = direction_about(w, 1.0f - b.x * (1.0f - cos_delta), b.y);
-                } else if (a.y < p_env_pick) {
-                    float pick = a.z * total_i, acc = 0.0f;
-                    int face = 5;
-                    for (int f = 0; f < 6; ++f) {
-                        acc += max(face_integral[f], 0.0f);
-                        if (pick < acc && face_integral[f] > 0.0f) { face = f; break; }
-                    }
-                    while (face > 0 && !(face_integral[face] > 0.0f)) --face;
-                    int texel;
-                    sample_face(marginal, conditional, face, res, b.xy, &w_new, &texel);
-                } else {
-                    sample_phong(s.n, s.r, s.p_spec, s.m, b.xyz, &w_new);
-                }
+                else
+                    q_new = proposal_sample(&s, &q_move, res, (float4)(a.z, b.x, b.y, a.y), &w_new);
                 float3 L;
                 float g1_new = sir_target(&s, env, res, w_new, &L);
                 float g0_new = 0.0f;
@@ -163,8 +138,7 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
                 if (is_local) {
                     ratio = pi_new / pi_old;
                 } else {
-                    float q_old = independent_pdf(&s, marginal, conditional, mu, res, p_env_pick, w);
-                    float q_new = independent_pdf(&s, marginal, conditional, mu, res, p_env_pick, w_new);
+                    float q_old = proposal_pdf(&s, &q_move, res, w);
                     ratio = (pi_new * q_old) / (pi_old * q_new);
                 }
                 if (pi_new > 0.0f && (!(pi_old > 0.0f) || a.w < ratio)) {   /* NaN: reject */
@@ -180,7 +154,7 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
     }
     if (reinit) {
         float3 sum;
-        z = bis_pixel(&s, env, res, M_init, N, seed, frame, (uint)p, &sum, particles, gammas);
+        z = bis_pixel(&s, &q_init, env, res, M_init, N, seed, frame, (uint)p, &sum, particles, gammas);
         evaluations += (float)(M_init + N);
         for (int i = 0; i < N; ++i) gammas[i] = (float2)(gammas[i].x, gammas[i].x);
     }

@@ -6,9 +6,10 @@ Per pixel, N weighted particles {ω_i, W_i} (W normalised) approximate the targe
 
 1. **Init / re-init by BIS** (§6.1, ``sir.cl``): on the first frame after :meth:`reset` (or a
    new G-buffer, N or face size) and wherever re-initialisation is triggered, N particles are
-   resampled by BIS from M = ``init_candidates``·N BRDF candidates, W_i = 1/N, Z = Ẑ.  A
-   frame that is only an init gives exactly the ``bis`` estimate at that (M, N) (same random
-   streams).
+   resampled by BIS from M = ``init_candidates``·N candidates, W_i = 1/N, Z = Ẑ.  Deviation:
+   the candidates come from ½ map + ½ BRDF sampling (``init_env_pick``), not the BRDF alone;
+   with ``init_env_pick = 0`` an init frame gives exactly the ``bis`` estimate at that (M, N)
+   (same random streams).
 2. **Reweight** (Eq. 5) through S = ``intermediates`` + 1 tempered steps
    π_k = γ_{t−1}^{1−α_k} γ_t^{α_k}, α_k = k/S (Ghosh's intermediate distributions; S = 1 is
    plain Eq. 5): step k multiplies W_i by π_k/π_{k−1} = (γ_t/γ_{t−1})(ω_i)^{1/S} at the particle's
@@ -79,7 +80,11 @@ class SMCParams:
     ``local_degrees``: half-angle of the local move's cone; ``intermediates``: tempered
     distributions between frames (one MH move each, plus one at γ_t); ``reinit_threshold``:
     re-initialise by BIS when Z_t/Z_{t−1} leaves [1/threshold, threshold];
-    ``init_candidates``: BIS candidates per particle at (re-)init."""
+    ``init_candidates``: BIS candidates per particle at (re-)init; ``init_env_pick``: the
+    probability that a (re-)init candidate is drawn from the map instead of the BRDF (0:
+    Burke's BRDF-only candidates, as Kronander; default 0.5, the mixture of the MH independent
+    moves: on a static map Z_t stays at its init value, so an init that misses a small bright
+    light keeps that error for every following frame)."""
 
     N: int = 0
     nu: float = 0.5
@@ -87,6 +92,7 @@ class SMCParams:
     intermediates: int = 3
     reinit_threshold: float = 4.0
     init_candidates: int = 20
+    init_env_pick: float = 0.5
 
 
 class SMC(Estimator):
@@ -101,7 +107,8 @@ class SMC(Estimator):
         super().__init__(params, **overrides)
         p = self.params
         if p.N < 0 or not 0.0 <= p.nu <= 1.0 or not 0.0 < p.local_degrees <= 180.0 \
-                or p.intermediates < 0 or not p.reinit_threshold > 1.0 or p.init_candidates < 1:
+                or p.intermediates < 0 or not p.reinit_threshold > 1.0 or p.init_candidates < 1 \
+                or not 0.0 <= p.init_env_pick <= 1.0:
             raise ValueError(f"invalid smc parameters {p}")
         self.reset()
 
@@ -152,7 +159,7 @@ class SMC(Estimator):
             kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
             cache.env_buffer, self._prev_env, cache.marginal, cache.conditional,
             cache.face_integral_buffer, np.int32(cache.res), np.int32(N), np.int32(M),
-            np.int32(p.intermediates + 1), np.float32(p.nu),
+            np.float32(p.init_env_pick), np.int32(p.intermediates + 1), np.float32(p.nu),
             np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
             np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), *self._buffers,
             radiance, counts, stats)

@@ -99,7 +99,7 @@ def test_bis_is_unbiased_by_the_conformance_z_test(compute):
 def test_smc_init_frame_is_bis(compute):
     gbuffer = DeviceGBuffer(compute, glossy_gbuffer())
     cache = FrameCache(compute, smooth_map(), frame=0)
-    smc = SMC()
+    smc = SMC(init_env_pick=0.0)               # Burke's BRDF-only candidates, as bis
     first = smc.render(gbuffer, cache, 8, 2)
     bis = BIS().render(gbuffer, cache, 8, 2)   # M = 20·8 = init_candidates·N
     np.testing.assert_array_equal(first.radiance, bis.radiance)
