@@ -9,7 +9,7 @@ __kernel void render_bis(__global const float4 *normal, __global const float4 *v
                          __global float4 *radiance, __global float2 *counts)
 {
     int p = get_global_id(0);
-    sir_surface_t s = make_sir_surface(normal[p], view[p], kd[p], ks_m[p]);
+    surface_t s = make_surface(normal[p], view[p], kd[p], ks_m[p]);
     sir_proposal_t q = make_proposal(0, 0, 0, 0.0f);   /* Burke: BRDF candidates */
     float3 sum;
     float z = bis_pixel(&s, &q, env, res, M, N, seed, frame, (uint)p, &sum, 0, 0);
@@ -26,7 +26,7 @@ __kernel void bis_candidates(__global const float4 *normal, __global const float
                              const uint frame, __global float4 *out, __global float *u)
 {
     int i = get_global_id(0);
-    sir_surface_t s = make_sir_surface(normal[0], view[0], kd[0], ks_m[0]);
+    surface_t s = make_surface(normal[0], view[0], kd[0], ks_m[0]);
     sir_proposal_t q = make_proposal(0, 0, 0, 0.0f);
     float3 w, radiance;
     float gamma;

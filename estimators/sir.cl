@@ -27,25 +27,6 @@
 #define STREAM_SIR_CANDIDATE 20u
 #define STREAM_SIR_RESAMPLE 21u
 
-typedef struct {
-    float3 n, r, kd, ks;
-    float m, p_spec, rho_y_kd, rho_y_ks;
-} sir_surface_t;
-
-inline sir_surface_t make_sir_surface(float4 normal, float4 view, float4 kd, float4 ks_m)
-{
-    sir_surface_t s;
-    s.n = normal.xyz;
-    s.r = reflect_view(s.n, view.xyz);
-    s.kd = kd.xyz;
-    s.ks = ks_m.xyz;
-    s.m = ks_m.w;
-    s.p_spec = specular_lobe_probability(s.kd, s.ks);
-    s.rho_y_kd = luminance(s.kd);
-    s.rho_y_ks = luminance(s.ks);
-    return s;
-}
-
 /* Nearest-texel radiance of the map in direction w (DESIGN §3: piecewise constant). */
 inline float3 env_radiance(__global const float4 *env, int res, float3 w)
 {
@@ -55,7 +36,7 @@ inline float3 env_radiance(__global const float4 *env, int res, float3 w)
 }
 
 /* ρ_Y(ω) = Y(ρ(ω)): ρ is kd/π + ks·lobe, and Y is linear. */
-inline float phong_luminance(const sir_surface_t *s, float3 w)
+inline float phong_luminance(const surface_t *s, float3 w)
 {
     float c = max(dot(s->r, w), 0.0f);
     float lobe = (c > 0.0f) ? (s->m + 2.0f) / (2.0f * IBL_PI) * exp2(s->m * log2(c)) : 0.0f;
@@ -63,7 +44,7 @@ inline float phong_luminance(const sir_surface_t *s, float3 w)
 }
 
 /* γ(ω) of the map `env`; *radiance gets L(ω) (for f/γ). */
-inline float sir_target(const sir_surface_t *s, __global const float4 *env, int res, float3 w,
+inline float sir_target(const surface_t *s, __global const float4 *env, int res, float3 w,
                         float3 *radiance)
 {
     float cosine = dot(s->n, w);
@@ -73,7 +54,7 @@ inline float sir_target(const sir_surface_t *s, __global const float4 *env, int 
 }
 
 /* f(ω)/γ(ω) = L ρ / (L_Y ρ_Y), for γ(ω) > 0. */
-inline float3 sir_ratio(const sir_surface_t *s, float3 w, float3 radiance)
+inline float3 sir_ratio(const surface_t *s, float3 w, float3 radiance)
 {
     float3 rho = phong_brdf(s->r, w, s->kd, s->ks, s->m);
     return (radiance * rho) / (luminance(radiance) * phong_luminance(s, w));
@@ -101,7 +82,7 @@ inline sir_proposal_t make_proposal(__global const float *marginal, __global con
     return q;
 }
 
-inline float proposal_pdf(const sir_surface_t *s, const sir_proposal_t *q, int res, float3 w)
+inline float proposal_pdf(const surface_t *s, const sir_proposal_t *q, int res, float3 w)
 {
     float density = (1.0f - q->env_pick) * phong_pdf(s->n, s->r, s->p_spec, s->m, w);
     if (q->env_pick > 0.0f) {
@@ -114,7 +95,7 @@ inline float proposal_pdf(const sir_surface_t *s, const sir_proposal_t *q, int r
 
 /* A direction from q with four uniforms; returns q(ω).  With env_pick = 0 this is exactly
  * sample_phong on xi.xyz (Burke's candidates). */
-inline float proposal_sample(const sir_surface_t *s, const sir_proposal_t *q, int res, float4 xi,
+inline float proposal_sample(const surface_t *s, const sir_proposal_t *q, int res, float4 xi,
                              float3 *w)
 {
     if (!(q->env_pick > 0.0f)) return sample_phong(s->n, s->r, s->p_spec, s->m, xi.xyz, w);
@@ -135,7 +116,7 @@ inline float proposal_sample(const sir_surface_t *s, const sir_proposal_t *q, in
 }
 
 /* Candidate i: direction, and weight γ/q (0 where q or γ vanish or the ratio overflows). */
-inline float sir_candidate(const sir_surface_t *s, const sir_proposal_t *q,
+inline float sir_candidate(const surface_t *s, const sir_proposal_t *q,
                            __global const float4 *env, int res, uint seed, uint frame, uint pixel,
                            int i, float3 *w, float *gamma, float3 *radiance)
 {
@@ -155,7 +136,7 @@ inline acc_t systematic_position(int k, int n, float u, acc_t total)
 /* BIS of one pixel (see the header).  Returns Ẑ; *sum gets Σ_k f/γ over the N resampled
  * samples (0 when every weight is 0).  When `particles` is not null, resampled sample k is
  * written to particles[k] = (ω, 1/N) and gammas[k] = (γ(ω), 0). */
-inline float bis_pixel(const sir_surface_t *s, const sir_proposal_t *q, __global const float4 *env,
+inline float bis_pixel(const surface_t *s, const sir_proposal_t *q, __global const float4 *env,
                        int res, int M, int N, uint seed, uint frame, uint pixel, float3 *sum,
                        __global float4 *particles, __global float2 *gammas)
 {

@@ -56,7 +56,7 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
                          __global float4 *radiance, __global float2 *counts, __global float4 *stats)
 {
     int p = get_global_id(0);
-    sir_surface_t s = make_sir_surface(normal[p], view[p], kd[p], ks_m[p]);
+    surface_t s = make_surface(normal[p], view[p], kd[p], ks_m[p]);
     __global float4 *particles = all_particles + (size_t)p * N;
     __global float2 *gammas = all_gammas + (size_t)p * N;
     __global float4 *scratch_p = all_scratch_p + (size_t)p * N;

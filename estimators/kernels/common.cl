@@ -165,6 +165,26 @@ inline float specular_lobe_probability(float3 kd, float3 ks)
     return ys > 0.0f ? ys / (yd + ys) : 0.0f;
 }
 
+/* One pixel's shading inputs, unpacked from the G-buffer's float4 buffers (ks_m.w = shininess). */
+typedef struct {
+    float3 n, r, kd, ks;
+    float m, p_spec, rho_y_kd, rho_y_ks;   /* lobe choice probability, luminances of kd, ks */
+} surface_t;
+
+inline surface_t make_surface(float4 normal, float4 view, float4 kd, float4 ks_m)
+{
+    surface_t s;
+    s.n = normal.xyz;
+    s.r = reflect_view(s.n, view.xyz);
+    s.kd = kd.xyz;
+    s.ks = ks_m.xyz;
+    s.m = ks_m.w;
+    s.p_spec = specular_lobe_probability(s.kd, s.ks);
+    s.rho_y_kd = luminance(s.kd);
+    s.rho_y_ks = luminance(s.ks);
+    return s;
+}
+
 /* Unit direction at polar cosine cos_theta and azimuth 2π·u about the unit axis z
  * (branchless orthonormal basis of Duff et al. 2017). */
 inline float3 direction_about(float3 z, float cos_theta, float u)

@@ -103,23 +103,6 @@ inline void strategy_ticks(float3 n, __global const float *face_integral, int sp
 /* ---- shading (Algorithm 2) ------------------------------------------------------------------ */
 
 typedef struct {
-    float3 n, r, kd, ks;
-    float m, p_spec;
-} surface_t;
-
-inline surface_t make_surface(float4 normal, float4 view, float4 kd, float4 ks_m)
-{
-    surface_t s;
-    s.n = normal.xyz;
-    s.r = reflect_view(s.n, view.xyz);
-    s.kd = kd.xyz;
-    s.ks = ks_m.xyz;
-    s.m = ks_m.w;
-    s.p_spec = specular_lobe_probability(s.kd, s.ks);
-    return s;
-}
-
-typedef struct {
     float3 sum;
     int used, effective, evaluations;   /* ticks, ticks, samples */
 } accumulator_t;
