@@ -32,14 +32,10 @@ earlier run (resumption), its map is recomputed from that frame's saved estimate
 EXRs (``images/<scene>/f<frame>/``), and flicker is NaN if they are gone.
 
 Equal time.  For each budget T in ``time_budget_ms`` and each (scene, estimator), the runner
-times renders on the scene's first frame to run (after a warm-up, ``CALIBRATION_REPEATS`` per
-spp, seeds no cell uses), at ``CALIBRATION_SPP`` and then at larger spp until the calibrated
-range brackets the choice.  It fits the median device time of the ``sample`` and ``shade``
-stages (OpenCL profiling events: the per-frame cost of the estimator, without the per-frame
-builds such as CDFs, host read-back or compilation) as ``a + b·spp`` by least squares on
-relative error, and runs the largest spp whose predicted time is ≤ T.  Those rows carry
-``time_budget_ms = T`` and the chosen ``spp``; the calibration runs and fits are in the
-manifest under ``time_budget``.  A resumed run reuses the spp its earlier rows chose.
+calibrates the estimator's device time against spp (:mod:`iblbench.harness.equal_time`) and runs
+the largest spp predicted to fit in T.  Those rows carry ``time_budget_ms = T`` and the chosen
+``spp``; the calibration runs and fits are in the manifest under ``time_budget``.  A resumed run
+reuses the spp its earlier rows chose.
 """
 from __future__ import annotations
 
@@ -67,6 +63,7 @@ from iblbench.harness.reference import Reference
 from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, image_stem,
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
+from iblbench.harness.equal_time import CALIBRATION_REPEATS, Calibration
 from iblbench.harness.sweep import frames_text, parse_estimator, select_frames
 from iblbench.reports.previews import write_heat_map, write_preview
 from iblbench.scenes.atomic import atomic_path
@@ -80,10 +77,6 @@ DEFAULT_ESTIMATORS = ("uniform",)
 DEFAULT_SPP = (16, 64, 256)
 DEFAULT_SEEDS = 2
 WARMUP_SEED = 0xFFFFFFFF   # a seed no benchmark cell uses
-CALIBRATION_SEED = 0xFFFFFF00   # + repeat index: seeds no benchmark cell uses
-CALIBRATION_SPP = (1, 4, 16, 64)
-CALIBRATION_REPEATS = 3
-BUDGET_MAX_SPP = 32767     # the most spp an equal-time cell may choose (the pool estimators' limit)
 LOCK = ".iblbench.lock"
 
 
@@ -190,68 +183,6 @@ class _ScenePlan:
     height: int
     env_res: int
     frames: list[int]
-
-
-def fit_linear(runs: dict[int, list[float]]) -> tuple[float, float]:
-    """Least squares of median time ≈ a + b·spp on relative error; a ≥ 0, b > 0."""
-    spp = np.array(sorted(runs), float)
-    t = np.array([np.median(runs[int(s)]) for s in spp], float)
-    t = np.maximum(t, 1e-6)
-    (a, b), *_ = np.linalg.lstsq(np.stack([1 / t, spp / t], axis=1), np.ones_like(t), rcond=None)
-    if a < 0:   # noise at low spp: a line through the origin instead
-        a, b = 0.0, float(np.sum(spp / t) / np.sum((spp / t) ** 2))
-    return float(a), float(max(b, 1e-12))
-
-
-def choose_spp(a: float, b: float, budget_ms: float) -> int:
-    """The largest spp in [1, BUDGET_MAX_SPP] whose predicted time a + b·spp is ≤ the budget
-    (1 when even one sample is predicted over it)."""
-    return int(max(1, min(BUDGET_MAX_SPP, math.floor((budget_ms - a) / b + 1e-9))))
-
-
-class _Calibration:
-    """Timed renders of one (scene, estimator) on one frame, shared by every budget."""
-
-    MEASURE = "device time of the sample and shade stages (OpenCL profiling events), ms"
-
-    def __init__(self, estimator, gbuffer, cache):
-        self.estimator, self.gbuffer, self.cache = estimator, gbuffer, cache
-        self.runs: dict[int, list[float]] = {}
-        self.host: dict[int, list[float]] = {}
-
-    def measure(self, spp: int) -> None:
-        device, host = [], []
-        for repeat in range(CALIBRATION_REPEATS):
-            start = time.perf_counter()
-            estimate = self.estimator.render(self.gbuffer, self.cache, spp, CALIBRATION_SEED + repeat)
-            host.append((time.perf_counter() - start) * 1e3)
-            device.append(device_ms(estimate))
-        self.runs[spp], self.host[spp] = device, host
-
-    def choose(self, budget_ms: float) -> dict:
-        for spp in CALIBRATION_SPP:
-            if spp not in self.runs:
-                self.measure(spp)
-        a, b = fit_linear(self.runs)
-        chosen = choose_spp(a, b, budget_ms)
-        for _ in range(10):   # extend the calibrated range until it brackets the choice
-            top = max(self.runs)
-            if chosen <= 2 * top or top >= BUDGET_MAX_SPP:
-                break
-            self.measure(min(chosen, 4 * top, BUDGET_MAX_SPP))
-            a, b = fit_linear(self.runs)
-            chosen = choose_spp(a, b, budget_ms)
-        return {"budget_ms": budget_ms, "a_ms": a, "b_ms_per_spp": b, "chosen_spp": chosen,
-                "predicted_ms": a + b * chosen, "over_budget": a + b * chosen > budget_ms,
-                "runs": [{"spp": s, "device_ms": self.runs[s], "host_frame_ms": self.host[s],
-                          "median_device_ms": float(np.median(self.runs[s]))}
-                         for s in sorted(self.runs)]}
-
-
-def device_ms(estimate) -> float:
-    """The estimator's device time of one frame: its sample and shade stages."""
-    stages = [estimate.timings_ms.get(s, float("nan")) for s in ("sample", "shade")]
-    return float(sum(v for v in stages if math.isfinite(v)))
 
 
 class Runner:
@@ -377,7 +308,7 @@ class Runner:
             "cells_to_run": len(self.todo),
             "stages": [],
             "skipped": [],
-            "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": _Calibration.MEASURE,
+            "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": Calibration.MEASURE,
                              "model": "time = a_ms + b_ms_per_spp * spp, least squares on "
                                       "relative error over the median of "
                                       f"{CALIBRATION_REPEATS} renders per spp",
@@ -611,7 +542,7 @@ class Runner:
         scene_name = cells[0][0]
         budgets = sorted({key[5] for key in cells if key[5] is not None
                           and (scene_name, spec.label, key[5]) not in self.chosen})
-        calibration = _Calibration(estimator, gbuffer, cache) if budgets else None
+        calibration = Calibration(estimator, gbuffer, cache) if budgets else None
         for budget in budgets:
             fit = calibration.choose(budget)
             self.chosen[(scene_name, spec.label, budget)] = fit["chosen_spp"]
