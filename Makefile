@@ -26,6 +26,7 @@ $(STAMP): pyproject.toml
 
 bench: $(STAMP)
 	$(VENV)/bin/iblbench run --config default --out $(BENCH_OUT)
+	$(VENV)/bin/iblbench report $(BENCH_OUT)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
