@@ -20,6 +20,7 @@ import time
 import numpy as np
 import pyopencl as cl
 
+from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
 ENV_DEVICE = "IBLBENCH_DEVICE"
@@ -115,9 +116,8 @@ def measured_gflops(info: DeviceInfo) -> float:
         table = {}
     if info.key not in table:
         table[info.key] = _measure_gflops(info)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(table, indent=1))
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:
+            tmp.write_text(json.dumps(table, indent=1))
     return float(table[info.key])
 
 

@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import os
 import pathlib
 
 import numpy as np
 
 from iblbench.harness.device import Compute, cache_dir, event_ms, kernel_path
 from iblbench.scenes import cubemap
+from iblbench.scenes.atomic import atomic_path
 
 # Sub-cells per lobe width for the specular quadrature (see reference.cl); part of the cache key.
 DEFAULT_DENSITY = 16
@@ -86,10 +86,8 @@ class Reference:
             return gbuffer.scatter(np.load(path))
         values = self._compute(gbuffer, cache)
         if self.use_cache:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npy")
-            np.save(tmp, values)
-            os.replace(tmp, path)
+            with atomic_path(path) as tmp:
+                np.save(tmp, values)
         return gbuffer.scatter(values)
 
     def _compute(self, gbuffer, cache) -> np.ndarray:
