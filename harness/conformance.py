@@ -54,16 +54,24 @@ def constant_map(value: float = 0.7, res: int = 8) -> np.ndarray:
     return np.full((6, res, res, 3), value, np.float32)
 
 
+SUN_FACE = 4   # +Z
+
+
+def sun_map(res: int, ratio: float) -> np.ndarray:
+    """A smooth sky (``smooth_map`` × 0.01) with a one-texel sun of ``ratio`` × the sky's
+    brightest texel in the middle of the +Z face."""
+    env = smooth_map(res) * np.float32(0.01)
+    env[SUN_FACE, res // 2, res // 2] = ratio * env.max()
+    return env
+
+
 def stress_maps(res: int = 16) -> dict[str, np.ndarray]:
-    """The robustness cases of the guide (small resolution; 1024² faces live in ``stress``)."""
-    sun = smooth_map(res) * 0.01
-    face, row, col = cubemap.direction_to_texel(np.array([0.3, 0.8, 0.2]), res)
-    sun[face, row, col] = 1e6 * sun.max()
+    """The robustness cases of the guide (small resolution; the full battery is ``stress``)."""
     hot = np.zeros((6, res, res, 3), np.float32)
     hot[4, res // 2, res // 3] = 1e4
     black_faces = smooth_map(res)
     black_faces[[1, 3, 5]] = 0.0
-    return {"sun-1e6": sun, "single-hot-texel": hot,
+    return {"sun-1e6": sun_map(res, 1e6), "single-hot-texel": hot,
             "all-black": np.zeros((6, res, res, 3), np.float32), "black-faces": black_faces}
 
 
@@ -171,9 +179,82 @@ def check_white_furnace(estimator, h: Harness) -> None:
         f"white furnace: mean {means.mean():.6f} vs {value} (3 SE = {3 * se:.2e})"
 
 
-def _sidak_z(tests: int, alpha: float = ALPHA_Z) -> float:
-    per_test = 1.0 - (1.0 - alpha) ** (1.0 / tests)
-    return float(stats.norm.isf(per_test / 2))
+# ---- statistics shared with ``stress`` -------------------------------------------------------------
+
+# The z-tests' standard-error floor, relative to the reference: the reference's own accuracy
+# budget.  A zero-variance exact estimate then scores z = 0, and one off by a constant fails.
+REFERENCE_RTOL = 1e-4
+
+
+def sidak_z(tests: int, alpha: float = ALPHA_Z) -> float:
+    """|z| above which any of ``tests`` two-sided z-tests rejects, at family-wise ``alpha``."""
+    return float(stats.norm.isf(sidak_alpha(alpha, tests) / 2))
+
+
+def sidak_alpha(alpha: float, tests: int) -> float:
+    """The per-test level that gives family-wise level ``alpha`` over ``tests`` independent tests."""
+    return float(-np.expm1(np.log1p(-alpha) / max(tests, 1)))
+
+
+def sidak_p(p_min: float, tests: int) -> float:
+    """Family-wise p-value of the smallest of ``tests`` p-values: 1 − (1 − p_min)^tests."""
+    return float(-np.expm1(tests * np.log1p(-min(p_min, 1.0)))) if p_min < 1 else 1.0
+
+
+def two_sided_p(z) -> np.ndarray:
+    return 2.0 * stats.norm.sf(np.abs(z))
+
+
+@dataclasses.dataclass
+class BiasTest:
+    """z-scores of the mean over seeds against the reference.
+
+    ``pixel_z`` ``[k, 3]`` per tested pixel and channel; ``pooled_z`` ``[3]`` per channel of the
+    tested pixels' summed error relative to their summed reference (it sees a bias of ~1% that
+    hides in per-pixel noise).  The standard error is the sample one over seeds plus the floor
+    ``REFERENCE_RTOL``·|reference| (and a tiny absolute floor, so an exact 0 scores 0)."""
+
+    pixel_z: np.ndarray
+    pooled_z: np.ndarray
+    mean: np.ndarray          # [k, 3] mean over seeds
+    reference: np.ndarray     # [k, 3]
+
+    @property
+    def tests(self) -> int:
+        return self.pixel_z.size + self.pooled_z.size
+
+    @property
+    def max_abs_z(self) -> float:
+        return float(max(np.abs(self.pixel_z).max(initial=0.0), np.abs(self.pooled_z).max(initial=0.0)))
+
+    @property
+    def p_min(self) -> float:
+        return float(two_sided_p(self.max_abs_z))
+
+
+def _z(difference: np.ndarray, spread: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """difference / (spread + floor); 0 where the difference is exactly 0, ∞ where it is not a
+    number (a non-finite estimate must fail, not slip through a comparison with NaN)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(difference == 0, 0.0, difference / (spread + floor))
+    return np.where(np.isnan(z), np.inf, z)
+
+
+def bias_test(samples: np.ndarray, reference: np.ndarray) -> BiasTest:
+    """The z-tests of :class:`BiasTest` for ``samples`` ``[seeds, k, 3]`` of k pixels against
+    their ``reference`` ``[k, 3]``."""
+    samples = np.asarray(samples, np.float64)
+    reference = np.asarray(reference, np.float64)
+    seeds = len(samples)
+    tiny = np.finfo(np.float64).tiny
+    floor = REFERENCE_RTOL * np.abs(reference) + tiny
+    mean = samples.mean(0)
+    pixel_z = _z(mean - reference, samples.std(0, ddof=1) / np.sqrt(seeds), floor)
+    total = reference.sum(0)
+    pooled = (samples - reference).sum(1) / np.where(total > 0, total, 1.0)      # [seeds, 3]
+    pooled_z = _z(pooled.mean(0), pooled.std(0, ddof=1) / np.sqrt(seeds),
+                  REFERENCE_RTOL + tiny)
+    return BiasTest(pixel_z, pooled_z, mean, reference)
 
 
 def check_unbiased(estimator, h: Harness) -> None:
@@ -187,20 +268,21 @@ def check_unbiased(estimator, h: Harness) -> None:
     failures = []
     for case, (gb, env) in cases.items():
         gbuffer, cache = h.inputs(gb, env)
-        reference = h.reference(gbuffer, cache)
-        samples = np.stack([h.render(estimator, gbuffer, cache, spp, s).radiance
-                            for s in range(seeds)]).astype(np.float64)
-        pooled = (samples - reference).sum(axis=(1, 2)) / reference.sum(axis=(0, 1))  # [seeds, 3]
-        pooled_z = pooled.mean(0) / (pooled.std(0, ddof=1) / np.sqrt(seeds))
-        se = samples.std(0, ddof=1) / np.sqrt(seeds) + 1e-6 * np.abs(reference)
-        z = (samples.mean(0) - reference) / se
-        if np.abs(pooled_z).max() >= _sidak_z(3):
-            failures.append(f"{case}: image mean off by {np.round(100 * pooled.mean(0), 3)}% "
-                            f"(z = {np.round(pooled_z, 2)})")
-        if np.abs(z).max() >= _sidak_z(z.size):
-            worst = np.unravel_index(np.argmax(np.abs(z)), z.shape)
-            failures.append(f"{case}: |z| = {np.abs(z).max():.2f} at pixel {worst[:2]} (mean "
-                            f"{samples.mean(0)[worst]:.5g}, reference {reference[worst]:.5g})")
+        reference = h.reference(gbuffer, cache).reshape(-1, 3)
+        samples = np.stack([h.render(estimator, gbuffer, cache, spp, s).radiance.reshape(-1, 3)
+                            for s in range(seeds)])
+        test = bias_test(samples, reference)
+        if np.abs(test.pooled_z).max() >= sidak_z(3):
+            bias = (test.mean - test.reference).sum(0) / test.reference.sum(0)
+            failures.append(f"{case}: image mean off by {np.round(100 * bias, 3)}% "
+                            f"(z = {np.round(test.pooled_z, 2)})")
+        z = test.pixel_z
+        if np.abs(z).max() >= sidak_z(z.size):
+            pixel, channel = np.unravel_index(np.argmax(np.abs(z)), z.shape)
+            worst = np.unravel_index(pixel, gb.shape)
+            failures.append(f"{case}: |z| = {np.abs(z).max():.2f} at pixel {worst} (mean "
+                            f"{test.mean[pixel, channel]:.5g}, reference "
+                            f"{test.reference[pixel, channel]:.5g})")
     assert not failures, "biased: " + "; ".join(failures)
 
 
@@ -252,58 +334,88 @@ def _bin_probabilities(pdf: Callable, n_z: int, n_phi: int, sub: int) -> np.ndar
     return (values.sum(axis=(1, 3)) * cell).reshape(-1)
 
 
-def _chi2_plot(path: pathlib.Path, observed, expected, n_z, n_phi, title) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+@dataclasses.dataclass
+class Chi2Result:
+    """A χ² goodness-of-fit of ``sample_directions`` against the integral of its ``pdf`` hook
+    over equal-area sphere bins (cells expecting < 5 samples pooled into one).
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
-    diff = (observed - expected) / np.sqrt(np.maximum(expected, 1))
-    for ax, data, name in zip(axes, (observed, expected, diff), ("observed", "expected", "(o-e)/√e")):
-        im = ax.imshow(data.reshape(n_z, n_phi), origin="lower", aspect="auto")
-        ax.set_title(name)
-        ax.set_xlabel("φ bin")
-        ax.set_ylabel("z bin")
-        fig.colorbar(im, ax=ax)
-    fig.suptitle(title)
-    fig.savefig(path)
-    plt.close(fig)
+    ``problems`` lists what makes the sampler wrong whatever the χ² says (the pdf returned with
+    the samples disagrees with the hook, the hook does not integrate to 1, samples fall where
+    the hook is 0); ``p_value`` is then 0."""
+
+    p_value: float
+    observed: np.ndarray      # [n_z · n_phi] sample counts
+    expected: np.ndarray      # [n_z · n_phi] n · ∫_bin pdf
+    n_z: int
+    n_phi: int
+    problems: list[str]
+
+    def plot(self, path: pathlib.Path, title: str) -> None:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+        observed, expected = self.observed, self.expected
+        diff = (observed - expected) / np.sqrt(np.maximum(expected, 1))
+        for ax, data, name in zip(axes, (observed, expected, diff), ("observed", "expected", "(o-e)/√e")):
+            im = ax.imshow(data.reshape(self.n_z, self.n_phi), origin="lower", aspect="auto")
+            ax.set_title(name)
+            ax.set_xlabel("φ bin")
+            ax.set_ylabel("z bin")
+            fig.colorbar(im, ax=ax)
+        fig.suptitle(title)
+        fig.savefig(path)
+        plt.close(fig)
+
+
+def chi2_sampling(estimator, cache, normal, view, seed: int, n: int = 200_000,
+                  n_z: int = 24, n_phi: int = 48, sub: int = 6) -> Chi2Result | None:
+    """:class:`Chi2Result` of ``n`` directions the estimator samples for one (normal, view) on
+    ``cache``'s map; None when it samples nothing there (an all-black map)."""
+    dirs, sample_pdf = estimator.sample_directions(cache, normal, view, n, seed)
+    if len(dirs) == 0:
+        return None
+    problems = []
+    hook_pdf = estimator.pdf(cache, normal, view, dirs)
+    # A sample within float rounding of a texel border may be looked up in its neighbour;
+    # a wrong Jacobian or texel probability makes (nearly) every sample disagree.
+    agree = np.isclose(sample_pdf, hook_pdf, rtol=1e-4, atol=0)
+    if agree.mean() <= 0.999:
+        problems.append(f"the pdf returned with the samples differs from the pdf hook for "
+                        f"{100 * (1 - agree.mean()):.2f}% of samples")
+    expected = n * _bin_probabilities(lambda d: estimator.pdf(cache, normal, view, d), n_z, n_phi, sub)
+    if abs(expected.sum() / n - 1) >= 0.01:
+        problems.append(f"pdf integrates to {expected.sum() / n:.4f}, not 1")
+    observed = np.bincount(_sphere_bins(dirs, n_z, n_phi), minlength=n_z * n_phi)
+    low = expected < 5
+    obs = np.append(observed[~low], observed[low].sum())
+    exp = np.append(expected[~low], expected[low].sum())
+    keep = exp > 0
+    if np.any(obs[~keep] > 0):
+        problems.append("samples fall where the pdf is zero")
+    statistic = float(np.sum((obs[keep] - exp[keep]) ** 2 / exp[keep]))
+    p_value = 0.0 if problems else float(stats.chi2.sf(statistic, max(keep.sum() - 1, 1)))
+    return Chi2Result(p_value, observed, expected, n_z, n_phi, problems)
 
 
 def check_chi2_sampling(estimator, h: Harness) -> None:
     """χ² goodness-of-fit of ``sample_directions`` against the integrated ``pdf`` hook."""
-    n, n_z, n_phi, sub = 200_000, 24, 48, 6
     gb = glossy_gbuffer(2)
     _, cache = h.inputs(gb, smooth_map())
     cache.require(type(estimator).requires)
     cases = [(gb.normal[i, j], gb.view[i, j]) for i, j in ((0, 0), (1, 1))]
-    limit = 1.0 - (1.0 - ALPHA_CHI2) ** (1.0 / len(cases))
+    limit = sidak_alpha(ALPHA_CHI2, len(cases))
     for case, (normal, view) in enumerate(cases):
-        dirs, sample_pdf = estimator.sample_directions(cache, normal, view, n, 7 + case)
-        hook_pdf = estimator.pdf(cache, normal, view, dirs)
-        # A sample within float rounding of a texel border may be looked up in its neighbour;
-        # a wrong Jacobian or texel probability makes (nearly) every sample disagree.
-        agree = np.isclose(sample_pdf, hook_pdf, rtol=1e-4, atol=0)
-        assert agree.mean() > 0.999, (f"the pdf returned with the samples differs from the pdf "
-                                      f"hook for {100 * (1 - agree.mean()):.2f}% of samples")
-        expected = n * _bin_probabilities(lambda d: estimator.pdf(cache, normal, view, d),
-                                          n_z, n_phi, sub)
-        assert abs(expected.sum() / n - 1) < 0.01, f"pdf integrates to {expected.sum() / n:.4f}, not 1"
-        observed = np.bincount(_sphere_bins(dirs, n_z, n_phi), minlength=n_z * n_phi)
-        low = expected < 5
-        obs = np.append(observed[~low], observed[low].sum())
-        exp = np.append(expected[~low], expected[low].sum())
-        keep = exp > 0
-        if np.any(obs[~keep] > 0):
-            raise AssertionError("samples fall where the pdf is zero")
-        statistic = float(np.sum((obs[keep] - exp[keep]) ** 2 / exp[keep]))
-        p_value = float(stats.chi2.sf(statistic, keep.sum() - 1))
-        if p_value < limit:
+        result = chi2_sampling(estimator, cache, normal, view, seed=7 + case)
+        assert not result.problems, "; ".join(result.problems)
+        if result.p_value < limit:
             folder = pathlib.Path(os.environ.get("IBLBENCH_CHI2_PLOTS", tempfile.gettempdir()))
             folder.mkdir(parents=True, exist_ok=True)
             plot = folder / f"chi2_{type(estimator).name}_{case}.png"
-            _chi2_plot(plot, observed, expected, n_z, n_phi, f"{type(estimator).name}: p = {p_value:.2e}")
-            raise AssertionError(f"χ² rejects the sampler: p = {p_value:.2e} < {limit:.2e}; plot: {plot}")
+            result.plot(plot, f"{type(estimator).name}: p = {result.p_value:.2e}")
+            raise AssertionError(f"χ² rejects the sampler: p = {result.p_value:.2e} < {limit:.2e}; "
+                                 f"plot: {plot}")
 
 
 def check_temporal_consistency(estimator, h: Harness) -> None:
