@@ -81,6 +81,36 @@ inline float specular_integral(float3 n, float3 r, float m, int face, int row, i
     return sum * step * step;
 }
 
+/* The lobe falls below LOBE_CUTOFF beyond angle θ_cut from r: (cos θ_cut, sin θ_cut). */
+inline float2 lobe_cut(float m)
+{
+    float cos_cut = exp(log(LOBE_CUTOFF) / m);
+    return (float2)(cos_cut, sqrt(1.0f - cos_cut * cos_cut));
+}
+
+/* ∫_texel cos⁺(n·ω) dω (x) and ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω (y, 0 without a lobe or where
+ * the texel's cap is beyond the lobe's cut) of texel t; 0 for a texel wholly below the horizon. */
+inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cut,
+                            __global const float4 *texel_centre, __global const float4 *texel_vector,
+                            int t, int res, acc_t *cosine, acc_t *lobe)
+{
+    float4 centre = texel_centre[t];
+    float cn = dot(n, centre.xyz);
+    *cosine = 0;
+    *lobe = 0;
+    if (cn <= -centre.w) return;                    /* the texel's cap is below the horizon */
+    int face = t / (res * res), row = (t / res) % res, col = t % res;
+    int cut_by_horizon = cn < centre.w;
+    float4 phi = texel_vector[t];
+    *cosine = cut_by_horizon ? clipped_cosine(n, face, row, col, res) : (acc_t)dot(n, phi.xyz);
+    /* Is any point of the cap within θ_cut of r?  cos(θ_cut + α) test. */
+    float sin_a = centre.w, cos_a = sqrt(1.0f - sin_a * sin_a);
+    if (specular && dot(r, centre.xyz) > cut.x * cos_a - cut.y * sin_a)
+        *lobe = specular_integral(n, r, m, face, row, col, res, phi.w, cut_by_horizon);
+}
+
+inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }
+
 __kernel void reference(__global const float4 *normal, __global const float4 *view,
                         __global const float4 *kd, __global const float4 *ks_m,
                         __global const float4 *env, __global const float4 *texel_centre,
@@ -91,36 +121,41 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
     float3 n = normal[p].xyz, r = reflect_view(n, view[p].xyz);
     float3 rho_s = ks_m[p].xyz;
     float m = ks_m[p].w;
-    int specular = rho_s.x > 0.0f || rho_s.y > 0.0f || rho_s.z > 0.0f;
-    /* The lobe falls below LOBE_CUTOFF beyond angle θ_cut from r. */
-    float cos_cut = exp(log(LOBE_CUTOFF) / m), sin_cut = sqrt(1.0f - cos_cut * cos_cut);
+    int specular = has_lobe(rho_s);
+    float2 cut = lobe_cut(m);
     kahan_t diffuse[3] = {{0, 0}, {0, 0}, {0, 0}}, glossy[3] = {{0, 0}, {0, 0}, {0, 0}};
     int texels = 6 * res * res;
     for (int t = 0; t < texels; ++t) {
         float3 radiance = env[t].xyz;
         if (!(radiance.x + radiance.y + radiance.z > 0.0f)) continue;
-        float4 centre = texel_centre[t];
-        float cn = dot(n, centre.xyz);
-        if (cn <= -centre.w) continue;                 /* the texel's cap is below the horizon */
-        int face = t / (res * res), row = (t / res) % res, col = t % res;
-        int cut = cn < centre.w;
-        float4 phi = texel_vector[t];
-        acc_t cosine = cut ? clipped_cosine(n, face, row, col, res) : (acc_t)dot(n, phi.xyz);
+        acc_t cosine, lobe;
+        texel_integrals(n, r, m, specular, cut, texel_centre, texel_vector, t, res, &cosine, &lobe);
         kahan_add(&diffuse[0], cosine * radiance.x);
         kahan_add(&diffuse[1], cosine * radiance.y);
         kahan_add(&diffuse[2], cosine * radiance.z);
-        /* Is any point of the cap within θ_cut of r?  cos(θ_cut + α) test. */
-        float sin_a = centre.w, cos_a = sqrt(1.0f - sin_a * sin_a);
-        if (specular && dot(r, centre.xyz) > cos_cut * cos_a - sin_cut * sin_a) {
-            acc_t lobe = specular_integral(n, r, m, face, row, col, res, phi.w, cut);
-            kahan_add(&glossy[0], lobe * radiance.x);
-            kahan_add(&glossy[1], lobe * radiance.y);
-            kahan_add(&glossy[2], lobe * radiance.z);
-        }
+        kahan_add(&glossy[0], lobe * radiance.x);
+        kahan_add(&glossy[1], lobe * radiance.y);
+        kahan_add(&glossy[2], lobe * radiance.z);
     }
     float3 d = (float3)((float)diffuse[0].sum, (float)diffuse[1].sum, (float)diffuse[2].sum);
     float3 s = (float3)((float)glossy[0].sum, (float)glossy[1].sum, (float)glossy[2].sum);
     float3 result = kd[p].xyz / IBL_PI * d;
     if (specular) result += rho_s * (m + 2.0f) / (2.0f * IBL_PI) * s;
     out[p] = (float4)(result, 0.0f);
+}
+
+/* One work item per texel t of pixel p: out[t] = (∫_t cos⁺, ∫_t lobe·cos⁺) of the reference's
+ * quadrature, from which a pixel's integral splits into per-texel shares (the stress battery). */
+__kernel void texel_integral_table(__global const float4 *normal, __global const float4 *view,
+                                   __global const float4 *ks_m, __global const float4 *texel_centre,
+                                   __global const float4 *texel_vector, const int res, const int p,
+                                   __global float2 *out)
+{
+    int t = get_global_id(0);
+    float3 n = normal[p].xyz, r = reflect_view(n, view[p].xyz);
+    float m = ks_m[p].w;
+    acc_t cosine, lobe;
+    texel_integrals(n, r, m, has_lobe(ks_m[p].xyz), lobe_cut(m), texel_centre, texel_vector, t, res,
+                    &cosine, &lobe);
+    out[t] = (float2)((float)cosine, (float)lobe);
 }

@@ -4,6 +4,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import pathlib
+from typing import Iterator
 
 import numpy as np
 
@@ -89,6 +90,20 @@ class Reference:
             with atomic_path(path) as tmp:
                 np.save(tmp, values)
         return gbuffer.scatter(values)
+
+    def texel_integrals(self, gbuffer, res: int) -> Iterator[np.ndarray]:
+        """Per covered pixel of a DeviceGBuffer, in order, per texel of a map of face size
+        ``res``: (∫_t cos⁺ dω, ∫_t max(0, r·ω)^m cos⁺ dω), float32 ``[6, R, R, 2]``, by the
+        quadrature of :meth:`image` (which is Σ_t L_t (kd/π·first + ks·(m+2)/(2π)·second))."""
+        c = self.compute
+        centre, vector = (c.to_device(table) for table in texel_tables(res))
+        out = c.empty(6 * res * res * 8)
+        kernel = c.kernel("iblbench.harness", "reference.cl", "texel_integral_table",
+                          {"REF_DENSITY": self.density})
+        for pixel in range(gbuffer.count):
+            c.run(kernel, 6 * res * res, gbuffer.normal, gbuffer.view, gbuffer.ks, centre, vector,
+                  np.int32(res), np.int32(pixel), out)
+            yield c.to_host(out, (6, res, res, 2), np.float32)
 
     def _compute(self, gbuffer, cache) -> np.ndarray:
         c = self.compute
