@@ -92,8 +92,10 @@ def grazing_gbuffer(size: int = 8) -> GBuffer:
 
 
 def white_lambertian(size: int = 8) -> GBuffer:
-    return GBuffer.from_pixels(fibonacci_directions(size * size).reshape(size, size, 3),
-                               (0.0, 0.0, 1.0), 1.0, 0.0, 1.0)
+    """Normals over the whole sphere, each seen head-on (a Lambertian ignores the view, but the
+    G-buffer contract wants n·view > 0)."""
+    normal = fibonacci_directions(size * size).reshape(size, size, 3)
+    return GBuffer.from_pixels(normal, normal, 1.0, 0.0, 1.0)
 
 
 # ---- checks ---------------------------------------------------------------------------------------
