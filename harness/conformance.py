@@ -316,40 +316,45 @@ def check_error_falls(estimator, h: Harness) -> None:
     assert ratio >= 2.5, f"error ratio 8→128 spp is {ratio:.2f}, expected the error to fall ≥ 2.5×"
 
 
-def _sphere_bins(dirs: np.ndarray, n_z: int, n_phi: int) -> np.ndarray:
-    z = np.clip(dirs[:, 2] / np.linalg.norm(dirs, axis=1), -1, 1)
-    phi = np.arctan2(dirs[:, 1], dirs[:, 0]) % (2 * np.pi)
-    iz = np.minimum(((z + 1) / 2 * n_z).astype(int), n_z - 1)
-    ip = np.minimum((phi / (2 * np.pi) * n_phi).astype(int), n_phi - 1)
-    return iz * n_phi + ip
+CHI2_MAX_BINS = 16        # χ² bins per cube face side at most
+CHI2_MIN_POINTS = 64      # pdf evaluations per face side at least (resolves a Phong lobe)
+CHI2_STRAY_SHARE = 1e-4   # samples allowed in bins of zero probability (texel-border rounding)
 
 
-def _bin_probabilities(pdf: Callable, n_z: int, n_phi: int, sub: int) -> np.ndarray:
-    """∫_bin pdf dω by the midpoint rule on ``sub``² cells per equal-area (z, φ) bin."""
-    z = -1 + (np.arange(n_z * sub) + 0.5) * 2 / (n_z * sub)
-    phi = (np.arange(n_phi * sub) + 0.5) * 2 * np.pi / (n_phi * sub)
-    zz, pp = np.meshgrid(z, phi, indexing="ij")
-    r = np.sqrt(1 - zz * zz)
-    dirs = np.stack([r * np.cos(pp), r * np.sin(pp), zz], -1).reshape(-1, 3)
-    cell = (2.0 / (n_z * sub)) * (2 * np.pi / (n_phi * sub))
-    values = pdf(dirs.astype(np.float32)).reshape(n_z, sub, n_phi, sub)
-    return (values.sum(axis=(1, 3)) * cell).reshape(-1)
+def _chi2_grid(res: int) -> tuple[int, int]:
+    """(bins per face side B, pdf evaluation points per bin side) for a map of face size ``res``.
+
+    Bins are blocks of whole texels and the points a midpoint grid aligned with the texels (for
+    res ≤ 64), so the integral of a pdf that is smooth inside each texel and jumps between texels
+    (a light pdf) is accurate even where one texel holds all of it."""
+    bins = max(d for d in range(1, min(res, CHI2_MAX_BINS) + 1) if res % d == 0)
+    points = res * max(4, -(-CHI2_MIN_POINTS // res)) if res <= 64 else 4 * CHI2_MIN_POINTS
+    return bins, max(1, round(points / bins))
+
+
+def _bin_probabilities(pdf: Callable, bins: int, points: int) -> np.ndarray:
+    """∫_bin pdf dω ``[6·B·B]`` by the midpoint rule on ``points``² cells per bin, each weighted by
+    its exact solid angle."""
+    fine = bins * points
+    dirs = cubemap.texel_directions(fine).reshape(-1, 3).astype(np.float32)
+    omega = np.broadcast_to(cubemap.texel_solid_angles(fine), (6, fine, fine))
+    values = pdf(dirs).reshape(6, fine, fine) * omega
+    return values.reshape(6, bins, points, bins, points).sum(axis=(2, 4)).reshape(-1)
 
 
 @dataclasses.dataclass
 class Chi2Result:
     """A χ² goodness-of-fit of ``sample_directions`` against the integral of its ``pdf`` hook
-    over equal-area sphere bins (cells expecting < 5 samples pooled into one).
+    over bins of the cube map (``_chi2_grid``; cells expecting < 5 samples pooled into one).
 
     ``problems`` lists what makes the sampler wrong whatever the χ² says (the pdf returned with
-    the samples disagrees with the hook, the hook does not integrate to 1, samples fall where
-    the hook is 0); ``p_value`` is then 0."""
+    the samples disagrees with the hook, the hook does not integrate to 1, more than
+    ``CHI2_STRAY_SHARE`` of the samples fall where the hook is 0); ``p_value`` is then 0."""
 
     p_value: float
-    observed: np.ndarray      # [n_z · n_phi] sample counts
-    expected: np.ndarray      # [n_z · n_phi] n · ∫_bin pdf
-    n_z: int
-    n_phi: int
+    observed: np.ndarray      # [6·B·B] sample counts
+    expected: np.ndarray      # [6·B·B] n · ∫_bin pdf
+    bins: int
     problems: list[str]
 
     def plot(self, path: pathlib.Path, title: str) -> None:
@@ -357,22 +362,21 @@ class Chi2Result:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+        fig, axes = plt.subplots(3, 1, figsize=(12, 7))
         observed, expected = self.observed, self.expected
         diff = (observed - expected) / np.sqrt(np.maximum(expected, 1))
         for ax, data, name in zip(axes, (observed, expected, diff), ("observed", "expected", "(o-e)/√e")):
-            im = ax.imshow(data.reshape(self.n_z, self.n_phi), origin="lower", aspect="auto")
-            ax.set_title(name)
-            ax.set_xlabel("φ bin")
-            ax.set_ylabel("z bin")
+            strip = data.reshape(6, self.bins, self.bins).transpose(1, 0, 2).reshape(self.bins, -1)
+            im = ax.imshow(strip, aspect="equal")
+            ax.set_title(f"{name}: faces {', '.join(cubemap.FACE_NAMES)}")
+            ax.set_axis_off()
             fig.colorbar(im, ax=ax)
         fig.suptitle(title)
         fig.savefig(path)
         plt.close(fig)
 
 
-def chi2_sampling(estimator, cache, normal, view, seed: int, n: int = 200_000,
-                  n_z: int = 24, n_phi: int = 48, sub: int = 6) -> Chi2Result | None:
+def chi2_sampling(estimator, cache, normal, view, seed: int, n: int = 200_000) -> Chi2Result | None:
     """:class:`Chi2Result` of ``n`` directions the estimator samples for one (normal, view) on
     ``cache``'s map; None when it samples nothing there (an all-black map)."""
     dirs, sample_pdf = estimator.sample_directions(cache, normal, view, n, seed)
@@ -386,19 +390,24 @@ def chi2_sampling(estimator, cache, normal, view, seed: int, n: int = 200_000,
     if agree.mean() <= 0.999:
         problems.append(f"the pdf returned with the samples differs from the pdf hook for "
                         f"{100 * (1 - agree.mean()):.2f}% of samples")
-    expected = n * _bin_probabilities(lambda d: estimator.pdf(cache, normal, view, d), n_z, n_phi, sub)
+    bins, points = _chi2_grid(cache.res)
+    expected = n * _bin_probabilities(lambda d: estimator.pdf(cache, normal, view, d), bins, points)
     if abs(expected.sum() / n - 1) >= 0.01:
         problems.append(f"pdf integrates to {expected.sum() / n:.4f}, not 1")
-    observed = np.bincount(_sphere_bins(dirs, n_z, n_phi), minlength=n_z * n_phi)
-    low = expected < 5
-    obs = np.append(observed[~low], observed[low].sum())
-    exp = np.append(expected[~low], expected[low].sum())
-    keep = exp > 0
-    if np.any(obs[~keep] > 0):
-        problems.append("samples fall where the pdf is zero")
-    statistic = float(np.sum((obs[keep] - exp[keep]) ** 2 / exp[keep]))
-    p_value = 0.0 if problems else float(stats.chi2.sf(statistic, max(keep.sum() - 1, 1)))
-    return Chi2Result(p_value, observed, expected, n_z, n_phi, problems)
+    face, row, col = cubemap.direction_to_texel(dirs, bins)
+    observed = np.bincount((face * bins + row) * bins + col, minlength=expected.size)
+    stray = expected == 0
+    if observed[stray].sum() > CHI2_STRAY_SHARE * n:
+        problems.append(f"{observed[stray].sum()} samples fall where the pdf is zero")
+    # Cells expecting < 5 samples are pooled with the next smallest until the pool expects ≥ 5.
+    order = np.flatnonzero(~stray)[np.argsort(expected[~stray], kind="stable")]
+    pooled = max(np.count_nonzero(expected[order] < 5),
+                 int(np.searchsorted(np.cumsum(expected[order]), 5.0)) + 1)
+    obs = np.append(observed[order[pooled:]], observed[order[:pooled]].sum())
+    exp = np.append(expected[order[pooled:]], expected[order[:pooled]].sum())
+    statistic = float(np.sum((obs - exp) ** 2 / exp))
+    p_value = 0.0 if problems else (float(stats.chi2.sf(statistic, len(exp) - 1)) if len(exp) > 1 else 1.0)
+    return Chi2Result(p_value, observed, expected, bins, problems)
 
 
 def check_chi2_sampling(estimator, h: Harness) -> None:
