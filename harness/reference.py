@@ -16,45 +16,60 @@ from iblbench.scenes.atomic import atomic_path
 DEFAULT_DENSITY = 16
 
 
-def polygon_vector(vertices: np.ndarray) -> np.ndarray:
-    """Φ = ∫ ω dω over spherical polygons ``[..., k, 3]`` (vertices in order, any scale).
-
-    Arvo's formula Φ = ½ Σ_i θ_i γ_i, θ_i the arc between consecutive vertices and γ_i the unit
-    normal of its great-circle plane; n·Φ is Lambert's ∫ cos dω for a polygon above the horizon.
-    """
-    a = vertices / np.linalg.norm(vertices, axis=-1, keepdims=True)
-    b = np.roll(a, -1, axis=-2)
+def arc_vectors(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """θ·γ of the great-circle arcs a → b ``[..., 3]`` (any positive scale): the arc's angle times
+    the unit normal of its plane.  Half their sum around a spherical polygon is Arvo's vector
+    irradiance Φ = ∫ ω dω, and n·Φ is Lambert's ∫ cos dω for a polygon above the horizon."""
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
     c = np.cross(a, b)
     s = np.linalg.norm(c, axis=-1, keepdims=True)
     theta = np.arctan2(s, np.sum(a * b, axis=-1, keepdims=True))
-    return 0.5 * np.sum(theta / np.where(s > 0, s, 1.0) * c, axis=-2)
+    return theta / np.where(s > 0, s, 1.0) * c
 
 
-def texel_corners(res: int) -> np.ndarray:
-    """Unnormalised cube-surface corners of every texel, ``[6, R, R, 4, 3]`` in a fixed winding."""
-    edges = np.linspace(0.0, 1.0, res + 1)
-    col, row = np.meshgrid(np.arange(res), np.arange(res))
-    s0, s1, t0, t1 = edges[col], edges[col + 1], edges[row], edges[row + 1]
-    corners_st = [(s0, t0), (s1, t0), (s1, t1), (s0, t1)]
-    faces = np.arange(6)[:, None, None]
-    return np.stack([cubemap.face_st_to_direction(faces, s[None], t[None], normalize=False)
-                     for s, t in corners_st], axis=-2)
+def _face_tables(res: int) -> tuple[np.ndarray, ...]:
+    """One face's texels in its own frame, where the face-plane point (u, v) is (u, v, 1): unit
+    centres, sin α, Φ and α, each ``[R, R, ...]`` float64.
+
+    Φ sums the arc vectors of the texel's four edges, each edge computed once for the two texels
+    that share it (in opposite directions), so the cost is O(R²) arcs, not 4R²."""
+    edges = np.linspace(-1.0, 1.0, res + 1)
+    u, v = np.meshgrid(edges, edges)                          # [row edge, column edge]
+    corner = np.stack([u, v, np.ones_like(u)], axis=-1)
+    along_row = arc_vectors(corner[:, :-1], corner[:, 1:])    # (u_c, v_r) → (u_c+1, v_r)
+    along_col = arc_vectors(corner[:-1], corner[1:])          # (u_c, v_r) → (u_c, v_r+1)
+    phi = 0.5 * (along_row[:-1] + along_col[:, 1:] - along_row[1:] - along_col[:, :-1])
+    middle = (edges[:-1] + edges[1:]) / 2
+    mu, mv = np.meshgrid(middle, middle)
+    centre = np.stack([mu, mv, np.ones_like(mu)], axis=-1)
+    centre /= np.linalg.norm(centre, axis=-1, keepdims=True)
+    phi *= np.sign(np.sum(phi * centre, axis=-1, keepdims=True))
+    corner /= np.linalg.norm(corner, axis=-1, keepdims=True)
+    nearest_corner = np.min([np.sum(centre * corner[i:res + i, j:res + j], axis=-1)
+                             for i in (0, 1) for j in (0, 1)], axis=0)
+    alpha = np.arccos(np.clip(nearest_corner, -1.0, 1.0))
+    return centre, np.sin(alpha), phi, alpha
 
 
 @functools.lru_cache(maxsize=8)
 def texel_tables(res: int) -> tuple[np.ndarray, np.ndarray]:
     """Per texel: (centre direction, sin α) and (Φ_t, α), float32 ``[6·R·R, 4]`` each.
 
-    α is the largest angle between the texel's centre and its corners (its bounding cap).
-    """
-    centre = cubemap.texel_directions(res)
-    corners = texel_corners(res)
-    unit_corners = corners / np.linalg.norm(corners, axis=-1, keepdims=True)
-    alpha = np.arccos(np.clip(np.einsum("...k,...jk->...j", centre, unit_corners), -1, 1)).max(-1)
-    phi = polygon_vector(corners)
-    phi *= np.sign(np.einsum("...k,...k->...", phi, centre))[..., None]
-    return (np.concatenate([centre, np.sin(alpha)[..., None]], -1).reshape(-1, 4).astype(np.float32),
-            np.concatenate([phi, alpha[..., None]], -1).reshape(-1, 4).astype(np.float32))
+    α is the largest angle between the texel's centre and its corners (its bounding cap), Φ_t
+    its vector irradiance (``arc_vectors``), oriented toward its centre.  Every face is one face
+    turned by its basis (a signed permutation, which keeps angles and that orientation), so the
+    float64 work and memory are one face's."""
+    centre, sin_alpha, phi, alpha = _face_tables(res)
+    centres = np.empty((6, res, res, 4), np.float32)
+    vectors = np.empty((6, res, res, 4), np.float32)
+    for face in range(6):
+        basis = cubemap.face_basis(face)
+        centres[face, ..., :3] = centre @ basis
+        vectors[face, ..., :3] = phi @ basis
+    centres[..., 3] = sin_alpha
+    vectors[..., 3] = alpha
+    return centres.reshape(-1, 4), vectors.reshape(-1, 4)
 
 
 class Reference:

@@ -34,6 +34,12 @@ _FACE_BASIS = np.array(
 )
 
 
+def face_basis(face) -> np.ndarray:
+    """(U, V, W) of ``face`` as rows, ``[..., 3, 3]``: the direction at face-plane point (u, v) is
+    u·U + v·V + W (W the outward face normal).  Each is a signed permutation matrix."""
+    return _FACE_BASIS[np.asarray(face)]
+
+
 def luminance(rgb: np.ndarray) -> np.ndarray:
     """Rec.709 luminance Y of the last axis."""
     return np.asarray(rgb, dtype=np.float64) @ LUMINANCE_WEIGHTS
