@@ -74,8 +74,10 @@ class Estimator:
 
     @classmethod
     def kernel_package(cls) -> str:
-        """The package whose data holds ``kernel_files`` (the estimator's own package)."""
-        return cls.__module__.rpartition(".")[0]
+        """The package whose data holds ``kernel_files``: that of the class that declares them,
+        so a subclass elsewhere (a plugin tweaking a built-in) that adds none keeps its base's."""
+        owner = next(k for k in cls.__mro__ if "kernel_files" in vars(k))
+        return owner.__module__.rpartition(".")[0]
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.params})"
