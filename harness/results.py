@@ -171,15 +171,23 @@ def read_results(out_dir: pathlib.Path) -> list[dict]:
     return list(rows.values())
 
 
-def write_results(out_dir: pathlib.Path, rows: list[dict]) -> pd.DataFrame:
-    """(Re)write ``results.parquet`` and ``results.csv`` (each replaced in one step, fsynced),
-    then drop the journal, whose rows ``rows`` must include."""
-    frame = results_frame(rows)
-    for name, write in ((TABLE, lambda p: frame.to_parquet(p, index=False)),
-                        (CSV, lambda p: frame.to_csv(p, index=False))):
-        with atomic_path(out_dir / name) as tmp:
-            write(tmp)
+def write_table(frame: pd.DataFrame, *paths: pathlib.Path) -> None:
+    """Write ``frame`` to each path, as Parquet or CSV by its suffix, each replaced in one
+    fsynced step (a reader never sees half a table)."""
+    for path in paths:
+        with atomic_path(path) as tmp:
+            if path.suffix == ".parquet":
+                frame.to_parquet(tmp, index=False)
+            else:
+                frame.to_csv(tmp, index=False)
             _fsync(tmp)
+
+
+def write_results(out_dir: pathlib.Path, rows: list[dict]) -> pd.DataFrame:
+    """(Re)write ``results.parquet`` and ``results.csv``, then drop the journal, whose rows
+    ``rows`` must include."""
+    frame = results_frame(rows)
+    write_table(frame, out_dir / TABLE, out_dir / CSV)
     journal = out_dir / JOURNAL
     if journal.exists():
         journal.unlink()

@@ -434,4 +434,15 @@ def write_report(run_dir, *, spp: int | None = None, seed: int = 0, frame: int =
     return context
 
 
-__all__ = ["load_run", "summarize", "write_report", "choose_spp", "scene_inputs", "default_pixel"]
+def stress_html(table: pd.DataFrame, cases: list[dict], context: dict) -> str:
+    """The page of ``iblbench stress``: a case × estimator status matrix, every row, the cases
+    (``cases``: dicts of name, guards, variants, z_pixels, notes) and ``context``'s text, in the
+    report's table style."""
+    matrix = table.pivot(index="case", columns="estimator", values="status")
+    matrix = matrix.reindex(index=list(dict.fromkeys(table.case)),
+                            columns=list(dict.fromkeys(table.estimator))).reset_index()
+    return _TEMPLATES.get_template("stress.html.j2").render(
+        matrix=_frame_html(matrix.fillna("")), table=_frame_html(table), cases=cases, **context)
+
+
+__all__ = ["load_run", "summarize", "write_report", "choose_spp", "scene_inputs", "default_pixel", "stress_html"]

@@ -1,0 +1,652 @@
+"""``iblbench stress``: a battery of adversarial inputs, each named after the failure it guards
+against (issue 6), run over every estimator (or the chosen ones).
+
+One row per (case, estimator), over the case's variants (placements, sizes, frames):
+
+- ``nonfinite``, ``negative``: non-finite and negative output values (must be 0);
+- ``min``, ``max``: the smallest and largest finite output value;
+- ``rel_rmse``: RMS error of one render against the exact reference over the mean reference
+  (absolute where the reference is 0), mean over seeds and frames, worst variant;
+- ``dark_nonzero``: output values that are not exactly 0 where the reference is exactly 0.  An
+  unbiased estimator with non-negative output must be exactly 0 there (a positive value would
+  give a positive mean), and every estimator must be on a map that has been black on every
+  frame so far (a temporal filter may carry light out of earlier frames);
+- ``reference_error``: where a variant's exact value is known (white furnace, black map), the
+  reference's largest relative deviation from it (must be ≤ ``EXACT_RTOL``);
+- ``gbuffer_invalid``: covered pixels whose normal or view is not a finite unit vector or whose
+  n·view < ``MIN_COS_VIEW`` (the G-buffer contract of ``scenes.gbuffer``);
+- ``bias_pixels``, ``bias_z``, ``bias_p`` (unbiased estimators): how many (pixel, frame) pairs
+  the z-test used, the largest |z| and its Šidák-corrected p-value over the row's tests;
+- ``chi2_tests``, ``chi2_p`` (estimators with a pdf): χ² tests of the sampler on the case's
+  maps and their Šidák-corrected smallest p-value;
+- ``recovery`` (temporal estimators): RMS error of the last frame over that of the first, which
+  shows the same map: the state carried over a drop-out or a jump must wash out;
+- ``status``: ``pass``, ``FAIL``, ``xfail`` (a known failure, ``KNOWN_FAILURES``) or ``XPASS``
+  (a known failure that passed: remove its mark); ``failures`` says what failed; ``notes``
+  links the fixes the case found.
+
+Statistical design.  Seeds are fixed (renders are deterministic per device), and each row's
+tests are one family: z-tests at family-wise α = ``ALPHA_Z`` = 1e-3 and χ² at ``ALPHA_CHI2`` =
+1e-2 over the whole battery, Šidák-corrected across the cases (``ALPHA_Z_CASE``), then across the
+row's pixels, channels, frames and variants.  The z-test (``conformance.bias_test``) compares the
+mean over ``Scale.seeds`` renders with the reference per pixel and channel, plus the tested
+pixels' pooled image mean per channel; its standard error has a floor of
+``REFERENCE_RTOL``·|reference| (the reference's accuracy budget), so an exact zero-variance
+estimate passes and a wrong constant fails.
+
+Which pixels a z-test may use.  A z-test of a mean over seeds is valid only where the
+estimator's samples reach what the pixel integrates.  An estimator that is unbiased in
+expectation fails it where part of the integral hides in a region the samples hit a few times
+over all seeds (a light sampler on the dim sky beside a 1e9 sun: that sky is missing from almost
+every render, so the mean is off by its share however unbiased the estimator), and it passes
+vacuously where nothing is reached.  So each (pixel, frame) is tested only where the estimator
+reaches its integrand, by this model (``tested_pixels``): the pixel's integral splits exactly
+into texel shares (``Reference.texel_integrals``, in luminance); a texel's expected hits over
+all seeds are seeds × (light draws of its face × Y·Ω/I_f + BRDF draws × the texel's BRDF
+probability), with the draws per render of the estimator's own budget split
+(``sample_budget``: the pool estimators' per-normal face split, ``bis``'s candidates, and for
+any other estimator the smaller of one light draw per lit face and spp/2 BRDF draws).  A texel
+is *rare* when one hit there carries more than 1/``REACH_HITS`` of the pixel's value; a pixel
+is tested when its rare texels hold at most ``RARE_SHARE`` of its integral (and its reference
+is not 0: those pixels are checked for exactness instead).  The cases below say which pixels
+this leaves.  The float32 CDFs themselves (bins that collapse to 0 next to a bright sun) are
+audited analytically in ``harness/cdf_precision``, not by sampling.
+"""
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import time
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+import trimesh
+from tqdm import tqdm
+
+from iblbench.estimators.bis import BIS
+from iblbench.estimators.light_pool import TICKS_PER_SAMPLE, PoolEstimator
+from iblbench.harness import conformance
+from iblbench.harness.device_gbuffer import DeviceGBuffer
+from iblbench.harness.framecache import FrameCache
+from iblbench.harness.reference import Reference
+from iblbench.scenes import cubemap, meshes
+from iblbench.scenes.atomic import atomic_path
+from iblbench.scenes.errors import InputError
+from iblbench.scenes.gbuffer import MIN_COS_VIEW, GBuffer, trace_gbuffer
+from iblbench.scenes.scene import Camera, Material
+
+ALPHA_Z, ALPHA_CHI2 = conformance.ALPHA_Z, conformance.ALPHA_CHI2
+REACH_HITS = 100       # a texel is rare when one hit there carries > 1/REACH_HITS of the pixel
+RARE_SHARE = 1e-3      # a pixel is z-tested when rare texels hold at most this share of it
+EXACT_RTOL = 1e-5      # the reference against a known exact value
+RECOVERY_LIMIT = 2.0   # last-frame error over first-frame error, same map (temporal cases)
+MAX_REACH_BLOCKS = 128  # reach is modelled on at most this many texel blocks per face side
+
+
+@dataclasses.dataclass(frozen=True)
+class Scale:
+    """How large the battery runs: ``SMALL`` for pytest, ``LARGE`` for the command line."""
+
+    normals: int        # synthetic G-buffers: normals² pixels, normals spread over the sphere
+    image: int          # side of the images traced on meshes
+    res: int            # cube face size of the maps whose case does not fix it
+    spp: int
+    seeds: int          # renders per variant of an unbiased estimator (the z-tests)
+    scan_seeds: int     # renders per variant of the others (non-finite scan, error, recovery)
+    chi2_samples: int   # directions per χ² test
+
+
+SMALL = Scale(normals=6, image=12, res=8, spp=8, seeds=200, scan_seeds=3, chi2_samples=100_000)
+LARGE = Scale(normals=8, image=24, res=16, spp=8, seeds=500, scan_seeds=6, chi2_samples=200_000)
+
+
+@dataclasses.dataclass
+class Variant:
+    """One input of a case: a G-buffer, its frames and, where known, the exact value of every
+    pixel."""
+
+    name: str
+    gbuffer: GBuffer
+    frames: list[np.ndarray]
+    exact: float | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class StressCase:
+    name: str
+    guards: str                                  # the failure it guards against
+    build: Callable[[Scale], list[Variant]]
+    z_pixels: str                                # which pixels the z-test keeps, and why
+    temporal_only: bool = False                  # only for tags.temporal estimators
+    notes: str = ""                              # the fixes this case found
+
+    def applies(self, estimator) -> bool:
+        return type(estimator).tags.temporal or not self.temporal_only
+
+
+# ---- inputs ---------------------------------------------------------------------------------------
+
+HOT_TEXEL = 1e3
+GRAZING_DEGREES = 89.9
+LEAN_DEGREES = 70.0
+BLACK_FACE_ORDER = (5, 1, 3, 0, 2)     # five black faces leave +Z lit
+HUGE_RES = 1024
+HUGE_NORMALS = 3                       # the reference costs ~0.5 s per pixel at R = 1024
+MESH_MATERIAL = Material(kd=(0.5, 0.5, 0.5), ks=(0.3, 0.3, 0.3), shininess=20.0)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _glossy(scale: Scale, **material) -> GBuffer:
+    return conformance.glossy_gbuffer(scale.normals, **material)
+
+
+def _smooth(scale: Scale) -> np.ndarray:
+    return conformance.smooth_map(scale.res)
+
+
+def _hot_texel(res: int, face: int, row: int, col: int) -> np.ndarray:
+    env = np.zeros((6, res, res, 3), np.float32)
+    env[face, row, col] = HOT_TEXEL
+    return env
+
+
+def _trace(mesh: trimesh.Trimesh, scale: Scale) -> GBuffer:
+    return trace_gbuffer(mesh, MESH_MATERIAL, Camera(), scale.image, scale.image)
+
+
+def leaning_normals_sphere() -> trimesh.Trimesh:
+    """A sphere whose vertex normals lean ``LEAN_DEGREES`` sideways (about +Y), so interpolated
+    shading normals face away from a camera on +Z over a band of the image."""
+    mesh = meshes.sphere(3)
+    normal = np.asarray(mesh.vertex_normals)
+    around = np.cross(normal, (0.0, 1.0, 0.0))
+    length = np.linalg.norm(around, axis=1, keepdims=True)
+    around = np.where(length > 1e-6, around / np.maximum(length, 1e-12), (1.0, 0.0, 0.0))
+    lean = np.radians(LEAN_DEGREES)
+    return trimesh.Trimesh(mesh.vertices, mesh.faces, process=False,
+                           vertex_normals=np.cos(lean) * normal + np.sin(lean) * around)
+
+
+def degenerate_sphere() -> trimesh.Trimesh:
+    """A sphere with zero-area triangles and zero-length vertex normals in its visible surface.
+
+    Every 3rd triangle (a, b, c) is split at the midpoint m of bc into (a, b, m) and (a, m, c)
+    plus the collinear, zero-area (b, c, m); m gets a zero-length normal; every 4th triangle also
+    gets a repeated-vertex (a, a, b) sliver; and every 5th original vertex has a zero normal."""
+    mesh = meshes.sphere(3)
+    vertices, normals = np.asarray(mesh.vertices), np.asarray(mesh.vertex_normals).copy()
+    normals[::5] = 0.0
+    faces = np.asarray(mesh.faces)
+    split = faces[::3]
+    mid = np.arange(len(vertices), len(vertices) + len(split))
+    a, b, c = split.T
+    new_faces = [np.delete(faces, np.s_[::3], axis=0),
+                 np.stack([a, b, mid], 1), np.stack([a, mid, c], 1), np.stack([b, c, mid], 1),
+                 faces[::4][:, [0, 0, 1]]]
+    vertices = np.concatenate([vertices, (vertices[b] + vertices[c]) / 2])
+    normals = np.concatenate([normals, np.zeros((len(split), 3))])
+    return trimesh.Trimesh(vertices, np.concatenate(new_faces), vertex_normals=normals, process=False)
+
+
+def _sun(ratio: float) -> Callable[[Scale], list[Variant]]:
+    return lambda s: [Variant(f"R={s.res}", _glossy(s), [conformance.sun_map(s.res, ratio)])]
+
+
+def _hot_texels(s: Scale) -> list[Variant]:
+    r = s.res
+    places = {"middle": (4, r // 2, r // 2), "face-edge": (4, r // 2, 0), "face-corner": (4, 0, r - 1),
+              "first-in-cdf": (4, 0, 0), "last-in-cdf": (4, r - 1, r - 1)}
+    return ([Variant(name, _glossy(s), [_hot_texel(r, *where)]) for name, where in places.items()]
+            + [Variant("single-texel-map", _glossy(s), [_hot_texel(1, 2, 0, 0)])])
+
+
+def _black_faces(s: Scale) -> list[Variant]:
+    variants = []
+    for count in range(1, 6):
+        env = _smooth(s)
+        env[list(BLACK_FACE_ORDER[:count])] = 0.0
+        variants.append(Variant(f"{count}-black", _glossy(s), [env]))
+    return variants
+
+
+def _grazing(s: Scale) -> list[Variant]:
+    normal = conformance.fibonacci_directions(s.normals ** 2).reshape(s.normals, s.normals, 3)
+    side = _unit(np.cross(normal, (0.3, 0.5, 0.81)))
+    angle = np.radians(GRAZING_DEGREES)
+    view = np.cos(angle) * normal + np.sin(angle) * side
+    return [Variant(f"view-{GRAZING_DEGREES:g}deg", GBuffer.from_pixels(normal, view, 0.5, 0.3, 20.0),
+                    [_smooth(s)]),
+            Variant("shading-normals-facing-away", _trace(leaning_normals_sphere(), s), [_smooth(s)])]
+
+
+def _extreme(s: Scale) -> list[Variant]:
+    sky = _smooth(s)
+    mixed = sky * np.float32(1e30)
+    mixed[1::2] = sky[1::2] * np.float32(1e-30)
+    return [Variant(name, _glossy(s), [env]) for name, env in
+            (("1e30", sky * np.float32(1e30)), ("1e-30", sky * np.float32(1e-30)),
+             ("1e30-and-1e-30-faces", mixed))]
+
+
+def _temporal(s: Scale) -> list[Variant]:
+    sky = _smooth(s)
+    return [Variant("black-frame", _glossy(s), [sky] * 3 + [np.zeros_like(sky)] + [sky] * 3),
+            Variant("1e6-jump", _glossy(s), [sky] * 3 + [sky * np.float32(1e6)] * 3)]
+
+
+_ALL_PIXELS = "every covered pixel (the reach model keeps them all: no rare texels)"
+
+CASES: dict[str, StressCase] = {case.name: case for case in (
+    StressCase("sun-1e6", "a sun 1e6× the sky: float32 CDF bins of the dim sky collapse beside it",
+               _sun(1e6),
+               "pixels that see the sun (the sun face's dim sky holds ~1e-4 of them) or none of "
+               "its face; not those that see the sun's face without the sun, where a light "
+               "sampler reaches the dim sky a few times over all seeds"),
+    StressCase("sun-1e9", "a sun 1e9× the sky: float32 CDF bins of the dim sky collapse beside it",
+               _sun(1e9), "as sun-1e6"),
+    StressCase("hot-texel", "one hot texel in a black map, in the middle, at a face edge and "
+               "corner, first and last in its face's CDF (never sampled), alone in an R = 1 map "
+               "(off by one)", _hot_texels,
+               "pixels whose samples reach the texel ≥ REACH_HITS times over the seeds (light "
+               "samplers everywhere it is above the horizon; bis only near its direction)"),
+    StressCase("black-map", "an all-black map: the estimate must be exactly 0, not NaN (MIS "
+               "compensation divided 0 by 0 in Mitsuba)",
+               lambda s: [Variant("all-black", _glossy(s), [np.zeros((6, s.res, s.res, 3), np.float32)],
+                                  exact=0.0)],
+               "none: every reference is 0, so every output must be exactly 0"),
+    StressCase("black-faces", "1 to 5 black faces: zero face integrals (no samples, no 0/0 in "
+               "the face split)", _black_faces,
+               "pixels that see light; those that see only black faces must be exactly 0"),
+    StressCase("tiny-faces", "R = 1 and R = 2 faces: CDFs of one or two bins",
+               lambda s: [Variant(f"R={r}", _glossy(s), [conformance.smooth_map(r)]) for r in (1, 2)],
+               _ALL_PIXELS),
+    StressCase("huge-faces", "R = 1024 faces: float32 CDFs of 1024 bins, and the reference's "
+               "tables at 6M texels", lambda s: [Variant(
+                   f"R={HUGE_RES}", conformance.glossy_gbuffer(HUGE_NORMALS),
+                   [conformance.smooth_map(HUGE_RES)])],
+               f"{HUGE_NORMALS}² normals (the reference costs ~0.5 s per pixel), all of them"),
+    StressCase("constant", "the white furnace: a constant map on a white Lambertian is its value",
+               lambda s: [Variant("white-furnace", conformance.white_lambertian(s.normals),
+                                  [conformance.constant_map(0.7, s.res)], exact=0.7)],
+               _ALL_PIXELS),
+    StressCase("grazing", f"views at {GRAZING_DEGREES}° to the normal, and interpolated shading "
+               "normals that face away from the viewer (traced, bent to the view's horizon by "
+               "scenes.gbuffer)", _grazing, _ALL_PIXELS),
+    StressCase("shininess", "Phong m = 0 (a half-space step), 1, and 1e4 (a lobe narrower than "
+               "a texel)", lambda s: [Variant(f"m={m:g}", _glossy(s, shininess=m, kd=0.3, ks=0.5),
+                                              [_smooth(s)]) for m in (0.0, 1.0, 1e4)],
+               "all pixels for estimators that sample the BRDF; at m = 1e4 none for pure light "
+               "samplers, which hit a lobe that narrow a few times over all seeds"),
+    StressCase("extreme-radiance", "texels of 1e30 and 1e-30: float32 overflow and underflow in "
+               "sums, squares and pdfs", _extreme,
+               "every pixel on the uniform maps; on the mixed one, pixels whose 1e30 faces "
+               "dominate"),
+    StressCase("temporal-dropout", "an all-black frame between bright ones (γ_{t−1} = 0 in SMC's "
+               "weights) and a 1e6 jump (Z_t ratio explosion)", _temporal,
+               "per frame, as the other cases (no built-in temporal estimator is unbiased)",
+               temporal_only=True),
+    StressCase("degenerate-mesh", "zero-area triangles and zero-length vertex normals: the traced "
+               "G-buffer stays valid", lambda s: [Variant(
+                   "zero-area-and-zero-normals", _trace(degenerate_sphere(), s), [_smooth(s)])],
+               _ALL_PIXELS),
+)}
+CASE_NAMES = tuple(CASES)
+ALPHA_Z_CASE = conformance.sidak_alpha(ALPHA_Z, len(CASES))
+ALPHA_CHI2_CASE = conformance.sidak_alpha(ALPHA_CHI2, len(CASES))
+
+# (case, estimator) cells known to fail, with the reason: reported as "xfail", not failures.
+KNOWN_FAILURES: dict[tuple[str, str], str] = {}
+
+
+# ---- one variant, prepared once for every estimator ------------------------------------------
+
+def gbuffer_invalid(gbuffer: GBuffer) -> int:
+    """Covered pixels that break the G-buffer contract: non-finite or non-unit normal or view,
+    or n·view < MIN_COS_VIEW."""
+    normal, view = gbuffer.normal[gbuffer.mask], gbuffer.view[gbuffer.mask]
+    unit = lambda v: np.all(np.isfinite(v), axis=1) & (np.abs(np.linalg.norm(v, axis=1) - 1) < 1e-5)
+    facing = np.einsum("ij,ij->i", normal, view) >= MIN_COS_VIEW * (1 - 1e-3)
+    return int(np.count_nonzero(~(unit(normal) & unit(view) & facing)))
+
+
+def _blocks(values: np.ndarray) -> np.ndarray:
+    """Sum ``[6, R, R]`` texel values into at most MAX_REACH_BLOCKS² blocks per face."""
+    res = values.shape[1]
+    size = max(1, res // MAX_REACH_BLOCKS)
+    return values.reshape(6, res // size, size, res // size, size).sum(axis=(2, 4))
+
+
+@dataclasses.dataclass
+class Prepared:
+    """A variant on the device: its G-buffer, one FrameCache per frame and the references."""
+
+    variant: Variant
+    gbuffer: DeviceGBuffer
+    caches: list[FrameCache]
+    references: np.ndarray          # [frames, H, W, 3] float64
+    reference: Reference
+    _shares: tuple | None = None
+
+    @classmethod
+    def of(cls, variant: Variant, compute) -> "Prepared":
+        reference = Reference(compute)
+        gbuffer = DeviceGBuffer(compute, variant.gbuffer)
+        caches = [FrameCache(compute, env, frame) for frame, env in enumerate(variant.frames)]
+        references = np.stack([reference.image(gbuffer, cache) for cache in caches]).astype(np.float64)
+        return cls(variant, gbuffer, caches, references, reference)
+
+    def covered(self, images: np.ndarray) -> np.ndarray:
+        """``[..., H, W, 3]`` → ``[..., covered, 3]``."""
+        return images[..., self.variant.gbuffer.mask, :]
+
+    def shares(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per frame and covered pixel, each texel block's share of the pixel's luminance
+        integral ``[frames, n, 6, B, B]``; per pixel a lower bound of the probability that one
+        BRDF sample lands in it ``[n, 6, B, B]``; per frame the light pdf's probability of it
+        given its face, Y·Ω/I_f ``[frames, 6, B, B]`` (float64 from the float32 map)."""
+        if self._shares is None:
+            g = self.variant.gbuffer
+            kd, ks = cubemap.luminance(g.kd[g.mask]), cubemap.luminance(g.ks[g.mask])
+            m = g.shininess[g.mask].astype(np.float64)
+            p_spec = np.divide(ks, kd + ks, out=np.zeros_like(ks), where=kd + ks > 0)
+            res = self.caches[0].res
+            luminance = [cubemap.luminance(env) for env in self.variant.frames]
+            shares, brdf = [], []
+            for i, table in enumerate(self.reference.texel_integrals(self.gbuffer, res)):
+                cosine, lobe = table[..., 0].astype(np.float64), table[..., 1].astype(np.float64)
+                weight = kd[i] / np.pi * cosine + ks[i] * (m[i] + 2) / (2 * np.pi) * lobe
+                contribution = np.stack([_blocks(y * weight) for y in luminance])
+                total = contribution.sum(axis=(1, 2, 3), keepdims=True)
+                shares.append(np.divide(contribution, total, out=np.zeros_like(contribution),
+                                        where=total > 0))
+                # ∫ cos_r^m ≥ ∫ cos_r^m cos_n over a texel: a lower bound of the lobe's share.
+                brdf.append(_blocks((1 - p_spec[i]) / np.pi * cosine
+                                    + p_spec[i] * (m[i] + 1) / (2 * np.pi) * lobe))
+            omega = cubemap.texel_solid_angles(res)
+            light = []
+            for y in luminance:
+                weight = y * omega
+                face = weight.sum(axis=(1, 2), keepdims=True)
+                light.append(_blocks(np.divide(weight, face, out=np.zeros_like(weight), where=face > 0)))
+            self._shares = (np.stack(shares, axis=1), np.stack(brdf), np.stack(light))
+        return self._shares
+
+
+# ---- the reach model ------------------------------------------------------------------------
+
+def sample_budget(estimator, cache: FrameCache, normals: np.ndarray, spp: int
+                  ) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Per normal, the estimator's draws per render from each face's light CDF ``[n, 6]`` and from
+    the Phong BRDF ``[n]``, and whether both count (True) or only the smaller does (an
+    estimator whose split is unknown: its reach is taken as the weaker of the two)."""
+    n = len(normals)
+    if isinstance(estimator, PoolEstimator):
+        draws = np.ceil(estimator.strategy_ticks(cache, normals, spp) / TICKS_PER_SAMPLE)
+        return draws[:, :6], draws[:, 6], True
+    if isinstance(estimator, BIS):
+        return np.zeros((n, 6)), np.full(n, float(estimator.budget(spp)[0])), True
+    lit = (cache.face_integrals > 0).astype(np.float64)
+    return np.tile(lit, (n, 1)), np.full(n, spp / 2), False
+
+
+def tested_pixels(estimator, prepared: Prepared, frame: int, spp: int, seeds: int) -> np.ndarray:
+    """Covered pixels (bool ``[n]``) whose z-test is valid for this estimator on this frame: a
+    non-zero reference, and at most RARE_SHARE of the integral on rare texels (module
+    docstring)."""
+    shares, brdf, light = prepared.shares()
+    normals = prepared.variant.gbuffer.normal[prepared.variant.gbuffer.mask]
+    light_draws, brdf_draws, additive = sample_budget(estimator, prepared.caches[frame], normals, spp)
+    light_hits = light_draws[:, :, None, None] * light[frame]
+    brdf_hits = brdf_draws[:, None, None, None] * brdf
+    hits = seeds * (light_hits + brdf_hits if additive else np.minimum(light_hits, brdf_hits))
+    share = shares[frame]
+    rare = share * REACH_HITS > hits
+    lit = share.sum(axis=(1, 2, 3)) > 0
+    return lit & (np.where(rare, share, 0.0).sum(axis=(1, 2, 3)) <= RARE_SHARE)
+
+
+# ---- one row ----------------------------------------------------------------------------------
+
+def render_all(estimator, prepared: Prepared, spp: int, seeds: int) -> np.ndarray:
+    """``[seeds, frames, H, W, 3]`` float32: each seed's frame sequence from ``reset()``."""
+    for cache in prepared.caches:
+        cache.require(type(estimator).requires)
+    images = []
+    for seed in range(seeds):
+        estimator.reset()
+        images.append([estimator.render(prepared.gbuffer, cache, spp, seed).radiance
+                       for cache in prepared.caches])
+    return np.asarray(images)
+
+
+def _relative_rmse(images: np.ndarray, references: np.ndarray) -> np.ndarray:
+    """Per ``[..., frames]``: RMS error over covered values / mean reference (absolute RMS where
+    the reference is 0).  Inputs ``[..., frames, covered, 3]``."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        rms = np.sqrt(np.mean((images - references) ** 2, axis=(-2, -1)))
+    scale = references.mean(axis=(-2, -1))
+    return np.where(scale > 0, rms / np.where(scale > 0, scale, 1.0), rms)
+
+
+@dataclasses.dataclass
+class _Row:
+    """What one (case, estimator) row accumulates over its variants."""
+
+    nonfinite: int = 0
+    negative: int = 0
+    low: float = np.inf
+    high: float = -np.inf
+    rel_rmse: float = 0.0
+    dark_nonzero: int = 0
+    reference_error: float = np.nan
+    gbuffer_invalid: int = 0
+    bias_pixels: int = 0
+    bias_tests: int = 0
+    bias_z: float = np.nan
+    bias_where: str = ""
+    chi2: list = dataclasses.field(default_factory=list)      # (p, where, problems)
+    recovery: float = np.nan
+
+
+def _scan(row: _Row, prepared: Prepared, images: np.ndarray, tags) -> None:
+    """Non-finite and negative values, range, error, exactness where the reference is 0."""
+    values = prepared.covered(images).astype(np.float64)      # [seeds, frames, n, 3]
+    references = prepared.covered(prepared.references)        # [frames, n, 3]
+    finite = np.isfinite(values)
+    row.nonfinite += int(np.count_nonzero(~finite))
+    row.negative += int(np.count_nonzero(values < 0))
+    if finite.any():
+        row.low = min(row.low, float(values[finite].min()))
+        row.high = max(row.high, float(values[finite].max()))
+    errors = _relative_rmse(values, references)               # [seeds, frames]
+    row.rel_rmse = max(row.rel_rmse, float(np.nanmean(errors))) if np.isfinite(errors).all() \
+        else np.inf
+    black_so_far = np.cumprod([not np.any(env) for env in prepared.variant.frames]).astype(bool)
+    for frame in range(len(prepared.caches)):
+        if tags.unbiased or black_so_far[frame]:
+            dark = references[frame] == 0
+            row.dark_nonzero += int(np.count_nonzero(values[:, frame][:, dark] != 0))
+    if tags.temporal and len(prepared.caches) > 1:
+        row.recovery = max(np.nan_to_num(row.recovery, nan=0.0),
+                           float(errors[:, -1].mean() / max(errors[:, 0].mean(), 1e-300)))
+
+
+def _bias(row: _Row, estimator, prepared: Prepared, images: np.ndarray, scale: Scale) -> None:
+    values = prepared.covered(images)
+    references = prepared.covered(prepared.references)
+    for frame in range(len(prepared.caches)):
+        tested = tested_pixels(estimator, prepared, frame, scale.spp, len(images))
+        if not tested.any():
+            continue
+        test = conformance.bias_test(values[:, frame][:, tested], references[frame][tested])
+        row.bias_pixels += int(tested.sum())
+        row.bias_tests += test.tests
+        if not test.max_abs_z <= np.nan_to_num(row.bias_z, nan=-1.0):
+            pixel, channel = np.unravel_index(np.argmax(np.abs(test.pixel_z)), test.pixel_z.shape)
+            pooled = np.abs(test.pooled_z).max() >= np.abs(test.pixel_z).max()
+            where = (f"pooled image mean, z = {np.round(test.pooled_z, 2).tolist()}" if pooled else
+                     f"pixel {pixel} channel {channel}: mean {test.mean[pixel, channel]:.5g} vs "
+                     f"reference {test.reference[pixel, channel]:.5g}")
+            row.bias_z = test.max_abs_z
+            row.bias_where = f"{prepared.variant.name}, frame {frame}, {where}"
+
+
+def _chi2(row: _Row, estimator, prepared: Prepared, scale: Scale) -> None:
+    """χ² of the sampler on frame 0's map at the brightest and the median pixel."""
+    luminance = cubemap.luminance(prepared.covered(prepared.references[0]))
+    order = np.argsort(luminance)
+    normals = prepared.variant.gbuffer.normal[prepared.variant.gbuffer.mask]
+    views = prepared.variant.gbuffer.view[prepared.variant.gbuffer.mask]
+    cache = prepared.caches[0]
+    cache.require(type(estimator).requires)
+    for k, pixel in enumerate(dict.fromkeys((order[-1], order[len(order) // 2]))):
+        result = conformance.chi2_sampling(estimator, cache, normals[pixel], views[pixel],
+                                           seed=7 + k, n=scale.chi2_samples)
+        if result is not None:
+            row.chi2.append((result.p_value, f"{prepared.variant.name} pixel {pixel}", result.problems))
+
+
+def _check_reference(row: _Row, prepared: Prepared) -> None:
+    exact = prepared.variant.exact
+    if exact is None:
+        return
+    deviation = np.abs(prepared.covered(prepared.references) - exact).max()
+    error = deviation / exact if exact else deviation
+    row.reference_error = max(np.nan_to_num(row.reference_error, nan=0.0), float(error))
+
+
+def evaluate(case: StressCase, estimator, label: str, variants: list[Prepared], scale: Scale) -> dict:
+    """The row of ``estimator`` (shown as ``label``) on ``case``'s prepared variants."""
+    start = time.perf_counter()
+    tags = type(estimator).tags
+    row = _Row()
+    for prepared in variants:
+        images = render_all(estimator, prepared, scale.spp, scale.seeds if tags.unbiased else scale.scan_seeds)
+        _scan(row, prepared, images, tags)
+        _check_reference(row, prepared)
+        row.gbuffer_invalid += gbuffer_invalid(prepared.variant.gbuffer)
+        if tags.unbiased:
+            _bias(row, estimator, prepared, images, scale)
+        if tags.has_pdf:
+            _chi2(row, estimator, prepared, scale)
+    return _finish(case, label, row, tags, [p.variant.name for p in variants],
+                   time.perf_counter() - start)
+
+
+def _finish(case: StressCase, label: str, row: _Row, tags, variants: list[str], seconds: float) -> dict:
+    failures = []
+    if row.nonfinite:
+        failures.append(f"{row.nonfinite} non-finite values")
+    if row.negative:
+        failures.append(f"{row.negative} negative values")
+    if row.dark_nonzero:
+        failures.append(f"{row.dark_nonzero} values ≠ 0 where the reference is 0")
+    if row.reference_error > EXACT_RTOL:
+        failures.append(f"reference off the exact value by {row.reference_error:.3g}")
+    if row.gbuffer_invalid:
+        failures.append(f"{row.gbuffer_invalid} invalid G-buffer pixels")
+    bias_p = np.nan
+    if row.bias_tests:
+        bias_p = conformance.sidak_p(float(conformance.two_sided_p(row.bias_z)), row.bias_tests)
+        if bias_p < ALPHA_Z_CASE:
+            failures.append(f"biased: |z| = {row.bias_z:.2f}, p = {bias_p:.2g} < {ALPHA_Z_CASE:.2g} "
+                            f"({row.bias_where})")
+    chi2_p = np.nan
+    if row.chi2:
+        p_min, where, problems = min(row.chi2, key=lambda item: item[0])
+        chi2_p = conformance.sidak_p(p_min, len(row.chi2))
+        if problems:
+            failures.append(f"sampler: {'; '.join(problems)} ({where})")
+        elif chi2_p < ALPHA_CHI2_CASE:
+            failures.append(f"χ² rejects the sampler: p = {chi2_p:.2g} < {ALPHA_CHI2_CASE:.2g} ({where})")
+    if row.recovery > RECOVERY_LIMIT:
+        failures.append(f"no recovery: last-frame error ×{row.recovery:.3g} the first frame's")
+    known = KNOWN_FAILURES.get((case.name, label))
+    status = ("xfail" if failures else "XPASS") if known else ("FAIL" if failures else "pass")
+    notes = "; ".join(note for note in (f"known failure: {known}" if known else "", case.notes) if note)
+    return {
+        "case": case.name, "estimator": label, "variants": ", ".join(variants), "status": status,
+        "nonfinite": row.nonfinite, "negative": row.negative,
+        "min": row.low if np.isfinite(row.low) else np.nan,
+        "max": row.high if np.isfinite(row.high) else np.nan,
+        "rel_rmse": row.rel_rmse, "dark_nonzero": row.dark_nonzero,
+        "reference_error": row.reference_error, "gbuffer_invalid": row.gbuffer_invalid,
+        "bias_pixels": row.bias_pixels if tags.unbiased else np.nan, "bias_z": row.bias_z,
+        "bias_p": bias_p, "chi2_tests": len(row.chi2) if tags.has_pdf else np.nan,
+        "chi2_p": chi2_p, "recovery": row.recovery, "seconds": seconds,
+        "failures": "; ".join(failures), "notes": notes,
+    }
+
+
+# ---- the battery --------------------------------------------------------------------------------
+
+def run_stress(estimators: dict, cases=CASE_NAMES, scale: Scale = LARGE, compute=None,
+               progress: bool | None = None) -> pd.DataFrame:
+    """Rows of every (case, estimator) that applies; ``estimators`` maps labels to instances.
+    Each case's inputs and references are prepared once and shared by its estimators."""
+    from iblbench.harness.device import get_compute
+
+    compute = compute or get_compute()
+    cells = [(CASES[name], label) for name in cases for label, e in estimators.items()
+             if CASES[name].applies(e)]
+    rows = []
+    with tqdm(total=len(cells), unit="cell", disable=None if progress is None else not progress,
+              desc="iblbench stress") as bar:
+        for name in cases:
+            case = CASES[name]
+            labels = [label for c, label in cells if c is case]
+            if not labels:
+                continue
+            bar.set_postfix_str(name)
+            variants = [Prepared.of(variant, compute) for variant in case.build(scale)]
+            for label in labels:
+                rows.append(evaluate(case, estimators[label], label, variants, scale))
+                bar.update()
+    return pd.DataFrame(rows)
+
+
+def failed(table: pd.DataFrame) -> bool:
+    return bool((table.status == "FAIL").any())
+
+
+def verdict(table: pd.DataFrame) -> str:
+    counts = table.status.value_counts()
+    summary = ", ".join(f"{counts[s]} {s}" for s in ("pass", "FAIL", "xfail", "XPASS") if s in counts)
+    return (f"stress: {'FAILED' if failed(table) else 'passed'}: {summary} of {len(table)} "
+            f"(case, estimator) cells")
+
+
+def _docstring_section(start: str, end: str | None = None) -> str:
+    """A paragraph range of this module's docstring, as one line of text (for the HTML page)."""
+    text = __doc__[__doc__.index(start):__doc__.index(end) if end else None]
+    return " ".join(text.split())
+
+
+def write_outputs(out: pathlib.Path, table: pd.DataFrame, scale: Scale, device: str,
+                  seconds: float) -> list[pathlib.Path]:
+    """``stress.parquet``, ``stress.csv`` and ``stress.html`` in ``out``, each written atomically."""
+    from iblbench.harness.results import write_table
+    from iblbench.reports.report import stress_html
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(out, f"cannot create the output directory ({error.strerror})") from None
+    paths = [out / "stress.parquet", out / "stress.csv", out / "stress.html"]
+    write_table(table, *paths[:2])
+    variants = dict(zip(table.case, table.variants))
+    cases = [{"name": c.name, "guards": c.guards, "z_pixels": c.z_pixels, "notes": c.notes,
+              "variants": variants[c.name]} for c in CASES.values() if c.name in variants]
+    context = {"title": "iblbench stress", "verdict": verdict(table), "failed": failed(table),
+               "device": device, "scale": ", ".join(f"{k} {v}" for k, v in dataclasses.asdict(scale).items()),
+               "seconds": f"{seconds:.0f}", "alpha_z": ALPHA_Z, "alpha_chi2": ALPHA_CHI2,
+               "alpha_z_case": f"{ALPHA_Z_CASE:.3g}", "alpha_chi2_case": f"{ALPHA_CHI2_CASE:.3g}",
+               "columns_note": _docstring_section("One row per", "Statistical design."),
+               "design": _docstring_section("Statistical design.")}
+    with atomic_path(paths[2]) as tmp:
+        tmp.write_text(stress_html(table, cases, context), encoding="utf-8")
+    return paths

@@ -1,0 +1,186 @@
+"""The stress battery (harness/stress.py): every case at the small size over every built-in
+estimator, the statistics it rests on, and ``iblbench stress`` with broken estimators."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from iblbench.estimators import registry
+from iblbench.estimators.base import Estimator, Tags
+from iblbench.estimators.uniform import Uniform
+from iblbench.harness import cli, conformance, stress
+from iblbench.harness.device_gbuffer import DeviceGBuffer
+from iblbench.harness.framecache import FrameCache
+from iblbench.scenes.gbuffer import GBuffer
+
+BUILTINS = {name: registry.make_estimator(name) for name in registry.estimator_names()}
+
+
+@pytest.fixture(scope="module")
+def battery(compute):
+    """Every case's rows, run once per case (the parametrized tests read their case's)."""
+    cache = {}
+
+    def rows(case):
+        if case not in cache:
+            cache[case] = stress.run_stress(BUILTINS, (case,), stress.SMALL, compute, progress=False)
+        return cache[case]
+    return rows
+
+
+@pytest.mark.parametrize("case", stress.CASE_NAMES)
+def test_case_passes_on_every_builtin(battery, case):
+    rows = battery(case)
+    expected = {name for name, e in BUILTINS.items() if stress.CASES[case].applies(e)}
+    assert set(rows.estimator) == expected
+    failed = rows[rows.status == "FAIL"]
+    assert failed.empty, failed[["estimator", "failures"]].to_string()
+    assert (rows.nonfinite == 0).all() and (rows.negative == 0).all() and (rows.dark_nonzero == 0).all()
+    unbiased = rows[[BUILTINS[e].tags.unbiased for e in rows.estimator]]
+    sampled = rows[[BUILTINS[e].tags.has_pdf for e in rows.estimator]]
+    if case == "black-map":
+        assert (rows["min"] == 0).all() and (rows["max"] == 0).all() and (rows.reference_error == 0).all()
+        assert (sampled.chi2_tests == 0).all()     # nothing to sample on a black map
+    else:                                          # the tests are not vacuous
+        assert (unbiased.bias_pixels > 0).all(), unbiased[["estimator", "bias_pixels"]]
+        assert (sampled.chi2_tests > 0).all()
+    if case == "constant":
+        assert (rows.reference_error <= stress.EXACT_RTOL).all()
+    if case == "temporal-dropout":
+        assert (rows.recovery <= stress.RECOVERY_LIMIT).all()
+
+
+# ---- the statistics ------------------------------------------------------------------------------
+
+def test_bias_test_floor_passes_an_exact_estimate_and_fails_a_wrong_constant():
+    reference = np.array([[0.5, 0.25, 0.0]] * 4)
+    exact = conformance.bias_test(np.broadcast_to(reference, (50, 4, 3)), reference)
+    assert exact.max_abs_z == 0.0
+    off = conformance.bias_test(np.broadcast_to(reference * 1.01, (50, 4, 3)), reference)
+    assert off.max_abs_z > conformance.sidak_z(10 ** 6)   # 1% off: z = 100 from the floor alone
+    nan = conformance.bias_test(np.full((50, 4, 3), np.nan), reference)
+    assert nan.max_abs_z == np.inf
+
+
+def test_sidak_helpers_agree():
+    alpha, tests = 1e-3, 40
+    per_test = conformance.sidak_alpha(alpha, tests)
+    assert conformance.sidak_p(per_test, tests) == pytest.approx(alpha)
+    assert conformance.two_sided_p(conformance.sidak_z(tests, alpha)) == pytest.approx(per_test)
+
+
+def test_reach_model_keeps_only_pixels_whose_integrand_is_sampled(compute):
+    """On a 1e9 sun, a normal that sees the sun's face but not the sun sees only dim sky a light
+    sampler reaches ~1e-6 times per render: not z-tested for uniform, tested for bis (BRDF
+    sampling reaches that sky); a normal facing the sun is tested for uniform."""
+    sees_sun, dim_only = (0.0, 0.0, 1.0), (0.0, -1.0, -0.3)
+    normals = np.array([[sees_sun, dim_only]], np.float64)
+    variant = stress.Variant("sun", GBuffer.from_pixels(normals, normals, 0.5, 0.3, 20.0),
+                             [conformance.sun_map(8, 1e9)])
+    prepared = stress.Prepared.of(variant, compute)
+    prepared.caches[0].require(("cdf",))
+    assert stress.tested_pixels(BUILTINS["uniform"], prepared, 0, 8, 200).tolist() == [True, False]
+    assert stress.tested_pixels(BUILTINS["bis"], prepared, 0, 8, 200)[1]
+
+
+# ---- broken estimators must fail ------------------------------------------------------------------
+
+class _NaNEstimator(Uniform):
+    """uniform with one NaN pixel."""
+
+    name = "test-nan"
+
+    def render(self, gbuffer, cache, spp, seed):
+        estimate = super().render(gbuffer, cache, spp, seed)
+        estimate.radiance[0, 0, 0] = np.nan
+        return estimate
+
+
+class _Scaled(Uniform):
+    """uniform × 1.05: biased."""
+
+    name = "test-scaled"
+
+    def render(self, gbuffer, cache, spp, seed):
+        estimate = super().render(gbuffer, cache, spp, seed)
+        estimate.radiance *= np.float32(1.05)
+        return estimate
+
+
+class _Glow(Estimator):
+    """A tiny positive value everywhere: wrong where the reference is exactly 0."""
+
+    name = "test-glow"
+    tags = Tags(unbiased=False)
+    requires = Uniform.requires
+
+    def render(self, gbuffer, cache, spp, seed):
+        estimate = Uniform().render(gbuffer, cache, spp, seed)
+        estimate.radiance += np.float32(1e-6)
+        return estimate
+
+
+class _MirroredPdf(Uniform):
+    """uniform's sampler with the pdf hook of the mirrored direction: χ² must reject it."""
+
+    name = "test-mirrored-pdf"
+
+    def pdf(self, cache, normal, view, dirs):
+        return super().pdf(cache, normal, view, -dirs)
+
+
+@pytest.mark.parametrize("estimator, case, failure", [
+    (_NaNEstimator(), "constant", "non-finite"),
+    (_Scaled(), "constant", "biased"),
+    (_Glow(), "black-map", "≠ 0 where the reference is 0"),
+    (_MirroredPdf(), "sun-1e6", "sampler"),
+])
+def test_a_broken_estimator_fails(compute, estimator, case, failure):
+    row = stress.run_stress({estimator.name: estimator}, (case,), stress.SMALL, compute,
+                            progress=False).iloc[0]
+    assert row.status == "FAIL" and failure in row.failures, row.failures
+
+
+def test_known_failures_are_reported_not_failed(compute, monkeypatch):
+    monkeypatch.setitem(stress.KNOWN_FAILURES, ("constant", "test-nan"), "NaN on purpose")
+    table = stress.run_stress({"test-nan": _NaNEstimator()}, ("constant",), stress.SMALL, compute,
+                              progress=False)
+    assert table.status.tolist() == ["xfail"] and "NaN on purpose" in table.notes[0]
+    assert not stress.failed(table)
+
+
+def test_degenerate_mesh_traces_a_valid_gbuffer():
+    gbuffer = stress._trace(stress.degenerate_sphere(), stress.SMALL)
+    assert gbuffer.covered > 50 and stress.gbuffer_invalid(gbuffer) == 0
+
+
+# ---- the command --------------------------------------------------------------------------------
+
+QUICK = ["stress", "--quick", "--no-progress", "--case", "constant", "--case", "black-map"]
+
+
+def test_command_passes_and_writes_the_table_and_html(tmp_path, capsys):
+    assert cli.main(QUICK + ["--estimator", "uniform", "--estimator", "havran",
+                             "--out", str(tmp_path)]) == 0
+    table = pd.read_csv(tmp_path / "stress.csv")
+    assert len(table) == 4 and set(table.status) == {"pass"}
+    assert list(pd.read_parquet(tmp_path / "stress.parquet").columns) == list(table.columns)
+    html = (tmp_path / "stress.html").read_text(encoding="utf-8")
+    assert "white furnace" in html and "havran" in html and "Statistical design" in html
+    assert "stress: passed" in capsys.readouterr().out
+
+
+def test_command_exits_1_with_a_broken_estimator(tmp_path, monkeypatch):
+    registry.estimator_names()                    # load the built-ins before adding one
+    monkeypatch.setitem(registry._registry, "test-nan", _NaNEstimator)
+    assert cli.main(QUICK + ["--estimator", "uniform", "--estimator", "test-nan",
+                             "--out", str(tmp_path)]) == 1
+    table = pd.read_csv(tmp_path / "stress.csv")
+    assert table.set_index(["case", "estimator"]).status[("constant", "test-nan")] == "FAIL"
+
+
+def test_command_exits_2_on_bad_arguments(tmp_path, capsys):
+    assert cli.main(["stress", "--estimator", "nope", "--out", str(tmp_path)]) == 2
+    assert "valid estimators" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["stress", "--case", "nope"])
+    assert exit_.value.code == 2
