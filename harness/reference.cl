@@ -4,7 +4,13 @@
  * Φ_t = ∫_texel ω dω its vector irradiance (Lambert/Arvo polygon formula, precomputed in float64
  * on the host); a texel cut by the horizon is clipped to n·x ≥ 0 and the same formula applied.
  * Specular part: sub-texel midpoint quadrature, with as many sub-cells as the lobe's width
- * asks for (REF_DENSITY sub-cells per lobe width 1/√m across the texel's angular radius).
+ * asks for (REF_DENSITY sub-cells per lobe width 1/√m across the texel's angular radius, and
+ * none wider than CELL_RADIANS: the cosines curve on a scale of 1 rad however wide the lobe),
+ * at least 8 where the horizon cuts the texel, and none wider than KINK_CELL_RADIANS where the
+ * lobe's own plane r·ω = 0 does for m < 2: the lobe's slope jumps there (from ~(m+2)/(2π) to
+ * 0), and the midpoint rule's error per unit length of the kink goes as the sub-cell width
+ * squared, so the width, not the count, sets it at every face size.  At m = 0 the lobe is the
+ * half-space r·ω > 0: exact, by clipping the texel to both planes.
  * Texels whose bounding cap keeps the lobe below LOBE_CUTOFF of its peak are skipped: their
  * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
  * Sums are compensated, in double where the device has it. */
@@ -14,6 +20,9 @@
 #define REF_DENSITY 16
 #endif
 #define LOBE_CUTOFF 1e-9f
+#define CELL_RADIANS 0.02f
+#define KINK_CELL_RADIANS 1e-3f
+#define MAX_CELLS 128
 
 #ifdef HAVE_FP64
 typedef double3 real3;
@@ -37,37 +46,65 @@ inline real3 polygon_vector(const real3 *p, int k)
     return (acc_t)0.5 * phi;
 }
 
-/* ∫ cos⁺ dω over a texel the horizon cuts: clip its face square to n·x ≥ 0 (Sutherland-
- * Hodgman on the planar quad, whose edges are great-circle arcs) and apply the polygon formula. */
-inline acc_t clipped_cosine(float3 n, int face, int row, int col, int res)
+/* Sutherland–Hodgman: clip the convex polygon p[0..k) on the planar face quad (whose edges are
+ * great-circle arcs) to a·x ≥ 0, into out[0..k+1); returns the clipped vertex count. */
+inline int clip_to_halfspace(const real3 *p, int k, real3 a, real3 *out)
+{
+    int count = 0;
+    for (int i = 0; i < k; ++i) {
+        real3 x = p[i], y = p[(i + 1) % k];
+        acc_t dx = dot(a, x), dy = dot(a, y);
+        if (dx >= 0) out[count++] = x;
+        if ((dx >= 0) != (dy >= 0)) out[count++] = x + (y - x) * (dx / (dx - dy));
+    }
+    return count;
+}
+
+inline void texel_quad(int face, int row, int col, int res, real3 *quad)
 {
     float u0 = -1.0f + 2.0f * col / res, u1 = -1.0f + 2.0f * (col + 1) / res;
     float v0 = -1.0f + 2.0f * row / res, v1 = -1.0f + 2.0f * (row + 1) / res;
-    real3 quad[4] = {REAL3(face_uv_to_dir(face, u0, v0)), REAL3(face_uv_to_dir(face, u1, v0)),
-                     REAL3(face_uv_to_dir(face, u1, v1)), REAL3(face_uv_to_dir(face, u0, v1))};
-    real3 nn = REAL3(n);
-    real3 clipped[5];
-    int k = 0;
-    for (int i = 0; i < 4; ++i) {
-        real3 a = quad[i], b = quad[(i + 1) % 4];
-        acc_t da = dot(nn, a), db = dot(nn, b);
-        if (da >= 0) clipped[k++] = a;
-        if ((da >= 0) != (db >= 0)) clipped[k++] = a + (b - a) * (da / (da - db));
-    }
-    if (k < 3) return 0;
-    /* The orientation of the quad fixes the sign of the whole sum; the integral is ≥ 0. */
-    return fabs(dot(nn, polygon_vector(clipped, k)));
+    quad[0] = REAL3(face_uv_to_dir(face, u0, v0));
+    quad[1] = REAL3(face_uv_to_dir(face, u1, v0));
+    quad[2] = REAL3(face_uv_to_dir(face, u1, v1));
+    quad[3] = REAL3(face_uv_to_dir(face, u0, v1));
+}
+
+/* n · ∫ ω dω over polygon p[0..k): ∫ cos dω when it lies above the horizon.  The orientation of
+ * the polygon fixes the sign of the whole sum; the integral is ≥ 0. */
+inline acc_t polygon_cosine(float3 n, const real3 *p, int k)
+{
+    return k < 3 ? 0 : fabs(dot(REAL3(n), polygon_vector(p, k)));
+}
+
+/* ∫ cos⁺ dω over a texel the horizon cuts: the texel clipped to n·x ≥ 0. */
+inline acc_t clipped_cosine(float3 n, int face, int row, int col, int res)
+{
+    real3 quad[4], clipped[5];
+    texel_quad(face, row, col, res, quad);
+    return polygon_cosine(n, clipped, clip_to_halfspace(quad, 4, REAL3(n), clipped));
+}
+
+/* ∫_texel [r·ω > 0] cos⁺(n·ω) dω, the lobe integral at m = 0: the texel clipped to both planes. */
+inline acc_t half_space_cosine(float3 n, float3 r, int face, int row, int col, int res)
+{
+    real3 quad[4], by_r[5], both[6];
+    texel_quad(face, row, col, res, quad);
+    int k = clip_to_halfspace(quad, 4, REAL3(r), by_r);
+    return polygon_cosine(n, both, clip_to_halfspace(by_r, k, REAL3(n), both));
 }
 
 /* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by midpoint quadrature on sub-cells of the face square;
- * cells per side follow the lobe width 1/√m across the texel's angular radius α. */
-inline float specular_integral(float3 n, float3 r, float m, int face, int row, int col, int res,
-                               float alpha, int cut_by_horizon)
+ * cells per side follow the lobe width 1/√m across the texel's angular radius α and the
+ * cut planes (see the top of this file). */
+inline acc_t specular_integral(float3 n, float3 r, float m, int face, int row, int col, int res,
+                               float alpha, int cut_by_horizon, int cut_by_lobe_plane)
 {
-    int cells = clamp((int)ceil(REF_DENSITY * alpha * sqrt(m)), 2, 64);
+    int cells = clamp((int)ceil(alpha * max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS)), 2, 64);
     if (cut_by_horizon) cells = max(cells, 8);
+    if (cut_by_lobe_plane) cells = clamp((int)ceil(alpha / KINK_CELL_RADIANS), cells, MAX_CELLS);
     float step = 2.0f / (res * cells);
-    float sum = 0.0f;   /* ≤ 64² positive terms: float is enough inside one texel */
+    acc_t sum = 0;      /* up to MAX_CELLS² positive terms */
     for (int i = 0; i < cells; ++i) {
         float v = -1.0f + 2.0f * row / res + (i + 0.5f) * step;
         for (int j = 0; j < cells; ++j) {
@@ -105,8 +142,12 @@ inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cu
     *cosine = cut_by_horizon ? clipped_cosine(n, face, row, col, res) : (acc_t)dot(n, phi.xyz);
     /* Is any point of the cap within θ_cut of r?  cos(θ_cut + α) test. */
     float sin_a = centre.w, cos_a = sqrt(1.0f - sin_a * sin_a);
-    if (specular && dot(r, centre.xyz) > cut.x * cos_a - cut.y * sin_a)
-        *lobe = specular_integral(n, r, m, face, row, col, res, phi.w, cut_by_horizon);
+    if (specular && dot(r, centre.xyz) > cut.x * cos_a - cut.y * sin_a) {
+        int cut_by_lobe_plane = m < 2.0f && fabs(dot(r, centre.xyz)) < sin_a;
+        *lobe = m == 0.0f ? half_space_cosine(n, r, face, row, col, res)
+              : specular_integral(n, r, m, face, row, col, res, phi.w, cut_by_horizon,
+                                  cut_by_lobe_plane);
+    }
 }
 
 inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }

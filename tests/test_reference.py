@@ -116,6 +116,24 @@ def test_glossy_one_texel_matches_brute_force(compute, shininess):
     assert image[0, 0, 0] == pytest.approx(brute_force(res, face, row, col, lobe, sub=1500), rel=2e-3)
 
 
+@pytest.mark.parametrize("shininess, tolerance", [(0.0, 5e-4), (1.0, 1e-4)])
+def test_lobe_boundary_through_a_texel(compute, shininess, tolerance):
+    """The lobe's plane r·ω = 0 cuts the texel in half: at m = 0 the lobe is a step there, at
+    m = 1 a kink (stress case shininess; a 2×2 midpoint rule missed them by ~1e-2 of the texel)."""
+    res, face, row, col = 16, 4, 7, 9
+    centre = cubemap.face_st_to_direction(face, (col + 0.5) / res, (row + 0.5) / res)
+    r = np.cross(centre, [0.3, 1.0, 0.2])
+    r /= np.linalg.norm(r)
+    normal = centre + 0.3 * r
+    normal /= np.linalg.norm(normal)
+    view = 2 * np.dot(normal, r) * normal - r
+    image = _reference(compute, GBuffer.from_pixels(normal[None, None], view, 0.0, 1.0, shininess),
+                       _one_texel_map(res, face, row, col))
+    lobe = lambda w: ((shininess + 2) / (2 * np.pi) * np.where(w @ r > 0, np.maximum(w @ r, 0) ** shininess, 0)
+                      * np.maximum(w @ normal, 0))
+    assert image[0, 0, 0] == pytest.approx(brute_force(res, face, row, col, lobe, sub=2000), rel=tolerance)
+
+
 def test_reference_is_cached_by_content(compute):
     gbuffer = DeviceGBuffer(compute, GBuffer.from_pixels(fibonacci_directions(16).reshape(4, 4, 3),
                                                          (0, 0, 1), 0.5, 0.3, 20.0))
