@@ -6,9 +6,18 @@ rows top to bottom, ``fov_y`` the full vertical field of view, aspect = width / 
 Shading normal: Embree's barycentrics (u, v) weight the vertex normals as
 (1 − u − v)·n0 + u·n1 + v·n2.  Surfaces are two-sided: the normal is first turned to the side
 of the triangle's geometric normal (so inverted vertex normals do not matter), then flipped with
-it when the camera sees the triangle's back.  Interpolated normals can still lean slightly away
-from the camera near silhouettes; those are bent towards ``view`` just enough that
-n·view = MIN_COS_VIEW, so every covered pixel has n·view > 0.
+it when the camera sees the triangle's back.
+
+Degenerate and back-facing shading normals are handled this one way (the stress cases
+``grazing`` and ``degenerate-mesh`` check it): an interpolated normal of (near) zero length
+(zero-length vertex normals, or normals that cancel) is replaced by the geometric normal; an
+interpolated normal that still faces away from the viewer (n·view < MIN_COS_VIEW: near
+silhouettes, or vertex normals that lean away from the surface) is bent towards ``view``, in
+the plane of n and view, just enough that n·view = MIN_COS_VIEW.  That is the smallest change
+that keeps the mirror direction r = 2(n·view)n − view on the lit side, and the pixel stays
+covered, shaded continuously with its neighbours, instead of being masked.  So every covered
+pixel of a traced G-buffer has a finite unit normal with n·view ≥ MIN_COS_VIEW.
+(:meth:`GBuffer.from_pixels` takes its normals as given.)
 """
 from __future__ import annotations
 
