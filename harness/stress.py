@@ -46,9 +46,9 @@ all seeds are seeds × (light draws of its face × Y·Ω/I_f + BRDF draws × the
 probability), with the draws per render of the estimator's own budget split
 (``sample_budget``: the pool estimators' per-normal face split, ``bis``'s candidates, and for
 any other estimator the smaller of one light draw per lit face and spp/2 BRDF draws).  A texel
-is *rare* when one hit there carries more than 1/``REACH_HITS`` of the pixel's value; a pixel
+is rare when one hit there carries more than 1/``REACH_HITS`` of the pixel's value; a pixel
 is tested when its rare texels hold at most ``RARE_SHARE`` of its integral (and its reference
-is not 0: those pixels are checked for exactness instead).  The cases below say which pixels
+is not 0: those pixels are checked for exactness instead).  Each case says which pixels
 this leaves.  The float32 CDFs themselves (bins that collapse to 0 next to a bright sun) are
 audited analytically in ``harness/cdf_precision``, not by sampling.
 """
@@ -239,6 +239,9 @@ def _temporal(s: Scale) -> list[Variant]:
 
 
 _ALL_PIXELS = "every covered pixel (the reach model keeps them all: no rare texels)"
+_CHI2_BINS_FIX = ("fixed by b3ec8be: χ² bins are texel blocks integrated on a texel-aligned grid "
+                  "and pooled until each expects ≥ 5 (sphere bins integrated a one-texel pdf to "
+                  "0.967; a pooled cell expecting 0.1 rejected correct samplers at p = 1e-9)")
 
 CASES: dict[str, StressCase] = {case.name: case for case in (
     StressCase("sun-1e6", "a sun 1e6× the sky: float32 CDF bins of the dim sky collapse beside it",
@@ -247,13 +250,13 @@ CASES: dict[str, StressCase] = {case.name: case for case in (
                "its face; not those that see the sun's face without the sun, where a light "
                "sampler reaches the dim sky a few times over all seeds"),
     StressCase("sun-1e9", "a sun 1e9× the sky: float32 CDF bins of the dim sky collapse beside it",
-               _sun(1e9), "as sun-1e6", notes="fixed by b3ec8be: χ² bins are texel blocks integrated on a texel-aligned grid and pooled until each expects ≥ 5 (sphere bins integrated a one-texel pdf to 0.967; a pooled cell expecting 0.1 rejected correct samplers at p = 1e-9)"),
+               _sun(1e9), "as sun-1e6", notes=_CHI2_BINS_FIX),
     StressCase("hot-texel", "one hot texel in a black map, in the middle, at a face edge and "
                "corner, first and last in its face's CDF (never sampled), alone in an R = 1 map "
                "(off by one)", _hot_texels,
                "pixels whose samples reach the texel ≥ REACH_HITS times over the seeds (light "
                "samplers everywhere it is above the horizon; bis only near its direction)",
-               notes="fixed by b3ec8be: χ² bins are texel blocks integrated on a texel-aligned grid and pooled until each expects ≥ 5 (sphere bins integrated a one-texel pdf to 0.967; a pooled cell expecting 0.1 rejected correct samplers at p = 1e-9)"),
+               notes=_CHI2_BINS_FIX),
     StressCase("black-map", "an all-black map: the estimate must be exactly 0, not NaN (MIS "
                "compensation divided 0 by 0 in Mitsuba)",
                lambda s: [Variant("all-black", _glossy(s), [np.zeros((6, s.res, s.res, 3), np.float32)],
@@ -532,7 +535,8 @@ def evaluate(case: StressCase, estimator, label: str, variants: list[Prepared], 
     tags = type(estimator).tags
     row = _Row()
     for prepared in variants:
-        images = render_all(estimator, prepared, scale.spp, scale.seeds if tags.unbiased else scale.scan_seeds)
+        seeds = scale.seeds if tags.unbiased else scale.scan_seeds
+        images = render_all(estimator, prepared, scale.spp, seeds)
         _scan(row, prepared, images, tags)
         _check_reference(row, prepared)
         row.gbuffer_invalid += gbuffer_invalid(prepared.variant.gbuffer)
@@ -627,10 +631,24 @@ def verdict(table: pd.DataFrame) -> str:
             f"(case, estimator) cells")
 
 
-def _docstring_section(start: str, end: str | None = None) -> str:
-    """A paragraph range of this module's docstring, as one line of text (for the HTML page)."""
-    text = __doc__[__doc__.index(start):__doc__.index(end) if end else None]
-    return " ".join(text.split())
+def _docstring_section(start: str, end: str | None = None) -> list[dict]:
+    """A range of this module's docstring as blocks for the HTML page: ``{"text": paragraph}``
+    or ``{"bullets": [list item, ...]}``, without reST quoting."""
+    text = __doc__[__doc__.index(start):__doc__.index(end) if end else None].replace("``", "")
+    blocks = []
+    for paragraph in text.split("\n\n"):
+        lines = paragraph.strip().splitlines()
+        if lines and lines[0].startswith("- "):
+            items = []
+            for line in lines:
+                if line.startswith("- "):
+                    items.append(line[2:].strip())
+                else:
+                    items[-1] += " " + line.strip()
+            blocks.append({"bullets": items})
+        elif lines:
+            blocks.append({"text": " ".join(line.strip() for line in lines)})
+    return blocks
 
 
 def write_outputs(out: pathlib.Path, table: pd.DataFrame, scale: Scale, device: str,
@@ -652,7 +670,7 @@ def write_outputs(out: pathlib.Path, table: pd.DataFrame, scale: Scale, device: 
                "device": device, "scale": ", ".join(f"{k} {v}" for k, v in dataclasses.asdict(scale).items()),
                "seconds": f"{seconds:.0f}", "alpha_z": ALPHA_Z, "alpha_chi2": ALPHA_CHI2,
                "alpha_z_case": f"{ALPHA_Z_CASE:.3g}", "alpha_chi2_case": f"{ALPHA_CHI2_CASE:.3g}",
-               "columns_note": _docstring_section("One row per", "Statistical design."),
+               "columns": _docstring_section("One row per", "Statistical design."),
                "design": _docstring_section("Statistical design.")}
     with atomic_path(paths[2]) as tmp:
         tmp.write_text(stress_html(table, cases, context), encoding="utf-8")

@@ -441,8 +441,10 @@ def stress_html(table: pd.DataFrame, cases: list[dict], context: dict) -> str:
     matrix = table.pivot(index="case", columns="estimator", values="status")
     matrix = matrix.reindex(index=list(dict.fromkeys(table.case)),
                             columns=list(dict.fromkeys(table.estimator))).reset_index()
+    matrix.columns.name = None
     return _TEMPLATES.get_template("stress.html.j2").render(
         matrix=_frame_html(matrix.fillna("")), table=_frame_html(table), cases=cases, **context)
 
 
-__all__ = ["load_run", "summarize", "write_report", "choose_spp", "scene_inputs", "default_pixel", "stress_html"]
+__all__ = ["load_run", "summarize", "write_report", "choose_spp", "scene_inputs", "default_pixel",
+           "stress_html"]
