@@ -312,9 +312,11 @@ def _stress(args) -> int:
     from iblbench.estimators.registry import estimator_names
     from iblbench.harness import stress
     from iblbench.harness.device import get_compute
+    from iblbench.harness.runner import prepare_out
     from iblbench.harness.sweep import parse_estimator
 
     specs = [parse_estimator(label) for label in args.estimator or estimator_names()]
+    prepare_out(args.out)
     compute = get_compute(args.device)
     scale = stress.SMALL if args.quick else stress.LARGE
     start = time.perf_counter()

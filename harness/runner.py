@@ -141,7 +141,8 @@ def _require_unique_names(scenes) -> None:
         seen[scene.name] = scene.source
 
 
-def _prepare_out(out: pathlib.Path) -> None:
+def prepare_out(out: pathlib.Path) -> None:
+    """Create ``out`` (InputError when it cannot be, or is not writable)."""
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as error:
@@ -334,7 +335,7 @@ class Runner:
     # ---- running -----------------------------------------------------------------------------
 
     def run(self):
-        _prepare_out(self.out)
+        prepare_out(self.out)
         with _locked(self.out):
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",

@@ -72,7 +72,6 @@ from iblbench.harness.framecache import FrameCache
 from iblbench.harness.reference import Reference
 from iblbench.scenes import cubemap, meshes
 from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError
 from iblbench.scenes.gbuffer import MIN_COS_VIEW, GBuffer, trace_gbuffer
 from iblbench.scenes.scene import Camera, Material
 
@@ -653,14 +652,11 @@ def _docstring_section(start: str, end: str | None = None) -> list[dict]:
 
 def write_outputs(out: pathlib.Path, table: pd.DataFrame, scale: Scale, device: str,
                   seconds: float) -> list[pathlib.Path]:
-    """``stress.parquet``, ``stress.csv`` and ``stress.html`` in ``out``, each written atomically."""
+    """``stress.parquet``, ``stress.csv`` and ``stress.html`` in ``out`` (an existing folder, see
+    ``runner.prepare_out``), each written atomically."""
     from iblbench.harness.results import write_table
     from iblbench.reports.report import stress_html
 
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise InputError(out, f"cannot create the output directory ({error.strerror})") from None
     paths = [out / "stress.parquet", out / "stress.csv", out / "stress.html"]
     write_table(table, *paths[:2])
     variants = dict(zip(table.case, table.variants))

@@ -184,3 +184,7 @@ def test_command_exits_2_on_bad_arguments(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:
         cli.main(["stress", "--case", "nope"])
     assert exit_.value.code == 2
+    a_file = tmp_path / "a-file"
+    a_file.write_text("")
+    assert cli.main(QUICK + ["--out", str(a_file)]) == 2     # refused before the battery runs
+    assert "cannot create the output directory" in capsys.readouterr().err
