@@ -115,12 +115,19 @@ inline float proposal_sample(const surface_t *s, const sir_proposal_t *q, int re
     return proposal_pdf(s, q, res, *w);
 }
 
-/* Candidate i: direction, and weight γ/q (0 where q or γ vanish or the ratio overflows). */
+/* Candidate i of M: direction, and weight γ/q (0 where q or γ vanish or the ratio overflows).
+ * The strategy is stratified, not drawn: candidate i comes from the map iff (i + ½)/M <
+ * env_pick, so exactly env_pick·M candidates do (bis_pixel makes env_pick a multiple of 1/M).
+ * That is the deterministic mixture (Veach's multi-sample MIS with the balance heuristic):
+ * γ/q with the mixture q stays unbiased for fixed counts, without the binomial variance of a
+ * random pick per candidate (√((1 − env_pick)/(M·env_pick)) relative, 7.9% at M = 160 and env_pick ½, on a small light
+ * that only the map samples find). */
 inline float sir_candidate(const surface_t *s, const sir_proposal_t *q,
                            __global const float4 *env, int res, uint seed, uint frame, uint pixel,
-                           int i, float3 *w, float *gamma, float3 *radiance)
+                           int i, int M, float3 *w, float *gamma, float3 *radiance)
 {
     float4 xi = rng_uniform4(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 0u);
+    xi.w = ((float)i + 0.5f) / (float)M;
     float pdf = proposal_sample(s, q, res, xi, w);
     *gamma = sir_target(s, env, res, *w, radiance);
     float weight = (pdf > 0.0f && *gamma > 0.0f) ? *gamma / pdf : 0.0f;
@@ -135,20 +142,37 @@ inline acc_t systematic_position(int k, int n, float u, acc_t total)
 
 /* BIS of one pixel (see the header).  Returns Ẑ; *sum gets Σ_k f/γ over the N resampled
  * samples (0 when every weight is 0).  When `particles` is not null, resampled sample k is
- * written to particles[k] = (ω, 1/N) and gammas[k] = (γ(ω), 0). */
+ * written to particles[k] = (ω, 1/N) and gammas[k] = (γ(ω), 0).  When `candidate_ratio` is
+ * not null it gets Σ_i w_i (f/γ)(ω_i) / Σ_i w_i over the candidates: Ẑ times it is
+ * (1/M) Σ_i f/q = E[Ẑ/N Σ_k f/γ | candidates], the estimate with the resampling
+ * Rao-Blackwellised. */
 inline float bis_pixel(const surface_t *s, const sir_proposal_t *q, __global const float4 *env,
                        int res, int M, int N, uint seed, uint frame, uint pixel, float3 *sum,
-                       __global float4 *particles, __global float2 *gammas)
+                       __global float4 *particles, __global float2 *gammas, float3 *candidate_ratio)
 {
     /* Compensated sums (double where the device has it): a zero-variance case (white furnace)
      * must not pick up M·ε of rounding.  Both passes accumulate identically. */
+    sir_proposal_t stratified = *q;
+    stratified.env_pick = round(q->env_pick * (float)M) / (float)M;
     kahan_t acc = {0, 0};
+    acc_t ratio_x = 0, ratio_y = 0, ratio_z = 0;
     for (int i = 0; i < M; ++i) {
         float3 w, radiance;
         float gamma;
-        kahan_add(&acc, (acc_t)sir_candidate(s, q, env, res, seed, frame, pixel, i, &w, &gamma, &radiance));
+        float weight = sir_candidate(s, &stratified, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance);
+        kahan_add(&acc, (acc_t)weight);
+        if (candidate_ratio && weight > 0.0f) {
+            float3 ratio = sir_ratio(s, w, radiance);
+            ratio_x += (acc_t)weight * ratio.x;
+            ratio_y += (acc_t)weight * ratio.y;
+            ratio_z += (acc_t)weight * ratio.z;
+        }
     }
     acc_t total = acc.sum;
+    if (candidate_ratio)
+        *candidate_ratio = total > 0 && isfinite(total)
+            ? (float3)((float)(ratio_x / total), (float)(ratio_y / total), (float)(ratio_z / total))
+            : (float3)(0.0f);
     *sum = (float3)(0.0f);
     if (!(total > 0.0f) || !isfinite(total)) {
         if (particles)
@@ -166,7 +190,7 @@ inline float bis_pixel(const surface_t *s, const sir_proposal_t *q, __global con
     for (int i = 0; i < M && k < N; ++i) {
         float3 w, radiance;
         float gamma;
-        float weight = sir_candidate(s, q, env, res, seed, frame, pixel, i, &w, &gamma, &radiance);
+        float weight = sir_candidate(s, &stratified, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance);
         kahan_add(&cumulative, (acc_t)weight);
         if (weight > 0.0f) {
             last_w = w;
