@@ -109,7 +109,7 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
             sum_sq += particles[i].w * particles[i].w;
         }
         if (!static_frame) evaluations += (float)N;
-        ess_min = 1.0f / sum_sq;
+        ess_min = sum_sq > 0.0f ? 1.0f / sum_sq : 0.0f;
         for (int step = 1; step <= steps && !reinit; ++step) {
             float alpha = static_frame ? 1.0f : (float)step / (float)steps;
             if (!static_frame) {
