@@ -213,3 +213,21 @@ def test_smc_static_frames_stay_unbiased_and_gain_from_their_fresh_samples(compu
     assert np.abs(z).max() < _sidak_z(z.size), f"|z| = {np.abs(z).max():.2f}"
     rms = np.sqrt(np.mean((images - reference) ** 2, axis=(0, 2, 3, 4)))
     assert rms[-1] <= 0.9 * rms[0], f"RMS by frame {np.round(rms, 4)}"
+
+
+def test_smc_recovers_to_balanced_mis_at_equal_evaluations_after_each_switch(tmp_path):
+    """Issue 5's acceptance at a small size: on sphere-switch, 3 frames after the light turns on
+    (10) and off (20), smc's ΔE is within 1.5× of balanced_mis's, balanced_mis given at least
+    smc's mean evaluations per frame over the run."""
+    frames = slice(8, 24)
+    config = dict(scenes=("sphere-switch",), seeds=2, resolution=(32, 32), env_res=16,
+                  frames=frames, progress=False)
+    smc = run(RunConfig(out=tmp_path / "smc", estimators=("smc",), spp=(8,), **config))
+    budget = int(np.ceil(smc.evaluations.mean()))
+    mis = run(RunConfig(out=tmp_path / "mis", estimators=("balanced_mis",), spp=(budget,), **config))
+    assert mis.evaluations.mean() >= smc.evaluations.mean()
+    error = {name: table.groupby("frame").mean_delta_e76.mean() for name, table in
+             (("smc", smc), ("mis", mis))}
+    for switch in (10, 20):
+        later = error["smc"][switch + 3] / error["mis"][switch + 3]
+        assert later <= 1.5, f"frame {switch + 3}: smc/balanced_mis ΔE = {later:.2f}"
