@@ -74,22 +74,32 @@ def _float_bins(cdf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return evaluated, drawn
 
 
-def _fixed_bins(cdf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(evaluated float32 widths, exact drawn probabilities) of fixed-point (uint64) CDFs."""
+def _fixed_bins(cdf: np.ndarray, variate_bits: int = 63) -> tuple[np.ndarray, np.ndarray]:
+    """(evaluated float32 widths, drawn probabilities) of fixed-point (uint64) CDFs searched with
+    ``variate_bits``-bit variates (63: the pool's, exact widths; 24: a float variate through
+    ``sample_face``, which sees the CDF on a grid of 2^39 units)."""
     cdf = np.asarray(cdf, np.uint64)
     width = np.diff(cdf, axis=-1, prepend=np.uint64(0))
     evaluated = width.astype(np.float32) * np.float32(2.0 ** -63)
-    drawn = width.astype(np.float64) / FIXED_POINT_ONE
+    if variate_bits >= 63:
+        return evaluated, width.astype(np.float64) / FIXED_POINT_ONE
+    step = np.uint64(1 << (63 - variate_bits))
+    cells = (cdf + step - np.uint64(1)) // step                     # ⌈c / step⌉, exact
+    drawn = np.diff(cells, axis=-1, prepend=np.uint64(0)).astype(np.float64) / 2.0 ** variate_bits
     return evaluated, drawn
 
 
-def sampler_probabilities(marginal: np.ndarray, conditional: np.ndarray
+def sampler_probabilities(marginal: np.ndarray, conditional: np.ndarray, variate_bits: int = 63
                           ) -> tuple[np.ndarray, np.ndarray]:
     """(p_eval float32, p_sampled float64), each ``[6, R, R]``, from the device CDFs as
-    :meth:`FrameCache.host_cdfs` returns them (float32 CDFs, or uint64 fixed-point ones)."""
-    bins = _fixed_bins if np.asarray(marginal).dtype == np.uint64 else _float_bins
-    row_eval, row_drawn = bins(marginal)
-    col_eval, col_drawn = bins(conditional)
+    :meth:`FrameCache.host_cdfs` returns them (float32 CDFs, always searched with 24-bit
+    variates; or uint64 fixed-point ones, with ``variate_bits``-bit variates)."""
+    if np.asarray(marginal).dtype == np.uint64:
+        row_eval, row_drawn = _fixed_bins(marginal, variate_bits)
+        col_eval, col_drawn = _fixed_bins(conditional, variate_bits)
+    else:
+        row_eval, row_drawn = _float_bins(marginal)
+        col_eval, col_drawn = _float_bins(conditional)
     return row_eval[..., None] * col_eval, row_drawn[..., None] * col_drawn
 
 
@@ -104,7 +114,7 @@ def texel_cosine_integrals(normal, res: int, sub: int = 4) -> np.ndarray:
 
 
 def light_sampler_figures(env: np.ndarray, marginal: np.ndarray, conditional: np.ndarray,
-                          normals: dict | None = None, sub: int = 4) -> dict:
+                          normals: dict | None = None, sub: int = 4, variate_bits: int = 63) -> dict:
     """The audit of one map's device CDFs (``marginal``, ``conditional`` from host_cdfs):
 
     - ``max_rel_error_eval`` / ``max_rel_error_sampled``: max over texels with p_exact > 0 of
@@ -117,7 +127,7 @@ def light_sampler_figures(env: np.ndarray, marginal: np.ndarray, conditional: np
     """
     normals = DIM_NORMALS if normals is None else normals
     exact = exact_texel_probabilities(env)
-    p_eval, p_sampled = sampler_probabilities(marginal, conditional)
+    p_eval, p_sampled = sampler_probabilities(marginal, conditional, variate_bits)
     lum = np.maximum(cubemap.luminance(env), 0.0)
     lit = exact > 0
     rel_eval = np.abs(p_eval.astype(np.float64)[lit] - exact[lit]) / exact[lit]
@@ -141,7 +151,7 @@ def light_sampler_figures(env: np.ndarray, marginal: np.ndarray, conditional: np
     return out
 
 
-def audit(name: str, compute=None, normals: dict | None = None) -> dict:
+def audit(name: str, compute=None, normals: dict | None = None, variate_bits: int = 63) -> dict:
     """:func:`light_sampler_figures` of stress map ``name`` on the device's CDFs."""
     from iblbench.harness.device import get_compute
     from iblbench.harness.framecache import FrameCache
@@ -150,12 +160,18 @@ def audit(name: str, compute=None, normals: dict | None = None) -> dict:
     cache = FrameCache(compute or get_compute(), env)
     marginal, conditional = cache.host_cdfs()
     return light_sampler_figures(env, marginal, conditional, normals,
-                                 sub=1 if env.shape[1] > 256 else 4)
+                                 sub=1 if env.shape[1] > 256 else 4, variate_bits=variate_bits)
 
 
 def main() -> None:
+    import argparse
+    parser = argparse.ArgumentParser(description="Exact audit of the device light CDFs.")
+    parser.add_argument("--variate-bits", type=int, default=63,
+                        help="bits of the search variate for fixed-point CDFs (63: the pool's "
+                             "variates; 24: a float variate through sample_face)")
+    bits = parser.parse_args().variate_bits
     for name in ("sun-1e6", "sun-1e9", "huge-faces"):
-        r = audit(name)
+        r = audit(name, variate_bits=bits)
         print(f"{name} (R={r['res']}): max rel error eval {r['max_rel_error_eval']:.3g}, "
               f"sampled {r['max_rel_error_sampled']:.3g}; never-sampled lit texels {r['zero_bins']}")
         for normal, f in r["normals"].items():
