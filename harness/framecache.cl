@@ -7,11 +7,12 @@
 /* The fixed-point CDFs of common.cl.  A run of n weights w_i ≥ 0 (a row's Y·Ω, or a face's row
  * totals) with total W = Σ w (Kahan, double where the device has it) gets integer widths
  *     q_i = max(1, ⌊2^63 · w_i / W⌋) for w_i > 0,  q_i = 0 for w_i = 0,
- * each rounded relatively (w_i / W in acc_t), so every positive weight keeps a positive and
+ * each rounded relatively (w_i · (1/W) in acc_t), so every positive weight keeps a positive and
  * relatively exact probability however bright the rest of its run.  The remainder 2^63 − Σ q (a
  * few units per bin plus W's rounding: relative 1e-15, or about n·1e-7 without fp64) goes to the
  * largest bin, so the scan ends at exactly CDF_ONE.  An all-zero run gets a uniform CDF (it is
- * never selected: its own weight is 0).
+ * never selected: its own weight is 0), and so does a run whose 1/W overflows (a denormal W in
+ * float): still exactly the pdf it samples.
  * On entry cdf[i] holds w_i's float bits (as_uint); three passes: W and the largest bin, the
  * widths' prefix sums in place, the remainder (mod 2^64: it may be negative) from the largest
  * bin on.  Returns W. */
@@ -25,13 +26,13 @@ inline acc_t write_cdf(__global cdf_word_t *cdf, int n)
         kahan_add(&k, w);
         if (w > max_weight) { max_weight = w; largest = i; }
     }
-    acc_t total = k.sum;
-    int uniform = !(total > 0);
+    acc_t total = k.sum, inverse = (acc_t)1 / total;   /* a product per bin, not a division */
+    int uniform = !(total > 0) || isinf(inverse);
+    if (uniform) inverse = (acc_t)1 / n;
     cdf_word_t running = 0;
     for (int i = 0; i < n; ++i) {
-        float w = as_float((uint)cdf[i]);
-        acc_t p = uniform ? (acc_t)1 / n : (acc_t)w / total;
-        running += (uniform || w > 0.0f) ? max((cdf_word_t)1, convert_ulong_sat(p * (acc_t)0x1p63)) : 0;
+        float w = uniform ? 1.0f : as_float((uint)cdf[i]);
+        running += w > 0.0f ? max((cdf_word_t)1, convert_ulong_sat((acc_t)w * inverse * (acc_t)0x1p63)) : 0;
         cdf[i] = running;
     }
     cdf_word_t remainder = CDF_ONE - cdf[n - 1];
