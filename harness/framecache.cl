@@ -13,20 +13,22 @@
  * largest bin, so the scan ends at exactly CDF_ONE.  An all-zero run gets a uniform CDF (it is
  * never selected: its own weight is 0), and so does a run whose 1/W overflows (a denormal W in
  * float): still exactly the pdf it samples.
- * On entry cdf[i] holds w_i's float bits (as_uint); three passes: W and the largest bin, the
- * widths' prefix sums in place, the remainder (mod 2^64: it may be negative) from the largest
- * bin on.  Returns W. */
-inline acc_t write_cdf(__global cdf_word_t *cdf, int n)
+ * Two passes per run (one work item scans it): cdf_run_add stores each weight's float bits in
+ * cdf[i] and accumulates W and the largest bin; write_cdf turns them into the widths' prefix
+ * sums in place and adds the remainder (mod 2^64: it may be negative) from the largest bin on. */
+typedef struct { kahan_t sum; float largest_weight; int largest; } cdf_run_t;
+
+inline void cdf_run_add(cdf_run_t *run, __global cdf_word_t *cdf, int i, float w)
 {
-    kahan_t k = {0, 0};
-    int largest = 0;
-    float max_weight = 0.0f;
-    for (int i = 0; i < n; ++i) {
-        float w = as_float((uint)cdf[i]);
-        kahan_add(&k, w);
-        if (w > max_weight) { max_weight = w; largest = i; }
-    }
-    acc_t total = k.sum, inverse = (acc_t)1 / total;   /* a product per bin, not a division */
+    cdf[i] = as_uint(w);
+    kahan_add(&run->sum, w);
+    if (w > run->largest_weight) { run->largest_weight = w; run->largest = i; }
+}
+
+/* Returns W. */
+inline acc_t write_cdf(__global cdf_word_t *cdf, int n, const cdf_run_t *run)
+{
+    acc_t total = run->sum.sum, inverse = (acc_t)1 / total;   /* a product per bin, not a division */
     int uniform = !(total > 0) || isinf(inverse);
     if (uniform) inverse = (acc_t)1 / n;
     cdf_word_t running = 0;
@@ -35,8 +37,8 @@ inline acc_t write_cdf(__global cdf_word_t *cdf, int n)
         running += w > 0.0f ? max((cdf_word_t)1, convert_ulong_sat((acc_t)w * inverse * (acc_t)0x1p63)) : 0;
         cdf[i] = running;
     }
-    cdf_word_t remainder = CDF_ONE - cdf[n - 1];
-    for (int i = largest; i < n; ++i) cdf[i] += remainder;
+    cdf_word_t remainder = CDF_ONE - running;
+    for (int i = run->largest; i < n; ++i) cdf[i] += remainder;
     return total;
 }
 
@@ -46,9 +48,10 @@ __kernel void row_cdfs(__global const float4 *env, __global const float *omega, 
     int face_row = get_global_id(0);
     int row = face_row % res;
     __global cdf_word_t *cdf = conditional + face_row * res;
+    cdf_run_t run = {{0, 0}, 0.0f, 0};
     for (int col = 0; col < res; ++col)
-        cdf[col] = as_uint(luminance(env[face_row * res + col].xyz) * omega[row * res + col]);
-    row_weight[face_row] = (float)write_cdf(cdf, res);
+        cdf_run_add(&run, cdf, col, luminance(env[face_row * res + col].xyz) * omega[row * res + col]);
+    row_weight[face_row] = (float)write_cdf(cdf, res, &run);
 }
 
 __kernel void face_cdfs(__global const float *row_weight, const int res,
@@ -56,8 +59,9 @@ __kernel void face_cdfs(__global const float *row_weight, const int res,
 {
     int face = get_global_id(0);
     __global cdf_word_t *cdf = marginal + face * res;
-    for (int row = 0; row < res; ++row) cdf[row] = as_uint(row_weight[face * res + row]);
-    face_integral[face] = (float)write_cdf(cdf, res);
+    cdf_run_t run = {{0, 0}, 0.0f, 0};
+    for (int row = 0; row < res; ++row) cdf_run_add(&run, cdf, row, row_weight[face * res + row]);
+    face_integral[face] = (float)write_cdf(cdf, res, &run);
 }
 
 /* The pool (Algorithm 1, line 10): `per_face` samples of each lit face f, entry f·per_face + i
