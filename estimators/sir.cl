@@ -64,12 +64,12 @@ inline float3 sir_ratio(const surface_t *s, float3 w, float3 radiance)
  * probability env_pick, the map (face f with probability μ_f = I_f/Σ I, then sample_face):
  * q(ω) = (1 − env_pick) p_B(ω) + env_pick μ_{f(ω)} pdf_L(ω|f(ω)) (pdf_L vanishes off face f). */
 typedef struct {
-    __global const float *marginal, *conditional;
+    __global const cdf_word_t *marginal, *conditional;
     float mu[6];
     float env_pick;
 } sir_proposal_t;
 
-inline sir_proposal_t make_proposal(__global const float *marginal, __global const float *conditional,
+inline sir_proposal_t make_proposal(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
                                     __global const float *face_integral, float env_pick)
 {
     sir_proposal_t q;
@@ -93,13 +93,21 @@ inline float proposal_pdf(const surface_t *s, const sir_proposal_t *q, int res, 
     return density;
 }
 
-/* A direction from q with four uniforms; returns q(ω).  With env_pick = 0 this is exactly
- * sample_phong on xi.xyz (Burke's candidates). */
+/* Does the draw with uniforms xi take the map (else the BRDF)? */
+inline int proposal_uses_map(const sir_proposal_t *q, float4 xi)
+{
+    return q->env_pick > 0.0f && xi.w < q->env_pick;
+}
+
+/* A direction from q: xi.w picks the strategy, xi.x the face, xi.xyz a BRDF direction, and a
+ * map direction takes its texel and point from the 63-bit words `point` (sample_face; only
+ * read when proposal_uses_map).  Returns q(ω).  With env_pick = 0 this is exactly sample_phong
+ * on xi.xyz (Burke's candidates). */
 inline float proposal_sample(const surface_t *s, const sir_proposal_t *q, int res, float4 xi,
-                             float3 *w)
+                             ulong2 point, float3 *w)
 {
     if (!(q->env_pick > 0.0f)) return sample_phong(s->n, s->r, s->p_spec, s->m, xi.xyz, w);
-    if (xi.w < q->env_pick) {
+    if (proposal_uses_map(q, xi)) {
         float cumulative = 0.0f;
         int face = 0;
         for (int f = 0; f < 6; ++f) {   /* the last face with μ > 0 takes any rounding remainder */
@@ -108,7 +116,7 @@ inline float proposal_sample(const surface_t *s, const sir_proposal_t *q, int re
             if (xi.x < cumulative && q->mu[f] > 0.0f) break;
         }
         int texel;
-        sample_face(q->marginal, q->conditional, face, res, xi.yz, w, &texel);
+        sample_face(q->marginal, q->conditional, face, res, point >> 1, w, &texel);
     } else {
         sample_phong(s->n, s->r, s->p_spec, s->m, xi.xyz, w);
     }
@@ -128,7 +136,9 @@ inline float sir_candidate(const surface_t *s, const sir_proposal_t *q,
 {
     float4 xi = rng_uniform4(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 0u);
     xi.w = ((float)i + 0.5f) / (float)M;
-    float pdf = proposal_sample(s, q, res, xi, w);
+    ulong2 point = proposal_uses_map(q, xi)
+        ? rng_words2(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 1u) : (ulong2)(0);
+    float pdf = proposal_sample(s, q, res, xi, point, w);
     *gamma = sir_target(s, env, res, *w, radiance);
     float weight = (pdf > 0.0f && *gamma > 0.0f) ? *gamma / pdf : 0.0f;
     return isfinite(weight) ? weight : 0.0f;

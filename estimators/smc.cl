@@ -9,6 +9,7 @@
 
 #define STREAM_SMC_MOVE 30u
 #define STREAM_SMC_RESAMPLE 31u
+#define STREAM_SMC_MAP_POINT 32u
 
 /* The tempered target π_α = γ_{t−1}^{1−α} γ_t^α of one step (α = 1: γ_t itself). */
 inline float tempered(float g0, float g1, float alpha)
@@ -57,7 +58,7 @@ inline void resample_particles(__global float4 *particles, __global float2 *gamm
 __kernel void render_smc(__global const float4 *normal, __global const float4 *view,
                          __global const float4 *kd, __global const float4 *ks_m,
                          __global const float4 *env, __global const float4 *prev_env,
-                         __global const float *marginal, __global const float *conditional,
+                         __global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
                          __global const float *face_integral, const int res, const int N,
                          const int M_init, const float init_env_pick, const int steps,
                          const float nu, const float cos_delta, const float threshold,
@@ -154,7 +155,10 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
                 if (kind == 0)
                     w_new = direction_about(w, 1.0f - b.x * (1.0f - cos_delta), b.y);
                 else
-                    q_new = proposal_sample(&s, independent, res, (float4)(a.z, b.x, b.y, 0.0f), &w_new);
+                    q_new = proposal_sample(&s, independent, res, (float4)(a.z, b.x, b.y, 0.0f),
+                                            kind == 1 ? rng_words2(seed, frame, STREAM_SMC_MAP_POINT,
+                                                                   (uint)p, (uint)i, (uint)step)
+                                                      : (ulong2)(0), &w_new);
                 float3 L;
                 float g1_new = sir_target(&s, env, res, w_new, &L);
                 float g0_new = static_frame ? g1_new : 0.0f;

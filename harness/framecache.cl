@@ -66,8 +66,8 @@ __kernel void face_cdfs(__global const float *row_weight, const int res,
 
 /* The pool (Algorithm 1, line 10): `per_face` samples of each lit face f, entry f·per_face + i
  * drawn from pool point i by the face's CDFs.  Entries store (ω, pdf_L(ω|f)) and the radiance. */
-__kernel void build_light_pool(__global const float4 *env, __global const cdf_buffer_t *marginal,
-                               __global const cdf_buffer_t *conditional, __global const float *face_integral,
+__kernel void build_light_pool(__global const float4 *env, __global const cdf_word_t *marginal,
+                               __global const cdf_word_t *conditional, __global const float *face_integral,
                                const int res, const int per_face, const uint seed, const uint frame,
                                __global float4 *pool_dir_pdf, __global float4 *pool_radiance)
 {
@@ -81,7 +81,7 @@ __kernel void build_light_pool(__global const float4 *env, __global const cdf_bu
     float3 w;
     int texel;
     ulong2 u = pool_point(face, entry % per_face, seed, frame);
-    float pdf = sample_face_fixed(marginal, conditional, face, res, u, &w, &texel);
+    float pdf = sample_face(marginal, conditional, face, res, u, &w, &texel);
     pool_dir_pdf[entry] = (float4)(w, pdf);
     pool_radiance[entry] = env[texel];
 }

@@ -106,13 +106,13 @@ def test_the_audit_counts_what_a_float_variate_reaches():
 
 DRAW_SOURCE = """
 #include "common.cl"
-__kernel void draw(__global const cdf_buffer_t *marginal, __global const cdf_buffer_t *conditional,
+__kernel void draw(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
                    const int face, const int res, __global const ulong2 *u,
                    __global float4 *dir_pdf, __global int *texel)
 {
     int i = get_global_id(0), t;
     float3 w;
-    float pdf = sample_face_fixed(marginal, conditional, face, res, u[i], &w, &t);
+    float pdf = sample_face(marginal, conditional, face, res, u[i], &w, &t);
     dir_pdf[i] = (float4)(w, pdf);
     texel[i] = t;
 }
@@ -159,7 +159,7 @@ def test_sample_face_reaches_every_texel_of_the_sun_face_continuously(compute):
 
 
 def test_pool_samples_follow_the_exact_texel_probabilities(compute):
-    """χ² of the pool's draws (pool_point → sample_face_fixed on the device) per face against the
+    """χ² of the pool's draws (pool_point → sample_face on the device) per face against the
     float64 texel probabilities, on a moderate-contrast sun map; and each stored pdf is exact."""
     res, per_face = 16, 1 << 16
     env = smooth_map(res)

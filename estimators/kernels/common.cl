@@ -91,21 +91,9 @@ inline float area_per_solid_angle(float u, float v)
  * under 2^-24 (the sky next to a sun in the same block has such bins).  So: widths rounded
  * relatively and ≥ 1 for every positive weight, searched with 63-bit variates (pool_point),
  * draw bin i with probability exactly q_i / 2^63, on any device (sampling needs no fp64).
- * Kernels take a CDF buffer as `__global const cdf_buffer_t *`, a `float` pointer (the type that
- * sir.cl and smc.cl declare, so they compile unchanged) used as a handle: only this file reads
- * its words, through cdf_words().  sample_face() with a float variate still works but reaches
- * bins only down to 2^-24; sample_face_fixed() with 63-bit variates reaches all. */
+ * Samplers draw their points as 63-bit words (rng_words2 >> 1). */
 typedef ulong cdf_word_t;
-typedef float cdf_buffer_t;
 #define CDF_ONE ((cdf_word_t)1 << 63)
-
-inline __global const cdf_word_t *cdf_words(__global const cdf_buffer_t *buffer)
-{
-    return (__global const cdf_word_t *)buffer;
-}
-
-/* A float variate in [0, 1) as a fixed-point one (exact: u·2^63 < 2^63 is a float's scaling). */
-inline cdf_word_t cdf_variate(float u) { return convert_ulong(u * 0x1p63f); }
 
 /* First i with cdf[i] > u; cdf is inclusive and ends at exactly CDF_ONE, so zero-width bins are
  * never chosen and the result is < n for u in [0, CDF_ONE).  The trip count depends on n only,
@@ -141,13 +129,13 @@ inline float cdf_bin_position(__global const cdf_word_t *cdf, int i, cdf_word_t 
  * marginal (rows) and conditional (columns | row) CDFs; the position of u inside the chosen bins
  * is the point in the texel's face square.  Returns pdf_L(ω|f) in solid angle (DESIGN §3):
  * P(texel|f) · (1+u²+v²)^{3/2} / a_texel with a_texel = (2/R)².  *texel gets the texel index. */
-inline float sample_face_fixed(__global const cdf_buffer_t *marginal,
-                               __global const cdf_buffer_t *conditional,
+inline float sample_face(__global const cdf_word_t *marginal,
+                               __global const cdf_word_t *conditional,
                                int face, int res, ulong2 u, float3 *dir, int *texel)
 {
-    __global const cdf_word_t *rows = cdf_words(marginal) + face * res;
+    __global const cdf_word_t *rows = marginal + face * res;
     int row = cdf_search(rows, res, u.x);
-    __global const cdf_word_t *cols = cdf_words(conditional) + (face * res + row) * res;
+    __global const cdf_word_t *cols = conditional + (face * res + row) * res;
     int col = cdf_search(cols, res, u.y);
     float x = -1.0f + 2.0f * ((float)col + cdf_bin_position(cols, col, u.y)) / res;
     float y = -1.0f + 2.0f * ((float)row + cdf_bin_position(rows, row, u.x)) / res;
@@ -157,25 +145,16 @@ inline float sample_face_fixed(__global const cdf_buffer_t *marginal,
     return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(x, y) / texel_area;
 }
 
-/* sample_face_fixed from a float point u in [0, 1)² (24-bit variates: bins of probability below
- * 2^-24 are not reached; draw 63-bit points where that matters). */
-inline float sample_face(__global const cdf_buffer_t *marginal, __global const cdf_buffer_t *conditional,
-                         int face, int res, float2 u, float3 *dir, int *texel)
-{
-    return sample_face_fixed(marginal, conditional, face, res,
-                             (ulong2)(cdf_variate(u.x), cdf_variate(u.y)), dir, texel);
-}
-
 /* pdf_L(ω|f) of sample_face for the face f that holds ω (it is zero on every other face);
  * *texel gets the texel that holds ω (its face is texel / R²). */
-inline float light_pdf(__global const cdf_buffer_t *marginal, __global const cdf_buffer_t *conditional,
+inline float light_pdf(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
                        int res, float3 w, int *texel)
 {
     float s, t;
     int f = dir_to_face_st(w, &s, &t);
     int row = clamp_index(t, res), col = clamp_index(s, res);
-    float p_texel = cdf_bin(cdf_words(marginal) + f * res, row)
-                  * cdf_bin(cdf_words(conditional) + (f * res + row) * res, col);
+    float p_texel = cdf_bin(marginal + f * res, row)
+                  * cdf_bin(conditional + (f * res + row) * res, col);
     *texel = texel_index(f, row, col, res);
     return p_texel * area_per_solid_angle(2.0f * s - 1.0f, 2.0f * t - 1.0f) * (float)(res * res) / 4.0f;
 }

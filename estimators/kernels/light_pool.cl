@@ -25,7 +25,7 @@
 /* ---- the pool (Algorithm 1, line 10) -------------------------------------------------------- */
 
 /* Point i of face f's 2-D sequence, as fixed-point CDF variates (63 bits per coordinate, so
- * sample_face_fixed reaches every bin of the fixed-point CDFs; common.cl).  The sequence is fixed
+ * sample_face reaches every bin of the fixed-point CDFs; common.cl).  The sequence is fixed
  * (Lu's "precomputed random sequence", Sec. 2.2) and rotated modulo 1 by a random shift per
  * (seed, frame, face) (Cranley–Patterson): every rotated point is uniform on [0, 1)², so an
  * estimate that reads any of them is unbiased over seeds even when all pixels read the same
@@ -163,8 +163,8 @@ inline void shade_light_faces(accumulator_t *acc, const surface_t *s, const int 
 /* BRDF samples of Eq. 6 (f_i): the denominator holds the full light mixture, which is the one
  * face term t_{f(ω)}·pdf_L(ω|f(ω)) because pdf_L(ω|f) = 0 off face f. */
 inline void shade_brdf(accumulator_t *acc, const surface_t *s, const int ticks[7],
-                       __global const float4 *env, __global const cdf_buffer_t *marginal,
-                       __global const cdf_buffer_t *conditional, int res, uint seed, uint frame, uint stream_pixel)
+                       __global const float4 *env, __global const cdf_word_t *marginal,
+                       __global const cdf_word_t *conditional, int res, uint seed, uint frame, uint stream_pixel)
 {
     int draws = draws_for(ticks[6]);
     for (int i = 0; i < draws; ++i) {
@@ -191,8 +191,8 @@ inline float pooled_density(const surface_t *s, const int ticks[7], int face, fl
 }
 
 /* pooled_density with ω's light pdf looked up from its texel (light_pdf of common.cl). */
-inline float pooled_pdf(const surface_t *s, const int ticks[7], __global const cdf_buffer_t *marginal,
-                        __global const cdf_buffer_t *conditional, int res, float3 w)
+inline float pooled_pdf(const surface_t *s, const int ticks[7], __global const cdf_word_t *marginal,
+                        __global const cdf_word_t *conditional, int res, float3 w)
 {
     int texel;
     float pdf_light = light_pdf(marginal, conditional, res, w, &texel);
