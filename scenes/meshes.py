@@ -90,11 +90,23 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     if not path.is_file():
         raise InputError(path, "mesh file not found")
     try:
-        mesh = trimesh.load(path, force="mesh")
+        # Unprocessed: processing would drop non-finite vertices and their faces without a word.
+        mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as error:  # trimesh raises many types for unreadable files
         raise InputError(path, f"cannot read mesh: {error}") from error
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise InputError(path, "mesh has no triangles")
-    if not np.all(np.isfinite(mesh.vertices)):
+    _check_geometry(path, np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    return mesh.process()
+
+
+def _check_geometry(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Refuse what trimesh reads from a corrupt file without complaint."""
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise InputError(path, f"cannot read mesh: got vertices of shape {list(vertices.shape)} and "
+                               f"faces of shape {list(faces.shape)}, not 3D points and triangles")
+    if not np.all(np.isfinite(vertices)):
         raise InputError(path, "mesh has non-finite vertex coordinates")
-    return mesh
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise InputError(path, f"a face refers to vertex {faces.max() + 1} or {faces.min() + 1}, "
+                               f"but the mesh has vertices 1..{len(vertices)}")
