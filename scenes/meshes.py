@@ -11,6 +11,9 @@ import trimesh
 from .errors import InputError
 
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
+# Larger coordinates overflow trimesh's vertex merging (it rounds x·1e8 to int64) and lose
+# Embree's float32 precision; cameras are held to the same bound.
+MAX_COORDINATE = 1e9
 
 
 def sphere(subdivisions: int = 4, radius: float = 1.0) -> trimesh.Trimesh:
@@ -107,6 +110,9 @@ def _check_geometry(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None
                                f"faces of shape {list(faces.shape)}, not 3D points and triangles")
     if not np.all(np.isfinite(vertices)):
         raise InputError(path, "mesh has non-finite vertex coordinates")
+    peak = float(np.abs(vertices).max())
+    if peak > MAX_COORDINATE:
+        raise InputError(path, f"vertex coordinates reach {peak:g}; at most ±{MAX_COORDINATE:g} is supported")
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise InputError(path, f"a face refers to vertex {faces.max() + 1} or {faces.min() + 1}, "
                                f"but the mesh has vertices 1..{len(vertices)}")
