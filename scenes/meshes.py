@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,8 @@ MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
 # Larger coordinates overflow trimesh's vertex merging (it rounds x·1e8 to int64) and lose
 # Embree's float32 precision; cameras are held to the same bound.
 MAX_COORDINATE = 1e9
+# OBJ vertex indices count from 1 (negative ones from the end); trimesh reads a 0 as the last vertex.
+_OBJ_ZERO_INDEX = re.compile(rb"^f[ \t](?:[^\n]*[ \t])?0(?=[/\s]|$)", re.MULTILINE)
 
 
 def sphere(subdivisions: int = 4, radius: float = 1.0) -> trimesh.Trimesh:
@@ -92,6 +95,8 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
         raise InputError(path, f"unsupported mesh format {path.suffix!r}; use one of {', '.join(MESH_SUFFIXES)}")
     if not path.is_file():
         raise InputError(path, "mesh file not found")
+    if path.suffix.lower() == ".obj":
+        _check_obj_indices(path)
     try:
         # Unprocessed: processing would drop non-finite vertices and their faces without a word.
         mesh = trimesh.load(path, force="mesh", process=False)
@@ -101,6 +106,16 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
         raise InputError(path, "mesh has no triangles")
     _check_geometry(path, np.asarray(mesh.vertices), np.asarray(mesh.faces))
     return mesh.process()
+
+
+def _check_obj_indices(path: Path) -> None:
+    try:
+        zero = _OBJ_ZERO_INDEX.search(path.read_bytes())
+    except OSError as error:
+        raise InputError(path, f"cannot read mesh: {error.strerror}") from None
+    if zero:
+        line = zero.string.count(b"\n", 0, zero.start()) + 1
+        raise InputError(path, f"line {line}: face vertex index 0 (OBJ indices start at 1)")
 
 
 def _check_geometry(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:

@@ -167,6 +167,7 @@ def test_load_mesh_merges_a_multi_object_file(tmp_path):
         # trimesh's processing drops the NaN vertex and its faces without a word.
         ("nan.obj", "v nan 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 3 4\n", "non-finite vertex"),
         ("flat.obj", "v 0.5\nv 1\nv 2\nf 1 2 3\n", "not 3D points and triangles"),
+        ("zero.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 3 0 1\n", "line 5: face vertex index 0"),
         ("huge.obj", "v 1e30 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n", "coordinates reach 1e\\+30; at most ±1e\\+09"),
     ],
 )
