@@ -286,10 +286,12 @@ def _toml_scene(path: Path, sanitize: bool, env_res: int | None) -> Scene:
     material = _material(fields["material"])
     camera = _camera(fields["camera"])
     environment = _environment(fields["environment"], folder, sanitize, env_res)
-    mesh = meshes.load_mesh(folder / fields["mesh"].string("path"))
+    mesh_path = folder / fields["mesh"].string("path")
+    mesh = meshes.load_mesh(mesh_path)
     render = fields["render"]
     resolution = tuple(render.positive_int(k) if render.has(k) else 128 for k in ("width", "height"))
-    return Scene(path.stem, mesh, material, camera, environment, resolution, source=os.fspath(path))
+    return Scene(path.stem, mesh, material, camera, environment, resolution, source=os.fspath(path),
+                 mesh_source=os.fspath(mesh_path))
 
 
 def _material(fields: _Fields) -> Material:
