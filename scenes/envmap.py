@@ -49,6 +49,7 @@ from .imageio import read_image
 LAYOUTS = ("auto", "latlong", "vcross", "hcross", "faces")
 FACE_FILE_NAMES = ("px", "nx", "py", "ny", "pz", "nz")
 MAX_DEFAULT_RES = 512
+MAX_RES = 4096   # a 4096² cube map is 1.2 GB of float32; larger ones exhaust memory
 MAX_SUBSAMPLES = 16
 _SAMPLES_PER_SOURCE_PIXEL = 4  # sub-texel samples per source pixel width (per axis)
 _SAMPLES_PER_BATCH = 1 << 20  # bounds temporary memory
@@ -88,8 +89,8 @@ def load_environment(
     """
     if layout not in LAYOUTS:
         raise InputError(None, f"unknown layout '{layout}' (choose from {', '.join(LAYOUTS)})")
-    if res is not None and (not isinstance(res, (int, np.integer)) or res < 1):
-        raise InputError(None, f"cube-map resolution must be a positive integer, got {res!r}")
+    if res is not None and (not isinstance(res, (int, np.integer)) or not 1 <= res <= MAX_RES):
+        raise InputError(None, f"cube-map resolution must be an integer in 1..{MAX_RES}, got {res!r}")
     paths = _source_paths(source)
     if len(paths) == 1 and os.fspath(paths[0]).lower().endswith(".npy"):
         images, paths = _read_cube_npy(paths[0]), paths * 6

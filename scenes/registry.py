@@ -30,7 +30,8 @@ User scene format (paths are relative to the TOML file's folder)::
                                     # faces (px, nx, py, ny, pz, nz), a .npy [6,R,R,3], or a glob
                                     # ("day/*.exr") for a sequence, frames in sorted name order
     layout = "auto"                 # optional: auto, latlong, vcross, hcross or faces
-    res = 64                        # optional cube face resolution (default: the source's own)
+    res = 64                        # optional cube face resolution, at most 4096 (default: the
+                                    # source's own)
 
     [material]                      # optional; defaults kd = 0.5, ks = 0.3, shininess = 150
     kd = [0.6, 0.5, 0.4]            # a number or an RGB triple; kd + ks <= 1 per channel
@@ -44,7 +45,7 @@ User scene format (paths are relative to the TOML file's folder)::
     fov_y = 45.0                    # optional, full vertical field of view in degrees
 
     [render]                        # optional
-    width = 128
+    width = 128                     # each side at most 16384
     height = 128
 
 Unknown sections or keys are errors (they are usually typos).  Every problem is an ``InputError``
@@ -60,12 +61,14 @@ from typing import Any, Callable
 import numpy as np
 
 from . import meshes, sequences, sky
-from .envmap import LAYOUTS, load_environment
+from .envmap import LAYOUTS, MAX_RES, load_environment
 from .errors import InputError
 from .scene import Camera, EnvSequence, Material, Scene
 from .tomlfile import read_toml
 
 DEFAULT_ENV_RES = 64
+# Bounds that only a corrupt or mistyped scene file exceeds; past them a run exhausts memory.
+MAX_IMAGE_SIDE = 16384
 
 
 _MATERIAL = Material(kd=(0.5, 0.5, 0.5), ks=(0.3, 0.3, 0.3), shininess=150.0)
@@ -244,10 +247,12 @@ class _Fields:
             self.fail(f"{self._where(key)} must be >= {minimum}, got {value!r}")
         return float(value)
 
-    def positive_int(self, key: str) -> int:
+    def positive_int(self, key: str, maximum: int) -> int:
         value = self.table[key]
         if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
             self.fail(f"{self._where(key)} must be a positive integer, got {value!r}")
+        if value > maximum:
+            self.fail(f"{self._where(key)} must be at most {maximum}, got {value!r}")
         return value
 
     def string(self, key: str) -> str:
@@ -289,7 +294,8 @@ def _toml_scene(path: Path, sanitize: bool, env_res: int | None) -> Scene:
     mesh_path = folder / fields["mesh"].string("path")
     mesh = meshes.load_mesh(mesh_path)
     render = fields["render"]
-    resolution = tuple(render.positive_int(k) if render.has(k) else 128 for k in ("width", "height"))
+    resolution = tuple(render.positive_int(k, MAX_IMAGE_SIDE) if render.has(k) else 128
+                       for k in ("width", "height"))
     return Scene(path.stem, mesh, material, camera, environment, resolution, source=os.fspath(path),
                  mesh_source=os.fspath(mesh_path))
 
@@ -328,7 +334,7 @@ def _environment(fields: _Fields, folder: Path, sanitize: bool, env_res: int | N
     layout = fields.string("layout") if fields.has("layout") else "auto"
     if layout not in LAYOUTS:
         fields.fail(f"environment.layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
-    res = env_res or (fields.positive_int("res") if fields.has("res") else None)
+    res = env_res or (fields.positive_int("res", MAX_RES) if fields.has("res") else None)
     paths = sorted(glob.glob(pattern)) if any(c in pattern for c in "*?") else [pattern]
     if not paths:
         fields.fail(f"environment.path {pattern!r} matches no files")

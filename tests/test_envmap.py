@@ -237,8 +237,9 @@ def test_layout_and_source_mismatches(tmp_path):
         load_environment([tmp_path / "a.exr"] * 6, layout="latlong")
     with pytest.raises(InputError, match="unknown layout 'cubic'"):
         load_environment(tmp_path / "a.exr", layout="cubic")
-    with pytest.raises(InputError, match="positive integer"):
-        load_environment(tmp_path / "a.exr", res=0)
+    for res in (0, 4097):
+        with pytest.raises(InputError, match=r"an integer in 1\.\.4096"):
+            load_environment(tmp_path / "a.exr", res=res)
 
 
 @pytest.mark.parametrize("name, content", [("gone.exr", None), ("bad.exr", b"x" * 500), ("bad.hdr", b"#?RADIANCE\n")])
