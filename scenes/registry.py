@@ -36,7 +36,7 @@ User scene format (paths are relative to the TOML file's folder)::
     [material]                      # optional; defaults kd = 0.5, ks = 0.3, shininess = 150
     kd = [0.6, 0.5, 0.4]            # a number or an RGB triple; kd + ks <= 1 per channel
     ks = 0.2
-    shininess = 80
+    shininess = 80                  # at most 1e6
 
     [camera]
     eye = [0.0, 0.5, 3.0]           # required
@@ -67,8 +67,10 @@ from .scene import Camera, EnvSequence, Material, Scene
 from .tomlfile import read_toml
 
 DEFAULT_ENV_RES = 64
-# Bounds that only a corrupt or mistyped scene file exceeds; past them a run exhausts memory.
+# Bounds that only a corrupt or mistyped scene file exceeds; past them a run would exhaust memory
+# or overflow float32 on the device.
 MAX_IMAGE_SIDE = 16384
+MAX_SHININESS = 1e6
 
 
 _MATERIAL = Material(kd=(0.5, 0.5, 0.5), ks=(0.3, 0.3, 0.3), shininess=150.0)
@@ -239,12 +241,14 @@ class _Fields:
     def _where(self, key: str) -> str:
         return f"{self.section}.{key}"
 
-    def number(self, key: str, minimum: float | None = None) -> float:
+    def number(self, key: str, minimum: float | None = None, maximum: float | None = None) -> float:
         value = self.table[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
             self.fail(f"{self._where(key)} must be a finite number, got {value!r}")
         if minimum is not None and value < minimum:
             self.fail(f"{self._where(key)} must be >= {minimum}, got {value!r}")
+        if maximum is not None and value > maximum:
+            self.fail(f"{self._where(key)} must be <= {maximum:g}, got {value!r}")
         return float(value)
 
     def positive_int(self, key: str, maximum: int) -> int:
@@ -306,7 +310,8 @@ def _material(fields: _Fields) -> Material:
     ks = fields.rgb("ks") if fields.has("ks") else default.ks
     if max(d + s for d, s in zip(kd, ks)) > 1.0 + 1e-9:
         fields.fail(f"material kd + ks must be <= 1 per channel (energy conservation), got kd={kd}, ks={ks}")
-    shininess = fields.number("shininess", minimum=0.0) if fields.has("shininess") else default.shininess
+    shininess = (fields.number("shininess", minimum=0.0, maximum=MAX_SHININESS)
+                 if fields.has("shininess") else default.shininess)
     return Material(kd=kd, ks=ks, shininess=shininess)
 
 

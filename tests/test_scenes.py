@@ -381,9 +381,10 @@ def edit(text, old, new):
         (lambda t: edit(t, "target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 4.0]"), "must differ"),
         (lambda t: edit(t, '"env.npy"', '"env.npy"\nlayout = "globe"'), "environment.layout must be one of"),
         (lambda t: edit(t, '"env.npy"', '"day*.npy"'), "matches no files"),
-        # Sizes that exhaust memory (found by test_fuzz.py).
+        # Sizes that exhaust memory or overflow float32 on the device (found by test_fuzz.py).
         (lambda t: edit(t, "width = 48", "width = 1000000000"), "render.width must be at most 16384"),
         (lambda t: edit(t, '"env.npy"', '"env.npy"\nres = 65536'), "environment.res must be at most 4096"),
+        (lambda t: edit(t, "shininess = 80", "shininess = 1e308"), "material.shininess must be <= 1e\\+06"),
     ],
 )
 def test_toml_errors_name_the_scene_file(scene_folder, change, problem):
