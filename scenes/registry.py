@@ -39,7 +39,7 @@ User scene format (paths are relative to the TOML file's folder)::
     shininess = 80                  # at most 1e6
 
     [camera]
-    eye = [0.0, 0.5, 3.0]           # required
+    eye = [0.0, 0.5, 3.0]           # required; camera (and mesh) coordinates within ±1e9
     target = [0.0, 0.0, 0.0]        # required
     up = [0.0, 1.0, 0.0]            # optional
     fov_y = 45.0                    # optional, full vertical field of view in degrees
@@ -265,12 +265,14 @@ class _Fields:
             self.fail(f"{self._where(key)} must be a non-empty string, got {value!r}")
         return value
 
-    def vector(self, key: str) -> tuple[float, float, float]:
+    def vector(self, key: str, limit: float | None = None) -> tuple[float, float, float]:
         value = self.table[key]
         if not (isinstance(value, list) and len(value) == 3) or not all(
             isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in value
         ):
             self.fail(f"{self._where(key)} must be a list of 3 finite numbers, got {value!r}")
+        if limit is not None and max(abs(c) for c in value) > limit:
+            self.fail(f"{self._where(key)} must lie within ±{limit:g}, got {value!r}")
         return tuple(float(c) for c in value)
 
     def rgb(self, key: str) -> tuple[float, float, float]:
@@ -317,8 +319,8 @@ def _material(fields: _Fields) -> Material:
 
 def _camera(fields: _Fields) -> Camera:
     default = Camera()
-    eye, target = fields.vector("eye"), fields.vector("target")
-    up = fields.vector("up") if fields.has("up") else default.up
+    eye, target = (fields.vector(key, meshes.MAX_COORDINATE) for key in ("eye", "target"))
+    up = fields.vector("up", meshes.MAX_COORDINATE) if fields.has("up") else default.up
     fov_y = fields.number("fov_y") if fields.has("fov_y") else default.fov_y
     if not 0.0 < fov_y < 180.0:
         fields.fail(f"camera.fov_y must be in (0, 180) degrees, got {fov_y}")

@@ -385,6 +385,7 @@ def edit(text, old, new):
         (lambda t: edit(t, "width = 48", "width = 1000000000"), "render.width must be at most 16384"),
         (lambda t: edit(t, '"env.npy"', '"env.npy"\nres = 65536'), "environment.res must be at most 4096"),
         (lambda t: edit(t, "shininess = 80", "shininess = 1e308"), "material.shininess must be <= 1e\\+06"),
+        (lambda t: edit(t, "eye = [0.0, 0.0, 4.0]", "eye = [0.0, 0.0, 1e300]"), "camera.eye must lie within ±1e\\+09"),
     ],
 )
 def test_toml_errors_name_the_scene_file(scene_folder, change, problem):
