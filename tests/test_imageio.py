@@ -143,6 +143,16 @@ def test_hdr_unsupported_variants(tmp_path, header, match):
     _assert_input_error(tmp_path / "a.hdr", match)
 
 
+@pytest.mark.parametrize("header", [b"#?RADIANCE\nFORMAT=32-bit\rrle\n\n-Y 1 +X 1\n",
+                                    b"#?RADIANCE\n\n-Y 1\x0c+X 1\n"])
+def test_hdr_errors_quoting_the_file_stay_on_one_line(tmp_path, header):
+    # A quoted header line may hold characters that end a line (found by test_fuzz.py).
+    (tmp_path / "a.hdr").write_bytes(header + bytes(4))
+    with pytest.raises(InputError) as err:
+        read_image(tmp_path / "a.hdr")
+    assert len(str(err.value).splitlines()) == 1
+
+
 def test_unsupported_extension(tmp_path):
     (tmp_path / "a.png").write_bytes(b"\x89PNG")
     _assert_input_error(tmp_path / "a.png", r"unsupported extension '\.png'")
