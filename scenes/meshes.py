@@ -101,11 +101,20 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
         # Unprocessed: processing would drop non-finite vertices and their faces without a word.
         mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as error:  # trimesh raises many types for unreadable files
-        raise InputError(path, f"cannot read mesh: {error}") from error
+        raise InputError(path, f"cannot read mesh: {_reason(error)}") from error
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise InputError(path, "mesh has no triangles")
     _check_geometry(path, np.asarray(mesh.vertices), np.asarray(mesh.faces))
     return mesh.process()
+
+
+def _reason(error: Exception) -> str:
+    """What a trimesh exception says about the file."""
+    if isinstance(error, ImportError) and error.name == "charset_normalizer":
+        return "not UTF-8 text"   # trimesh guesses other encodings only with that package
+    if isinstance(error, KeyError) or not str(error):
+        return f"{type(error).__name__} {error}".strip()   # a KeyError's text is only the key
+    return str(error)
 
 
 def _check_obj_indices(path: Path) -> None:
