@@ -12,7 +12,7 @@ __kernel void render_bis(__global const float4 *normal, __global const float4 *v
     surface_t s = make_surface(normal[p], view[p], kd[p], ks_m[p]);
     sir_proposal_t q = make_proposal(0, 0, 0, 0.0f);   /* Burke: BRDF candidates */
     float3 sum;
-    float z = bis_pixel(&s, &q, env, res, M, N, seed, frame, (uint)p, &sum, 0, 0);
+    float z = bis_pixel(&s, &q, env, res, M, N, seed, frame, (uint)p, &sum, 0, 0, 0);
     radiance[p] = (float4)(z / (float)N * sum, 0.0f);
     /* Every resampled sample has γ > 0, hence a positive cosine; none exist when Ẑ = 0. */
     float used = z > 0.0f ? (float)N : 0.0f;
@@ -30,7 +30,8 @@ __kernel void bis_candidates(__global const float4 *normal, __global const float
     sir_proposal_t q = make_proposal(0, 0, 0, 0.0f);
     float3 w, radiance;
     float gamma;
-    float weight = sir_candidate(&s, &q, env, res, seed, frame, 0u, i, &w, &gamma, &radiance);
+    float weight = sir_candidate(&s, &q, env, res, seed, frame, 0u, i, (int)get_global_size(0), &w, &gamma,
+                                 &radiance);
     out[i] = (float4)(w, weight);
     if (i == 0) u[0] = rng_uniform4(seed, frame, STREAM_SIR_RESAMPLE, 0u, 0u, 0u).x;
 }

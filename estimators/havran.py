@@ -49,11 +49,16 @@ map is exact and is what the weights use:
 with m_i the row probability, c the column probabilities per row, t the blend.
 
 **Lights.**  Light k: ω_k from point k, weight (L(ω_k)/p(ω_k))/K with L the cube-map texel of
-ω_k (nearest lookup, DESIGN §3).  **FIR filter**: per light, a causal low-pass filter over its
-last ``len(fir_taps)`` frames: direction normalize(Σ a_j ω_k(t−j)), weight Σ a_j W_k(t−j);
-where less history exists (the first frames of a sequence) the available taps are
-renormalised.  ``reset()`` clears the history (so does a change of seed or K, or a frame index
-that does not increase; rendering the same frame again replaces its entry).
+ω_k (nearest lookup, DESIGN §3).  **FIR filter**: per light, a causal low-pass filter over the
+sequence's last ``len(fir_taps)`` frames: direction normalize(Σ a_j ω_k(t−j)), weight
+Σ a_j W_k(t−j).  The taps are per frame of the sequence, not per render: a frame t−j the run
+did not render (``--frames`` with a step, the first frames of a sequence) has no lights and no
+tap, and the taps of the frames present are renormalised.  So a run with a step ≥ the filter's
+length renders every frame unfiltered; measure flicker on consecutive frames.  (Filtering over
+rendered frames instead mixed lights 6 frames apart at step 6 and lagged the day's falling
+power: ΔE 54 at blob-day's night frame 66.)  ``reset()`` clears the history (so does a change
+of seed or K, or a frame index that does not increase; rendering the same frame again replaces
+its entry).
 
 **Shading.**  L ≈ Σ_k W_k ρ(ω_k) cos⁺(n, ω_k) over the lights with n·ω_k > 0 (per-normal
 culling).  used = K, effective = the lights above the horizon, evaluations = the lights shaded.
@@ -253,20 +258,23 @@ def frame_map(cache) -> EqualAreaMap:
 
 # ---- the FIR filter ------------------------------------------------------------------------------
 
-def fir_filter(directions: list[np.ndarray], weights: list[np.ndarray], taps) -> tuple[np.ndarray, np.ndarray]:
+def fir_filter(directions: list[np.ndarray], weights: list[np.ndarray], taps,
+               lags=None) -> tuple[np.ndarray, np.ndarray]:
     """Causal FIR over a light trajectory, newest first: ``directions[j]``/``weights[j]`` is
-    frame t−j.  Uses the first min(len(taps), len(history)) taps, renormalised; directions are
-    filtered as vectors and renormalised (falling back to the newest one where the sum
-    vanishes)."""
-    n = min(len(taps), len(directions))
-    if n == 1:                   # no history (or no filter): the identity, bit for bit
-        return directions[0], weights[0]
-    a = np.asarray(taps[:n], np.float64)
+    frame t − ``lags[j]`` (default: t − j).  Entry j gets tap ``taps[lags[j]]``; entries beyond
+    the filter's length are ignored and the taps of the entries present are renormalised.
+    Directions are filtered as vectors and renormalised (falling back to the newest one where
+    the sum vanishes)."""
+    lags = range(len(directions)) if lags is None else lags
+    used = [j for j, lag in enumerate(lags) if lag < len(taps)]
+    if len(used) == 1:           # no history (or no filter): the identity, bit for bit
+        return directions[used[0]], weights[used[0]]
+    a = np.asarray([taps[lags[j]] for j in used], np.float64)
     a = a / a.sum()
-    d = sum(a[j] * directions[j] for j in range(n))
+    d = sum(a_j * directions[j] for a_j, j in zip(a, used))
     norm = np.linalg.norm(d, axis=-1, keepdims=True)
-    d = np.where(norm > 1e-9, d / np.maximum(norm, 1e-300), directions[0])
-    w = sum(a[j] * weights[j] for j in range(n))
+    d = np.where(norm > 1e-9, d / np.maximum(norm, 1e-300), directions[used[0]])
+    w = sum(a_j * weights[j] for a_j, j in zip(a, used))
     return d, w
 
 
@@ -303,8 +311,7 @@ class Havran(Estimator):
 
     def reset(self) -> None:
         self._key = None          # (seed, K) of the history
-        self._frame = None        # frame of the newest entry
-        self._history: list[tuple[np.ndarray, np.ndarray]] = []   # newest first
+        self._history: list[tuple[int, np.ndarray, np.ndarray]] = []   # (frame, ω, W), newest first
 
     def raw_lights(self, cache, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
         """This frame's unfiltered lights: directions ``[k, 3]`` and weights L/(p·K) ``[k, 3]``."""
@@ -318,16 +325,18 @@ class Havran(Estimator):
         """The filtered lights of this frame, updating the history."""
         dirs, weights = self.raw_lights(cache, k, seed)
         frame = int(cache.frame)
-        if self._key != (int(seed), k) or (self._frame is not None and frame < self._frame):
+        newest = self._history[0][0] if self._history else None
+        if self._key != (int(seed), k) or (newest is not None and frame < newest):
             self.reset()
-        if self._frame is not None and frame == self._frame:
-            self._history[0] = (dirs, weights)
+        if newest is not None and frame == newest:
+            self._history[0] = (frame, dirs, weights)
         else:
-            self._history.insert(0, (dirs, weights))
-        self._key, self._frame = (int(seed), k), frame
-        del self._history[len(self.params.fir_taps):]
-        return fir_filter([h[0] for h in self._history], [h[1] for h in self._history],
-                          self.params.fir_taps)
+            self._history.insert(0, (frame, dirs, weights))
+        self._key = (int(seed), k)
+        taps = self.params.fir_taps
+        self._history = [h for h in self._history if frame - h[0] < len(taps)]
+        return fir_filter([h[1] for h in self._history], [h[2] for h in self._history], taps,
+                          [frame - h[0] for h in self._history])
 
     def render(self, gbuffer, cache, spp, seed):
         if not 1 <= spp <= MAX_K:

@@ -3,7 +3,10 @@
 Products:
 - ``env``: the frame's radiance as a float4 device buffer ``[6·R·R]`` (always uploaded);
 - ``cdf``: per-face marginal (rows) and conditional (columns | row) luminance CDFs and the face
-  luminance integrals I_f (Lu 2013 Eq. 3), built on the device;
+  luminance integrals I_f (Lu 2013 Eq. 3), built on the device.  The CDFs are 2^63 fixed point
+  (uint64 words, ``CDF_ONE`` below), searched with 63-bit variates: every texel of positive
+  luminance keeps a positive, relatively exact probability next to a sun (issue 6, stress case
+  sun-1e9; the reasons are in ``kernels/common.cl``);
 - ``pool``: Lu 2013's shared light-sample pool (Algorithm 1, line 10): per lit face, samples
   drawn from that face's CDFs, each storing direction, pdf_L(ω|f) and radiance.  Its size
   depends on the estimator's budget and its random rotation on the render seed, so
@@ -24,6 +27,7 @@ from iblbench.harness.device import Compute, event_ms
 from iblbench.scenes import cubemap
 
 PRODUCTS = ("env", "cdf", "pool")
+CDF_ONE = 2 ** 63   # the fixed-point CDFs' total (kernels/common.cl)
 POOLS_KEPT = 4   # pools of recent (size, seed) kept resident
 
 
@@ -107,9 +111,9 @@ class FrameCache:
         if self._cdf is None:
             c, res = self.compute, self.res
             omega = c.to_device(cubemap.texel_solid_angles(res).astype(np.float32))
-            conditional = c.empty(6 * res * res * 4)
+            conditional = c.empty(6 * res * res * 8)      # fixed-point CDF words (common.cl)
             row_weight = c.empty(6 * res * 4)
-            marginal = c.empty(6 * res * 4)
+            marginal = c.empty(6 * res * 8)
             integral = c.empty(6 * 4)
             rows = c.run(c.kernel("iblbench.harness", "framecache.cl", "row_cdfs"), 6 * res,
                          self._env_buffer, omega, np.int32(res), conditional, row_weight)
@@ -141,8 +145,10 @@ class FrameCache:
         return self._pools[key]
 
     def host_cdfs(self) -> tuple[np.ndarray, np.ndarray]:
-        """(marginal ``[6, R]``, conditional ``[6, R, R]``) copied back, for tests and checks."""
+        """(marginal ``[6, R]``, conditional ``[6, R, R]``) copied back, for tests and checks:
+        uint64 fixed-point CDFs, inclusive, ending at exactly ``CDF_ONE`` = 2^63 (a bin's
+        probability is its width / 2^63; kernels/common.cl)."""
         marginal, conditional = self._build_cdf()[:2]
         res = self.res
-        return (self.compute.to_host(marginal, (6, res), np.float32),
-                self.compute.to_host(conditional, (6, res, res), np.float32))
+        return (self.compute.to_host(marginal, (6, res), np.uint64),
+                self.compute.to_host(conditional, (6, res, res), np.uint64))

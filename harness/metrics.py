@@ -8,6 +8,7 @@ installed; NaN otherwise) as a mean over covered pixels, and the sample counts.
 """
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
@@ -81,14 +82,21 @@ def rel_mse(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> fl
 
 
 def hdr_flip(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
-    """Mean HDR-FLIP error over covered pixels, or NaN when flip-evaluator is not installed.
+    """Mean HDR-FLIP error over covered pixels; NaN without flip-evaluator or on a black reference.
 
     FLIP picks its exposure range from the reference's luminance; background pixels (zero) would
-    stretch it, so the range is taken from the covered pixels alone.
+    stretch it, so the range is taken from the covered pixels alone.  A black or very dim
+    reference makes that range degenerate, and FLIP then exits the whole process; the range
+    follows any global scale, so both images are scaled to a peak reference luminance of 1, and
+    a reference without a finite positive peak scores NaN.
     """
     if flip_evaluator is None or not mask.any():
         return float("nan")
-    reference = np.ascontiguousarray(reference, np.float32)
+    peak = float(luminance(reference[mask]).max())
+    if not (math.isfinite(peak) and peak > 0.0):
+        return float("nan")
+    reference = np.ascontiguousarray(reference / peak, np.float32)
+    estimate = estimate / peak
     covered = np.ascontiguousarray(reference[mask][None])
     exposures = flip_evaluator.evaluate(covered, covered, "HDR", applyMagma=False,
                                         computeMeanError=False)[2]

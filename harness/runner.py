@@ -335,6 +335,10 @@ class Runner:
     # ---- running -----------------------------------------------------------------------------
 
     def run(self):
+        # Traced before --out is touched: a camera that sees no geometry is bad input, and bad
+        # input must leave no partial output behind.
+        gbuffers = {plan.scene.name: self._trace(plan) for plan in self.plans
+                    if self._scene_todo(plan.scene.name)}
         prepare_out(self.out)
         with _locked(self.out):
             if self.resumed:
@@ -351,7 +355,7 @@ class Runner:
                           desc="iblbench run") as bar:
                     bar.update(self.resumed)
                     for plan in self.plans:
-                        self._run_scene(plan, bar)
+                        self._run_scene(plan, gbuffers.pop(plan.scene.name, None), bar)
             finally:
                 self.journal.close()
             table = self._fold()
@@ -370,7 +374,20 @@ class Runner:
         return sorted((k for k in self.todo if k[0] == name and (frame is None or k[3] == frame)),
                       key=lambda k: (k[1], k[5] is not None, k[2] or 0, k[5] or 0, k[4]))
 
-    def _run_scene(self, plan: _ScenePlan, bar) -> None:
+    def _trace(self, plan: _ScenePlan):
+        scene = plan.scene
+        start = time.perf_counter()
+        gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, plan.width, plan.height)
+        self._stage(scene.name, None, "gbuffer", (time.perf_counter() - start) * 1e3)
+        if gbuffer.covered == 0:
+            mesh = f" {scene.mesh_source}" if scene.mesh_source else ""
+            raise InputError(scene.source or scene.name,
+                             f"the camera sees none of the mesh{mesh}; check the camera's eye "
+                             "and target, and the mesh's position and size")
+        return gbuffer
+
+    def _run_scene(self, plan: _ScenePlan, gbuffer, bar) -> None:
+        """``gbuffer``: the scene's, traced by :meth:`run`; None when no cell of it is left."""
         scene = plan.scene
         if not self._scene_todo(scene.name):
             self.manifest["skipped"].append({"scene": scene.name, "stage": "scene",
@@ -379,11 +396,6 @@ class Runner:
                                         in self.previous_manifest.get("stages", [])
                                         if stage.get("scene") == scene.name]
             return
-        start = time.perf_counter()
-        gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, plan.width, plan.height)
-        self._stage(scene.name, None, "gbuffer", (time.perf_counter() - start) * 1e3)
-        if gbuffer.covered == 0:
-            raise InputError(scene.source or scene.name, "the camera sees no geometry")
         inputs = self.out / "inputs" / scene.name
         if self.config.save_inputs:
             gbuffer.save_npz(inputs / "gbuffer.npz")

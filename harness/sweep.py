@@ -54,7 +54,7 @@ if sys.version_info >= (3, 11):
 else:   # pragma: no cover
     import tomli as tomllib
 
-SHIPPED = ("quick", "default", "full")
+SHIPPED = ("quick", "default", "full", "temporal")
 CONFIG_PACKAGE = "iblbench.harness.configs"
 KEYS = {"protocol", "description", "scenes", "estimators", "spp", "seeds", "frames", "resolution",
         "env_res", "time_budget_ms", "sanitize"}
@@ -360,7 +360,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
 
 
 def load_sweep(name_or_path: str | os.PathLike) -> Sweep:
-    """A shipped config by name (quick, default, full) or a sweep .toml file."""
+    """A shipped config by name (quick, default, full, temporal) or a sweep .toml file."""
     path, source = config_path(name_or_path)
     return parse_sweep(read_toml(path, "sweep config"), path, source)
 

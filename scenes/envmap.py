@@ -30,8 +30,9 @@ Resampling (lat-long, or a cube at another resolution)
     the lat-long pixels at the equator.
 
 Validation
-    NaN, ±Inf and negative texels are refused unless ``sanitize=True``, which replaces NaN,
-    −Inf and negatives by 0 and +Inf by the largest finite value of the map.
+    NaN, ±Inf, negative texels and texels above :data:`MAX_RADIANCE` are refused unless
+    ``sanitize=True``, which replaces NaN, −Inf and negatives by 0, and +Inf and values above
+    :data:`MAX_RADIANCE` by the largest valid value of the map.
 """
 from __future__ import annotations
 
@@ -49,6 +50,10 @@ from .imageio import read_image
 LAYOUTS = ("auto", "latlong", "vcross", "hcross", "faces")
 FACE_FILE_NAMES = ("px", "nx", "py", "ny", "pz", "nz")
 MAX_DEFAULT_RES = 512
+MAX_RES = 4096   # a 4096² cube map is 1.2 GB of float32; larger ones exhaust memory
+# Brighter texels make float32 sums and weights on the device overflow (near 1e35 in a 4² map);
+# real maps stay below about 1e10.
+MAX_RADIANCE = 1e20
 MAX_SUBSAMPLES = 16
 _SAMPLES_PER_SOURCE_PIXEL = 4  # sub-texel samples per source pixel width (per axis)
 _SAMPLES_PER_BATCH = 1 << 20  # bounds temporary memory
@@ -88,8 +93,8 @@ def load_environment(
     """
     if layout not in LAYOUTS:
         raise InputError(None, f"unknown layout '{layout}' (choose from {', '.join(LAYOUTS)})")
-    if res is not None and (not isinstance(res, (int, np.integer)) or res < 1):
-        raise InputError(None, f"cube-map resolution must be a positive integer, got {res!r}")
+    if res is not None and (not isinstance(res, (int, np.integer)) or not 1 <= res <= MAX_RES):
+        raise InputError(None, f"cube-map resolution must be an integer in 1..{MAX_RES}, got {res!r}")
     paths = _source_paths(source)
     if len(paths) == 1 and os.fspath(paths[0]).lower().endswith(".npy"):
         images, paths = _read_cube_npy(paths[0]), paths * 6
@@ -187,33 +192,38 @@ def _check_single_layout(path, image: np.ndarray, layout: str) -> str:
 # --- texel validation -------------------------------------------------------------------
 
 def _validate_texels(paths, images: list[np.ndarray], sanitize: bool) -> int:
-    """Refuse (or, with ``sanitize``, fix in place) NaN, Inf and negative texels.
+    """Refuse (or, with ``sanitize``, fix in place) NaN, Inf, too bright and negative texels.
 
-    Each bad texel is counted once, in the first matching class: NaN, then Inf, then negative.
-    Returns the number of texels fixed.
+    Each bad texel is counted once, in the first matching class: NaN, Inf, above
+    :data:`MAX_RADIANCE`, negative.  Returns the number of texels fixed.
     """
     masks = [_bad_texel_masks(image) for image in images]
     if not sanitize:
-        for path, (nan, inf, negative) in zip(paths, masks):
-            if nan.any() or inf.any() or negative.any():
+        for path, (nan, inf, bright, negative) in zip(paths, masks):
+            if nan.any() or inf.any() or bright.any() or negative.any():
+                too_bright = f", {bright.sum()} above {MAX_RADIANCE:g}" if bright.any() else ""
                 raise InputError(
                     path,
-                    f"{nan.sum()} NaN, {inf.sum()} Inf and {negative.sum()} negative texels; "
-                    "pass --sanitize to replace them",
+                    f"{nan.sum()} NaN, {inf.sum()} Inf{too_bright} and {negative.sum()} negative "
+                    "texels; pass --sanitize to replace them",
                 )
         return 0
-    finite_max = max((float(image[np.isfinite(image)].max(initial=0.0)) for image in images))
+    valid_max = max(float(image[np.isfinite(image) & (image <= MAX_RADIANCE)].max(initial=0.0))
+                    for image in images)
     for image in images:
-        np.nan_to_num(image, copy=False, nan=0.0, posinf=finite_max, neginf=0.0)
+        np.nan_to_num(image, copy=False, nan=0.0, neginf=0.0)   # +Inf becomes the float32 max
+        image[image > MAX_RADIANCE] = valid_max
         np.maximum(image, 0.0, out=image)
     return sum(int(mask.sum()) for texel_masks in masks for mask in texel_masks)
 
 
-def _bad_texel_masks(image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _bad_texel_masks(image: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Masks of NaN, Inf, too bright and negative texels, each texel in the first it matches."""
     nan = np.isnan(image).any(axis=-1)
     inf = np.isinf(image).any(axis=-1) & ~nan
-    negative = (image < 0).any(axis=-1) & ~nan & ~inf
-    return nan, inf, negative
+    bright = (image > MAX_RADIANCE).any(axis=-1) & ~nan & ~inf
+    negative = (image < 0).any(axis=-1) & ~nan & ~inf & ~bright
+    return nan, inf, bright, negative
 
 
 # --- conversion to a cube map -----------------------------------------------------------

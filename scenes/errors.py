@@ -10,4 +10,6 @@ class InputError(Exception):
     def __init__(self, source: str | os.PathLike | None, problem: str):
         self.source = None if source is None else os.fspath(source)
         self.problem = problem
-        super().__init__(f"{self.source}: {problem}" if self.source else problem)
+        message = f"{self.source}: {problem}" if self.source else problem
+        # One line, whatever a corrupt file or a library's message puts in the text.
+        super().__init__(" ".join(message.splitlines()))

@@ -18,8 +18,13 @@ atomically (a temporary file in the same folder, then ``os.replace``).
 """
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import io
 import os
 import re
+import sys
+import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -33,6 +38,7 @@ _HDR_FORMAT = b"32-bit_rle_rgbe"
 _HDR_RESOLUTION = re.compile(rb"-Y (\d+) \+X (\d+)")
 _MAX_PIXELS = 1 << 28  # refuses absurd sizes from a corrupt header before allocating
 _MIN_RUN = 3  # shorter repeats are cheaper as literals in new-style RLE
+_LIBC = ctypes.CDLL(None)  # the C library, to flush its stdio buffers
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an ``.exr`` or ``.hdr`` file into float32 ``[H, W, 3]`` linear RGB."""
@@ -45,10 +51,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
 def read_exr(path: str | os.PathLike) -> np.ndarray:
     """Read the R, G, B channels of an OpenEXR file into float32 ``[H, W, 3]``."""
     _require_file(path)
-    try:
-        channels = OpenEXR.File(os.fspath(path), separate_channels=True).channels()
-    except Exception as exc:  # the bindings raise RuntimeError, ValueError, ... for bad files
-        raise InputError(path, f"unreadable or corrupt OpenEXR file ({exc})") from None
+    channels = _exr_channels(path)
     missing = [name for name in "RGB" if name not in channels]
     if missing:
         raise InputError(
@@ -89,6 +92,48 @@ def write_hdr(path: str | os.PathLike, image: np.ndarray, rle: bool = True) -> N
     _write_atomically(path, write)
 
 # --- helpers: files ---------------------------------------------------------------------
+
+def _exr_channels(path: str | os.PathLike) -> dict:
+    """The channels of the first part; an InputError when OpenEXR raises or complains.
+
+    OpenEXR prints why a file is corrupt (its C core to stderr, its bindings to sys.stdout),
+    saying more than its exception, and that would break the CLI's one-line errors: the text
+    is caught and quoted instead.
+    """
+    printed, error = [], None
+    try:
+        with _output_collected(printed):
+            channels = OpenEXR.File(os.fspath(path), separate_channels=True).channels()
+    except Exception as exc:  # the bindings raise RuntimeError, ValueError, ... for bad files
+        error = exc
+    complaint = "".join(printed).strip()
+    if error is None and not complaint:
+        return channels
+    reason = complaint.splitlines()[0] if complaint else str(error)
+    reason = reason.replace(f"{os.fspath(path)}: ", "")   # the C core starts with the path
+    raise InputError(path, f"unreadable or corrupt OpenEXR file ({reason})")
+
+@contextlib.contextmanager
+def _output_collected(printed: list[str]):
+    """Append to ``printed`` what is printed meanwhile: first what native code writes to file
+    descriptors 1 and 2, then what Python code writes to sys.stdout and sys.stderr."""
+    python = io.StringIO()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(fd) for fd in (1, 2)]
+    with tempfile.TemporaryFile() as native:
+        try:
+            for fd in (1, 2):
+                os.dup2(native.fileno(), fd)
+            with contextlib.redirect_stdout(python), contextlib.redirect_stderr(python):
+                yield
+        finally:
+            _LIBC.fflush(None)   # C stdio holds what it prints in buffers
+            for fd, copy in zip((1, 2), saved):
+                os.dup2(copy, fd)
+                os.close(copy)
+            native.seek(0)
+            printed += [native.read().decode(errors="replace"), python.getvalue()]
 
 def _require_file(path: str | os.PathLike) -> None:
     if not Path(path).exists():

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,11 @@ import trimesh
 from .errors import InputError
 
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
+# Larger coordinates overflow trimesh's vertex merging (it rounds x·1e8 to int64) and lose
+# Embree's float32 precision; cameras are held to the same bound.
+MAX_COORDINATE = 1e9
+# OBJ vertex indices count from 1 (negative ones from the end); trimesh reads a 0 as the last vertex.
+_OBJ_ZERO_INDEX = re.compile(rb"^f[ \t](?:[^\n]*[ \t])?0(?=[/\s]|$)", re.MULTILINE)
 
 
 def sphere(subdivisions: int = 4, radius: float = 1.0) -> trimesh.Trimesh:
@@ -89,12 +95,48 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
         raise InputError(path, f"unsupported mesh format {path.suffix!r}; use one of {', '.join(MESH_SUFFIXES)}")
     if not path.is_file():
         raise InputError(path, "mesh file not found")
+    if path.suffix.lower() == ".obj":
+        _check_obj_indices(path)
     try:
-        mesh = trimesh.load(path, force="mesh")
+        # Unprocessed: processing would drop non-finite vertices and their faces without a word.
+        mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as error:  # trimesh raises many types for unreadable files
-        raise InputError(path, f"cannot read mesh: {error}") from error
+        raise InputError(path, f"cannot read mesh: {_reason(error)}") from error
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise InputError(path, "mesh has no triangles")
-    if not np.all(np.isfinite(mesh.vertices)):
+    _check_geometry(path, np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    return mesh.process()
+
+
+def _reason(error: Exception) -> str:
+    """What a trimesh exception says about the file."""
+    if isinstance(error, ImportError) and error.name == "charset_normalizer":
+        return "not UTF-8 text"   # trimesh guesses other encodings only with that package
+    if isinstance(error, KeyError) or not str(error):
+        return f"{type(error).__name__} {error}".strip()   # a KeyError's text is only the key
+    return str(error)
+
+
+def _check_obj_indices(path: Path) -> None:
+    try:
+        zero = _OBJ_ZERO_INDEX.search(path.read_bytes())
+    except OSError as error:
+        raise InputError(path, f"cannot read mesh: {error.strerror}") from None
+    if zero:
+        line = zero.string.count(b"\n", 0, zero.start()) + 1
+        raise InputError(path, f"line {line}: face vertex index 0 (OBJ indices start at 1)")
+
+
+def _check_geometry(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Refuse what trimesh reads from a corrupt file without complaint."""
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise InputError(path, f"cannot read mesh: got vertices of shape {list(vertices.shape)} and "
+                               f"faces of shape {list(faces.shape)}, not 3D points and triangles")
+    if not np.all(np.isfinite(vertices)):
         raise InputError(path, "mesh has non-finite vertex coordinates")
-    return mesh
+    peak = float(np.abs(vertices).max())
+    if peak > MAX_COORDINATE:
+        raise InputError(path, f"vertex coordinates reach {peak:g}; at most ±{MAX_COORDINATE:g} is supported")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise InputError(path, f"a face refers to vertex {faces.max() + 1} or {faces.min() + 1}, "
+                               f"but the mesh has vertices 1..{len(vertices)}")

@@ -30,21 +30,22 @@ User scene format (paths are relative to the TOML file's folder)::
                                     # faces (px, nx, py, ny, pz, nz), a .npy [6,R,R,3], or a glob
                                     # ("day/*.exr") for a sequence, frames in sorted name order
     layout = "auto"                 # optional: auto, latlong, vcross, hcross or faces
-    res = 64                        # optional cube face resolution (default: the source's own)
+    res = 64                        # optional cube face resolution, at most 4096 (default: the
+                                    # source's own)
 
     [material]                      # optional; defaults kd = 0.5, ks = 0.3, shininess = 150
     kd = [0.6, 0.5, 0.4]            # a number or an RGB triple; kd + ks <= 1 per channel
     ks = 0.2
-    shininess = 80
+    shininess = 80                  # at most 1e6
 
     [camera]
-    eye = [0.0, 0.5, 3.0]           # required
+    eye = [0.0, 0.5, 3.0]           # required; camera (and mesh) coordinates within ±1e9
     target = [0.0, 0.0, 0.0]        # required
     up = [0.0, 1.0, 0.0]            # optional
     fov_y = 45.0                    # optional, full vertical field of view in degrees
 
     [render]                        # optional
-    width = 128
+    width = 128                     # each side at most 16384
     height = 128
 
 Unknown sections or keys are errors (they are usually typos).  Every problem is an ``InputError``
@@ -60,12 +61,16 @@ from typing import Any, Callable
 import numpy as np
 
 from . import meshes, sequences, sky
-from .envmap import LAYOUTS, load_environment
+from .envmap import LAYOUTS, MAX_RES, load_environment
 from .errors import InputError
 from .scene import Camera, EnvSequence, Material, Scene
 from .tomlfile import read_toml
 
 DEFAULT_ENV_RES = 64
+# Bounds that only a corrupt or mistyped scene file exceeds; past them a run would exhaust memory
+# or overflow float32 on the device.
+MAX_IMAGE_SIDE = 16384
+MAX_SHININESS = 1e6
 
 
 _MATERIAL = Material(kd=(0.5, 0.5, 0.5), ks=(0.3, 0.3, 0.3), shininess=150.0)
@@ -236,18 +241,22 @@ class _Fields:
     def _where(self, key: str) -> str:
         return f"{self.section}.{key}"
 
-    def number(self, key: str, minimum: float | None = None) -> float:
+    def number(self, key: str, minimum: float | None = None, maximum: float | None = None) -> float:
         value = self.table[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
             self.fail(f"{self._where(key)} must be a finite number, got {value!r}")
         if minimum is not None and value < minimum:
             self.fail(f"{self._where(key)} must be >= {minimum}, got {value!r}")
+        if maximum is not None and value > maximum:
+            self.fail(f"{self._where(key)} must be <= {maximum:g}, got {value!r}")
         return float(value)
 
-    def positive_int(self, key: str) -> int:
+    def positive_int(self, key: str, maximum: int) -> int:
         value = self.table[key]
         if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
             self.fail(f"{self._where(key)} must be a positive integer, got {value!r}")
+        if value > maximum:
+            self.fail(f"{self._where(key)} must be at most {maximum}, got {value!r}")
         return value
 
     def string(self, key: str) -> str:
@@ -256,12 +265,14 @@ class _Fields:
             self.fail(f"{self._where(key)} must be a non-empty string, got {value!r}")
         return value
 
-    def vector(self, key: str) -> tuple[float, float, float]:
+    def vector(self, key: str, limit: float | None = None) -> tuple[float, float, float]:
         value = self.table[key]
         if not (isinstance(value, list) and len(value) == 3) or not all(
             isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in value
         ):
             self.fail(f"{self._where(key)} must be a list of 3 finite numbers, got {value!r}")
+        if limit is not None and max(abs(c) for c in value) > limit:
+            self.fail(f"{self._where(key)} must lie within ±{limit:g}, got {value!r}")
         return tuple(float(c) for c in value)
 
     def rgb(self, key: str) -> tuple[float, float, float]:
@@ -286,10 +297,13 @@ def _toml_scene(path: Path, sanitize: bool, env_res: int | None) -> Scene:
     material = _material(fields["material"])
     camera = _camera(fields["camera"])
     environment = _environment(fields["environment"], folder, sanitize, env_res)
-    mesh = meshes.load_mesh(folder / fields["mesh"].string("path"))
+    mesh_path = folder / fields["mesh"].string("path")
+    mesh = meshes.load_mesh(mesh_path)
     render = fields["render"]
-    resolution = tuple(render.positive_int(k) if render.has(k) else 128 for k in ("width", "height"))
-    return Scene(path.stem, mesh, material, camera, environment, resolution, source=os.fspath(path))
+    resolution = tuple(render.positive_int(k, MAX_IMAGE_SIDE) if render.has(k) else 128
+                       for k in ("width", "height"))
+    return Scene(path.stem, mesh, material, camera, environment, resolution, source=os.fspath(path),
+                 mesh_source=os.fspath(mesh_path))
 
 
 def _material(fields: _Fields) -> Material:
@@ -298,14 +312,15 @@ def _material(fields: _Fields) -> Material:
     ks = fields.rgb("ks") if fields.has("ks") else default.ks
     if max(d + s for d, s in zip(kd, ks)) > 1.0 + 1e-9:
         fields.fail(f"material kd + ks must be <= 1 per channel (energy conservation), got kd={kd}, ks={ks}")
-    shininess = fields.number("shininess", minimum=0.0) if fields.has("shininess") else default.shininess
+    shininess = (fields.number("shininess", minimum=0.0, maximum=MAX_SHININESS)
+                 if fields.has("shininess") else default.shininess)
     return Material(kd=kd, ks=ks, shininess=shininess)
 
 
 def _camera(fields: _Fields) -> Camera:
     default = Camera()
-    eye, target = fields.vector("eye"), fields.vector("target")
-    up = fields.vector("up") if fields.has("up") else default.up
+    eye, target = (fields.vector(key, meshes.MAX_COORDINATE) for key in ("eye", "target"))
+    up = fields.vector("up", meshes.MAX_COORDINATE) if fields.has("up") else default.up
     fov_y = fields.number("fov_y") if fields.has("fov_y") else default.fov_y
     if not 0.0 < fov_y < 180.0:
         fields.fail(f"camera.fov_y must be in (0, 180) degrees, got {fov_y}")
@@ -326,7 +341,7 @@ def _environment(fields: _Fields, folder: Path, sanitize: bool, env_res: int | N
     layout = fields.string("layout") if fields.has("layout") else "auto"
     if layout not in LAYOUTS:
         fields.fail(f"environment.layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
-    res = env_res or (fields.positive_int("res") if fields.has("res") else None)
+    res = env_res or (fields.positive_int("res", MAX_RES) if fields.has("res") else None)
     paths = sorted(glob.glob(pattern)) if any(c in pattern for c in "*?") else [pattern]
     if not paths:
         fields.fail(f"environment.path {pattern!r} matches no files")

@@ -64,3 +64,4 @@ class Scene:
     environment: EnvSequence
     resolution: tuple[int, int] = (128, 128)
     source: str = ""
+    mesh_source: str = ""   # the mesh file of a user scene

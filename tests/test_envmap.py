@@ -237,8 +237,9 @@ def test_layout_and_source_mismatches(tmp_path):
         load_environment([tmp_path / "a.exr"] * 6, layout="latlong")
     with pytest.raises(InputError, match="unknown layout 'cubic'"):
         load_environment(tmp_path / "a.exr", layout="cubic")
-    with pytest.raises(InputError, match="positive integer"):
-        load_environment(tmp_path / "a.exr", res=0)
+    for res in (0, 4097):
+        with pytest.raises(InputError, match=r"an integer in 1\.\.4096"):
+            load_environment(tmp_path / "a.exr", res=res)
 
 
 @pytest.mark.parametrize("name, content", [("gone.exr", None), ("bad.exr", b"x" * 500), ("bad.hdr", b"#?RADIANCE\n")])
@@ -267,6 +268,7 @@ def _faces_with_bad_texels():
     faces[3, 3, 3] = [7, 1, 1]  # the largest finite value
     faces[4, 0, 0, 1] = -0.5
     faces[5, 1, 2] = -2.0
+    faces[5, 3, 0, 2] = 3e38  # overflows float32 sums on the device (found by test_fuzz.py)
     return faces
 
 
@@ -280,17 +282,20 @@ def test_bad_texels_are_refused_with_counts(tmp_path):
     with pytest.raises(InputError, match=r"2 NaN, 0 Inf and 0 negative.*--sanitize") as err:
         load_environment(paths)
     assert err.value.source == str(paths[0])
+    with pytest.raises(InputError, match=r"0 NaN, 0 Inf, 1 above 1e\+20 and 1 negative texels"):
+        load_environment(paths[5:] * 6)
 
 
 def test_sanitize_fixes_and_counts_bad_texels(tmp_path):
     faces = _faces_with_bad_texels()
     env, report = load_environment(_write_faces(tmp_path, faces), sanitize=True)
-    assert report.texels_fixed == 6
+    assert report.texels_fixed == 7
     assert np.all(np.isfinite(env)) and env.min() >= 0
     np.testing.assert_array_equal(env[0, 0, 0], [0, 1, 1])
     np.testing.assert_array_equal(env[0, 0, 1], [0, 0, 7])  # NaN and -1 to 0, +Inf to the max
     np.testing.assert_array_equal(env[1, 1, 1], [1, 1, 7])
     np.testing.assert_array_equal(env[2, 2, 2], [0, 1, 1])
     np.testing.assert_array_equal(env[5, 1, 2], [0, 0, 0])
-    good = np.isfinite(faces).all(-1) & (faces >= 0).all(-1)
+    np.testing.assert_array_equal(env[5, 3, 0], [1, 1, 7])   # 3e38 to the max
+    good = np.isfinite(faces).all(-1) & (faces >= 0).all(-1) & (faces <= 1e20).all(-1)
     np.testing.assert_array_equal(env[good], faces[good])

@@ -287,3 +287,17 @@ def test_light_weights_stay_bounded_on_a_sun():
     dirs, pdf = envmap.sample(np.random.default_rng(0).random((100_000, 2)))
     ratio = cubemap.luminance(envmap.radiance(dirs)) / pdf
     assert ratio.max() < 50 * cubemap.luminance(cubemap.integrate(env.astype(np.float64)))
+
+
+def test_fir_taps_are_per_sequence_frame_not_per_render(h):
+    """Frames rendered with gaps: a tap belongs to frame t − j of the sequence, so frames 0, 1, 3
+    filter frame 3 with taps 0.5 (frame 3) and 0.2 (frame 1, two back), renormalised, and a
+    step of 3 or more (frames 0, 6) leaves every frame unfiltered."""
+    est, k, seed = Havran(), 16, 4
+    values = {0: 0.7, 1: 1.4, 3: 2.8, 6: 5.6}
+    raw = {f: est.raw_lights(FrameCache(h.compute, constant_map(v)), k, seed)[1] for f, v in values.items()}
+    for frame in (0, 1, 3):
+        _, weights = est.lights(FrameCache(h.compute, constant_map(values[frame]), frame=frame), k, seed)
+    np.testing.assert_allclose(weights, (0.5 * raw[3] + 0.2 * raw[1]) / 0.7, rtol=1e-12)
+    _, weights = est.lights(FrameCache(h.compute, constant_map(values[6]), frame=6), k, seed)
+    np.testing.assert_array_equal(weights, raw[6])

@@ -83,6 +83,17 @@ def test_hdr_flip_is_zero_for_identical_images_and_grows_with_error():
     assert 0 < small < large
 
 
+def test_hdr_flip_ignores_scale_and_is_nan_on_a_black_reference():
+    # FLIP exits the whole process on the degenerate exposure range of a black or very dim
+    # reference (found by tests/test_fuzz.py with a black environment).
+    pytest.importorskip("flip_evaluator")
+    reference = np.random.default_rng(1).random((16, 16, 3)).astype(np.float32) * 4
+    mask = np.ones((16, 16), bool)
+    bright = metrics.hdr_flip(reference * 1.2, reference, mask)
+    assert metrics.hdr_flip(reference * 1.2e-30, reference * 1e-30, mask) == pytest.approx(bright, rel=1e-4)
+    assert np.isnan(metrics.hdr_flip(reference, np.zeros_like(reference), mask))
+
+
 # Sharma, Wu & Dalal (2005), "The CIEDE2000 color-difference formula", Table 1 (pairs 1, 2, 7, 17).
 SHARMA_PAIRS = [
     ((50.0, 2.6772, -79.7751), (50.0, 0.0, -82.7485), 2.0425),

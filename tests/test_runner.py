@@ -33,15 +33,18 @@ def test_error_falls_with_spp(tmp_path):
     assert np.all((table.effective_samples <= table.used_samples) & (table.used_samples <= table.spp))
 
 
+def user_scene(folder, target=(0, 0, 0)):
+    folder.mkdir()
+    np.save(folder / "env.npy", np.full((6, 4, 4, 3), 0.5, np.float32))
+    trimesh.creation.icosphere(1).export(folder / "ball.obj")
+    (folder / "scene.toml").write_text(
+        '[mesh]\npath = "ball.obj"\n[environment]\npath = "env.npy"\n'
+        f'[camera]\neye = [0, 0, 3]\ntarget = {list(target)}\n')
+    return str(folder / "scene.toml")
+
+
 def test_two_scenes_with_one_name_are_refused(tmp_path):
-    for folder in ("a", "b"):
-        (tmp_path / folder).mkdir()
-        np.save(tmp_path / folder / "env.npy", np.full((6, 4, 4, 3), 0.5, np.float32))
-        trimesh.creation.icosphere(1).export(tmp_path / folder / "ball.obj")
-        (tmp_path / folder / "scene.toml").write_text(
-            '[mesh]\npath = "ball.obj"\n[environment]\npath = "env.npy"\n'
-            '[camera]\neye = [0, 0, 3]\ntarget = [0, 0, 0]\n')
-    scenes = (str(tmp_path / "a" / "scene.toml"), str(tmp_path / "b" / "scene.toml"))
+    scenes = (user_scene(tmp_path / "a"), user_scene(tmp_path / "b"))
     with pytest.raises(InputError, match="scene name 'scene' is also the name of"):
         run(tiny(tmp_path / "out", scenes=scenes))
     assert not (tmp_path / "out").exists()
@@ -54,3 +57,11 @@ def test_out_that_is_a_file_is_refused(tmp_path):
         run(tiny(target))
     with pytest.raises(InputError, match="cannot create the output directory"):
         run(tiny(target / "below"))
+
+
+def test_a_camera_that_sees_no_geometry_is_refused_before_out_is_made(tmp_path):
+    # The fuzz test's meshes moved out of view left a half-written --out behind.
+    scene = user_scene(tmp_path / "a", target=(0, 0, 6))
+    with pytest.raises(InputError, match="the camera sees none of the mesh .*ball.obj"):
+        run(tiny(tmp_path / "out", scenes=(scene,)))
+    assert not (tmp_path / "out").exists()

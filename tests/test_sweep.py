@@ -82,9 +82,12 @@ def test_default_and_full_parse():
     assert full.resolution == (256, 256) and min(full.spp) == 15 and max(full.spp) == 1024
     from iblbench.scenes.registry import load_scene, scene_names
     # full covers every static built-in scene; the sequence scenes (blob-day, torus-moving,
-    # sphere-switch: 30-67 frames each) are left to their own sweeps.
+    # sphere-switch: 30-67 frames each) have their own sweep, temporal.
     static = [n for n in scene_names() if load_scene(n, env_res=4).environment.is_static]
     assert sorted(full.scenes) == static
+    temporal = load_sweep("temporal")
+    assert sorted(temporal.scenes) == sorted(set(scene_names()) - set(static))
+    assert {"havran", "bis", "smc"} <= set(temporal.estimators)
 
 
 def test_config_fields(tmp_path):
@@ -140,7 +143,7 @@ def test_missing_config_and_unknown_name(tmp_path):
     with pytest.raises(InputError, match="sweep config not found") as error:
         load_sweep(tmp_path / "nowhere.toml")
     assert str(tmp_path / "nowhere.toml") in str(error.value)
-    with pytest.raises(InputError, match="shipped configs: quick, default, full"):
+    with pytest.raises(InputError, match="shipped configs: quick, default, full, temporal"):
         load_sweep("quik")
 
 

@@ -82,10 +82,23 @@ inline float area_per_solid_angle(float u, float v)
 
 /* ---- CDF search and light sampling --------------------------------------------------------- */
 
-/* First i with cdf[i] > u; cdf is inclusive and ends at exactly 1, so zero-width bins are never
- * chosen and the result is < n for u in [0, 1).  The trip count depends on n only, so the search
- * is branch-free across work items and vectorises. */
-inline int cdf_search(__global const float *cdf, int n, float u)
+/* The light CDFs are fixed point (built by harness/framecache.cl): entry i is the inclusive prefix
+ * sum of integer bin widths q_j in units of 2^-63, the last entry exactly CDF_ONE = 2^63; bin i
+ * has probability q_i / 2^63.  Why (issue 6, stress case sun-1e9): a float32 CDF collapses bins
+ * under its spacing near 1 (6e-8), e.g. the sky after a sun in its row or face: never drawn,
+ * pdf 0, a silent bias of pure light sampling.  Wider storage alone does not help, nor does a
+ * two-sided or hierarchical float CDF: a float32 variate has 24 bits and cannot reach a bin
+ * under 2^-24 (the sky next to a sun in the same block has such bins).  So: widths rounded
+ * relatively and ≥ 1 for every positive weight, searched with 63-bit variates (pool_point),
+ * draw bin i with probability exactly q_i / 2^63, on any device (sampling needs no fp64).
+ * Samplers draw their points as 63-bit words (rng_words2 >> 1). */
+typedef ulong cdf_word_t;
+#define CDF_ONE ((cdf_word_t)1 << 63)
+
+/* First i with cdf[i] > u; cdf is inclusive and ends at exactly CDF_ONE, so zero-width bins are
+ * never chosen and the result is < n for u in [0, CDF_ONE).  The trip count depends on n only,
+ * so the search is branch-free across work items and vectorises. */
+inline int cdf_search(__global const cdf_word_t *cdf, int n, cdf_word_t u)
 {
     int base = 0;
     while (n > 1) {
@@ -96,26 +109,33 @@ inline int cdf_search(__global const float *cdf, int n, float u)
     return base;
 }
 
-inline float cdf_bin(__global const float *cdf, int i) { return cdf[i] - (i > 0 ? cdf[i - 1] : 0.0f); }
+inline cdf_word_t cdf_lower(__global const cdf_word_t *cdf, int i) { return i > 0 ? cdf[i - 1] : 0; }
+
+/* Probability of bin i: its width q_i·2^-63, exact to float rounding (relative 2^-24). */
+inline float cdf_bin(__global const cdf_word_t *cdf, int i)
+{
+    return convert_float(cdf[i] - cdf_lower(cdf, i)) * 0x1p-63f;
+}
 
 /* Position of u within bin i of `cdf`, in [0, 1): the continuous inversion that lets one uniform
  * pick both the bin and the point inside it, so a 2-D point set maps to directions. */
-inline float cdf_bin_position(__global const float *cdf, int i, float u)
+inline float cdf_bin_position(__global const cdf_word_t *cdf, int i, cdf_word_t u)
 {
-    float lo = i > 0 ? cdf[i - 1] : 0.0f;
-    return clamp((u - lo) / (cdf[i] - lo), 0.0f, 0x1.fffffep-1f);
+    cdf_word_t lo = cdf_lower(cdf, i);
+    return clamp(convert_float(u - lo) / convert_float(cdf[i] - lo), 0.0f, 0x1.fffffep-1f);
 }
 
-/* Sample face `face` from the 2-D point u by its marginal (rows) and conditional (columns | row)
- * CDFs; the position of u inside the chosen bins is the point in the texel's face square.
- * Returns pdf_L(ω|f) in solid angle (DESIGN §3): P(texel|f) · (1+u²+v²)^{3/2} / a_texel with
- * a_texel = (2/R)².  *texel gets the texel index. */
-inline float sample_face(__global const float *marginal, __global const float *conditional,
-                         int face, int res, float2 u, float3 *dir, int *texel)
+/* Sample face `face` from the 2-D fixed-point point u (63-bit coordinates in [0, CDF_ONE)) by its
+ * marginal (rows) and conditional (columns | row) CDFs; the position of u inside the chosen bins
+ * is the point in the texel's face square.  Returns pdf_L(ω|f) in solid angle (DESIGN §3):
+ * P(texel|f) · (1+u²+v²)^{3/2} / a_texel with a_texel = (2/R)².  *texel gets the texel index. */
+inline float sample_face(__global const cdf_word_t *marginal,
+                               __global const cdf_word_t *conditional,
+                               int face, int res, ulong2 u, float3 *dir, int *texel)
 {
-    __global const float *rows = marginal + face * res;
+    __global const cdf_word_t *rows = marginal + face * res;
     int row = cdf_search(rows, res, u.x);
-    __global const float *cols = conditional + (face * res + row) * res;
+    __global const cdf_word_t *cols = conditional + (face * res + row) * res;
     int col = cdf_search(cols, res, u.y);
     float x = -1.0f + 2.0f * ((float)col + cdf_bin_position(cols, col, u.y)) / res;
     float y = -1.0f + 2.0f * ((float)row + cdf_bin_position(rows, row, u.x)) / res;
@@ -127,13 +147,14 @@ inline float sample_face(__global const float *marginal, __global const float *c
 
 /* pdf_L(ω|f) of sample_face for the face f that holds ω (it is zero on every other face);
  * *texel gets the texel that holds ω (its face is texel / R²). */
-inline float light_pdf(__global const float *marginal, __global const float *conditional,
+inline float light_pdf(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
                        int res, float3 w, int *texel)
 {
     float s, t;
     int f = dir_to_face_st(w, &s, &t);
     int row = clamp_index(t, res), col = clamp_index(s, res);
-    float p_texel = cdf_bin(marginal + f * res, row) * cdf_bin(conditional + (f * res + row) * res, col);
+    float p_texel = cdf_bin(marginal + f * res, row)
+                  * cdf_bin(conditional + (f * res + row) * res, col);
     *texel = texel_index(f, row, col, res);
     return p_texel * area_per_solid_angle(2.0f * s - 1.0f, 2.0f * t - 1.0f) * (float)(res * res) / 4.0f;
 }
@@ -238,6 +259,16 @@ inline float4 rng_uniform4(uint seed, uint frame, uint stream, uint pixel, uint 
     philox4x32_ctr_t r = philox4x32(ctr, key);
     return (float4)((float)(r.v[0] >> 8), (float)(r.v[1] >> 8),
                     (float)(r.v[2] >> 8), (float)(r.v[3] >> 8)) * (1.0f / 16777216.0f);
+}
+
+/* The same Philox block as rng_uniform4 as two 64-bit words (v0:v1, v2:v3): fixed-point CDF
+ * variates are their top 63 bits (word >> 1). */
+inline ulong2 rng_words2(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
+{
+    philox4x32_key_t key = {{seed, (frame << 8) | (stream & 0xffu)}};
+    philox4x32_ctr_t ctr = {{pixel, sample, draw, 0u}};
+    philox4x32_ctr_t r = philox4x32(ctr, key);
+    return (ulong2)(upsample(r.v[0], r.v[1]), upsample(r.v[2], r.v[3]));
 }
 
 #endif

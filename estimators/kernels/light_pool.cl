@@ -24,16 +24,17 @@
 
 /* ---- the pool (Algorithm 1, line 10) -------------------------------------------------------- */
 
-/* Point i of face f's 2-D sequence.  The sequence is fixed (Lu's "precomputed random sequence",
- * Sec. 2.2) and rotated modulo 1 by a random shift per (seed, frame, face) (Cranley–Patterson):
- * every rotated point is uniform on [0, 1)², so an estimate that reads any of them is unbiased
- * over seeds even when all pixels read the same ones.  Adding the 24-bit integers keeps it < 1. */
-inline float2 pool_point(int face, int i, uint seed, uint frame)
+/* Point i of face f's 2-D sequence, as fixed-point CDF variates (63 bits per coordinate, so
+ * sample_face reaches every bin of the fixed-point CDFs; common.cl).  The sequence is fixed
+ * (Lu's "precomputed random sequence", Sec. 2.2) and rotated modulo 1 by a random shift per
+ * (seed, frame, face) (Cranley–Patterson): every rotated point is uniform on [0, 1)², so an
+ * estimate that reads any of them is unbiased over seeds even when all pixels read the same
+ * ones.  The rotation is the wrapping add of 64-bit words (mod 2^64), then the top 63 bits. */
+inline ulong2 pool_point(int face, int i, uint seed, uint frame)
 {
-    float2 base = rng_uniform4(POOL_SEQUENCE_SEED, 0u, STREAM_POOL_SEQUENCE, (uint)face, (uint)i, 0u).xy;
-    float2 shift = rng_uniform4(seed, frame, STREAM_POOL_ROTATION, (uint)face, 0u, 0u).xy;
-    uint2 sum = (convert_uint2(base * 16777216.0f) + convert_uint2(shift * 16777216.0f)) & 0xffffffu;
-    return convert_float2(sum) * (1.0f / 16777216.0f);
+    ulong2 base = rng_words2(POOL_SEQUENCE_SEED, 0u, STREAM_POOL_SEQUENCE, (uint)face, (uint)i, 0u);
+    ulong2 shift = rng_words2(seed, frame, STREAM_POOL_ROTATION, (uint)face, 0u, 0u);
+    return (base + shift) >> (ulong2)(1);
 }
 
 /* ---- the face split (Eq. 3) ------------------------------------------------------------------- */
@@ -162,8 +163,8 @@ inline void shade_light_faces(accumulator_t *acc, const surface_t *s, const int 
 /* BRDF samples of Eq. 6 (f_i): the denominator holds the full light mixture, which is the one
  * face term t_{f(ω)}·pdf_L(ω|f(ω)) because pdf_L(ω|f) = 0 off face f. */
 inline void shade_brdf(accumulator_t *acc, const surface_t *s, const int ticks[7],
-                       __global const float4 *env, __global const float *marginal,
-                       __global const float *conditional, int res, uint seed, uint frame, uint stream_pixel)
+                       __global const float4 *env, __global const cdf_word_t *marginal,
+                       __global const cdf_word_t *conditional, int res, uint seed, uint frame, uint stream_pixel)
 {
     int draws = draws_for(ticks[6]);
     for (int i = 0; i < draws; ++i) {
@@ -190,8 +191,8 @@ inline float pooled_density(const surface_t *s, const int ticks[7], int face, fl
 }
 
 /* pooled_density with ω's light pdf looked up from its texel (light_pdf of common.cl). */
-inline float pooled_pdf(const surface_t *s, const int ticks[7], __global const float *marginal,
-                        __global const float *conditional, int res, float3 w)
+inline float pooled_pdf(const surface_t *s, const int ticks[7], __global const cdf_word_t *marginal,
+                        __global const cdf_word_t *conditional, int res, float3 w)
 {
     int texel;
     float pdf_light = light_pdf(marginal, conditional, res, w, &texel);

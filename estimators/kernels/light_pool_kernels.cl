@@ -8,8 +8,8 @@
 
 __kernel void render_light_pool(__global const float4 *normal, __global const float4 *view,
                                 __global const float4 *kd, __global const float4 *ks_m,
-                                __global const float4 *env, __global const float *marginal,
-                                __global const float *conditional, __global const float *face_integral,
+                                __global const float4 *env, __global const cdf_word_t *marginal,
+                                __global const cdf_word_t *conditional, __global const float *face_integral,
                                 __global const float4 *pool_dir_pdf, __global const float4 *pool_radiance,
                                 const int res, const int pool_size, const int spp,
                                 const int shared_sequence, const uint seed, const uint frame,
@@ -38,8 +38,8 @@ __kernel void render_light_pool(__global const float4 *normal, __global const fl
 /* surface[0..3] = normal, view, kd, (ks, m) of one pixel; n directions drawn as the estimator
  * draws them (a strategy with probability ∝ its ticks; light samples through pool_point), each
  * with pooled_pdf. */
-__kernel void pooled_directions(__global const float4 *surface, __global const float *marginal,
-                                __global const float *conditional, __global const float *face_integral,
+__kernel void pooled_directions(__global const float4 *surface, __global const cdf_word_t *marginal,
+                                __global const cdf_word_t *conditional, __global const float *face_integral,
                                 const int res, const int spp, const uint seed, __global float4 *out)
 {
     int i = get_global_id(0);
@@ -57,7 +57,7 @@ __kernel void pooled_directions(__global const float4 *surface, __global const f
          * compares it with pooled_direction_pdf's texel lookup. */
         int texel;
         float pdf_light = sample_face(marginal, conditional, strategy, res,
-                                      pool_point(strategy, i, seed, 0u), &w, &texel);
+                                            pool_point(strategy, i, seed, 0u), &w, &texel);
         pdf = pooled_density(&s, ticks, strategy, pdf_light, w);
     } else {
         sample_phong(s.n, s.r, s.p_spec, s.m, xi.yzw, &w);
@@ -66,8 +66,8 @@ __kernel void pooled_directions(__global const float4 *surface, __global const f
     out[i] = (float4)(w, pdf);
 }
 
-__kernel void pooled_direction_pdf(__global const float4 *surface, __global const float *marginal,
-                                   __global const float *conditional, __global const float *face_integral,
+__kernel void pooled_direction_pdf(__global const float4 *surface, __global const cdf_word_t *marginal,
+                                   __global const cdf_word_t *conditional, __global const float *face_integral,
                                    const int res, const int spp, __global const float4 *dirs,
                                    __global float *out)
 {
