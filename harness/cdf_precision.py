@@ -30,10 +30,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from iblbench.harness.conformance import smooth_map
+from iblbench.harness.conformance import SUN_FACE, smooth_map, sun_map
 from iblbench.scenes import cubemap
 
-SUN_FACE = 4                       # +Z
 FIXED_POINT_ONE = 2 ** 63          # a fixed-point CDF's total (kernels/common.cl)
 FLOAT_VARIATE_STEPS = 2 ** 24      # values of a float32 uniform (rng_uniform4, pool_point)
 
@@ -47,10 +46,7 @@ DIM_NORMALS = {
 def stress_map(name: str) -> np.ndarray:
     """``sun-1e6``, ``sun-1e9`` (R = 64) or ``huge-faces`` (R = 1024), float32 ``[6, R, R, 3]``."""
     if name.startswith("sun-"):
-        res = 64
-        env = smooth_map(res) * np.float32(0.01)
-        env[SUN_FACE, res // 2, res // 2] = float(name[4:]) * env.max()
-        return env
+        return sun_map(64, float(name[4:]))
     if name == "huge-faces":
         return smooth_map(1024)
     raise KeyError(f"unknown map '{name}'; valid: sun-1e6, sun-1e9, huge-faces")

@@ -193,8 +193,6 @@ def test_balanced_matches_numpy_eq4_on_the_pool(h):
 
 def test_diffuse_gbuffer_never_runs_the_specular_lobe_branch(h):
     class WithLobeBranch(BalancedMIS):
-        kernel_package = BalancedMIS.kernel_package
-
         def defines(self, gbuffer=None):
             return {}
 

@@ -181,10 +181,6 @@ class TemporalUniform(Uniform):
     tags = dataclasses.replace(Uniform.tags, temporal=True)
     log: list = []
 
-    @classmethod
-    def kernel_package(cls) -> str:
-        return "iblbench.estimators"
-
     def reset(self) -> None:
         self.log.append((id(self), "reset"))
 
