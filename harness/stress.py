@@ -49,8 +49,8 @@ any other estimator the smaller of one light draw per lit face and spp/2 BRDF dr
 is rare when one hit there carries more than 1/``REACH_HITS`` of the pixel's value; a pixel
 is tested when its rare texels hold at most ``RARE_SHARE`` of its integral (and its reference
 is not 0: those pixels are checked for exactness instead).  Each case says which pixels
-this leaves.  The float32 CDFs themselves (bins that collapse to 0 next to a bright sun) are
-audited analytically in ``harness/cdf_precision``, not by sampling.
+this leaves.  The light CDFs' own precision (float32 bins used to collapse to 0 next to a
+bright sun) is audited analytically in ``harness/cdf_precision``, not by sampling.
 """
 from __future__ import annotations
 
