@@ -325,10 +325,9 @@ class Havran(Estimator):
         """The filtered lights of this frame, updating the history."""
         dirs, weights = self.raw_lights(cache, k, seed)
         frame = int(cache.frame)
-        newest = self._history[0][0] if self._history else None
-        if self._key != (int(seed), k) or (newest is not None and frame < newest):
+        if self._key != (int(seed), k) or (self._history and frame < self._history[0][0]):
             self.reset()
-        if newest is not None and frame == newest:
+        if self._history and frame == self._history[0][0]:
             self._history[0] = (frame, dirs, weights)
         else:
             self._history.insert(0, (frame, dirs, weights))

@@ -301,3 +301,16 @@ def test_fir_taps_are_per_sequence_frame_not_per_render(h):
     np.testing.assert_allclose(weights, (0.5 * raw[3] + 0.2 * raw[1]) / 0.7, rtol=1e-12)
     _, weights = est.lights(FrameCache(h.compute, constant_map(values[6]), frame=6), k, seed)
     np.testing.assert_array_equal(weights, raw[6])
+
+
+def test_same_frame_with_a_new_seed_or_k_starts_a_new_history(h):
+    """A new seed (or K) on the frame just rendered resets the history: the lights are that
+    seed's raw lights, not an error and not a mix with the other seed's."""
+    est = Havran()
+    cache = FrameCache(h.compute, smooth_map(8), frame=0)
+    est.lights(cache, 16, 0)
+    for k, seed in ((16, 1), (24, 1)):
+        dirs, weights = est.lights(cache, k, seed)
+        raw_dirs, raw_weights = est.raw_lights(cache, k, seed)
+        np.testing.assert_array_equal(dirs, raw_dirs)
+        np.testing.assert_array_equal(weights, raw_weights)
