@@ -36,13 +36,22 @@ def _spp_list(text: str) -> tuple[int, ...]:
 
 
 def _resolution(text: str) -> tuple[int, int]:
+    from iblbench.harness.sweep import parse_resolution
+
     try:
-        width, height = (int(part) for part in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH such as 128x128, got '{text}'")
-    if width < 1 or height < 1:
-        raise argparse.ArgumentTypeError(f"resolution must be positive, got '{text}'")
-    return width, height
+        return parse_resolution(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error))
+
+
+def _env_res(text: str) -> int:
+    from iblbench.harness.sweep import check_env_res
+
+    try:
+        return check_env_res(int(text))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error) if text.strip().lstrip("-").isdigit()
+                                         else f"expected a positive integer, got '{text}'")
 
 
 def _positive_int(text: str) -> int:
@@ -104,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "run frame 0")
     run.add_argument("--res", type=_resolution, metavar="WxH",
                      help="image resolution (default: the scene's own)")
-    run.add_argument("--env-res", type=_positive_int, metavar="R",
+    run.add_argument("--env-res", type=_env_res, metavar="R",
                      help="cube face resolution for built-in skies and resampled maps")
     run.add_argument("--time-budget-ms", type=sweep.budgets_arg, metavar="T[,T...]",
                      help="equal-time cells besides the spp list: per (scene, estimator), the "
@@ -315,13 +324,17 @@ def _stress(args) -> int:
     from iblbench.harness.runner import prepare_out
     from iblbench.harness.sweep import parse_estimator
 
-    specs = [parse_estimator(label) for label in args.estimator or estimator_names()]
+    estimators = {spec.label: spec.make()
+                  for spec in map(parse_estimator, args.estimator or estimator_names())}
+    cases = tuple(dict.fromkeys(args.case or stress.CASE_NAMES))
+    if not any(stress.CASES[case].applies(e) for case in cases for e in estimators.values()):
+        raise InputError(None, f"no case of {', '.join(cases)} applies to {', '.join(estimators)} "
+                               "(temporal-dropout runs temporal estimators only)")
     prepare_out(args.out)
     compute = get_compute(args.device)
     scale = stress.SMALL if args.quick else stress.LARGE
     start = time.perf_counter()
-    table = stress.run_stress({spec.label: spec.make() for spec in specs},
-                              tuple(dict.fromkeys(args.case or stress.CASE_NAMES)), scale, compute,
+    table = stress.run_stress(estimators, cases, scale, compute,
                               progress=False if args.no_progress else None)
     seconds = time.perf_counter() - start
     paths = stress.write_outputs(args.out, table, scale, compute.device_name, seconds)

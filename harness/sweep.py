@@ -46,7 +46,9 @@ from pathlib import Path
 from typing import Any
 
 from iblbench.harness.metrics import PROTOCOL
+from iblbench.scenes.envmap import MAX_RES
 from iblbench.scenes.errors import InputError
+from iblbench.scenes.registry import MAX_IMAGE_SIDE
 from iblbench.scenes.tomlfile import read_toml
 
 if sys.version_info >= (3, 11):
@@ -214,14 +216,23 @@ def _positive_int(value) -> bool:
 
 
 def parse_resolution(value) -> tuple[int, int]:
-    """``"WxH"`` or ``[W, H]`` → (W, H); ValueError if malformed."""
+    """``"WxH"`` or ``[W, H]`` → (W, H), each side at most MAX_IMAGE_SIDE; ValueError if not."""
     if isinstance(value, str):
         parts = value.lower().split("x")
         if len(parts) == 2 and all(p.strip().isdigit() for p in parts):
             value = [int(p) for p in parts]
-    if isinstance(value, list) and len(value) == 2 and all(_positive_int(v) for v in value):
+    if isinstance(value, list) and len(value) == 2 and all(
+            _positive_int(v) and v <= MAX_IMAGE_SIDE for v in value):
         return int(value[0]), int(value[1])
-    raise ValueError(f"resolution must be \"WxH\" or [W, H] with positive integers, got {value!r}")
+    raise ValueError(f"resolution must be \"WxH\" or [W, H] with integers in 1..{MAX_IMAGE_SIDE}, "
+                     f"got {value!r}")
+
+
+def check_env_res(value) -> int:
+    """A cube-face resolution override: an integer in 1..MAX_RES; ValueError if not."""
+    if not (_positive_int(value) and value <= MAX_RES):
+        raise ValueError(f"env_res must be an integer in 1..{MAX_RES}, got {value!r}")
+    return int(value)
 
 
 _SLICE = re.compile(r"\s*(-?\d+)?\s*:\s*(-?\d+)?\s*(?::\s*(-?\d+)?\s*)?")
@@ -339,8 +350,11 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     except ValueError as error:
         fail(str(error))
     env_res = document.get("env_res")
-    if env_res is not None and not _positive_int(env_res):
-        fail(f"env_res must be a positive integer, got {env_res!r}")
+    if env_res is not None:
+        try:
+            check_env_res(env_res)
+        except ValueError as error:
+            fail(str(error))
     budgets = document.get("time_budget_ms", [])
     if isinstance(budgets, (int, float)) and not isinstance(budgets, bool):
         budgets = [budgets]

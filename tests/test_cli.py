@@ -216,7 +216,8 @@ def test_unknown_scene_lists_the_valid_ones(cli, tmp_path):
     assert_input_error(result, out, "no-such-scene", "sphere-sun")
 
 
-@pytest.mark.parametrize("flag, value", [("--spp", "0"), ("--res", "12")])
+@pytest.mark.parametrize("flag, value", [("--spp", "0"), ("--res", "12"),
+                                         ("--res", "100000x100000"), ("--env-res", "100000")])
 def test_malformed_flags_exit_2(cli, tmp_path, flag, value):
     out = tmp_path / "out"
     result = cli("run", "--scene", "sphere-sun", "--out", out, "--no-progress", flag, value)

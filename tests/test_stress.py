@@ -188,3 +188,7 @@ def test_command_exits_2_on_bad_arguments(tmp_path, capsys):
     a_file.write_text("")
     assert cli.main(QUICK + ["--out", str(a_file)]) == 2     # refused before the battery runs
     assert "cannot create the output directory" in capsys.readouterr().err
+    out = tmp_path / "none-applies"                            # temporal-dropout: temporal only
+    assert cli.main(["stress", "--case", "temporal-dropout", "--estimator", "uniform",
+                     "--out", str(out)]) == 2
+    assert "no case" in capsys.readouterr().err and not out.exists()
