@@ -235,6 +235,7 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
     }
     if (!reinit && !static_frame) {
         estimate = z * ratio;
+        z_count = (float)N;        /* Eq. 7 rests on the N particles, whatever Z was built on */
         evaluations += (float)N;   /* f at the particles */
     }
     state[p] = (float4)(z, z_count, 0.0f, 0.0f);

@@ -49,7 +49,7 @@ Per pixel, N weighted particles {ω_i, W_i} (W normalised) approximate the targe
    fresh unbiased estimates Σ γ_t(ω)/(n_map p_map(ω) + n_brdf p_B(ω)) of Z_t and
    Σ f(ω)/(n_map p_map(ω) + n_brdf p_B(ω)) of the integral (balance heuristic); Z_t and L̂ are
    the sample-count-weighted means of the previous frame's values (n samples behind them: M
-   at an init) and the fresh ones.  Each is then a mean of unbiased estimates, and the error
+   after an init, N after a changed frame's Eq. 7) and the fresh ones.  Each is then a mean of unbiased estimates, and the error
    keeps falling while the map stays (tests/test_smc.py).  On sphere-switch this is what
    brings smc's ΔE to within 1.5× of balanced_mis's at equal evaluations after a switch.
 
