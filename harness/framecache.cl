@@ -9,8 +9,8 @@
  *     q_i = max(1, ⌊2^63 · w_i / W⌋) for w_i > 0,  q_i = 0 for w_i = 0,
  * each rounded relatively (w_i · (1/W) in acc_t), so every positive weight keeps a positive and
  * relatively exact probability however bright the rest of its run.  The remainder 2^63 − Σ q (a
- * few units per bin plus W's rounding: relative 1e-15, or about n·1e-7 without fp64) goes to the
- * largest bin, so the scan ends at exactly CDF_ONE.  An all-zero run gets a uniform CDF (it is
+ * few units per bin plus W's rounding: 1e-15 of the total with fp64, up to n·2^-24 without)
+ * goes to the largest bin, so the scan ends at exactly CDF_ONE.  An all-zero run gets a uniform CDF (it is
  * never selected: its own weight is 0), and so does a run whose 1/W overflows (a denormal W in
  * float): still exactly the pdf it samples.
  * Two passes per run (one work item scans it): cdf_run_add stores each weight's float bits in

@@ -9,7 +9,8 @@
  * at least 8 where the horizon cuts the texel, and none wider than KINK_CELL_RADIANS where the
  * lobe's own plane r·ω = 0 does for m < 2: the lobe's slope jumps there (from ~(m+2)/(2π) to
  * 0), and the midpoint rule's error per unit length of the kink goes as the sub-cell width
- * squared, so the width, not the count, sets it at every face size.  At m = 0 the lobe is the
+ * squared, so the width, not the count, sets it (up to MAX_CELLS² sub-cells per texel: on faces
+ * of R ≤ 8 the cells are wider, 1.4e-3 rad at R = 8, 7.5e-3 at R = 1).  At m = 0 the lobe is the
  * half-space r·ω > 0: exact, by clipping the texel to both planes.
  * Texels whose bounding cap keeps the lobe below LOBE_CUTOFF of its peak are skipped: their
  * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
