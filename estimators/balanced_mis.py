@@ -1,6 +1,7 @@
 """``balanced_mis``: Lu 2013's balanced light sampling combined with BRDF sampling (Eq. 6)."""
 from __future__ import annotations
 
+from iblbench.estimators.base import specular_lobe_defines
 from iblbench.estimators.light_pool import PoolEstimator
 
 
@@ -35,4 +36,4 @@ class BalancedMIS(PoolEstimator):
     kernel_files = ("balanced_mis.cl",)
 
     def defines(self, gbuffer=None) -> dict:
-        return {"SPECULAR_LOBE": 0} if gbuffer is not None and gbuffer.is_diffuse else {}
+        return specular_lobe_defines(gbuffer)

@@ -104,6 +104,12 @@ def estimator_version(cls: type) -> str:
     return digest.hexdigest()[:12]
 
 
+def specular_lobe_defines(gbuffer) -> dict:
+    """Kernel defines of an estimator that samples the Phong BRDF: an all-diffuse G-buffer
+    compiles the specular-lobe sampling branch out (DESIGN §2)."""
+    return {"SPECULAR_LOBE": 0} if gbuffer is not None and gbuffer.is_diffuse else {}
+
+
 def read_estimate(compute, gbuffer, radiance, counts, evaluations: float,
                   timings_ms: dict[str, float]) -> Estimate:
     """Copy a kernel's per-pixel outputs (float4 radiance, float2 used/effective) into an Estimate."""

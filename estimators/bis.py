@@ -26,7 +26,7 @@ import dataclasses
 
 import numpy as np
 
-from iblbench.estimators.base import Estimator, Tags, read_estimate
+from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
 from iblbench.harness.device import event_ms
 
 
@@ -75,7 +75,7 @@ class BIS(Estimator):
             raise ValueError(f"bis needs M ≥ 1 and N ≥ 1, got {self.params}")
 
     def defines(self, gbuffer=None) -> dict:
-        return {"SPECULAR_LOBE": 0} if gbuffer is not None and gbuffer.is_diffuse else {}
+        return specular_lobe_defines(gbuffer)
 
     def budget(self, spp: int) -> tuple[int, int]:
         """(M, N) of a render at ``spp``."""

@@ -88,7 +88,7 @@ import math
 import numpy as np
 import pyopencl as cl
 
-from iblbench.estimators.base import Estimator, Tags, read_estimate
+from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
 from iblbench.harness.device import event_ms
 
 
@@ -146,7 +146,7 @@ class SMC(Estimator):
         return not 1.0 / threshold <= power / previous <= threshold
 
     def defines(self, gbuffer=None) -> dict:
-        return {"SPECULAR_LOBE": 0} if gbuffer is not None and gbuffer.is_diffuse else {}
+        return specular_lobe_defines(gbuffer)
 
     def particles(self, spp: int) -> int:
         return self.params.N or int(spp)

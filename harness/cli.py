@@ -48,10 +48,9 @@ def _env_res(text: str) -> int:
     from iblbench.harness.sweep import check_env_res
 
     try:
-        return check_env_res(int(text))
+        return check_env_res(_positive_int(text))
     except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error) if text.strip().lstrip("-").isdigit()
-                                         else f"expected a positive integer, got '{text}'")
+        raise argparse.ArgumentTypeError(str(error))
 
 
 def _positive_int(text: str) -> int:
