@@ -189,7 +189,76 @@ def build_parser() -> argparse.ArgumentParser:
     stress.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/stress"),
                         help="output directory for stress.csv/.parquet/.html "
                              "(default: results/stress)")
+    _add_perf(commands, device)
     return parser
+
+
+# ---- iblbench perf (harness/perf.py, imported only when the command runs or prints its help) --
+
+PERF_DESCRIPTION = """\
+Measure the throughput of every estimator (or the chosen ones) on this device, side by side in
+one run: per (scene, estimator), Msamples/s and M evaluations/s, the device ms of the build,
+sample and shade stages (median, min and IQR of --repeats renders after one warm-up), the
+device's measured FMA and copy roofline and the fraction of it each shading kernel reaches
+(from analytic FLOP and byte counts per sample, estimates), and the speed-up over a
+single-threaded NumPy implementation of Lu 2013's shared-pool shading on the same inputs (the
+floor every kernel must beat; it must also agree with the uniform kernel on the same pool).
+Prints a table and writes perf.csv and perf.html into --out. The method and the counts are in
+harness/perf.py. Exit 0, or 2 on bad input."""
+
+
+def _add_perf(commands, device) -> None:
+    perf = commands.add_parser("perf", help="throughput per estimator against the device's "
+                                            "roofline and a NumPy floor (perf.csv, perf.html)",
+                               description=PERF_DESCRIPTION, parents=[device],
+                               formatter_class=argparse.RawDescriptionHelpFormatter)
+    perf.add_argument("--scene", action="append", metavar="NAME|FILE",
+                      help="built-in scene name or scene .toml; repeatable "
+                           "(default: sphere-sun and blob-sun)")
+    perf.add_argument("--estimator", action="append", metavar="NAME",
+                      help="estimator name, optionally NAME{param=value,...}; repeatable "
+                           "(default: every registered estimator)")
+    perf.add_argument("--spp", type=_positive_int, metavar="N",
+                      help="samples per pixel of every estimator and the floor (default: 64; "
+                           "bis and smc 4, which take seconds per frame today)")
+    perf.add_argument("--res", type=_resolution, default=(256, 256), metavar="WxH",
+                      help="image resolution (default: 256x256)")
+    perf.add_argument("--env-res", type=_env_res, default=64, metavar="R",
+                      help="cube face resolution (default: 64)")
+    perf.add_argument("--repeats", type=_positive_int, metavar="N",
+                      help="timed renders per estimator after one warm-up (default: 5; bis "
+                           "and smc 3)")
+    perf.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/perf"),
+                      help="output directory for perf.csv and perf.html (default: results/perf)")
+
+    def format_help() -> str:
+        from iblbench.harness.perf import columns_help
+
+        perf.epilog = columns_help()
+        return argparse.ArgumentParser.format_help(perf)
+
+    perf.format_help = format_help
+
+
+def _perf(args) -> None:
+    import time
+
+    from iblbench.harness import perf
+    from iblbench.harness.runner import prepare_out
+
+    config = perf.PerfConfig(out=args.out, scenes=tuple(args.scene or perf.DEFAULT_SCENES),
+                             estimators=tuple(args.estimator or ()), spp=args.spp,
+                             resolution=args.res, env_res=args.env_res, repeats=args.repeats,
+                             device=args.device)
+    start = time.perf_counter()
+    table, roofline = perf.run_perf(config, log=lambda line: print(line, file=sys.stderr))
+    seconds = time.perf_counter() - start
+    prepare_out(args.out)
+    paths = perf.write_outputs(args.out, table, roofline,
+                               {"device": table.device.iloc[0], "command": perf.command_line(config),
+                                "seconds": f"{seconds:.0f}"})
+    print(perf.format_table(table))
+    print(f"wrote {', '.join(map(str, paths))}")
 
 
 def stress_cases() -> dict[str, str]:
@@ -349,7 +418,8 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         status = {"run": _run, "reproduce": _reproduce, "list": _list,
-                  "check": _check, "report": _report, "stress": _stress}[args.command](args)
+                  "check": _check, "report": _report, "stress": _stress,
+                  "perf": _perf}[args.command](args)
     except InputError as error:
         print(f"iblbench: error: {error}", file=sys.stderr)
         return 2

@@ -1,0 +1,590 @@
+"""``iblbench perf``: the throughput of every estimator, against the device's roofline and a
+NumPy floor, measured side by side in one run.
+
+Per (scene, estimator) it renders one frame ``repeats`` times after one untimed warm-up render,
+interleaved in rounds (round r renders every estimator once, then the NumPy floor, so slow
+drifts of a shared machine hit them all alike), and reports the median, min and IQR of each
+device stage (OpenCL profiling events, DESIGN §3 "Timing"):
+
+- ``build``: the per-frame FrameCache products the estimator requires (the map's upload and,
+  where required, the CDFs), from ``FrameCache.timings_ms``; every repeat builds a fresh cache,
+  as a new frame would;
+- ``sample`` and ``shade``: ``Estimate.timings_ms`` (the pool estimators' ``sample`` is the
+  draw of the light-sample pool; ``havran``'s is its host-built light set);
+- the rates divide by the render's device time, sample + shade (build does not scale with spp
+  and is reported beside them).
+
+Temporal estimators (``havran``, ``smc``) are ``reset()`` before every render, so each timed
+render is the first frame of a sequence, what an ``iblbench run`` cell of a static scene
+renders (``smc``: its BIS initialisation, M + N evaluations per pixel).
+
+The roofline.  ``fma_throughput`` (``perf.cl``: independent FMA chains, two FLOPs each) gives
+the device's FLOP rate and ``copy_bandwidth`` (one float4 read and one written per work item,
+buffers much larger than the last-level cache) its bandwidth, counted as bytes read + bytes
+written (STREAM's convention; a CPU's write-allocate reads are not counted).  Both run on the
+estimators' own context and queue, as the median of ``repeats`` launches, each launch sized
+to take at least ``ROOF_MIN_MS``.  An estimator's shading kernel (its ``shade`` stage) then
+reaches ``gflops`` = FLOPs/s and ``gbytes_per_s`` = bytes/s by the counts of ``KERNEL_COSTS``,
+and its roofline fraction is achieved / attainable with attainable = min(peak FLOP rate,
+intensity × peak bandwidth), i.e. max(gflops / peak_gflops, gbytes_per_s / peak_gbps).
+
+FLOP and byte counts (``KERNEL_COSTS``) are estimates, counted by reading the kernels as they
+are on main, rounded, good to perhaps ±30%.  FLOPs: an add, multiply, divide, sqrt, min/max is
+one, an FMA two; exp2, log2, sin, cos, pow count one each although each costs tens of cycles on
+a CPU without vector math (so kernels dominated by them show low fractions); integer work
+(Philox, CDF binary search, indexing) is not counted.  Bytes: the roofline's DRAM traffic, i.e.
+what each pixel must move (its four G-buffer float4s in, its outputs out, and smc's per-particle
+state), with the map, CDFs, light pool and light set taken as cache-resident: they are shared
+by every pixel, and at the default env 64 they fit in the last-level cache (6·64²·(16 + 8) B ≈
+0.6 MB); at large faces the random texel and CDF reads of balanced_mis, bis and smc also reach
+DRAM and the byte counts are lower bounds.  Per sample, at spp samples and E evaluations per
+pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``bytes_per_sample`` = B_s + B_p/spp.
+
+    estimator     F_e per evaluation              F_s / B_s per sample  F_p / B_p per pixel
+    uniform        39 (cos 5, Phong 20: dot, (m+2)/2π, log2, exp2, kd/π + ks·lobe;
+                      ×cos·L 6, β/D·value + sum 7, D 1)     0 / 0       60 / 116 (surface 34,
+                      split 24; 4 G-buffer float4s in, 6 face integrals, 28 B out)
+    balanced       39                                        0 / 0      240 / 116 (+ F_f(n) of
+                      Eq. 3: 6 faces × 4 corners × 7, ×I_f)
+    balanced_mis  108 (mean of a light draw, 64: + phong_pdf 23 for Eq. 6's denominator, and
+                      a BRDF draw, 151: sample_phong ≈ 55, phong_pdf 23, light_pdf ≈ 30,
+                      add_sample 39)                         0 / 0      250 / 116
+    havran         29 (a light above the horizon: Phong 20, ×W·cos 6, sum 3)
+                                                             5 / 0       12 / 92  (every light:
+                      n·ω, culled or not; no face integrals)
+    bis           286 (per candidate ≈ 300: sample_phong + pdf ≈ 80, env lookup 14, γ = L_Y ρ_Y
+                      cos ≈ 25, γ/q, Kahan sum; regenerated in the resampling pass, + f/γ ≈ 46
+                      there; × M/(M+N) = 20/21)              6 / 0       40 / 88
+    smc           381 (the BIS init of sir.cl with ½ map candidates: + light_pdf ≈ 30 per pass,
+                      + the candidate ratio f/γ ≈ 46; ≈ 400 per candidate, × 20/21)
+                                                            10 / 56     100 / 136 (particle and
+                      γ written at the init, read and γ rewritten after; state, estimate,
+                      stats out)
+
+The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
+μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
+⌈N_f⌉ entries of each lit face's pool, N_f = N_s/6, with the fractional last weight β of
+Eq. 5, shaded with DESIGN §3's Phong BRDF.  It reads the same inputs as the kernels: the
+G-buffer, and a light-sample pool drawn on the device by the FrameCache and read back
+(directions, pdf_L and radiance).  It runs on one host thread (NumPy element-wise loops and
+``einsum``, no BLAS), in float32 as the kernels do, over blocks of pixels that fit in cache;
+its time is host wall time.  Deviation from the kernels, not from the paper: N_f and β are
+exact (N_s/6 and frac(N_f)) where the kernel rounds them to 2^-16 of a sample (ticks), a
+relative difference under 1e-4 of a pixel.  ``FLOOR_RTOL``/``FLOOR_ATOL`` state how closely the
+floor must match the ``uniform`` kernel on the same pool (``floor_max_rel_diff``); the
+``speedup_vs_floor`` of a kernel is its msamples_per_s over the floor's.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+import time
+
+import numpy as np
+
+from iblbench.scenes.errors import InputError
+
+DEFAULT_SCENES = ("sphere-sun", "blob-sun")
+DEFAULT_RESOLUTION = (256, 256)
+DEFAULT_ENV_RES = 64
+DEFAULT_SPP = 64
+DEFAULT_REPEATS = 5
+# bis and smc take seconds per frame at 256² on a 2-core CPU today: fewer samples and repeats
+# unless --spp / --repeats are given (the run prints the spp and repeats of every row).
+SLOW_DEFAULTS = {"bis": (4, 3), "smc": (4, 3)}
+FLOOR = "numpy-floor"
+FLOOR_SEED = 0xFFFFFF80        # a seed no benchmark cell uses
+WARMUP_SEED = 0xFFFFFFFF
+FLOOR_RTOL = 1e-4              # |floor − uniform| ≤ RTOL·|uniform| + ATOL·max|uniform| per channel
+FLOOR_ATOL = 1e-6
+FLOOR_BLOCK = 1 << 15          # pixels × pool entries per block of the floor (fits in L2)
+FMA_CHAINS = 8                 # perf.cl's fma_throughput: chains of float8 per work item
+FMA_LANES = 8
+FMA_ITEMS = 1 << 17
+COPY_MIN_BYTES = 64 << 20      # each copy buffer: at least this, and 8× the device's cache
+ROOF_MIN_MS = 20.0             # each roofline launch is sized to take at least this
+
+
+@dataclasses.dataclass(frozen=True)
+class KernelCost:
+    """Analytic FLOPs and DRAM bytes of an estimator's shading kernel, per integrand evaluation,
+    per sample and per pixel (an estimate: module docstring)."""
+
+    flops_per_eval: float
+    flops_per_sample: float
+    bytes_per_sample: float
+    flops_per_pixel: float
+    bytes_per_pixel: float
+
+    def per_sample(self, spp: int, evaluations: float) -> tuple[float, float]:
+        """(FLOPs, bytes) per sample of a render at ``spp`` with ``evaluations`` per pixel."""
+        flops = self.flops_per_sample + (self.flops_per_eval * evaluations + self.flops_per_pixel) / spp
+        return flops, self.bytes_per_sample + self.bytes_per_pixel / spp
+
+
+KERNEL_COSTS = {
+    "uniform": KernelCost(39, 0, 0, 60, 116),
+    "balanced": KernelCost(39, 0, 0, 240, 116),
+    "balanced_mis": KernelCost(108, 0, 0, 250, 116),
+    "havran": KernelCost(29, 5, 0, 12, 92),
+    "bis": KernelCost(286, 6, 0, 40, 88),
+    "smc": KernelCost(381, 10, 56, 100, 136),
+}
+
+# Every column of perf.csv, in order, with what it means (the --help epilog and perf.html).
+COLUMNS = {
+    "scene": "scene name",
+    "estimator": f"estimator label; '{FLOOR}' is the NumPy shared-pool floor (one host thread)",
+    "spp": "samples per pixel (havran: K lights; bis: N resampled; smc: N particles)",
+    "repeats": "timed renders after one untimed warm-up; times are their median",
+    "pixels": "covered pixels (work items)",
+    "evaluations": "integrand evaluations per covered pixel (Estimate.evaluations)",
+    "build_ms": "device ms of the FrameCache products required (upload, CDFs), median",
+    "build_ms_min": "its minimum over repeats",
+    "build_ms_iqr": "its interquartile range",
+    "sample_ms": "device ms of the sample stage (pool draw; havran: host light set; 0: none), "
+                 "median",
+    "sample_ms_min": "its minimum",
+    "sample_ms_iqr": "its interquartile range",
+    "shade_ms": "device ms of the shading kernel, median (the floor: host wall ms)",
+    "shade_ms_min": "its minimum",
+    "shade_ms_iqr": "its interquartile range",
+    "frame_ms": "build + sample + shade per repeat, median",
+    "frame_ms_min": "its minimum",
+    "frame_ms_iqr": "its interquartile range",
+    "render_ms": "sample + shade per repeat, median: the time the rates divide by",
+    "host_ms": "host wall ms of the render call (read-back included), median",
+    "msamples_per_s": "pixels × spp / render_ms, in millions per second",
+    "mevals_per_s": "pixels × evaluations / render_ms, in millions per second",
+    "flops_per_sample": "analytic FLOPs per sample of the shading kernel (an estimate)",
+    "bytes_per_sample": "analytic DRAM bytes per sample (an estimate; shared tables cached)",
+    "gflops": "FLOPs per sample × pixels × spp / shade_ms, GFLOP/s",
+    "gbytes_per_s": "bytes per sample × pixels × spp / shade_ms, GB/s",
+    "roofline_fraction": "max(gflops/peak_gflops, gbytes_per_s/peak_gbps): achieved over "
+                         "attainable at the kernel's intensity",
+    "bound": "the roof that binds at the kernel's intensity: compute or memory",
+    "speedup_vs_floor": "msamples_per_s over the NumPy floor's (same scene)",
+    "floor_max_rel_diff": "floor row: max over pixels and channels of |floor − uniform| / "
+                          "(|uniform| + max|uniform|·ATOL/RTOL), on the same pool (≤ RTOL passes)",
+    "peak_gflops": "the device's measured FMA throughput, GFLOP/s (median)",
+    "peak_gbps": "the device's measured copy bandwidth, GB/s, read + written (median)",
+    "device": "OpenCL device | platform version | driver",
+}
+SHOWN = {"scene": "scene", "estimator": "estimator", "spp": "spp", "pixels": "pixels",
+         "msamples_per_s": "Msamples/s", "mevals_per_s": "Mevals/s", "build_ms": "build ms",
+         "sample_ms": "sample ms", "shade_ms": "shade ms", "shade_iqr_pct": "IQR %",
+         "gflops": "GFLOP/s", "gbytes_per_s": "GB/s", "roofline_fraction": "roof",
+         "speedup_vs_floor": "× floor"}
+
+
+def columns_help() -> str:
+    """The columns of perf.csv, one per line (the --help epilog)."""
+    width = max(map(len, COLUMNS))
+    return "columns of perf.csv (the table printed shows a subset):\n" + "\n".join(
+        f"  {name:{width}s}  {text}" for name, text in COLUMNS.items())
+
+
+# ---- statistics --------------------------------------------------------------------------------
+
+def stats(values) -> tuple[float, float, float]:
+    """(median, min, IQR) of repeated timings; NaNs where no value is finite."""
+    values = np.asarray([v for v in values if math.isfinite(v)], np.float64)
+    if not len(values):
+        return math.nan, math.nan, math.nan
+    q25, q75 = np.percentile(values, [25, 75])
+    return float(np.median(values)), float(values.min()), float(q75 - q25)
+
+
+# ---- the roofline --------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Roofline:
+    gflops: float          # median FMA throughput
+    gbps: float            # median copy bandwidth, bytes read + written
+    fma_flops: int         # FLOPs per timed FMA launch
+    copy_bytes: int        # bytes moved per timed copy launch
+
+    def fraction(self, gflops: float, gbps: float) -> float:
+        return max(gflops / self.gflops, gbps / self.gbps)
+
+    def bound(self, flops_per_byte: float) -> str:
+        """The roof that binds at an arithmetic intensity (FLOPs per byte)."""
+        return "compute" if flops_per_byte * self.gbps >= self.gflops else "memory"
+
+
+def _perf_kernel(compute, name: str):
+    return compute.kernel("iblbench.harness", "perf.cl", name)
+
+
+def _launches(compute, kernel, items: int, args, launches: int) -> list[float]:
+    """Device ms of ``launches`` launches after an untimed one (first touch of the buffers'
+    pages, kernel compilation)."""
+    from iblbench.harness.device import event_ms
+
+    compute.run(kernel, items, *args)
+    return [event_ms(compute.run(kernel, items, *args)) for _ in range(launches)]
+
+
+def run_fma(compute, items: int, iterations: int, launches: int = 1, b: float = 0.999,
+            c: float = 1e-3):
+    """``launches`` timed launches of ``fma_throughput``: (the outputs ``[items, FMA_CHAINS,
+    FMA_LANES]``, device ms of each launch, FLOPs per launch)."""
+    shape = (items, FMA_CHAINS, FMA_LANES)
+    out = compute.empty(4 * math.prod(shape))
+    args = (np.int32(iterations), np.float32(b), np.float32(c), out)
+    times = _launches(compute, _perf_kernel(compute, "fma_throughput"), items, args, launches)
+    flops = 2 * FMA_LANES * FMA_CHAINS * iterations * items
+    return compute.to_host(out, shape, np.float32), times, flops
+
+
+def run_copy(compute, source: np.ndarray, launches: int = 1):
+    """``launches`` timed launches of ``copy_bandwidth`` on ``source`` (float32, a multiple of 4
+    values): (the copy read back, device ms of each launch, bytes moved = read + written)."""
+    source = np.ascontiguousarray(source, np.float32)
+    if source.size % 4:
+        raise ValueError("the copy kernel moves float4s: give a multiple of 4 values")
+    args = (compute.to_device(source), compute.empty(source.nbytes))
+    times = _launches(compute, _perf_kernel(compute, "copy_bandwidth"), source.size // 4, args,
+                      launches)
+    return compute.to_host(args[1], source.shape, np.float32), times, 2 * source.nbytes
+
+
+def copy_size(compute) -> int:
+    """Bytes per copy buffer: ≥ COPY_MIN_BYTES and 8× the device's global-memory cache, within
+    its largest allocation."""
+    device = compute.info.device
+    wanted = max(COPY_MIN_BYTES, 8 * int(device.global_mem_cache_size))
+    return int(min(wanted, device.max_mem_alloc_size // 2, 1 << 30)) // 16 * 16
+
+
+def measure_roofline(compute, repeats: int) -> Roofline:
+    """The device's FMA throughput and copy bandwidth: the median of ``repeats`` launches each,
+    the FMA launch sized to take ≥ ROOF_MIN_MS."""
+    iterations = 16
+    while True:
+        ms = run_fma(compute, FMA_ITEMS, iterations)[1][0]
+        if ms >= ROOF_MIN_MS or iterations >= 1 << 16:
+            break
+        iterations *= 2 if ms > 0 else 16
+    _, fma_ms, flops = run_fma(compute, FMA_ITEMS, iterations, repeats)
+    _, copy_ms, moved = run_copy(compute, np.ones(copy_size(compute) // 4, np.float32), repeats)
+    return Roofline(gflops=flops / stats(fma_ms)[0] / 1e6, gbps=moved / stats(copy_ms)[0] / 1e6,
+                    fma_flops=flops, copy_bytes=moved)
+
+
+# ---- the NumPy floor ---------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class HostPool:
+    """A light-sample pool read back from the device: ``per_face`` entries per face, face-major;
+    ``dirs`` ``[6·per_face, 3]``, ``pdf`` ``[6·per_face]`` (pdf_L(ω|f)), ``radiance``
+    ``[6·per_face, 3]``; ``face_integrals`` I_f ``[6]``."""
+
+    dirs: np.ndarray
+    pdf: np.ndarray
+    radiance: np.ndarray
+    per_face: int
+    face_integrals: np.ndarray
+
+    @classmethod
+    def read(cls, cache, per_face: int, seed: int) -> "HostPool":
+        pool = cache.light_pool(per_face, seed)
+        count = 6 * pool.per_face
+        dir_pdf = cache.compute.to_host(pool.dir_pdf, (count, 4), np.float32)
+        radiance = cache.compute.to_host(pool.radiance, (count, 4), np.float32)
+        return cls(dir_pdf[:, :3].copy(), dir_pdf[:, 3].copy(), radiance[:, :3].copy(),
+                   pool.per_face, np.asarray(cache.face_integrals, np.float32))
+
+
+@dataclasses.dataclass(frozen=True)
+class HostSurface:
+    """The covered pixels' shading inputs, float32: ``normal``, ``view``, ``kd``, ``ks`` ``[N, 3]``
+    and ``shininess`` ``[N]``."""
+
+    normal: np.ndarray
+    view: np.ndarray
+    kd: np.ndarray
+    ks: np.ndarray
+    shininess: np.ndarray
+
+    @classmethod
+    def of(cls, gbuffer) -> "HostSurface":
+        m = gbuffer.mask
+        return cls(*(np.ascontiguousarray(getattr(gbuffer, name)[m], np.float32)
+                     for name in ("normal", "view", "kd", "ks", "shininess")))
+
+
+def floor_samples(pool: HostPool, spp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pool entries every pixel reads (the first ⌈N_f⌉ of each lit face, N_f = spp/6) and
+    their weights β_i/(N_f·pdf_i) of Eq. 4-5: (directions ``[S, 3]``, weights ``[S]``,
+    radiance ``[S, 3]``)."""
+    n_f = spp / 6.0
+    draws = min(math.ceil(n_f), pool.per_face)
+    beta = np.minimum(1.0, n_f - np.arange(draws))
+    lit = np.flatnonzero(pool.face_integrals > 0)
+    entries = (lit[:, None] * pool.per_face + np.arange(draws)).ravel()
+    pdf = pool.pdf[entries].astype(np.float64)
+    with np.errstate(divide="ignore"):
+        weight = np.where(pdf > 0, np.tile(beta, len(lit)) / (n_f * pdf), 0.0)
+    return pool.dirs[entries], weight.astype(np.float32), pool.radiance[entries]
+
+
+def numpy_floor(surface: HostSurface, pool: HostPool, spp: int) -> np.ndarray:
+    """Lu 2013's shared-pool shading with μ_f = 1/6 (module docstring), float32 ``[N, 3]``:
+    Σ_f Σ_i β_i/(N_f pdf_i) · ρ(ω_i) cos⁺(n, ω_i) L_i, ρ = kd/π + ks (m+2)/(2π) cos⁺(r, ω)^m."""
+    dirs, weight, radiance = floor_samples(pool, spp)
+    count = len(surface.normal)
+    out = np.zeros((count, 3), np.float32)
+    if not len(dirs):
+        return out
+    n, v = surface.normal, surface.view
+    r = 2.0 * np.sum(n * v, axis=1, keepdims=True, dtype=np.float32) * n - v
+    dx, dy, dz = (np.ascontiguousarray(dirs[:, k]) for k in range(3))
+    block = max(1, FLOOR_BLOCK // len(dirs))
+    tiny = np.float32(np.finfo(np.float32).tiny)
+    for start in range(0, count, block):
+        rows = slice(start, start + block)
+        nb, rb = n[rows], r[rows]
+        cosine = nb[:, :1] * dx + nb[:, 1:2] * dy + nb[:, 2:3] * dz
+        mirror = rb[:, :1] * dx + rb[:, 1:2] * dy + rb[:, 2:3] * dz
+        m = surface.shininess[rows, None]
+        lobe = np.exp2(m * np.log2(np.maximum(mirror, tiny)))
+        lobe *= (m + 2.0) / np.float32(2.0 * np.pi)
+        lobe[mirror <= 0] = 0.0
+        diffuse = np.where(cosine > 0, cosine * weight, np.float32(0.0))   # cos⁺·β/(N_f pdf)
+        specular = diffuse * lobe
+        out[rows] = (surface.kd[rows] / np.float32(np.pi) * np.einsum("ps,sc->pc", diffuse, radiance)
+                     + surface.ks[rows] * np.einsum("ps,sc->pc", specular, radiance))
+    return out
+
+
+def floor_difference(floor: np.ndarray, kernel: np.ndarray) -> float:
+    """max |floor − kernel| / (|kernel| + max|kernel|·ATOL/RTOL) over pixels and channels: ≤
+    FLOOR_RTOL exactly when every value is within RTOL·|kernel| + ATOL·max|kernel|."""
+    scale = np.abs(kernel) + float(np.max(np.abs(kernel), initial=0.0)) * FLOOR_ATOL / FLOOR_RTOL
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(scale > 0, np.abs(floor - kernel) / scale,
+                         np.where(floor == kernel, 0.0, np.inf))
+    return float(np.max(ratio, initial=0.0))
+
+
+# ---- measuring -----------------------------------------------------------------------------------
+
+def _build_ms(cache, requires) -> float:
+    """Device ms of the per-frame products an estimator requires (the pool is its sample stage)."""
+    return sum(cache.timings_ms.get(p, 0.0) for p in ("upload", *requires) if p != "pool")
+
+
+@dataclasses.dataclass
+class _Cell:
+    """The repeated renders of one (scene, estimator)."""
+
+    label: str
+    estimator: object
+    spp: int
+    build: list = dataclasses.field(default_factory=list)
+    sample: list = dataclasses.field(default_factory=list)
+    shade: list = dataclasses.field(default_factory=list)
+    host: list = dataclasses.field(default_factory=list)
+    evaluations: float = math.nan
+
+    def render(self, compute, gbuffer, env, seed: int, timed: bool = True):
+        from iblbench.harness.framecache import FrameCache
+
+        cache = FrameCache(compute, env, 0)
+        cache.require(type(self.estimator).requires)
+        self.estimator.reset()
+        start = time.perf_counter()
+        try:
+            estimate = self.estimator.render(gbuffer, cache, self.spp, seed)
+        except ValueError as error:   # e.g. an spp beyond the estimator's limit
+            raise InputError(None, f"estimator '{self.label}' at spp {self.spp}: {error}") from None
+        host = (time.perf_counter() - start) * 1e3
+        if timed:
+            self.build.append(_build_ms(cache, type(self.estimator).requires))
+            self.sample.append(estimate.timings_ms.get("sample", 0.0))
+            self.shade.append(estimate.timings_ms.get("shade", math.nan))
+            self.host.append(host)
+            self.evaluations = float(estimate.evaluations)
+        return estimate
+
+
+@dataclasses.dataclass
+class PerfConfig:
+    out: pathlib.Path
+    scenes: tuple[str, ...] = DEFAULT_SCENES
+    estimators: tuple[str, ...] = ()        # labels; () is every registered estimator
+    spp: int | None = None                  # None: DEFAULT_SPP, SLOW_DEFAULTS for bis and smc
+    resolution: tuple[int, int] = DEFAULT_RESOLUTION
+    env_res: int = DEFAULT_ENV_RES
+    repeats: int | None = None              # None: DEFAULT_REPEATS, SLOW_DEFAULTS for bis and smc
+    device: str | None = None
+
+
+def command_line(config: PerfConfig) -> str:
+    """The ``iblbench perf`` command that measures ``config`` (for the page and the report)."""
+    words = ["iblbench perf"] + [f"--scene {name}" for name in config.scenes]
+    words += [f"--estimator '{label}'" for label in config.estimators]
+    words += [f"--spp {config.spp}"] * bool(config.spp) + [f"--repeats {config.repeats}"] * bool(config.repeats)
+    words += [f"--res {config.resolution[0]}x{config.resolution[1]}", f"--env-res {config.env_res}"]
+    return " ".join(words + [f"--device '{config.device}'"] * bool(config.device) + [f"--out {config.out}"])
+
+
+def _budget(config: PerfConfig, name: str) -> tuple[int, int]:
+    """(spp, repeats) of an estimator: the flags, else the defaults (SLOW_DEFAULTS for bis, smc)."""
+    spp, repeats = SLOW_DEFAULTS.get(name, (DEFAULT_SPP, DEFAULT_REPEATS))
+    return config.spp or spp, config.repeats or repeats
+
+
+def _row(scene: str, cell: _Cell, pixels: int, roofline: Roofline, device: str) -> dict:
+    build, sample, shade = stats(cell.build), stats(cell.sample), stats(cell.shade)
+    frame = stats([b + s + h for b, s, h in zip(cell.build, cell.sample, cell.shade)])
+    render_ms = stats([s + h for s, h in zip(cell.sample, cell.shade)])[0]
+    samples = pixels * cell.spp
+    row = {"scene": scene, "estimator": cell.label, "spp": cell.spp, "repeats": len(cell.shade),
+           "pixels": pixels, "evaluations": cell.evaluations,
+           **{f"{stage}_ms{suffix}": value for stage, values in
+              (("build", build), ("sample", sample), ("shade", shade), ("frame", frame))
+              for suffix, value in zip(("", "_min", "_iqr"), values)},
+           "render_ms": render_ms, "host_ms": stats(cell.host)[0],
+           "msamples_per_s": samples / (render_ms * 1e3),
+           "mevals_per_s": pixels * cell.evaluations / (render_ms * 1e3)}
+    cost = KERNEL_COSTS.get(getattr(cell.estimator, "name", ""))
+    flops = nbytes = gflops = gbps = math.nan
+    if cost is not None:
+        flops, nbytes = cost.per_sample(cell.spp, cell.evaluations)
+        gflops, gbps = flops * samples / (shade[0] * 1e6), nbytes * samples / (shade[0] * 1e6)
+    row.update({"flops_per_sample": flops, "bytes_per_sample": nbytes, "gflops": gflops,
+                "gbytes_per_s": gbps,
+                "roofline_fraction": roofline.fraction(gflops, gbps) if cost else math.nan,
+                "bound": roofline.bound(flops / nbytes) if cost else "",
+                "speedup_vs_floor": math.nan, "floor_max_rel_diff": math.nan,
+                "peak_gflops": roofline.gflops, "peak_gbps": roofline.gbps, "device": device})
+    return row
+
+
+def _floor_row(scene: str, spp: int, evaluations: int, pixels: int, times: list,
+               difference: float, roofline: Roofline, device: str) -> dict:
+    """The floor's row: ``evaluations`` pool entries read per pixel; host times ``times``."""
+    median, low, iqr = stats(times)
+    flops, nbytes = KERNEL_COSTS["uniform"].per_sample(spp, evaluations)
+    row = {column: math.nan for column in COLUMNS}
+    row.update({"scene": scene, "estimator": FLOOR, "spp": spp, "repeats": len(times),
+                "pixels": pixels, "evaluations": float(evaluations), "shade_ms": median,
+                "shade_ms_min": low, "shade_ms_iqr": iqr, "render_ms": median, "host_ms": median,
+                "msamples_per_s": pixels * spp / (median * 1e3),
+                "mevals_per_s": pixels * evaluations / (median * 1e3),
+                "flops_per_sample": flops, "bytes_per_sample": nbytes, "bound": "",
+                "speedup_vs_floor": 1.0, "floor_max_rel_diff": difference,
+                "peak_gflops": roofline.gflops, "peak_gbps": roofline.gbps, "device": device})
+    return row
+
+
+def run_perf(config: PerfConfig, log=print):
+    """Measure (module docstring); returns (the perf table, the roofline)."""
+    import pandas as pd
+
+    from iblbench.estimators.registry import estimator_names
+    from iblbench.estimators.uniform import Uniform
+    from iblbench.harness.device import get_compute
+    from iblbench.harness.device_gbuffer import DeviceGBuffer
+    from iblbench.harness.framecache import FrameCache
+    from iblbench.harness.sweep import parse_estimator
+    from iblbench.scenes.gbuffer import trace_gbuffer
+    from iblbench.scenes.registry import load_scene
+
+    specs = [parse_estimator(label) for label in (config.estimators or estimator_names())]
+    labels = [spec.label for spec in specs]
+    if len(set(labels)) != len(labels):
+        raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
+    scenes = [load_scene(name, env_res=config.env_res) for name in dict.fromkeys(config.scenes)]
+    compute = get_compute(config.device)
+    floor_spp = config.spp or DEFAULT_SPP
+    rows = []
+    log(f"device: {compute.device_name}")
+    roofline = measure_roofline(compute, config.repeats or DEFAULT_REPEATS)
+    log(f"roofline: {roofline.gflops:.4g} GFLOP/s (FMA), {roofline.gbps:.4g} GB/s (copy)")
+    for scene in scenes:
+        gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, *config.resolution)
+        if gbuffer.covered == 0:
+            raise InputError(scene.source or scene.name, "the camera sees none of the mesh")
+        device_gbuffer = DeviceGBuffer(compute, gbuffer)
+        env = np.asarray(scene.environment.frame(0), np.float32)
+        cells = []
+        for spec in specs:
+            spp, repeats = _budget(config, spec.cls.name)
+            cells.append((_Cell(spec.label, spec.make(), spp), repeats))
+        for cell, _ in cells:
+            cell.render(compute, device_gbuffer, env, WARMUP_SEED, timed=False)
+        # The floor's inputs: a pool drawn on the device; the uniform kernel on the same pool.
+        floor_cache = FrameCache(compute, env, 0)
+        floor_cache.require(Uniform.requires)
+        pool = HostPool.read(floor_cache, Uniform.pool_size(floor_spp), FLOOR_SEED)
+        surface = HostSurface.of(gbuffer)
+        floor_image = numpy_floor(surface, pool, floor_spp)   # also its warm-up
+        difference = math.nan
+        if Uniform.name in {spec.cls.name for spec in specs}:
+            kernel = Uniform().render(device_gbuffer, floor_cache, floor_spp, FLOOR_SEED)
+            difference = floor_difference(floor_image, kernel.radiance[gbuffer.mask])
+        floor_times, floor_repeats = [], config.repeats or DEFAULT_REPEATS
+        for round_ in range(max([floor_repeats] + [repeats for _, repeats in cells])):
+            for cell, repeats in cells:
+                if round_ < repeats:
+                    cell.render(compute, device_gbuffer, env, round_)
+            if round_ < floor_repeats:
+                start = time.perf_counter()
+                numpy_floor(surface, pool, floor_spp)
+                floor_times.append((time.perf_counter() - start) * 1e3)
+        floor = _floor_row(scene.name, floor_spp, len(floor_samples(pool, floor_spp)[0]),
+                           device_gbuffer.count, floor_times, difference, roofline,
+                           compute.device_name)
+        scene_rows = [_row(scene.name, cell, device_gbuffer.count, roofline, compute.device_name)
+                      for cell, _ in cells]
+        for row in scene_rows:
+            row["speedup_vs_floor"] = row["msamples_per_s"] / floor["msamples_per_s"]
+        rows += scene_rows + [floor]
+        log(f"{scene.name}: {len(cells)} estimators and the floor measured")
+    return pd.DataFrame(rows, columns=list(COLUMNS)), roofline
+
+
+# ---- output -------------------------------------------------------------------------------------
+
+def shown_table(table):
+    """The printed subset of the table, with readable headers."""
+    shown = table.assign(shade_iqr_pct=100.0 * table.shade_ms_iqr / table.shade_ms)
+    return shown[list(SHOWN)].rename(columns=SHOWN)
+
+
+def format_table(table) -> str:
+    import pandas as pd
+
+    with pd.option_context("display.width", 250, "display.max_columns", 50):
+        return shown_table(table).to_string(index=False, float_format=lambda v: f"{v:.4g}")
+
+
+def write_outputs(out: pathlib.Path, table, roofline: Roofline, context: dict) -> list[pathlib.Path]:
+    """``perf.csv`` and ``perf.html`` in ``out`` (an existing folder), each written atomically."""
+    import jinja2
+    import markupsafe
+
+    from iblbench.harness.results import write_table
+    from iblbench.scenes.atomic import atomic_path
+
+    csv, html = out / "perf.csv", out / "perf.html"
+    write_table(table, csv)
+
+    def as_html(frame):
+        return markupsafe.Markup(frame.to_html(index=False, border=0, classes="summary", na_rep="–",
+                                               float_format=lambda v: f"{v:.4g}"))
+
+    templates = jinja2.Environment(
+        loader=jinja2.PackageLoader("iblbench.reports", "templates"),
+        autoescape=jinja2.select_autoescape(["html", "j2"]), trim_blocks=True, lstrip_blocks=True)
+    page = templates.get_template("perf.html.j2").render(
+        title="iblbench perf", summary=as_html(shown_table(table)), table=as_html(table),
+        columns=COLUMNS, roofline=roofline, costs=KERNEL_COSTS, method=__doc__,
+        floor_rtol=FLOOR_RTOL, floor_atol=FLOOR_ATOL, **context)
+    with atomic_path(html) as tmp:
+        tmp.write_text(page, encoding="utf-8")
+    return [csv, html]
