@@ -251,7 +251,7 @@ def _perf(args) -> None:
                              resolution=args.res, env_res=args.env_res, repeats=args.repeats,
                              device=args.device)
     start = time.perf_counter()
-    table, roofline = perf.run_perf(config, log=lambda line: print(line, file=sys.stderr))
+    table, roofline = perf.run_perf(config)
     seconds = time.perf_counter() - start
     prepare_out(args.out)
     paths = perf.write_outputs(args.out, table, roofline,

@@ -1,0 +1,206 @@
+"""``iblbench perf``: the NumPy floor against the ``uniform`` kernel, the roofline kernels' counts,
+perf.csv's columns and rates, and bad input.  Nothing here is timed: performance is measured by
+``iblbench perf``, not asserted."""
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from iblbench.estimators.uniform import Uniform
+from iblbench.harness import perf
+from iblbench.harness.device_gbuffer import DeviceGBuffer
+from iblbench.harness.framecache import FrameCache
+from iblbench.scenes.gbuffer import trace_gbuffer
+from iblbench.scenes.registry import load_scene
+
+TINY = ["--scene", "sphere-sun", "--res", "16x16", "--env-res", "8", "--spp", "4",
+        "--repeats", "2"]
+
+
+@pytest.fixture(scope="module")
+def sphere(compute):
+    """sphere-sun at 24×24 pixels: the host G-buffer, its device twin and the map (R = 8)."""
+    scene = load_scene("sphere-sun", env_res=8)
+    gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, 24, 24)
+    return gbuffer, DeviceGBuffer(compute, gbuffer), np.asarray(scene.environment.frame(0), np.float32)
+
+
+def floor_and_kernel(compute, sphere, env, spp, seed=3):
+    gbuffer, device_gbuffer, _ = sphere
+    cache = FrameCache(compute, env, 0)
+    cache.require(Uniform.requires)
+    pool = perf.HostPool.read(cache, Uniform.pool_size(spp), seed)
+    floor = perf.numpy_floor(perf.HostSurface.of(gbuffer), pool, spp)
+    kernel = Uniform().render(device_gbuffer, cache, spp, seed).radiance[gbuffer.mask]
+    return floor, kernel
+
+
+# ---- the NumPy floor -----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("spp", [1, 5, 6, 7, 64])
+def test_numpy_floor_matches_the_uniform_kernel_on_the_same_pool(compute, sphere, spp):
+    """Both read the same pool entries with Eq. 4-5's weights: they agree to float rounding
+    (FLOOR_RTOL relative, FLOOR_ATOL of the image's maximum), at spp where N_f = spp/6 is
+    fractional (1, 5, 7), whole (6) and large (64)."""
+    floor, kernel = floor_and_kernel(compute, sphere, sphere[2], spp)
+    assert np.all(np.isfinite(floor)) and floor.max() > 0
+    assert np.count_nonzero(kernel.sum(axis=1) > 0) > 0.5 * len(kernel)
+    difference = perf.floor_difference(floor, kernel)
+    assert difference <= perf.FLOOR_RTOL, difference
+
+
+def test_numpy_floor_skips_black_faces_as_the_kernel_does(compute, sphere):
+    """Faces with I_f = 0 get no samples in either; the lit faces' sixths keep their weights."""
+    env = sphere[2].copy()
+    env[[0, 3, 5]] = 0.0
+    floor, kernel = floor_and_kernel(compute, sphere, env, 9)
+    assert perf.floor_difference(floor, kernel) <= perf.FLOOR_RTOL
+
+
+def test_floor_difference_catches_a_wrong_weight(compute, sphere):
+    """The comparison can fail: a floor with one face's weights off by 1% is out of tolerance."""
+    floor, kernel = floor_and_kernel(compute, sphere, sphere[2], 12)
+    assert perf.floor_difference(floor * 1.01, kernel) > perf.FLOOR_RTOL
+
+
+def test_floor_samples_follow_eq_5():
+    """N_f = 7/6 per face: two draws of weight β = 1 and 1/6, over N_f·pdf."""
+    per_face = 8
+    pdf = np.full(6 * per_face, 2.0, np.float32)
+    pool = perf.HostPool(np.zeros((6 * per_face, 3), np.float32), pdf,
+                         np.ones((6 * per_face, 3), np.float32), per_face,
+                         np.array([1, 1, 0, 1, 1, 1], np.float32))
+    dirs, weight, _ = perf.floor_samples(pool, 7)
+    assert len(dirs) == 5 * 2
+    n_f = 7 / 6
+    np.testing.assert_allclose(weight.reshape(5, 2), [[1 / (n_f * 2), (n_f - 1) / (n_f * 2)]] * 5,
+                               rtol=1e-6)
+
+
+# ---- the roofline kernels ------------------------------------------------------------------------
+
+def test_fma_kernel_runs_every_fma_it_counts(compute):
+    """With b = 1 each FMA is an exactly rounded float32 add: replaying `iterations` adds per
+    chain in NumPy gives the kernel's output bit for bit, so none was skipped or folded, and
+    FLOPs = 2 per FMA × lanes × chains × iterations × items."""
+    items, iterations, c = 96, 37, np.float32(1e-3)
+    out, times, flops = perf.run_fma(compute, items, iterations, b=1.0, c=float(c))
+    assert out.shape == (items, perf.FMA_CHAINS, perf.FMA_LANES) and len(times) == 1
+    start = np.arange(items, dtype=np.float32) * np.float32(1e-9)
+    expected = start[:, None] + np.arange(perf.FMA_CHAINS, dtype=np.float32)[None, :]
+    for _ in range(iterations):
+        expected = expected + c
+    np.testing.assert_array_equal(out, np.broadcast_to(expected[:, :, None], out.shape))
+    assert flops == 2 * perf.FMA_LANES * perf.FMA_CHAINS * iterations * items
+
+
+def test_copy_kernel_moves_exactly_its_bytes(compute):
+    """The copy equals its input (every float4 read and written once): bytes moved = 2 × size."""
+    source = np.random.default_rng(1).standard_normal(4 * 5000).astype(np.float32)
+    copy, times, moved = perf.run_copy(compute, source, launches=2)
+    np.testing.assert_array_equal(copy, source)
+    assert moved == 2 * source.nbytes and len(times) == 2
+    with pytest.raises(ValueError):
+        perf.run_copy(compute, source[:-1])
+
+
+def test_roofline_fraction_is_the_binding_roof():
+    roof = perf.Roofline(gflops=100.0, gbps=20.0, fma_flops=1, copy_bytes=1)
+    assert roof.fraction(10.0, 1.0) == pytest.approx(0.1)      # compute-bound share
+    assert roof.fraction(1.0, 10.0) == pytest.approx(0.5)      # memory-bound share
+    assert roof.bound(10.0) == "compute" and roof.bound(1.0) == "memory"
+
+
+# ---- the command ---------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def cli(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("perf-cache")
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        env = dict(os.environ, IBLBENCH_CACHE=str(cache), PYTHONWARNINGS="ignore")
+        env.pop("IBLBENCH_DEVICE", None)
+        return subprocess.run([sys.executable, "-m", "iblbench.harness.cli", "perf", *map(str, args)],
+                              capture_output=True, text=True, env=env, timeout=600)
+    return run
+
+
+@pytest.fixture(scope="module")
+def tiny_perf(cli, tmp_path_factory):
+    out = tmp_path_factory.mktemp("perf") / "out"
+    return cli(*TINY, "--out", out), out
+
+
+def test_perf_csv_has_the_documented_columns_and_positive_rates(tiny_perf):
+    result, out = tiny_perf
+    assert result.returncode == 0, result.stderr
+    table = pd.read_csv(out / "perf.csv")
+    assert list(table.columns) == list(perf.COLUMNS)
+    from iblbench.estimators.registry import estimator_names
+
+    assert sorted(table.estimator) == sorted([*estimator_names(), perf.FLOOR])
+    for column in ("msamples_per_s", "mevals_per_s", "shade_ms", "render_ms", "evaluations",
+                   "flops_per_sample", "bytes_per_sample", "speedup_vs_floor", "peak_gflops",
+                   "peak_gbps"):
+        values = table[column].to_numpy(float)
+        assert np.all(np.isfinite(values) & (values > 0)), (column, values)
+    kernels = table[table.estimator != perf.FLOOR]
+    for column in ("build_ms", "frame_ms", "gflops", "gbytes_per_s", "roofline_fraction"):
+        values = kernels[column].to_numpy(float)
+        assert np.all(np.isfinite(values) & (values > 0)), (column, values)
+    assert set(kernels.bound) <= {"compute", "memory"}
+    floor = table[table.estimator == perf.FLOOR].iloc[0]
+    assert floor.floor_max_rel_diff <= perf.FLOOR_RTOL and floor.speedup_vs_floor == 1.0
+    assert (table.spp == 4).all() and (table.repeats == 2).all()
+    np.testing.assert_allclose(table.msamples_per_s, table.pixels * table.spp / (table.render_ms * 1e3))
+
+
+def test_perf_prints_the_table_and_writes_the_page(tiny_perf):
+    result, out = tiny_perf
+    for header in perf.SHOWN.values():
+        assert header in result.stdout, header
+    page = (out / "perf.html").read_text(encoding="utf-8")
+    for needle in ("Roofline", "GFLOP/s", perf.FLOOR, "uniform", "iblbench perf --scene sphere-sun"):
+        assert needle in page, needle
+
+
+def test_perf_help_explains_every_column_and_flag(cli):
+    result = cli("--help")
+    assert result.returncode == 0, result.stderr
+    for word in [*perf.COLUMNS, "--scene", "--estimator", "--spp", "--res", "--env-res",
+                 "--repeats", "--device", "--out"]:
+        assert word in result.stdout, word
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--estimator", "no-such-estimator"], "no-such-estimator"),
+    (["--scene", "no-such-scene"], "no-such-scene"),
+    (["--estimator", "uniform", "--spp", "40000"], "uniform"),
+])
+def test_bad_input_exits_2_with_one_line(cli, tmp_path, args, needle):
+    out = tmp_path / "out"
+    result = cli(*TINY, *args, "--out", out)
+    context = f"stdout:\n{result.stdout}\nstderr:\n{result.stderr}"
+    assert result.returncode == 2, context
+    assert result.stderr.startswith("iblbench: error: ") and result.stderr.count("\n") == 1, context
+    assert needle in result.stderr, context
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("flag, value", [("--spp", "0"), ("--repeats", "-1"), ("--res", "12")])
+def test_malformed_flags_exit_2(cli, tmp_path, flag, value):
+    out = tmp_path / "out"
+    result = cli("--out", out, flag, value)
+    assert result.returncode == 2 and f"argument {flag}" in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr and not out.exists()
+
+
+def test_stats_are_median_min_and_iqr():
+    median, low, iqr = perf.stats([4.0, 1.0, 3.0, 2.0, math.nan])
+    assert (median, low, iqr) == (2.5, 1.0, 1.5)
