@@ -221,9 +221,9 @@ def _add_perf(commands, device) -> None:
     perf.add_argument("--spp", type=_positive_int, metavar="N",
                       help="samples per pixel of every estimator and the floor (default: 64; "
                            "bis and smc 4, which take seconds per frame today)")
-    perf.add_argument("--res", type=_resolution, default=(256, 256), metavar="WxH",
+    perf.add_argument("--res", type=_resolution, metavar="WxH",
                       help="image resolution (default: 256x256)")
-    perf.add_argument("--env-res", type=_env_res, default=64, metavar="R",
+    perf.add_argument("--env-res", type=_env_res, metavar="R",
                       help="cube face resolution (default: 64)")
     perf.add_argument("--repeats", type=_positive_int, metavar="N",
                       help="timed renders per estimator after one warm-up (default: 5; bis "
@@ -241,24 +241,13 @@ def _add_perf(commands, device) -> None:
 
 
 def _perf(args) -> None:
-    import time
-
     from iblbench.harness import perf
-    from iblbench.harness.runner import prepare_out
 
-    config = perf.PerfConfig(out=args.out, scenes=tuple(args.scene or perf.DEFAULT_SCENES),
-                             estimators=tuple(args.estimator or ()), spp=args.spp,
-                             resolution=args.res, env_res=args.env_res, repeats=args.repeats,
-                             device=args.device)
-    start = time.perf_counter()
-    table, roofline = perf.run_perf(config)
-    seconds = time.perf_counter() - start
-    prepare_out(args.out)
-    paths = perf.write_outputs(args.out, table, roofline,
-                               {"device": table.device.iloc[0], "command": perf.command_line(config),
-                                "seconds": f"{seconds:.0f}"})
-    print(perf.format_table(table))
-    print(f"wrote {', '.join(map(str, paths))}")
+    perf.run_command(perf.PerfConfig(
+        out=args.out, scenes=tuple(args.scene or perf.DEFAULT_SCENES),
+        estimators=tuple(args.estimator or ()), spp=args.spp,
+        resolution=args.res or perf.DEFAULT_RESOLUTION, env_res=args.env_res or perf.DEFAULT_ENV_RES,
+        repeats=args.repeats, device=args.device))
 
 
 def stress_cases() -> dict[str, str]:

@@ -136,6 +136,7 @@ KERNEL_COSTS = {
 COLUMNS = {
     "scene": "scene name",
     "estimator": f"estimator label; '{FLOOR}' is the NumPy shared-pool floor (one host thread)",
+    "estimator_version": "hash of the estimator's Python and kernel sources (as in results rows)",
     "spp": "samples per pixel (havran: K lights; bis: N resampled; smc: N particles)",
     "repeats": "timed renders after one untimed warm-up; times are their median",
     "pixels": "covered pixels (work items)",
@@ -332,12 +333,15 @@ def floor_samples(pool: HostPool, spp: int) -> tuple[np.ndarray, np.ndarray, np.
 
 def numpy_floor(surface: HostSurface, pool: HostPool, spp: int) -> np.ndarray:
     """Lu 2013's shared-pool shading with μ_f = 1/6 (module docstring), float32 ``[N, 3]``:
-    Σ_f Σ_i β_i/(N_f pdf_i) · ρ(ω_i) cos⁺(n, ω_i) L_i, ρ = kd/π + ks (m+2)/(2π) cos⁺(r, ω)^m."""
+    Σ_f Σ_i β_i/(N_f pdf_i) · ρ(ω_i) cos⁺(n, ω_i) L_i, ρ = kd/π + ks (m+2)/(2π) cos⁺(r, ω)^m.
+    Per block of pixels: cos⁺ and the lobe's cos⁺(r, ω)^m·cos⁺ as [pixels, samples] arrays,
+    each contracted with the samples' weighted radiance; the per-pixel factors come after."""
     dirs, weight, radiance = floor_samples(pool, spp)
     count = len(surface.normal)
     out = np.zeros((count, 3), np.float32)
     if not len(dirs):
         return out
+    weighted = (weight[:, None] * radiance).astype(np.float32)    # β_i L_i / (N_f pdf_i)
     n, v = surface.normal, surface.view
     r = 2.0 * np.sum(n * v, axis=1, keepdims=True, dtype=np.float32) * n - v
     dx, dy, dz = (np.ascontiguousarray(dirs[:, k]) for k in range(3))
@@ -345,17 +349,18 @@ def numpy_floor(surface: HostSurface, pool: HostPool, spp: int) -> np.ndarray:
     tiny = np.float32(np.finfo(np.float32).tiny)
     for start in range(0, count, block):
         rows = slice(start, start + block)
-        nb, rb = n[rows], r[rows]
+        nb, rb, m = n[rows], r[rows], surface.shininess[rows, None]
         cosine = nb[:, :1] * dx + nb[:, 1:2] * dy + nb[:, 2:3] * dz
         mirror = rb[:, :1] * dx + rb[:, 1:2] * dy + rb[:, 2:3] * dz
-        m = surface.shininess[rows, None]
-        lobe = np.exp2(m * np.log2(np.maximum(mirror, tiny)))
-        lobe *= (m + 2.0) / np.float32(2.0 * np.pi)
-        lobe[mirror <= 0] = 0.0
-        diffuse = np.where(cosine > 0, cosine * weight, np.float32(0.0))   # cos⁺·β/(N_f pdf)
-        specular = diffuse * lobe
-        out[rows] = (surface.kd[rows] / np.float32(np.pi) * np.einsum("ps,sc->pc", diffuse, radiance)
-                     + surface.ks[rows] * np.einsum("ps,sc->pc", specular, radiance))
+        np.maximum(cosine, 0.0, out=cosine)
+        lobe = np.log2(np.maximum(mirror, tiny))   # c^m as exp2(m·log2 c), as the kernels do
+        lobe *= m
+        np.exp2(lobe, out=lobe)
+        lobe *= mirror > 0
+        lobe *= cosine
+        out[rows] = (surface.kd[rows] / np.float32(np.pi) * np.einsum("ps,sc->pc", cosine, weighted)
+                     + surface.ks[rows] * ((m + 2.0) / np.float32(2.0 * np.pi))
+                     * np.einsum("ps,sc->pc", lobe, weighted))
     return out
 
 
@@ -442,7 +447,9 @@ def _row(scene: str, cell: _Cell, pixels: int, roofline: Roofline, device: str) 
     frame = stats([b + s + h for b, s, h in zip(cell.build, cell.sample, cell.shade)])
     render_ms = stats([s + h for s, h in zip(cell.sample, cell.shade)])[0]
     samples = pixels * cell.spp
-    row = {"scene": scene, "estimator": cell.label, "spp": cell.spp, "repeats": len(cell.shade),
+    row = {"scene": scene, "estimator": cell.label,
+           "estimator_version": type(cell.estimator).version(), "spp": cell.spp,
+           "repeats": len(cell.shade),
            "pixels": pixels, "evaluations": cell.evaluations,
            **{f"{stage}_ms{suffix}": value for stage, values in
               (("build", build), ("sample", sample), ("shade", shade), ("frame", frame))
@@ -470,7 +477,8 @@ def _floor_row(scene: str, spp: int, evaluations: int, pixels: int, times: list,
     median, low, iqr = stats(times)
     flops, nbytes = KERNEL_COSTS["uniform"].per_sample(spp, evaluations)
     row = {column: math.nan for column in COLUMNS}
-    row.update({"scene": scene, "estimator": FLOOR, "spp": spp, "repeats": len(times),
+    row.update({"scene": scene, "estimator": FLOOR, "estimator_version": "", "spp": spp,
+                "repeats": len(times),
                 "pixels": pixels, "evaluations": float(evaluations), "shade_ms": median,
                 "shade_ms_min": low, "shade_ms_iqr": iqr, "render_ms": median, "host_ms": median,
                 "msamples_per_s": pixels * spp / (median * 1e3),
@@ -588,3 +596,23 @@ def write_outputs(out: pathlib.Path, table, roofline: Roofline, context: dict) -
     with atomic_path(html) as tmp:
         tmp.write_text(page, encoding="utf-8")
     return [csv, html]
+
+
+def run_command(config: PerfConfig) -> list[pathlib.Path]:
+    """``iblbench perf``: measure, print the table, write perf.csv and perf.html into
+    ``config.out`` (nothing is written when the input is bad)."""
+    from iblbench.harness.runner import prepare_out
+
+    out = pathlib.Path(config.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(out, "--out exists and is not a directory")
+    start = time.perf_counter()
+    table, roofline = run_perf(config)
+    seconds = time.perf_counter() - start
+    prepare_out(out)
+    paths = write_outputs(out, table, roofline, {"device": table.device.iloc[0],
+                                                 "command": command_line(config),
+                                                 "seconds": f"{seconds:.0f}"})
+    print(format_table(table))
+    print(f"wrote {', '.join(map(str, paths))}")
+    return paths
