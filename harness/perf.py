@@ -79,6 +79,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pathlib
+import textwrap
 import time
 
 import numpy as np
@@ -180,10 +181,14 @@ SHOWN = {"scene": "scene", "estimator": "estimator", "spp": "spp", "pixels": "pi
 
 
 def columns_help() -> str:
-    """The columns of perf.csv, one per line (the --help epilog)."""
+    """The columns of perf.csv, one per line, and the printed table's headers (--help epilog)."""
     width = max(map(len, COLUMNS))
-    return "columns of perf.csv (the table printed shows a subset):\n" + "\n".join(
-        f"  {name:{width}s}  {text}" for name, text in COLUMNS.items())
+    printed = ", ".join(f"{header} = {name}" for name, header in SHOWN.items()
+                        if header != name and name != "shade_iqr_pct")
+    return ("columns of perf.csv:\n" + "\n".join(f"  {name:{width}s}  {text}"
+                                                  for name, text in COLUMNS.items())
+            + "\n\n" + textwrap.fill(f"the printed table shows {printed}, and IQR % = 100 × "
+                                     "shade_ms_iqr / shade_ms.", 92))
 
 
 # ---- statistics --------------------------------------------------------------------------------
