@@ -212,6 +212,8 @@ class Roofline:
     copy_bytes: int        # bytes moved per timed copy launch
 
     def fraction(self, gflops: float, gbps: float) -> float:
+        """Achieved over attainable, min(peak, intensity × bandwidth), for a kernel that reaches
+        ``gflops`` and ``gbps``."""
         return max(gflops / self.gflops, gbps / self.gbps)
 
     def bound(self, flops_per_byte: float) -> str:
