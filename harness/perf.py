@@ -8,7 +8,9 @@ device stage (OpenCL profiling events, DESIGN §3 "Timing"):
 
 - ``build``: the per-frame FrameCache products the estimator requires (the map's upload and,
   where required, the CDFs), from ``FrameCache.timings_ms``; every repeat builds a fresh cache,
-  as a new frame would;
+  as a new frame would.  ``cdf_ms`` is the CDF build alone and ``cdf_bound_ms`` its
+  copy-bandwidth bound: the bytes it must move, a float4 texel read and a 64-bit CDF word
+  written per texel (24 B), over the measured copy bandwidth;
 - ``sample`` and ``shade``: ``Estimate.timings_ms`` (the pool estimators' ``sample`` is the
   draw of the light-sample pool; ``havran``'s is its host-built light set);
 - the rates divide by the render's device time, sample + shade (build does not scale with spp
@@ -22,8 +24,8 @@ The roofline.  ``fma_throughput`` (``perf.cl``: independent FMA chains, two FLOP
 the device's FLOP rate and ``copy_bandwidth`` (one float4 read and one written per work item,
 buffers much larger than the last-level cache) its bandwidth, counted as bytes read + bytes
 written (STREAM's convention; a CPU's write-allocate reads are not counted).  Both run on the
-estimators' own context and queue, as the median of ``repeats`` launches, each launch sized
-to take at least ``ROOF_MIN_MS``.  An estimator's shading kernel (its ``shade`` stage) then
+estimators' own context and queue, as the median of ``repeats`` launches after a warm-up (the
+FMA launch sized to take at least ``ROOF_MIN_MS``, the copy buffers ``copy_size``).  An estimator's shading kernel (its ``shade`` stage) then
 reaches ``gflops`` = FLOPs/s and ``gbytes_per_s`` = bytes/s by the counts of ``KERNEL_COSTS``,
 and its roofline fraction is achieved / attainable with attainable = min(peak FLOP rate,
 intensity × peak bandwidth), i.e. max(gflops / peak_gflops, gbytes_per_s / peak_gbps).
@@ -104,6 +106,7 @@ FMA_CHAINS = 8                 # perf.cl's fma_throughput: chains of float8 per 
 FMA_LANES = 8
 FMA_ITEMS = 1 << 17
 COPY_MIN_BYTES = 64 << 20      # each copy buffer: at least this, and 8× the device's cache
+CDF_BYTES_PER_TEXEL = 24       # the CDF build must read a float4 texel and write a 64-bit word
 ROOF_MIN_MS = 20.0             # each roofline launch is sized to take at least this
 
 
@@ -145,6 +148,9 @@ COLUMNS = {
     "build_ms": "device ms of the FrameCache products required (upload, CDFs), median",
     "build_ms_min": "its minimum over repeats",
     "build_ms_iqr": "its interquartile range",
+    "cdf_ms": "device ms of the CDF build alone (part of build_ms; NaN: not required), median",
+    "cdf_bound_ms": "the CDF build's copy-bandwidth bound: 6·R²·24 B (texels read, CDF words "
+                    "written) / peak_gbps",
     "sample_ms": "device ms of the sample stage (pool draw; havran: host light set; 0: none), "
                  "median",
     "sample_ms_min": "its minimum",
@@ -396,6 +402,7 @@ class _Cell:
     estimator: object
     spp: int
     build: list = dataclasses.field(default_factory=list)
+    cdf: list = dataclasses.field(default_factory=list)
     sample: list = dataclasses.field(default_factory=list)
     shade: list = dataclasses.field(default_factory=list)
     host: list = dataclasses.field(default_factory=list)
@@ -415,6 +422,7 @@ class _Cell:
         host = (time.perf_counter() - start) * 1e3
         if timed:
             self.build.append(_build_ms(cache, type(self.estimator).requires))
+            self.cdf.append(cache.timings_ms.get("cdf", math.nan))
             self.sample.append(estimate.timings_ms.get("sample", 0.0))
             self.shade.append(estimate.timings_ms.get("shade", math.nan))
             self.host.append(host)
@@ -449,11 +457,15 @@ def _budget(config: PerfConfig, name: str) -> tuple[int, int]:
     return config.spp or spp, config.repeats or repeats
 
 
-def _row(scene: str, cell: _Cell, pixels: int, roofline: Roofline, device: str) -> dict:
+def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
+         device: str) -> dict:
     build, sample, shade = stats(cell.build), stats(cell.sample), stats(cell.shade)
     frame = stats([b + s + h for b, s, h in zip(cell.build, cell.sample, cell.shade)])
     render_ms = stats([s + h for s, h in zip(cell.sample, cell.shade)])[0]
     samples = pixels * cell.spp
+    cdf_ms = stats(cell.cdf)[0]
+    cdf_bound_ms = (6 * env_res ** 2 * CDF_BYTES_PER_TEXEL / (roofline.gbps * 1e6)
+                    if math.isfinite(cdf_ms) else math.nan)
     row = {"scene": scene, "estimator": cell.label,
            "estimator_version": type(cell.estimator).version(), "spp": cell.spp,
            "repeats": len(cell.shade),
@@ -461,6 +473,7 @@ def _row(scene: str, cell: _Cell, pixels: int, roofline: Roofline, device: str) 
            **{f"{stage}_ms{suffix}": value for stage, values in
               (("build", build), ("sample", sample), ("shade", shade), ("frame", frame))
               for suffix, value in zip(("", "_min", "_iqr"), values)},
+           "cdf_ms": cdf_ms, "cdf_bound_ms": cdf_bound_ms,
            "render_ms": render_ms, "host_ms": stats(cell.host)[0],
            "msamples_per_s": samples / (render_ms * 1e3),
            "mevals_per_s": pixels * cell.evaluations / (render_ms * 1e3)}
@@ -554,7 +567,8 @@ def run_perf(config: PerfConfig, log=print):
         floor = _floor_row(scene.name, floor_spp, len(floor_samples(pool, floor_spp)[0]),
                            device_gbuffer.count, floor_times, difference, roofline,
                            compute.device_name)
-        scene_rows = [_row(scene.name, cell, device_gbuffer.count, roofline, compute.device_name)
+        scene_rows = [_row(scene.name, cell, device_gbuffer.count, env.shape[1], roofline,
+                           compute.device_name)
                       for cell, _ in cells]
         for row in scene_rows:
             row["speedup_vs_floor"] = row["msamples_per_s"] / floor["msamples_per_s"]

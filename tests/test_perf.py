@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from iblbench.estimators.registry import estimator_names, get_estimator_class
 from iblbench.estimators.uniform import Uniform
 from iblbench.harness import perf
 from iblbench.harness.device_gbuffer import DeviceGBuffer
@@ -142,8 +143,6 @@ def test_perf_csv_has_the_documented_columns_and_positive_rates(tiny_perf):
     assert result.returncode == 0, result.stderr
     table = pd.read_csv(out / "perf.csv")
     assert list(table.columns) == list(perf.COLUMNS)
-    from iblbench.estimators.registry import estimator_names
-
     assert sorted(table.estimator) == sorted([*estimator_names(), perf.FLOOR])
     for column in ("msamples_per_s", "mevals_per_s", "shade_ms", "render_ms", "evaluations",
                    "flops_per_sample", "bytes_per_sample", "speedup_vs_floor", "peak_gflops",
@@ -155,6 +154,11 @@ def test_perf_csv_has_the_documented_columns_and_positive_rates(tiny_perf):
         values = kernels[column].to_numpy(float)
         assert np.all(np.isfinite(values) & (values > 0)), (column, values)
     assert set(kernels.bound) <= {"compute", "memory"}
+    with_cdf = kernels.estimator.map(lambda name: "cdf" in get_estimator_class(name).requires)
+    assert with_cdf.any() and not with_cdf.all()
+    cdf = kernels[with_cdf]
+    assert np.all((cdf.cdf_ms > 0) & (cdf.cdf_ms <= cdf.build_ms) & (cdf.cdf_bound_ms > 0))
+    assert kernels[~with_cdf][["cdf_ms", "cdf_bound_ms"]].isna().all().all()
     floor = table[table.estimator == perf.FLOOR].iloc[0]
     assert floor.floor_max_rel_diff <= perf.FLOOR_RTOL and floor.speedup_vs_floor == 1.0
     assert (table.spp == 4).all() and (table.repeats == 2).all()
