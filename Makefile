@@ -24,7 +24,7 @@ $(STAMP): pyproject.toml
 	fi
 	touch $(STAMP)
 
-# perf: throughput against the roofline and the NumPy floor (about 40 s here; bis and smc run
+# perf: throughput against the roofline and the NumPy floor (about a minute here; bis and smc run
 # at spp 4 with 3 repeats by default, as they take seconds per frame today).
 bench: $(STAMP)
 	$(VENV)/bin/iblbench run --config default --out $(BENCH_OUT)

@@ -22,6 +22,7 @@ examples:
   iblbench list devices                          OpenCL platforms/devices and which is chosen
   iblbench check runs/a --budgets budgets.toml   CI gate: exit 1 if any error budget fails
   iblbench stress --out runs/stress              adversarial inputs; exit 1 if an estimator fails
+  iblbench perf --out runs/perf                  throughput against the roofline and a NumPy floor
 """
 
 
