@@ -19,8 +19,8 @@ def test_rerun_keeps_finished_cells_and_adds_new_ones(tmp_path):
     second = run(tiny(tmp_path, spp=(4, 8)))
     assert sorted(second.spp) == [4, 8]
     kept = second[second.spp == 4].iloc[0]
-    # Not recomputed: the wall time of the first render is carried over unchanged.
-    assert kept.time_ms_frame == first.iloc[0].time_ms_frame
+    # Not recomputed: the measured times of the first run are carried over unchanged.
+    assert kept.time_ms_host == first.iloc[0].time_ms_host
     third = run(tiny(tmp_path, spp=(8,)))
     assert sorted(third.spp) == [4, 8]   # a narrower rerun does not drop other cells
 
