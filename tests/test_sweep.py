@@ -96,6 +96,9 @@ def test_config_fields(tmp_path):
                              'description = "d"\n'))
     assert sweep.resolution == (20, 12) and sweep.frames == (2, 3, 4)
     assert sweep.time_budget_ms == (5.0,) and sweep.sanitize and sweep.description == "d"
+    assert sweep.repeats == 5 and sweep.metrics == ("de76", "de2000", "relmse", "flip")
+    sweep = load_sweep(write(tmp_path, VALID + 'repeats = 3\nmetrics = ["flip", "relmse"]\n'))
+    assert sweep.repeats == 3 and sweep.metrics == ("de76", "relmse", "flip")   # ΔE76 always
     assert load_sweep(write(tmp_path, VALID + "frames = [3, 1]\n")).frames == (1, 3)
 
 
@@ -126,6 +129,8 @@ def test_relative_scene_files_are_found_from_the_config_folder(tmp_path):
     (lambda t: t + 'frames = "some"\n', "frames must be"),
     (lambda t: t + "time_budget_ms = -1\n", "time_budget_ms must be a positive number"),
     (lambda t: t + 'sanitize = "yes"\n', "sanitize must be true or false"),
+    (lambda t: t + "repeats = 0\n", "repeats must be an integer in 1..255"),
+    (lambda t: t + 'metrics = ["de76", "psnr"]\n', "unknown metric 'psnr'"),
     (lambda t: t.replace('["sphere-sun"]', '["no-such-scene"]'), "unknown scene 'no-such-scene'"),
     (lambda t: t.replace('["sphere-sun"]', '["missing.toml"]'), "not found"),
     (lambda t: t.replace('["sphere-sun"]', "[]"), "scenes must be a non-empty list"),
