@@ -370,6 +370,7 @@ def _manifest_context(manifest: dict | None) -> dict | None:
         "versions": _dict_table(manifest.get("versions") or {}),
         "estimator_versions": _dict_table(manifest.get("estimator_versions") or {}),
         "config": _dict_table(manifest.get("config") or {}),
+        "timing": _dict_table(manifest["timing"]) if manifest.get("timing") else None,
         "stages": _frame_html(stages) if len(stages) else None,
         "skipped": _frame_html(skipped) if len(skipped) else None,
         "status": manifest.get("status"),
