@@ -123,10 +123,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="equal-time cells besides the spp list: per (scene, estimator), the spp "
                           "whose calibrated device time per frame (build+sample+shade) lands "
                           "within 10%% of T ms; the run says where it cannot")
-    run.add_argument("--repeats", type=sweep.repeats_arg, metavar="N",
+    run.add_argument("--repeats", type=sweep.repeats_arg, metavar="N[,NAME=M...]",
                      help=f"timed renders per cell after warm-up (default "
                           f"{sweep.DEFAULT_REPEATS}); a cell's time is the median of their "
-                          "device times (build+sample+shade), with min and IQR beside it")
+                          "device times (build+sample+shade), with min and IQR beside it; "
+                          "NAME=M gives estimator NAME M of its own (e.g. 5,smc=3)")
     metrics = run.add_mutually_exclusive_group()
     metrics.add_argument("--metrics", type=sweep.metrics_arg, metavar="M[,M...]",
                          help=f"metrics to compute, of {','.join(sweep.METRICS)} (default: all; "
@@ -282,7 +283,7 @@ def _run(args) -> None:
         estimators=tuple(args.estimator) if args.estimator else None, spp=args.spp,
         seeds=args.seeds, frames=frames, resolution=args.res, env_res=args.env_res,
         time_budget_ms=args.time_budget_ms, sanitize=True if args.sanitize else None,
-        repeats=args.repeats,
+        repeats=args.repeats and args.repeats[0], repeats_for=args.repeats and args.repeats[1],
         metrics=tuple(m for m in sweep.metrics if m != "flip") if args.no_flip else args.metrics)
     flags = [flag for flag, value in (
         ("--scene", args.scene), ("--estimator", args.estimator), ("--spp", args.spp),
@@ -295,7 +296,7 @@ def _run(args) -> None:
                        device=args.device, save_inputs=args.save_inputs, sanitize=sweep.sanitize,
                        env_res=sweep.env_res, progress=False if args.no_progress else None,
                        frames=sweep.frames, time_budget_ms=sweep.time_budget_ms, force=args.force,
-                       repeats=sweep.repeats, metrics=sweep.metrics,
+                       repeats=sweep.repeats, repeats_for=sweep.repeats_for, metrics=sweep.metrics,
                        sweep={**sweep.to_manifest(), "overridden_by_flags": flags})
     table = run(config)
     for title, summary in terminal_summaries(table):

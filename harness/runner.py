@@ -32,7 +32,9 @@ earlier run (resumption), its map is recomputed from that frame's saved estimate
 EXRs (``images/<scene>/f<frame>/``), and flicker is NaN if they are gone.
 
 Timing (:mod:`iblbench.harness.timing` defines a cell's time).  Each cell is rendered
-``repeats`` times after a warm-up, and its time columns summarise those renders:
+``repeats`` times after a warm-up (``repeats_for`` may give a slow estimator, say ``bis`` or
+``smc``, fewer: the run then says so on stderr, and the manifest and ``time_repeats`` record
+it), and its time columns summarise those renders:
 
 - Warm-up: per frame and estimator, one render at 1 spp on a G-buffer of a few of the scene's
   pixels (``WARMUP_PIXELS``), on a throwaway instance and seed: it compiles the estimator's
@@ -81,6 +83,7 @@ from importlib.metadata import PackageNotFoundError, version
 import numpy as np
 from tqdm import tqdm
 
+from iblbench.estimators.registry import get_estimator_class
 from iblbench.harness.device import get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
@@ -130,6 +133,7 @@ class RunConfig:
     time_budget_ms: tuple[float, ...] = ()     # equal-time cells, besides the spp list
     force: bool = False                        # recompute finished cells too
     repeats: int = DEFAULT_REPEATS             # timed renders per cell (timing module)
+    repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats): its own count
     metrics: tuple[str, ...] = METRICS         # ΔE76 always; see harness.metrics
     sweep: dict | None = None                  # the resolved sweep and its source (manifest)
 
@@ -247,8 +251,10 @@ class Runner:
                 raise InputError(None, f"--spp values must be positive integers, got {spp}")
         if config.seeds < 1:
             raise InputError(None, f"--seeds must be at least 1, got {config.seeds}")
-        if not 1 <= config.repeats <= MAX_REPEATS:
-            raise InputError(None, f"--repeats must be in 1..{MAX_REPEATS}, got {config.repeats}")
+        for name, repeats in (("default", config.repeats),) + tuple(config.repeats_for):
+            if not 1 <= repeats <= MAX_REPEATS:
+                raise InputError(None, f"--repeats ({name}) must be in 1..{MAX_REPEATS}, "
+                                       f"got {repeats}")
         for budget in config.time_budget_ms:
             if not (math.isfinite(budget) and budget > 0):
                 raise InputError(None, f"--time-budget-ms must be positive, got {budget}")
@@ -275,6 +281,9 @@ class Runner:
             raise InputError(self.out, "--out exists and is not a directory")
         self.rows = {row_key(row): row for row in read_results(self.out)}
         self.params = {spec.label: spec.params_json() for spec in self.specs}
+        overrides = {get_estimator_class(name).name: n for name, n in config.repeats_for}
+        self.repeats = {spec.label: overrides.get(spec.cls.name, config.repeats)
+                        for spec in self.specs}
         self.previous_manifest = read_manifest(self.out)
         self.todo, self.total, self.chosen = self._plan_cells()
         self.resumed = self.total - len(self.todo)
@@ -312,7 +321,7 @@ class Runner:
                 and row.get("estimator_params") == self.params[spec.label]
                 and row.get("device") == self.device_name and row.get("protocol") == PROTOCOL
                 and set(self.config.metrics) <= set(str(row.get("metrics")).split(","))
-                and row.get("time_repeats", 0) >= self.config.repeats
+                and row.get("time_repeats", 0) >= self.repeats[spec.label]
                 and (row.get("width"), row.get("height"), row.get("env_res"))
                 == (plan.width, plan.height, plan.env_res))
 
@@ -349,7 +358,8 @@ class Runner:
                        "spp": list(c.spp), "seeds": c.seeds, "resolution": c.resolution,
                        "frames": frames_text(c.frames),
                        "time_budget_ms": list(c.time_budget_ms), "force": c.force,
-                       "repeats": c.repeats, "metrics": list(c.metrics),
+                       "repeats": c.repeats, "repeats_for": dict(c.repeats_for),
+                       "metrics": list(c.metrics),
                        "save_inputs": c.save_inputs, "sanitize": c.sanitize, "env_res": c.env_res},
             "sweep": sweep,
             "protocol": PROTOCOL,
@@ -366,11 +376,11 @@ class Runner:
             "cells_to_run": len(self.todo),
             "stages": [],
             "skipped": [],
-            "timing": {"measure": MEASURE, "repeats": c.repeats,
-                       "cell": f"median of {c.repeats} timed renders after warm-up; min and IQR "
-                               "beside it (harness/timing.py)",
+            "timing": {"measure": MEASURE, "repeats": dict(self.repeats),
+                       "cell": "median of the estimator's repeats of timed renders after "
+                               "warm-up; min and IQR beside it (harness/timing.py)",
                        "warm_up": f"1 spp on {WARMUP_PIXELS} pixels per frame and estimator",
-                       "temporal": f"timing renders on {c.repeats - 1} twin instances per "
+                       "temporal": "timing renders on repeats - 1 twin instances per "
                                    "sequence; the scored render is the real state's"},
             "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": MEASURE,
                              "model": "time = a_ms + b_ms_per_spp * spp, least squares on "
@@ -409,6 +419,11 @@ class Runner:
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
                       file=sys.stderr)
+            fewer = sorted(label for label, n in self.repeats.items() if n < self.config.repeats)
+            if fewer and self.todo:
+                print("iblbench: fewer timed renders per cell for "
+                      + ", ".join(f"{label} ({self.repeats[label]})" for label in fewer)
+                      + f" than for the others ({self.config.repeats})", file=sys.stderr)
             _remove_stale_temporaries(self.out)
             self.journal = Journal(self.out)
             self._fold()   # a journal a killed run left becomes part of the table now
@@ -572,13 +587,13 @@ class Runner:
         write_exr(images / "reference.exr", reference)
         write_preview(images / "reference.png", reference, scorer.k)
         todo = self._scene_todo(scene_name, cache.frame)
-        repeats = self.config.repeats
         for spec in self.specs:
             cells = [key for key in todo if key[1] == spec.label]
             if not cells:
                 continue
             # Per-frame builds only; a pool is drawn per render and timed as its "sample" stage.
             build_ms = sum(built.get(p, 0.0) for p in ("upload",) + spec.cls.requires)
+            repeats = self.repeats[spec.label]
             estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
             self._timed_render(spec.make(), warm_up, cache, 1, WARMUP_SEED, 0.0)
             self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)

@@ -23,7 +23,9 @@ Format (every key at the top level)::
     env_res = 64                        # optional cube face resolution; default: each scene's own
     time_budget_ms = [20.0]             # optional: equal-time cells instead of the spp list
     repeats = 5                         # optional: timed renders per cell (default 5; a cell's
-                                        # time is their median, harness/timing.py)
+                                        # time is their median, harness/timing.py); or a table
+                                        # with counts of its own for slow estimators:
+                                        # repeats = { default = 5, bis = 3, smc = 3 }
     metrics = ["de76", "de2000", "relmse", "flip"]   # optional: the metrics to compute (ΔE76
                                         # always; default all; leave "flip" out to save time)
     sanitize = false                    # optional: repair bad environment texels
@@ -183,6 +185,7 @@ class Sweep:
     time_budget_ms: tuple[float, ...] = ()
     sanitize: bool = False
     repeats: int = DEFAULT_REPEATS
+    repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats) overrides
     metrics: tuple[str, ...] = METRICS
     protocol: str = PROTOCOL
     description: str = ""
@@ -202,7 +205,8 @@ class Sweep:
                 "frames": frames_text(self.frames),
                 "resolution": None if self.resolution is None else list(self.resolution),
                 "env_res": self.env_res, "time_budget_ms": list(self.time_budget_ms),
-                "sanitize": self.sanitize, "repeats": self.repeats, "metrics": list(self.metrics)}
+                "sanitize": self.sanitize, "repeats": self.repeats,
+                "repeats_for": dict(self.repeats_for), "metrics": list(self.metrics)}
 
 
 def config_path(name_or_path: str | os.PathLike) -> tuple[Path, str]:
@@ -377,9 +381,10 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     sanitize = document.get("sanitize", False)
     if not isinstance(sanitize, bool):
         fail(f"sanitize must be true or false, got {sanitize!r}")
-    repeats = document.get("repeats", DEFAULT_REPEATS)
-    if not (_positive_int(repeats) and repeats <= MAX_REPEATS):
-        fail(f"repeats must be an integer in 1..{MAX_REPEATS}, got {repeats!r}")
+    try:
+        repeats, repeats_for = parse_repeats(document.get("repeats", DEFAULT_REPEATS))
+    except ValueError as error:
+        fail(str(error))
     metrics = document.get("metrics", list(METRICS))
     if not isinstance(metrics, list) or not all(isinstance(m, str) for m in metrics):
         fail(f"metrics must be a list of metric names ({', '.join(METRICS)}), got {metrics!r}")
@@ -390,7 +395,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     return Sweep(scenes=scenes, estimators=tuple(labels), spp=tuple(sorted(set(spp))), seeds=seeds,
                  frames=frames, resolution=resolution, env_res=env_res,
                  time_budget_ms=tuple(float(v) for v in budgets), sanitize=sanitize,
-                 repeats=repeats, metrics=metrics,
+                 repeats=repeats, repeats_for=repeats_for, metrics=metrics,
                  protocol=protocol, description=description, source=source)
 
 
@@ -414,17 +419,39 @@ def frames_arg(text: str) -> tuple[int, ...] | slice | None:
         raise InputError(None, f"--frames: {error}") from None
 
 
-def repeats_arg(text: str) -> int:
-    """``--repeats``: timed renders per cell, 1..MAX_REPEATS."""
+def parse_repeats(value) -> tuple[int, tuple[tuple[str, int], ...]]:
+    """Timed renders per cell: ``N``, or a table ``{default = N, NAME = M, ...}`` whose other
+    keys are estimator names with a count of their own (fewer for a slow estimator) → (N,
+    ((name, M), ...) sorted); ValueError naming the problem."""
+    table = value if isinstance(value, dict) else {"default": value}
+
+    def count(key, number) -> int:
+        if not (_positive_int(number) and number <= MAX_REPEATS):
+            where = "" if key == "default" else f" for {key}"
+            raise ValueError(f"repeats{where} must be an integer in 1..{MAX_REPEATS}, "
+                             f"got {number!r}")
+        return int(number)
+
+    default = count("default", table.get("default", DEFAULT_REPEATS))
+    return default, tuple(sorted((str(key).lower(), count(key, number))
+                                 for key, number in table.items() if key != "default"))
+
+
+def repeats_arg(text: str) -> tuple[int, tuple[tuple[str, int], ...]]:
+    """``--repeats``: ``N`` or ``N,NAME=M,...`` (``parse_repeats``)."""
     import argparse
 
+    table = {}
+    for part in text.split(","):
+        key, _, number = part.rpartition("=")
+        try:
+            table[key.strip() or "default"] = int(number)
+        except ValueError:
+            table[key.strip() or "default"] = number.strip()
     try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if not 1 <= value <= MAX_REPEATS:
-        raise argparse.ArgumentTypeError(f"expected an integer in 1..{MAX_REPEATS}, got '{text}'")
-    return value
+        return parse_repeats(table)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"{error} (write N or N,NAME=M,...)")
 
 
 def metrics_arg(text: str) -> tuple[str, ...]:

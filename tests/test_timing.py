@@ -223,3 +223,18 @@ def test_terminal_check_and_report_show_one_time_per_cell(tmp_path):
         assert terminal[("s", estimator, 16)] == pytest.approx(ms)
         assert report[estimator] == pytest.approx(ms)
     assert check.metric == "time_ms / a (8.5 / 4.25 ms)" and check.value == "2"
+
+
+def test_a_slow_estimator_may_get_fewer_repeats_if_the_run_says_so(tmp_path, fakes, capsys):
+    table = run(tiny(tmp_path, ("scripted_timing_test", "linear_timing_test"), repeats=4,
+                     repeats_for=(("Scripted_Timing_Test", 2),)))
+    assert dict(zip(table.estimator, table.time_repeats)) == {"scripted_timing_test": 2,
+                                                             "linear_timing_test": 4}
+    assert ("fewer timed renders per cell for scripted_timing_test (2) than for the others (4)"
+            in capsys.readouterr().err)
+    timing = json.loads((tmp_path / "manifest.json").read_text())["timing"]
+    assert timing["repeats"] == {"scripted_timing_test": 2, "linear_timing_test": 4}
+    # Render 0 and 1 of Scripted: (0.5 + 2 + 10, 0.5 + 1 + 30) without the known build: the
+    # median of two is their mean.
+    scripted = table.set_index("estimator").loc["scripted_timing_test"]
+    assert scripted.time_ms == pytest.approx((12.0 + 31.0) / 2 + scripted.time_ms_build)
