@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from iblbench.harness.timing import MEASURE, TimedRender, device_ms, render_stages
+from iblbench.harness.timing import TimedRender, device_ms, render_stages
 
 CALIBRATION_SEED = 0xFFFFFF00   # + repeat index: seeds no benchmark cell uses
 CALIBRATION_SPP = (1, 4, 16, 64)
@@ -57,8 +57,6 @@ class Calibration:
     """Timed renders of one (scene, estimator) on one frame, shared by every budget.
 
     ``build_ms``: the frame's build time for this estimator (added to each render)."""
-
-    MEASURE = MEASURE
 
     def __init__(self, estimator, gbuffer, cache, build_ms: float = 0.0):
         self.estimator, self.gbuffer, self.cache = estimator, gbuffer, cache

@@ -150,8 +150,9 @@ def warm_up_gbuffer(gbuffer):
     the scene is (so the warm-up compiles the same kernel variants)."""
     covered = np.flatnonzero(gbuffer.mask)
     keep = covered[:WARMUP_PIXELS].copy()
-    if not gbuffer.is_diffuse:
-        keep[-1] = covered[np.argmax(gbuffer.ks.reshape(-1, 3)[covered].max(axis=1) > 0)]
+    specular = gbuffer.ks.reshape(-1, 3)[covered].max(axis=1) > 0
+    if specular.any() and not specular[:WARMUP_PIXELS].any():
+        keep[-1] = covered[np.argmax(specular)]
     mask = np.zeros(gbuffer.mask.size, bool)
     mask[keep] = True
     return dataclasses.replace(gbuffer, mask=mask.reshape(gbuffer.mask.shape))

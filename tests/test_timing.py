@@ -6,6 +6,7 @@ worked out by hand; the frame's build is made known by a FrameCache whose upload
 """
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import math
@@ -20,7 +21,7 @@ from iblbench.estimators.registry import _registry, register
 from iblbench.harness import budgets, cli, runner
 from iblbench.harness.equal_time import TOLERANCE, Calibration
 from iblbench.harness.framecache import FrameCache
-from iblbench.harness.runner import TIMING_SEED, RunConfig, run
+from iblbench.harness.runner import TIMING_SEED, WARMUP_PIXELS, WARMUP_SEED, RunConfig, run
 from iblbench.harness.timing import TimedRender, time_columns
 from iblbench.reports.report import equal_time_cells, summarize
 from iblbench.scenes.imageio import read_exr
@@ -40,12 +41,14 @@ class Scripted(Estimator):
 
     name = "scripted_timing_test"
     tags = Tags(unbiased=False)
+    log: list = []   # (seed, spp, pixels) of every render
 
     def __init__(self, params=None, **overrides):
         super().__init__(params, **overrides)
         self.renders = 0
 
     def render(self, gbuffer, cache, spp, seed):
+        self.log.append((seed, spp, gbuffer.count))
         sample, shade = STAGES[self.renders % len(STAGES)]
         self.renders += 1
         return fake_estimate(gbuffer, spp, 0.5, {"sample": sample, "shade": shade})
@@ -90,6 +93,7 @@ def fakes():
     for cls in (Scripted, Linear, Counting):
         register(cls)
     Counting.log.clear()
+    Scripted.log.clear()
     yield
     for cls in (Scripted, Linear, Counting):
         _registry.pop(cls.name)
@@ -123,6 +127,11 @@ def test_time_columns_are_median_min_and_iqr_of_the_stage_events(tmp_path, fakes
     assert row.time_ms_shade == pytest.approx(30.0)
     assert row.time_repeats == 5 and row.time_ms_host > 0
     assert math.isnan(row.flip) and math.isnan(row.mean_delta_e2000) and row.metrics == "de76"
+    # The warm-up rendered 1 spp on a few pixels, never the whole frame; then five full renders.
+    warm_up = [entry for entry in Scripted.log if entry[0] == WARMUP_SEED]
+    pixels = Scripted.log[-1][2]
+    assert warm_up == [(WARMUP_SEED, 1, WARMUP_PIXELS)] and pixels > WARMUP_PIXELS
+    assert [entry[1:] for entry in Scripted.log if entry[0] != WARMUP_SEED] == [(4, pixels)] * 5
 
 
 def test_stages_an_estimator_lacks_are_nan_and_count_zero():
@@ -238,3 +247,16 @@ def test_a_slow_estimator_may_get_fewer_repeats_if_the_run_says_so(tmp_path, fak
     # median of two is their mean.
     scripted = table.set_index("estimator").loc["scripted_timing_test"]
     assert scripted.time_ms == pytest.approx((12.0 + 31.0) / 2 + scripted.time_ms_build)
+
+
+def test_the_warm_up_pixels_keep_a_specular_pixel_of_a_mostly_diffuse_scene():
+    from iblbench.scenes.gbuffer import GBuffer
+
+    size = 12
+    ks = np.zeros((size, size, 3), np.float32)
+    ks[-1, -1] = 0.3                           # the last covered pixel alone is specular
+    gbuffer = GBuffer.from_pixels(np.tile([0.0, 0.0, 1.0], (size, size, 1)), [0.0, 0.0, 1.0],
+                                  0.5, ks, 20.0)
+    subset = runner.warm_up_gbuffer(gbuffer)
+    assert subset.covered == WARMUP_PIXELS and not subset.is_diffuse and subset.mask[-1, -1]
+    assert runner.warm_up_gbuffer(dataclasses.replace(gbuffer, ks=ks * 0)).is_diffuse
