@@ -124,6 +124,7 @@ def equal_time_cells(rows: pd.DataFrame) -> pd.DataFrame:
 
 def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
     cells = equal_time_cells(rows)
+    cells["within"] = cells.within.map({True: "yes", False: "NO"})
     cells.columns = ["budget (ms/frame)", "estimator", "spp run", "mean ΔE76", "mean ΔE2000",
                      "relMSE", "effective ratio", "achieved ms/frame (device)",
                      f"within ±{TOLERANCE:.0%}"]
