@@ -13,22 +13,26 @@ on them::
     max_rel_mse = 0.05           # relMSE <= 0.05
     min_effective_ratio = 0.6    # effective samples / used samples >= 0.6
     nonfinite = 0                # NaN/Inf pixels, summed over the cell's frames and seeds, <= 0
-    max_time_ratio = { baseline = "uniform", metric = "time_ms_frame", max = 3.0 }
+    max_time_ratio = { baseline = "uniform", metric = "time_ms", max = 3.0 }
 
 Limits. ``max_<metric>`` and ``min_<metric>`` work for every quality metric of the table
 (mean_delta_e76, mean_delta_e2000, rel_mse, flip, used_samples, effective_samples,
 effective_ratio, evaluations); ``nonfinite = N`` bounds the total count of non-finite pixels
 (use 0); ``max_time_ratio`` bounds ``median(metric of the cell) / median(metric of the baseline
 cell)``, where the baseline cell is the named estimator on the same scene and spp *in the same
-results table* (``metric`` is one of time_ms_build, time_ms_sample, time_ms_shade, time_ms_frame;
-default time_ms_frame). Absolute times cannot be budgeted: they are too noisy across machines.
+results table* (``metric`` is one of the time columns: time_ms, the cell's device time per
+frame of :mod:`iblbench.harness.timing`, the default; time_ms_min, time_ms_iqr,
+time_ms_build, time_ms_sample, time_ms_shade, time_ms_host). Absolute times cannot be budgeted:
+they are too noisy across machines.
 Any other key is an error (exit 2), so a typo never silently disables a limit.
 
 What is compared. Only equal-spp rows count: rows with a ``time_budget_ms`` (equal-time cells,
 whose spp is whatever fitted the budget on that device) are left out. Rows are grouped into cells by (scene, estimator, spp). A cell's value for a
 ``max_``/``min_`` limit is the **mean over its rows** (its frames × seeds); a NaN in any row makes
 the value NaN, and NaN always fails. ``nonfinite`` is the sum over the rows. The time ratio is a
-ratio of **medians over the rows** (frames × seeds) of the two cells.
+ratio of the two cells' times (:func:`iblbench.harness.timing.median_time`: the **median over
+the rows**, frames × seeds), the same time the report and ``iblbench run`` print; both times are
+shown beside the ratio.
 
 Fail closed. The cells a rule expects are (every scene in the table matching its scene glob) ×
 (every estimator in the table matching its estimator glob) × (each of its spp). A rule whose globs
@@ -50,13 +54,14 @@ import pathlib
 import pandas as pd
 
 from iblbench.harness.results import METRIC_COLUMNS, load_table
+from iblbench.harness.timing import COLUMNS as TIME_COLUMNS, TIME, median_time
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.tomlfile import read_toml
 
 CELL = ["scene", "estimator", "spp"]
-TIME_METRICS = tuple(column for column in METRIC_COLUMNS if column.startswith("time_ms_"))
+TIME_METRICS = tuple(column for column in TIME_COLUMNS if column.startswith("time_ms"))
 QUALITY_METRICS = tuple(column for column in METRIC_COLUMNS
-                        if column not in TIME_METRICS and column != "nonfinite")
+                        if column not in TIME_COLUMNS and column != "nonfinite")
 LIMIT_KEYS = tuple([f"max_{m}" for m in QUALITY_METRICS] + [f"min_{m}" for m in QUALITY_METRICS]
                    + ["nonfinite", "max_time_ratio"])
 RULE_KEYS = ("name", "scene", "estimator", "spp") + LIMIT_KEYS
@@ -127,7 +132,7 @@ def _parse_rule(path, index: int, table) -> Rule:
         spec = table["max_time_ratio"]
         if not isinstance(spec, dict):
             raise InputError(path, f"{where}: 'max_time_ratio' must be an inline table "
-                                   "{ baseline = \"...\", metric = \"time_ms_frame\", max = N }")
+                                   "{ baseline = \"...\", metric = \"time_ms\", max = N }")
         unknown = sorted(set(spec) - set(TIME_RATIO_KEYS))
         if unknown:
             raise InputError(path, f"{where}: max_time_ratio: unknown key(s) "
@@ -135,7 +140,7 @@ def _parse_rule(path, index: int, table) -> Rule:
                                    f"{', '.join(TIME_RATIO_KEYS)}")
         if not isinstance(spec.get("baseline"), str) or not spec["baseline"]:
             raise InputError(path, f"{where}: max_time_ratio needs 'baseline', an estimator name")
-        metric = spec.get("metric", "time_ms_frame")
+        metric = spec.get("metric", TIME)
         if metric not in TIME_METRICS:
             raise InputError(path, f"{where}: max_time_ratio: 'metric' must be one of "
                                    f"{', '.join(TIME_METRICS)}, got {metric!r}")
@@ -224,15 +229,16 @@ def evaluate(rules: list[Rule], table: pd.DataFrame) -> pd.DataFrame:
                              _fmt(count), f"<= {rule.nonfinite}", ok)
                     if rule.time_ratio is not None:
                         ratio = rule.time_ratio
-                        metric = f"{ratio.metric} / {ratio.baseline} (medians)"
                         budget = f"<= {ratio.max:.4g}"
                         base = groups.get((scene, ratio.baseline, spp))
                         if base is None:
-                            emit(rule, scene, estimator, spp, metric,
+                            emit(rule, scene, estimator, spp, f"{ratio.metric} / {ratio.baseline}",
                                  "baseline missing", budget, False)
                             continue
-                        mine = float(rows[ratio.metric].astype(float).median(skipna=False))
-                        theirs = float(base[ratio.metric].astype(float).median(skipna=False))
+                        mine = median_time(rows[ratio.metric])
+                        theirs = median_time(base[ratio.metric])
+                        metric = (f"{ratio.metric} / {ratio.baseline} "
+                                  f"({_fmt(mine)} / {_fmt(theirs)} ms)")
                         value = mine / theirs if theirs > 0 else math.nan
                         emit(rule, scene, estimator, spp, metric, _fmt(value), budget,
                              math.isfinite(value) and value <= ratio.max)

@@ -1,4 +1,9 @@
-"""The ``iblbench`` command line."""
+"""The ``iblbench`` command line.
+
+Building the parser imports nothing heavy (no colour-science, scipy, OpenCL or the stress
+battery), so ``iblbench --help`` and ``iblbench list ...`` answer at once; each command imports
+what it needs when it runs.
+"""
 from __future__ import annotations
 
 import argparse
@@ -116,9 +121,20 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--env-res", type=_env_res, metavar="R",
                      help="cube face resolution for built-in skies and resampled maps")
     run.add_argument("--time-budget-ms", type=sweep.budgets_arg, metavar="T[,T...]",
-                     help="equal-time cells besides the spp list: per (scene, estimator), the "
-                          "largest spp whose calibrated device time (sample+shade) fits in T ms "
-                          "per frame")
+                     help="equal-time cells besides the spp list: per (scene, estimator), the spp "
+                          "whose calibrated device time per frame (build+sample+shade) lands "
+                          "within 10%% of T ms; the run says where it cannot")
+    run.add_argument("--repeats", type=sweep.repeats_arg, metavar="N[,NAME=M...]",
+                     help=f"timed renders per cell after warm-up (default "
+                          f"{sweep.DEFAULT_REPEATS}); a cell's time is the median of their "
+                          "device times (build+sample+shade), with min and IQR beside it; "
+                          "NAME=M gives estimator NAME M of its own (e.g. 5,smc=3)")
+    metrics = run.add_mutually_exclusive_group()
+    metrics.add_argument("--metrics", type=sweep.metrics_arg, metavar="M[,M...]",
+                         help=f"metrics to compute, of {','.join(sweep.METRICS)} (default: all; "
+                              "de76 always: heat maps and flicker use it); one left out is NaN")
+    metrics.add_argument("--no-flip", action="store_true",
+                         help="leave HDR-FLIP out (the slowest metric)")
     run.add_argument("--force", action="store_true",
                      help="recompute the selected cells even where --out already has them")
     run.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/latest"),
@@ -178,12 +194,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     stress = commands.add_parser(
         "stress", help="run the adversarial input battery: exit 0 when every estimator passes it, "
-                       "1 when any fails", description=_stress_description(),
-        formatter_class=argparse.RawDescriptionHelpFormatter, parents=[rendering])
+                       "1 when any fails", description=_stress_description,
+        formatter_class=_LazyDescriptionFormatter, parents=[rendering])
     stress.add_argument("--estimator", action="append", metavar="NAME",
                         help="estimator name, optionally NAME{param=value,...}; repeatable "
                              "(default: every registered estimator)")
-    stress.add_argument("--case", action="append", metavar="CASE", choices=stress_cases(),
+    stress.add_argument("--case", action="append", metavar="CASE", type=_stress_case,
                         help="run only this case; repeatable (default: all)")
     stress.add_argument("--quick", action="store_true",
                         help="the small size the tests use (fewer normals and seeds, R = 8)")
@@ -251,6 +267,22 @@ def _perf(args) -> None:
         repeats=args.repeats, device=args.device))
 
 
+class _LazyDescriptionFormatter(argparse.RawDescriptionHelpFormatter):
+    """Formats a description given as a function, called only when the help is shown (the
+    stress battery's case list imports the battery)."""
+
+    def add_text(self, text):
+        super().add_text(text() if callable(text) else text)
+
+
+def _stress_case(text: str) -> str:
+    cases = stress_cases()
+    if text not in cases:
+        raise argparse.ArgumentTypeError(f"invalid choice: '{text}' (choose from "
+                                         f"{', '.join(cases)})")
+    return text
+
+
 def stress_cases() -> dict[str, str]:
     """Case name → the failure it guards against."""
     from iblbench.harness.stress import CASES
@@ -309,37 +341,51 @@ def _run(args) -> None:
         scenes=tuple(args.scene) if args.scene else None,
         estimators=tuple(args.estimator) if args.estimator else None, spp=args.spp,
         seeds=args.seeds, frames=frames, resolution=args.res, env_res=args.env_res,
-        time_budget_ms=args.time_budget_ms, sanitize=True if args.sanitize else None)
+        time_budget_ms=args.time_budget_ms, sanitize=True if args.sanitize else None,
+        repeats=args.repeats and args.repeats[0], repeats_for=args.repeats and args.repeats[1],
+        metrics=tuple(m for m in sweep.metrics if m != "flip") if args.no_flip else args.metrics)
     flags = [flag for flag, value in (
         ("--scene", args.scene), ("--estimator", args.estimator), ("--spp", args.spp),
         ("--seeds", args.seeds), ("--frames", args.frames), ("--res", args.res),
         ("--env-res", args.env_res), ("--time-budget-ms", args.time_budget_ms),
-        ("--sanitize", args.sanitize)) if value]
+        ("--sanitize", args.sanitize), ("--repeats", args.repeats), ("--metrics", args.metrics),
+        ("--no-flip", args.no_flip)) if value]
     config = RunConfig(out=args.out, scenes=sweep.scenes, estimators=sweep.estimators,
                        spp=sweep.spp, seeds=sweep.seeds, resolution=sweep.resolution,
                        device=args.device, save_inputs=args.save_inputs, sanitize=sweep.sanitize,
                        env_res=sweep.env_res, progress=False if args.no_progress else None,
                        frames=sweep.frames, time_budget_ms=sweep.time_budget_ms, force=args.force,
+                       repeats=sweep.repeats, repeats_for=sweep.repeats_for, metrics=sweep.metrics,
                        sweep={**sweep.to_manifest(), "overridden_by_flags": flags})
     table = run(config)
-    equal_spp = table[table.time_budget_ms.isna()]
-    if len(equal_spp):
-        summary = equal_spp.groupby(["scene", "estimator", "spp"]).agg(
-            mean_delta_e76=("mean_delta_e76", "mean"), effective=("effective_samples", "mean"),
-            used=("used_samples", "mean"), nonfinite=("nonfinite", "sum"),
-            median_shade_ms=("time_ms_shade", "median"))
-        print(summary.to_string(float_format=lambda v: f"{v:.4g}"))
-    equal_time = table[table.time_budget_ms.notna()].assign(
-        device_ms=lambda t: t.time_ms_sample.fillna(0) + t.time_ms_shade.fillna(0))
-    if len(equal_time):
-        summary = equal_time.groupby(["scene", "time_budget_ms", "estimator"]).agg(
-            spp=("spp", "first"), median_device_ms=("device_ms", "median"),
-            mean_delta_e76=("mean_delta_e76", "mean"), rel_mse=("rel_mse", "mean"),
-            nonfinite=("nonfinite", "sum"))
-        print("error at equal time (spp chosen so that the device time of the sample and shade "
-              "stages fits time_budget_ms per frame):")
+    for title, summary in terminal_summaries(table):
+        if title:
+            print(title)
         print(summary.to_string(float_format=lambda v: f"{v:.4g}"))
     print(f"wrote {len(table)} rows to {args.out}/results.parquet")
+
+
+def terminal_summaries(table):
+    """The tables ``iblbench run`` prints: per (scene, estimator, spp) cell, then per equal-time
+    cell, each with the cell's time of :mod:`iblbench.harness.timing` (``time_ms``: device ms
+    per frame, build + sample + shade) as the report and ``check`` show it."""
+    from iblbench.harness.timing import TIME, cell_times
+
+    summaries = []
+    for keys, rows, title in (
+            (["scene", "estimator", "spp"], table[table.time_budget_ms.isna()], None),
+            (["scene", "time_budget_ms", "estimator"], table[table.time_budget_ms.notna()],
+             "error at equal time (the spp chosen so that the device time per frame, build + "
+             "sample + shade, lands within 10% of time_budget_ms):")):
+        if len(rows):
+            spp = {} if "spp" in keys else {"spp": ("spp", "first")}
+            summary = rows.groupby(keys).agg(
+                **spp, mean_delta_e76=("mean_delta_e76", "mean"), rel_mse=("rel_mse", "mean"),
+                effective=("effective_samples", "mean"), used=("used_samples", "mean"),
+                nonfinite=("nonfinite", "sum"))
+            summary[TIME] = cell_times(rows, keys)
+            summaries.append((title, summary))
+    return summaries
 
 
 def _reproduce(args) -> None:

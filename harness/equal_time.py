@@ -1,12 +1,23 @@
 """Equal-time cells (``--time-budget-ms``): calibrate an estimator's frame time against spp.
 
-For one (scene, estimator) the runner times renders on the scene's first frame to run (after a
-warm-up; ``CALIBRATION_REPEATS`` per spp, on seeds no cell uses) at ``CALIBRATION_SPP``, then at
-larger spp until the calibrated range brackets the choice.  The measure is the median device
-time of the ``sample`` and ``shade`` stages (OpenCL profiling events: the estimator's per-frame
-cost, without per-frame builds such as CDFs, host read-back or compilation), fitted as
-``a + b·spp`` by least squares on relative error; the chosen spp is the largest whose predicted
-time is within the budget.
+The measure is the cell time of :mod:`iblbench.harness.timing`: device time per frame of build
++ sample + shade.  The frame's build does not depend on spp, so it enters the fit's intercept:
+the calibration adds the frame's build time (``build_ms``) to every timed render.  A
+budget below the build alone cannot be met by any spp.
+
+For one (scene, estimator) the runner times renders on the scene's first frame to run (after
+the warm-up; ``CALIBRATION_REPEATS`` per spp, on seeds no cell uses) at ``CALIBRATION_SPP``,
+then at larger spp until the calibrated range brackets the choice.  Each spp's median is fitted
+as ``a + b·spp`` by least squares on relative error, and the first choice is the largest spp
+whose predicted time is within the budget.  A line fitted from 1 to hundreds of spp misses by
+more than 10% where the cost is not quite linear, so the choice is then refined on measurements:
+the spp chosen is timed, the per-spp slope is re-estimated through that point (keeping the
+intercept), and the largest spp predicted to fit is timed again, up to ``REFINE_STEPS`` times,
+until the measured time lies within half of ``TOLERANCE`` of the budget (so that the cells'
+own noise keeps them within it).  The spp run is then chosen among the measured ones
+(:func:`best_measured`).
+Whether the cells then landed within ``TOLERANCE`` is checked on the cells themselves (the
+runner's ``time_budget.achieved``).
 """
 from __future__ import annotations
 
@@ -15,10 +26,14 @@ import time
 
 import numpy as np
 
+from iblbench.harness.timing import TimedRender, device_ms, render_stages
+
 CALIBRATION_SEED = 0xFFFFFF00   # + repeat index: seeds no benchmark cell uses
 CALIBRATION_SPP = (1, 4, 16, 64)
 CALIBRATION_REPEATS = 3
 BUDGET_MAX_SPP = 32767     # the most spp an equal-time cell may choose (the pool estimators' limit)
+TOLERANCE = 0.10           # a cell's time should land within ±10% of its budget
+REFINE_STEPS = 4
 
 
 def fit_linear(runs: dict[int, list[float]]) -> tuple[float, float]:
@@ -39,28 +54,36 @@ def choose_spp(a: float, b: float, budget_ms: float) -> int:
 
 
 class Calibration:
-    """Timed renders of one (scene, estimator) on one frame, shared by every budget."""
+    """Timed renders of one (scene, estimator) on one frame, shared by every budget.
 
-    MEASURE = "device time of the sample and shade stages (OpenCL profiling events), ms"
+    ``build_ms``: the frame's build time for this estimator (added to each render)."""
 
-    def __init__(self, estimator, gbuffer, cache):
+    def __init__(self, estimator, gbuffer, cache, build_ms: float = 0.0):
         self.estimator, self.gbuffer, self.cache = estimator, gbuffer, cache
+        self.build_ms = build_ms
         self.runs: dict[int, list[float]] = {}
         self.host: dict[int, list[float]] = {}
+        self.renders = []   # every TimedRender, for the run's device-time total
 
-    def measure(self, spp: int) -> None:
-        device, host = [], []
-        for repeat in range(CALIBRATION_REPEATS):
-            start = time.perf_counter()
-            estimate = self.estimator.render(self.gbuffer, self.cache, spp, CALIBRATION_SEED + repeat)
-            host.append((time.perf_counter() - start) * 1e3)
-            device.append(device_ms(estimate))
-        self.runs[spp], self.host[spp] = device, host
+    def measure(self, spp: int) -> float:
+        """Time ``CALIBRATION_REPEATS`` renders at ``spp`` (once per spp); their median."""
+        if spp not in self.runs:
+            device, host = [], []
+            for repeat in range(CALIBRATION_REPEATS):
+                start = time.perf_counter()
+                estimate = self.estimator.render(self.gbuffer, self.cache, spp,
+                                                 CALIBRATION_SEED + repeat)
+                render = TimedRender(render_stages(self.build_ms, estimate.timings_ms),
+                                     (time.perf_counter() - start) * 1e3)
+                self.renders.append(render)
+                host.append(render.host_ms)
+                device.append(device_ms(render.stages))
+            self.runs[spp], self.host[spp] = device, host
+        return float(np.median(self.runs[spp]))
 
     def choose(self, budget_ms: float) -> dict:
         for spp in CALIBRATION_SPP:
-            if spp not in self.runs:
-                self.measure(spp)
+            self.measure(spp)
         a, b = fit_linear(self.runs)
         chosen = choose_spp(a, b, budget_ms)
         for _ in range(10):   # extend the calibrated range until it brackets the choice
@@ -70,14 +93,33 @@ class Calibration:
             self.measure(min(chosen, 4 * top, BUDGET_MAX_SPP))
             a, b = fit_linear(self.runs)
             chosen = choose_spp(a, b, budget_ms)
-        return {"budget_ms": budget_ms, "a_ms": a, "b_ms_per_spp": b, "chosen_spp": chosen,
-                "predicted_ms": a + b * chosen, "over_budget": a + b * chosen > budget_ms,
+        fitted = chosen
+        for _ in range(REFINE_STEPS):
+            measured = self.measure(chosen)
+            if abs(measured - budget_ms) <= TOLERANCE / 2 * budget_ms or measured <= a:
+                break
+            step = choose_spp(a, (measured - a) / chosen, budget_ms)
+            if step in self.runs:
+                break
+            chosen = step
+        medians = {s: float(np.median(v)) for s, v in self.runs.items()}
+        chosen = best_measured(medians, budget_ms)
+        return {"budget_ms": budget_ms, "build_ms": self.build_ms, "a_ms": a, "b_ms_per_spp": b,
+                "fitted_spp": fitted, "chosen_spp": chosen, "predicted_ms": a + b * chosen,
+                "measured_ms": medians[chosen], "over_budget": medians[chosen] > budget_ms,
                 "runs": [{"spp": s, "device_ms": self.runs[s], "host_frame_ms": self.host[s],
-                          "median_device_ms": float(np.median(self.runs[s]))}
-                         for s in sorted(self.runs)]}
+                          "median_device_ms": medians[s]} for s in sorted(self.runs)]}
 
 
-def device_ms(estimate) -> float:
-    """The estimator's device time of one frame: its sample and shade stages."""
-    stages = [estimate.timings_ms.get(s, float("nan")) for s in ("sample", "shade")]
-    return float(sum(v for v in stages if math.isfinite(v)))
+def best_measured(medians: dict[int, float], budget_ms: float) -> int:
+    """The spp to run, from measured median times per spp: among those within ``TOLERANCE`` of
+    the budget the largest within it, else the one nearest it; with none within tolerance, the
+    largest spp within the budget, else the cheapest spp (even that is over the budget)."""
+    near = [s for s, t in medians.items() if abs(t - budget_ms) <= TOLERANCE * budget_ms]
+    under = [s for s in near if medians[s] <= budget_ms]
+    if under:
+        return max(under)
+    if near:
+        return min(near, key=medians.get)
+    under = [s for s, t in medians.items() if t <= budget_ms]
+    return max(under) if under else min(medians, key=medians.get)

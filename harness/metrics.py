@@ -5,29 +5,61 @@
 3. Linear sRGB → XYZ (D65) → L*a*b* with colour-science; mean ΔE76 and ΔE2000 over covered pixels.
 Plus relMSE in linear HDR, mean((x−r)²/(r²+0.01)), flicker between consecutive frames (:func:`flicker`), HDR-FLIP (NVIDIA's flip-evaluator, where
 installed; NaN otherwise) as a mean over covered pixels, and the sample counts.
+
+Which metrics a run computes is ``METRICS`` or a subset (``iblbench run --metrics``); ΔE76 is
+always computed (heat maps, flicker and the budgets use it), and a metric left out is NaN in its
+column.  Everything that depends on the reference alone (its exposure, its L*a*b*, FLIP's
+exposure range) is computed once per reference by a :class:`Scorer`, which the runner keeps per
+(scene, frame), and each estimate is then scored with one FLIP evaluation.
+
+colour-science and flip-evaluator are imported on first use, so importing this module (the CLI
+does, for ``PROTOCOL``) costs nothing.
 """
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
 import numpy as np
 
-with warnings.catch_warnings():
-    warnings.simplefilter("ignore")   # colour warns about optional packages at import
-    import colour
-
 from iblbench.scenes.cubemap import luminance
 
-try:
-    import flip_evaluator
-except ImportError:   # optional: `pip install iblbench[flip]`
-    flip_evaluator = None
-
 PROTOCOL = "lab-reinhard-v1"
-_D65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
-_SRGB = colour.RGB_COLOURSPACES["sRGB"]
+METRICS = ("de76", "de2000", "relmse", "flip")
+METRIC_COLUMNS = {"de76": "mean_delta_e76", "de2000": "mean_delta_e2000", "relmse": "rel_mse",
+                  "flip": "flip"}
 _LOG_EPSILON = 1e-6   # keeps black pixels out of log(0) in the log-average
+
+
+def parse_metrics(text: str) -> tuple[str, ...]:
+    """``de76,de2000,relmse,flip`` (any subset, any order) → the metrics in ``METRICS`` order,
+    ΔE76 always included; ValueError naming the valid ones for an unknown name."""
+    names = {part.strip().lower() for part in text.split(",") if part.strip()}
+    unknown = sorted(names - set(METRICS))
+    if unknown:
+        raise ValueError(f"unknown metric {unknown[0]!r}; valid: {','.join(METRICS)}")
+    return tuple(m for m in METRICS if m in names or m == "de76")
+
+
+@functools.lru_cache(maxsize=None)
+def _colour():
+    """colour-science and the protocol's D65 white and sRGB space (imported on first use)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")   # colour warns about optional packages at import
+        import colour
+    return (colour, colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"],
+            colour.RGB_COLOURSPACES["sRGB"])
+
+
+@functools.lru_cache(maxsize=None)
+def _flip():
+    """NVIDIA's flip-evaluator module, or None where it is not installed (iblbench[flip])."""
+    try:
+        import flip_evaluator
+    except ImportError:
+        return None
+    return flip_evaluator
 
 
 def exposure(reference: np.ndarray, mask: np.ndarray) -> float:
@@ -45,24 +77,22 @@ def tonemap(rgb: np.ndarray, k: float) -> np.ndarray:
 
 
 def to_lab(display_rgb: np.ndarray) -> np.ndarray:
-    xyz = colour.RGB_to_XYZ(display_rgb, _SRGB, apply_cctf_decoding=False)
-    return colour.XYZ_to_Lab(xyz, _D65)
+    colour, d65, srgb = _colour()
+    xyz = colour.RGB_to_XYZ(display_rgb, srgb, apply_cctf_decoding=False)
+    return colour.XYZ_to_Lab(xyz, d65)
 
 
-def lab_differences(lab_a: np.ndarray, lab_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """ΔE76 and ΔE2000 between L*a*b* arrays ``[..., 3]``."""
+def lab_differences(lab_a: np.ndarray, lab_b: np.ndarray,
+                    de2000: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """ΔE76 and ΔE2000 (None when ``de2000`` is False) between L*a*b* arrays ``[..., 3]``."""
+    colour = _colour()[0]
     return (colour.delta_E(lab_a, lab_b, method="CIE 1976"),
-            colour.delta_E(lab_a, lab_b, method="CIE 2000"))
+            colour.delta_E(lab_a, lab_b, method="CIE 2000") if de2000 else None)
 
 
 def delta_e_images(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray):
     """Per-pixel ΔE76 and ΔE2000 images (zero outside ``mask``)."""
-    k = exposure(reference, mask)
-    de76 = np.zeros(mask.shape)
-    de2000 = np.zeros(mask.shape)
-    de76[mask], de2000[mask] = lab_differences(to_lab(tonemap(estimate[mask], k)),
-                                               to_lab(tonemap(reference[mask], k)))
-    return de76, de2000
+    return Scorer(reference, mask).delta_e_images(estimate)
 
 
 def flicker(delta_e: np.ndarray, previous_delta_e: np.ndarray | None, mask: np.ndarray) -> float:
@@ -82,50 +112,102 @@ def rel_mse(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> fl
 
 
 def hdr_flip(estimate: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
-    """Mean HDR-FLIP error over covered pixels; NaN without flip-evaluator or on a black reference.
-
-    FLIP picks its exposure range from the reference's luminance; background pixels (zero) would
-    stretch it, so the range is taken from the covered pixels alone.  A black or very dim
-    reference makes that range degenerate, and FLIP then exits the whole process; the range
-    follows any global scale, so both images are scaled to a peak reference luminance of 1, and
-    a reference without a finite positive peak scores NaN.
-    """
-    if flip_evaluator is None or not mask.any():
-        return float("nan")
-    peak = float(luminance(reference[mask]).max())
-    if not (math.isfinite(peak) and peak > 0.0):
-        return float("nan")
-    reference = np.ascontiguousarray(reference / peak, np.float32)
-    estimate = estimate / peak
-    covered = np.ascontiguousarray(reference[mask][None])
-    exposures = flip_evaluator.evaluate(covered, covered, "HDR", applyMagma=False,
-                                        computeMeanError=False)[2]
-    parameters = {key: exposures[key] for key in ("startExposure", "stopExposure", "numExposures")}
-    error_map = flip_evaluator.evaluate(reference, np.ascontiguousarray(estimate, np.float32), "HDR",
-                                        applyMagma=False, parameters=parameters)[0]
-    return float(error_map[..., 0][mask].mean())
+    """Mean HDR-FLIP error over covered pixels; NaN without flip-evaluator or on a black
+    reference (see :meth:`Scorer.flip`)."""
+    return Scorer(reference, mask, ("de76", "flip")).flip(estimate)
 
 
-def score(estimate, reference: np.ndarray, mask: np.ndarray) -> tuple[dict, np.ndarray]:
-    """One results row's metrics for an :class:`Estimate`, and the ΔE76 image for a heat map.
+class Scorer:
+    """Scores estimates against one reference (one scene and frame); what depends on the
+    reference alone is computed once, here or on first use."""
 
-    Non-finite estimate values are counted (``nonfinite``) and scored as black, so one NaN
-    cannot hide the rest of the image's error.
-    """
-    radiance = np.where(np.isfinite(estimate.radiance), estimate.radiance, 0.0)
-    de76, de2000 = delta_e_images(radiance, reference, mask)
-    used = float(estimate.used[mask].mean()) if mask.any() else 0.0
-    effective = float(estimate.effective[mask].mean()) if mask.any() else 0.0
-    row = {
-        "mean_delta_e76": float(de76[mask].mean()),
-        "mean_delta_e2000": float(de2000[mask].mean()),
-        "rel_mse": rel_mse(radiance, reference, mask),
-        "flip": hdr_flip(radiance, reference, mask),
-        "flicker": float("nan"),   # set by the runner, which knows the previous frame
-        "used_samples": used,
-        "effective_samples": effective,
-        "effective_ratio": effective / used if used > 0 else float("nan"),
-        "evaluations": estimate.evaluations,
-        "nonfinite": estimate.nonfinite,
-    }
-    return row, de76
+    def __init__(self, reference: np.ndarray, mask: np.ndarray, metrics=METRICS):
+        self.reference, self.mask = reference, mask
+        self.metrics = tuple(metrics)
+        self.k = exposure(reference, mask)
+        self._reference_lab = None
+        self._flip_range = None
+
+    @property
+    def reference_lab(self) -> np.ndarray:
+        if self._reference_lab is None:
+            self._reference_lab = to_lab(tonemap(self.reference[self.mask], self.k))
+        return self._reference_lab
+
+    def delta_e_images(self, estimate: np.ndarray):
+        """Per-pixel ΔE76 and ΔE2000 images (zero outside the mask; ΔE2000 None when left out)."""
+        mask = self.mask
+        de76 = np.zeros(mask.shape)
+        de2000 = np.zeros(mask.shape) if "de2000" in self.metrics else None
+        if mask.any():
+            lab = to_lab(tonemap(estimate[mask], self.k))
+            de76[mask], covered_2000 = lab_differences(lab, self.reference_lab, de2000 is not None)
+            if de2000 is not None:
+                de2000[mask] = covered_2000
+        return de76, de2000
+
+    def flip_range(self):
+        """(peak reference luminance, FLIP's exposure parameters), from the covered pixels of
+        the reference; None where FLIP cannot score (not installed, nothing covered, no finite
+        positive peak)."""
+        if self._flip_range is None:
+            flip_evaluator = _flip()
+            peak = float(luminance(self.reference[self.mask]).max()) if self.mask.any() else 0.0
+            if flip_evaluator is None or not (math.isfinite(peak) and peak > 0.0):
+                self._flip_range = (None,)
+            else:
+                covered = np.ascontiguousarray(self.reference[self.mask][None] / peak, np.float32)
+                exposures = flip_evaluator.evaluate(covered, covered, "HDR", applyMagma=False,
+                                                    computeMeanError=False)[2]
+                self._flip_range = (peak, {key: exposures[key] for key in
+                                           ("startExposure", "stopExposure", "numExposures")})
+        return None if self._flip_range[0] is None else self._flip_range
+
+    def flip(self, estimate: np.ndarray) -> float:
+        """Mean HDR-FLIP error over covered pixels; NaN where :meth:`flip_range` is None.
+
+        FLIP picks its exposure range from the reference's luminance; background pixels (zero)
+        would stretch it, so the range is taken from the covered pixels alone.  A black or very
+        dim reference makes that range degenerate, and FLIP then exits the whole process; the
+        range follows any global scale, so both images are scaled to a peak reference luminance
+        of 1, and a reference without a finite positive peak scores NaN.
+        """
+        flip_range = self.flip_range()
+        if flip_range is None:
+            return float("nan")
+        peak, parameters = flip_range
+        reference = np.ascontiguousarray(self.reference / peak, np.float32)
+        error_map = _flip().evaluate(reference, np.ascontiguousarray(estimate / peak, np.float32),
+                                     "HDR", applyMagma=False, parameters=parameters)[0]
+        return float(error_map[..., 0][self.mask].mean())
+
+    def score(self, estimate) -> tuple[dict, np.ndarray]:
+        """One results row's metrics for an :class:`Estimate`, and the ΔE76 image for a heat map.
+
+        Non-finite estimate values are counted (``nonfinite``) and scored as black, so one NaN
+        cannot hide the rest of the image's error.
+        """
+        mask, nan = self.mask, float("nan")
+        radiance = np.where(np.isfinite(estimate.radiance), estimate.radiance, 0.0)
+        de76, de2000 = self.delta_e_images(radiance)
+        used = float(estimate.used[mask].mean()) if mask.any() else 0.0
+        effective = float(estimate.effective[mask].mean()) if mask.any() else 0.0
+        row = {
+            "mean_delta_e76": float(de76[mask].mean()),
+            "mean_delta_e2000": float(de2000[mask].mean()) if de2000 is not None else nan,
+            "rel_mse": rel_mse(radiance, self.reference, mask) if "relmse" in self.metrics else nan,
+            "flip": self.flip(radiance) if "flip" in self.metrics else nan,
+            "flicker": nan,   # set by the runner, which knows the previous frame
+            "used_samples": used,
+            "effective_samples": effective,
+            "effective_ratio": effective / used if used > 0 else nan,
+            "evaluations": estimate.evaluations,
+            "nonfinite": estimate.nonfinite,
+        }
+        return row, de76
+
+
+def score(estimate, reference: np.ndarray, mask: np.ndarray,
+          metrics=METRICS) -> tuple[dict, np.ndarray]:
+    """:meth:`Scorer.score` against ``reference`` (a runner keeps one Scorer per frame)."""
+    return Scorer(reference, mask, metrics).score(estimate)

@@ -8,11 +8,16 @@ Columns, in order (``COLUMNS``):
   to fit it);
 - configuration: ``width``, ``height``, ``env_res`` (the effective image and cube face sizes),
   ``estimator_params`` (every parameter as sorted JSON), ``estimator_version`` (hash of the
-  estimator's sources), ``schema_version`` (``SCHEMA_VERSION``);
-- metrics: ``mean_delta_e76`` … ``nonfinite`` and the stage times ``time_ms_*``;
-  ``flicker`` is the mean over covered pixels of |ΔE76(est_t, ref_t) − ΔE76(est_p, ref_p)|,
+  estimator's sources), ``schema_version`` (``SCHEMA_VERSION``), ``metrics`` (the metrics
+  computed, e.g. ``de76,de2000,relmse,flip``; ``run --metrics``);
+- metrics: ``mean_delta_e76`` … ``nonfinite`` (NaN for a metric the run left out); ``flicker``
+  is the mean over covered pixels of |ΔE76(est_t, ref_t) − ΔE76(est_p, ref_p)|,
   p the frame before t in the run's frame list, for the same (scene, estimator, spp, seed,
   time_budget_ms); NaN on the first frame of the list (and so for a static scene);
+- times (:mod:`iblbench.harness.timing`, the one definition): ``time_ms`` (the cell's device
+  time per frame, build + sample + shade, median of ``time_repeats`` timed renders),
+  ``time_ms_min``, ``time_ms_iqr``, the per-stage medians ``time_ms_build``, ``time_ms_sample``,
+  ``time_ms_shade``, the host wall time ``time_ms_host`` and ``time_repeats``;
 - ``device``, ``protocol``;
 - then any *extra* columns: estimator-specific per-frame scalars from ``Estimate.extras``
   (e.g. ``smc``'s ``ess``, ``reinits``, ``resample_steps``), sorted by name, NaN in the rows of
@@ -20,7 +25,8 @@ Columns, in order (``COLUMNS``):
   (which stays fixed), and a row without them is still a finished cell.
 
 Schema versions: 1 had no schema_version, time_budget_ms, width, height, env_res or
-estimator_params column; 2 had no flicker column; 3 is this one.  Rows of another schema never count as finished cells.
+estimator_params column; 2 had no flicker column; 3 timed one render per cell (host wall time
+``time_ms_frame``, device stages of that one render); 4 is this one.  Rows of another schema never count as finished cells.
 
 Storage.  ``results.parquet`` and ``results.csv`` are replaced whole, each in one rename, so a
 reader never sees half a table.  While a run is going, each finished cell is appended to
@@ -39,27 +45,29 @@ import pathlib
 import numpy as np
 import pandas as pd
 
+from iblbench.harness.timing import COLUMNS as TIME_COLUMNS
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed", "time_budget_ms"]
 CONFIG_COLUMNS = ["width", "height", "env_res", "estimator_params", "estimator_version",
-                  "schema_version"]
+                  "schema_version", "metrics"]
 METRIC_COLUMNS = [
     "mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "flicker",
     "used_samples", "effective_samples", "effective_ratio", "evaluations", "nonfinite",
-    "time_ms_build", "time_ms_sample", "time_ms_shade", "time_ms_frame",
+    *TIME_COLUMNS,
 ]
 COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "protocol"]
 # Columns that are the same on every rerun of a cell on one device (renders are deterministic
-# per seed): everything but the times.
-DETERMINISTIC_COLUMNS = [c for c in COLUMNS if not c.startswith("time_ms_")]
+# per seed): everything but the measured times.
+DETERMINISTIC_COLUMNS = [c for c in COLUMNS if not c.startswith("time_ms")]
 TABLE = "results.parquet"
 CSV = "results.csv"
 JOURNAL = "results.journal.jsonl"
 FOLD_SECONDS = 10.0
-_INTS = ("spp", "frame", "seed", "nonfinite", "width", "height", "env_res", "schema_version")
+_INTS = ("spp", "frame", "seed", "nonfinite", "width", "height", "env_res", "schema_version",
+         "time_repeats")
 
 
 def extra_columns(rows: list[dict]) -> list[str]:

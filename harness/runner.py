@@ -31,11 +31,39 @@ frame in the run's frame list for the same (scene, estimator, spp, budget, seed)
 earlier run (resumption), its map is recomputed from that frame's saved estimate and reference
 EXRs (``images/<scene>/f<frame>/``), and flicker is NaN if they are gone.
 
+Timing (:mod:`iblbench.harness.timing` defines a cell's time).  Each cell is rendered
+``repeats`` times after a warm-up (``repeats_for`` may give a slow estimator, say ``bis`` or
+``smc``, fewer: the run then says so on stderr, and the manifest and ``time_repeats`` record
+it), and its time columns summarise those renders:
+
+- Warm-up: per frame and estimator, one render at 1 spp on a G-buffer of a few of the scene's
+  pixels (``WARMUP_PIXELS``), on a throwaway instance and seed: it compiles the estimator's
+  programs and runs each of its kernels once, and costs no whole frame.  A full-size launch may
+  still make PoCL compile a new work-group size, but that happens before the event's start
+  stamp, outside the device time (see the timing module).
+- Render 0 is the scored one: the cell's seed, on the instance that carries a temporal
+  estimator's state.  Renders 1..R-1 use seeds no cell uses (:func:`timing_seed`), so each draws
+  its own light pool rather than reusing render 0's.  A frame-by-frame estimator renders them on
+  the same instance (it keeps no state).  A temporal estimator renders them on R-1 *twin*
+  instances that follow the same sequence (reset together, every frame in order, one timing seed
+  each), so each twin takes the same path as the scored instance (initialisation on the first
+  frame, carried state later, re-initialisation where the map jumps) while the scored state is
+  never touched by a timing render.
+- Build: a frame builds its cache once (DESIGN §2), so the device time of that one build of the
+  products the estimator requires counts in each of its timed renders (``time_ms_build`` is
+  that one measurement); a frame that reused an identical frame's cache built nothing, and its
+  build is 0.
+
 Equal time.  For each budget T in ``time_budget_ms`` and each (scene, estimator), the runner
-calibrates the estimator's device time against spp (:mod:`iblbench.harness.equal_time`) and runs
-the largest spp predicted to fit in T.  Those rows carry ``time_budget_ms = T`` and the chosen
-``spp``; the calibration runs and fits are in the manifest under ``time_budget``.  A resumed run
-reuses the spp its earlier rows chose.
+calibrates the estimator's cell time (build + sample + shade) against spp
+(:mod:`iblbench.harness.equal_time`) and runs the spp it chose.  Those rows carry
+``time_budget_ms = T`` and the chosen ``spp``; the calibration runs and fits are in the manifest
+under ``time_budget``.  A resumed run reuses the spp its earlier rows chose.  At the end, each
+equal-time cell's time is compared with its budget: one outside ±10% is printed and listed in
+the manifest (``time_budget.achieved``), and the report shows the achieved time.
+
+Scores.  The reference-side work of the metrics (exposure, L*a*b*, FLIP's exposure range) is
+done once per frame (:class:`iblbench.harness.metrics.Scorer`); ``metrics`` leaves metrics out.
 """
 from __future__ import annotations
 
@@ -55,16 +83,20 @@ from importlib.metadata import PackageNotFoundError, version
 import numpy as np
 from tqdm import tqdm
 
+from iblbench.estimators.registry import get_estimator_class
 from iblbench.harness.device import get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
-from iblbench.harness.metrics import PROTOCOL, delta_e_images, exposure, flicker, score
+from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.harness.reference import Reference
 from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, image_stem,
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
-from iblbench.harness.equal_time import CALIBRATION_REPEATS, Calibration
-from iblbench.harness.sweep import frames_text, parse_estimator, select_frames
+from iblbench.harness.equal_time import CALIBRATION_REPEATS, TOLERANCE, Calibration
+from iblbench.harness.timing import (MEASURE, TimedRender, cell_times, device_ms, render_stages,
+                                     time_columns)
+from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
+                                    select_frames)
 from iblbench.reports.previews import write_heat_map, write_preview
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
@@ -77,6 +109,8 @@ DEFAULT_ESTIMATORS = ("uniform",)
 DEFAULT_SPP = (16, 64, 256)
 DEFAULT_SEEDS = 2
 WARMUP_SEED = 0xFFFFFFFF   # a seed no benchmark cell uses
+WARMUP_PIXELS = 64
+TIMING_SEED = 0x80000000   # timing renders: TIMING_SEED + 256·seed + repeat (timing_seed)
 LOCK = ".iblbench.lock"
 
 
@@ -98,7 +132,30 @@ class RunConfig:
                                                     # static scenes run frame 0
     time_budget_ms: tuple[float, ...] = ()     # equal-time cells, besides the spp list
     force: bool = False                        # recompute finished cells too
+    repeats: int = DEFAULT_REPEATS             # timed renders per cell (timing module)
+    repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats): its own count
+    metrics: tuple[str, ...] = METRICS         # ΔE76 always; see harness.metrics
     sweep: dict | None = None                  # the resolved sweep and its source (manifest)
+
+
+def timing_seed(seed: int, repeat: int) -> int:
+    """The seed of timing render ``repeat`` (1..MAX_REPEATS-1) of cell seed ``seed``: above
+    every cell's seed and below the calibration and warm-up seeds, and distinct per cell seed,
+    so that no timing render reuses a light pool another render drew."""
+    return TIMING_SEED + (int(seed) << 8) + int(repeat)
+
+
+def warm_up_gbuffer(gbuffer):
+    """A G-buffer of at most ``WARMUP_PIXELS`` of ``gbuffer``'s covered pixels, specular where
+    the scene is (so the warm-up compiles the same kernel variants)."""
+    covered = np.flatnonzero(gbuffer.mask)
+    keep = covered[:WARMUP_PIXELS].copy()
+    specular = gbuffer.ks.reshape(-1, 3)[covered].max(axis=1) > 0
+    if specular.any() and not specular[:WARMUP_PIXELS].any():
+        keep[-1] = covered[np.argmax(specular)]
+    mask = np.zeros(gbuffer.mask.size, bool)
+    mask[keep] = True
+    return dataclasses.replace(gbuffer, mask=mask.reshape(gbuffer.mask.shape))
 
 
 def _package_version(name: str) -> str:
@@ -195,6 +252,10 @@ class Runner:
                 raise InputError(None, f"--spp values must be positive integers, got {spp}")
         if config.seeds < 1:
             raise InputError(None, f"--seeds must be at least 1, got {config.seeds}")
+        for name, repeats in (("default", config.repeats),) + tuple(config.repeats_for):
+            if not 1 <= repeats <= MAX_REPEATS:
+                raise InputError(None, f"--repeats ({name}) must be in 1..{MAX_REPEATS}, "
+                                       f"got {repeats}")
         for budget in config.time_budget_ms:
             if not (math.isfinite(budget) and budget > 0):
                 raise InputError(None, f"--time-budget-ms must be positive, got {budget}")
@@ -221,6 +282,9 @@ class Runner:
             raise InputError(self.out, "--out exists and is not a directory")
         self.rows = {row_key(row): row for row in read_results(self.out)}
         self.params = {spec.label: spec.params_json() for spec in self.specs}
+        overrides = {get_estimator_class(name).name: n for name, n in config.repeats_for}
+        self.repeats = {spec.label: overrides.get(spec.cls.name, config.repeats)
+                        for spec in self.specs}
         self.previous_manifest = read_manifest(self.out)
         self.todo, self.total, self.chosen = self._plan_cells()
         self.resumed = self.total - len(self.todo)
@@ -257,6 +321,8 @@ class Runner:
                 and row.get("estimator_version") == spec.cls.version()
                 and row.get("estimator_params") == self.params[spec.label]
                 and row.get("device") == self.device_name and row.get("protocol") == PROTOCOL
+                and set(self.config.metrics) <= set(str(row.get("metrics")).split(","))
+                and row.get("time_repeats", 0) >= self.repeats[spec.label]
                 and (row.get("width"), row.get("height"), row.get("env_res"))
                 == (plan.width, plan.height, plan.env_res))
 
@@ -293,6 +359,8 @@ class Runner:
                        "spp": list(c.spp), "seeds": c.seeds, "resolution": c.resolution,
                        "frames": frames_text(c.frames),
                        "time_budget_ms": list(c.time_budget_ms), "force": c.force,
+                       "repeats": c.repeats, "repeats_for": dict(c.repeats_for),
+                       "metrics": list(c.metrics),
                        "save_inputs": c.save_inputs, "sanitize": c.sanitize, "env_res": c.env_res},
             "sweep": sweep,
             "protocol": PROTOCOL,
@@ -309,11 +377,19 @@ class Runner:
             "cells_to_run": len(self.todo),
             "stages": [],
             "skipped": [],
-            "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": Calibration.MEASURE,
+            "timing": {"measure": MEASURE, "repeats": dict(self.repeats),
+                       "cell": "median of the estimator's repeats of timed renders after "
+                               "warm-up; min and IQR beside it (harness/timing.py)",
+                       "warm_up": f"1 spp on {WARMUP_PIXELS} pixels per frame and estimator",
+                       "temporal": "timing renders on repeats - 1 twin instances per "
+                                   "sequence; the scored render is the real state's"},
+            "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": MEASURE,
                              "model": "time = a_ms + b_ms_per_spp * spp, least squares on "
                                       "relative error over the median of "
-                                      f"{CALIBRATION_REPEATS} renders per spp",
-                             "chosen": "the largest spp with predicted time <= budget",
+                                      f"{CALIBRATION_REPEATS} renders per spp, then refined on "
+                                      "renders at the chosen spp",
+                             "chosen": f"a measured spp within ±{TOLERANCE:.0%} of the budget, "
+                                       "the largest within it first (harness/equal_time.py)",
                              "calibrations": self._resumed_calibrations()}
                             if c.time_budget_ms else None),
         }
@@ -344,12 +420,18 @@ class Runner:
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
                       file=sys.stderr)
+            fewer = sorted(label for label, n in self.repeats.items() if n < self.config.repeats)
+            if fewer and self.todo:
+                print("iblbench: fewer timed renders per cell for "
+                      + ", ".join(f"{label} ({self.repeats[label]})" for label in fewer)
+                      + f" than for the others ({self.config.repeats})", file=sys.stderr)
             _remove_stale_temporaries(self.out)
             self.journal = Journal(self.out)
             self._fold()   # a journal a killed run left becomes part of the table now
             self._last_fold = time.monotonic()
             self.manifest["status"] = "running"   # a killed run leaves this, not a missing manifest
             write_manifest(self.out, self.manifest)
+            self.device_ms_total, start = 0.0, time.perf_counter()
             try:
                 with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
                           desc="iblbench run") as bar:
@@ -359,9 +441,36 @@ class Runner:
             finally:
                 self.journal.close()
             table = self._fold()
+            if self.todo:
+                wall_s = time.perf_counter() - start
+                self.manifest["timing"].update(
+                    wall_s=wall_s, device_s=self.device_ms_total / 1e3,
+                    wall_per_device=wall_s / max(self.device_ms_total / 1e3, 1e-9))
+            if self.config.time_budget_ms:
+                self.manifest["time_budget"]["achieved"] = self._check_budgets(table)
             self.manifest["status"] = "complete"
             write_manifest(self.out, self.manifest)
         return table
+
+    def _check_budgets(self, table) -> list[dict]:
+        """Each equal-time cell's time against its budget; prints those outside ±TOLERANCE."""
+        timed = table[table.time_budget_ms.notna()]
+        if timed.empty:
+            return []
+        keys = ["scene", "estimator", "time_budget_ms"]
+        times = cell_times(timed, keys)
+        spp = timed.groupby(keys, sort=False).spp.first()
+        achieved = []
+        for (scene, label, budget), ms in times.items():
+            within = abs(ms - budget) <= TOLERANCE * budget
+            achieved.append({"scene": scene, "estimator": label, "budget_ms": budget,
+                             "spp": int(spp[(scene, label, budget)]), "time_ms": ms,
+                             "within_tolerance": bool(within)})
+            if not within:
+                print(f"iblbench: {label} on {scene}: {ms:.3g} ms at {spp[(scene, label, budget)]}"
+                      f" spp against the {budget:g} ms budget ({ms / budget - 1:+.0%}), outside "
+                      f"±{TOLERANCE:.0%}", file=sys.stderr)
+        return achieved
 
     def _fold(self):
         self.journal.close()
@@ -400,12 +509,13 @@ class Runner:
         if self.config.save_inputs:
             gbuffer.save_npz(inputs / "gbuffer.npz")
         device_gbuffer = DeviceGBuffer(self.compute, gbuffer)
+        warm_up = DeviceGBuffer(self.compute, warm_up_gbuffer(gbuffer))
         required = {p for spec in self.specs for p in spec.cls.requires}
         for product in PRODUCTS:
             if product not in required and product != "env":
                 self.manifest["skipped"].append({"scene": scene.name, "stage": product,
                                                  "why": "no selected estimator requires it"})
-        sequences = {}   # temporal estimators: one instance per (label, spp, budget, seed)
+        sequences = {}   # temporal estimators: (label, spp, budget, seed) → [scored, twins...]
         self._previous_delta_e = {}   # (label, spp, budget, seed) → (frame, ΔE76 map): flicker
         cache, cache_env, cache_frame = None, None, None
         for index, frame in enumerate(plan.frames):
@@ -421,7 +531,7 @@ class Runner:
             if cache is not None and env is cache_env:
                 # The sequence returned the very same map as the frame the cache was built for.
                 cache.retarget(frame)
-                built = False
+                built = {}
                 self.manifest["skipped"].append({
                     "scene": scene.name, "frame": frame, "stage": "framecache",
                     "why": f"environment identical to frame {cache_frame}'s: its FrameCache "
@@ -430,11 +540,14 @@ class Runner:
                 cache = None   # release the previous frame's device buffers first
                 cache = FrameCache(self.compute, env, frame)
                 cache.require(sorted(required))
-                cache_env, cache_frame, built = env, frame, True
-                for stage, ms in cache.timings_ms.items():
+                cache_env, cache_frame = env, frame
+                built = {k: v for k, v in cache.timings_ms.items() if k != "pool"}
+                for stage, ms in built.items():
                     self._stage(scene.name, frame, stage, ms)
+                    self.device_ms_total += ms
             previous = plan.frames[index - 1] if index > 0 else None
-            self._run_frame(plan, device_gbuffer, cache, bar, sequences, built, previous)
+            self._run_frame(plan, device_gbuffer, warm_up, cache, built, bar, sequences,
+                            previous)
         if scene.environment.is_static:
             renders = sum(1 for key in self.todo if key[0] == scene.name)
             self.manifest["skipped"].append({
@@ -445,11 +558,22 @@ class Runner:
     def _stage(self, scene: str, frame, stage: str, ms: float) -> None:
         self.manifest["stages"].append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
 
-    def _run_frame(self, plan: _ScenePlan, gbuffer: DeviceGBuffer, cache: FrameCache, bar,
-                   sequences: dict, built: bool = True, previous_frame: int | None = None) -> None:
-        """Every cell of one frame; ``built``: whether ``cache`` was built for this frame (not
-        reused from an identical earlier frame); ``previous_frame``: the frame before this one in
-        the run's frame list (flicker), None on the first."""
+    def _timed_render(self, renderer, gbuffer, cache, spp: int, seed: int,
+                      build_ms: float) -> tuple:
+        """(estimate, TimedRender) of one render, counted in the run's device time."""
+        start = time.perf_counter()
+        estimate = renderer.render(gbuffer, cache, spp, seed)
+        host_ms = (time.perf_counter() - start) * 1e3
+        self.device_ms_total += device_ms(estimate.timings_ms)
+        return estimate, TimedRender(render_stages(build_ms, estimate.timings_ms), host_ms)
+
+    def _run_frame(self, plan: _ScenePlan, gbuffer: DeviceGBuffer, warm_up: DeviceGBuffer,
+                   cache: FrameCache, built: dict[str, float], bar, sequences: dict,
+                   previous_frame: int | None = None) -> None:
+        """Every cell of one frame; ``warm_up``: the scene's warm-up pixels; ``built``: device
+        ms per product built for this frame (empty where ``cache`` was reused from an identical
+        earlier frame); ``previous_frame``: the frame before this one in the run's frame list
+        (flicker), None on the first."""
         scene_name = plan.scene.name
         images = self.out / "images" / scene_name / f"f{cache.frame}"
         reference = self.reference.image(gbuffer, cache)
@@ -458,56 +582,49 @@ class Runner:
                                              "stage": "reference", "why": "cached"})
         else:
             self._stage(scene_name, cache.frame, "reference", self.reference.last_ms)
+            self.device_ms_total += self.reference.last_ms
         mask = gbuffer.gbuffer.mask
-        k = exposure(reference, mask)
+        scorer = Scorer(reference, mask, self.config.metrics)
         write_exr(images / "reference.exr", reference)
-        write_preview(images / "reference.png", reference, k)
+        write_preview(images / "reference.png", reference, scorer.k)
         todo = self._scene_todo(scene_name, cache.frame)
         for spec in self.specs:
             cells = [key for key in todo if key[1] == spec.label]
             if not cells:
                 continue
-            estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
-            estimator.render(gbuffer, cache, min(self.config.spp or (16,)), WARMUP_SEED)  # untimed
-            estimator.reset()
-            self._calibrate(spec, estimator, gbuffer, cache, cells)
-            for spp in sorted({self.chosen[(scene_name, spec.label, key[5])]
-                               for key in cells if key[5] is not None}):
-                # A new spp can mean new work-group sizes to compile (PoCL): keep it untimed.
-                estimator.render(gbuffer, cache, spp, WARMUP_SEED)
-                estimator.reset()
             # Per-frame builds only; a pool is drawn per render and timed as its "sample" stage.
-            # 0 where this frame reused the cache of an identical earlier frame: nothing was built.
-            build_ms = sum(cache.timings_ms.get(p, 0.0) for p in ("upload",) + spec.cls.requires
-                           if p != "pool") if built else 0.0
+            build_ms = sum(built.get(p, 0.0) for p in ("upload",) + spec.cls.requires)
+            repeats = self.repeats[spec.label]
+            estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
+            self._timed_render(spec.make(), warm_up, cache, 1, WARMUP_SEED, 0.0)
+            self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
             for key in cells:
                 _, label, spp, frame, seed, budget = key
                 if budget is not None:
                     spp = self.chosen[(scene_name, label, budget)]
-                if spec.cls.tags.temporal:
-                    sequence = (label, key[2], budget, seed)
-                    if sequence not in sequences:
-                        sequences[sequence] = spec.make()
-                        sequences[sequence].reset()
-                    renderer = sequences[sequence]
-                else:
-                    renderer = estimator
-                start = time.perf_counter()
-                estimate = renderer.render(gbuffer, cache, spp, seed)
-                frame_ms = (time.perf_counter() - start) * 1e3
-                metrics, delta_e = score(estimate, reference, mask)
                 sequence_key = (label, key[2], budget, seed)
+                if spec.cls.tags.temporal:
+                    if sequence_key not in sequences:
+                        sequences[sequence_key] = [spec.make() for _ in range(repeats)]
+                        for instance in sequences[sequence_key]:
+                            instance.reset()
+                    renderers = sequences[sequence_key]
+                else:
+                    renderers = [estimator] * repeats
+                estimate, scored = self._timed_render(renderers[0], gbuffer, cache, spp, seed,
+                                                      build_ms)
+                renders = [scored] + [
+                    self._timed_render(renderers[r], gbuffer, cache, spp, timing_seed(seed, r),
+                                       build_ms)[1] for r in range(1, repeats)]
+                metrics, delta_e = scorer.score(estimate)
                 row = {
                     "scene": scene_name, "estimator": label, "spp": int(spp), "frame": frame,
                     "seed": seed, "time_budget_ms": float("nan") if budget is None else budget,
                     "width": plan.width, "height": plan.height, "env_res": plan.env_res,
                     "estimator_params": self.params[label],
                     "estimator_version": spec.cls.version(), "schema_version": SCHEMA_VERSION,
-                    **metrics,
-                    "time_ms_build": build_ms,
-                    "time_ms_sample": estimate.timings_ms.get("sample", float("nan")),
-                    "time_ms_shade": estimate.timings_ms.get("shade", float("nan")),
-                    "time_ms_frame": frame_ms,
+                    "metrics": ",".join(self.config.metrics),
+                    **metrics, **time_columns(renders),
                     "device": self.device_name, "protocol": PROTOCOL,
                 }
                 # Estimator-specific per-frame scalars (e.g. smc's ess, reinits): extra columns
@@ -519,7 +636,7 @@ class Runner:
                     plan, sequence_key, previous_frame, stem, mask), mask)
                 self._previous_delta_e[sequence_key] = (frame, delta_e.astype(np.float32))
                 write_exr(images / f"{stem}.exr", estimate.radiance)
-                write_preview(images / f"{stem}.png", estimate.radiance, k)
+                write_preview(images / f"{stem}.png", estimate.radiance, scorer.k)
                 write_heat_map(images / f"{stem}_de76.png", delta_e)
                 # The row goes to the journal after its images: a journaled cell is complete.
                 self.journal.append(row)
@@ -550,23 +667,26 @@ class Runner:
         estimate = np.where(np.isfinite(estimate), estimate, 0.0)
         return delta_e_images(estimate, reference, mask)[0]
 
-    def _calibrate(self, spec, estimator, gbuffer, cache, cells) -> None:
-        """Choose the spp of every budget of this estimator not chosen yet (module docstring)."""
+    def _calibrate(self, spec, estimator, gbuffer, cache, cells, build_ms: float) -> None:
+        """Choose the spp of every budget of this estimator not chosen yet (module docstring);
+        ``build_ms``: the frame's build time for this estimator."""
         scene_name = cells[0][0]
         budgets = sorted({key[5] for key in cells if key[5] is not None
                           and (scene_name, spec.label, key[5]) not in self.chosen})
-        calibration = Calibration(estimator, gbuffer, cache) if budgets else None
+        if not budgets:
+            return
+        calibration = Calibration(estimator, gbuffer, cache, build_ms)
         for budget in budgets:
             fit = calibration.choose(budget)
             self.chosen[(scene_name, spec.label, budget)] = fit["chosen_spp"]
             self.manifest["time_budget"]["calibrations"].append(
                 {"scene": scene_name, "estimator": spec.label, "frame": cache.frame, **fit})
-            if fit["over_budget"]:
-                print(f"iblbench: {spec.label} on {scene_name}: even 1 spp is predicted to take "
-                      f"{fit['predicted_ms']:.3g} ms > the {budget:g} ms budget; running 1 spp",
+            if fit["over_budget"] and fit["chosen_spp"] == 1:
+                print(f"iblbench: {spec.label} on {scene_name}: even 1 spp takes "
+                      f"{fit['measured_ms']:.3g} ms > the {budget:g} ms budget; running 1 spp",
                       file=sys.stderr)
-        if calibration is not None:
-            estimator.reset()
+        self.device_ms_total += sum(device_ms(r.stages) - build_ms for r in calibration.renders)
+        estimator.reset()
 
 
 def run(config: RunConfig):

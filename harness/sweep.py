@@ -22,6 +22,12 @@ Format (every key at the top level)::
     resolution = "128x128"              # optional: "WxH" or [W, H]; default: each scene's own
     env_res = 64                        # optional cube face resolution; default: each scene's own
     time_budget_ms = [20.0]             # optional: equal-time cells instead of the spp list
+    repeats = 5                         # optional: timed renders per cell (default 5; a cell's
+                                        # time is their median, harness/timing.py); or a table
+                                        # with counts of its own for slow estimators:
+                                        # repeats = { default = 5, bis = 3, smc = 3 }
+    metrics = ["de76", "de2000", "relmse", "flip"]   # optional: the metrics to compute (ΔE76
+                                        # always; default all; leave "flip" out to save time)
     sanitize = false                    # optional: repair bad environment texels
 
 Estimator overrides are written ``name{param=value,...}``: the braces hold a TOML inline table
@@ -45,10 +51,8 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
-from iblbench.harness.metrics import PROTOCOL
-from iblbench.scenes.envmap import MAX_RES
+from iblbench.harness.metrics import METRICS, PROTOCOL, parse_metrics
 from iblbench.scenes.errors import InputError
-from iblbench.scenes.registry import MAX_IMAGE_SIDE
 from iblbench.scenes.tomlfile import read_toml
 
 if sys.version_info >= (3, 11):
@@ -57,9 +61,11 @@ else:   # pragma: no cover
     import tomli as tomllib
 
 SHIPPED = ("quick", "default", "full", "temporal")
+DEFAULT_REPEATS = 5   # timed renders per cell (harness/timing.py)
+MAX_REPEATS = 255     # the timing seeds hold the repeat in 8 bits (runner.timing_seed)
 CONFIG_PACKAGE = "iblbench.harness.configs"
 KEYS = {"protocol", "description", "scenes", "estimators", "spp", "seeds", "frames", "resolution",
-        "env_res", "time_budget_ms", "sanitize"}
+        "env_res", "time_budget_ms", "sanitize", "repeats", "metrics"}
 REQUIRED = ("protocol", "scenes", "estimators", "seeds")
 _NAME = re.compile(r"^\s*([A-Za-z0-9_.\-]+)\s*(?:\{(.*)\})?\s*$", re.S)
 
@@ -178,6 +184,9 @@ class Sweep:
     env_res: int | None = None
     time_budget_ms: tuple[float, ...] = ()
     sanitize: bool = False
+    repeats: int = DEFAULT_REPEATS
+    repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats) overrides
+    metrics: tuple[str, ...] = METRICS
     protocol: str = PROTOCOL
     description: str = ""
     source: str = ""
@@ -196,7 +205,8 @@ class Sweep:
                 "frames": frames_text(self.frames),
                 "resolution": None if self.resolution is None else list(self.resolution),
                 "env_res": self.env_res, "time_budget_ms": list(self.time_budget_ms),
-                "sanitize": self.sanitize}
+                "sanitize": self.sanitize, "repeats": self.repeats,
+                "repeats_for": dict(self.repeats_for), "metrics": list(self.metrics)}
 
 
 def config_path(name_or_path: str | os.PathLike) -> tuple[Path, str]:
@@ -217,6 +227,8 @@ def _positive_int(value) -> bool:
 
 def parse_resolution(value) -> tuple[int, int]:
     """``"WxH"`` or ``[W, H]`` → (W, H), each side at most MAX_IMAGE_SIDE; ValueError if not."""
+    from iblbench.scenes.registry import MAX_IMAGE_SIDE   # (trimesh: not at CLI start-up)
+
     if isinstance(value, str):
         parts = value.lower().split("x")
         if len(parts) == 2 and all(p.strip().isdigit() for p in parts):
@@ -230,6 +242,8 @@ def parse_resolution(value) -> tuple[int, int]:
 
 def check_env_res(value) -> int:
     """A cube-face resolution override: an integer in 1..MAX_RES; ValueError if not."""
+    from iblbench.scenes.envmap import MAX_RES
+
     if not (_positive_int(value) and value <= MAX_RES):
         raise ValueError(f"env_res must be an integer in 1..{MAX_RES}, got {value!r}")
     return int(value)
@@ -367,9 +381,21 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     sanitize = document.get("sanitize", False)
     if not isinstance(sanitize, bool):
         fail(f"sanitize must be true or false, got {sanitize!r}")
+    try:
+        repeats, repeats_for = parse_repeats(document.get("repeats", DEFAULT_REPEATS))
+    except ValueError as error:
+        fail(str(error))
+    metrics = document.get("metrics", list(METRICS))
+    if not isinstance(metrics, list) or not all(isinstance(m, str) for m in metrics):
+        fail(f"metrics must be a list of metric names ({', '.join(METRICS)}), got {metrics!r}")
+    try:
+        metrics = parse_metrics(",".join(metrics))
+    except ValueError as error:
+        fail(f"metrics: {error}")
     return Sweep(scenes=scenes, estimators=tuple(labels), spp=tuple(sorted(set(spp))), seeds=seeds,
                  frames=frames, resolution=resolution, env_res=env_res,
                  time_budget_ms=tuple(float(v) for v in budgets), sanitize=sanitize,
+                 repeats=repeats, repeats_for=repeats_for, metrics=metrics,
                  protocol=protocol, description=description, source=source)
 
 
@@ -391,6 +417,51 @@ def frames_arg(text: str) -> tuple[int, ...] | slice | None:
         return parse_frames(value)
     except ValueError as error:
         raise InputError(None, f"--frames: {error}") from None
+
+
+def parse_repeats(value) -> tuple[int, tuple[tuple[str, int], ...]]:
+    """Timed renders per cell: ``N``, or a table ``{default = N, NAME = M, ...}`` whose other
+    keys are estimator names with a count of their own (fewer for a slow estimator) → (N,
+    ((name, M), ...) sorted); ValueError naming the problem."""
+    table = value if isinstance(value, dict) else {"default": value}
+
+    def count(key, number) -> int:
+        if not (_positive_int(number) and number <= MAX_REPEATS):
+            where = "" if key == "default" else f" for {key}"
+            raise ValueError(f"repeats{where} must be an integer in 1..{MAX_REPEATS}, "
+                             f"got {number!r}")
+        return int(number)
+
+    default = count("default", table.get("default", DEFAULT_REPEATS))
+    return default, tuple(sorted((str(key).lower(), count(key, number))
+                                 for key, number in table.items() if key != "default"))
+
+
+def repeats_arg(text: str) -> tuple[int, tuple[tuple[str, int], ...]]:
+    """``--repeats``: ``N`` or ``N,NAME=M,...`` (``parse_repeats``)."""
+    import argparse
+
+    table = {}
+    for part in text.split(","):
+        key, _, number = part.rpartition("=")
+        try:
+            table[key.strip() or "default"] = int(number)
+        except ValueError:
+            table[key.strip() or "default"] = number.strip()
+    try:
+        return parse_repeats(table)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"{error} (write N or N,NAME=M,...)")
+
+
+def metrics_arg(text: str) -> tuple[str, ...]:
+    """``--metrics``: comma-separated metric names (harness.metrics)."""
+    import argparse
+
+    try:
+        return parse_metrics(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error))
 
 
 def budgets_arg(text: str) -> tuple[float, ...]:

@@ -2,7 +2,7 @@
 convergence against spp, effective samples, error per frame, and the ΔE colour bar.
 
 Every plot takes the per-cell summary of one scene (``summary`` from :mod:`.report`: one row per
-(estimator, spp) with ``time_ms``, ``rel_mse``, ``mean_delta_e76``, ``used_samples``,
+(estimator, spp) with ``time_ms`` (the cell's device time per frame), ``rel_mse``, ``mean_delta_e76``, ``used_samples``,
 ``effective_samples``, ``effective_ratio``) and writes a PNG atomically.
 """
 from __future__ import annotations
@@ -113,7 +113,7 @@ def plot_error_vs_time(path: pathlib.Path, summary, scene: str) -> None:
         ax.set_xscale("log")
         ax.set_yscale("log")
         _plain_log_axes(ax, "xy")
-        ax.set_xlabel("time per frame (ms, median over seeds)")
+        ax.set_xlabel("device time per frame (ms: build + sample + shade)")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
         _legend(ax)

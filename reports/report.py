@@ -11,7 +11,11 @@ Lu 2013 Fig. 1/2's sample picture (:mod:`.sample_picture`); then the run's manif
 
 Aggregation: a cell is (scene, estimator, spp).  Each seed's metrics are first averaged over the
 frames, then the cell's value is the median over seeds (robust to one unlucky seed); ms/frame is
-the host wall time of one render (``time_ms_frame``).  Efficiency = 1 / (relMSE · s per frame).
+the cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`, the
+median over the cell's rows of ``time_ms``), the time ``iblbench run`` prints and ``check``
+compares; the Pareto fronts and efficiency = 1 / (relMSE · s per frame) use it.  Host wall time
+is shown beside it and never ranks anything.  Equal-time cells are tabled with their budget,
+the time they achieved and whether it is within ±10% of the budget.
 """
 from __future__ import annotations
 
@@ -25,16 +29,18 @@ import markupsafe
 import numpy as np
 import pandas as pd
 
+from iblbench.harness.equal_time import TOLERANCE
 from iblbench.harness.results import load_table
+from iblbench.harness.timing import TIME, cell_times
 from iblbench.reports import plots
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
 REQUIRED_COLUMNS = ("scene", "estimator", "spp", "frame", "seed", "mean_delta_e76",
                     "mean_delta_e2000", "rel_mse", "used_samples", "effective_samples",
-                    "effective_ratio", "nonfinite", "time_ms_frame")
+                    "effective_ratio", "nonfinite", TIME, "time_ms_iqr", "time_ms_host")
 MEAN_COLUMNS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "used_samples",
-                "effective_samples", "effective_ratio", "time_ms_frame")
+                "effective_samples", "effective_ratio")
 
 _TEMPLATES = jinja2.Environment(
     loader=jinja2.PackageLoader("iblbench.reports", "templates"),
@@ -63,14 +69,18 @@ def load_run(run_dir: pathlib.Path) -> tuple[pd.DataFrame, dict | None]:
 
 def summarize(table: pd.DataFrame) -> pd.DataFrame:
     """One row per (scene, estimator, spp): per seed the mean over frames, then the median over
-    seeds; ``seeds`` counts them, ``nonfinite`` sums every row's, ``efficiency`` = 1/(relMSE·s),
-    ``pareto_rel_mse``/``pareto_delta_e76`` mark the scene's non-dominated cells (time, error)."""
+    seeds; ``seeds`` counts them, ``nonfinite`` sums every row's; ``time_ms``, ``time_ms_iqr``
+    and ``time_ms_host`` are the cell's times (:func:`iblbench.harness.timing.cell_times`);
+    ``efficiency`` = 1/(relMSE·s), ``pareto_rel_mse``/``pareto_delta_e76`` mark the scene's
+    non-dominated cells (time, error)."""
     keys = ["scene", "estimator", "spp"]
     per_seed = table.groupby(keys + ["seed"], sort=False)[list(MEAN_COLUMNS)].mean().reset_index()
     cells = per_seed.groupby(keys, sort=False)[list(MEAN_COLUMNS)].median()
     cells["seeds"] = per_seed.groupby(keys, sort=False).seed.nunique()
     cells["nonfinite"] = table.groupby(keys, sort=False).nonfinite.sum()
-    cells = cells.reset_index().rename(columns={"time_ms_frame": "time_ms"})
+    for column in (TIME, "time_ms_iqr", "time_ms_host"):
+        cells[column] = cell_times(table, keys, column)
+    cells = cells.reset_index()
     with np.errstate(divide="ignore", invalid="ignore"):
         cells["efficiency"] = 1.0 / (cells.rel_mse * cells.time_ms / 1e3)
     for column in ("rel_mse", "mean_delta_e76"):
@@ -98,22 +108,35 @@ def split_equal_time(table: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     return table[~timed], table[timed]
 
 
-def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
-    """Error at equal time: per (budget, estimator) the spp that fit, errors and ms/frame."""
+def equal_time_cells(rows: pd.DataFrame) -> pd.DataFrame:
+    """Error at equal time: per (budget, estimator) the spp run, errors (median over seeds of
+    the means over frames), the achieved device time per frame and whether it is within
+    ±TOLERANCE of the budget."""
     keys = ["time_budget_ms", "estimator", "spp"]
-    columns = ["mean_delta_e76", "mean_delta_e2000", "rel_mse", "effective_ratio", "time_ms_frame"]
+    columns = ["mean_delta_e76", "mean_delta_e2000", "rel_mse", "effective_ratio"]
     per_seed = rows.groupby(keys + ["seed"], sort=False)[columns].mean().reset_index()
-    cells = per_seed.groupby(keys, sort=False)[columns].median().reset_index()
-    cells.columns = ["budget (ms/frame)", "estimator", "spp that fits", "mean ΔE76",
-                     "mean ΔE2000", "relMSE", "effective ratio", "ms/frame (wall)"]
-    return _frame_html(cells.sort_values(["budget (ms/frame)", "relMSE"]))
+    cells = per_seed.groupby(keys, sort=False)[columns].median()
+    cells[TIME] = cell_times(rows, keys)
+    cells = cells.reset_index()
+    cells["within"] = (cells[TIME] - cells.time_budget_ms).abs() <= TOLERANCE * cells.time_budget_ms
+    return cells.sort_values(["time_budget_ms", "rel_mse"])
+
+
+def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
+    cells = equal_time_cells(rows)
+    cells["within"] = cells.within.map({True: "yes", False: "NO"})
+    cells.columns = ["budget (ms/frame)", "estimator", "spp run", "mean ΔE76", "mean ΔE2000",
+                     "relMSE", "effective ratio", "achieved ms/frame (device)",
+                     f"within ±{TOLERANCE:.0%}"]
+    return _frame_html(cells)
 
 
 _TABLE_COLUMNS = {   # summary column → header (with units)
     "estimator": "estimator", "spp": "spp", "seeds": "seeds",
     "mean_delta_e76": "mean ΔE76", "mean_delta_e2000": "mean ΔE2000", "rel_mse": "relMSE",
     "effective_ratio": "effective ratio", "effective_samples": "effective spp",
-    "used_samples": "used spp", "time_ms": "ms/frame", "efficiency": "efficiency 1/(relMSE·s)",
+    "used_samples": "used spp", "time_ms": "ms/frame (device)", "time_ms_iqr": "IQR ms",
+    "time_ms_host": "ms/frame (host wall)", "efficiency": "efficiency 1/(relMSE·s)",
     "nonfinite": "non-finite px", "pareto_rel_mse": "Pareto (relMSE)",
     "pareto_delta_e76": "Pareto (ΔE76)",
 }
@@ -348,6 +371,7 @@ def _manifest_context(manifest: dict | None) -> dict | None:
         "versions": _dict_table(manifest.get("versions") or {}),
         "estimator_versions": _dict_table(manifest.get("estimator_versions") or {}),
         "config": _dict_table(manifest.get("config") or {}),
+        "timing": _dict_table(manifest["timing"]) if manifest.get("timing") else None,
         "stages": _frame_html(stages) if len(stages) else None,
         "skipped": _frame_html(skipped) if len(skipped) else None,
         "status": manifest.get("status"),

@@ -1,4 +1,7 @@
-"""Procedural meshes and mesh files (OBJ/PLY/GLB through trimesh)."""
+"""Procedural meshes and mesh files (OBJ/PLY/GLB through trimesh).
+
+trimesh (which imports scipy) is imported by the functions that use it, so that importing the
+scene registry (``iblbench list scenes``, the CLI) stays fast."""
 from __future__ import annotations
 
 import functools
@@ -7,7 +10,6 @@ import re
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from .errors import InputError
 
@@ -21,6 +23,8 @@ _OBJ_ZERO_INDEX = re.compile(rb"^f[ \t](?:[^\n]*[ \t])?0(?=[/\s]|$)", re.MULTILI
 
 def sphere(subdivisions: int = 4, radius: float = 1.0) -> trimesh.Trimesh:
     """Icosphere centred at the origin whose vertex normals are the exact sphere normals."""
+    import trimesh
+
     mesh = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
     normals = mesh.vertices / np.linalg.norm(mesh.vertices, axis=1, keepdims=True)
     return trimesh.Trimesh(mesh.vertices, mesh.faces, vertex_normals=normals, process=False)
@@ -48,6 +52,8 @@ def blob_displacement(directions: np.ndarray) -> np.ndarray:
 @functools.lru_cache(maxsize=4)
 def _blob_arrays(subdivisions: int, amplitude: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Vertices, faces and smooth vertex normals of the blob (read-only; cached by parameters)."""
+    import trimesh
+
     base = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
     directions = base.vertices / np.linalg.norm(base.vertices, axis=1, keepdims=True)
     vertices = directions * (1.0 + amplitude * blob_displacement(directions))[:, None]
@@ -71,12 +77,16 @@ def blob(subdivisions: int = BLOB_SUBDIVISIONS, amplitude: float = BLOB_AMPLITUD
     The default has 327,680 triangles.  The geometry is cached per (subdivisions, amplitude); each
     call returns a fresh ``Trimesh`` over copies of it, so callers may modify their mesh.
     """
+    import trimesh
+
     vertices, faces, normals = _blob_arrays(int(subdivisions), float(amplitude))
     return trimesh.Trimesh(vertices.copy(), faces.copy(), vertex_normals=normals.copy(), process=False)
 
 
 def torus(major_radius: float = 1.0, minor_radius: float = 0.4, major_sections: int = 96, minor_sections: int = 48) -> trimesh.Trimesh:
     """Torus around the +Y axis (the ring lies in the XZ plane) with exact analytic vertex normals."""
+    import trimesh
+
     mesh = trimesh.creation.torus(major_radius, minor_radius, major_sections, minor_sections)
     # trimesh builds the ring around +Z; rotate +Z onto +Y.
     mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1.0, 0.0, 0.0]))
@@ -90,6 +100,8 @@ def torus(major_radius: float = 1.0, minor_radius: float = 0.4, major_sections: 
 
 def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     """One triangle mesh from a file; a multi-object file is concatenated into a single mesh."""
+    import trimesh
+
     path = Path(path)
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(path, f"unsupported mesh format {path.suffix!r}; use one of {', '.join(MESH_SUFFIXES)}")

@@ -98,8 +98,9 @@ def test_tightening_one_budget_fails_and_names_the_rule(quick_run, tmp_path):
 def row(scene, estimator, spp, seed=0, frame=0, **metrics) -> dict:
     values = {"mean_delta_e76": 1.0, "mean_delta_e2000": 1.0, "rel_mse": 0.01, "flip": 0.1,
               "used_samples": spp, "effective_samples": spp * 0.8, "effective_ratio": 0.8,
-              "evaluations": spp, "nonfinite": 0, "time_ms_build": 1.0, "time_ms_sample": 1.0,
-              "time_ms_shade": 1.0, "time_ms_frame": 2.0}
+              "evaluations": spp, "nonfinite": 0, "time_ms": 3.0, "time_ms_min": 3.0,
+              "time_ms_iqr": 0.0, "time_ms_build": 1.0, "time_ms_sample": 1.0,
+              "time_ms_shade": 1.0, "time_ms_host": 2.0, "time_repeats": 5, "metrics": "de76"}
     values.update(metrics)
     return {column: None for column in COLUMNS} | values | {
         "scene": scene, "estimator": estimator, "spp": spp, "seed": seed, "frame": frame,
@@ -202,8 +203,8 @@ nonfinite = 0
 def test_time_ratio_is_a_ratio_of_medians_within_the_run(tmp_path, capsys):
     rows = []
     for seed, (mine, base) in enumerate([(1.0, 1.0), (2.0, 1.0), (10.0, 1.0)]):
-        rows += [row("s", "fast", 16, seed=seed, time_ms_shade=base, time_ms_frame=100.0),
-                 row("s", "slow", 16, seed=seed, time_ms_shade=mine, time_ms_frame=100.0)]
+        rows += [row("s", "fast", 16, seed=seed, time_ms_shade=base, time_ms=100.0),
+                 row("s", "slow", 16, seed=seed, time_ms_shade=mine, time_ms=100.0)]
     rows.append(row("other", "slow", 16, time_ms_shade=1.0))   # no 'fast' baseline here
     out_dir = tmp_path / "run"
     out_dir.mkdir()
@@ -220,7 +221,8 @@ max_time_ratio = {{ baseline = "fast", metric = "time_ms_shade", max = {limit} }
     assert status == 0 and list(checks.value) == ["2"]   # median 2 / median 1, not mean 13/3
     status, checks, _, _ = run_check(out_dir, rule.format(limit=1.5), capsys)
     assert status == 1 and list(checks.result) == ["FAIL"]
-    # The metric defaults to time_ms_frame: 100 / 100.
+    assert "(2 / 1 ms)" in checks.metric.iloc[0]   # both cells' times beside the ratio
+    # The metric defaults to time_ms, the cell's device time per frame: 100 / 100.
     status, checks, _, _ = run_check(
         out_dir, rule.format(limit=1.01).replace('metric = "time_ms_shade", ', ""), capsys)
     assert status == 0 and list(checks.value) == ["1"]
@@ -280,8 +282,10 @@ def test_equal_time_rows_are_left_out(tmp_path):
 
 @pytest.mark.parametrize("text, needle", [
     ("[[rule]]\nscene = 'a'\nestimator = 'b'\nspp = 16\nmax_delta_e = 3\n", "max_delta_e"),
-    ("[[rule]]\nscene = 'a'\nestimator = 'b'\nspp = 16\nmax_time_ms_frame = 3\n",
-     "max_time_ms_frame"),                                     # absolute times are not budgeted
+    ("[[rule]]\nscene = 'a'\nestimator = 'b'\nspp = 16\nmax_time_ms = 3\n",
+     "max_time_ms"),                                           # absolute times are not budgeted
+    ("[[rule]]\nscene = 'a'\nestimator = 'b'\nspp = 16\nmax_time_repeats = 3\n",
+     "max_time_repeats"),
     ("[[rule]]\nscene = 'a'\nestimator = 'b'\nspp = 16\n", "no limit"),
     ("[[rule]]\nscene = 'a'\nspp = 16\nmax_rel_mse = 1\n", "estimator"),
     ("[[rule]]\nscene = 'a'\nestimator = 'b'\nspp = 0\nmax_rel_mse = 1\n", "spp"),

@@ -21,13 +21,14 @@ from iblbench.scenes.imageio import read_exr, write_exr, write_hdr
 
 TINY = ["--res", "16x16", "--env-res", "8", "--no-progress"]
 RUN_FLAGS = ("--scene", "--estimator", "--spp", "--seeds", "--res", "--env-res", "--out",
-             "--device", "--save-inputs", "--sanitize", "--no-progress")
+             "--device", "--save-inputs", "--sanitize", "--no-progress", "--repeats", "--metrics",
+             "--no-flip")
 RESULT_COLUMNS = {
     "scene", "estimator", "estimator_version", "spp", "frame", "seed", "mean_delta_e76",
     "mean_delta_e2000", "rel_mse", "flip", "flicker", "used_samples", "effective_samples", "effective_ratio",
-    "evaluations", "nonfinite", "time_ms_build", "time_ms_sample", "time_ms_shade",
-    "time_ms_frame", "device", "protocol", "schema_version", "time_budget_ms", "width", "height",
-    "env_res", "estimator_params",
+    "evaluations", "nonfinite", "time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build",
+    "time_ms_sample", "time_ms_shade", "time_ms_host", "time_repeats", "device", "protocol",
+    "schema_version", "time_budget_ms", "width", "height", "env_res", "estimator_params", "metrics",
 }
 
 
@@ -108,6 +109,32 @@ def test_run_help_lists_every_flag(cli):
     assert result.returncode == 0, result.stderr
     for flag in RUN_FLAGS:
         assert flag in result.stdout, f"{flag} missing from 'run --help':\n{result.stdout}"
+
+
+def test_help_imports_no_heavy_module():
+    """``iblbench --help`` builds every subparser without importing colour-science, scipy,
+    trimesh, OpenCL or the stress battery (they cost seconds at start-up)."""
+    code = ("import contextlib, io, sys\n"
+            "from iblbench.harness.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+            "    main(['--help'])\n"
+            "heavy = ('colour', 'scipy', 'trimesh', 'pyopencl', 'matplotlib', 'flip_evaluator',\n"
+            "         'iblbench.harness.stress')\n"
+            "print(','.join(sorted(m for m in sys.modules if m.split('.')[0] in heavy\n"
+            "                      or m in heavy)))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "", result.stdout
+
+
+def test_stress_help_still_lists_the_cases(cli):
+    result = cli("stress", "--help")
+    assert result.returncode == 0, result.stderr
+    assert "sun-1e9" in result.stdout and "cases:" in result.stdout, result.stdout
+    result = cli("stress", "--case", "no-such-case")
+    assert result.returncode == 2 and "invalid choice: 'no-such-case'" in result.stderr
+    assert "sun-1e9" in result.stderr
 
 
 def test_list_help_lists_every_choice(cli):
@@ -265,8 +292,9 @@ def test_tiny_run_results_table(tiny_run):
     assert (table["effective_samples"] <= table["used_samples"]).all(), table
     assert (table["used_samples"] > 0).all()
     assert (table["effective_samples"] >= 0).all()
-    for column in ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "time_ms_frame"):
+    for column in ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "time_ms", "time_ms_host"):
         assert np.isfinite(table[column]).all() and (table[column] >= 0).all(), column
+    assert (table["time_repeats"] == 5).all()
 
 
 def test_tiny_run_manifest(tiny_run):

@@ -109,3 +109,42 @@ def test_delta_e2000_matches_sharma_test_data(lab_a, lab_b, expected):
     assert de2000 == pytest.approx(expected, abs=1e-4)
     assert de76 == pytest.approx(np.linalg.norm(np.subtract(lab_a, lab_b)))
 
+
+
+class CountingFlip:
+    """A stand-in for flip_evaluator that counts its evaluations (and scores the mean absolute
+    difference, so the scores still mean something)."""
+
+    def __init__(self):
+        self.calls = []
+
+    def evaluate(self, reference, test, mode, applyMagma=False, computeMeanError=True,
+                 parameters=None):
+        self.calls.append("range" if parameters is None else "image")
+        error = np.abs(np.asarray(test) - np.asarray(reference)).mean(axis=-1, keepdims=True)
+        return error, None, {"startExposure": -1.0, "stopExposure": 1.0, "numExposures": 3}
+
+
+def test_a_scorer_evaluates_flip_once_per_estimate_and_its_range_once(monkeypatch):
+    fake = CountingFlip()
+    monkeypatch.setattr(metrics, "_flip", lambda: fake)
+    reference = grey_image(np.linspace(0.5, 2.0, 16))
+    mask = np.ones((4, 4), bool)
+    scorer = metrics.Scorer(reference, mask)
+    for scale in (1.0, 1.1, 1.5):
+        estimate = Estimate(reference * scale, np.ones((4, 4), np.float32),
+                            np.ones((4, 4), np.float32), 1.0, 0, {})
+        row, _ = scorer.score(estimate)
+        assert np.isfinite(row["flip"])
+    assert fake.calls == ["range", "image", "image", "image"]
+    # Left out, FLIP is never evaluated and scores NaN; so is ΔE2000.
+    fake.calls.clear()
+    row, _ = metrics.score(estimate, reference, mask, metrics.parse_metrics("relmse"))
+    assert fake.calls == [] and np.isnan(row["flip"]) and np.isnan(row["mean_delta_e2000"])
+    assert np.isfinite(row["mean_delta_e76"]) and np.isfinite(row["rel_mse"])
+
+
+def test_parse_metrics_keeps_de76_and_names_the_valid_ones():
+    assert metrics.parse_metrics("flip, DE2000") == ("de76", "de2000", "flip")
+    with pytest.raises(ValueError, match="unknown metric 'psnr'; valid: de76,de2000,relmse,flip"):
+        metrics.parse_metrics("de76,psnr")

@@ -109,12 +109,18 @@ def test_summary_table_lists_every_cell(reported):
     summary = next(t for t in page.tables if "summary" in t["class"])
     header, *rows = summary["rows"]
     for column in ("estimator", "spp", "mean ΔE76", "mean ΔE2000", "relMSE", "effective ratio",
-                   "ms/frame", "efficiency 1/(relMSE·s)"):
+                   "ms/frame (device)", "IQR ms", "ms/frame (host wall)",
+                   "efficiency 1/(relMSE·s)"):
         assert column in header, column
     cells = {(r[header.index("estimator")], int(r[header.index("spp")])) for r in rows}
     assert cells == {(e, s) for e in ESTIMATORS for s in SPP}
-    # The efficiency column is 1/(relMSE·s) of the table's own relMSE and ms/frame.
+    # ms/frame is the cell's device time: the median over its rows of time_ms.
     table, _ = load_run(out)
+    medians = table.groupby(["estimator", "spp"]).time_ms.median()
+    for r in rows:
+        cell = (r[header.index("estimator")], int(r[header.index("spp")]))
+        assert r[header.index("ms/frame (device)")] == f"{medians[cell]:.4g}"
+    # The efficiency column is 1/(relMSE·s) of the table's own relMSE and ms/frame.
     for r in summarize(table).itertuples():
         assert r.efficiency == pytest.approx(1e3 / (r.rel_mse * r.time_ms))
 
@@ -161,7 +167,8 @@ def test_summary_marks_a_dominated_cell():
             rows.append({"scene": "s", "estimator": estimator, "spp": spp, "frame": 0,
                          "seed": seed, "mean_delta_e76": rel * 10, "mean_delta_e2000": rel * 8,
                          "rel_mse": rel, "used_samples": spp, "effective_samples": spp / 2,
-                         "effective_ratio": 0.5, "nonfinite": 0, "time_ms_frame": ms + seed * 0.1})
+                         "effective_ratio": 0.5, "nonfinite": 0, "time_ms": ms + seed * 0.1,
+                         "time_ms_iqr": 0.0, "time_ms_host": 9.0})
     cells = summarize(pd.DataFrame(rows)).set_index(["estimator", "spp"])
     # b@4 (2.05 ms, 0.6) is slower and worse than a@4 (1.05 ms, 0.5); a@16 (4.05 ms, 0.1) is
     # slower and worse than b@16 (3.05 ms, 0.05).

@@ -13,13 +13,13 @@ def synthetic_cells(balanced_de=6.4, mis_de=(9.0, 7.0, 5.0, 3.5, 2.5), balanced_
     rows = []
     for spp in reproduce.LU2013_SPP:
         rows.append(dict(scene="s", estimator="uniform", spp=spp, mean_delta_e76=11.0 * (60 / spp) ** 0.5,
-                         used=spp, effective=0.6 * spp, effective_ratio=0.6, time_ms_frame=spp / 6.0))
+                         used=spp, effective=0.6 * spp, effective_ratio=0.6, time_ms=spp / 6.0))
         rows.append(dict(scene="s", estimator="balanced", spp=spp, mean_delta_e76=balanced_de * (60 / spp) ** 0.5,
                          used=spp, effective=0.8 * spp, effective_ratio=0.8,
-                         time_ms_frame=balanced_ms * spp / 60))
+                         time_ms=balanced_ms * spp / 60))
     for spp, de in zip(reproduce.LU2013_MIS_SPP, mis_de):
         rows.append(dict(scene="s", estimator="balanced_mis", spp=spp, mean_delta_e76=de, used=spp,
-                         effective=0.7 * spp, effective_ratio=0.7, time_ms_frame=spp / 5.0))
+                         effective=0.7 * spp, effective_ratio=0.7, time_ms=spp / 5.0))
     return pd.DataFrame(rows)
 
 
@@ -60,7 +60,7 @@ def test_summary_has_verdict_table_and_plots(tmp_path):
         title="test", setup_differences=["a difference"],
         tables={"fig2": fig2[["scene", "estimator", "spp", "mean_delta_e76", "used", "effective"]],
                 "fig3": fig3[["scene", "spp", "mean_delta_e76"]],
-                "timing": fig2[["scene", "estimator", "time_ms_frame"]]},
+                "timing": fig2[["scene", "estimator", "time_ms"]]},
         verdicts=reproduce.lu2013_verdicts(cells, ["s"]), results=cells)
     md = write_summary(tmp_path, result).read_text()
     html = (tmp_path / "summary.html").read_text()

@@ -21,7 +21,7 @@ from iblbench.estimators.uniform import Uniform
 from iblbench.harness.cli import main
 from iblbench.harness.results import (DETERMINISTIC_COLUMNS, JOURNAL, Journal, read_journal,
                                       read_results, row_key, write_results)
-from iblbench.harness.runner import WARMUP_SEED, RunConfig, run
+from iblbench.harness.runner import RunConfig, run
 from iblbench.scenes.errors import InputError
 
 TINY = """\
@@ -76,7 +76,7 @@ def test_force_recomputes(tmp_path, tiny_config, capsys):
     first, _ = cli_run(capsys, tiny_config, out)
     forced, err = cli_run(capsys, tiny_config, out, "--force")
     assert "resumed" not in err and len(forced) == len(first)
-    assert not np.array_equal(first.time_ms_frame, forced.time_ms_frame)
+    assert not np.array_equal(first.time_ms_host, forced.time_ms_host)
     pd.testing.assert_frame_equal(first[DETERMINISTIC_COLUMNS], forced[DETERMINISTIC_COLUMNS])
 
 
@@ -216,14 +216,15 @@ def test_a_temporal_estimator_resumes_whole_sequences(tmp_path, temporal):
     write_results(out, rows)
     temporal.log.clear()
     second = run(config).set_index(["estimator", "frame", "seed"]).sort_index()
-    renders = [entry for entry in temporal.log if entry[1] != "reset" and entry[2] != WARMUP_SEED]
-    # The whole seed-0 sequence again, in frame order, on one fresh instance reset first.
+    renders = [entry for entry in temporal.log if entry[1] != "reset" and entry[2] < 2]
+    # The whole seed-0 sequence again, in frame order, on one fresh instance reset first (the
+    # other renders are the warm-up's and the timing twins', on seeds no cell uses).
     assert [(frame, seed) for _, frame, seed in renders] == [(0, 0), (1, 0), (2, 0)]
     instance = renders[0][0]
     assert {entry[0] for entry in renders} == {instance}
     assert temporal.log.index((instance, "reset")) < temporal.log.index(renders[0])
     before = first.set_index(["estimator", "frame", "seed"]).sort_index()
-    changed = before.time_ms_frame != second.time_ms_frame
+    changed = before.time_ms_host != second.time_ms_host
     assert sorted(changed[changed].index) == sorted([
         (temporal.name, 0, 0), (temporal.name, 1, 0), (temporal.name, 2, 0), ("uniform", 1, 0)])
 
@@ -241,14 +242,14 @@ def test_equal_time_gives_the_slower_estimator_fewer_samples(tmp_path, capsys):
     assert table.spp["balanced_mis"] < table.spp["uniform"], table.spp
     manifest = json.loads((out / "manifest.json").read_text())
     budget = manifest["time_budget"]
-    assert budget["budgets_ms"] == [2.0] and "sample and shade" in budget["measure"]
+    assert budget["budgets_ms"] == [2.0] and "build + sample + shade" in budget["measure"]
     fits = {entry["estimator"]: entry for entry in budget["calibrations"]}
     assert set(fits) == {"uniform", "balanced_mis"}
     for label, fit in fits.items():
         assert fit["chosen_spp"] == table.spp[label] and fit["budget_ms"] == 2.0
         assert fit["b_ms_per_spp"] > 0 and fit["a_ms"] >= 0
-        assert fit["predicted_ms"] <= 2.0 or fit["chosen_spp"] == 1
-        assert [run["spp"] for run in fit["runs"]][:4] == [1, 4, 16, 64]
+        assert fit["measured_ms"] <= 2.2 or fit["chosen_spp"] == 1
+        assert {1, 4, 16, 64} <= {run["spp"] for run in fit["runs"]}
         assert all(len(run["device_ms"]) == 3 for run in fit["runs"])
     assert fits["balanced_mis"]["b_ms_per_spp"] > fits["uniform"]["b_ms_per_spp"]
     # Resuming keeps the chosen spp and the recorded calibration.

@@ -1,5 +1,6 @@
 """The runner in-process: resumption, refusing ambiguous scenes and unusable --out, the ΔE trend."""
 import numpy as np
+import pandas as pd
 import pytest
 import trimesh
 
@@ -19,8 +20,8 @@ def test_rerun_keeps_finished_cells_and_adds_new_ones(tmp_path):
     second = run(tiny(tmp_path, spp=(4, 8)))
     assert sorted(second.spp) == [4, 8]
     kept = second[second.spp == 4].iloc[0]
-    # Not recomputed: the wall time of the first render is carried over unchanged.
-    assert kept.time_ms_frame == first.iloc[0].time_ms_frame
+    # Not recomputed: the measured times of the first run are carried over unchanged.
+    assert kept.time_ms_host == first.iloc[0].time_ms_host
     third = run(tiny(tmp_path, spp=(8,)))
     assert sorted(third.spp) == [4, 8]   # a narrower rerun does not drop other cells
 
@@ -65,3 +66,21 @@ def test_a_camera_that_sees_no_geometry_is_refused_before_out_is_made(tmp_path):
     with pytest.raises(InputError, match="the camera sees none of the mesh .*ball.obj"):
         run(tiny(tmp_path / "out", scenes=(scene,)))
     assert not (tmp_path / "out").exists()
+
+
+def test_metrics_and_repeats_flags_and_what_a_rerun_keeps(tmp_path, capsys):
+    from iblbench.harness.cli import main
+
+    flags = ["run", "--scene", "sphere-sun", "--estimator", "uniform", "--spp", "4", "--seeds", "1",
+             "--res", "16x16", "--env-res", "8", "--no-progress", "--out", str(tmp_path)]
+    assert main(flags + ["--no-flip", "--repeats", "2"]) == 0
+    table = pd.read_parquet(tmp_path / "results.parquet")
+    assert table.flip.isna().all() and (table.metrics == "de76,de2000,relmse").all()
+    assert (table.time_repeats == 2).all() and table.mean_delta_e2000.notna().all()
+    capsys.readouterr()
+    # Fewer repeats and fewer metrics than the row has: resumed.  More of either: recomputed.
+    assert main(flags + ["--metrics", "de76", "--repeats", "1"]) == 0
+    assert "resumed: 1 cells already done, 0 to run" in capsys.readouterr().err
+    assert main(flags + ["--no-flip"]) == 0
+    assert "resumed" not in capsys.readouterr().err
+    assert (pd.read_parquet(tmp_path / "results.parquet").time_repeats == 5).all()

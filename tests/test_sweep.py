@@ -1,6 +1,7 @@
 """Sweep configs: estimator overrides, the shipped configs, every config error, CLI overrides."""
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -10,7 +11,7 @@ import pytest
 import trimesh
 
 from iblbench.harness.cli import main
-from iblbench.harness.sweep import load_sweep, parse_estimator
+from iblbench.harness.sweep import load_sweep, parse_estimator, repeats_arg
 from iblbench.scenes.errors import InputError
 
 VALID = """\
@@ -96,6 +97,14 @@ def test_config_fields(tmp_path):
                              'description = "d"\n'))
     assert sweep.resolution == (20, 12) and sweep.frames == (2, 3, 4)
     assert sweep.time_budget_ms == (5.0,) and sweep.sanitize and sweep.description == "d"
+    assert sweep.repeats == 5 and sweep.metrics == ("de76", "de2000", "relmse", "flip")
+    sweep = load_sweep(write(tmp_path, VALID + 'repeats = 3\nmetrics = ["flip", "relmse"]\n'))
+    assert sweep.repeats == 3 and sweep.metrics == ("de76", "relmse", "flip")   # ΔE76 always
+    sweep = load_sweep(write(tmp_path, VALID + "repeats = { default = 7, SMC = 2, bis = 3 }\n"))
+    assert sweep.repeats == 7 and sweep.repeats_for == (("bis", 3), ("smc", 2))
+    assert repeats_arg("4,smc=2") == (4, (("smc", 2),)) and repeats_arg("6") == (6, ())
+    with pytest.raises(argparse.ArgumentTypeError, match="repeats for smc must be an integer"):
+        repeats_arg("4,smc=0")
     assert load_sweep(write(tmp_path, VALID + "frames = [3, 1]\n")).frames == (1, 3)
 
 
@@ -126,6 +135,9 @@ def test_relative_scene_files_are_found_from_the_config_folder(tmp_path):
     (lambda t: t + 'frames = "some"\n', "frames must be"),
     (lambda t: t + "time_budget_ms = -1\n", "time_budget_ms must be a positive number"),
     (lambda t: t + 'sanitize = "yes"\n', "sanitize must be true or false"),
+    (lambda t: t + "repeats = 0\n", "repeats must be an integer in 1..255"),
+    (lambda t: t + "repeats = { smc = 1.5 }\n", "repeats for smc must be an integer in 1..255"),
+    (lambda t: t + 'metrics = ["de76", "psnr"]\n', "unknown metric 'psnr'"),
     (lambda t: t.replace('["sphere-sun"]', '["no-such-scene"]'), "unknown scene 'no-such-scene'"),
     (lambda t: t.replace('["sphere-sun"]', '["missing.toml"]'), "not found"),
     (lambda t: t.replace('["sphere-sun"]', "[]"), "scenes must be a non-empty list"),

@@ -1,0 +1,92 @@
+"""The one definition of a cell's time (DESIGN §3 "Timing"), shared by the runner, equal-time
+calibration, the terminal summary, ``iblbench check``, the report and ``reproduce``.
+
+**A render's time** is the device time of the stages its estimator needs for one frame, from
+OpenCL profiling events (:func:`device_ms`):
+
+- ``build``: the frame-cache products the estimator requires (the map upload, the CDFs; built
+  once per frame, so the one build's time counts in each render of the frame), 0 on a frame
+  that reused an identical earlier frame's cache, plus a ``build`` stage the estimate reports
+  itself, if any;
+- ``sample``: the estimate's ``sample`` stage (e.g. a light pool's draw);
+- ``shade``: the estimate's ``shade`` stage.
+
+Any other stage an estimate reports counts in the total only.  A stage an estimator does not
+have (``bis`` and ``smc`` report no ``sample``) is NaN in its column and 0 in the total.  Kernel
+compilation is never in it: PoCL compiles a new work-group size between an event's *queued* and
+*start* stamps (measured: 80-130 ms there, the start-to-end time unchanged), and a profiled
+stage runs from start to end.
+
+**A cell's time** (one results row) is over ``repeats`` timed renders after warm-up
+(:func:`time_columns`): ``time_ms`` is the median of their device times, ``time_ms_min`` the
+minimum, ``time_ms_iqr`` the interquartile range (NumPy's linear quantiles), ``time_ms_build``,
+``time_ms_sample`` and ``time_ms_shade`` the medians of each stage (so they need not add up to
+``time_ms``), ``time_ms_host`` the median host wall time of the render calls (read-back
+included, builds excluded; never used to rank estimators) and ``time_repeats`` the number of
+renders.  How the runner gets those renders without disturbing a temporal estimator's state is
+in :mod:`iblbench.harness.runner`.
+
+**Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
+time is the median of the rows' ``time_ms`` (:func:`median_time`, :func:`cell_times`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+STAGES = ("build", "sample", "shade")
+TIME = "time_ms"
+COLUMNS = ("time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build", "time_ms_sample",
+           "time_ms_shade", "time_ms_host", "time_repeats")
+MEASURE = ("device time per frame of the stages the estimator needs: build + sample + shade "
+           "(OpenCL profiling events), ms")
+
+
+@dataclasses.dataclass(frozen=True)
+class TimedRender:
+    """One render's stages (device ms, ``build`` included) and its host wall time."""
+
+    stages: dict[str, float]
+    host_ms: float
+
+
+def render_stages(build_ms: float, timings_ms: dict[str, float]) -> dict[str, float]:
+    """A render's stages: the estimate's ``timings_ms`` with the frame's build added to
+    ``build``."""
+    stages = dict(timings_ms)
+    stages["build"] = build_ms + stages.get("build", 0.0)
+    return stages
+
+
+def device_ms(stages: dict[str, float]) -> float:
+    """A render's device time: the sum of its stages (missing or non-finite ones count 0)."""
+    return float(sum(v for v in stages.values() if math.isfinite(v)))
+
+
+def time_columns(renders: list[TimedRender]) -> dict:
+    """The results row's time columns of one cell from its timed renders (module docstring)."""
+    if not renders:
+        raise ValueError("a cell needs at least one timed render")
+    totals = np.array([device_ms(r.stages) for r in renders])
+    q25, median, q75 = np.percentile(totals, [25, 50, 75])
+    columns = {"time_ms": float(median), "time_ms_min": float(totals.min()),
+               "time_ms_iqr": float(q75 - q25)}
+    for stage in STAGES:
+        values = [r.stages[stage] for r in renders if stage in r.stages]
+        columns[f"time_ms_{stage}"] = float(np.median(values)) if values else math.nan
+    columns["time_ms_host"] = float(np.median([r.host_ms for r in renders]))
+    columns["time_repeats"] = len(renders)
+    return columns
+
+
+def median_time(values) -> float:
+    """One cell's time from its rows' times: their median (NaN if any is NaN: fail closed)."""
+    return float(np.median(np.asarray(values, np.float64)))
+
+
+def cell_times(table, keys, column: str = TIME):
+    """The time of each cell of ``table`` grouped by ``keys``: :func:`median_time` of
+    ``column`` over the cell's rows (a pandas Series indexed by ``keys``)."""
+    return table.groupby(list(keys), sort=False)[column].agg(median_time)

@@ -1,0 +1,262 @@
+"""One definition of a cell's time (harness/timing.py) in the runner, equal-time calibration, the
+terminal summary, ``check`` and the report.
+
+Fake estimators report known stage times, so every time column can be checked against values
+worked out by hand; the frame's build is made known by a FrameCache whose upload time is set.
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+
+from iblbench.estimators.base import Estimate, Estimator, Tags
+from iblbench.estimators.registry import _registry, register
+from iblbench.harness import budgets, cli, runner
+from iblbench.harness.equal_time import TOLERANCE, Calibration
+from iblbench.harness.framecache import FrameCache
+from iblbench.harness.runner import TIMING_SEED, WARMUP_PIXELS, WARMUP_SEED, RunConfig, run
+from iblbench.harness.timing import TimedRender, time_columns
+from iblbench.reports.report import equal_time_cells, summarize
+from iblbench.scenes.imageio import read_exr
+
+BUILD = 0.5                                               # upload ms of every frame's build
+STAGES = [(2.0, 10.0), (1.0, 30.0), (4.0, 20.0), (3.0, 50.0), (5.0, 40.0)]   # (sample, shade)
+
+
+def fake_estimate(gbuffer, spp, value, timings) -> Estimate:
+    shape = gbuffer.shape
+    return Estimate(np.full(shape + (3,), value, np.float32), np.full(shape, spp, np.float32),
+                    np.full(shape, spp, np.float32), float(spp), 0, dict(timings))
+
+
+class Scripted(Estimator):
+    """Render k of an instance reports ``STAGES[k]`` (the warm-up runs on its own instance)."""
+
+    name = "scripted_timing_test"
+    tags = Tags(unbiased=False)
+    log: list = []   # (seed, spp, pixels) of every render
+
+    def __init__(self, params=None, **overrides):
+        super().__init__(params, **overrides)
+        self.renders = 0
+
+    def render(self, gbuffer, cache, spp, seed):
+        self.log.append((seed, spp, gbuffer.count))
+        sample, shade = STAGES[self.renders % len(STAGES)]
+        self.renders += 1
+        return fake_estimate(gbuffer, spp, 0.5, {"sample": sample, "shade": shade})
+
+
+class Linear(Estimator):
+    """A device cost of 0.7 + 0.013·spp^POWER ms (shade), known exactly."""
+
+    name = "linear_timing_test"
+    tags = Tags(unbiased=False)
+    POWER = 1.0
+
+    def render(self, gbuffer, cache, spp, seed):
+        return fake_estimate(gbuffer, spp, 0.5, {"shade": 0.7 + 0.013 * spp ** self.POWER})
+
+
+class Counting(Estimator):
+    """Temporal: its image is the number of frames this instance has rendered, so a scored
+    image shows whether anything else rendered on the scored instance."""
+
+    name = "counting_timing_test"
+    tags = Tags(unbiased=False, temporal=True)
+    log: list = []
+    made = itertools.count()   # serial numbers: id() is reused once an instance is freed
+
+    def __init__(self, params=None, **overrides):
+        super().__init__(params, **overrides)
+        self.serial = next(self.made)
+        self.frames = 0
+
+    def reset(self):
+        self.frames = 0
+
+    def render(self, gbuffer, cache, spp, seed):
+        self.frames += 1
+        self.log.append((self.serial, cache.frame, seed))
+        return fake_estimate(gbuffer, spp, float(self.frames), {"shade": 1.0})
+
+
+@pytest.fixture
+def fakes():
+    for cls in (Scripted, Linear, Counting):
+        register(cls)
+    Counting.log.clear()
+    Scripted.log.clear()
+    yield
+    for cls in (Scripted, Linear, Counting):
+        _registry.pop(cls.name)
+
+
+@pytest.fixture
+def known_builds(monkeypatch):
+    """Every frame's build reports BUILD as its upload time (and nothing else)."""
+    class KnownBuild(FrameCache):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.timings_ms = {"upload": BUILD}
+
+    monkeypatch.setattr(runner, "FrameCache", KnownBuild)
+
+
+def tiny(out, estimators, **overrides) -> RunConfig:
+    config = dict(out=out, scenes=("sphere-sun",), estimators=estimators, spp=(4,), seeds=1,
+                  resolution=(16, 16), env_res=8, progress=False, metrics=("de76",))
+    return RunConfig(**(config | overrides))
+
+
+def test_time_columns_are_median_min_and_iqr_of_the_stage_events(tmp_path, fakes, known_builds):
+    row = run(tiny(tmp_path, ("scripted_timing_test",))).iloc[0]
+    # Render k: the frame's build (0.5) + sample + shade → 12.5, 31.5, 24.5, 53.5, 45.5 ms.
+    assert row.time_ms == pytest.approx(31.5)                  # the middle of five
+    assert row.time_ms_min == pytest.approx(12.5)
+    assert row.time_ms_iqr == pytest.approx(45.5 - 24.5)       # linear quartiles of five: 2nd, 4th
+    assert row.time_ms_build == pytest.approx(BUILD)           # median of each stage on its own
+    assert row.time_ms_sample == pytest.approx(3.0)
+    assert row.time_ms_shade == pytest.approx(30.0)
+    assert row.time_repeats == 5 and row.time_ms_host > 0
+    assert math.isnan(row.flip) and math.isnan(row.mean_delta_e2000) and row.metrics == "de76"
+    # The warm-up rendered 1 spp on a few pixels, never the whole frame; then five full renders.
+    warm_up = [entry for entry in Scripted.log if entry[0] == WARMUP_SEED]
+    pixels = Scripted.log[-1][2]
+    assert warm_up == [(WARMUP_SEED, 1, WARMUP_PIXELS)] and pixels > WARMUP_PIXELS
+    assert [entry[1:] for entry in Scripted.log if entry[0] != WARMUP_SEED] == [(4, pixels)] * 5
+
+
+def test_stages_an_estimator_lacks_are_nan_and_count_zero():
+    renders = [TimedRender({"build": 1.0, "shade": 2.0}, 5.0),
+               TimedRender({"build": 1.0, "shade": 4.0, "other": 1.0}, 7.0)]
+    columns = time_columns(renders)
+    assert math.isnan(columns["time_ms_sample"])
+    assert columns["time_ms"] == pytest.approx((3.0 + 6.0) / 2)   # "other" counts in the total
+    assert columns["time_ms_host"] == pytest.approx(6.0) and columns["time_repeats"] == 2
+
+
+def sequence_scene(tmp_path, frames=3) -> str:
+    (tmp_path / "seq").mkdir()
+    for index in range(frames):
+        np.save(tmp_path / "seq" / f"f{index}.npy", np.full((6, 4, 4, 3), 0.5 + index, np.float32))
+    trimesh.creation.icosphere(1).export(tmp_path / "ball.obj")
+    scene = tmp_path / "seq.toml"
+    scene.write_text('[mesh]\npath = "ball.obj"\n[environment]\npath = "seq/*.npy"\n'
+                     '[camera]\neye = [0, 0, 3]\ntarget = [0, 0, 0]\n')
+    return str(scene)
+
+
+def test_timing_repeats_leave_a_temporal_estimators_scored_state_alone(tmp_path, fakes):
+    out = tmp_path / "out"
+    table = run(tiny(out, ("counting_timing_test",), scenes=(sequence_scene(tmp_path),),
+                     seeds=2, resolution=(12, 12), env_res=None, repeats=3))
+    assert len(table) == 3 * 2 and (table.time_repeats == 3).all()
+    for row in table.itertuples():
+        # The scored instance rendered frames 0..t once each: its state saw no timing render.
+        image = read_exr(out / "images" / "seq" / f"f{row.frame}" / f"{row.estimator}_spp4_s{row.seed}.exr")
+        assert image.max() == row.frame + 1
+    by_instance = {}
+    for instance, frame, seed in Counting.log:
+        by_instance.setdefault(instance, []).append((frame, seed))
+    sequences = [renders for renders in by_instance.values() if len(renders) > 1]
+    # Per cell seed: the scored instance and two twins, each rendering every frame once, in order.
+    assert len(sequences) == 2 * 3
+    for renders in sequences:
+        assert [frame for frame, _ in renders] == [0, 1, 2] and len({s for _, s in renders}) == 1
+    seeds = sorted(renders[0][1] for renders in sequences)
+    assert seeds[:2] == [0, 1] and all(TIMING_SEED <= s < 0xFFFFFF00 for s in seeds[2:])
+
+
+@pytest.mark.parametrize("power", [1.0, 1.3])
+def test_calibration_lands_within_tolerance_on_a_known_cost(power, monkeypatch):
+    monkeypatch.setattr(Linear, "POWER", power)
+
+    class Pixels:
+        shape = (2, 2)
+
+    calibration = Calibration(Linear(), Pixels(), None, build_ms=0.2)
+    for budget in (5.0, 20.0, 80.0):
+        fit = calibration.choose(budget)
+        cost = 0.2 + 0.7 + 0.013 * fit["chosen_spp"] ** power
+        assert abs(cost - budget) <= TOLERANCE * budget, (budget, fit)
+        assert fit["measured_ms"] == pytest.approx(cost) and not fit["over_budget"]
+    fit = calibration.choose(0.5)           # the build and one sample already take 0.913 ms
+    assert fit["chosen_spp"] == 1 and fit["over_budget"]
+
+
+def test_budget_cells_report_their_achieved_device_time(tmp_path, fakes, known_builds, capsys):
+    out = tmp_path / "out"
+    table = run(tiny(out, ("linear_timing_test",), spp=(), time_budget_ms=(0.5, 20.0)))
+    err = capsys.readouterr().err
+    achieved = {e["budget_ms"]: e for e in
+                json.loads((out / "manifest.json").read_text())["time_budget"]["achieved"]}
+    met = table[table.time_budget_ms == 20.0].iloc[0]
+    assert abs(met.time_ms - 20.0) <= 2.0 and achieved[20.0]["within_tolerance"]
+    assert achieved[0.5]["spp"] == 1 and not achieved[0.5]["within_tolerance"]
+    assert "even 1 spp takes" in err and "outside ±10%" in err
+    cells = equal_time_cells(table).set_index("time_budget_ms")
+    assert cells.loc[0.5, "time_ms"] == pytest.approx(achieved[0.5]["time_ms"])
+    assert not cells.loc[0.5, "within"] and cells.loc[20.0, "within"]
+
+
+def test_terminal_check_and_report_show_one_time_per_cell(tmp_path):
+    """A cell of 2 frames × 3 seeds whose per-seed means and median differ from the median
+    over its rows: every reader shows the median over the rows, 4 ms."""
+    times = {(0, 0): 1.0, (1, 0): 9.0, (0, 1): 4.0, (1, 1): 4.5, (0, 2): 3.0, (1, 2): 8.0}
+    rows = []
+    for estimator, scale in (("a", 1.0), ("b", 2.0)):
+        for (frame, seed), ms in times.items():
+            rows.append({"scene": "s", "estimator": estimator, "spp": 16, "frame": frame,
+                         "seed": seed, "time_budget_ms": math.nan, "mean_delta_e76": 1.0,
+                         "mean_delta_e2000": 1.0, "rel_mse": 0.1, "flip": 0.1,
+                         "used_samples": 16.0, "effective_samples": 8.0, "effective_ratio": 0.5,
+                         "evaluations": 16.0, "nonfinite": 0, "time_ms": ms * scale,
+                         "time_ms_min": ms, "time_ms_iqr": 0.0, "time_ms_build": 0.0,
+                         "time_ms_sample": 0.0, "time_ms_shade": ms, "time_ms_host": 99.0,
+                         "time_repeats": 5})
+    table = pd.DataFrame(rows)
+    expected = {"a": 4.25, "b": 8.5}   # medians of (1, 3, 4, 4.5, 8, 9) and of twice those
+    terminal = cli.terminal_summaries(table)[0][1].time_ms
+    report = summarize(table).set_index("estimator").time_ms
+    rule = budgets.Rule("r", "s", "b", (16,), (), None, budgets.TimeRatio("a", "time_ms", 3.0))
+    check = budgets.evaluate([rule], table).iloc[0]
+    for estimator, ms in expected.items():
+        assert terminal[("s", estimator, 16)] == pytest.approx(ms)
+        assert report[estimator] == pytest.approx(ms)
+    assert check.metric == "time_ms / a (8.5 / 4.25 ms)" and check.value == "2"
+
+
+def test_a_slow_estimator_may_get_fewer_repeats_if_the_run_says_so(tmp_path, fakes, capsys):
+    table = run(tiny(tmp_path, ("scripted_timing_test", "linear_timing_test"), repeats=4,
+                     repeats_for=(("Scripted_Timing_Test", 2),)))
+    assert dict(zip(table.estimator, table.time_repeats)) == {"scripted_timing_test": 2,
+                                                             "linear_timing_test": 4}
+    assert ("fewer timed renders per cell for scripted_timing_test (2) than for the others (4)"
+            in capsys.readouterr().err)
+    timing = json.loads((tmp_path / "manifest.json").read_text())["timing"]
+    assert timing["repeats"] == {"scripted_timing_test": 2, "linear_timing_test": 4}
+    # Render 0 and 1 of Scripted: (0.5 + 2 + 10, 0.5 + 1 + 30) without the known build: the
+    # median of two is their mean.
+    scripted = table.set_index("estimator").loc["scripted_timing_test"]
+    assert scripted.time_ms == pytest.approx((12.0 + 31.0) / 2 + scripted.time_ms_build)
+
+
+def test_the_warm_up_pixels_keep_a_specular_pixel_of_a_mostly_diffuse_scene():
+    from iblbench.scenes.gbuffer import GBuffer
+
+    size = 12
+    ks = np.zeros((size, size, 3), np.float32)
+    ks[-1, -1] = 0.3                           # the last covered pixel alone is specular
+    gbuffer = GBuffer.from_pixels(np.tile([0.0, 0.0, 1.0], (size, size, 1)), [0.0, 0.0, 1.0],
+                                  0.5, ks, 20.0)
+    subset = runner.warm_up_gbuffer(gbuffer)
+    assert subset.covered == WARMUP_PIXELS and not subset.is_diffuse and subset.mask[-1, -1]
+    assert runner.warm_up_gbuffer(dataclasses.replace(gbuffer, ks=ks * 0)).is_diffuse
