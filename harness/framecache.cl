@@ -26,13 +26,6 @@
  * the CDF in place: a scalar chain of one add per bin (a log-step scan in the vector compiled to
  * slow lane expansions on PoCL's AVX-512 target).  The row stays in cache from (1) to (3). */
 #define LANES 8
-#ifdef HAVE_FP64
-typedef double8 acc8_t;
-#define convert_acc8 convert_double8
-#else
-typedef float8 acc8_t;
-#define convert_acc8 convert_float8
-#endif
 typedef ulong8 cdf_word8_t;
 typedef ulong4 cdf_word4_t;
 

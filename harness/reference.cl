@@ -14,8 +14,15 @@
  * half-space r·ω > 0: exact, by clipping the texel to both planes.
  * Texels whose bounding cap keeps the lobe below LOBE_CUTOFF of its peak are skipped: their
  * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
- * Sums are compensated, in double where the device has it. */
-#include "common.cl"
+ *
+ * Speed: one work item per pixel; faces wholly below its horizon are skipped (exact: cos⁺ = 0
+ * there, see face_form_factor in light_pool.cl), and the texels of a face go LANES at a time
+ * through explicit vectors (SoA tables): the horizon and lobe tests, and the exact diffuse
+ * term n·Φ_t of texels wholly above the horizon.  Black texels contribute nothing.  The few
+ * texels the horizon cuts or the lobe reaches take the per-texel path (texel_integrals), whose
+ * sub-cell quadrature is itself vectorised over the sub-cells.  Sums are in double lanes where
+ * the device has it (float otherwise), each a few thousand positive terms. */
+#include "light_pool.cl"   /* face_form_factor; common.cl */
 
 #ifndef REF_DENSITY
 #define REF_DENSITY 16
@@ -24,28 +31,21 @@
 #define CELL_RADIANS 0.02f
 #define KINK_CELL_RADIANS 1e-3f
 #define MAX_CELLS 128
+#define LANES 8
 
 #ifdef HAVE_FP64
 typedef double3 real3;
 #define REAL3(x) convert_double3(x)
+typedef long8 ACC_INDEX8;            /* shuffle masks and select conditions of acc8_t */
+#define convert_index8 convert_long8
+#define convert_uindex8 convert_ulong8
 #else
 typedef float3 real3;
 #define REAL3(x) (x)
+typedef int8 ACC_INDEX8;
+#define convert_index8 convert_int8
+#define convert_uindex8 convert_uint8
 #endif
-
-/* ∫ ω dω over the spherical polygon through p[0..k) (any positive scale):
- * (1/2) Σ θ_i γ_i, with θ_i the edge's arc and γ_i its unit plane normal (Arvo 1995). */
-inline real3 polygon_vector(const real3 *p, int k)
-{
-    real3 phi = (real3)(0, 0, 0);
-    for (int i = 0; i < k; ++i) {
-        real3 a = normalize(p[i]), b = normalize(p[(i + 1) % k]);
-        real3 c = cross(a, b);
-        acc_t s = length(c);
-        if (s > 0) phi += atan2(s, dot(a, b)) / s * c;
-    }
-    return (acc_t)0.5 * phi;
-}
 
 /* Sutherland–Hodgman: clip the convex polygon p[0..k) on the planar face quad (whose edges are
  * great-circle arcs) to a·x ≥ 0, into out[0..k+1); returns the clipped vertex count. */
@@ -71,11 +71,30 @@ inline void texel_quad(int face, int row, int col, int res, real3 *quad)
     quad[3] = REAL3(face_uv_to_dir(face, u0, v1));
 }
 
-/* n · ∫ ω dω over polygon p[0..k): ∫ cos dω when it lies above the horizon.  The orientation of
- * the polygon fixes the sign of the whole sum; the integral is ≥ 0. */
+/* n · ∫ ω dω over the spherical polygon through p[0..k) (k ≤ LANES, any positive scale): ∫ cos dω
+ * when it lies above the horizon.  ∫ ω dω = (1/2) Σ θ_i γ_i over the edges, θ_i the edge's arc
+ * and γ_i its unit plane normal (Arvo 1995); the edges go through vector lanes, one each.  The
+ * orientation of the polygon fixes the sign of the whole sum; the integral is ≥ 0. */
 inline acc_t polygon_cosine(float3 n, const real3 *p, int k)
 {
-    return k < 3 ? 0 : fabs(dot(REAL3(n), polygon_vector(p, k)));
+    if (k < 3) return 0;
+    acc_t x[LANES], y[LANES], z[LANES];
+    for (int i = 0; i < LANES; ++i) {
+        real3 v = i < k ? normalize(p[i]) : (real3)(0, 0, 0);
+        x[i] = v.x;
+        y[i] = v.y;
+        z[i] = v.z;
+    }
+    const uint8 next_base = (uint8)(1, 2, 3, 4, 5, 6, 7, 0);
+    acc8_t ax = vload8(0, x), ay = vload8(0, y), az = vload8(0, z);
+    /* Edge i runs from vertex i to vertex i + 1 (mod k). */
+    ACC_INDEX8 next = select(convert_index8(next_base), (ACC_INDEX8)0, convert_index8(next_base) >= (ACC_INDEX8)k);
+    acc8_t bx = shuffle(ax, convert_uindex8(next)), by = shuffle(ay, convert_uindex8(next)),
+           bz = shuffle(az, convert_uindex8(next));
+    acc8_t cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
+    acc8_t s = sqrt(cx * cx + cy * cy + cz * cz);
+    acc8_t term = atan2(s, ax * bx + ay * by + az * bz) / s * (n.x * cx + n.y * cy + n.z * cz);
+    return fabs((acc_t)0.5 * sum_acc8(select((acc8_t)0, term, s > 0)));
 }
 
 /* ∫ cos⁺ dω over a texel the horizon cuts: the texel clipped to n·x ≥ 0. */
@@ -95,28 +114,53 @@ inline acc_t half_space_cosine(float3 n, float3 r, int face, int row, int col, i
     return polygon_cosine(n, both, clip_to_halfspace(by_r, k, REAL3(n), both));
 }
 
+/* log2 x for positive normal x, without table lookups (PoCL's log2 gathers its table lane by
+ * lane): x = 2^e·a with a in [√½, √2), ln a = 2 atanh(t), t = (a − 1)/(a + 1), |t| ≤ 0.172, by
+ * its series to t^9 (the next term is below 2^-28 relative, under float rounding).  Relative
+ * error a few ulps, also near x = 1 where log2 x → 0. */
+inline float8 log2_lanes(float8 x)
+{
+    int8 bits = as_int8(x);
+    float8 a = as_float8((bits & 0x007fffff) | 0x3f800000);     /* [1, 2) */
+    int8 upper = a > 1.41421356f;                               /* −1 where a ≥ √2 */
+    a = select(a, 0.5f * a, upper);
+    float8 exponent = convert_float8(((bits >> 23) & 0xff) - 127 - upper);
+    float8 t = (a - 1.0f) / (a + 1.0f), t2 = t * t;
+    float8 series = 1.0f + t2 * (1.0f / 3.0f + t2 * (1.0f / 5.0f + t2 * (1.0f / 7.0f + t2 * (1.0f / 9.0f))));
+    return exponent + (2.0f * 1.44269504088896341f) * t * series;
+}
+
 /* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by midpoint quadrature on sub-cells of the face square;
  * cells per side follow the lobe width 1/√m across the texel's angular radius α and the
- * cut planes (see the top of this file). */
+ * cut planes (see the top of this file).  The face point (u, v) has direction N + uU + vV
+ * (orthonormal, face_uv_to_dir is linear) of squared length q = 1 + u² + v², so r·ω and n·ω are
+ * linear forms over √q, cos_r^m = exp2(m/2 · log2((r·(N+uU+vV))²/q)) (exact exp2/log2, not a
+ * fast power: the reference needs ~1e-6), and dω = dA/q^{3/2}.  LANES sub-cells per step. */
 inline acc_t specular_integral(float3 n, float3 r, float m, int face, int row, int col, int res,
                                float alpha, int cut_by_horizon, int cut_by_lobe_plane)
 {
     int cells = clamp((int)ceil(alpha * max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS)), 2, 64);
     if (cut_by_horizon) cells = max(cells, 8);
     if (cut_by_lobe_plane) cells = clamp((int)ceil(alpha / KINK_CELL_RADIANS), cells, MAX_CELLS);
-    float step = 2.0f / (res * cells);
-    acc_t sum = 0;      /* up to MAX_CELLS² positive terms */
-    for (int i = 0; i < cells; ++i) {
-        float v = -1.0f + 2.0f * row / res + (i + 0.5f) * step;
-        for (int j = 0; j < cells; ++j) {
-            float u = -1.0f + 2.0f * col / res + (j + 0.5f) * step;
-            float3 w = normalize(face_uv_to_dir(face, u, v));
-            float c_r = dot(r, w), c_n = dot(n, w);
-            if (c_r > 0.0f && c_n > 0.0f)
-                sum += exp2(m * log2(c_r)) * c_n / area_per_solid_angle(u, v);
-        }
+    float step = 2.0f / (res * cells), per_cell = 1.0f / cells;
+    float u0 = -1.0f + 2.0f * col / res, v0 = -1.0f + 2.0f * row / res;
+    float3 origin = face_uv_to_dir(face, 0.0f, 0.0f);
+    float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin, along_v = face_uv_to_dir(face, 0.0f, 1.0f) - origin;
+    float r0 = dot(r, origin), ru = dot(r, along_u), rv = dot(r, along_v);
+    float n0 = dot(n, origin), nu = dot(n, along_u), nv = dot(n, along_v);
+    const float8 lane = (float8)(0, 1, 2, 3, 4, 5, 6, 7);
+    acc8_t sum = 0;      /* up to MAX_CELLS² positive terms */
+    int count = cells * cells;
+    for (int k = 0; k < count; k += LANES) {
+        float8 index = (float)k + lane;
+        float8 i = floor((index + 0.5f) * per_cell), j = index - i * cells;   /* exact: small integers */
+        float8 v = v0 + (i + 0.5f) * step, u = u0 + (j + 0.5f) * step;
+        float8 inverse_q = 1.0f / (1.0f + u * u + v * v);
+        float8 c_r = r0 + u * ru + v * rv, c_n = n0 + u * nu + v * nv;   /* times √q */
+        float8 term = exp2(0.5f * m * log2_lanes(c_r * c_r * inverse_q)) * c_n * inverse_q * inverse_q;
+        sum += convert_acc8(select((float8)0.0f, term, c_r > 0.0f && c_n > 0.0f && index < count));
     }
-    return sum * step * step;
+    return sum_acc8(sum) * step * step;
 }
 
 /* The lobe falls below LOBE_CUTOFF beyond angle θ_cut from r: (cos θ_cut, sin θ_cut). */
@@ -126,61 +170,120 @@ inline float2 lobe_cut(float m)
     return (float2)(cos_cut, sqrt(1.0f - cos_cut * cos_cut));
 }
 
+/* Texel tables as structures of arrays: plane k of `table` holds, for every texel t (stride
+ * `texels`, the 6R² texels plus LANES of padding), k = 0-2 its centre, 3 sin α, 4-6 Φ_t, 7 α
+ * (reference.py's texel_tables); `env_planes` holds the map's red, green and blue. */
+#define PLANE(table, k, t, texels) ((table)[(k) * (texels) + (t)])
+#define PLANE_LANES(table, k, t, texels) vload8(0, (table) + (k) * (texels) + (t))
+
+/* Where texel t stands for normal n and mirror direction r: its bounding cap against the
+ * horizon, and whether any point of the cap is within θ_cut of r (the cos(θ_cut + α) test).
+ * Scalar and vector alike (gentype float or float8), so that both kernels classify alike. */
+#define CLASSIFY(n, r, cx, cy, cz, sin_a, cut, cn, cr, above, cut_by_horizon, in_lobe) \
+    cn = n.x * (cx) + n.y * (cy) + n.z * (cz); \
+    cr = r.x * (cx) + r.y * (cy) + r.z * (cz); \
+    above = cn >= (sin_a); \
+    cut_by_horizon = cn > -(sin_a) && !(above); \
+    in_lobe = cr > (cut).x * sqrt(1.0f - (sin_a) * (sin_a)) - (cut).y * (sin_a);
+
+/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω of texel t, whose cap reaches the lobe and the upper
+ * hemisphere (cr = r·centre). */
+inline acc_t texel_lobe(float3 n, float3 r, float m, int t, int res, float sin_a, float alpha,
+                        float cr, int cut_by_horizon)
+{
+    int face = t / (res * res), row = (t / res) % res, col = t % res;
+    int cut_by_lobe_plane = m < 2.0f && fabs(cr) < sin_a;
+    return m == 0.0f ? half_space_cosine(n, r, face, row, col, res)
+                     : specular_integral(n, r, m, face, row, col, res, alpha, cut_by_horizon,
+                                         cut_by_lobe_plane);
+}
+
 /* ∫_texel cos⁺(n·ω) dω (x) and ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω (y, 0 without a lobe or where
  * the texel's cap is beyond the lobe's cut) of texel t; 0 for a texel wholly below the horizon. */
 inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cut,
-                            __global const float4 *texel_centre, __global const float4 *texel_vector,
-                            int t, int res, acc_t *cosine, acc_t *lobe)
+                            __global const float *table, int texels, int t, int res,
+                            acc_t *cosine, acc_t *lobe)
 {
-    float4 centre = texel_centre[t];
-    float cn = dot(n, centre.xyz);
+    float sin_a = PLANE(table, 3, t, texels), cn, cr;
+    int above, cut_by_horizon, in_lobe;
+    CLASSIFY(n, r, PLANE(table, 0, t, texels), PLANE(table, 1, t, texels), PLANE(table, 2, t, texels),
+             sin_a, cut, cn, cr, above, cut_by_horizon, in_lobe)
     *cosine = 0;
     *lobe = 0;
-    if (cn <= -centre.w) return;                    /* the texel's cap is below the horizon */
-    int face = t / (res * res), row = (t / res) % res, col = t % res;
-    int cut_by_horizon = cn < centre.w;
-    float4 phi = texel_vector[t];
-    *cosine = cut_by_horizon ? clipped_cosine(n, face, row, col, res) : (acc_t)dot(n, phi.xyz);
-    /* Is any point of the cap within θ_cut of r?  cos(θ_cut + α) test. */
-    float sin_a = centre.w, cos_a = sqrt(1.0f - sin_a * sin_a);
-    if (specular && dot(r, centre.xyz) > cut.x * cos_a - cut.y * sin_a) {
-        int cut_by_lobe_plane = m < 2.0f && fabs(dot(r, centre.xyz)) < sin_a;
-        *lobe = m == 0.0f ? half_space_cosine(n, r, face, row, col, res)
-              : specular_integral(n, r, m, face, row, col, res, phi.w, cut_by_horizon,
-                                  cut_by_lobe_plane);
-    }
+    if (above)
+        *cosine = n.x * PLANE(table, 4, t, texels) + n.y * PLANE(table, 5, t, texels)
+                + n.z * PLANE(table, 6, t, texels);
+    if (cut_by_horizon)
+        *cosine = clipped_cosine(n, t / (res * res), (t / res) % res, t % res, res);
+    if (specular && in_lobe && (above || cut_by_horizon))
+        *lobe = texel_lobe(n, r, m, t, res, sin_a, PLANE(table, 7, t, texels), cr, cut_by_horizon);
 }
 
 inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }
 
+/* The reference of pixels first … first + count − 1 (one enqueue of a chunk), one work item
+ * each.  Faces wholly below the horizon are skipped (exact: cos⁺ = 0 on them; see
+ * face_form_factor in light_pool.cl).  A face's texels go LANES at a time: the diffuse term
+ * n·Φ_t of lit texels wholly above the horizon in vector lanes; lit texels that the horizon
+ * cuts or the lobe reaches (a few per pixel) one by one, as texel_integrals does them. */
 __kernel void reference(__global const float4 *normal, __global const float4 *view,
                         __global const float4 *kd, __global const float4 *ks_m,
-                        __global const float4 *env, __global const float4 *texel_centre,
-                        __global const float4 *texel_vector, const int res,
+                        __global const float *env_planes, __global const float *table,
+                        const int res, const int texels, const int first, const int count,
                         __global float4 *out)
 {
-    int p = get_global_id(0);
+    if (get_global_id(0) >= count) return;
+    int p = first + get_global_id(0);
     float3 n = normal[p].xyz, r = reflect_view(n, view[p].xyz);
     float3 rho_s = ks_m[p].xyz;
     float m = ks_m[p].w;
     int specular = has_lobe(rho_s);
     float2 cut = lobe_cut(m);
-    kahan_t diffuse[3] = {{0, 0}, {0, 0}, {0, 0}}, glossy[3] = {{0, 0}, {0, 0}, {0, 0}};
-    int texels = 6 * res * res;
-    for (int t = 0; t < texels; ++t) {
-        float3 radiance = env[t].xyz;
-        if (!(radiance.x + radiance.y + radiance.z > 0.0f)) continue;
-        acc_t cosine, lobe;
-        texel_integrals(n, r, m, specular, cut, texel_centre, texel_vector, t, res, &cosine, &lobe);
-        kahan_add(&diffuse[0], cosine * radiance.x);
-        kahan_add(&diffuse[1], cosine * radiance.y);
-        kahan_add(&diffuse[2], cosine * radiance.z);
-        kahan_add(&glossy[0], lobe * radiance.x);
-        kahan_add(&glossy[1], lobe * radiance.y);
-        kahan_add(&glossy[2], lobe * radiance.z);
+    const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    acc8_t whole[3] = {0, 0, 0};                  /* Σ L·n·Φ_t over whole visible texels, by lane */
+    acc_t diffuse[3] = {0, 0, 0}, glossy[3] = {0, 0, 0};   /* the texels taken one by one */
+    for (int face = 0; face < 6; ++face) {
+        if (face_form_factor(n, face) == 0.0f) continue;
+        int end = (face + 1) * res * res;
+        for (int t = face * res * res; t < end; t += LANES) {
+            float8 red = PLANE_LANES(env_planes, 0, t, texels), green = PLANE_LANES(env_planes, 1, t, texels),
+                   blue = PLANE_LANES(env_planes, 2, t, texels), sin_a = PLANE_LANES(table, 3, t, texels);
+            float8 cn, cr;
+            int8 above, cut_by_horizon, in_lobe;
+            CLASSIFY(n, r, PLANE_LANES(table, 0, t, texels), PLANE_LANES(table, 1, t, texels),
+                     PLANE_LANES(table, 2, t, texels), sin_a, cut, cn, cr, above, cut_by_horizon, in_lobe)
+            int8 lit = red + green + blue > 0.0f && t + lane < end;
+            float8 cosine = n.x * PLANE_LANES(table, 4, t, texels) + n.y * PLANE_LANES(table, 5, t, texels)
+                          + n.z * PLANE_LANES(table, 6, t, texels);
+            cosine = select((float8)0.0f, cosine, lit && above);
+            whole[0] += convert_acc8(cosine * red);
+            whole[1] += convert_acc8(cosine * green);
+            whole[2] += convert_acc8(cosine * blue);
+            int8 one_by_one = lit && (cut_by_horizon || (specular && in_lobe && above));
+            if (!any(one_by_one)) continue;
+            for (int k = 0; k < LANES; ++k) {
+                if (!((int *)&one_by_one)[k]) continue;
+                int texel = t + k, cut_k = ((int *)&cut_by_horizon)[k];
+                float3 radiance = (float3)(((float *)&red)[k], ((float *)&green)[k], ((float *)&blue)[k]);
+                if (cut_k) {
+                    acc_t clipped = clipped_cosine(n, face, (texel / res) % res, texel % res, res);
+                    diffuse[0] += clipped * radiance.x;
+                    diffuse[1] += clipped * radiance.y;
+                    diffuse[2] += clipped * radiance.z;
+                }
+                if (specular && ((int *)&in_lobe)[k]) {
+                    acc_t lobe = texel_lobe(n, r, m, texel, res, ((float *)&sin_a)[k], PLANE(table, 7, texel, texels),
+                                            ((float *)&cr)[k], cut_k);
+                    glossy[0] += lobe * radiance.x;
+                    glossy[1] += lobe * radiance.y;
+                    glossy[2] += lobe * radiance.z;
+                }
+            }
+        }
     }
-    float3 d = (float3)((float)diffuse[0].sum, (float)diffuse[1].sum, (float)diffuse[2].sum);
-    float3 s = (float3)((float)glossy[0].sum, (float)glossy[1].sum, (float)glossy[2].sum);
+    float3 d = (float3)((float)(sum_acc8(whole[0]) + diffuse[0]), (float)(sum_acc8(whole[1]) + diffuse[1]),
+                        (float)(sum_acc8(whole[2]) + diffuse[2]));
+    float3 s = (float3)((float)glossy[0], (float)glossy[1], (float)glossy[2]);
     float3 result = kd[p].xyz / IBL_PI * d;
     if (specular) result += rho_s * (m + 2.0f) / (2.0f * IBL_PI) * s;
     out[p] = (float4)(result, 0.0f);
@@ -189,15 +292,13 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
 /* One work item per texel t of pixel p: out[t] = (∫_t cos⁺, ∫_t lobe·cos⁺) of the reference's
  * quadrature, from which a pixel's integral splits into per-texel shares (the stress battery). */
 __kernel void texel_integral_table(__global const float4 *normal, __global const float4 *view,
-                                   __global const float4 *ks_m, __global const float4 *texel_centre,
-                                   __global const float4 *texel_vector, const int res, const int p,
-                                   __global float2 *out)
+                                   __global const float4 *ks_m, __global const float *table,
+                                   const int res, const int texels, const int p, __global float2 *out)
 {
     int t = get_global_id(0);
     float3 n = normal[p].xyz, r = reflect_view(n, view[p].xyz);
     float m = ks_m[p].w;
     acc_t cosine, lobe;
-    texel_integrals(n, r, m, has_lobe(ks_m[p].xyz), lobe_cut(m), texel_centre, texel_vector, t, res,
-                    &cosine, &lobe);
+    texel_integrals(n, r, m, has_lobe(ks_m[p].xyz), lobe_cut(m), table, texels, t, res, &cosine, &lobe);
     out[t] = (float2)((float)cosine, (float)lobe);
 }
