@@ -15,13 +15,15 @@
  * Texels whose bounding cap keeps the lobe below LOBE_CUTOFF of its peak are skipped: their
  * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
  *
- * Speed: one work item per pixel; faces wholly below its horizon are skipped (exact: cos⁺ = 0
- * there, see face_form_factor in light_pool.cl), and the texels of a face go LANES at a time
- * through explicit vectors (SoA tables): the horizon and lobe tests, and the exact diffuse
- * term n·Φ_t of texels wholly above the horizon.  Black texels contribute nothing.  The few
- * texels the horizon cuts or the lobe reaches take the per-texel path (texel_integrals), whose
- * sub-cell quadrature is itself vectorised over the sub-cells.  Sums are in double lanes where
- * the device has it (float otherwise), each a few thousand positive terms. */
+ * Speed (issue 10): one work item per pixel, in work groups that spread over every core;
+ * faces wholly below the pixel's horizon are skipped (exact: cos⁺ = 0 there, see
+ * face_form_factor in light_pool.cl), and a face's texels go LANES at a time through explicit
+ * vectors (SoA tables): the horizon and lobe tests, and the exact n·Φ_t of texels wholly above
+ * the horizon.  Black texels contribute nothing and are skipped.  The texels the horizon cuts or
+ * the lobe reaches (a few hundred of 6R²) go one by one, each vectorised inside: the clipped
+ * polygon's edges, and the lobe's sub-cells, are vector lanes.  The lobe's power is exact exp2
+ * of an accurate table-free log2 (log2_lanes), not a fast polynomial power.  Sums are plain, in
+ * double lanes where the device has it (float otherwise): a few thousand positive terms each. */
 #include "light_pool.cl"   /* face_form_factor; common.cl */
 
 #ifndef REF_DENSITY
@@ -36,13 +38,13 @@
 #ifdef HAVE_FP64
 typedef double3 real3;
 #define REAL3(x) convert_double3(x)
-typedef long8 ACC_INDEX8;            /* shuffle masks and select conditions of acc8_t */
+typedef long8 acc_index8_t;          /* shuffle masks and select conditions of acc8_t */
 #define convert_index8 convert_long8
 #define convert_uindex8 convert_ulong8
 #else
 typedef float3 real3;
 #define REAL3(x) (x)
-typedef int8 ACC_INDEX8;
+typedef int8 acc_index8_t;
 #define convert_index8 convert_int8
 #define convert_uindex8 convert_uint8
 #endif
@@ -88,7 +90,7 @@ inline acc_t polygon_cosine(float3 n, const real3 *p, int k)
     const uint8 next_base = (uint8)(1, 2, 3, 4, 5, 6, 7, 0);
     acc8_t ax = vload8(0, x), ay = vload8(0, y), az = vload8(0, z);
     /* Edge i runs from vertex i to vertex i + 1 (mod k). */
-    ACC_INDEX8 next = select(convert_index8(next_base), (ACC_INDEX8)0, convert_index8(next_base) >= (ACC_INDEX8)k);
+    acc_index8_t next = select(convert_index8(next_base), (acc_index8_t)0, convert_index8(next_base) >= (acc_index8_t)k);
     acc8_t bx = shuffle(ax, convert_uindex8(next)), by = shuffle(ay, convert_uindex8(next)),
            bz = shuffle(az, convert_uindex8(next));
     acc8_t cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
@@ -130,33 +132,47 @@ inline float8 log2_lanes(float8 x)
     return exponent + (2.0f * 1.44269504088896341f) * t * series;
 }
 
-/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by midpoint quadrature on sub-cells of the face square;
- * cells per side follow the lobe width 1/√m across the texel's angular radius α and the
- * cut planes (see the top of this file).  The face point (u, v) has direction N + uU + vV
- * (orthonormal, face_uv_to_dir is linear) of squared length q = 1 + u² + v², so r·ω and n·ω are
- * linear forms over √q, cos_r^m = exp2(m/2 · log2((r·(N+uU+vV))²/q)) (exact exp2/log2, not a
- * fast power: the reference needs ~1e-6), and dω = dA/q^{3/2}.  LANES sub-cells per step. */
-inline acc_t specular_integral(float3 n, float3 r, float m, int face, int row, int col, int res,
-                               float alpha, int cut_by_horizon, int cut_by_lobe_plane)
+/* r·ω and n·ω over face f as linear forms of the face point (u, v), times √q: the point's
+ * direction N + uU + vV (face_uv_to_dir is linear) has orthonormal N, U, V and squared length
+ * q = 1 + u² + v².  Each form holds (x·N, x·U, x·V). */
+typedef struct { float3 r, n; } face_forms_t;
+
+inline face_forms_t face_forms(float3 n, float3 r, int face)
 {
-    int cells = clamp((int)ceil(alpha * max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS)), 2, 64);
+    float3 origin = face_uv_to_dir(face, 0.0f, 0.0f);
+    float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin, along_v = face_uv_to_dir(face, 0.0f, 1.0f) - origin;
+    face_forms_t forms = {(float3)(dot(r, origin), dot(r, along_u), dot(r, along_v)),
+                          (float3)(dot(n, origin), dot(n, along_u), dot(n, along_v))};
+    return forms;
+}
+
+/* Sub-cells per radian of a texel's angular radius for shininess m: REF_DENSITY per lobe width
+ * 1/√m, and none wider than CELL_RADIANS. */
+inline float cells_per_radian(float m) { return max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS); }
+
+/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by midpoint quadrature on sub-cells of the face square;
+ * cells per side follow the lobe width across the texel's angular radius α and the cut planes
+ * (see the top of this file).  With the face forms, cos_r^m = exp2(m/2 · log2((r·d)²/q)) (exact
+ * exp2 and log2_lanes, not a fast power: the reference needs ~1e-6) and dω = dA/q^{3/2}.
+ * LANES sub-cells per step. */
+inline acc_t specular_integral(face_forms_t forms, float m, float density, int row, int col,
+                               int res, float alpha, int cut_by_horizon, int cut_by_lobe_plane)
+{
+    int cells = clamp((int)ceil(alpha * density), 2, 64);
     if (cut_by_horizon) cells = max(cells, 8);
     if (cut_by_lobe_plane) cells = clamp((int)ceil(alpha / KINK_CELL_RADIANS), cells, MAX_CELLS);
     float step = 2.0f / (res * cells), per_cell = 1.0f / cells;
     float u0 = -1.0f + 2.0f * col / res, v0 = -1.0f + 2.0f * row / res;
-    float3 origin = face_uv_to_dir(face, 0.0f, 0.0f);
-    float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin, along_v = face_uv_to_dir(face, 0.0f, 1.0f) - origin;
-    float r0 = dot(r, origin), ru = dot(r, along_u), rv = dot(r, along_v);
-    float n0 = dot(n, origin), nu = dot(n, along_u), nv = dot(n, along_v);
     const float8 lane = (float8)(0, 1, 2, 3, 4, 5, 6, 7);
     acc8_t sum = 0;      /* up to MAX_CELLS² positive terms */
     int count = cells * cells;
     for (int k = 0; k < count; k += LANES) {
         float8 index = (float)k + lane;
-        float8 i = floor((index + 0.5f) * per_cell), j = index - i * cells;   /* exact: small integers */
+        /* Row and column of the sub-cell: exact for these small integers (truncation is floor). */
+        float8 i = convert_float8(convert_int8((index + 0.5f) * per_cell)), j = index - i * cells;
         float8 v = v0 + (i + 0.5f) * step, u = u0 + (j + 0.5f) * step;
         float8 inverse_q = 1.0f / (1.0f + u * u + v * v);
-        float8 c_r = r0 + u * ru + v * rv, c_n = n0 + u * nu + v * nv;   /* times √q */
+        float8 c_r = forms.r.x + u * forms.r.y + v * forms.r.z, c_n = forms.n.x + u * forms.n.y + v * forms.n.z;
         float8 term = exp2(0.5f * m * log2_lanes(c_r * c_r * inverse_q)) * c_n * inverse_q * inverse_q;
         sum += convert_acc8(select((float8)0.0f, term, c_r > 0.0f && c_n > 0.0f && index < count));
     }
@@ -187,15 +203,15 @@ inline float2 lobe_cut(float m)
     in_lobe = cr > (cut).x * sqrt(1.0f - (sin_a) * (sin_a)) - (cut).y * (sin_a);
 
 /* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω of texel t, whose cap reaches the lobe and the upper
- * hemisphere (cr = r·centre). */
-inline acc_t texel_lobe(float3 n, float3 r, float m, int t, int res, float sin_a, float alpha,
-                        float cr, int cut_by_horizon)
+ * hemisphere (cr = r·centre); `forms` are those of its face. */
+inline acc_t texel_lobe(float3 n, float3 r, float m, face_forms_t forms, int t, int res, float sin_a,
+                        float alpha, float cr, int cut_by_horizon)
 {
     int face = t / (res * res), row = (t / res) % res, col = t % res;
     int cut_by_lobe_plane = m < 2.0f && fabs(cr) < sin_a;
     return m == 0.0f ? half_space_cosine(n, r, face, row, col, res)
-                     : specular_integral(n, r, m, face, row, col, res, alpha, cut_by_horizon,
-                                         cut_by_lobe_plane);
+                     : specular_integral(forms, m, cells_per_radian(m), row, col, res, alpha,
+                                         cut_by_horizon, cut_by_lobe_plane);
 }
 
 /* ∫_texel cos⁺(n·ω) dω (x) and ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω (y, 0 without a lobe or where
@@ -216,7 +232,8 @@ inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cu
     if (cut_by_horizon)
         *cosine = clipped_cosine(n, t / (res * res), (t / res) % res, t % res, res);
     if (specular && in_lobe && (above || cut_by_horizon))
-        *lobe = texel_lobe(n, r, m, t, res, sin_a, PLANE(table, 7, t, texels), cr, cut_by_horizon);
+        *lobe = texel_lobe(n, r, m, face_forms(n, r, t / (res * res)), t, res, sin_a,
+                           PLANE(table, 7, t, texels), cr, cut_by_horizon);
 }
 
 inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }
@@ -240,10 +257,11 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
     int specular = has_lobe(rho_s);
     float2 cut = lobe_cut(m);
     const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    acc8_t whole[3] = {0, 0, 0};                  /* Σ L·n·Φ_t over whole visible texels, by lane */
+    acc8_t whole_red = 0, whole_green = 0, whole_blue = 0;   /* Σ L·n·Φ_t, whole visible texels */
     acc_t diffuse[3] = {0, 0, 0}, glossy[3] = {0, 0, 0};   /* the texels taken one by one */
     for (int face = 0; face < 6; ++face) {
         if (face_form_factor(n, face) == 0.0f) continue;
+        face_forms_t forms = face_forms(n, r, face);
         int end = (face + 1) * res * res;
         for (int t = face * res * res; t < end; t += LANES) {
             float8 red = PLANE_LANES(env_planes, 0, t, texels), green = PLANE_LANES(env_planes, 1, t, texels),
@@ -256,9 +274,9 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
             float8 cosine = n.x * PLANE_LANES(table, 4, t, texels) + n.y * PLANE_LANES(table, 5, t, texels)
                           + n.z * PLANE_LANES(table, 6, t, texels);
             cosine = select((float8)0.0f, cosine, lit && above);
-            whole[0] += convert_acc8(cosine * red);
-            whole[1] += convert_acc8(cosine * green);
-            whole[2] += convert_acc8(cosine * blue);
+            whole_red += convert_acc8(cosine * red);
+            whole_green += convert_acc8(cosine * green);
+            whole_blue += convert_acc8(cosine * blue);
             int8 one_by_one = lit && (cut_by_horizon || (specular && in_lobe && above));
             if (!any(one_by_one)) continue;
             for (int k = 0; k < LANES; ++k) {
@@ -272,8 +290,8 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
                     diffuse[2] += clipped * radiance.z;
                 }
                 if (specular && ((int *)&in_lobe)[k]) {
-                    acc_t lobe = texel_lobe(n, r, m, texel, res, ((float *)&sin_a)[k], PLANE(table, 7, texel, texels),
-                                            ((float *)&cr)[k], cut_k);
+                    acc_t lobe = texel_lobe(n, r, m, forms, texel, res, ((float *)&sin_a)[k],
+                                            PLANE(table, 7, texel, texels), ((float *)&cr)[k], cut_k);
                     glossy[0] += lobe * radiance.x;
                     glossy[1] += lobe * radiance.y;
                     glossy[2] += lobe * radiance.z;
@@ -281,8 +299,8 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
             }
         }
     }
-    float3 d = (float3)((float)(sum_acc8(whole[0]) + diffuse[0]), (float)(sum_acc8(whole[1]) + diffuse[1]),
-                        (float)(sum_acc8(whole[2]) + diffuse[2]));
+    float3 d = (float3)((float)(sum_acc8(whole_red) + diffuse[0]), (float)(sum_acc8(whole_green) + diffuse[1]),
+                        (float)(sum_acc8(whole_blue) + diffuse[2]));
     float3 s = (float3)((float)glossy[0], (float)glossy[1], (float)glossy[2]);
     float3 result = kd[p].xyz / IBL_PI * d;
     if (specular) result += rho_s * (m + 2.0f) / (2.0f * IBL_PI) * s;
