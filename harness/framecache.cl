@@ -17,14 +17,16 @@
  * samples.
  *
  * One work item builds one run, LANES bins per step in explicit vectors (so the steps vectorise
- * whatever PoCL does with the work-item loop): (1) W, as LANES partial sums each compensated by
- * two-sums (their errors summed aside) and joined by two-sums, so W is the exactly rounded sum
- * unless that lies within ~n·2^-106 of a rounding midpoint (n·2^-48 in float; a serial Kahan
- * sum, as before, can be an ulp off; where the double sum is exact both agree bit for bit); the
- * largest bin per lane, joined to the first largest; each weight's bits go to its cdf word.  (2) The widths from those bits, stored, and
- * Σ q.  (3) The remainder joins the largest bin's width, and a running sum turns the widths into
- * the CDF in place: a scalar chain of one add per bin (a log-step scan in the vector compiled to
- * slow lane expansions on PoCL's AVX-512 target).  The row stays in cache from (1) to (3). */
+ * whatever PoCL does with the work-item loop), in three passes over the run, which stays in cache:
+ * (1) W, as LANES partial sums compensated by two-sums (their errors summed aside) and joined by
+ *     two-sums: the exactly rounded sum unless that lies within ~n·2^-106 of a rounding midpoint
+ *     (n·2^-48 in float; the serial Kahan sum before could be an ulp off; wherever the double
+ *     sum is exact the two agree bit for bit); the first largest bin; each weight's bits stored
+ *     in its cdf word;
+ * (2) the widths from those bits, stored in place, and Σ q;
+ * (3) the remainder joins the largest bin's width, and a running sum turns the widths into the
+ *     CDF in place: a scalar chain of one add per bin (a log-step scan inside the vector
+ *     compiled to slow lane expansions on PoCL's AVX-512 target). */
 #define LANES 8
 typedef ulong8 cdf_word8_t;
 typedef ulong4 cdf_word4_t;

@@ -17,7 +17,7 @@ from iblbench.scenes.atomic import atomic_path
 DEFAULT_DENSITY = 16
 LANES = 8              # texels per vector step of reference.cl: the tables' padding
 CHUNK_PIXELS = 4096    # pixels per enqueue: Ctrl-C stops a reference between chunks
-WORK_GROUP = 64        # pixels per work group: many groups, so every core gets some
+WORK_GROUP = 64        # pixels per work group, at most: many groups, so every core gets some
 
 
 def arc_vectors(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -149,14 +149,16 @@ class Reference:
         out = c.empty(gbuffer.count * 16)
         kernel = c.kernel("iblbench.harness", "reference.cl", "reference",
                           {"REF_DENSITY": self.density})
+        group = min(WORK_GROUP, kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
+                                                             c.info.device))
         self.last_ms = 0.0
         for first in range(0, gbuffer.count, CHUNK_PIXELS):
             count = min(CHUNK_PIXELS, gbuffer.count - first)
             kernel.set_args(gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, env_planes,
                             table_buffer, np.int32(cache.res), np.int32(table.shape[1]),
                             np.int32(first), np.int32(count), out)
-            size = -(-count // WORK_GROUP) * WORK_GROUP
-            event = cl.enqueue_nd_range_kernel(c.queue, kernel, (size,), (WORK_GROUP,))
+            size = -(-count // group) * group
+            event = cl.enqueue_nd_range_kernel(c.queue, kernel, (size,), (group,))
             event.wait()
             self.last_ms += event_ms(event)
         return c.to_host(out, (gbuffer.count, 4), np.float32)[:, :3]
