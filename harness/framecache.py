@@ -14,7 +14,8 @@ Products:
   pool per (size, seed) on first use; its device time is ``timings_ms["pool"]``.
 
 Each build is timed by OpenCL profiling events (``timings_ms``); ``built`` lists what was built,
-so the runner can record which stages were skipped.
+so the runner can record which stages were skipped.  :func:`build_fixed_point_cdfs` is the same
+fixed-point CDF build for any runs of weights on the device (another sampler's map).
 """
 from __future__ import annotations
 
