@@ -40,13 +40,11 @@
 typedef double3 real3;
 #define REAL3(x) convert_double3(x)
 typedef long8 acc_index8_t;          /* shuffle masks and select conditions of acc8_t */
-#define convert_index8 convert_long8
 #define convert_uindex8 convert_ulong8
 #else
 typedef float3 real3;
 #define REAL3(x) (x)
 typedef int8 acc_index8_t;
-#define convert_index8 convert_int8
 #define convert_uindex8 convert_uint8
 #endif
 
@@ -88,10 +86,10 @@ inline acc_t polygon_cosine(float3 n, const real3 *p, int k)
         y[i] = v.y;
         z[i] = v.z;
     }
-    const uint8 next_base = (uint8)(1, 2, 3, 4, 5, 6, 7, 0);
     acc8_t ax = vload8(0, x), ay = vload8(0, y), az = vload8(0, z);
     /* Edge i runs from vertex i to vertex i + 1 (mod k). */
-    acc_index8_t next = select(convert_index8(next_base), (acc_index8_t)0, convert_index8(next_base) >= (acc_index8_t)k);
+    acc_index8_t next = (acc_index8_t)(1, 2, 3, 4, 5, 6, 7, 8);
+    next = select(next, (acc_index8_t)0, next >= (acc_index8_t)k);
     acc8_t bx = shuffle(ax, convert_uindex8(next)), by = shuffle(ay, convert_uindex8(next)),
            bz = shuffle(az, convert_uindex8(next));
     acc8_t cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
@@ -141,7 +139,8 @@ typedef struct { float3 r, n; } face_forms_t;
 inline face_forms_t face_forms(float3 n, float3 r, int face)
 {
     float3 origin = face_uv_to_dir(face, 0.0f, 0.0f);
-    float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin, along_v = face_uv_to_dir(face, 0.0f, 1.0f) - origin;
+    float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin;
+    float3 along_v = face_uv_to_dir(face, 0.0f, 1.0f) - origin;
     face_forms_t forms = {(float3)(dot(r, origin), dot(r, along_u), dot(r, along_v)),
                           (float3)(dot(n, origin), dot(n, along_u), dot(n, along_v))};
     return forms;
@@ -173,7 +172,8 @@ inline acc_t specular_integral(face_forms_t forms, float m, float density, int r
         float16 i = convert_float16(convert_int16((index + 0.5f) * per_cell)), j = index - i * cells;
         float16 v = v0 + (i + 0.5f) * step, u = u0 + (j + 0.5f) * step;
         float16 inverse_q = 1.0f / (1.0f + u * u + v * v);
-        float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z, c_n = forms.n.x + u * forms.n.y + v * forms.n.z;
+        float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z;   /* times √q */
+        float16 c_n = forms.n.x + u * forms.n.y + v * forms.n.z;
         float16 term = exp2(0.5f * m * log2_lanes(c_r * c_r * inverse_q)) * c_n * inverse_q * inverse_q;
         term = select((float16)0.0f, term, c_r > 0.0f && c_n > 0.0f && index < count);
         sum += convert_acc8(term.lo) + convert_acc8(term.hi);
