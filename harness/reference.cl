@@ -16,15 +16,14 @@
  * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
  *
  * Speed (issue 10): one work item per pixel, in work groups that spread over every core;
- * faces wholly below the pixel's horizon are skipped (exact: cos⁺ = 0 there, see
- * face_form_factor in light_pool.cl), and a face's texels go LANES at a time through explicit
- * vectors (SoA tables): the horizon and lobe tests, and the exact n·Φ_t of texels wholly above
- * the horizon.  Black texels contribute nothing and are skipped.  The texels the horizon cuts or
+ * faces wholly below the pixel's horizon are skipped (exact: cos⁺ = 0 there, face_below), and
+ * a face's texels go LANES at a time through explicit vectors (SoA tables): the horizon and
+ * lobe tests, and the exact n·Φ_t of texels wholly above the horizon.  Black texels contribute nothing and are skipped.  The texels the horizon cuts or
  * the lobe reaches (a few hundred of 6R²) go one by one, each vectorised inside: the clipped
  * polygon's edges, and the lobe's sub-cells, are vector lanes.  The lobe's power is exact exp2
  * of an accurate table-free log2 (log2_lanes), not a fast polynomial power.  Sums are plain, in
  * double lanes where the device has it (float otherwise): a few thousand positive terms each. */
-#include "light_pool.cl"   /* face_form_factor; common.cl */
+#include "common.cl"
 
 #ifndef REF_DENSITY
 #define REF_DENSITY 16
@@ -240,11 +239,20 @@ inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cu
 
 inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }
 
+/* Is the whole face in the closed lower hemisphere of n?  Yes when its four corners are: every
+ * direction on the face is a positive multiple of a convex combination of them. */
+inline int face_below(float3 n, int face)
+{
+    int below = 1;
+    for (int j = 0; j < 4; ++j)
+        below &= dot(n, face_uv_to_dir(face, (j & 1) ? 1.0f : -1.0f, (j & 2) ? 1.0f : -1.0f)) <= 0.0f;
+    return below;
+}
+
 /* The reference of pixels first … first + count − 1 (one enqueue of a chunk), one work item
- * each.  Faces wholly below the horizon are skipped (exact: cos⁺ = 0 on them; see
- * face_form_factor in light_pool.cl).  A face's texels go LANES at a time: the diffuse term
+ * each.  Faces wholly below the horizon are skipped (exact: cos⁺ = 0 on them).  A face's texels go LANES at a time: the diffuse term
  * n·Φ_t of lit texels wholly above the horizon in vector lanes; lit texels that the horizon
- * cuts or the lobe reaches (a few per pixel) one by one, as texel_integrals does them. */
+ * cuts or the lobe reaches (a few hundred per pixel) one by one, as texel_integrals does them. */
 __kernel void reference(__global const float4 *normal, __global const float4 *view,
                         __global const float4 *kd, __global const float4 *ks_m,
                         __global const float *env_planes, __global const float *table,
@@ -262,7 +270,7 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
     acc8_t whole_red = 0, whole_green = 0, whole_blue = 0;   /* Σ L·n·Φ_t, whole visible texels */
     acc_t diffuse[3] = {0, 0, 0}, glossy[3] = {0, 0, 0};   /* the texels taken one by one */
     for (int face = 0; face < 6; ++face) {
-        if (face_form_factor(n, face) == 0.0f) continue;
+        if (face_below(n, face)) continue;
         face_forms_t forms = face_forms(n, r, face);
         int end = (face + 1) * res * res;
         for (int t = face * res * res; t < end; t += LANES) {
