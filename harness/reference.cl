@@ -250,9 +250,10 @@ inline int face_below(float3 n, int face)
 }
 
 /* The reference of pixels first … first + count − 1 (one enqueue of a chunk), one work item
- * each.  Faces wholly below the horizon are skipped (exact: cos⁺ = 0 on them).  A face's texels go LANES at a time: the diffuse term
- * n·Φ_t of lit texels wholly above the horizon in vector lanes; lit texels that the horizon
- * cuts or the lobe reaches (a few hundred per pixel) one by one, as texel_integrals does them. */
+ * each.  Faces wholly below the horizon are skipped (exact: cos⁺ = 0 on them).  A face's
+ * texels go LANES at a time: the diffuse term n·Φ_t of lit texels wholly above the horizon in
+ * vector lanes; lit texels that the horizon cuts or the lobe reaches (a few hundred per pixel)
+ * one by one, as texel_integrals does them. */
 __kernel void reference(__global const float4 *normal, __global const float4 *view,
                         __global const float4 *kd, __global const float4 *ks_m,
                         __global const float *env_planes, __global const float *table,
