@@ -14,7 +14,8 @@ Products:
   pool per (size, seed) on first use; its device time is ``timings_ms["pool"]``.
 
 Each build is timed by OpenCL profiling events (``timings_ms``); ``built`` lists what was built,
-so the runner can record which stages were skipped.
+so the runner can record which stages were skipped.  :func:`build_fixed_point_cdfs` is the same
+fixed-point CDF build for any runs of weights on the device (another sampler's map).
 """
 from __future__ import annotations
 
@@ -29,6 +30,23 @@ from iblbench.scenes import cubemap
 PRODUCTS = ("env", "cdf", "pool")
 CDF_ONE = 2 ** 63   # the fixed-point CDFs' total (kernels/common.cl)
 POOLS_KEPT = 4   # pools of recent (size, seed) kept resident
+
+
+def build_fixed_point_cdfs(compute: Compute, weights: cl.Buffer, runs: int,
+                           n: int) -> tuple[cl.Buffer, cl.Buffer, float]:
+    """Fixed-point CDFs of ``runs`` runs of ``n`` float32 weights ≥ 0 (a device buffer
+    ``[runs, n]``, run-major), built on the device by ``weight_cdfs`` of framecache.cl: one
+    work item per run, eight bins per vector step.
+
+    Returns (cdfs, totals, device ms): ``cdfs`` uint64 ``[runs, n]``, each run's inclusive
+    prefix sums of integer widths ending at exactly ``CDF_ONE`` = 2^63, where every positive
+    weight has a width ≥ 1 (searched with ``cdf_search``/``cdf_bin`` of kernels/common.cl);
+    ``totals`` float32 ``[runs]``, each run's Σ w.  A two-level sampler (rows, then columns)
+    builds its conditional CDFs from the map and its marginal from the conditional's totals."""
+    cdfs, totals = compute.empty(runs * n * 8), compute.empty(runs * 4)
+    event = compute.run(compute.kernel("iblbench.harness", "framecache.cl", "weight_cdfs"), runs,
+                        weights, np.int32(n), cdfs, totals)
+    return cdfs, totals, event_ms(event)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,14 +131,11 @@ class FrameCache:
             omega = c.to_device(cubemap.texel_solid_angles(res).astype(np.float32))
             conditional = c.empty(6 * res * res * 8)      # fixed-point CDF words (common.cl)
             row_weight = c.empty(6 * res * 4)
-            marginal = c.empty(6 * res * 8)
-            integral = c.empty(6 * 4)
             rows = c.run(c.kernel("iblbench.harness", "framecache.cl", "row_cdfs"), 6 * res,
                          self._env_buffer, omega, np.int32(res), conditional, row_weight)
-            faces = c.run(c.kernel("iblbench.harness", "framecache.cl", "face_cdfs"), 6,
-                          row_weight, np.int32(res), marginal, integral)
+            marginal, integral, faces_ms = build_fixed_point_cdfs(c, row_weight, 6, res)
             face_integrals = c.to_host(integral, (6,), np.float32)
-            self.timings_ms["cdf"] = event_ms(rows) + event_ms(faces)
+            self.timings_ms["cdf"] = event_ms(rows) + faces_ms
             self._cdf = (marginal, conditional, integral, face_integrals)
         return self._cdf
 

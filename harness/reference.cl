@@ -14,7 +14,15 @@
  * half-space r·ω > 0: exact, by clipping the texel to both planes.
  * Texels whose bounding cap keeps the lobe below LOBE_CUTOFF of its peak are skipped: their
  * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
- * Sums are compensated, in double where the device has it. */
+ *
+ * Speed (issue 10): one work item per pixel, in work groups that spread over every core;
+ * faces wholly below the pixel's horizon are skipped (exact: cos⁺ = 0 there, face_below), and
+ * a face's texels go LANES at a time through explicit vectors (SoA tables): the horizon and
+ * lobe tests, and the exact n·Φ_t of texels wholly above the horizon.  Black texels contribute nothing and are skipped.  The texels the horizon cuts or
+ * the lobe reaches (a few hundred of 6R²) go one by one, each vectorised inside: the clipped
+ * polygon's edges, and the lobe's sub-cells, are vector lanes.  The lobe's power is exact exp2
+ * of an accurate table-free log2 (log2_lanes), not a fast polynomial power.  Sums are plain, in
+ * double lanes where the device has it (float otherwise): a few thousand positive terms each. */
 #include "common.cl"
 
 #ifndef REF_DENSITY
@@ -24,28 +32,20 @@
 #define CELL_RADIANS 0.02f
 #define KINK_CELL_RADIANS 1e-3f
 #define MAX_CELLS 128
+#define LANES 8
+#define SUBCELL_LANES 16   /* sub-cells per step of specular_integral (~15% faster than 8 on PoCL) */
 
 #ifdef HAVE_FP64
 typedef double3 real3;
 #define REAL3(x) convert_double3(x)
+typedef long8 acc_index8_t;          /* shuffle masks and select conditions of acc8_t */
+#define convert_uindex8 convert_ulong8
 #else
 typedef float3 real3;
 #define REAL3(x) (x)
+typedef int8 acc_index8_t;
+#define convert_uindex8 convert_uint8
 #endif
-
-/* ∫ ω dω over the spherical polygon through p[0..k) (any positive scale):
- * (1/2) Σ θ_i γ_i, with θ_i the edge's arc and γ_i its unit plane normal (Arvo 1995). */
-inline real3 polygon_vector(const real3 *p, int k)
-{
-    real3 phi = (real3)(0, 0, 0);
-    for (int i = 0; i < k; ++i) {
-        real3 a = normalize(p[i]), b = normalize(p[(i + 1) % k]);
-        real3 c = cross(a, b);
-        acc_t s = length(c);
-        if (s > 0) phi += atan2(s, dot(a, b)) / s * c;
-    }
-    return (acc_t)0.5 * phi;
-}
 
 /* Sutherland–Hodgman: clip the convex polygon p[0..k) on the planar face quad (whose edges are
  * great-circle arcs) to a·x ≥ 0, into out[0..k+1); returns the clipped vertex count. */
@@ -71,11 +71,30 @@ inline void texel_quad(int face, int row, int col, int res, real3 *quad)
     quad[3] = REAL3(face_uv_to_dir(face, u0, v1));
 }
 
-/* n · ∫ ω dω over polygon p[0..k): ∫ cos dω when it lies above the horizon.  The orientation of
- * the polygon fixes the sign of the whole sum; the integral is ≥ 0. */
+/* n · ∫ ω dω over the spherical polygon through p[0..k) (k ≤ LANES, any positive scale): ∫ cos dω
+ * when it lies above the horizon.  ∫ ω dω = (1/2) Σ θ_i γ_i over the edges, θ_i the edge's arc
+ * and γ_i its unit plane normal (Arvo 1995); the edges go through vector lanes, one each.  The
+ * orientation of the polygon fixes the sign of the whole sum; the integral is ≥ 0. */
 inline acc_t polygon_cosine(float3 n, const real3 *p, int k)
 {
-    return k < 3 ? 0 : fabs(dot(REAL3(n), polygon_vector(p, k)));
+    if (k < 3) return 0;
+    acc_t x[LANES], y[LANES], z[LANES];
+    for (int i = 0; i < LANES; ++i) {
+        real3 v = i < k ? normalize(p[i]) : (real3)(0, 0, 0);
+        x[i] = v.x;
+        y[i] = v.y;
+        z[i] = v.z;
+    }
+    acc8_t ax = vload8(0, x), ay = vload8(0, y), az = vload8(0, z);
+    /* Edge i runs from vertex i to vertex i + 1 (mod k). */
+    acc_index8_t next = (acc_index8_t)(1, 2, 3, 4, 5, 6, 7, 8);
+    next = select(next, (acc_index8_t)0, next >= (acc_index8_t)k);
+    acc8_t bx = shuffle(ax, convert_uindex8(next)), by = shuffle(ay, convert_uindex8(next)),
+           bz = shuffle(az, convert_uindex8(next));
+    acc8_t cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
+    acc8_t s = sqrt(cx * cx + cy * cy + cz * cz);
+    acc8_t term = atan2(s, ax * bx + ay * by + az * bz) / s * (n.x * cx + n.y * cy + n.z * cz);
+    return fabs((acc_t)0.5 * sum_acc8(select((acc8_t)0, term, s > 0)));
 }
 
 /* ∫ cos⁺ dω over a texel the horizon cuts: the texel clipped to n·x ≥ 0. */
@@ -95,28 +114,70 @@ inline acc_t half_space_cosine(float3 n, float3 r, int face, int row, int col, i
     return polygon_cosine(n, both, clip_to_halfspace(by_r, k, REAL3(n), both));
 }
 
-/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by midpoint quadrature on sub-cells of the face square;
- * cells per side follow the lobe width 1/√m across the texel's angular radius α and the
- * cut planes (see the top of this file). */
-inline acc_t specular_integral(float3 n, float3 r, float m, int face, int row, int col, int res,
-                               float alpha, int cut_by_horizon, int cut_by_lobe_plane)
+/* log2 x for positive normal x, without table lookups (PoCL's log2 gathers its table lane by
+ * lane): x = 2^e·a with a in [√½, √2), ln a = 2 atanh(t), t = (a − 1)/(a + 1), |t| ≤ 0.172, by
+ * its series to t^9 (the next term is below 2^-28 relative, under float rounding).  Relative
+ * error a few ulps, also near x = 1 where log2 x → 0. */
+inline float16 log2_lanes(float16 x)
 {
-    int cells = clamp((int)ceil(alpha * max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS)), 2, 64);
+    int16 bits = as_int16(x);
+    float16 a = as_float16((bits & 0x007fffff) | 0x3f800000);   /* [1, 2) */
+    int16 upper = a > 1.41421356f;                              /* −1 where a ≥ √2 */
+    a = select(a, 0.5f * a, upper);
+    float16 exponent = convert_float16(((bits >> 23) & 0xff) - 127 - upper);
+    float16 t = (a - 1.0f) / (a + 1.0f), t2 = t * t;
+    float16 series = 1.0f + t2 * (1.0f / 3.0f + t2 * (1.0f / 5.0f + t2 * (1.0f / 7.0f + t2 * (1.0f / 9.0f))));
+    return exponent + (2.0f * 1.44269504088896341f) * t * series;
+}
+
+/* r·ω and n·ω over face f as linear forms of the face point (u, v), times √q: the point's
+ * direction N + uU + vV (face_uv_to_dir is linear) has orthonormal N, U, V and squared length
+ * q = 1 + u² + v².  Each form holds (x·N, x·U, x·V). */
+typedef struct { float3 r, n; } face_forms_t;
+
+inline face_forms_t face_forms(float3 n, float3 r, int face)
+{
+    float3 origin = face_uv_to_dir(face, 0.0f, 0.0f);
+    float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin;
+    float3 along_v = face_uv_to_dir(face, 0.0f, 1.0f) - origin;
+    face_forms_t forms = {(float3)(dot(r, origin), dot(r, along_u), dot(r, along_v)),
+                          (float3)(dot(n, origin), dot(n, along_u), dot(n, along_v))};
+    return forms;
+}
+
+/* Sub-cells per radian of a texel's angular radius for shininess m: REF_DENSITY per lobe width
+ * 1/√m, and none wider than CELL_RADIANS. */
+inline float cells_per_radian(float m) { return max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS); }
+
+/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by midpoint quadrature on sub-cells of the face square;
+ * cells per side follow the lobe width across the texel's angular radius α and the cut planes
+ * (see the top of this file).  With the face forms, cos_r^m = exp2(m/2 · log2((r·d)²/q)) (exact
+ * exp2 and log2_lanes, not a fast power: the reference needs ~1e-6) and dω = dA/q^{3/2}.
+ * SUBCELL_LANES sub-cells per step. */
+inline acc_t specular_integral(face_forms_t forms, float m, float density, int row, int col,
+                               int res, float alpha, int cut_by_horizon, int cut_by_lobe_plane)
+{
+    int cells = clamp((int)ceil(alpha * density), 2, 64);
     if (cut_by_horizon) cells = max(cells, 8);
     if (cut_by_lobe_plane) cells = clamp((int)ceil(alpha / KINK_CELL_RADIANS), cells, MAX_CELLS);
-    float step = 2.0f / (res * cells);
-    acc_t sum = 0;      /* up to MAX_CELLS² positive terms */
-    for (int i = 0; i < cells; ++i) {
-        float v = -1.0f + 2.0f * row / res + (i + 0.5f) * step;
-        for (int j = 0; j < cells; ++j) {
-            float u = -1.0f + 2.0f * col / res + (j + 0.5f) * step;
-            float3 w = normalize(face_uv_to_dir(face, u, v));
-            float c_r = dot(r, w), c_n = dot(n, w);
-            if (c_r > 0.0f && c_n > 0.0f)
-                sum += exp2(m * log2(c_r)) * c_n / area_per_solid_angle(u, v);
-        }
+    float step = 2.0f / (res * cells), per_cell = 1.0f / cells;
+    float u0 = -1.0f + 2.0f * col / res, v0 = -1.0f + 2.0f * row / res;
+    const float16 lane = (float16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    acc8_t sum = 0;      /* up to MAX_CELLS² positive terms */
+    int count = cells * cells;
+    for (int k = 0; k < count; k += SUBCELL_LANES) {
+        float16 index = (float)k + lane;
+        /* Row and column of the sub-cell: exact for these small integers (truncation is floor). */
+        float16 i = convert_float16(convert_int16((index + 0.5f) * per_cell)), j = index - i * cells;
+        float16 v = v0 + (i + 0.5f) * step, u = u0 + (j + 0.5f) * step;
+        float16 inverse_q = 1.0f / (1.0f + u * u + v * v);
+        float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z;   /* times √q */
+        float16 c_n = forms.n.x + u * forms.n.y + v * forms.n.z;
+        float16 term = exp2(0.5f * m * log2_lanes(c_r * c_r * inverse_q)) * c_n * inverse_q * inverse_q;
+        term = select((float16)0.0f, term, c_r > 0.0f && c_n > 0.0f && index < count);
+        sum += convert_acc8(term.lo) + convert_acc8(term.hi);
     }
-    return sum * step * step;
+    return sum_acc8(sum) * step * step;
 }
 
 /* The lobe falls below LOBE_CUTOFF beyond angle θ_cut from r: (cos θ_cut, sin θ_cut). */
@@ -126,61 +187,132 @@ inline float2 lobe_cut(float m)
     return (float2)(cos_cut, sqrt(1.0f - cos_cut * cos_cut));
 }
 
+/* Texel tables as structures of arrays: plane k of `table` holds, for every texel t (stride
+ * `texels`, the 6R² texels plus LANES of padding), k = 0-2 its centre, 3 sin α, 4-6 Φ_t, 7 α
+ * (reference.py's texel_tables); `env_planes` holds the map's red, green and blue. */
+#define PLANE(table, k, t, texels) ((table)[(k) * (texels) + (t)])
+#define PLANE_LANES(table, k, t, texels) vload8(0, (table) + (k) * (texels) + (t))
+
+/* Where texel t stands for normal n and mirror direction r: its bounding cap against the
+ * horizon, and whether any point of the cap is within θ_cut of r (the cos(θ_cut + α) test).
+ * Scalar and vector alike (gentype float or float8), so that both kernels classify alike. */
+#define CLASSIFY(n, r, cx, cy, cz, sin_a, cut, cn, cr, above, cut_by_horizon, in_lobe) \
+    cn = n.x * (cx) + n.y * (cy) + n.z * (cz); \
+    cr = r.x * (cx) + r.y * (cy) + r.z * (cz); \
+    above = cn >= (sin_a); \
+    cut_by_horizon = cn > -(sin_a) && !(above); \
+    in_lobe = cr > (cut).x * sqrt(1.0f - (sin_a) * (sin_a)) - (cut).y * (sin_a);
+
+/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω of texel t, whose cap reaches the lobe and the upper
+ * hemisphere (cr = r·centre); `forms` are those of its face. */
+inline acc_t texel_lobe(float3 n, float3 r, float m, face_forms_t forms, int t, int res, float sin_a,
+                        float alpha, float cr, int cut_by_horizon)
+{
+    int face = t / (res * res), row = (t / res) % res, col = t % res;
+    int cut_by_lobe_plane = m < 2.0f && fabs(cr) < sin_a;
+    return m == 0.0f ? half_space_cosine(n, r, face, row, col, res)
+                     : specular_integral(forms, m, cells_per_radian(m), row, col, res, alpha,
+                                         cut_by_horizon, cut_by_lobe_plane);
+}
+
 /* ∫_texel cos⁺(n·ω) dω (x) and ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω (y, 0 without a lobe or where
  * the texel's cap is beyond the lobe's cut) of texel t; 0 for a texel wholly below the horizon. */
 inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cut,
-                            __global const float4 *texel_centre, __global const float4 *texel_vector,
-                            int t, int res, acc_t *cosine, acc_t *lobe)
+                            __global const float *table, int texels, int t, int res,
+                            acc_t *cosine, acc_t *lobe)
 {
-    float4 centre = texel_centre[t];
-    float cn = dot(n, centre.xyz);
+    float sin_a = PLANE(table, 3, t, texels), cn, cr;
+    int above, cut_by_horizon, in_lobe;
+    CLASSIFY(n, r, PLANE(table, 0, t, texels), PLANE(table, 1, t, texels), PLANE(table, 2, t, texels),
+             sin_a, cut, cn, cr, above, cut_by_horizon, in_lobe)
     *cosine = 0;
     *lobe = 0;
-    if (cn <= -centre.w) return;                    /* the texel's cap is below the horizon */
-    int face = t / (res * res), row = (t / res) % res, col = t % res;
-    int cut_by_horizon = cn < centre.w;
-    float4 phi = texel_vector[t];
-    *cosine = cut_by_horizon ? clipped_cosine(n, face, row, col, res) : (acc_t)dot(n, phi.xyz);
-    /* Is any point of the cap within θ_cut of r?  cos(θ_cut + α) test. */
-    float sin_a = centre.w, cos_a = sqrt(1.0f - sin_a * sin_a);
-    if (specular && dot(r, centre.xyz) > cut.x * cos_a - cut.y * sin_a) {
-        int cut_by_lobe_plane = m < 2.0f && fabs(dot(r, centre.xyz)) < sin_a;
-        *lobe = m == 0.0f ? half_space_cosine(n, r, face, row, col, res)
-              : specular_integral(n, r, m, face, row, col, res, phi.w, cut_by_horizon,
-                                  cut_by_lobe_plane);
-    }
+    if (above)
+        *cosine = n.x * PLANE(table, 4, t, texels) + n.y * PLANE(table, 5, t, texels)
+                + n.z * PLANE(table, 6, t, texels);
+    if (cut_by_horizon)
+        *cosine = clipped_cosine(n, t / (res * res), (t / res) % res, t % res, res);
+    if (specular && in_lobe && (above || cut_by_horizon))
+        *lobe = texel_lobe(n, r, m, face_forms(n, r, t / (res * res)), t, res, sin_a,
+                           PLANE(table, 7, t, texels), cr, cut_by_horizon);
 }
 
 inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }
 
+/* Is the whole face in the closed lower hemisphere of n?  Yes when its four corners are: every
+ * direction on the face is a positive multiple of a convex combination of them. */
+inline int face_below(float3 n, int face)
+{
+    int below = 1;
+    for (int j = 0; j < 4; ++j)
+        below &= dot(n, face_uv_to_dir(face, (j & 1) ? 1.0f : -1.0f, (j & 2) ? 1.0f : -1.0f)) <= 0.0f;
+    return below;
+}
+
+/* The reference of pixels first … first + count − 1 (one enqueue of a chunk), one work item
+ * each.  Faces wholly below the horizon are skipped (exact: cos⁺ = 0 on them).  A face's
+ * texels go LANES at a time: the diffuse term n·Φ_t of lit texels wholly above the horizon in
+ * vector lanes; lit texels that the horizon cuts or the lobe reaches (a few hundred per pixel)
+ * one by one, as texel_integrals does them. */
 __kernel void reference(__global const float4 *normal, __global const float4 *view,
                         __global const float4 *kd, __global const float4 *ks_m,
-                        __global const float4 *env, __global const float4 *texel_centre,
-                        __global const float4 *texel_vector, const int res,
+                        __global const float *env_planes, __global const float *table,
+                        const int res, const int texels, const int first, const int count,
                         __global float4 *out)
 {
-    int p = get_global_id(0);
+    if (get_global_id(0) >= count) return;
+    int p = first + get_global_id(0);
     float3 n = normal[p].xyz, r = reflect_view(n, view[p].xyz);
     float3 rho_s = ks_m[p].xyz;
     float m = ks_m[p].w;
     int specular = has_lobe(rho_s);
     float2 cut = lobe_cut(m);
-    kahan_t diffuse[3] = {{0, 0}, {0, 0}, {0, 0}}, glossy[3] = {{0, 0}, {0, 0}, {0, 0}};
-    int texels = 6 * res * res;
-    for (int t = 0; t < texels; ++t) {
-        float3 radiance = env[t].xyz;
-        if (!(radiance.x + radiance.y + radiance.z > 0.0f)) continue;
-        acc_t cosine, lobe;
-        texel_integrals(n, r, m, specular, cut, texel_centre, texel_vector, t, res, &cosine, &lobe);
-        kahan_add(&diffuse[0], cosine * radiance.x);
-        kahan_add(&diffuse[1], cosine * radiance.y);
-        kahan_add(&diffuse[2], cosine * radiance.z);
-        kahan_add(&glossy[0], lobe * radiance.x);
-        kahan_add(&glossy[1], lobe * radiance.y);
-        kahan_add(&glossy[2], lobe * radiance.z);
+    const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    acc8_t whole_red = 0, whole_green = 0, whole_blue = 0;   /* Σ L·n·Φ_t, whole visible texels */
+    acc_t diffuse[3] = {0, 0, 0}, glossy[3] = {0, 0, 0};   /* the texels taken one by one */
+    for (int face = 0; face < 6; ++face) {
+        if (face_below(n, face)) continue;
+        face_forms_t forms = face_forms(n, r, face);
+        int end = (face + 1) * res * res;
+        for (int t = face * res * res; t < end; t += LANES) {
+            float8 red = PLANE_LANES(env_planes, 0, t, texels), green = PLANE_LANES(env_planes, 1, t, texels),
+                   blue = PLANE_LANES(env_planes, 2, t, texels), sin_a = PLANE_LANES(table, 3, t, texels);
+            float8 cn, cr;
+            int8 above, cut_by_horizon, in_lobe;
+            CLASSIFY(n, r, PLANE_LANES(table, 0, t, texels), PLANE_LANES(table, 1, t, texels),
+                     PLANE_LANES(table, 2, t, texels), sin_a, cut, cn, cr, above, cut_by_horizon, in_lobe)
+            int8 lit = red + green + blue > 0.0f && t + lane < end;
+            float8 cosine = n.x * PLANE_LANES(table, 4, t, texels) + n.y * PLANE_LANES(table, 5, t, texels)
+                          + n.z * PLANE_LANES(table, 6, t, texels);
+            cosine = select((float8)0.0f, cosine, lit && above);
+            whole_red += convert_acc8(cosine * red);
+            whole_green += convert_acc8(cosine * green);
+            whole_blue += convert_acc8(cosine * blue);
+            int8 one_by_one = lit && (cut_by_horizon || (specular && in_lobe && above));
+            if (!any(one_by_one)) continue;
+            for (int k = 0; k < LANES; ++k) {
+                if (!((int *)&one_by_one)[k]) continue;
+                int texel = t + k, cut_k = ((int *)&cut_by_horizon)[k];
+                float3 radiance = (float3)(((float *)&red)[k], ((float *)&green)[k], ((float *)&blue)[k]);
+                if (cut_k) {
+                    acc_t clipped = clipped_cosine(n, face, (texel / res) % res, texel % res, res);
+                    diffuse[0] += clipped * radiance.x;
+                    diffuse[1] += clipped * radiance.y;
+                    diffuse[2] += clipped * radiance.z;
+                }
+                if (specular && ((int *)&in_lobe)[k]) {
+                    acc_t lobe = texel_lobe(n, r, m, forms, texel, res, ((float *)&sin_a)[k],
+                                            PLANE(table, 7, texel, texels), ((float *)&cr)[k], cut_k);
+                    glossy[0] += lobe * radiance.x;
+                    glossy[1] += lobe * radiance.y;
+                    glossy[2] += lobe * radiance.z;
+                }
+            }
+        }
     }
-    float3 d = (float3)((float)diffuse[0].sum, (float)diffuse[1].sum, (float)diffuse[2].sum);
-    float3 s = (float3)((float)glossy[0].sum, (float)glossy[1].sum, (float)glossy[2].sum);
+    float3 d = (float3)((float)(sum_acc8(whole_red) + diffuse[0]), (float)(sum_acc8(whole_green) + diffuse[1]),
+                        (float)(sum_acc8(whole_blue) + diffuse[2]));
+    float3 s = (float3)((float)glossy[0], (float)glossy[1], (float)glossy[2]);
     float3 result = kd[p].xyz / IBL_PI * d;
     if (specular) result += rho_s * (m + 2.0f) / (2.0f * IBL_PI) * s;
     out[p] = (float4)(result, 0.0f);
@@ -189,15 +321,13 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
 /* One work item per texel t of pixel p: out[t] = (∫_t cos⁺, ∫_t lobe·cos⁺) of the reference's
  * quadrature, from which a pixel's integral splits into per-texel shares (the stress battery). */
 __kernel void texel_integral_table(__global const float4 *normal, __global const float4 *view,
-                                   __global const float4 *ks_m, __global const float4 *texel_centre,
-                                   __global const float4 *texel_vector, const int res, const int p,
-                                   __global float2 *out)
+                                   __global const float4 *ks_m, __global const float *table,
+                                   const int res, const int texels, const int p, __global float2 *out)
 {
     int t = get_global_id(0);
     float3 n = normal[p].xyz, r = reflect_view(n, view[p].xyz);
     float m = ks_m[p].w;
     acc_t cosine, lobe;
-    texel_integrals(n, r, m, has_lobe(ks_m[p].xyz), lobe_cut(m), texel_centre, texel_vector, t, res,
-                    &cosine, &lobe);
+    texel_integrals(n, r, m, has_lobe(ks_m[p].xyz), lobe_cut(m), table, texels, t, res, &cosine, &lobe);
     out[t] = (float2)((float)cosine, (float)lobe);
 }

@@ -7,6 +7,7 @@ import pathlib
 from typing import Iterator
 
 import numpy as np
+import pyopencl as cl
 
 from iblbench.harness.device import Compute, cache_dir, event_ms, kernel_path
 from iblbench.scenes import cubemap
@@ -14,6 +15,9 @@ from iblbench.scenes.atomic import atomic_path
 
 # Sub-cells per lobe width for the specular quadrature (see reference.cl); part of the cache key.
 DEFAULT_DENSITY = 16
+LANES = 8              # texels per vector step of reference.cl: the tables' padding
+CHUNK_PIXELS = 4096    # pixels per enqueue: Ctrl-C stops a reference between chunks
+WORK_GROUP = 64        # pixels per work group, at most: many groups, so every core gets some
 
 
 def arc_vectors(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -50,6 +54,20 @@ def _face_tables(res: int) -> tuple[np.ndarray, ...]:
                              for i in (0, 1) for j in (0, 1)], axis=0)
     alpha = np.arccos(np.clip(nearest_corner, -1.0, 1.0))
     return centre, np.sin(alpha), phi, alpha
+
+
+def planes(values: np.ndarray) -> np.ndarray:
+    """Per-texel values ``[6·R·R, k]`` as k planes ``[k, 6·R·R + LANES]`` (float32, zero padded,
+    so reference.cl's vector loads of the last texels stay inside)."""
+    out = np.zeros((values.shape[1], values.shape[0] + LANES), np.float32)
+    out[:, :values.shape[0]] = values.T
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def texel_table(res: int) -> np.ndarray:
+    """``texel_tables`` as the planes of reference.cl: centre, sin α, Φ_t, α ``[8, 6·R·R + LANES]``."""
+    return planes(np.concatenate(texel_tables(res), axis=1))
 
 
 @functools.lru_cache(maxsize=8)
@@ -111,23 +129,36 @@ class Reference:
         ``res``: (∫_t cos⁺ dω, ∫_t max(0, r·ω)^m cos⁺ dω), float32 ``[6, R, R, 2]``, by the
         quadrature of :meth:`image` (which is Σ_t L_t (kd/π·first + ks·(m+2)/(2π)·second))."""
         c = self.compute
-        centre, vector = (c.to_device(table) for table in texel_tables(res))
+        table = texel_table(res)
+        table_buffer = c.to_device(table)
         out = c.empty(6 * res * res * 8)
         kernel = c.kernel("iblbench.harness", "reference.cl", "texel_integral_table",
                           {"REF_DENSITY": self.density})
         for pixel in range(gbuffer.count):
-            c.run(kernel, 6 * res * res, gbuffer.normal, gbuffer.view, gbuffer.ks, centre, vector,
-                  np.int32(res), np.int32(pixel), out)
+            c.run(kernel, 6 * res * res, gbuffer.normal, gbuffer.view, gbuffer.ks, table_buffer,
+                  np.int32(res), np.int32(table.shape[1]), np.int32(pixel), out)
             yield c.to_host(out, (6, res, res, 2), np.float32)
 
     def _compute(self, gbuffer, cache) -> np.ndarray:
+        """The image's covered pixels, CHUNK_PIXELS per enqueue (so that a Ctrl-C between two
+        chunks stops it); ``last_ms`` sums the chunks' device times."""
         c = self.compute
-        centre, vector = texel_tables(cache.res)
+        table = texel_table(cache.res)
+        table_buffer = c.to_device(table)
+        env_planes = c.to_device(planes(cache.env.reshape(-1, 3)))
         out = c.empty(gbuffer.count * 16)
         kernel = c.kernel("iblbench.harness", "reference.cl", "reference",
                           {"REF_DENSITY": self.density})
-        event = c.run(kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd,
-                      gbuffer.ks, cache.env_buffer, c.to_device(centre), c.to_device(vector),
-                      np.int32(cache.res), out)
-        self.last_ms = event_ms(event)
+        group = min(WORK_GROUP, kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
+                                                             c.info.device))
+        self.last_ms = 0.0
+        for first in range(0, gbuffer.count, CHUNK_PIXELS):
+            count = min(CHUNK_PIXELS, gbuffer.count - first)
+            kernel.set_args(gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, env_planes,
+                            table_buffer, np.int32(cache.res), np.int32(table.shape[1]),
+                            np.int32(first), np.int32(count), out)
+            size = -(-count // group) * group
+            event = cl.enqueue_nd_range_kernel(c.queue, kernel, (size,), (group,))
+            event.wait()
+            self.last_ms += event_ms(event)
         return c.to_host(out, (gbuffer.count, 4), np.float32)[:, :3]

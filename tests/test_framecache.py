@@ -1,11 +1,13 @@
 """Device CDFs and face integrals against NumPy; the reference without fp64."""
+import math
+
 import numpy as np
 import pytest
 
 from iblbench.harness.conformance import fibonacci_directions, smooth_map
 from iblbench.harness.device import Compute, DeviceInfo
 from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import CDF_ONE, FrameCache
+from iblbench.harness.framecache import CDF_ONE, FrameCache, build_fixed_point_cdfs
 from iblbench.harness.reference import Reference
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
@@ -43,6 +45,70 @@ def test_cdfs_match_numpy(compute, res):
     assert np.all(p_texel[positive] > 0)
     assert np.allclose(p_texel[positive], expected[positive], rtol=1e-6, atol=0)
     assert np.all(p_texel[expected == 0] == 0)       # black texels are never sampled
+
+
+def numpy_fixed_point_cdfs(weights):
+    """The fixed-point CDF of each run (row) of float32 ``weights``, built independently of the
+    device: W by math.fsum (exactly rounded), widths max(1, ⌊(w·(1/W))·2^63⌋) for w > 0 in
+    float64, the remainder 2^63 − Σ q added to the first largest bin, inclusive sums mod 2^64;
+    an all-zero run is uniform.  Returns (cdfs uint64, W as float32)."""
+    cdfs, totals = [], []
+    for run in np.asarray(weights, np.float32).astype(np.float64):
+        total = math.fsum(run)
+        weight, inverse = (run, 1.0 / total) if total > 0 else (np.ones_like(run), 1.0 / run.size)
+        scaled = np.floor(weight * inverse * 2.0 ** 63)
+        widths = np.where(weight > 0, np.maximum(scaled, 1.0), 0.0).astype(np.uint64)
+        largest = int(np.argmax(run)) if total > 0 else 0
+        remainder = CDF_ONE - int(widths.sum(dtype=np.uint64))
+        widths[largest] = np.uint64((int(widths[largest]) + remainder) % 2 ** 64)
+        cdfs.append(np.cumsum(widths, dtype=np.uint64))
+        totals.append(np.float32(total))
+    return np.array(cdfs), np.array(totals)
+
+
+def contrast_weights(rng, runs, n):
+    """Weights over 40 decades, with zeros, ties for the largest, a sun per run, an all-zero
+    run, and a run whose sum a plain double sum rounds wrongly: the cases where relative
+    rounding, the remainder and W's compensation matter."""
+    weights = (10.0 ** rng.uniform(-30, 10, (runs, n))).astype(np.float32)
+    weights[rng.random((runs, n)) < 0.2] = 0.0
+    weights[:, rng.integers(n)] = 1e20
+    weights[0] = 0.0
+    if n > 2:
+        weights[1, [1, n - 1]] = weights[1].max()   # a tie: the first one takes the remainder
+        weights[2] = 2.0 ** -53                       # each lost in 1 + 2^-53, not in the sum,
+        weights[2, :2] = 1.0, 0.5                     # which sets the width of the second bin
+    return weights
+
+
+@pytest.mark.parametrize("n", [1, 7, 8, 13, 1000])
+def test_weight_cdfs_equal_an_independent_numpy_construction(compute, n):
+    weights = contrast_weights(np.random.default_rng(n), 5, n)
+    cdfs, totals, _ = build_fixed_point_cdfs(compute, compute.to_device(weights), 5, n)
+    expected, expected_totals = numpy_fixed_point_cdfs(weights)
+    np.testing.assert_array_equal(compute.to_host(cdfs, (5, n), np.uint64), expected)
+    np.testing.assert_array_equal(compute.to_host(totals, (5,), np.float32), expected_totals)
+    assert np.all(expected[:, -1] == CDF_ONE)
+
+
+def test_frame_cdfs_equal_an_independent_numpy_construction(compute):
+    """The frame cache's conditional (rows of Y·Ω) and marginal (row totals) CDFs, bit for bit.
+    Only the green channel is lit, so Y·Ω in float32 is (0.7152·G)·Ω however the device
+    contracts the luminance's multiply-adds."""
+    res = 37                                          # rows of whole vector blocks and a tail
+    rng = np.random.default_rng(8)
+    env = np.zeros((6, res, res, 3), np.float32)
+    env[..., 1] = contrast_weights(rng, 6 * res, res).reshape(6, res, res)
+    env[3] = 0.0
+    omega = cubemap.texel_solid_angles(res).astype(np.float32)
+    weights = (np.float32(0.7152) * env[..., 1]) * omega
+    conditional, row_totals = numpy_fixed_point_cdfs(weights.reshape(6 * res, res))
+    marginal, face_totals = numpy_fixed_point_cdfs(row_totals.reshape(6, res))
+    cache = FrameCache(compute, env)
+    device_marginal, device_conditional = cache.host_cdfs()
+    np.testing.assert_array_equal(device_conditional, conditional.reshape(6, res, res))
+    np.testing.assert_array_equal(device_marginal, marginal)
+    np.testing.assert_array_equal(cache.face_integrals, face_totals)
 
 
 def test_reference_without_fp64_matches(compute, monkeypatch):

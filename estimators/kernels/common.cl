@@ -14,9 +14,18 @@
 #ifdef HAVE_FP64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 typedef double acc_t;
+typedef double8 acc8_t;   /* eight lanes of acc_t, for sums in explicit vectors */
+#define convert_acc8 convert_double8
 #else
 typedef float acc_t;
+typedef float8 acc8_t;
+#define convert_acc8 convert_float8
 #endif
+
+inline acc_t sum_acc8(acc8_t v)
+{
+    return ((v.s0 + v.s1) + (v.s2 + v.s3)) + ((v.s4 + v.s5) + (v.s6 + v.s7));
+}
 
 typedef struct { acc_t sum, carry; } kahan_t;
 
