@@ -37,24 +37,32 @@ inline void kahan_add(kahan_t *k, acc_t x)
 /* Three floats in a struct, not a float3: LLVM's loop vectoriser, which PoCL runs across the work
  * items, rejects every instruction of vector type ("instruction return type cannot be
  * vectorized"), so code meant to run SIMD across work items keeps 3-vectors as scalars (a struct
- * of scalars lives in registers) and loads buffers component by component.  The float3 forms of
- * the helpers below wrap the vec3_t ones. */
-typedef struct { float x, y, z; } vec3_t;
+ * of scalars lives in registers).  The padding makes the struct 20 bytes: the x86-64 ABI then
+ * returns it in memory, which inlining removes, instead of as a <2 x float> and a float, which
+ * stays a 2-vector in the IR.  The float3 forms of the helpers below wrap the vec3_t ones. */
+typedef struct { float x, y, z, padding[2]; } vec3_t;
 
 ALWAYS_INLINE vec3_t vec3(float x, float y, float z)
 {
-    vec3_t v = {x, y, z};
+    vec3_t v = {x, y, z, {0.0f, 0.0f}};
     return v;
 }
 
 ALWAYS_INLINE vec3_t vec3_of(float3 a) { return vec3(a.x, a.y, a.z); }
 ALWAYS_INLINE float3 float3_of(vec3_t a) { return (float3)(a.x, a.y, a.z); }
 
-/* .xyz of element i of a float4 buffer, as three scalar loads. */
+/* .xyz of element i of a float4 buffer, as three scalar loads.  The component stride is
+ * get_work_dim(), which is 1 for the 1-D kernels here but unknown to the compiler: PoCL runs
+ * LLVM's SLP vectoriser on the kernel before it builds the work-item loops, and that pass fuses
+ * loads it can prove adjacent, and the x and y arithmetic that follows them, into 2-vectors,
+ * which then keep the work-item loop scalar.  (balanced_mis on PoCL 3.1: with literal offsets
+ * 6 of the 41 work-item loops in its three compiled copies vectorise, with this stride and
+ * vec3_t's padding 21, its sample loops among them.) */
 ALWAYS_INLINE vec3_t vec3_load(__global const float4 *buffer, int i)
 {
     __global const float *f = (__global const float *)(buffer + i);
-    return vec3(f[0], f[1], f[2]);
+    int stride = (int)get_work_dim();
+    return vec3(f[0], f[stride], f[2 * stride]);
 }
 
 /* .w of element i of a float4 buffer. */
@@ -243,7 +251,7 @@ ALWAYS_INLINE float phong_power(float c, float m)
     float log2_f = s * (2.8853900817779268f + z * (0.9617966939259756f + z * (0.5770780163555853f
                  + z * (0.4121985831111324f + z * 0.3205988979753252f))));
     float y = max(m * ((float)e + log2_f), -127.0f);
-    float n = rint(y), r = y - n;
+    float n = -(float)(int)(0.5f - y), r = y - n;   /* n = round(y) (halves down), y ≤ 0 */
     float exp2_r = 1.0f + r * (0.6931471805599453f + r * (0.2402265069591007f
                  + r * (0.055504108664821576f + r * (0.009618129107628477f
                  + r * (0.0013333558146428441f + r * (0.00015403530393381606f
