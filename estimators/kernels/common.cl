@@ -262,7 +262,10 @@ ALWAYS_INLINE float phong_power(float c, float m)
 
 /* The specular lobe's power cos⁺(r, ω)^m.  phong_value and phong_mixture_pdf take it, so a
  * sample that needs the BRDF and the pdf at one direction computes it once. */
-ALWAYS_INLINE float phong_lobe_power(vec3_t r, vec3_t w, float m) { return phong_power(max(vec3_dot(r, w), 0.0f), m); }
+ALWAYS_INLINE float phong_lobe_power(vec3_t r, vec3_t w, float m)
+{
+    return phong_power(max(vec3_dot(r, w), 0.0f), m);
+}
 
 /* ρ = kd/π + ks·(m+2)/(2π)·max(0, r·ω)^m (no cosine), given the lobe power. */
 ALWAYS_INLINE vec3_t phong_value(vec3_t kd, vec3_t ks, float m, float power)
@@ -362,8 +365,8 @@ ALWAYS_INLINE vec3_t direction_about_axis(vec3_t z, float cos_theta, float u)
     vec3_t b = vec3(c, sign + z.y * z.y * a, -z.y);
     float sin_theta = sqrt(max(0.0f, 1.0f - cos_theta * cos_theta)), sine, cosine;
     sincos_turn(u, &sine, &cosine);
-    return vec3_normalize(vec3_add(vec3_add(vec3_scale(t, sin_theta * cosine), vec3_scale(b, sin_theta * sine)),
-                                   vec3_scale(z, cos_theta)));
+    vec3_t around = vec3_add(vec3_scale(t, sin_theta * cosine), vec3_scale(b, sin_theta * sine));
+    return vec3_normalize(vec3_add(around, vec3_scale(z, cos_theta)));
 }
 
 inline float3 direction_about(float3 z, float cos_theta, float u)

@@ -93,16 +93,17 @@ ALWAYS_INLINE void split_ticks(const float weight[6], int total, int ticks[6])
     for (int f = 0; f < 6; ++f) ticks[f] -= (f == largest && positive) ? deficit : 0;
 }
 
-/* Ticks of every strategy for a pixel: six light faces, then the BRDF.  `balanced_faces` picks
- * μ_f(n) of Eq. 3 (else μ_f = 1/6); `brdf_samples` gives half the budget to BRDF sampling
- * (Eq. 6).  Faces with zero luminance integral are never drawn (their ticks are dropped, so they
- * count neither as used nor in the MIS denominator; their integrand is zero). */
+/* Ticks of the light faces together: the whole budget, or half of it with BRDF samples (Eq. 6). */
 inline int light_ticks(int spp, int brdf_samples)
 {
     int total = spp * TICKS_PER_SAMPLE;
     return brdf_samples ? total / 2 : total;
 }
 
+/* Ticks of every strategy for a pixel: six light faces, then the BRDF.  `balanced_faces` picks
+ * μ_f(n) of Eq. 3 (else μ_f = 1/6); `brdf_samples` gives half the budget to BRDF sampling
+ * (Eq. 6).  Faces with zero luminance integral are never drawn (their ticks are dropped, so they
+ * count neither as used nor in the MIS denominator; their integrand is zero). */
 ALWAYS_INLINE void strategy_ticks(vec3_t n, __global const float *face_integral, int spp,
                            int balanced_faces, int brdf_samples, int ticks[7])
 {
@@ -127,12 +128,12 @@ ALWAYS_INLINE void strategy_ticks(vec3_t n, __global const float *face_integral,
  * data-dependent branch prevents. */
 
 /* A pixel's running estimate.  The radiance sum accumulates in the output's colour planes
- * (R, G, B at sum[p], sum[plane + p], sum[2·plane + p] for pixel p = get_global_id(0)), not in
- * three registers: PoCL's compiler first pairs such x/y accumulators into 2-vectors (its early
- * SLP pass), and the work-item vectoriser then rejects the loop; planes an unknown stride apart
- * are never paired.  p is read where it is used: an index carried into the loop would be a
- * per-work-item unknown, and the planes would be gathered and scattered instead of loaded.
- * The counts that do not depend on the samples (used ticks, evaluations) are set by the kernel. */
+ * (R, G, B at sum[0], sum[plane], sum[2·plane]), not in three registers: PoCL's compiler first
+ * pairs such x/y accumulators into 2-vectors (its early SLP pass), and the work-item vectoriser
+ * then rejects the loop; planes an unknown stride apart are never paired.  (The compiler hoists
+ * the pixel's plane addresses out of the sample loop, so the vector code gathers and scatters
+ * them.)  The counts that do not depend on the samples (used ticks, evaluations) are set by the
+ * kernel. */
 typedef struct {
     __global float *sum;
     int plane;
@@ -150,11 +151,10 @@ ALWAYS_INLINE void add_sample(accumulator_t *acc, const shading_t *s, int active
     int counts = active && cosine > 0.0f && denominator > 0.0f;
     float weight = counts ? (float)beta / denominator * cosine : 0.0f;
     vec3_t value = vec3_scale(vec3_mul(phong_value(s->kd, s->ks, s->m, power), radiance), weight);
-    __global float *sum = acc->sum + get_global_id(0);
     acc->effective += counts ? beta : 0;
-    sum[0] += value.x;
-    sum[acc->plane] += value.y;
-    sum[2 * acc->plane] += value.z;
+    acc->sum[0] += value.x;
+    acc->sum[acc->plane] += value.y;
+    acc->sum[2 * acc->plane] += value.z;
 }
 
 /* Number of draws for t ticks and β (in ticks) of draw i: Eq. 5. */
@@ -187,11 +187,11 @@ inline void drawn_counts(const int ticks[7], int pool_size, int *used, int *draw
  * ⌈T/Q⌉ + 5 for light ticks T = Σ_f t_f. */
 inline int light_draws_bound(int light_ticks) { return draws_for(light_ticks) + 5; }
 
-/* Light samples of every face (Eq. 4, or the g_{f,i} of Eq. 6).  A pixel reads draws_for(t_f)
+/* Light samples of every face (Eq. 4, or the g_{f,i} of Eq. 6).  A pixel reads face_draws(t_f)
  * consecutive pool entries of face f from `offset` (0 for the shared sequence; offset <
- * pool_size), wrapping at pool_size (face_draws).  One loop over all the pixel's draws, face after face, not one per face: its trip
- * count `bound` (light_draws_bound) is the same for every pixel, and draw j's face is found by
- * comparisons against the faces' cumulative draw counts instead of a search.
+ * pool_size), wrapping at pool_size.  One loop over all the pixel's draws, face after face: its
+ * trip count `bound` (light_draws_bound) is the same for every pixel, and draw j's face is found
+ * by comparisons against the faces' cumulative draw counts instead of a search.
  * brdf_samples = 0 leaves the BRDF term out of the denominator (t_6 = 0 there). */
 ALWAYS_INLINE void shade_light_faces(accumulator_t *acc, const shading_t *s, const int ticks[7], int bound,
                               int brdf_samples, __global const float4 *pool_dir_pdf,

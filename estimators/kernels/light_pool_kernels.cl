@@ -32,8 +32,8 @@ __kernel void render_light_pool(__global const float4 *normal, __global const fl
     uint stream_pixel = shared_sequence ? 0u : (uint)p;
     int offset = shared_sequence ? 0
                : (int)(rng_unit(rng_block(seed, frame, STREAM_POOL_OFFSET, (uint)p, 0u, 0u).v[0]) * pool_size);
-    accumulator_t acc = {radiance, n, 0};
-    radiance[p] = radiance[n + p] = radiance[2 * n + p] = 0.0f;
+    accumulator_t acc = {radiance + p, n, 0};
+    acc.sum[0] = acc.sum[n] = acc.sum[2 * n] = 0.0f;
     shade_light_faces(&acc, &s, ticks, light_draws_bound(light_ticks(spp, LU_BRDF_SAMPLES)), LU_BRDF_SAMPLES,
                       pool_dir_pdf, pool_radiance, pool_size, offset);
 #if LU_BRDF_SAMPLES
