@@ -16,48 +16,44 @@
  * importance-sampling estimate, whose expectation is the integral.  (Kronander's Eq. 4 as printed
  * computes Ẑ from the resampled points, which is biased; Burke's and Talbot's use the candidates.)
  *
- * The candidates are not stored: a first pass sums their weights, a second regenerates the same
- * candidates (same Philox counters, same float operations in the same order) and walks the
- * cumulative sum, so memory is O(1) per pixel whatever M. */
+ * Only the candidates' weights are stored (bis_pixel): the resampled candidates are regenerated
+ * from their Philox counters for f/γ.
+ *
+ * Speed (issue 10).  Both passes loop M times in every work item, with no early exit, end each
+ * iteration at LOCKSTEP and use the scalar-form helpers of lanes.cl, so PoCL runs the work items
+ * of a group as SIMD lanes (lanes.cl says why each rule matters).  Data-dependent work is masked:
+ * a candidate's copies are counted in closed form (positions_below), not by a while loop, and the
+ * pixel's surface and proposal are rebuilt in each iteration rather than carried across it.  The
+ * specular lobe's power is computed once per candidate and shared by q, γ and f/γ. */
 #ifndef IBLBENCH_SIR_CL
 #define IBLBENCH_SIR_CL
 
-#include "common.cl"
+#include "lanes.cl"
 
 #define STREAM_SIR_CANDIDATE 20u
 #define STREAM_SIR_RESAMPLE 21u
 
 /* Nearest-texel radiance of the map in direction w (DESIGN §3: piecewise constant). */
-inline float3 env_radiance(__global const float4 *env, int res, float3 w)
+LANE vec3_t env_radiance(__global const float4 *env, int res, vec3_t w)
 {
-    float s, t;
-    int face = dir_to_face_st(w, &s, &t);
-    return env[texel_index(face, clamp_index(t, res), clamp_index(s, res), res)].xyz;
+    return vec3_load(env, lane_texel(w, res));
 }
 
-/* ρ_Y(ω) = Y(ρ(ω)): ρ is kd/π + ks·lobe, and Y is linear. */
-inline float phong_luminance(const surface_t *s, float3 w)
+/* γ(ω) of the map `env` at a direction of lobe power `power`; *radiance gets L(ω) (for f/γ). */
+LANE float sir_target(const lane_surface_t *s, __global const float4 *env, int res, vec3_t w,
+                      float power, vec3_t *radiance)
 {
-    float c = max(dot(s->r, w), 0.0f);
-    float lobe = (c > 0.0f) ? (s->m + 2.0f) / (2.0f * IBL_PI) * exp2(s->m * log2(c)) : 0.0f;
-    return s->rho_y_kd / IBL_PI + s->rho_y_ks * lobe;
-}
-
-/* γ(ω) of the map `env`; *radiance gets L(ω) (for f/γ). */
-inline float sir_target(const surface_t *s, __global const float4 *env, int res, float3 w,
-                        float3 *radiance)
-{
-    float cosine = dot(s->n, w);
+    float cosine = vec3_dot(s->n, w);
     *radiance = env_radiance(env, res, w);
-    if (!(cosine > 0.0f)) return 0.0f;
-    return luminance(*radiance) * phong_luminance(s, w) * cosine;
+    return cosine > 0.0f ? vec3_luminance(*radiance) * lane_brdf_luminance(s, power) * cosine : 0.0f;
 }
 
 /* f(ω)/γ(ω) = L ρ / (L_Y ρ_Y), for γ(ω) > 0. */
-inline float3 sir_ratio(const surface_t *s, float3 w, float3 radiance)
+LANE vec3_t sir_ratio(const lane_surface_t *s, vec3_t radiance, float power)
 {
-    float3 rho = phong_brdf(s->r, w, s->kd, s->ks, s->m);
-    return (radiance * rho) / (luminance(radiance) * phong_luminance(s, w));
+    vec3_t f = vec3_mul(radiance, lane_brdf(s, power));
+    float gamma = vec3_luminance(radiance) * lane_brdf_luminance(s, power);
+    return vec3(f.x / gamma, f.y / gamma, f.z / gamma);
 }
 
 /* The proposal candidates are drawn from: the BRDF mixture p_B (Burke, env_pick = 0) or, with
@@ -69,8 +65,8 @@ typedef struct {
     float env_pick;
 } sir_proposal_t;
 
-inline sir_proposal_t make_proposal(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                                    __global const float *face_integral, float env_pick)
+LANE sir_proposal_t make_proposal(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
+                                  __global const float *face_integral, float env_pick)
 {
     sir_proposal_t q;
     q.marginal = marginal;
@@ -82,150 +78,211 @@ inline sir_proposal_t make_proposal(__global const cdf_word_t *marginal, __globa
     return q;
 }
 
-inline float proposal_pdf(const surface_t *s, const sir_proposal_t *q, int res, float3 w)
+/* μ_face, by selects (an index into the private array would keep it in memory). */
+LANE float proposal_mu(const sir_proposal_t *q, int face)
 {
-    float density = (1.0f - q->env_pick) * phong_pdf(s->n, s->r, s->p_spec, s->m, w);
+    float mu = 0.0f;
+    for (int f = 0; f < 6; ++f) mu = face == f ? q->mu[f] : mu;
+    return mu;
+}
+
+/* q(ω), given ω's lobe power. */
+LANE float proposal_pdf(const lane_surface_t *s, const sir_proposal_t *q, int res, vec3_t w, float power)
+{
+    float density = (1.0f - q->env_pick) * lane_phong_pdf(s, w, power);
     if (q->env_pick > 0.0f) {
         int texel;
-        float pl = light_pdf(q->marginal, q->conditional, res, w, &texel);
-        density += q->env_pick * q->mu[texel / (res * res)] * pl;
+        float pl = lane_light_pdf(q->marginal, q->conditional, res, w, &texel);
+        density += q->env_pick * proposal_mu(q, texel / (res * res)) * pl;
     }
     return density;
 }
 
 /* Does the draw with uniforms xi take the map (else the BRDF)? */
-inline int proposal_uses_map(const sir_proposal_t *q, float4 xi)
+LANE int proposal_uses_map(const sir_proposal_t *q, uniform4_t xi)
 {
     return q->env_pick > 0.0f && xi.w < q->env_pick;
 }
 
 /* A direction from q: xi.w picks the strategy, xi.x the face, xi.xyz a BRDF direction, and a
  * map direction takes its texel and point from the 63-bit words `point` (sample_face; only
- * read when proposal_uses_map).  Returns q(ω).  With env_pick = 0 this is exactly sample_phong
- * on xi.xyz (Burke's candidates). */
-inline float proposal_sample(const surface_t *s, const sir_proposal_t *q, int res, float4 xi,
-                             ulong2 point, float3 *w)
+ * read when proposal_uses_map).  Its density is proposal_pdf.  With env_pick = 0 this is exactly
+ * sample_phong on xi.xyz (Burke's candidates). */
+LANE vec3_t proposal_sample(const lane_surface_t *s, const sir_proposal_t *q, int res, uniform4_t xi,
+                            words2_t point)
 {
-    if (!(q->env_pick > 0.0f)) return sample_phong(s->n, s->r, s->p_spec, s->m, xi.xyz, w);
-    if (proposal_uses_map(q, xi)) {
-        float cumulative = 0.0f;
-        int face = 0;
-        for (int f = 0; f < 6; ++f) {   /* the last face with μ > 0 takes any rounding remainder */
-            if (q->mu[f] > 0.0f) face = f;
-            cumulative += q->mu[f];
-            if (xi.x < cumulative && q->mu[f] > 0.0f) break;
-        }
-        int texel;
-        sample_face(q->marginal, q->conditional, face, res, point >> 1, w, &texel);
-    } else {
-        sample_phong(s->n, s->r, s->p_spec, s->m, xi.xyz, w);
+    vec3_t brdf = lane_sample_phong(s, xi.x, xi.y, xi.z);
+    if (!proposal_uses_map(q, xi)) return brdf;
+    /* The first face with μ > 0 whose cumulative μ exceeds xi.x; the last face with μ > 0 takes
+     * any rounding remainder.  No early exit: the six steps unroll into selects. */
+    float cumulative = 0.0f;
+    int face = -1, last = 0;
+    for (int f = 0; f < 6; ++f) {
+        cumulative += q->mu[f];
+        if (q->mu[f] > 0.0f) last = f;
+        if (face < 0 && q->mu[f] > 0.0f && xi.x < cumulative) face = f;
     }
-    return proposal_pdf(s, q, res, *w);
+    vec3_t w;
+    int texel;
+    words2_t u = {point.x >> 1, point.y >> 1};
+    lane_sample_face(q->marginal, q->conditional, face < 0 ? last : face, res, u, &w, &texel);
+    return w;
 }
 
-/* Candidate i of M: direction, and weight γ/q (0 where q or γ vanish or the ratio overflows).
+/* Candidate i of M: direction, and weight γ/q (0 where q or γ vanish or the ratio overflows);
+ * *gamma, *radiance and *power (its lobe power) serve f/γ.
  * The strategy is stratified, not drawn: candidate i comes from the map iff (i + ½)/M <
  * env_pick, so exactly env_pick·M candidates do (bis_pixel makes env_pick a multiple of 1/M).
  * That is the deterministic mixture (Veach's multi-sample MIS with the balance heuristic):
  * γ/q with the mixture q stays unbiased for fixed counts, without the binomial variance of a
  * random pick per candidate (√((1 − env_pick)/(M·env_pick)) relative, 7.9% at M = 160 and env_pick ½, on a small light
  * that only the map samples find). */
-inline float sir_candidate(const surface_t *s, const sir_proposal_t *q,
-                           __global const float4 *env, int res, uint seed, uint frame, uint pixel,
-                           int i, int M, float3 *w, float *gamma, float3 *radiance)
+LANE float sir_candidate(const lane_surface_t *s, const sir_proposal_t *q,
+                         __global const float4 *env, int res, uint seed, uint frame, uint pixel,
+                         int i, int M, vec3_t *w, float *gamma, vec3_t *radiance, float *power)
 {
-    float4 xi = rng_uniform4(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 0u);
+    uniform4_t xi = lane_uniform4(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 0u);
     xi.w = ((float)i + 0.5f) / (float)M;
-    ulong2 point = proposal_uses_map(q, xi)
-        ? rng_words2(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 1u) : (ulong2)(0);
-    float pdf = proposal_sample(s, q, res, xi, point, w);
-    *gamma = sir_target(s, env, res, *w, radiance);
+    words2_t none = {0, 0};
+    words2_t point = proposal_uses_map(q, xi)
+        ? lane_words2(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 1u) : none;
+    *w = proposal_sample(s, q, res, xi, point);
+    *power = lane_lobe_power(s, *w);
+    float pdf = proposal_pdf(s, q, res, *w, *power);
+    *gamma = sir_target(s, env, res, *w, *power, radiance);
     float weight = (pdf > 0.0f && *gamma > 0.0f) ? *gamma / pdf : 0.0f;
     return isfinite(weight) ? weight : 0.0f;
 }
 
 /* Systematic resampling position k of N on a total `total`: (k + u)·total/N. */
-inline acc_t systematic_position(int k, int n, float u, acc_t total)
+LANE acc_t systematic_position(int k, int n, float u, acc_t total)
 {
     return ((acc_t)k + (acc_t)u) * (total / (acc_t)n);
 }
 
+/* #{k < n : systematic_position(k) < c}: the positions below a cumulative sum c (total > 0).
+ * The positions grow with k, so this is ⌈c·n/total − u⌉ clamped to [0, n], made exact (it may be
+ * one off by rounding) by the same comparison a walk over k would make. */
+LANE int positions_below(acc_t c, int n, float u, acc_t total)
+{
+    int k = (int)clamp(ceil(c / (total / (acc_t)n) - (acc_t)u), (acc_t)0, (acc_t)n);
+    k -= k > 0 && !(systematic_position(k - 1, n, u, total) < c);
+    k += k < n && systematic_position(k, n, u, total) < c;
+    return k;
+}
+
+/* The pixel's inputs: its G-buffer entry p and the proposal's.  The loops below rebuild the
+ * surface and the proposal from them in every iteration (lanes.cl: no struct across LOCKSTEP). */
+#define SIR_PIXEL_ARGS __global const float4 *normal, __global const float4 *view, \
+    __global const float4 *kd, __global const float4 *ks_m, int p, \
+    __global const cdf_word_t *marginal, __global const cdf_word_t *conditional, \
+    __global const float *face_integral, float env_pick
+
+/* A work item's scratch: weights[i·stride + slot] holds candidate i's weight and taken[k·stride +
+ * slot] the candidate of resampled position k (slot-minor: the work items of a group read and
+ * write them as contiguous vectors). */
+#define SIR_SCRATCH_ARGS __global float *weights, __global int *taken, int slot, int stride
+
+/* SMC's particles, as planes (smc.cl): component c of particle i of a pixel lies at
+ * planes[(c·N + i)·plane] from the pixel's base, so the work items of a group touch contiguous
+ * words (a float4 per particle would be four adjacent stores, which the optimiser fuses into a
+ * vector store that stops PoCL's vectorisation; lanes.cl). */
+LANE void store_planes(__global float *planes, int N, int plane, int i, int components, const float *value)
+{
+    for (int c = 0; c < components; ++c) planes[(c * N + i) * plane] = value[c];
+}
+
 /* BIS of one pixel (see the header).  Returns Ẑ; *sum gets Σ_k f/γ over the N resampled
  * samples (0 when every weight is 0).  When `particles` is not null, resampled sample k is
- * written to particles[k] = (ω, 1/N) and gammas[k] = (γ(ω), 0).  When `candidate_ratio` is
+ * written to the particle planes (store_planes) as (ω, 1/N) and to the gamma planes as
+ * (γ(ω), 0).  When `candidate_ratio` is
  * not null it gets Σ_i w_i (f/γ)(ω_i) / Σ_i w_i over the candidates: Ẑ times it is
  * (1/M) Σ_i f/q = E[Ẑ/N Σ_k f/γ | candidates], the estimate with the resampling
- * Rao-Blackwellised. */
-inline float bis_pixel(const surface_t *s, const sir_proposal_t *q, __global const float4 *env,
-                       int res, int M, int N, uint seed, uint frame, uint pixel, float3 *sum,
-                       __global float4 *particles, __global float2 *gammas, float3 *candidate_ratio)
+ * Rao-Blackwellised.  Every work item of the group must call it (LOCKSTEP); `pixel` keys the
+ * random streams.
+ * Three passes: the M candidates, their weights stored; the systematic walk over the stored
+ * weights, which records the candidate of each position; the N resampled candidates, regenerated
+ * (same Philox counters, same float operations) for f/γ.  So the device evaluates M + N
+ * candidates, as `evaluations` counts, with M + N words of scratch. */
+LANE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M, int N, uint seed,
+                     uint frame, uint pixel, SIR_SCRATCH_ARGS, vec3_t *sum,
+                     __global float *particles, __global float *gammas, int plane,
+                     vec3_t *candidate_ratio)
 {
     /* Compensated sums (double where the device has it): a zero-variance case (white furnace)
-     * must not pick up M·ε of rounding.  Both passes accumulate identically. */
-    sir_proposal_t stratified = *q;
-    stratified.env_pick = round(q->env_pick * (float)M) / (float)M;
-    kahan_t acc = {0, 0};
-    acc_t ratio_x = 0, ratio_y = 0, ratio_z = 0;
+     * must not pick up M·ε of rounding.  Both sums over the weights accumulate identically. */
+    float stratified_pick = round(env_pick * (float)M) / (float)M;
+    acc_t total = 0, carry = 0, ratio_x = 0, ratio_y = 0, ratio_z = 0;
     for (int i = 0; i < M; ++i) {
-        float3 w, radiance;
-        float gamma;
-        float weight = sir_candidate(s, &stratified, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance);
-        kahan_add(&acc, (acc_t)weight);
+        lane_surface_t s = lane_surface(normal, view, kd, ks_m, p);
+        sir_proposal_t q = make_proposal(marginal, conditional, face_integral, stratified_pick);
+        vec3_t w, radiance;
+        float gamma, power;
+        float weight = sir_candidate(&s, &q, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance, &power);
+        weights[i * stride + slot] = weight;
+        kahan_add_to(&total, &carry, (acc_t)weight);
         if (candidate_ratio && weight > 0.0f) {
-            float3 ratio = sir_ratio(s, w, radiance);
+            vec3_t ratio = sir_ratio(&s, radiance, power);
             ratio_x += (acc_t)weight * ratio.x;
             ratio_y += (acc_t)weight * ratio.y;
             ratio_z += (acc_t)weight * ratio.z;
         }
+        LOCKSTEP();
     }
-    acc_t total = acc.sum;
+    int positive = total > 0 && isfinite(total);
     if (candidate_ratio)
-        *candidate_ratio = total > 0 && isfinite(total)
-            ? (float3)((float)(ratio_x / total), (float)(ratio_y / total), (float)(ratio_z / total))
-            : (float3)(0.0f);
-    *sum = (float3)(0.0f);
-    if (!(total > 0.0f) || !isfinite(total)) {
-        if (particles)
-            for (int k = 0; k < N; ++k) {
-                particles[k] = (float4)(s->n, 0.0f);
-                gammas[k] = (float2)(0.0f);
-            }
-        return 0.0f;
+        *candidate_ratio = positive
+            ? vec3((float)(ratio_x / total), (float)(ratio_y / total), (float)(ratio_z / total))
+            : vec3(0.0f, 0.0f, 0.0f);
+    for (int k = 0; k < N; ++k) {
+        taken[k * stride + slot] = -1;
+        LOCKSTEP();
     }
-    float u = rng_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;
-    kahan_t cumulative = {0, 0};
-    float3 last_w = s->n, last_ratio = (float3)(0.0f);
-    float last_gamma = 0.0f;
-    int k = 0;
-    for (int i = 0; i < M && k < N; ++i) {
-        float3 w, radiance;
-        float gamma;
-        float weight = sir_candidate(s, &stratified, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance);
-        kahan_add(&cumulative, (acc_t)weight);
-        if (weight > 0.0f) {
-            last_w = w;
-            last_gamma = gamma;
-            last_ratio = sir_ratio(s, w, radiance);
+    /* Candidate i of positive weight takes the positions below its cumulative sum that no earlier
+     * candidate took (⌊·⌋ or ⌈·⌉ of N·w_i/Σw copies); it is recorded at its last copy, and the
+     * copies below it are found by the walk down in pass 3. */
+    float u = lane_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;
+    acc_t cumulative = 0;
+    carry = 0;
+    int k = 0, last = 0;
+    for (int i = 0; i < M; ++i) {
+        float weight = weights[i * stride + slot];
+        kahan_add_to(&cumulative, &carry, (acc_t)weight);
+        if (positive && weight > 0.0f) {
+            last = i;
+            int copies = max(positions_below(cumulative, N, u, total) - k, 0);
+            k += copies;
+            if (copies > 0) taken[(k - 1) * stride + slot] = i;
         }
-        while (k < N && weight > 0.0f && systematic_position(k, N, u, total) < cumulative.sum) {
-            *sum += last_ratio;
-            if (particles) {
-                particles[k] = (float4)(w, 1.0f / (float)N);
-                gammas[k] = (float2)(gamma, 0.0f);
-            }
-            ++k;
-        }
+        LOCKSTEP();
     }
-    /* Float rounding can leave the last position(s) at or above the final cumulative sum: they
-     * belong to the last candidate of positive weight. */
-    for (; k < N; ++k) {
-        *sum += last_ratio;
+    /* Pass 3, from the last position down.  Float rounding can leave the last position(s) at or
+     * above the final cumulative sum: they belong to the last candidate of positive weight. */
+    float sum_x = 0.0f, sum_y = 0.0f, sum_z = 0.0f;
+    int candidate = last;
+    for (int j = N - 1; j >= 0; --j) {
+        int recorded = taken[j * stride + slot];
+        candidate = j < k && recorded >= 0 ? recorded : candidate;
+        lane_surface_t s = lane_surface(normal, view, kd, ks_m, p);
+        sir_proposal_t q = make_proposal(marginal, conditional, face_integral, stratified_pick);
+        vec3_t w, radiance;
+        float gamma, power;
+        sir_candidate(&s, &q, env, res, seed, frame, pixel, candidate, M, &w, &gamma, &radiance, &power);
+        vec3_t ratio = sir_ratio(&s, radiance, power);
+        sum_x += positive ? ratio.x : 0.0f;
+        sum_y += positive ? ratio.y : 0.0f;
+        sum_z += positive ? ratio.z : 0.0f;
         if (particles) {
-            particles[k] = (float4)(last_w, 1.0f / (float)N);
-            gammas[k] = (float2)(last_gamma, 0.0f);
+            float particle[4] = {positive ? w.x : s.n.x, positive ? w.y : s.n.y,
+                                 positive ? w.z : s.n.z, positive ? 1.0f / (float)N : 0.0f};
+            float gammas_j[2] = {positive ? gamma : 0.0f, 0.0f};
+            store_planes(particles, N, plane, j, 4, particle);
+            store_planes(gammas, N, plane, j, 2, gammas_j);
         }
+        LOCKSTEP();
     }
-    return (float)(total / (acc_t)M);
+    *sum = vec3(sum_x, sum_y, sum_z);
+    return positive ? (float)(total / (acc_t)M) : 0.0f;
 }
 
 /* Systematic resampling of n normalised weights (for the tests and SMC): out[k] = the index
