@@ -6,7 +6,7 @@ __kernel void render_bis(__global const float4 *normal, __global const float4 *v
                          __global const float4 *kd, __global const float4 *ks_m,
                          __global const float4 *env, const int res, const int M, const int N,
                          const uint seed, const uint frame, const int offset, const int count,
-                         __global float *weights, __global int *taken,
+                         __global float *weights, __global int *taken, __global acc_t *sums,
                          __global float4 *radiance, __global float2 *counts)
 {
     /* Pixels offset … offset + count − 1, in whole groups (LOCKSTEP): items past `count` redo
@@ -14,8 +14,8 @@ __kernel void render_bis(__global const float4 *normal, __global const float4 *v
     int slot = get_global_id(0), stride = get_global_size(0);
     int p = offset + min(slot, count - 1);
     vec3_t sum;
-    float z = bis_pixel(normal, view, kd, ks_m, p, 0, 0, 0, 0.0f,   /* Burke: BRDF candidates */
-                        env, res, M, N, seed, frame, (uint)p, weights, taken, slot, stride, &sum, 0, 0, 0, 0);
+    float z = bis_pixel(normal, view, kd, ks_m, p, 0, 0, 0, 0, 0.0f,   /* Burke: BRDF candidates */
+                        env, res, M, N, seed, frame, (uint)p, weights, taken, sums, slot, stride, &sum, 0, 0, 0, 0);
     if (slot >= count) return;
     radiance[p] = (float4)(z / (float)N * sum.x, z / (float)N * sum.y, z / (float)N * sum.z, 0.0f);
     /* Every resampled sample has γ > 0, hence a positive cosine; none exist when Ẑ = 0. */
@@ -31,7 +31,7 @@ __kernel void bis_candidates(__global const float4 *normal, __global const float
 {
     int i = get_global_id(0);
     lane_surface_t s = lane_surface(normal, view, kd, ks_m, 0);
-    sir_proposal_t q = make_proposal(0, 0, 0, 0.0f);
+    sir_proposal_t q = make_proposal(0, 0, 0, 0, 0.0f);
     vec3_t w, radiance;
     float gamma, power;
     float weight = sir_candidate(&s, &q, env, res, seed, frame, 0u, i, (int)get_global_size(0), &w,

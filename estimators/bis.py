@@ -63,7 +63,7 @@ def systematic_resample(weights, u: float, n: int | None = None) -> np.ndarray:
 
 
 LOCKSTEP_GROUP = 64   # work items per group of a LOCKSTEP kernel (sir.cl): 4 AVX-512 vectors, 2 warps
-SCRATCH_BYTES = 64 << 20   # BIS scratch per launch (M + N words per pixel); more pixels take more launches
+SCRATCH_BYTES = 64 << 20   # BIS scratch per launch (M + N words and 6 sums a pixel); more pixels, more launches
 
 
 def lockstep_group(compute, kernel) -> int:
@@ -85,13 +85,14 @@ def run_lockstep(compute, kernel, count: int, *args) -> cl.Event:
 
 def bis_chunks(compute, kernel, count: int, M: int, N: int):
     """Split ``count`` pixels into launches whose BIS scratch fits SCRATCH_BYTES: yields
-    (offset, pixels, weights, taken) with scratch buffers sized for the padded launch."""
+    (offset, pixels, weights, taken, sums) with scratch buffers (sir.cl, SIR_SCRATCH_ARGS) sized
+    for the padded launch."""
     group = lockstep_group(compute, kernel)
-    per_launch = max(group, SCRATCH_BYTES // (4 * (M + N)) // group * group)
+    per_launch = max(group, SCRATCH_BYTES // (4 * (M + N) + 6 * 8) // group * group)
     size = min(per_launch, max(-(-int(count) // group), 1) * group)
-    weights, taken = compute.empty(4 * M * size), compute.empty(4 * N * size)
+    scratch = compute.empty(4 * M * size), compute.empty(4 * N * size), compute.empty(6 * 8 * size)
     for offset in range(0, int(count), per_launch):
-        yield offset, min(per_launch, int(count) - offset), weights, taken
+        yield offset, min(per_launch, int(count) - offset), *scratch
 
 
 class BIS(Estimator):
@@ -123,10 +124,10 @@ class BIS(Estimator):
         radiance = compute.empty(gbuffer.count * 16)
         counts = compute.empty(gbuffer.count * 8)
         shade_ms = 0.0
-        for offset, pixels, weights, taken in bis_chunks(compute, kernel, gbuffer.count, M, N):
+        for offset, pixels, *scratch in bis_chunks(compute, kernel, gbuffer.count, M, N):
             event = run_lockstep(compute, kernel, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd,
                                  gbuffer.ks, cache.env_buffer, np.int32(cache.res), np.int32(M),
                                  np.int32(N), np.uint32(seed), np.uint32(cache.frame), np.int32(offset),
-                                 np.int32(pixels), weights, taken, radiance, counts)
+                                 np.int32(pixels), *scratch, radiance, counts)
             shade_ms += event_ms(event)
         return read_estimate(compute, gbuffer, radiance, counts, M + N, {"shade": shade_ms})

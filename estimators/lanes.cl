@@ -131,13 +131,33 @@ LANE int lane_texel(vec3_t w, int res)
 
 /* ---- light sampling: common.cl's sample_face / light_pdf ------------------------------------- */
 
+/* common.cl's cdf_search (first i with cdf[i] > u) with a fixed trip count: CDF_STEPS =
+ * ⌈log2 R⌉ halvings (the host defines it with ENV_RES), each a no-op once n = 1, so the loop
+ * unrolls and a loop body that samples the map stays one region (lanes.cl header).  Without
+ * CDF_STEPS it is common.cl's search. */
+LANE int lane_cdf_search(__global const cdf_word_t *cdf, int n, cdf_word_t u)
+{
+#ifdef CDF_STEPS
+    int base = 0;
+    __attribute__((opencl_unroll_hint))
+    for (int i = 0; i < CDF_STEPS; ++i) {
+        int step = n >> 1;
+        base = (step > 0 && cdf[base + step - 1] <= u) ? base + step : base;
+        n -= step;
+    }
+    return base;
+#else
+    return cdf_search(cdf, n, u);
+#endif
+}
+
 LANE float lane_sample_face(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
                             int face, int res, words2_t u, vec3_t *dir, int *texel)
 {
     __global const cdf_word_t *rows = marginal + face * res;
-    int row = cdf_search(rows, res, u.x);
+    int row = lane_cdf_search(rows, res, u.x);
     __global const cdf_word_t *cols = conditional + (face * res + row) * res;
-    int col = cdf_search(cols, res, u.y);
+    int col = lane_cdf_search(cols, res, u.y);
     float x = -1.0f + 2.0f * ((float)col + cdf_bin_position(cols, col, u.y)) / res;
     float y = -1.0f + 2.0f * ((float)row + cdf_bin_position(rows, row, u.x)) / res;
     *dir = vec3_normalize(lane_face_dir(face, x, y));

@@ -61,30 +61,26 @@ LANE vec3_t sir_ratio(const lane_surface_t *s, vec3_t radiance, float power)
  * q(ω) = (1 − env_pick) p_B(ω) + env_pick μ_{f(ω)} pdf_L(ω|f(ω)) (pdf_L vanishes off face f). */
 typedef struct {
     __global const cdf_word_t *marginal, *conditional;
-    float mu[6];
+    __global const float *faces;   /* μ_0 … μ_5, then their running sums */
     float env_pick;
 } sir_proposal_t;
 
+/* `faces` holds μ_f = max(I_f, 0)/Σ_g max(I_g, 0) and then μ_0 + … + μ_f, all in float and
+ * summed from f = 0 to 5 (smc.py, face_choice), or is null for the BRDF alone; `has_light`: the
+ * map is not all black.  (Computed here, the six sums and quotients were fused into vector
+ * instructions, which stop PoCL's vectorisation; lanes.cl.) */
 LANE sir_proposal_t make_proposal(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                                  __global const float *face_integral, float env_pick)
+                                  __global const float *faces, int has_light, float env_pick)
 {
     sir_proposal_t q;
     q.marginal = marginal;
     q.conditional = conditional;
-    float total = 0.0f;
-    for (int f = 0; f < 6; ++f) total += face_integral ? max(face_integral[f], 0.0f) : 0.0f;
-    for (int f = 0; f < 6; ++f) q.mu[f] = total > 0.0f ? max(face_integral[f], 0.0f) / total : 0.0f;
-    q.env_pick = total > 0.0f ? env_pick : 0.0f;   /* an all-black map: BRDF only */
+    q.faces = faces;
+    q.env_pick = has_light ? env_pick : 0.0f;   /* an all-black map: BRDF only */
     return q;
 }
 
-/* μ_face, by selects (an index into the private array would keep it in memory). */
-LANE float proposal_mu(const sir_proposal_t *q, int face)
-{
-    float mu = 0.0f;
-    for (int f = 0; f < 6; ++f) mu = face == f ? q->mu[f] : mu;
-    return mu;
-}
+LANE float proposal_mu(const sir_proposal_t *q, int face) { return q->faces[face]; }
 
 /* q(ω), given ω's lobe power. */
 LANE float proposal_pdf(const lane_surface_t *s, const sir_proposal_t *q, int res, vec3_t w, float power)
@@ -112,21 +108,27 @@ LANE vec3_t proposal_sample(const lane_surface_t *s, const sir_proposal_t *q, in
                             words2_t point)
 {
     vec3_t brdf = lane_sample_phong(s, xi.x, xi.y, xi.z);
-    if (!proposal_uses_map(q, xi)) return brdf;
-    /* The first face with μ > 0 whose cumulative μ exceeds xi.x; the last face with μ > 0 takes
-     * any rounding remainder.  No early exit: the six steps unroll into selects. */
-    float cumulative = 0.0f;
-    int face = -1, last = 0;
-    for (int f = 0; f < 6; ++f) {
-        cumulative += q->mu[f];
-        if (q->mu[f] > 0.0f) last = f;
-        if (face < 0 && q->mu[f] > 0.0f && xi.x < cumulative) face = f;
+    float x = brdf.x, y = brdf.y, z = brdf.z;   /* scalars: a phi or select of structs becomes a vector */
+    if (q->env_pick > 0.0f) {
+        /* The first face with μ > 0 whose cumulative μ exceeds xi.x; the last face with μ > 0
+         * takes any rounding remainder.  No early exit: the six steps unroll into selects. */
+        int face = -1, last = 0;
+        __attribute__((opencl_unroll_hint))
+        for (int f = 0; f < 6; ++f) {
+            float mu = proposal_mu(q, f);
+            if (mu > 0.0f) last = f;
+            if (face < 0 && mu > 0.0f && xi.x < q->faces[6 + f]) face = f;
+        }
+        vec3_t w;
+        int texel;
+        words2_t u = {point.x >> 1, point.y >> 1};
+        lane_sample_face(q->marginal, q->conditional, face < 0 ? last : face, res, u, &w, &texel);
+        int map = proposal_uses_map(q, xi);
+        x = map ? w.x : x;
+        y = map ? w.y : y;
+        z = map ? w.z : z;
     }
-    vec3_t w;
-    int texel;
-    words2_t u = {point.x >> 1, point.y >> 1};
-    lane_sample_face(q->marginal, q->conditional, face < 0 ? last : face, res, u, &w, &texel);
-    return w;
+    return vec3(x, y, z);
 }
 
 /* Candidate i of M: direction, and weight γ/q (0 where q or γ vanish or the ratio overflows);
@@ -176,20 +178,26 @@ LANE int positions_below(acc_t c, int n, float u, acc_t total)
 #define SIR_PIXEL_ARGS __global const float4 *normal, __global const float4 *view, \
     __global const float4 *kd, __global const float4 *ks_m, int p, \
     __global const cdf_word_t *marginal, __global const cdf_word_t *conditional, \
-    __global const float *face_integral, float env_pick
+    __global const float *faces, int has_light, float env_pick
 
-/* A work item's scratch: weights[i·stride + slot] holds candidate i's weight and taken[k·stride +
- * slot] the candidate of resampled position k (slot-minor: the work items of a group read and
- * write them as contiguous vectors). */
-#define SIR_SCRATCH_ARGS __global float *weights, __global int *taken, int slot, int stride
+/* A work item's scratch: weights[i·stride + slot] holds candidate i's weight, taken[k·stride +
+ * slot] the candidate of resampled position k, and sums[c·stride + slot] six running sums (the
+ * candidates' w·f/γ and the resampled f/γ, per channel).  Slot-minor, so the work items of a
+ * group read and write them as contiguous vectors; the sums live in memory rather than in three
+ * variables, which the optimiser would fuse into a vector (lanes.cl). */
+#define SIR_SCRATCH_ARGS __global float *weights, __global int *taken, __global acc_t *sums, \
+    int slot, int stride
 
 /* SMC's particles, as planes (smc.cl): component c of particle i of a pixel lies at
  * planes[(c·N + i)·plane] from the pixel's base, so the work items of a group touch contiguous
  * words (a float4 per particle would be four adjacent stores, which the optimiser fuses into a
- * vector store that stops PoCL's vectorisation; lanes.cl). */
-LANE void store_planes(__global float *planes, int N, int plane, int i, int components, const float *value)
+ * vector store that stops PoCL's vectorisation; lanes.cl).  The gammas have planes 0 and 1. */
+LANE void store_planes(__global float *planes, int N, int plane, int i, float x, float y, float z, float w)
 {
-    for (int c = 0; c < components; ++c) planes[(c * N + i) * plane] = value[c];
+    planes[i * plane] = x;
+    planes[(N + i) * plane] = y;
+    planes[(2 * N + i) * plane] = z;
+    planes[(3 * N + i) * plane] = w;
 }
 
 /* BIS of one pixel (see the header).  Returns Ẑ; *sum gets Σ_k f/γ over the N resampled
@@ -212,10 +220,11 @@ LANE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M,
     /* Compensated sums (double where the device has it): a zero-variance case (white furnace)
      * must not pick up M·ε of rounding.  Both sums over the weights accumulate identically. */
     float stratified_pick = round(env_pick * (float)M) / (float)M;
-    acc_t total = 0, carry = 0, ratio_x = 0, ratio_y = 0, ratio_z = 0;
+    acc_t total = 0, carry = 0;
+    for (int c = 0; c < 6; ++c) sums[c * stride + slot] = 0;
     for (int i = 0; i < M; ++i) {
         lane_surface_t s = lane_surface(normal, view, kd, ks_m, p);
-        sir_proposal_t q = make_proposal(marginal, conditional, face_integral, stratified_pick);
+        sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
         vec3_t w, radiance;
         float gamma, power;
         float weight = sir_candidate(&s, &q, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance, &power);
@@ -223,17 +232,13 @@ LANE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M,
         kahan_add_to(&total, &carry, (acc_t)weight);
         if (candidate_ratio && weight > 0.0f) {
             vec3_t ratio = sir_ratio(&s, radiance, power);
-            ratio_x += (acc_t)weight * ratio.x;
-            ratio_y += (acc_t)weight * ratio.y;
-            ratio_z += (acc_t)weight * ratio.z;
+            sums[slot] += (acc_t)weight * ratio.x;
+            sums[stride + slot] += (acc_t)weight * ratio.y;
+            sums[2 * stride + slot] += (acc_t)weight * ratio.z;
         }
         LOCKSTEP();
     }
     int positive = total > 0 && isfinite(total);
-    if (candidate_ratio)
-        *candidate_ratio = positive
-            ? vec3((float)(ratio_x / total), (float)(ratio_y / total), (float)(ratio_z / total))
-            : vec3(0.0f, 0.0f, 0.0f);
     for (int k = 0; k < N; ++k) {
         taken[k * stride + slot] = -1;
         LOCKSTEP();
@@ -258,30 +263,32 @@ LANE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M,
     }
     /* Pass 3, from the last position down.  Float rounding can leave the last position(s) at or
      * above the final cumulative sum: they belong to the last candidate of positive weight. */
-    float sum_x = 0.0f, sum_y = 0.0f, sum_z = 0.0f;
     int candidate = last;
     for (int j = N - 1; j >= 0; --j) {
         int recorded = taken[j * stride + slot];
         candidate = j < k && recorded >= 0 ? recorded : candidate;
         lane_surface_t s = lane_surface(normal, view, kd, ks_m, p);
-        sir_proposal_t q = make_proposal(marginal, conditional, face_integral, stratified_pick);
+        sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
         vec3_t w, radiance;
         float gamma, power;
         sir_candidate(&s, &q, env, res, seed, frame, pixel, candidate, M, &w, &gamma, &radiance, &power);
         vec3_t ratio = sir_ratio(&s, radiance, power);
-        sum_x += positive ? ratio.x : 0.0f;
-        sum_y += positive ? ratio.y : 0.0f;
-        sum_z += positive ? ratio.z : 0.0f;
+        sums[3 * stride + slot] += positive ? ratio.x : 0.0f;
+        sums[4 * stride + slot] += positive ? ratio.y : 0.0f;
+        sums[5 * stride + slot] += positive ? ratio.z : 0.0f;
         if (particles) {
-            float particle[4] = {positive ? w.x : s.n.x, positive ? w.y : s.n.y,
-                                 positive ? w.z : s.n.z, positive ? 1.0f / (float)N : 0.0f};
-            float gammas_j[2] = {positive ? gamma : 0.0f, 0.0f};
-            store_planes(particles, N, plane, j, 4, particle);
-            store_planes(gammas, N, plane, j, 2, gammas_j);
+            store_planes(particles, N, plane, j, positive ? w.x : s.n.x, positive ? w.y : s.n.y,
+                         positive ? w.z : s.n.z, positive ? 1.0f / (float)N : 0.0f);
+            gammas[j * plane] = positive ? gamma : 0.0f;
+            gammas[(N + j) * plane] = 0.0f;
         }
         LOCKSTEP();
     }
-    *sum = vec3(sum_x, sum_y, sum_z);
+    *sum = vec3((float)sums[3 * stride + slot], (float)sums[4 * stride + slot], (float)sums[5 * stride + slot]);
+    if (candidate_ratio)
+        *candidate_ratio = positive ? vec3((float)(sums[slot] / total), (float)(sums[stride + slot] / total),
+                                           (float)(sums[2 * stride + slot] / total))
+                                    : vec3(0.0f, 0.0f, 0.0f);
     return positive ? (float)(total / (acc_t)M) : 0.0f;
 }
 

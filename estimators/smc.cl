@@ -29,8 +29,7 @@ inline float4 load_particle(__global const float *planes, int N, int plane, int 
 
 inline void store_particle(__global float *planes, int N, int plane, int i, float4 q)
 {
-    float value[4] = {q.x, q.y, q.z, q.w};
-    store_planes(planes, N, plane, i, 4, value);
+    store_planes(planes, N, plane, i, q.x, q.y, q.z, q.w);
 }
 
 inline float2 load_gammas(__global const float *planes, int N, int plane, int i)
@@ -40,8 +39,8 @@ inline float2 load_gammas(__global const float *planes, int N, int plane, int i)
 
 inline void store_gammas(__global float *planes, int N, int plane, int i, float2 g)
 {
-    float value[2] = {g.x, g.y};
-    store_planes(planes, N, plane, i, 2, value);
+    planes[i * plane] = g.x;
+    planes[(N + i) * plane] = g.y;
 }
 
 inline vec3_t particle_direction(float4 q) { return vec3(q.x, q.y, q.z); }
@@ -100,7 +99,8 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
                           __global const float4 *kd, __global const float4 *ks_m,
                           __global const float4 *env, __global const float4 *prev_env,
                           __global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                          __global const float *face_integral, const int count, const int N,
+                          __global const float *faces, const int has_light,
+                          const int count, const int N,
                           const int steps, const float nu, const float cos_delta,
                           const float threshold, const int static_frame, const uint seed,
                           const uint frame, __global float *all_particles, __global float *all_gammas,
@@ -116,8 +116,8 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
     __global float *scratch_p = all_scratch_p + p, *scratch_g = all_scratch_g + p;
 
     /* MH's independent proposals: the map and the BRDF. */
-    sir_proposal_t q_map = make_proposal(marginal, conditional, face_integral, 1.0f);
-    sir_proposal_t q_brdf = make_proposal(0, 0, 0, 0.0f);
+    sir_proposal_t q_map = make_proposal(marginal, conditional, faces, has_light, 1.0f);
+    sir_proposal_t q_brdf = make_proposal(0, 0, 0, 0, 0.0f);
 
     float4 carried = state[p];
     float z_prev = carried.x, z = z_prev, z_count = carried.y;
@@ -293,25 +293,26 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
 __kernel void smc_init(__global const float4 *normal, __global const float4 *view,
                        __global const float4 *kd, __global const float4 *ks_m,
                        __global const float4 *env, __global const cdf_word_t *marginal,
-                       __global const cdf_word_t *conditional, __global const float *face_integral,
+                       __global const cdf_word_t *conditional, __global const float *faces,
+                       const int has_light,
                        const int count, const int N, const int M, const float init_env_pick,
                        const int have_state, const uint seed, const uint frame,
                        __global const int *pixels, const int offset, const int listed,
-                       __global float *weights, __global int *taken,
+                       __global float *weights, __global int *taken, __global acc_t *sums,
                        __global float *all_particles, __global float *all_gammas,
                        __global float4 *state, __global float4 *carried_estimate,
                        __global float4 *radiance, __global float2 *counts, __global float4 *stats)
 {
-    /* Items past `listed` redo the last listed pixel in their own scratch slot and store nothing. */
+    /* Items past `listed` redo the last listed pixel in their own scratch slot, bit for bit, so
+     * their particle stores repeat the same values; they store nothing else. */
     int slot = get_global_id(0), stride = get_global_size(0);
     int p = pixels[offset + min(slot, listed - 1)];
-    int mine = slot < listed;
     __global float *particles = all_particles + p, *gammas = all_gammas + p;
     vec3_t sum, candidate_ratio;
-    float z = bis_pixel(normal, view, kd, ks_m, p, marginal, conditional, face_integral, init_env_pick,
-                        env, ENV_RES, M, N, seed, frame, (uint)p, weights, taken, slot, stride, &sum,
-                        mine ? particles : 0, mine ? gammas : 0, count, &candidate_ratio);
-    if (!mine) return;
+    float z = bis_pixel(normal, view, kd, ks_m, p, marginal, conditional, faces, has_light, init_env_pick,
+                        env, ENV_RES, M, N, seed, frame, (uint)p, weights, taken, sums, slot, stride, &sum,
+                        particles, gammas, count, &candidate_ratio);
+    if (slot >= listed) return;
     float effective = 0.0f;
     for (int i = 0; i < N; ++i)
         effective += plane_at(particles, N, count, i, 3) > 0.0f && plane_at(gammas, N, count, i, 0) > 0.0f;

@@ -93,6 +93,23 @@ from iblbench.estimators.bis import bis_chunks, run_lockstep
 from iblbench.harness.device import event_ms
 
 
+def face_choice(face_integrals) -> tuple[np.ndarray, bool]:
+    """The map proposal's face probabilities μ_f = max(I_f, 0)/Σ max(I, 0) and then their running
+    sums, float32 and added from f = 0 to 5 as a kernel would (sir.cl, make_proposal), and
+    whether the map has any light (Σ > 0)."""
+    weights = np.maximum(np.asarray(face_integrals, np.float32), np.float32(0.0))
+    total = np.float32(0.0)
+    for value in weights:
+        total = np.float32(total + value)
+    mu = weights / total if total > 0 else np.zeros(6, np.float32)
+    running = np.float32(0.0)
+    sums = []
+    for value in mu:
+        running = np.float32(running + value)
+        sums.append(running)
+    return np.concatenate([mu, sums]).astype(np.float32), bool(total > 0)
+
+
 @dataclasses.dataclass(frozen=True)
 class SMCParams:
     """``N``: particles per pixel (0: N = spp); ``nu``: probability of a local MH move;
@@ -176,14 +193,17 @@ class SMC(Estimator):
         radiance = compute.empty(count * 16)
         counts = compute.empty(count * 8)
         stats = compute.empty(count * 16)
-        defines = {**self.defines(gbuffer), "ENV_RES": cache.res}
+        defines = {**self.defines(gbuffer), "ENV_RES": cache.res,
+                   "CDF_STEPS": max(int(cache.res) - 1, 0).bit_length()}   # ⌈log2 R⌉ (lanes.cl)
+        mu_and_sums, has_light = face_choice(cache.face_integrals)
+        faces = compute.to_device(mu_and_sums)
         events = []
         if have_state:
             flags = compute.empty(count * 4)
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_advance", defines), count,
                 gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer,
-                self._prev_env, cache.marginal, cache.conditional, cache.face_integral_buffer,
+                self._prev_env, cache.marginal, cache.conditional, faces, np.int32(has_light),
                 np.int32(count), np.int32(N), np.int32(p.intermediates + 1), np.float32(p.nu),
                 np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
                 np.int32(static_frame), np.uint32(seed), np.uint32(cache.frame), particles, gammas,
@@ -194,13 +214,13 @@ class SMC(Estimator):
         if len(todo):
             init = compute.kernel(self.kernel_package(), "smc.cl", "smc_init", defines)
             listed = compute.to_device(todo)
-            for offset, pixels, weights, taken in bis_chunks(compute, init, len(todo), M, N):
+            for offset, pixels, *scratch in bis_chunks(compute, init, len(todo), M, N):
                 events.append(run_lockstep(
                     compute, init, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-                    cache.env_buffer, cache.marginal, cache.conditional, cache.face_integral_buffer,
+                    cache.env_buffer, cache.marginal, cache.conditional, faces, np.int32(has_light),
                     np.int32(count), np.int32(N), np.int32(M), np.float32(p.init_env_pick),
                     np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), listed,
-                    np.int32(offset), np.int32(pixels), weights, taken, particles, gammas, state,
+                    np.int32(offset), np.int32(pixels), *scratch, particles, gammas, state,
                     carried_estimate, radiance, counts, stats))
         copy = cl.enqueue_copy(compute.queue, self._prev_env, cache.env_buffer)
         copy.wait()
