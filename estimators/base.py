@@ -111,10 +111,17 @@ def specular_lobe_defines(gbuffer) -> dict:
 
 
 def read_estimate(compute, gbuffer, radiance, counts, evaluations: float,
-                  timings_ms: dict[str, float]) -> Estimate:
-    """Copy a kernel's per-pixel outputs (float4 radiance, float2 used/effective) into an Estimate."""
-    rgb = compute.to_host(radiance, (gbuffer.count, 4), np.float32)[:, :3]
-    used_effective = compute.to_host(counts, (gbuffer.count, 2), np.float32)
+                  timings_ms: dict[str, float], planar: bool = False) -> Estimate:
+    """Copy a kernel's per-pixel outputs (float4 radiance, float2 used/effective) into an Estimate.
+
+    ``planar``: the kernel wrote planes of ``gbuffer.count`` floats instead (R, G, B; used,
+    effective)."""
+    if planar:
+        rgb = compute.to_host(radiance, (3, gbuffer.count), np.float32).T
+        used_effective = compute.to_host(counts, (2, gbuffer.count), np.float32).T
+    else:
+        rgb = compute.to_host(radiance, (gbuffer.count, 4), np.float32)[:, :3]
+        used_effective = compute.to_host(counts, (gbuffer.count, 2), np.float32)
     return Estimate(
         radiance=gbuffer.scatter(rgb),
         used=gbuffer.scatter(used_effective[:, 0]),

@@ -72,8 +72,8 @@ class PoolEstimator(Estimator):
         compute = cache.compute
         pool = cache.light_pool(self.pool_size(spp), seed)
         kernel = self._kernel(compute, "render_light_pool", gbuffer)
-        radiance = compute.empty(gbuffer.count * 16)
-        counts = compute.empty(gbuffer.count * 8)
+        radiance = compute.empty(gbuffer.count * 12)   # planes R, G, B (light_pool_kernels.cl)
+        counts = compute.empty(gbuffer.count * 8)      # planes used, effective
         evaluations = compute.empty(gbuffer.count * 4)
         event = compute.run(
             kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
@@ -83,7 +83,7 @@ class PoolEstimator(Estimator):
             np.uint32(cache.frame), radiance, counts, evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean()
         return read_estimate(compute, gbuffer, radiance, counts, mean_evaluations,
-                             {"sample": pool.build_ms, "shade": event_ms(event)})
+                             {"sample": pool.build_ms, "shade": event_ms(event)}, planar=True)
 
     # ---- χ² hooks and the per-normal split ---------------------------------------------------
 

@@ -7,6 +7,10 @@
 
 #define IBL_PI 3.14159265358979323846f
 
+/* Helpers that per-sample loops call are forced inline: PoCL's inliner leaves large ones out
+ * ("too costly"), and a call inside the work-item loop stops its vectorisation. */
+#define ALWAYS_INLINE inline __attribute__((always_inline))
+
 /* ---- accumulation ---------------------------------------------------------------------------- */
 
 /* Long sums (CDF scans, the reference) use double where the device has it (-DHAVE_FP64, set by
@@ -28,33 +32,73 @@ inline void kahan_add(kahan_t *k, acc_t x)
     k->sum = t;
 }
 
-inline float luminance(float3 c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+/* ---- scalar 3-vectors ------------------------------------------------------------------------ */
+
+/* Three floats in a struct, not a float3: LLVM's loop vectoriser, which PoCL runs across the work
+ * items, rejects every instruction of vector type ("instruction return type cannot be
+ * vectorized"), so code meant to run SIMD across work items keeps 3-vectors as scalars (a struct
+ * of scalars lives in registers).  The padding makes the struct 20 bytes: the x86-64 ABI then
+ * returns it in memory, which inlining removes, instead of as a <2 x float> and a float, which
+ * stays a 2-vector in the IR.  The float3 forms of the helpers below wrap the vec3_t ones. */
+typedef struct { float x, y, z, padding[2]; } vec3_t;
+
+ALWAYS_INLINE vec3_t vec3(float x, float y, float z)
+{
+    vec3_t v = {x, y, z, {0.0f, 0.0f}};
+    return v;
+}
+
+ALWAYS_INLINE vec3_t vec3_of(float3 a) { return vec3(a.x, a.y, a.z); }
+ALWAYS_INLINE float3 float3_of(vec3_t a) { return (float3)(a.x, a.y, a.z); }
+
+/* .xyz of element i of a float4 buffer, as three scalar loads.  The component stride is
+ * get_work_dim(), which is 1 for the 1-D kernels here but unknown to the compiler: PoCL runs
+ * LLVM's SLP vectoriser on the kernel before it builds the work-item loops, and that pass fuses
+ * loads it can prove adjacent, and the x and y arithmetic that follows them, into 2-vectors,
+ * which then keep the work-item loop scalar.  (balanced_mis on PoCL 3.1: with literal offsets
+ * 6 of the 41 work-item loops in its three compiled copies vectorise, with this stride and
+ * vec3_t's padding 21, its sample loops among them.) */
+ALWAYS_INLINE vec3_t vec3_load(__global const float4 *buffer, int i)
+{
+    __global const float *f = (__global const float *)(buffer + i);
+    int stride = (int)get_work_dim();
+    return vec3(f[0], f[stride], f[2 * stride]);
+}
+
+/* .w of element i of a float4 buffer. */
+ALWAYS_INLINE float load_w(__global const float4 *buffer, int i)
+{
+    return ((__global const float *)(buffer + i))[3];
+}
+
+ALWAYS_INLINE float vec3_dot(vec3_t a, vec3_t b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+ALWAYS_INLINE vec3_t vec3_scale(vec3_t a, float k) { return vec3(a.x * k, a.y * k, a.z * k); }
+ALWAYS_INLINE vec3_t vec3_mul(vec3_t a, vec3_t b) { return vec3(a.x * b.x, a.y * b.y, a.z * b.z); }
+ALWAYS_INLINE vec3_t vec3_add(vec3_t a, vec3_t b) { return vec3(a.x + b.x, a.y + b.y, a.z + b.z); }
+ALWAYS_INLINE vec3_t vec3_normalize(vec3_t a) { return vec3_scale(a, 1.0f / sqrt(vec3_dot(a, a))); }
+
+ALWAYS_INLINE float vec3_luminance(vec3_t c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+inline float luminance(float3 c) { return vec3_luminance(vec3_of(c)); }
 
 /* ---- cube map ------------------------------------------------------------------------------ */
 
-/* Direction -> face and (s, t) in [0, 1] by the OpenGL table; ties go to x, then y. */
-inline int dir_to_face_st(float3 d, float *s, float *t)
+/* Direction -> face and (s, t) in [0, 1] by the OpenGL table; ties go to x, then y.  Selects,
+ * no branches, so it vectorises. */
+ALWAYS_INLINE int cube_face_st(vec3_t d, float *s, float *t)
 {
-    float3 a = fabs(d);
-    int face;
-    float sc, tc, ma;
-    if (a.x >= a.y && a.x >= a.z) {
-        ma = a.x;
-        if (d.x >= 0.0f) { face = 0; sc = -d.z; tc = -d.y; }
-        else             { face = 1; sc =  d.z; tc = -d.y; }
-    } else if (a.y >= a.z) {
-        ma = a.y;
-        if (d.y >= 0.0f) { face = 2; sc = d.x; tc =  d.z; }
-        else             { face = 3; sc = d.x; tc = -d.z; }
-    } else {
-        ma = a.z;
-        if (d.z >= 0.0f) { face = 4; sc =  d.x; tc = -d.y; }
-        else             { face = 5; sc = -d.x; tc = -d.y; }
-    }
+    float ax = fabs(d.x), ay = fabs(d.y), az = fabs(d.z);
+    int x_major = ax >= ay && ax >= az, y_major = !x_major && ay >= az;
+    int positive = (x_major ? d.x : y_major ? d.y : d.z) >= 0.0f;
+    int face = (x_major ? 0 : y_major ? 2 : 4) + !positive;
+    float ma = x_major ? ax : y_major ? ay : az;
+    float sc = x_major ? (positive ? -d.z : d.z) : y_major ? d.x : (positive ? d.x : -d.x);
+    float tc = y_major ? (positive ? d.z : -d.z) : -d.y;
     *s = (sc / ma + 1.0f) * 0.5f;
     *t = (tc / ma + 1.0f) * 0.5f;
     return face;
 }
+
+inline int dir_to_face_st(float3 d, float *s, float *t) { return cube_face_st(vec3_of(d), s, t); }
 
 /* Face-plane point (u, v) = (2s-1, 2t-1) -> (unnormalised) direction on the cube. */
 inline float3 face_uv_to_dir(int face, float u, float v)
@@ -146,23 +190,39 @@ inline float sample_face(__global const cdf_word_t *marginal,
 }
 
 /* pdf_L(ω|f) of sample_face for the face f that holds ω (it is zero on every other face);
- * *texel gets the texel that holds ω (its face is texel / R²). */
-inline float light_pdf(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                       int res, float3 w, int *texel)
+ * *face and *texel get the face and the texel that hold ω. */
+ALWAYS_INLINE float light_pdf_on_face(__global const cdf_word_t *marginal,
+                                      __global const cdf_word_t *conditional, int res, vec3_t w,
+                                      int *face, int *texel)
 {
     float s, t;
-    int f = dir_to_face_st(w, &s, &t);
+    int f = cube_face_st(w, &s, &t);
     int row = clamp_index(t, res), col = clamp_index(s, res);
     float p_texel = cdf_bin(marginal + f * res, row)
                   * cdf_bin(conditional + (f * res + row) * res, col);
+    *face = f;
     *texel = texel_index(f, row, col, res);
     return p_texel * area_per_solid_angle(2.0f * s - 1.0f, 2.0f * t - 1.0f) * (float)(res * res) / 4.0f;
+}
+
+/* light_pdf_on_face for a float3, without the face (it is texel / R²). */
+inline float light_pdf(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
+                       int res, float3 w, int *texel)
+{
+    int face;
+    return light_pdf_on_face(marginal, conditional, res, vec3_of(w), &face, texel);
 }
 
 /* ---- Phong BRDF (energy-conserving, Lafortune) --------------------------------------------- */
 
 /* Mirror of the view direction about n: r = 2(n·v)n − v. */
-inline float3 reflect_view(float3 n, float3 v) { return 2.0f * dot(n, v) * n - v; }
+ALWAYS_INLINE vec3_t vec3_reflect_view(vec3_t n, vec3_t v)
+{
+    float k = 2.0f * vec3_dot(n, v);
+    return vec3(k * n.x - v.x, k * n.y - v.y, k * n.z - v.z);
+}
+
+inline float3 reflect_view(float3 n, float3 v) { return float3_of(vec3_reflect_view(vec3_of(n), vec3_of(v))); }
 
 /* c^m for c in [0, 1] and m ≥ 0, as 2^(m·log2 c) with both halves polynomials over the float's
  * bits: straight-line code that inlines and vectorises (the library exp2/log2 are table-driven
@@ -179,7 +239,7 @@ inline float3 reflect_view(float3 n, float3 v) { return 2.0f * dot(n, v) * n - v
  * (measured 1.5e-5; float exp2(m·log2 c) with libm's functions: 1.1e-5), absolute ≤ 2^-120 below.
  * The relative error grows as ln 2·|y|·ε with the float rounding ε of y = m·log2 c (1e-6 where
  * c^m ≥ 1e-3), as it does for exp2(m·log2 c) in float. */
-inline float phong_power(float c, float m)
+ALWAYS_INLINE float phong_power(float c, float m)
 {
     int denormal = c < 0x1p-126f;
     int bits = as_int(denormal ? c * 0x1p24f : c);
@@ -191,7 +251,7 @@ inline float phong_power(float c, float m)
     float log2_f = s * (2.8853900817779268f + z * (0.9617966939259756f + z * (0.5770780163555853f
                  + z * (0.4121985831111324f + z * 0.3205988979753252f))));
     float y = max(m * ((float)e + log2_f), -127.0f);
-    float n = rint(y), r = y - n;
+    float n = -(float)(int)(0.5f - y), r = y - n;   /* n = round(y) (halves down), y ≤ 0 */
     float exp2_r = 1.0f + r * (0.6931471805599453f + r * (0.2402265069591007f
                  + r * (0.055504108664821576f + r * (0.009618129107628477f
                  + r * (0.0013333558146428441f + r * (0.00015403530393381606f
@@ -200,19 +260,23 @@ inline float phong_power(float c, float m)
     return c > 0.0f ? exp2_r * scale : 0.0f;
 }
 
-/* The specular lobe's power cos⁺(r, ω)^m.  phong_brdf_at and phong_pdf_at take it, so a sample
- * that needs the BRDF and the pdf at one direction computes it once. */
-inline float phong_lobe_power(float3 r, float3 w, float m) { return phong_power(max(dot(r, w), 0.0f), m); }
+/* The specular lobe's power cos⁺(r, ω)^m.  phong_value and phong_mixture_pdf take it, so a
+ * sample that needs the BRDF and the pdf at one direction computes it once. */
+ALWAYS_INLINE float phong_lobe_power(vec3_t r, vec3_t w, float m)
+{
+    return phong_power(max(vec3_dot(r, w), 0.0f), m);
+}
 
 /* ρ = kd/π + ks·(m+2)/(2π)·max(0, r·ω)^m (no cosine), given the lobe power. */
-inline float3 phong_brdf_at(float3 kd, float3 ks, float m, float power)
+ALWAYS_INLINE vec3_t phong_value(vec3_t kd, vec3_t ks, float m, float power)
 {
-    return kd / IBL_PI + ks * ((m + 2.0f) / (2.0f * IBL_PI) * power);
+    float lobe = (m + 2.0f) / (2.0f * IBL_PI) * power;
+    return vec3(kd.x / IBL_PI + ks.x * lobe, kd.y / IBL_PI + ks.y * lobe, kd.z / IBL_PI + ks.z * lobe);
 }
 
 inline float3 phong_brdf(float3 r, float3 w, float3 kd, float3 ks, float m)
 {
-    return phong_brdf_at(kd, ks, m, phong_lobe_power(r, w, m));
+    return float3_of(phong_value(vec3_of(kd), vec3_of(ks), m, phong_lobe_power(vec3_of(r), vec3_of(w), m)));
 }
 
 /* BRDF sampling compiles its specular-lobe branch only with SPECULAR_LOBE=1 (the default); a
@@ -222,10 +286,11 @@ inline float3 phong_brdf(float3 r, float3 w, float3 kd, float3 ks, float m)
 #endif
 
 /* Probability of sampling the specular lobe: its luminance weight Y(ks) / (Y(kd) + Y(ks)). */
+ALWAYS_INLINE float lobe_probability(float yd, float ys) { return ys > 0.0f ? ys / (yd + ys) : 0.0f; }
+
 inline float specular_lobe_probability(float3 kd, float3 ks)
 {
-    float yd = luminance(kd), ys = luminance(ks);
-    return ys > 0.0f ? ys / (yd + ys) : 0.0f;
+    return lobe_probability(luminance(kd), luminance(ks));
 }
 
 /* One pixel's shading inputs, unpacked from the G-buffer's float4 buffers (ks_m.w = shininess). */
@@ -234,40 +299,87 @@ typedef struct {
     float m, p_spec, rho_y_kd, rho_y_ks;   /* lobe choice probability, luminances of kd, ks */
 } surface_t;
 
+/* surface_t in scalars (vec3_t), for code that vectorises across work items. */
+typedef struct {
+    vec3_t n, r, kd, ks;
+    float m, p_spec;
+} shading_t;
+
+ALWAYS_INLINE shading_t make_shading(vec3_t n, vec3_t view, vec3_t kd, vec3_t ks, float m)
+{
+    shading_t s = {n, vec3_reflect_view(n, view), kd, ks, m,
+                   lobe_probability(vec3_luminance(kd), vec3_luminance(ks))};
+    return s;
+}
+
+/* Pixel p's shading_t, read from the G-buffer component by component. */
+ALWAYS_INLINE shading_t load_shading(__global const float4 *normal, __global const float4 *view,
+                                     __global const float4 *kd, __global const float4 *ks_m, int p)
+{
+    return make_shading(vec3_load(normal, p), vec3_load(view, p), vec3_load(kd, p),
+                        vec3_load(ks_m, p), load_w(ks_m, p));
+}
+
 inline surface_t make_surface(float4 normal, float4 view, float4 kd, float4 ks_m)
 {
+    shading_t h = make_shading(vec3_of(normal.xyz), vec3_of(view.xyz), vec3_of(kd.xyz),
+                               vec3_of(ks_m.xyz), ks_m.w);
     surface_t s;
     s.n = normal.xyz;
-    s.r = reflect_view(s.n, view.xyz);
+    s.r = float3_of(h.r);
     s.kd = kd.xyz;
     s.ks = ks_m.xyz;
-    s.m = ks_m.w;
-    s.p_spec = specular_lobe_probability(s.kd, s.ks);
+    s.m = h.m;
+    s.p_spec = h.p_spec;
     s.rho_y_kd = luminance(s.kd);
     s.rho_y_ks = luminance(s.ks);
     return s;
 }
 
+/* cos and sin of 2π·u for u in [0, 1]: u's nearest quarter turn q/4 and the rest a = 2π(u − q/4)
+ * in [−π/4, π/4], whose sine and cosine are their Taylor series to a⁹ and a¹⁰ (remainders under
+ * 2e-9); the quarter turns rotate them.  Polynomials and selects, so it vectorises (the library
+ * sin and cos are calls on PoCL). */
+ALWAYS_INLINE void sincos_turn(float u, float *sine, float *cosine)
+{
+    int q = (int)(4.0f * u + 0.5f);
+    float a = (4.0f * u - (float)q) * (0.5f * IBL_PI), a2 = a * a;
+    float sin_a = a * (1.0f + a2 * (-1.0f / 6.0f + a2 * (1.0f / 120.0f + a2 * (-1.0f / 5040.0f
+                + a2 * (1.0f / 362880.0f)))));
+    float cos_a = 1.0f + a2 * (-0.5f + a2 * (1.0f / 24.0f + a2 * (-1.0f / 720.0f + a2 * (1.0f / 40320.0f
+                + a2 * (-1.0f / 3628800.0f)))));
+    int quadrant = q & 3;
+    float c = (quadrant & 1) ? sin_a : cos_a, s = (quadrant & 1) ? cos_a : sin_a;
+    *cosine = (quadrant == 1 || quadrant == 2) ? -c : c;
+    *sine = (quadrant >= 2) ? -s : s;
+}
+
 /* Unit direction at polar cosine cos_theta and azimuth 2π·u about the unit axis z
  * (branchless orthonormal basis of Duff et al. 2017). */
-inline float3 direction_about(float3 z, float cos_theta, float u)
+ALWAYS_INLINE vec3_t direction_about_axis(vec3_t z, float cos_theta, float u)
 {
     float sign = copysign(1.0f, z.z);
     float a = -1.0f / (sign + z.z);
     float c = z.x * z.y * a;
-    float3 t = (float3)(1.0f + sign * z.x * z.x * a, sign * c, -sign * z.x);
-    float3 b = (float3)(c, sign + z.y * z.y * a, -z.y);
-    float sin_theta = sqrt(max(0.0f, 1.0f - cos_theta * cos_theta));
-    float phi = 2.0f * IBL_PI * u;
-    return normalize(sin_theta * (cos(phi) * t + sin(phi) * b) + cos_theta * z);
+    vec3_t t = vec3(1.0f + sign * z.x * z.x * a, sign * c, -sign * z.x);
+    vec3_t b = vec3(c, sign + z.y * z.y * a, -z.y);
+    float sin_theta = sqrt(max(0.0f, 1.0f - cos_theta * cos_theta)), sine, cosine;
+    sincos_turn(u, &sine, &cosine);
+    vec3_t around = vec3_add(vec3_scale(t, sin_theta * cosine), vec3_scale(b, sin_theta * sine));
+    return vec3_normalize(vec3_add(around, vec3_scale(z, cos_theta)));
 }
 
-/* Mixture pdf of sample_phong in solid angle, given the lobe power cos⁺(r,ω)^m:
+inline float3 direction_about(float3 z, float cos_theta, float u)
+{
+    return float3_of(direction_about_axis(vec3_of(z), cos_theta, u));
+}
+
+/* Mixture pdf of sample_phong in solid angle, given cos(n, ω) and the lobe power cos⁺(r,ω)^m:
  * (1 − p_s)·cos⁺(n,ω)/π + p_s·(m+1)/(2π)·cos⁺(r,ω)^m.  The specular lobe's mass below the surface
  * counts: those directions are sampled (and get a zero integrand). */
-inline float phong_pdf_at(float3 n, float p_spec, float m, float3 w, float power)
+ALWAYS_INLINE float phong_mixture_pdf(float p_spec, float m, float cos_n, float power)
 {
-    float pdf = (1.0f - p_spec) * max(dot(n, w), 0.0f) / IBL_PI;
+    float pdf = (1.0f - p_spec) * max(cos_n, 0.0f) / IBL_PI;
 #if SPECULAR_LOBE
     pdf += p_spec * (m + 1.0f) / (2.0f * IBL_PI) * power;
 #endif
@@ -277,46 +389,64 @@ inline float phong_pdf_at(float3 n, float p_spec, float m, float3 w, float power
 inline float phong_pdf(float3 n, float3 r, float p_spec, float m, float3 w)
 {
 #if SPECULAR_LOBE
-    return phong_pdf_at(n, p_spec, m, w, phong_lobe_power(r, w, m));
+    float power = phong_lobe_power(vec3_of(r), vec3_of(w), m);
 #else
-    return phong_pdf_at(n, p_spec, m, w, 0.0f);
+    float power = 0.0f;
 #endif
+    return phong_mixture_pdf(p_spec, m, dot(n, w), power);
 }
 
-/* Sample the Phong BRDF (DESIGN §3): the lobe by luminance weight (xi.z), the diffuse lobe
- * cosine-weighted (cos θ = √ξ), the specular lobe ∝ cos^m about r (cos θ = ξ^{1/(m+1)}).
- * Returns the mixture pdf of the direction. */
-inline float sample_phong(float3 n, float3 r, float p_spec, float m, float3 xi, float3 *w)
+/* A direction drawn from the Phong BRDF (DESIGN §3): the lobe by luminance weight (xi_lobe), the
+ * diffuse lobe cosine-weighted (cos θ = √ξ), the specular lobe ∝ cos^m about r
+ * (cos θ = ξ^{1/(m+1)}).  Both cosines are computed and one selected (no branch). */
+ALWAYS_INLINE vec3_t sample_phong_direction(vec3_t n, vec3_t r, float p_spec, float m, float xi_cos,
+                                            float xi_azimuth, float xi_lobe)
 {
 #if SPECULAR_LOBE
-    if (xi.z < p_spec)
-        *w = direction_about(r, phong_power(xi.x, 1.0f / (m + 1.0f)), xi.y);
-    else
+    int specular = xi_lobe < p_spec;
+    vec3_t axis = specular ? r : n;
+    float cos_theta = specular ? phong_power(xi_cos, 1.0f / (m + 1.0f)) : sqrt(xi_cos);
+#else
+    vec3_t axis = n;
+    float cos_theta = sqrt(xi_cos);
 #endif
-        *w = direction_about(n, sqrt(xi.x), xi.y);
+    return direction_about_axis(axis, cos_theta, xi_azimuth);
+}
+
+/* sample_phong_direction for float3s and ξ = (cos, azimuth, lobe); returns the mixture pdf of the
+ * direction. */
+inline float sample_phong(float3 n, float3 r, float p_spec, float m, float3 xi, float3 *w)
+{
+    *w = float3_of(sample_phong_direction(vec3_of(n), vec3_of(r), p_spec, m, xi.x, xi.y, xi.z));
     return phong_pdf(n, r, p_spec, m, *w);
 }
 
 /* ---- Random numbers -------------------------------------------------------------------------- */
 
-/* Four uniforms in [0, 1) from Philox4x32 keyed by (seed, frame·2^8 + stream) and countered by
- * (pixel, sample, draw).  24-bit mantissas keep u < 1 exactly. */
-inline float4 rng_uniform4(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
+/* The Philox4x32 block keyed by (seed, frame·2^8 + stream) and countered by (pixel, sample, draw). */
+ALWAYS_INLINE philox4x32_ctr_t rng_block(uint seed, uint frame, uint stream, uint pixel, uint sample,
+                                         uint draw)
 {
     philox4x32_key_t key = {{seed, (frame << 8) | (stream & 0xffu)}};
     philox4x32_ctr_t ctr = {{pixel, sample, draw, 0u}};
-    philox4x32_ctr_t r = philox4x32(ctr, key);
-    return (float4)((float)(r.v[0] >> 8), (float)(r.v[1] >> 8),
-                    (float)(r.v[2] >> 8), (float)(r.v[3] >> 8)) * (1.0f / 16777216.0f);
+    return philox4x32(ctr, key);
 }
 
-/* The same Philox block as rng_uniform4 as two 64-bit words (v0:v1, v2:v3): fixed-point CDF
- * variates are their top 63 bits (word >> 1). */
+/* A uniform in [0, 1) from one word; 24-bit mantissas keep u < 1 exactly. */
+ALWAYS_INLINE float rng_unit(uint word) { return (float)(word >> 8) * (1.0f / 16777216.0f); }
+
+/* The block's four uniforms. */
+inline float4 rng_uniform4(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
+{
+    philox4x32_ctr_t r = rng_block(seed, frame, stream, pixel, sample, draw);
+    return (float4)(rng_unit(r.v[0]), rng_unit(r.v[1]), rng_unit(r.v[2]), rng_unit(r.v[3]));
+}
+
+/* The same block as two 64-bit words (v0:v1, v2:v3): fixed-point CDF variates are their top 63
+ * bits (word >> 1). */
 inline ulong2 rng_words2(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
 {
-    philox4x32_key_t key = {{seed, (frame << 8) | (stream & 0xffu)}};
-    philox4x32_ctr_t ctr = {{pixel, sample, draw, 0u}};
-    philox4x32_ctr_t r = philox4x32(ctr, key);
+    philox4x32_ctr_t r = rng_block(seed, frame, stream, pixel, sample, draw);
     return (ulong2)(upsample(r.v[0], r.v[1]), upsample(r.v[2], r.v[3]));
 }
 

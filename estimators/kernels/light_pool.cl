@@ -44,85 +44,117 @@ inline ulong2 pool_point(int face, int i, uint seed, uint frame)
  * the face is a positive multiple of a convex combination Σ λ_j c_j of its corners (the face is
  * the convex square they span, projected onto the sphere), and n·Σ λ_j c_j = Σ λ_j (n·c_j) ≤ 0.
  * So cos⁺ = 0 on the whole face, and skipping it (μ_f = 0) loses nothing. */
-inline float face_form_factor(float3 n, int face)
+ALWAYS_INLINE float face_form_factor(vec3_t n, int face)
 {
     float sum = 0.0f;
+    #pragma unroll
     for (int j = 0; j < 4; ++j) {
-        float3 corner = face_uv_to_dir(face, (j & 1) ? 1.0f : -1.0f, (j & 2) ? 1.0f : -1.0f);
-        sum += max(0.0f, dot(n, corner));
+        vec3_t corner = vec3_of(face_uv_to_dir(face, (j & 1) ? 1.0f : -1.0f, (j & 2) ? 1.0f : -1.0f));
+        sum += max(0.0f, vec3_dot(n, corner));
     }
     return sum * 0.57735026918962576f;   /* corners have length √3 */
 }
 
 /* Split `total` ticks among the faces in proportion to `weight`.  Cumulative rounding makes the
  * parts sum to exactly `total` (the running sum reaches the total sum bit-for-bit, in the same
- * order); a face of positive weight gets at least one tick, taken from the largest part, so no
- * face that can contribute is dropped.  The estimator divides by the ticks it actually uses,
- * so this rounding of μ_f (≤ a few ticks in Q·N_s) leaves it unbiased. */
-inline void split_ticks(const float weight[6], int total, int ticks[6])
+ * order); a face of positive weight gets at least one tick, taken from the largest part (the
+ * first of equal ones), so no face that can contribute is dropped.  The estimator divides by the
+ * ticks it actually uses, so this rounding of μ_f (≤ a few ticks in Q·N_s) leaves it unbiased.
+ * Branch-free (selects over fixed trip counts), so the split vectorises across pixels. */
+ALWAYS_INLINE void split_ticks(const float weight[6], int total, int ticks[6])
 {
     float sum = 0.0f;
+    #pragma unroll
     for (int f = 0; f < 6; ++f) sum += weight[f];
-    if (!(sum > 0.0f)) {
-        for (int f = 0; f < 6; ++f) ticks[f] = 0;
-        return;
-    }
+    int positive = sum > 0.0f;
+    float divisor = positive ? sum : 1.0f;   /* all weights zero: no ticks, and no 0/0 */
     float running = 0.0f;
-    int previous = 0, largest = 0, deficit = 0;
+    int previous = 0, deficit = 0;
+    #pragma unroll
     for (int f = 0; f < 6; ++f) {
         running += weight[f];
         /* The guards keep the parts non-negative and the last one exact even where the
          * device's division is not correctly rounded. */
         int cumulative = running >= sum ? total
-                       : clamp((int)((float)total * (running / sum) + 0.5f), previous, total);
-        ticks[f] = cumulative - previous;
+                       : clamp((int)((float)total * (running / divisor) + 0.5f), previous, total);
+        int part = cumulative - previous;
         previous = cumulative;
-        if (weight[f] > 0.0f && ticks[f] == 0) { ticks[f] = 1; ++deficit; }
-        if (ticks[f] > ticks[largest]) largest = f;
+        int raised = weight[f] > 0.0f && part == 0;
+        deficit += raised;
+        ticks[f] = positive ? part + raised : 0;
     }
-    ticks[largest] -= deficit;
+    int largest = 0, most = ticks[0];
+    #pragma unroll
+    for (int f = 1; f < 6; ++f) {
+        largest = ticks[f] > most ? f : largest;
+        most = max(most, ticks[f]);
+    }
+    #pragma unroll
+    for (int f = 0; f < 6; ++f) ticks[f] -= (f == largest && positive) ? deficit : 0;
+}
+
+/* Ticks of the light faces together: the whole budget, or half of it with BRDF samples (Eq. 6). */
+inline int light_ticks(int spp, int brdf_samples)
+{
+    int total = spp * TICKS_PER_SAMPLE;
+    return brdf_samples ? total / 2 : total;
 }
 
 /* Ticks of every strategy for a pixel: six light faces, then the BRDF.  `balanced_faces` picks
  * μ_f(n) of Eq. 3 (else μ_f = 1/6); `brdf_samples` gives half the budget to BRDF sampling
  * (Eq. 6).  Faces with zero luminance integral are never drawn (their ticks are dropped, so they
  * count neither as used nor in the MIS denominator; their integrand is zero). */
-inline void strategy_ticks(float3 n, __global const float *face_integral, int spp,
+ALWAYS_INLINE void strategy_ticks(vec3_t n, __global const float *face_integral, int spp,
                            int balanced_faces, int brdf_samples, int ticks[7])
 {
     int total = spp * TICKS_PER_SAMPLE;
-    int light_total = brdf_samples ? total / 2 : total;
+    int light_total = light_ticks(spp, brdf_samples);
     float weight[6];
+    #pragma unroll
     for (int f = 0; f < 6; ++f)
         weight[f] = balanced_faces ? face_form_factor(n, f) * face_integral[f] : 1.0f;
     split_ticks(weight, light_total, ticks);
+    #pragma unroll
     for (int f = 0; f < 6; ++f)
-        if (!(face_integral[f] > 0.0f)) ticks[f] = 0;
+        ticks[f] = face_integral[f] > 0.0f ? ticks[f] : 0;
     ticks[6] = total - light_total;
 }
 
 /* ---- shading (Algorithm 2) ------------------------------------------------------------------ */
 
+/* The sample loops run trip counts that depend on the budget alone, the same for every pixel,
+ * and mask the draws past a pixel's own count: PoCL then runs each loop iteration across the
+ * work items in SIMD (and a GPU's warp stays converged), which a per-pixel trip count or a
+ * data-dependent branch prevents. */
+
+/* A pixel's running estimate.  The radiance sum accumulates in the output's colour planes
+ * (R, G, B at sum[0], sum[plane], sum[2·plane]), not in three registers: PoCL's compiler first
+ * pairs such x/y accumulators into 2-vectors (its early SLP pass), and the work-item vectoriser
+ * then rejects the loop; planes an unknown stride apart are never paired.  (The compiler hoists
+ * the pixel's plane addresses out of the sample loop, so the vector code gathers and scatters
+ * them.)  The counts that do not depend on the samples (used ticks, evaluations) are set by the
+ * kernel. */
 typedef struct {
-    float3 sum;
-    int used, effective, evaluations;   /* ticks, ticks, samples */
+    __global float *sum;
+    int plane;
+    int effective;   /* ticks of the samples with a positive cosine and denominator */
 } accumulator_t;
 
-/* Add one sample of strategy weight β (in ticks): β·s(ω) / D(ω), where D(ω) = Σ_k t_k p_k(ω) is
- * the balance-heuristic denominator in ticks.  With counts N_k = t_k/Q this is
- * (1/N_s)·β_i·s/(Σ_k (N_k/N_s) p_k), i.e. Eq. 4 when only the light faces have ticks and Eq. 6
- * with the BRDF. */
-inline void add_sample(accumulator_t *acc, const surface_t *s, int beta, float3 w, float3 radiance,
-                       float denominator)
+/* Add one sample of strategy weight β (in ticks) if `active`: β·s(ω) / D(ω), where
+ * D(ω) = Σ_k t_k p_k(ω) is the balance-heuristic denominator in ticks.  With counts N_k = t_k/Q
+ * this is (1/N_s)·β_i·s/(Σ_k (N_k/N_s) p_k), i.e. Eq. 4 when only the light faces have ticks
+ * and Eq. 6 with the BRDF.  `power` is the lobe power cos⁺(r, ω)^m. */
+ALWAYS_INLINE void add_sample(accumulator_t *acc, const shading_t *s, int active, int beta,
+                              vec3_t w, float power, vec3_t radiance, float denominator)
 {
-    float cosine = dot(s->n, w);
-    acc->used += beta;
-    acc->evaluations += 1;
-    if (cosine > 0.0f && denominator > 0.0f) {
-        acc->effective += beta;
-        float3 value = phong_brdf(s->r, w, s->kd, s->ks, s->m) * cosine * radiance;
-        acc->sum += ((float)beta / denominator) * value;
-    }
+    float cosine = vec3_dot(s->n, w);
+    int counts = active && cosine > 0.0f && denominator > 0.0f;
+    float weight = counts ? (float)beta / denominator * cosine : 0.0f;
+    vec3_t value = vec3_scale(vec3_mul(phong_value(s->kd, s->ks, s->m, power), radiance), weight);
+    acc->effective += counts ? beta : 0;
+    acc->sum[0] += value.x;
+    acc->sum[acc->plane] += value.y;
+    acc->sum[2 * acc->plane] += value.z;
 }
 
 /* Number of draws for t ticks and β (in ticks) of draw i: Eq. 5. */
@@ -133,70 +165,112 @@ inline int beta_ticks(int ticks, int i)
     return min(TICKS_PER_SAMPLE, ticks - i * TICKS_PER_SAMPLE);
 }
 
-/* Light samples of every face (Eq. 4, or the g_{f,i} of Eq. 6).  A pixel reads draws_for(t_f)
- * consecutive pool entries of face f from `offset` (0 for the shared sequence), wrapping at
- * pool_size; the pool holds at least that many (min() only guards memory).  One loop over all
- * the pixel's draws, not one per face: its trip count (≈ N_s whatever μ_f(n)) is nearly the same
- * for every pixel, so the work items of a vector or warp stay in step (Lu's Algorithm 2 bounds
- * the loop for the same reason). */
-inline void shade_light_faces(accumulator_t *acc, const surface_t *s, const int ticks[7],
-                              __global const float4 *pool_dir_pdf, __global const float4 *pool_radiance,
-                              int pool_size, int offset)
+/* Draws of a light face with t ticks: draws_for(t), which the pool always holds (min() only
+ * guards memory). */
+inline int face_draws(int ticks, int pool_size) { return min(draws_for(ticks), pool_size); }
+
+/* The sample counts of a pixel that its samples do not change: the β-weighted ticks of every
+ * draw (Σ_i β_i = t for a strategy drawn in full) and the number of draws. */
+inline void drawn_counts(const int ticks[7], int pool_size, int *used, int *draws)
 {
-    int draws[6], total = 0;
+    *used = ticks[6];
+    *draws = draws_for(ticks[6]);
+    #pragma unroll
     for (int f = 0; f < 6; ++f) {
-        draws[f] = min(draws_for(ticks[f]), pool_size);
-        total += draws[f];
+        int d = face_draws(ticks[f], pool_size);
+        *used += d == draws_for(ticks[f]) ? ticks[f] : d * TICKS_PER_SAMPLE;
+        *draws += d;
     }
-    for (int j = 0, f = 0, i = 0; j < total; ++j, ++i) {
-        while (i >= draws[f]) { ++f; i = 0; }
-        int entry = f * pool_size + (offset + i) % pool_size;
-        float4 dir_pdf = pool_dir_pdf[entry];
-        float3 w = dir_pdf.xyz;
-        float denominator = (float)ticks[f] * dir_pdf.w;
-        if (ticks[6] > 0)
-            denominator += (float)ticks[6] * phong_pdf(s->n, s->r, s->p_spec, s->m, w);
-        add_sample(acc, s, beta_ticks(ticks[f], i), w, pool_radiance[entry].xyz, denominator);
+}
+
+/* Most light draws of any pixel, from the budget alone: Σ_f ⌈t_f/Q⌉ < Σ_f t_f/Q + 6, so at most
+ * ⌈T/Q⌉ + 5 for light ticks T = Σ_f t_f. */
+inline int light_draws_bound(int light_ticks) { return draws_for(light_ticks) + 5; }
+
+/* Light samples of every face (Eq. 4, or the g_{f,i} of Eq. 6).  A pixel reads face_draws(t_f)
+ * consecutive pool entries of face f from `offset` (0 for the shared sequence; offset <
+ * pool_size), wrapping at pool_size.  One loop over all the pixel's draws, face after face: its
+ * trip count `bound` (light_draws_bound) is the same for every pixel, and draw j's face is found
+ * by comparisons against the faces' cumulative draw counts instead of a search.
+ * brdf_samples = 0 leaves the BRDF term out of the denominator (t_6 = 0 there). */
+ALWAYS_INLINE void shade_light_faces(accumulator_t *acc, const shading_t *s, const int ticks[7], int bound,
+                              int brdf_samples, __global const float4 *pool_dir_pdf,
+                              __global const float4 *pool_radiance, int pool_size, int offset)
+{
+    int end[6], total = 0;
+    #pragma unroll
+    for (int f = 0; f < 6; ++f) {
+        total += face_draws(ticks[f], pool_size);
+        end[f] = total;
+    }
+    for (int j = 0; j < bound; ++j) {
+        /* Draw j is draw i of face f: f counts the faces whose draws end at or before j. */
+        int f = 0, start = 0, face_ticks = ticks[0];
+        #pragma unroll
+        for (int k = 0; k < 5; ++k) {
+            int past = j >= end[k];
+            f += past;
+            start = past ? end[k] : start;
+            face_ticks = past ? ticks[k + 1] : face_ticks;
+        }
+        int active = j < total;
+        int i = active ? j - start : 0;
+        int index = offset + i;
+        int entry = f * pool_size + (index >= pool_size ? index - pool_size : index);
+        vec3_t w = vec3_load(pool_dir_pdf, entry);
+        float power = phong_lobe_power(s->r, w, s->m);
+        float denominator = (float)face_ticks * load_w(pool_dir_pdf, entry);
+        if (brdf_samples)
+            denominator += (float)ticks[6] * phong_mixture_pdf(s->p_spec, s->m, vec3_dot(s->n, w), power);
+        add_sample(acc, s, active, beta_ticks(face_ticks, i), w, power, vec3_load(pool_radiance, entry),
+                   denominator);
     }
 }
 
 /* BRDF samples of Eq. 6 (f_i): the denominator holds the full light mixture, which is the one
- * face term t_{f(ω)}·pdf_L(ω|f(ω)) because pdf_L(ω|f) = 0 off face f. */
-inline void shade_brdf(accumulator_t *acc, const surface_t *s, const int ticks[7],
+ * face term t_{f(ω)}·pdf_L(ω|f(ω)) because pdf_L(ω|f) = 0 off face f.  Every pixel draws
+ * draws_for(t_6) samples (t_6 depends on the budget alone). */
+ALWAYS_INLINE void shade_brdf(accumulator_t *acc, const shading_t *s, const int ticks[7],
                        __global const float4 *env, __global const cdf_word_t *marginal,
                        __global const cdf_word_t *conditional, int res, uint seed, uint frame, uint stream_pixel)
 {
     int draws = draws_for(ticks[6]);
     for (int i = 0; i < draws; ++i) {
-        float3 w;
-        float3 xi = rng_uniform4(seed, frame, STREAM_BRDF, stream_pixel, (uint)i, 0u).xyz;
-        float pdf_brdf = sample_phong(s->n, s->r, s->p_spec, s->m, xi, &w);
-        int texel;
-        float pdf_light = light_pdf(marginal, conditional, res, w, &texel);
-        float denominator = (float)ticks[texel / (res * res)] * pdf_light + (float)ticks[6] * pdf_brdf;
-        add_sample(acc, s, beta_ticks(ticks[6], i), w, env[texel].xyz, denominator);
+        philox4x32_ctr_t xi = rng_block(seed, frame, STREAM_BRDF, stream_pixel, (uint)i, 0u);
+        vec3_t w = sample_phong_direction(s->n, s->r, s->p_spec, s->m, rng_unit(xi.v[0]),
+                                          rng_unit(xi.v[1]), rng_unit(xi.v[2]));
+        float power = phong_lobe_power(s->r, w, s->m);
+        float pdf_brdf = phong_mixture_pdf(s->p_spec, s->m, vec3_dot(s->n, w), power);
+        int face, texel;
+        float pdf_light = light_pdf_on_face(marginal, conditional, res, w, &face, &texel);
+        int face_ticks = ticks[0];
+        #pragma unroll
+        for (int k = 1; k < 6; ++k) face_ticks = face == k ? ticks[k] : face_ticks;
+        float denominator = (float)face_ticks * pdf_light + (float)ticks[6] * pdf_brdf;
+        add_sample(acc, s, 1, beta_ticks(ticks[6], i), w, power, vec3_load(env, texel), denominator);
     }
 }
 
 /* Density of all directions the estimator draws for one pixel, pooled over its strategies:
  * Σ_k t_k p_k(ω) / Σ_k t_k (what the χ² hooks check), given ω's light pdf on its face. */
-inline float pooled_density(const surface_t *s, const int ticks[7], int face, float pdf_light,
-                            float3 w)
+inline float pooled_density(const shading_t *s, const int ticks[7], int face, float pdf_light,
+                            vec3_t w)
 {
     int total = ticks[6];
+    #pragma unroll
     for (int f = 0; f < 6; ++f) total += ticks[f];
-    float density = (float)ticks[6] * phong_pdf(s->n, s->r, s->p_spec, s->m, w)
-                  + (float)ticks[face] * pdf_light;
+    float pdf_brdf = phong_mixture_pdf(s->p_spec, s->m, vec3_dot(s->n, w), phong_lobe_power(s->r, w, s->m));
+    float density = (float)ticks[6] * pdf_brdf + (float)ticks[face] * pdf_light;
     return total > 0 ? density / (float)total : 0.0f;
 }
 
 /* pooled_density with ω's light pdf looked up from its texel (light_pdf of common.cl). */
-inline float pooled_pdf(const surface_t *s, const int ticks[7], __global const cdf_word_t *marginal,
-                        __global const cdf_word_t *conditional, int res, float3 w)
+inline float pooled_pdf(const shading_t *s, const int ticks[7], __global const cdf_word_t *marginal,
+                        __global const cdf_word_t *conditional, int res, vec3_t w)
 {
-    int texel;
-    float pdf_light = light_pdf(marginal, conditional, res, w, &texel);
-    return pooled_density(s, ticks, texel / (res * res), pdf_light, w);
+    int face, texel;
+    float pdf_light = light_pdf_on_face(marginal, conditional, res, w, &face, &texel);
+    return pooled_density(s, ticks, face, pdf_light, w);
 }
 
 #endif

@@ -6,6 +6,8 @@
  * are the χ² hooks; `split_strategies` exposes the per-normal split for tests. */
 #include "light_pool.cl"
 
+/* Outputs in planes of n = get_global_size(0) floats (see accumulator_t): radiance R, G, B;
+ * counts used, effective (in samples); evaluations per pixel. */
 __kernel void render_light_pool(__global const float4 *normal, __global const float4 *view,
                                 __global const float4 *kd, __global const float4 *ks_m,
                                 __global const float4 *env, __global const cdf_word_t *marginal,
@@ -13,26 +15,35 @@ __kernel void render_light_pool(__global const float4 *normal, __global const fl
                                 __global const float4 *pool_dir_pdf, __global const float4 *pool_radiance,
                                 const int res, const int pool_size, const int spp,
                                 const int shared_sequence, const uint seed, const uint frame,
-                                __global float4 *radiance, __global float2 *counts,
+                                __global float *radiance, __global float *counts,
                                 __global int *evaluations)
 {
-    int p = get_global_id(0);
-    surface_t s = make_surface(normal[p], view[p], kd[p], ks_m[p]);
+    /* A work-group barrier, though nothing is shared: PoCL runs a loop whose trip count is the
+     * same for every work item with the work items innermost (SIMD across pixels, one sample at
+     * a time) only in a kernel that has barriers; without one, each work item runs its whole
+     * sample loop alone, in scalar code. */
+    barrier(CLK_LOCAL_MEM_FENCE);
+    int p = get_global_id(0), n = get_global_size(0);
+    shading_t s = load_shading(normal, view, kd, ks_m, p);
     int ticks[7];
     strategy_ticks(s.n, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
     /* Shared: every pixel reads the same pool entries and BRDF numbers (Lu Sec. 2.2).
      * Interleaved: a per-pixel offset into the pool and per-pixel BRDF streams. */
     uint stream_pixel = shared_sequence ? 0u : (uint)p;
     int offset = shared_sequence ? 0
-               : (int)(rng_uniform4(seed, frame, STREAM_POOL_OFFSET, (uint)p, 0u, 0u).x * pool_size);
-    accumulator_t acc = {(float3)(0.0f), 0, 0, 0};
-    shade_light_faces(&acc, &s, ticks, pool_dir_pdf, pool_radiance, pool_size, offset);
+               : (int)(rng_unit(rng_block(seed, frame, STREAM_POOL_OFFSET, (uint)p, 0u, 0u).v[0]) * pool_size);
+    accumulator_t acc = {radiance + p, n, 0};
+    acc.sum[0] = acc.sum[n] = acc.sum[2 * n] = 0.0f;
+    shade_light_faces(&acc, &s, ticks, light_draws_bound(light_ticks(spp, LU_BRDF_SAMPLES)), LU_BRDF_SAMPLES,
+                      pool_dir_pdf, pool_radiance, pool_size, offset);
 #if LU_BRDF_SAMPLES
     shade_brdf(&acc, &s, ticks, env, marginal, conditional, res, seed, frame, stream_pixel);
 #endif
-    radiance[p] = (float4)(acc.sum, 0.0f);
-    counts[p] = (float2)((float)acc.used, (float)acc.effective) * (1.0f / TICKS_PER_SAMPLE);
-    evaluations[p] = acc.evaluations;
+    int used, draws;
+    drawn_counts(ticks, pool_size, &used, &draws);
+    counts[p] = (float)used * (1.0f / TICKS_PER_SAMPLE);
+    counts[n + p] = (float)acc.effective * (1.0f / TICKS_PER_SAMPLE);
+    evaluations[p] = draws;
 }
 
 /* surface[0..3] = normal, view, kd, (ks, m) of one pixel; n directions drawn as the estimator
@@ -43,27 +54,29 @@ __kernel void pooled_directions(__global const float4 *surface, __global const c
                                 const int res, const int spp, const uint seed, __global float4 *out)
 {
     int i = get_global_id(0);
-    surface_t s = make_surface(surface[0], surface[1], surface[2], surface[3]);
+    shading_t s = load_shading(surface, surface + 1, surface + 2, surface + 3, 0);
     int ticks[7], total = 0;
     strategy_ticks(s.n, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
     for (int k = 0; k < 7; ++k) total += ticks[k];
     float4 xi = rng_uniform4(seed, 0u, STREAM_HOOK, (uint)i, 0u, 0u);
     int pick = min((int)(xi.x * (float)total), total - 1), strategy = 0;
     while (pick >= ticks[strategy]) pick -= ticks[strategy++];
-    float3 w;
+    vec3_t w;
     float pdf;
     if (strategy < 6) {
         /* The pdf sample_face returns (the one render uses), not a lookup: the χ² check then
          * compares it with pooled_direction_pdf's texel lookup. */
         int texel;
+        float3 light_w;
         float pdf_light = sample_face(marginal, conditional, strategy, res,
-                                            pool_point(strategy, i, seed, 0u), &w, &texel);
+                                      pool_point(strategy, i, seed, 0u), &light_w, &texel);
+        w = vec3_of(light_w);
         pdf = pooled_density(&s, ticks, strategy, pdf_light, w);
     } else {
-        sample_phong(s.n, s.r, s.p_spec, s.m, xi.yzw, &w);
+        w = sample_phong_direction(s.n, s.r, s.p_spec, s.m, xi.y, xi.z, xi.w);
         pdf = pooled_pdf(&s, ticks, marginal, conditional, res, w);
     }
-    out[i] = (float4)(w, pdf);
+    out[i] = (float4)(float3_of(w), pdf);
 }
 
 __kernel void pooled_direction_pdf(__global const float4 *surface, __global const cdf_word_t *marginal,
@@ -72,10 +85,10 @@ __kernel void pooled_direction_pdf(__global const float4 *surface, __global cons
                                    __global float *out)
 {
     int i = get_global_id(0);
-    surface_t s = make_surface(surface[0], surface[1], surface[2], surface[3]);
+    shading_t s = load_shading(surface, surface + 1, surface + 2, surface + 3, 0);
     int ticks[7];
     strategy_ticks(s.n, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
-    out[i] = pooled_pdf(&s, ticks, marginal, conditional, res, dirs[i].xyz);
+    out[i] = pooled_pdf(&s, ticks, marginal, conditional, res, vec3_load(dirs, i));
 }
 
 /* Ticks of the seven strategies (six faces, BRDF) for each normal. */
@@ -83,6 +96,6 @@ __kernel void split_strategies(__global const float4 *normal, __global const flo
                                const int spp, __global int *out)
 {
     int p = get_global_id(0), ticks[7];
-    strategy_ticks(normal[p].xyz, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
+    strategy_ticks(vec3_load(normal, p), face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
     for (int k = 0; k < 7; ++k) out[7 * p + k] = ticks[k];
 }
