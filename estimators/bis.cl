@@ -30,7 +30,7 @@ __kernel void bis_candidates(__global const float4 *normal, __global const float
                              const uint frame, __global float4 *out, __global float *u)
 {
     int i = get_global_id(0);
-    lane_surface_t s = lane_surface(normal, view, kd, ks_m, 0);
+    shading_t s = load_shading(normal, view, kd, ks_m, 0);
     sir_proposal_t q = make_proposal(0, 0, 0, 0, 0.0f);
     vec3_t w, radiance;
     float gamma, power;

@@ -34,25 +34,32 @@
 #define STREAM_SIR_RESAMPLE 21u
 
 /* Nearest-texel radiance of the map in direction w (DESIGN §3: piecewise constant). */
-LANE vec3_t env_radiance(__global const float4 *env, int res, vec3_t w)
+ALWAYS_INLINE vec3_t env_radiance(__global const float4 *env, int res, vec3_t w)
 {
     return vec3_load(env, lane_texel(w, res));
 }
 
+/* ρ_Y = Y(ρ) = Y(kd)/π + Y(ks)·(m+2)/(2π)·power (Y is linear): from the luminances of kd and ks,
+ * not of ρ's three channels, a sum the optimiser would fuse into a vector (lanes.cl). */
+ALWAYS_INLINE float brdf_luminance(const shading_t *s, float power)
+{
+    return vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * ((s->m + 2.0f) / (2.0f * IBL_PI) * power);
+}
+
 /* γ(ω) of the map `env` at a direction of lobe power `power`; *radiance gets L(ω) (for f/γ). */
-LANE float sir_target(const lane_surface_t *s, __global const float4 *env, int res, vec3_t w,
+ALWAYS_INLINE float sir_target(const shading_t *s, __global const float4 *env, int res, vec3_t w,
                       float power, vec3_t *radiance)
 {
     float cosine = vec3_dot(s->n, w);
     *radiance = env_radiance(env, res, w);
-    return cosine > 0.0f ? vec3_luminance(*radiance) * lane_brdf_luminance(s, power) * cosine : 0.0f;
+    return cosine > 0.0f ? vec3_luminance(*radiance) * brdf_luminance(s, power) * cosine : 0.0f;
 }
 
 /* f(ω)/γ(ω) = L ρ / (L_Y ρ_Y), for γ(ω) > 0. */
-LANE vec3_t sir_ratio(const lane_surface_t *s, vec3_t radiance, float power)
+ALWAYS_INLINE vec3_t sir_ratio(const shading_t *s, vec3_t radiance, float power)
 {
-    vec3_t f = vec3_mul(radiance, lane_brdf(s, power));
-    float gamma = vec3_luminance(radiance) * lane_brdf_luminance(s, power);
+    vec3_t f = vec3_mul(radiance, phong_value(s->kd, s->ks, s->m, power));
+    float gamma = vec3_luminance(radiance) * brdf_luminance(s, power);
     return vec3(f.x / gamma, f.y / gamma, f.z / gamma);
 }
 
@@ -69,7 +76,7 @@ typedef struct {
  * summed from f = 0 to 5 (smc.py, face_choice), or is null for the BRDF alone; `has_light`: the
  * map is not all black.  (Computed here, the six sums and quotients were fused into vector
  * instructions, which stop PoCL's vectorisation; lanes.cl.) */
-LANE sir_proposal_t make_proposal(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
+ALWAYS_INLINE sir_proposal_t make_proposal(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
                                   __global const float *faces, int has_light, float env_pick)
 {
     sir_proposal_t q;
@@ -80,22 +87,22 @@ LANE sir_proposal_t make_proposal(__global const cdf_word_t *marginal, __global 
     return q;
 }
 
-LANE float proposal_mu(const sir_proposal_t *q, int face) { return q->faces[face]; }
+ALWAYS_INLINE float proposal_mu(const sir_proposal_t *q, int face) { return q->faces[face]; }
 
 /* q(ω), given ω's lobe power. */
-LANE float proposal_pdf(const lane_surface_t *s, const sir_proposal_t *q, int res, vec3_t w, float power)
+ALWAYS_INLINE float proposal_pdf(const shading_t *s, const sir_proposal_t *q, int res, vec3_t w, float power)
 {
-    float density = (1.0f - q->env_pick) * lane_phong_pdf(s, w, power);
+    float density = (1.0f - q->env_pick) * phong_mixture_pdf(s->p_spec, s->m, vec3_dot(s->n, w), power);
     if (q->env_pick > 0.0f) {
-        int texel;
-        float pl = lane_light_pdf(q->marginal, q->conditional, res, w, &texel);
-        density += q->env_pick * proposal_mu(q, texel / (res * res)) * pl;
+        int face, texel;
+        float pl = light_pdf_on_face(q->marginal, q->conditional, res, w, &face, &texel);
+        density += q->env_pick * proposal_mu(q, face) * pl;
     }
     return density;
 }
 
 /* Does the draw with uniforms xi take the map (else the BRDF)? */
-LANE int proposal_uses_map(const sir_proposal_t *q, uniform4_t xi)
+ALWAYS_INLINE int proposal_uses_map(const sir_proposal_t *q, uniform4_t xi)
 {
     return q->env_pick > 0.0f && xi.w < q->env_pick;
 }
@@ -104,10 +111,10 @@ LANE int proposal_uses_map(const sir_proposal_t *q, uniform4_t xi)
  * map direction takes its texel and point from the 63-bit words `point` (sample_face; only
  * read when proposal_uses_map).  Its density is proposal_pdf.  With env_pick = 0 this is exactly
  * sample_phong on xi.xyz (Burke's candidates). */
-LANE vec3_t proposal_sample(const lane_surface_t *s, const sir_proposal_t *q, int res, uniform4_t xi,
+ALWAYS_INLINE vec3_t proposal_sample(const shading_t *s, const sir_proposal_t *q, int res, uniform4_t xi,
                             words2_t point)
 {
-    vec3_t brdf = lane_sample_phong(s, xi.x, xi.y, xi.z);
+    vec3_t brdf = sample_phong_direction(s->n, s->r, s->p_spec, s->m, xi.x, xi.y, xi.z);
     float x = brdf.x, y = brdf.y, z = brdf.z;   /* scalars: a phi or select of structs becomes a vector */
     if (q->env_pick > 0.0f) {
         /* The first face with μ > 0 whose cumulative μ exceeds xi.x; the last face with μ > 0
@@ -139,7 +146,7 @@ LANE vec3_t proposal_sample(const lane_surface_t *s, const sir_proposal_t *q, in
  * γ/q with the mixture q stays unbiased for fixed counts, without the binomial variance of a
  * random pick per candidate (√((1 − env_pick)/(M·env_pick)) relative, 7.9% at M = 160 and env_pick ½, on a small light
  * that only the map samples find). */
-LANE float sir_candidate(const lane_surface_t *s, const sir_proposal_t *q,
+ALWAYS_INLINE float sir_candidate(const shading_t *s, const sir_proposal_t *q,
                          __global const float4 *env, int res, uint seed, uint frame, uint pixel,
                          int i, int M, vec3_t *w, float *gamma, vec3_t *radiance, float *power)
 {
@@ -149,7 +156,7 @@ LANE float sir_candidate(const lane_surface_t *s, const sir_proposal_t *q,
     words2_t point = proposal_uses_map(q, xi)
         ? lane_words2(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 1u) : none;
     *w = proposal_sample(s, q, res, xi, point);
-    *power = lane_lobe_power(s, *w);
+    *power = phong_lobe_power(s->r, *w, s->m);
     float pdf = proposal_pdf(s, q, res, *w, *power);
     *gamma = sir_target(s, env, res, *w, *power, radiance);
     float weight = (pdf > 0.0f && *gamma > 0.0f) ? *gamma / pdf : 0.0f;
@@ -157,7 +164,7 @@ LANE float sir_candidate(const lane_surface_t *s, const sir_proposal_t *q,
 }
 
 /* Systematic resampling position k of N on a total `total`: (k + u)·total/N. */
-LANE acc_t systematic_position(int k, int n, float u, acc_t total)
+ALWAYS_INLINE acc_t systematic_position(int k, int n, float u, acc_t total)
 {
     return ((acc_t)k + (acc_t)u) * (total / (acc_t)n);
 }
@@ -165,7 +172,7 @@ LANE acc_t systematic_position(int k, int n, float u, acc_t total)
 /* #{k < n : systematic_position(k) < c}: the positions below a cumulative sum c (total > 0).
  * The positions grow with k, so this is ⌈c·n/total − u⌉ clamped to [0, n], made exact (it may be
  * one off by rounding) by the same comparison a walk over k would make. */
-LANE int positions_below(acc_t c, int n, float u, acc_t total)
+ALWAYS_INLINE int positions_below(acc_t c, int n, float u, acc_t total)
 {
     int k = (int)clamp(ceil(c / (total / (acc_t)n) - (acc_t)u), (acc_t)0, (acc_t)n);
     k -= k > 0 && !(systematic_position(k - 1, n, u, total) < c);
@@ -192,7 +199,7 @@ LANE int positions_below(acc_t c, int n, float u, acc_t total)
  * planes[(c·N + i)·plane] from the pixel's base, so the work items of a group touch contiguous
  * words (a float4 per particle would be four adjacent stores, which the optimiser fuses into a
  * vector store that stops PoCL's vectorisation; lanes.cl).  The gammas have planes 0 and 1. */
-LANE void store_planes(__global float *planes, int N, int plane, int i, float x, float y, float z, float w)
+ALWAYS_INLINE void store_planes(__global float *planes, int N, int plane, int i, float x, float y, float z, float w)
 {
     planes[i * plane] = x;
     planes[(N + i) * plane] = y;
@@ -212,7 +219,7 @@ LANE void store_planes(__global float *planes, int N, int plane, int i, float x,
  * weights, which records the candidate of each position; the N resampled candidates, regenerated
  * (same Philox counters, same float operations) for f/γ.  So the device evaluates M + N
  * candidates, as `evaluations` counts, with M + N words of scratch. */
-LANE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M, int N, uint seed,
+ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M, int N, uint seed,
                      uint frame, uint pixel, SIR_SCRATCH_ARGS, vec3_t *sum,
                      __global float *particles, __global float *gammas, int plane,
                      vec3_t *candidate_ratio)
@@ -223,7 +230,7 @@ LANE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M,
     acc_t total = 0, carry = 0;
     for (int c = 0; c < 6; ++c) sums[c * stride + slot] = 0;
     for (int i = 0; i < M; ++i) {
-        lane_surface_t s = lane_surface(normal, view, kd, ks_m, p);
+        shading_t s = load_shading(normal, view, kd, ks_m, p);
         sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
         vec3_t w, radiance;
         float gamma, power;
@@ -267,7 +274,7 @@ LANE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M,
     for (int j = N - 1; j >= 0; --j) {
         int recorded = taken[j * stride + slot];
         candidate = j < k && recorded >= 0 ? recorded : candidate;
-        lane_surface_t s = lane_surface(normal, view, kd, ks_m, p);
+        shading_t s = load_shading(normal, view, kd, ks_m, p);
         sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
         vec3_t w, radiance;
         float gamma, power;

@@ -111,7 +111,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
 {
     const int res = ENV_RES, plane = count;
     int p = get_global_id(0);
-    lane_surface_t s = lane_surface(normal, view, kd, ks_m, p);
+    shading_t s = load_shading(normal, view, kd, ks_m, p);
     __global float *particles = all_particles + p, *gammas = all_gammas + p;
     __global float *scratch_p = all_scratch_p + p, *scratch_g = all_scratch_g + p;
 
@@ -143,7 +143,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
             float4 q = load_particle(particles, N, plane, i);
             float2 g = load_gammas(gammas, N, plane, i);
             vec3_t L, w = particle_direction(q);
-            g.y = static_frame ? g.x : sir_target(&s, env, res, w, lane_lobe_power(&s, w), &L);
+            g.y = static_frame ? g.x : sir_target(&s, env, res, w, phong_lobe_power(s.r, w, s.m), &L);
             store_gammas(gammas, N, plane, i, g);
             if (q.w > 0.0f && !(g.x > 0.0f)) reinit = 1;   /* guard: γ_{t−1} = 0 */
             sum_sq += q.w * q.w;
@@ -191,7 +191,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
                 int kind = move_kind((step - 1) * N + i, nu);
                 const sir_proposal_t *independent = kind == 1 ? &q_map : &q_brdf;
                 if (kind == 0) {
-                    w_new = lane_direction_about(w, 1.0f - b.x * (1.0f - cos_delta), b.y);
+                    w_new = direction_about_axis(w, 1.0f - b.x * (1.0f - cos_delta), b.y);
                 } else {
                     uniform4_t xi = {a.z, b.x, b.y, 0.0f};
                     words2_t none = {0, 0};
@@ -199,7 +199,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
                                             kind == 1 ? lane_words2(seed, frame, STREAM_SMC_MAP_POINT,
                                                                     (uint)p, (uint)i, (uint)step) : none);
                 }
-                float power_new = lane_lobe_power(&s, w_new);
+                float power_new = phong_lobe_power(s.r, w_new, s.m);
                 vec3_t L, L_prev;
                 float g1_new = sir_target(&s, env, res, w_new, power_new, &L);
                 float g0_new = static_frame ? g1_new : 0.0f;
@@ -227,7 +227,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
                     ratio = pi_new / pi_old;
                 } else {
                     float q_new = proposal_pdf(&s, independent, res, w_new, power_new);
-                    float q_old = proposal_pdf(&s, independent, res, w, lane_lobe_power(&s, w));
+                    float q_old = proposal_pdf(&s, independent, res, w, phong_lobe_power(s.r, w, s.m));
                     ratio = (pi_new * q_old) / (pi_old * q_new);
                 }
                 if (pi_new > 0.0f && (!(pi_old > 0.0f) || a.w < ratio)) {   /* NaN: reject */
@@ -265,7 +265,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
         if (q.w > 0.0f && g.y > 0.0f) {
             if (!static_frame) {
                 vec3_t w = particle_direction(q);
-                vec3_t f_over_gamma = sir_ratio(&s, env_radiance(env, res, w), lane_lobe_power(&s, w));
+                vec3_t f_over_gamma = sir_ratio(&s, env_radiance(env, res, w), phong_lobe_power(s.r, w, s.m));
                 ratio += q.w * (float3)(f_over_gamma.x, f_over_gamma.y, f_over_gamma.z);
             }
             effective += 1.0f;
