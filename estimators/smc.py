@@ -67,6 +67,13 @@ before resampling over the frame's steps (NaN on an init frame); ``reinits``: pi
 re-initialised this frame (the first frame's init is not counted); ``resample_steps``: mean
 resamplings per pixel.
 
+Kernels (``smc.cl``).  ``smc_advance`` runs steps 2-6 for every pixel that carries state and
+flags those that need a BIS re-init; ``smc_init`` runs step 1 for the flagged pixels (all of them
+on a first frame), listed on the host, in padded groups whose candidate loops PoCL vectorises
+across pixels (``sir.cl``, ``lanes.cl``).  The frame's ``shade`` time is the sum of both kernels'
+device time and the copy of the map kept for γ_{t−1}.  The map proposal's face probabilities
+and running sums come from the host (:func:`face_choice`), in float32, summed as a kernel would.
+
 Not unbiased (``Tags.unbiased = False``).  An init frame is unbiased, and so is a static
 stretch after it; a continuing frame on a changing map
 is a consistent SMC sampler (error → 0 as N → ∞) but not unbiased at finite N: Eq. 5's weights
