@@ -227,22 +227,27 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
     /* Compensated sums (double where the device has it): a zero-variance case (white furnace)
      * must not pick up M·ε of rounding.  Both sums over the weights accumulate identically. */
     float stratified_pick = round(env_pick * (float)M) / (float)M;
+    shading_t s = load_shading(normal, view, kd, ks_m, p);
     acc_t total = 0, carry = 0;
     for (int c = 0; c < 6; ++c) sums[c * stride + slot] = 0;
     for (int i = 0; i < M; ++i) {
-        shading_t s = load_shading(normal, view, kd, ks_m, p);
         sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
         vec3_t w, radiance;
         float gamma, power;
         float weight = sir_candidate(&s, &q, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance, &power);
         weights[i * stride + slot] = weight;
-        kahan_add_to(&total, &carry, (acc_t)weight);
         if (candidate_ratio && weight > 0.0f) {
             vec3_t ratio = sir_ratio(&s, radiance, power);
             sums[slot] += (acc_t)weight * ratio.x;
             sums[stride + slot] += (acc_t)weight * ratio.y;
             sums[2 * stride + slot] += (acc_t)weight * ratio.z;
         }
+        LOCKSTEP();
+    }
+    /* The total apart from the candidates' loop: its doubles would halve that loop's vector width
+     * (the widest type in a loop sets it). */
+    for (int i = 0; i < M; ++i) {
+        kahan_add_to(&total, &carry, (acc_t)weights[i * stride + slot]);
         LOCKSTEP();
     }
     int positive = total > 0 && isfinite(total);
@@ -274,7 +279,6 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
     for (int j = N - 1; j >= 0; --j) {
         int recorded = taken[j * stride + slot];
         candidate = j < k && recorded >= 0 ? recorded : candidate;
-        shading_t s = load_shading(normal, view, kd, ks_m, p);
         sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
         vec3_t w, radiance;
         float gamma, power;
