@@ -67,6 +67,7 @@ SCRATCH_BYTES = 64 << 20   # BIS scratch per launch (M + N words and 6 sums a pi
 
 
 def lockstep_group(compute, kernel) -> int:
+    """Work items per group of a LOCKSTEP kernel on this device."""
     return min(LOCKSTEP_GROUP, kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
                                                           compute.info.device))
 

@@ -19,11 +19,12 @@
  * Only the candidates' weights are stored (bis_pixel): the resampled candidates are regenerated
  * from their Philox counters for f/γ.
  *
- * Speed (issue 10).  Both passes loop M times in every work item, with no early exit, end each
- * iteration at LOCKSTEP and use the scalar-form helpers of lanes.cl, so PoCL runs the work items
- * of a group as SIMD lanes (lanes.cl says why each rule matters).  Data-dependent work is masked:
- * a candidate's copies are counted in closed form (positions_below), not by a while loop, and the
- * pixel's surface and proposal are rebuilt in each iteration rather than carried across it.  The
+ * Speed (issue 10).  Every loop runs the same count in every work item, with no early exit, ends
+ * each iteration at LOCKSTEP and uses common.cl's scalar helpers, so PoCL runs the work items of
+ * a group as SIMD lanes (lanes.cl says why each rule matters).  Data-dependent work is masked: a
+ * candidate's copies are counted in closed form (positions_below), not by a while loop.  The
+ * pixel's shading is loaded once (its scalars are carried across the barriers), the proposal is
+ * rebuilt in each iteration (a struct carried across would stop the vectorisation), and the
  * specular lobe's power is computed once per candidate and shared by q, γ and f/γ. */
 #ifndef IBLBENCH_SIR_CL
 #define IBLBENCH_SIR_CL
@@ -180,8 +181,7 @@ ALWAYS_INLINE int positions_below(acc_t c, int n, float u, acc_t total)
     return k;
 }
 
-/* The pixel's inputs: its G-buffer entry p and the proposal's.  The loops below rebuild the
- * surface and the proposal from them in every iteration (lanes.cl: no struct across LOCKSTEP). */
+/* The pixel's inputs: its G-buffer entry p and the proposal's (make_proposal). */
 #define SIR_PIXEL_ARGS __global const float4 *normal, __global const float4 *view, \
     __global const float4 *kd, __global const float4 *ks_m, int p, \
     __global const cdf_word_t *marginal, __global const cdf_word_t *conditional, \

@@ -8,7 +8,9 @@
  * Two kernels per frame: smc_advance (every pixel that carries state: reweight, resample, MH
  * moves, the re-init test, Eq. 7) and smc_init, the BIS (re-)initialisation of the pixels it
  * flagged (all of them on a first frame), in lockstep groups over their list.  ENV_RES, the map's
- * face size, is a compile-time constant (smc.py defines it), so the CDF searches unroll. */
+ * face size, is a compile-time constant (smc.py defines it), so the CDF searches unroll.
+ * smc_advance still runs one work item per pixel without LOCKSTEP (its loops exit early per
+ * pixel), so PoCL does not vectorise it. */
 #include "sir.cl"
 
 #define STREAM_SMC_MOVE 30u
