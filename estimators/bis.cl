@@ -11,12 +11,13 @@ __kernel void render_bis(__global const float4 *normal, __global const float4 *v
 {
     /* Pixels offset … offset + count − 1, in whole groups (LOCKSTEP): items past `count` redo
      * the last pixel in their own scratch slot and store nothing. */
-    int slot = get_global_id(0), stride = get_global_size(0);
-    int p = offset + min(slot, count - 1);
+    int item = get_global_id(0), p = offset + min(item, count - 1);
     vec3_t sum;
     float z = bis_pixel(normal, view, kd, ks_m, p, 0, 0, 0, 0, 0.0f,   /* Burke: BRDF candidates */
-                        env, res, M, N, seed, frame, (uint)p, weights, taken, sums, slot, stride, &sum, 0, 0, 0, 0);
-    if (slot >= count) return;
+                        env, res, M, N, seed, frame, (uint)p, GROUP_SCRATCH(weights, M),
+                        GROUP_SCRATCH(taken, N), GROUP_SCRATCH(sums, 6), get_local_id(0),
+                        get_local_size(0), &sum, 0, 0, 0, 0);
+    if (item >= count) return;
     radiance[p] = (float4)(z / (float)N * sum.x, z / (float)N * sum.y, z / (float)N * sum.z, 0.0f);
     /* Every resampled sample has γ > 0, hence a positive cosine; none exist when Ẑ = 0. */
     float used = z > 0.0f ? (float)N : 0.0f;

@@ -195,6 +195,11 @@ ALWAYS_INLINE int positions_below(acc_t c, int n, float u, acc_t total)
 #define SIR_SCRATCH_ARGS __global float *weights, __global int *taken, __global acc_t *sums, \
     int slot, int stride
 
+/* A work group's block of a scratch buffer of `planes` planes: with slot = the local id and
+ * stride = the group size, the group's candidates stay within a few pages (with the global id
+ * and size, each candidate's plane was a page of its own). */
+#define GROUP_SCRATCH(buffer, planes) ((buffer) + (size_t)get_group_id(0) * (size_t)(planes) * get_local_size(0))
+
 /* SMC's particles, as planes (smc.cl): component c of particle i of a pixel lies at
  * planes[(c·N + i)·plane] from the pixel's base, so the work items of a group touch contiguous
  * words (a float4 per particle would be four adjacent stores, which the optimiser fuses into a

@@ -307,14 +307,15 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
 {
     /* Items past `listed` redo the last listed pixel in their own scratch slot, bit for bit, so
      * their particle stores repeat the same values; they store nothing else. */
-    int slot = get_global_id(0), stride = get_global_size(0);
-    int p = pixels[offset + min(slot, listed - 1)];
+    int item = get_global_id(0), p = pixels[offset + min(item, listed - 1)];
     __global float *particles = all_particles + p, *gammas = all_gammas + p;
     vec3_t sum, candidate_ratio;
     float z = bis_pixel(normal, view, kd, ks_m, p, marginal, conditional, faces, has_light, init_env_pick,
-                        env, ENV_RES, M, N, seed, frame, (uint)p, weights, taken, sums, slot, stride, &sum,
+                        env, ENV_RES, M, N, seed, frame, (uint)p, GROUP_SCRATCH(weights, M),
+                        GROUP_SCRATCH(taken, N), GROUP_SCRATCH(sums, 6), get_local_id(0),
+                        get_local_size(0), &sum,
                         particles, gammas, count, &candidate_ratio);
-    if (slot >= listed) return;
+    if (item >= listed) return;
     float effective = 0.0f;
     for (int i = 0; i < N; ++i)
         effective += plane_at(particles, N, count, i, 3) > 0.0f && plane_at(gammas, N, count, i, 0) > 0.0f;
