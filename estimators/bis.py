@@ -14,9 +14,9 @@ Budget.  ``spp`` is the number N of resampled samples (the samples whose full in
 visibility included in a ray tracer, is evaluated: ``used``); the candidates are
 M = round(spp · M_param / N_param), so the default params (M = 400, N = 20, Kronander's) give
 M = 20·spp and spp = 20 is exactly Kronander's set-up.  ``evaluations`` = M + N per pixel: M
-evaluations of γ at the candidates and N of f at the resampled samples.  (The kernel
-regenerates the candidates in a second pass instead of storing them, so γ is computed 2M times
-on the device; that is a memory/compute trade of this implementation, not counted.)
+evaluations of γ at the candidates and N of f at the resampled samples, which is also what
+the kernel computes: it stores the M weights (scratch of M + N words per pixel, in launches of
+at most ``SCRATCH_BYTES``) and regenerates only the N resampled candidates for f.
 ``used`` = ``effective`` = N (every resampled sample has γ > 0, so a positive cosine), 0 where
 every candidate weight is 0 (black map above the horizon).
 """
@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pyopencl as cl
 
 from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
 from iblbench.harness.device import event_ms
@@ -61,13 +62,47 @@ def systematic_resample(weights, u: float, n: int | None = None) -> np.ndarray:
     return np.minimum(np.searchsorted(cumulative, positions, side="right"), len(w) - 1)
 
 
+LOCKSTEP_GROUP = 64   # work items per group of a LOCKSTEP kernel (sir.cl): 4 AVX-512 vectors, 2 warps
+SCRATCH_BYTES = 64 << 20   # BIS scratch per launch (M + N words and 6 sums a pixel); more pixels, more launches
+
+
+def lockstep_group(compute, kernel) -> int:
+    """Work items per group of a LOCKSTEP kernel on this device."""
+    return min(LOCKSTEP_GROUP, kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
+                                                          compute.info.device))
+
+
+def run_lockstep(compute, kernel, count: int, *args) -> cl.Event:
+    """Launch a kernel that reaches LOCKSTEP (lanes.cl) over ``count`` work items in whole groups:
+    the global size is padded up to a multiple of the group size (the kernel takes ``count`` and
+    stores nothing past it).  Returns the profiled event."""
+    group = lockstep_group(compute, kernel)
+    kernel.set_args(*args)
+    padded = max(-(-int(count) // group), 1) * group
+    event = cl.enqueue_nd_range_kernel(compute.queue, kernel, (padded,), (group,))
+    event.wait()
+    return event
+
+
+def bis_chunks(compute, kernel, count: int, M: int, N: int):
+    """Split ``count`` pixels into launches whose BIS scratch fits SCRATCH_BYTES: yields
+    (offset, pixels, weights, taken, sums) with scratch buffers (sir.cl, SIR_SCRATCH_ARGS) sized
+    for the padded launch."""
+    group = lockstep_group(compute, kernel)
+    per_launch = max(group, SCRATCH_BYTES // (4 * (M + N) + 6 * 8) // group * group)
+    size = min(per_launch, max(-(-int(count) // group), 1) * group)
+    scratch = compute.empty(4 * M * size), compute.empty(4 * N * size), compute.empty(6 * 8 * size)
+    for offset in range(0, int(count), per_launch):
+        yield offset, min(per_launch, int(count) - offset), *scratch
+
+
 class BIS(Estimator):
     __doc__ = __doc__
     name = "bis"
     Params = BISParams
     tags = Tags(unbiased=True, temporal=False, has_pdf=False)
     requires = ("env",)
-    kernel_files = ("bis.cl", "sir.cl")
+    kernel_files = ("bis.cl", "sir.cl", "lanes.cl")
 
     def __init__(self, params=None, **overrides):
         super().__init__(params, **overrides)
@@ -89,7 +124,11 @@ class BIS(Estimator):
         kernel = compute.kernel(self.kernel_package(), "bis.cl", "render_bis", self.defines(gbuffer))
         radiance = compute.empty(gbuffer.count * 16)
         counts = compute.empty(gbuffer.count * 8)
-        event = compute.run(kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd,
-                            gbuffer.ks, cache.env_buffer, np.int32(cache.res), np.int32(M),
-                            np.int32(N), np.uint32(seed), np.uint32(cache.frame), radiance, counts)
-        return read_estimate(compute, gbuffer, radiance, counts, M + N, {"shade": event_ms(event)})
+        shade_ms = 0.0
+        for offset, pixels, *scratch in bis_chunks(compute, kernel, gbuffer.count, M, N):
+            event = run_lockstep(compute, kernel, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd,
+                                 gbuffer.ks, cache.env_buffer, np.int32(cache.res), np.int32(M),
+                                 np.int32(N), np.uint32(seed), np.uint32(cache.frame), np.int32(offset),
+                                 np.int32(pixels), *scratch, radiance, counts)
+            shade_ms += event_ms(event)
+        return read_estimate(compute, gbuffer, radiance, counts, M + N, {"shade": shade_ms})

@@ -62,13 +62,15 @@ its entry).
 
 **Shading.**  L ≈ Σ_k W_k ρ(ω_k) cos⁺(n, ω_k) over the lights with n·ω_k > 0 (per-normal
 culling).  used = K, effective = the lights above the horizon, evaluations = the lights shaded.
-The ``sample`` timing is the host time (NumPy) that builds the frame's map CDFs (once per
-frame, but counted in every render, as a light pool's build is) plus the lights and the
-filter; the ``shade`` timing is the kernel's device time.
+The ``sample`` timing is the device time of the kernels that build the frame's map CDFs
+(``havran.cl``; once per frame, but counted in every render, as a light pool's build is) plus
+the host time of the K lights and the filter (NumPy: K points through the copied-back CDFs);
+the ``shade`` timing is the kernel's device time.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 import weakref
 
@@ -178,28 +180,52 @@ def direction_to_equal_area(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return x, y
 
 
+def grid_shape(res: int) -> tuple[int, int]:
+    """(NZ, NPHI) of the equal-area grid for faces of ``res`` texels."""
+    nz = int(min(2 * res, GRID_MAX_NZ))
+    return nz, 2 * nz
+
+
+@functools.lru_cache(maxsize=8)
+def lookup_texels(res: int) -> np.ndarray:
+    """The texel (face·R² + row·R + col) of every supersample lookup, ``[NZ·S, NPHI·S]``: cell
+    (i, j) looks up rows i·S … i·S + S − 1 and columns j·S … j·S + S − 1.  Geometry only, so
+    computed once per face size."""
+    nz, nphi = grid_shape(res)
+    x = (np.arange(nphi * SUPERSAMPLE) + 0.5) / (nphi * SUPERSAMPLE)
+    y = (np.arange(nz * SUPERSAMPLE) + 0.5) / (nz * SUPERSAMPLE)
+    face, row, col = cubemap.direction_to_texel(equal_area_to_direction(x[None, :], y[:, None]).reshape(-1, 3), res)
+    return ((face * res + row) * res + col).reshape(nz * SUPERSAMPLE, nphi * SUPERSAMPLE)
+
+
+@functools.lru_cache(maxsize=8)
+def centre_cells(res: int) -> np.ndarray:
+    """The cell (i·NPHI + j) that holds each texel's centre, ``[6·R·R]`` (small texels near the
+    poles can fall between a cell's lookups)."""
+    nz, nphi = grid_shape(res)
+    cx, cy = direction_to_equal_area(cubemap.texel_directions(res).reshape(-1, 3))
+    return (np.minimum((cy * nz).astype(np.int64), nz - 1) * nphi
+            + np.minimum((cx * nphi).astype(np.int64), nphi - 1))
+
+
 class EqualAreaMap:
-    """The frame's luminance pdf on the equal-area grid and its continuous inversion."""
+    """The frame's luminance pdf on the equal-area grid and its continuous inversion.
+
+    ``EqualAreaMap(env)`` builds it with NumPy (the twin the tests hold the device build to);
+    :meth:`on_device` builds the same arrays with the kernels of ``havran.cl`` and copies them
+    back for the inversion of the K points."""
 
     def __init__(self, env: np.ndarray):
         start = time.perf_counter()
         res = env.shape[1]
-        self.nz = int(min(2 * res, GRID_MAX_NZ))
-        self.nphi = 2 * self.nz
+        self.nz, self.nphi = grid_shape(res)
         self.env = env
         s = SUPERSAMPLE
-        x = (np.arange(self.nphi * s) + 0.5) / (self.nphi * s)
-        y = (np.arange(self.nz * s) + 0.5) / (self.nz * s)
-        dirs = equal_area_to_direction(x[None, :], y[:, None])
-        face, row, col = cubemap.direction_to_texel(dirs.reshape(-1, 3), res)
-        texel_lum = np.maximum(cubemap.luminance(env.astype(np.float64)), 0.0)
-        lookups = texel_lum[face, row, col].reshape(self.nz, s, self.nphi, s)
+        texel_lum = np.maximum(cubemap.luminance(env.astype(np.float64)), 0.0).reshape(-1)
+        lookups = texel_lum[lookup_texels(res)].reshape(self.nz, s, self.nphi, s)
         mean, value = lookups.mean(axis=(1, 3)), lookups.max(axis=(1, 3))
         # Every texel also counts in the cell that holds its centre (small texels near the poles).
-        cx, cy = direction_to_equal_area(cubemap.texel_directions(res).reshape(-1, 3))
-        cells = (np.minimum((cy * self.nz).astype(np.int64), self.nz - 1) * self.nphi
-                 + np.minimum((cx * self.nphi).astype(np.int64), self.nphi - 1))
-        np.maximum.at(value.reshape(-1), cells, texel_lum.reshape(-1))
+        np.maximum.at(value.reshape(-1), centre_cells(res), texel_lum)
         # Conservative: a 3×3 max filter (φ wraps), so a texel that overlaps a cell but none of
         # its lookups still bounds that cell's density from below, and L/p stays bounded.
         padded = np.pad(value, ((1, 1), (0, 0)), mode="edge")
@@ -220,6 +246,43 @@ class EqualAreaMap:
         self.col_cdf = np.cumsum(self.col_prob, axis=1)
         self.col_cdf /= self.col_cdf[:, -1:]
         self.build_ms = (time.perf_counter() - start) * 1e3
+
+    @classmethod
+    def on_device(cls, cache) -> "EqualAreaMap":
+        """The map of a FrameCache's frame, built by havran.cl from the uploaded map (its
+        ``build_ms`` is the kernels' device time); the arrays are those of the NumPy build up to
+        float rounding (luminance in float32 on the device)."""
+        compute, res = cache.compute, cache.res
+        self = cls.__new__(cls)
+        self.nz, self.nphi = grid_shape(res)
+        self.env = cache.env
+        lookup, offsets, texels = _device_tables(compute, res)
+        cells = self.nz * self.nphi
+        acc = np.float64 if compute.info.has_fp64 else np.float32
+        width = np.dtype(acc).itemsize
+        mean, value, mass = compute.empty(4 * cells), compute.empty(4 * cells), compute.empty(width * cells)
+        row_mass, row_prob, row_cdf = (compute.empty(width * self.nz) for _ in range(3))
+        col_prob, col_cdf, factors = compute.empty(width * cells), compute.empty(width * cells), compute.empty(2 * width)
+
+        def run(name, size, *args):
+            return compute.run(compute.kernel(Havran.kernel_package(), "havran.cl", name), size, *args)
+
+        nz, nphi = np.int32(self.nz), np.int32(self.nphi)
+        events = [
+            run("cell_lookups", cells, cache.env_buffer, lookup, nphi, np.int32(SUPERSAMPLE), offsets,
+                texels, mean, value),
+            run("cell_mass", cells, mean, value, nz, nphi, np.float32(CONSERVATIVE), mass),
+            run("row_mass", self.nz, mass, nphi, row_mass),
+            run("grid_factors", 1, row_mass, nz, nphi, np.float32(DEFENSIVE), factors),
+            run("row_cdfs", self.nz, mass, factors, nphi, row_prob, col_prob, col_cdf),
+            run("marginal_cdf", 1, row_prob, nz, row_cdf),
+        ]
+        self.row_prob = compute.to_host(row_prob, (self.nz,), acc).astype(np.float64)
+        self.row_cdf = compute.to_host(row_cdf, (self.nz,), acc).astype(np.float64)
+        self.col_prob = compute.to_host(col_prob, (self.nz, self.nphi), acc).astype(np.float64)
+        self.col_cdf = compute.to_host(col_cdf, (self.nz, self.nphi), acc).astype(np.float64)
+        self.build_ms = sum(event_ms(e) for e in events)
+        return self
 
     def sample(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Points ``[n, 2]`` in [0, 1)² → (directions ``[n, 3]``, pdf in solid angle ``[n]``)."""
@@ -247,12 +310,27 @@ class EqualAreaMap:
 
 
 _maps: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_tables: dict = {}
+
+
+def _device_tables(compute, res: int) -> tuple:
+    """The lookup texels and, as CSR (offsets per cell, texels), the texel centres per cell, on
+    the device: uploaded once per (context, face size)."""
+    key = (compute, res)
+    if key not in _tables:
+        cells = centre_cells(res)
+        order = np.argsort(cells, kind="stable")
+        offsets = np.searchsorted(cells[order], np.arange(np.prod(grid_shape(res)) + 1))
+        _tables[key] = (compute.to_device(lookup_texels(res).astype(np.int32)),
+                        compute.to_device(offsets.astype(np.int32)),
+                        compute.to_device(order.astype(np.int32)))
+    return _tables[key]
 
 
 def frame_map(cache) -> EqualAreaMap:
-    """The map of a FrameCache's frame, built once per cache."""
+    """The map of a FrameCache's frame, built on the device once per cache."""
     if cache not in _maps:
-        _maps[cache] = EqualAreaMap(cache.env)
+        _maps[cache] = EqualAreaMap.on_device(cache)
     return _maps[cache]
 
 
@@ -341,13 +419,14 @@ class Havran(Estimator):
         if not 1 <= spp <= MAX_K:
             raise ValueError(f"spp (K lights) must be in [1, {MAX_K}], got {spp}")
         compute = cache.compute
+        map_ms = frame_map(cache).build_ms   # built (on the device) before the host clock starts
         start = time.perf_counter()
         dirs, weights = self.lights(cache, int(spp), seed)
         packed = np.zeros((2, spp, 4), np.float32)
         packed[0, :, :3], packed[1, :, :3] = dirs, weights
         # Like a light pool's build_ms, the frame's map build counts in every render's "sample"
         # stage, though it is built once per frame and reused.
-        sample_ms = (time.perf_counter() - start) * 1e3 + frame_map(cache).build_ms
+        sample_ms = (time.perf_counter() - start) * 1e3 + map_ms
         kernel = compute.kernel(self.kernel_package(), self.kernel_files[0], "render_havran")
         radiance = compute.empty(gbuffer.count * 16)
         counts = compute.empty(gbuffer.count * 8)

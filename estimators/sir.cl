@@ -16,48 +16,52 @@
  * importance-sampling estimate, whose expectation is the integral.  (Kronander's Eq. 4 as printed
  * computes Ẑ from the resampled points, which is biased; Burke's and Talbot's use the candidates.)
  *
- * The candidates are not stored: a first pass sums their weights, a second regenerates the same
- * candidates (same Philox counters, same float operations in the same order) and walks the
- * cumulative sum, so memory is O(1) per pixel whatever M. */
+ * Only the candidates' weights are stored (bis_pixel): the resampled candidates are regenerated
+ * from their Philox counters for f/γ.
+ *
+ * Speed (issue 10).  Every loop runs the same count in every work item, with no early exit, ends
+ * each iteration at LOCKSTEP and uses common.cl's scalar helpers, so PoCL runs the work items of
+ * a group as SIMD lanes (lanes.cl says why each rule matters).  Data-dependent work is masked: a
+ * candidate's copies are counted in closed form (positions_below), not by a while loop.  The
+ * pixel's shading is loaded once (its scalars are carried across the barriers), the proposal is
+ * rebuilt in each iteration (a struct carried across would stop the vectorisation), and the
+ * specular lobe's power is computed once per candidate and shared by q, γ and f/γ. */
 #ifndef IBLBENCH_SIR_CL
 #define IBLBENCH_SIR_CL
 
-#include "common.cl"
+#include "lanes.cl"
 
 #define STREAM_SIR_CANDIDATE 20u
 #define STREAM_SIR_RESAMPLE 21u
 
 /* Nearest-texel radiance of the map in direction w (DESIGN §3: piecewise constant). */
-inline float3 env_radiance(__global const float4 *env, int res, float3 w)
+ALWAYS_INLINE vec3_t env_radiance(__global const float4 *env, int res, vec3_t w)
 {
-    float s, t;
-    int face = dir_to_face_st(w, &s, &t);
-    return env[texel_index(face, clamp_index(t, res), clamp_index(s, res), res)].xyz;
+    return vec3_load(env, lane_texel(w, res));
 }
 
-/* ρ_Y(ω) = Y(ρ(ω)): ρ is kd/π + ks·lobe, and Y is linear. */
-inline float phong_luminance(const surface_t *s, float3 w)
+/* ρ_Y = Y(ρ) = Y(kd)/π + Y(ks)·(m+2)/(2π)·power (Y is linear): from the luminances of kd and ks,
+ * not of ρ's three channels, a sum the optimiser would fuse into a vector (lanes.cl). */
+ALWAYS_INLINE float brdf_luminance(const shading_t *s, float power)
 {
-    float c = max(dot(s->r, w), 0.0f);
-    float lobe = (c > 0.0f) ? (s->m + 2.0f) / (2.0f * IBL_PI) * exp2(s->m * log2(c)) : 0.0f;
-    return s->rho_y_kd / IBL_PI + s->rho_y_ks * lobe;
+    return vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * ((s->m + 2.0f) / (2.0f * IBL_PI) * power);
 }
 
-/* γ(ω) of the map `env`; *radiance gets L(ω) (for f/γ). */
-inline float sir_target(const surface_t *s, __global const float4 *env, int res, float3 w,
-                        float3 *radiance)
+/* γ(ω) of the map `env` at a direction of lobe power `power`; *radiance gets L(ω) (for f/γ). */
+ALWAYS_INLINE float sir_target(const shading_t *s, __global const float4 *env, int res, vec3_t w,
+                      float power, vec3_t *radiance)
 {
-    float cosine = dot(s->n, w);
+    float cosine = vec3_dot(s->n, w);
     *radiance = env_radiance(env, res, w);
-    if (!(cosine > 0.0f)) return 0.0f;
-    return luminance(*radiance) * phong_luminance(s, w) * cosine;
+    return cosine > 0.0f ? vec3_luminance(*radiance) * brdf_luminance(s, power) * cosine : 0.0f;
 }
 
 /* f(ω)/γ(ω) = L ρ / (L_Y ρ_Y), for γ(ω) > 0. */
-inline float3 sir_ratio(const surface_t *s, float3 w, float3 radiance)
+ALWAYS_INLINE vec3_t sir_ratio(const shading_t *s, vec3_t radiance, float power)
 {
-    float3 rho = phong_brdf(s->r, w, s->kd, s->ks, s->m);
-    return (radiance * rho) / (luminance(radiance) * phong_luminance(s, w));
+    vec3_t f = vec3_mul(radiance, phong_value(s->kd, s->ks, s->m, power));
+    float gamma = vec3_luminance(radiance) * brdf_luminance(s, power);
+    return vec3(f.x / gamma, f.y / gamma, f.z / gamma);
 }
 
 /* The proposal candidates are drawn from: the BRDF mixture p_B (Burke, env_pick = 0) or, with
@@ -65,167 +69,243 @@ inline float3 sir_ratio(const surface_t *s, float3 w, float3 radiance)
  * q(ω) = (1 − env_pick) p_B(ω) + env_pick μ_{f(ω)} pdf_L(ω|f(ω)) (pdf_L vanishes off face f). */
 typedef struct {
     __global const cdf_word_t *marginal, *conditional;
-    float mu[6];
+    __global const float *faces;   /* μ_0 … μ_5, then their running sums */
     float env_pick;
 } sir_proposal_t;
 
-inline sir_proposal_t make_proposal(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                                    __global const float *face_integral, float env_pick)
+/* `faces` holds μ_f = max(I_f, 0)/Σ_g max(I_g, 0) and then μ_0 + … + μ_f, all in float and
+ * summed from f = 0 to 5 (smc.py, face_choice), or is null for the BRDF alone; `has_light`: the
+ * map is not all black.  (Computed here, the six sums and quotients were fused into vector
+ * instructions, which stop PoCL's vectorisation; lanes.cl.) */
+ALWAYS_INLINE sir_proposal_t make_proposal(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
+                                  __global const float *faces, int has_light, float env_pick)
 {
     sir_proposal_t q;
     q.marginal = marginal;
     q.conditional = conditional;
-    float total = 0.0f;
-    for (int f = 0; f < 6; ++f) total += face_integral ? max(face_integral[f], 0.0f) : 0.0f;
-    for (int f = 0; f < 6; ++f) q.mu[f] = total > 0.0f ? max(face_integral[f], 0.0f) / total : 0.0f;
-    q.env_pick = total > 0.0f ? env_pick : 0.0f;   /* an all-black map: BRDF only */
+    q.faces = faces;
+    q.env_pick = has_light ? env_pick : 0.0f;   /* an all-black map: BRDF only */
     return q;
 }
 
-inline float proposal_pdf(const surface_t *s, const sir_proposal_t *q, int res, float3 w)
+ALWAYS_INLINE float proposal_mu(const sir_proposal_t *q, int face) { return q->faces[face]; }
+
+/* q(ω), given ω's lobe power. */
+ALWAYS_INLINE float proposal_pdf(const shading_t *s, const sir_proposal_t *q, int res, vec3_t w, float power)
 {
-    float density = (1.0f - q->env_pick) * phong_pdf(s->n, s->r, s->p_spec, s->m, w);
+    float density = (1.0f - q->env_pick) * phong_mixture_pdf(s->p_spec, s->m, vec3_dot(s->n, w), power);
     if (q->env_pick > 0.0f) {
-        int texel;
-        float pl = light_pdf(q->marginal, q->conditional, res, w, &texel);
-        density += q->env_pick * q->mu[texel / (res * res)] * pl;
+        int face, texel;
+        float pl = light_pdf_on_face(q->marginal, q->conditional, res, w, &face, &texel);
+        density += q->env_pick * proposal_mu(q, face) * pl;
     }
     return density;
 }
 
 /* Does the draw with uniforms xi take the map (else the BRDF)? */
-inline int proposal_uses_map(const sir_proposal_t *q, float4 xi)
+ALWAYS_INLINE int proposal_uses_map(const sir_proposal_t *q, uniform4_t xi)
 {
     return q->env_pick > 0.0f && xi.w < q->env_pick;
 }
 
 /* A direction from q: xi.w picks the strategy, xi.x the face, xi.xyz a BRDF direction, and a
  * map direction takes its texel and point from the 63-bit words `point` (sample_face; only
- * read when proposal_uses_map).  Returns q(ω).  With env_pick = 0 this is exactly sample_phong
- * on xi.xyz (Burke's candidates). */
-inline float proposal_sample(const surface_t *s, const sir_proposal_t *q, int res, float4 xi,
-                             ulong2 point, float3 *w)
+ * read when proposal_uses_map).  Its density is proposal_pdf.  With env_pick = 0 this is exactly
+ * sample_phong on xi.xyz (Burke's candidates). */
+ALWAYS_INLINE vec3_t proposal_sample(const shading_t *s, const sir_proposal_t *q, int res, uniform4_t xi,
+                            words2_t point)
 {
-    if (!(q->env_pick > 0.0f)) return sample_phong(s->n, s->r, s->p_spec, s->m, xi.xyz, w);
-    if (proposal_uses_map(q, xi)) {
-        float cumulative = 0.0f;
-        int face = 0;
-        for (int f = 0; f < 6; ++f) {   /* the last face with μ > 0 takes any rounding remainder */
-            if (q->mu[f] > 0.0f) face = f;
-            cumulative += q->mu[f];
-            if (xi.x < cumulative && q->mu[f] > 0.0f) break;
+    vec3_t brdf = sample_phong_direction(s->n, s->r, s->p_spec, s->m, xi.x, xi.y, xi.z);
+    float x = brdf.x, y = brdf.y, z = brdf.z;   /* scalars: a phi or select of structs becomes a vector */
+    if (q->env_pick > 0.0f) {
+        /* The first face with μ > 0 whose cumulative μ exceeds xi.x; the last face with μ > 0
+         * takes any rounding remainder.  No early exit: the six steps unroll into selects. */
+        int face = -1, last = 0;
+        __attribute__((opencl_unroll_hint))
+        for (int f = 0; f < 6; ++f) {
+            float mu = proposal_mu(q, f);
+            if (mu > 0.0f) last = f;
+            if (face < 0 && mu > 0.0f && xi.x < q->faces[6 + f]) face = f;
         }
+        vec3_t w;
         int texel;
-        sample_face(q->marginal, q->conditional, face, res, point >> 1, w, &texel);
-    } else {
-        sample_phong(s->n, s->r, s->p_spec, s->m, xi.xyz, w);
+        words2_t u = {point.x >> 1, point.y >> 1};
+        lane_sample_face(q->marginal, q->conditional, face < 0 ? last : face, res, u, &w, &texel);
+        int map = proposal_uses_map(q, xi);
+        x = map ? w.x : x;
+        y = map ? w.y : y;
+        z = map ? w.z : z;
     }
-    return proposal_pdf(s, q, res, *w);
+    return vec3(x, y, z);
 }
 
-/* Candidate i of M: direction, and weight γ/q (0 where q or γ vanish or the ratio overflows).
+/* Candidate i of M: direction, and weight γ/q (0 where q or γ vanish or the ratio overflows);
+ * *gamma, *radiance and *power (its lobe power) serve f/γ.
  * The strategy is stratified, not drawn: candidate i comes from the map iff (i + ½)/M <
  * env_pick, so exactly env_pick·M candidates do (bis_pixel makes env_pick a multiple of 1/M).
  * That is the deterministic mixture (Veach's multi-sample MIS with the balance heuristic):
  * γ/q with the mixture q stays unbiased for fixed counts, without the binomial variance of a
  * random pick per candidate (√((1 − env_pick)/(M·env_pick)) relative, 7.9% at M = 160 and env_pick ½, on a small light
  * that only the map samples find). */
-inline float sir_candidate(const surface_t *s, const sir_proposal_t *q,
-                           __global const float4 *env, int res, uint seed, uint frame, uint pixel,
-                           int i, int M, float3 *w, float *gamma, float3 *radiance)
+ALWAYS_INLINE float sir_candidate(const shading_t *s, const sir_proposal_t *q,
+                         __global const float4 *env, int res, uint seed, uint frame, uint pixel,
+                         int i, int M, vec3_t *w, float *gamma, vec3_t *radiance, float *power)
 {
-    float4 xi = rng_uniform4(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 0u);
+    uniform4_t xi = lane_uniform4(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 0u);
     xi.w = ((float)i + 0.5f) / (float)M;
-    ulong2 point = proposal_uses_map(q, xi)
-        ? rng_words2(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 1u) : (ulong2)(0);
-    float pdf = proposal_sample(s, q, res, xi, point, w);
-    *gamma = sir_target(s, env, res, *w, radiance);
+    words2_t none = {0, 0};
+    words2_t point = proposal_uses_map(q, xi)
+        ? lane_words2(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 1u) : none;
+    *w = proposal_sample(s, q, res, xi, point);
+    *power = phong_lobe_power(s->r, *w, s->m);
+    float pdf = proposal_pdf(s, q, res, *w, *power);
+    *gamma = sir_target(s, env, res, *w, *power, radiance);
     float weight = (pdf > 0.0f && *gamma > 0.0f) ? *gamma / pdf : 0.0f;
     return isfinite(weight) ? weight : 0.0f;
 }
 
 /* Systematic resampling position k of N on a total `total`: (k + u)·total/N. */
-inline acc_t systematic_position(int k, int n, float u, acc_t total)
+ALWAYS_INLINE acc_t systematic_position(int k, int n, float u, acc_t total)
 {
     return ((acc_t)k + (acc_t)u) * (total / (acc_t)n);
 }
 
+/* #{k < n : systematic_position(k) < c}: the positions below a cumulative sum c (total > 0).
+ * The positions grow with k, so this is ⌈c·n/total − u⌉ clamped to [0, n], made exact (it may be
+ * one off by rounding) by the same comparison a walk over k would make. */
+ALWAYS_INLINE int positions_below(acc_t c, int n, float u, acc_t total)
+{
+    int k = (int)clamp(ceil(c / (total / (acc_t)n) - (acc_t)u), (acc_t)0, (acc_t)n);
+    k -= k > 0 && !(systematic_position(k - 1, n, u, total) < c);
+    k += k < n && systematic_position(k, n, u, total) < c;
+    return k;
+}
+
+/* The pixel's inputs: its G-buffer entry p and the proposal's (make_proposal). */
+#define SIR_PIXEL_ARGS __global const float4 *normal, __global const float4 *view, \
+    __global const float4 *kd, __global const float4 *ks_m, int p, \
+    __global const cdf_word_t *marginal, __global const cdf_word_t *conditional, \
+    __global const float *faces, int has_light, float env_pick
+
+/* A work item's scratch: weights[i·stride + slot] holds candidate i's weight, taken[k·stride +
+ * slot] the candidate of resampled position k, and sums[c·stride + slot] six running sums (the
+ * candidates' w·f/γ and the resampled f/γ, per channel).  Slot-minor, so the work items of a
+ * group read and write them as contiguous vectors; the sums live in memory rather than in three
+ * variables, which the optimiser would fuse into a vector (lanes.cl). */
+#define SIR_SCRATCH_ARGS __global float *weights, __global int *taken, __global acc_t *sums, \
+    int slot, int stride
+
+/* A work group's block of a scratch buffer of `planes` planes: with slot = the local id and
+ * stride = the group size, the group's candidates stay within a few pages (with the global id
+ * and size, each candidate's plane was a page of its own). */
+#define GROUP_SCRATCH(buffer, planes) ((buffer) + (size_t)get_group_id(0) * (size_t)(planes) * get_local_size(0))
+
+/* SMC's particles, as planes (smc.cl): component c of particle i of a pixel lies at
+ * planes[(c·N + i)·plane] from the pixel's base, so the work items of a group touch contiguous
+ * words (a float4 per particle would be four adjacent stores, which the optimiser fuses into a
+ * vector store that stops PoCL's vectorisation; lanes.cl).  The gammas have planes 0 and 1. */
+ALWAYS_INLINE void store_planes(__global float *planes, int N, int plane, int i, float x, float y, float z, float w)
+{
+    planes[i * plane] = x;
+    planes[(N + i) * plane] = y;
+    planes[(2 * N + i) * plane] = z;
+    planes[(3 * N + i) * plane] = w;
+}
+
 /* BIS of one pixel (see the header).  Returns Ẑ; *sum gets Σ_k f/γ over the N resampled
  * samples (0 when every weight is 0).  When `particles` is not null, resampled sample k is
- * written to particles[k] = (ω, 1/N) and gammas[k] = (γ(ω), 0).  When `candidate_ratio` is
+ * written to the particle planes (store_planes) as (ω, 1/N) and to the gamma planes as
+ * (γ(ω), 0).  When `candidate_ratio` is
  * not null it gets Σ_i w_i (f/γ)(ω_i) / Σ_i w_i over the candidates: Ẑ times it is
  * (1/M) Σ_i f/q = E[Ẑ/N Σ_k f/γ | candidates], the estimate with the resampling
- * Rao-Blackwellised. */
-inline float bis_pixel(const surface_t *s, const sir_proposal_t *q, __global const float4 *env,
-                       int res, int M, int N, uint seed, uint frame, uint pixel, float3 *sum,
-                       __global float4 *particles, __global float2 *gammas, float3 *candidate_ratio)
+ * Rao-Blackwellised.  Every work item of the group must call it (LOCKSTEP); `pixel` keys the
+ * random streams.
+ * Three passes: the M candidates, their weights stored; the systematic walk over the stored
+ * weights, which records the candidate of each position; the N resampled candidates, regenerated
+ * (same Philox counters, same float operations) for f/γ.  So the device evaluates M + N
+ * candidates, as `evaluations` counts, with M + N words of scratch. */
+ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M, int N, uint seed,
+                     uint frame, uint pixel, SIR_SCRATCH_ARGS, vec3_t *sum,
+                     __global float *particles, __global float *gammas, int plane,
+                     vec3_t *candidate_ratio)
 {
     /* Compensated sums (double where the device has it): a zero-variance case (white furnace)
-     * must not pick up M·ε of rounding.  Both passes accumulate identically. */
-    sir_proposal_t stratified = *q;
-    stratified.env_pick = round(q->env_pick * (float)M) / (float)M;
-    kahan_t acc = {0, 0};
-    acc_t ratio_x = 0, ratio_y = 0, ratio_z = 0;
+     * must not pick up M·ε of rounding.  Both sums over the weights accumulate identically. */
+    float stratified_pick = round(env_pick * (float)M) / (float)M;
+    shading_t s = load_shading(normal, view, kd, ks_m, p);
+    acc_t total = 0, carry = 0;
+    for (int c = 0; c < 6; ++c) sums[c * stride + slot] = 0;
     for (int i = 0; i < M; ++i) {
-        float3 w, radiance;
-        float gamma;
-        float weight = sir_candidate(s, &stratified, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance);
-        kahan_add(&acc, (acc_t)weight);
+        sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
+        vec3_t w, radiance;
+        float gamma, power;
+        float weight = sir_candidate(&s, &q, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance, &power);
+        weights[i * stride + slot] = weight;
         if (candidate_ratio && weight > 0.0f) {
-            float3 ratio = sir_ratio(s, w, radiance);
-            ratio_x += (acc_t)weight * ratio.x;
-            ratio_y += (acc_t)weight * ratio.y;
-            ratio_z += (acc_t)weight * ratio.z;
+            vec3_t ratio = sir_ratio(&s, radiance, power);
+            sums[slot] += (acc_t)weight * ratio.x;
+            sums[stride + slot] += (acc_t)weight * ratio.y;
+            sums[2 * stride + slot] += (acc_t)weight * ratio.z;
         }
+        LOCKSTEP();
     }
-    acc_t total = acc.sum;
-    if (candidate_ratio)
-        *candidate_ratio = total > 0 && isfinite(total)
-            ? (float3)((float)(ratio_x / total), (float)(ratio_y / total), (float)(ratio_z / total))
-            : (float3)(0.0f);
-    *sum = (float3)(0.0f);
-    if (!(total > 0.0f) || !isfinite(total)) {
-        if (particles)
-            for (int k = 0; k < N; ++k) {
-                particles[k] = (float4)(s->n, 0.0f);
-                gammas[k] = (float2)(0.0f);
-            }
-        return 0.0f;
+    /* The total apart from the candidates' loop: its doubles would halve that loop's vector width
+     * (the widest type in a loop sets it). */
+    for (int i = 0; i < M; ++i) {
+        kahan_add_to(&total, &carry, (acc_t)weights[i * stride + slot]);
+        LOCKSTEP();
     }
-    float u = rng_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;
-    kahan_t cumulative = {0, 0};
-    float3 last_w = s->n, last_ratio = (float3)(0.0f);
-    float last_gamma = 0.0f;
-    int k = 0;
-    for (int i = 0; i < M && k < N; ++i) {
-        float3 w, radiance;
-        float gamma;
-        float weight = sir_candidate(s, &stratified, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance);
-        kahan_add(&cumulative, (acc_t)weight);
-        if (weight > 0.0f) {
-            last_w = w;
-            last_gamma = gamma;
-            last_ratio = sir_ratio(s, w, radiance);
+    int positive = total > 0 && isfinite(total);
+    for (int k = 0; k < N; ++k) {
+        taken[k * stride + slot] = -1;
+        LOCKSTEP();
+    }
+    /* Candidate i of positive weight takes the positions below its cumulative sum that no earlier
+     * candidate took (⌊·⌋ or ⌈·⌉ of N·w_i/Σw copies); it is recorded at its last copy, and the
+     * copies below it are found by the walk down in pass 3. */
+    float u = lane_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;
+    acc_t cumulative = 0;
+    carry = 0;
+    int k = 0, last = 0;
+    for (int i = 0; i < M; ++i) {
+        float weight = weights[i * stride + slot];
+        kahan_add_to(&cumulative, &carry, (acc_t)weight);
+        if (positive && weight > 0.0f) {
+            last = i;
+            int copies = max(positions_below(cumulative, N, u, total) - k, 0);
+            k += copies;
+            if (copies > 0) taken[(k - 1) * stride + slot] = i;
         }
-        while (k < N && weight > 0.0f && systematic_position(k, N, u, total) < cumulative.sum) {
-            *sum += last_ratio;
-            if (particles) {
-                particles[k] = (float4)(w, 1.0f / (float)N);
-                gammas[k] = (float2)(gamma, 0.0f);
-            }
-            ++k;
-        }
+        LOCKSTEP();
     }
-    /* Float rounding can leave the last position(s) at or above the final cumulative sum: they
-     * belong to the last candidate of positive weight. */
-    for (; k < N; ++k) {
-        *sum += last_ratio;
+    /* Pass 3, from the last position down.  Float rounding can leave the last position(s) at or
+     * above the final cumulative sum: they belong to the last candidate of positive weight. */
+    int candidate = last;
+    for (int j = N - 1; j >= 0; --j) {
+        int recorded = taken[j * stride + slot];
+        candidate = j < k && recorded >= 0 ? recorded : candidate;
+        sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
+        vec3_t w, radiance;
+        float gamma, power;
+        sir_candidate(&s, &q, env, res, seed, frame, pixel, candidate, M, &w, &gamma, &radiance, &power);
+        vec3_t ratio = sir_ratio(&s, radiance, power);
+        sums[3 * stride + slot] += positive ? ratio.x : 0.0f;
+        sums[4 * stride + slot] += positive ? ratio.y : 0.0f;
+        sums[5 * stride + slot] += positive ? ratio.z : 0.0f;
         if (particles) {
-            particles[k] = (float4)(last_w, 1.0f / (float)N);
-            gammas[k] = (float2)(last_gamma, 0.0f);
+            store_planes(particles, N, plane, j, positive ? w.x : s.n.x, positive ? w.y : s.n.y,
+                         positive ? w.z : s.n.z, positive ? 1.0f / (float)N : 0.0f);
+            gammas[j * plane] = positive ? gamma : 0.0f;
+            gammas[(N + j) * plane] = 0.0f;
         }
+        LOCKSTEP();
     }
-    return (float)(total / (acc_t)M);
+    *sum = vec3((float)sums[3 * stride + slot], (float)sums[4 * stride + slot], (float)sums[5 * stride + slot]);
+    if (candidate_ratio)
+        *candidate_ratio = positive ? vec3((float)(sums[slot] / total), (float)(sums[stride + slot] / total),
+                                           (float)(sums[2 * stride + slot] / total))
+                                    : vec3(0.0f, 0.0f, 0.0f);
+    return positive ? (float)(total / (acc_t)M) : 0.0f;
 }
 
 /* Systematic resampling of n normalised weights (for the tests and SMC): out[k] = the index

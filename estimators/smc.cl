@@ -1,15 +1,51 @@
 /* `smc`: Ghosh et al. 2006 sequential Monte Carlo sampling as Kronander et al. §6 describe it;
  * the algorithm, its acceptance ratio and its re-initialisation rule are documented in smc.py.
- * One work item per covered pixel; its N particles live in global memory across frames:
- *   particles[p·N + i] = (ω_i, W_i)  (W normalised),  gammas[p·N + i].x = γ_{t−1}(ω_i) between
- *   frames (γ of the frame that placed the particle), state[p] = (Z, n, ·, ·) and
- *   carried_estimate[p] = the last estimate (n: the importance samples behind Z and the
- *   estimate, which a static frame averages with its fresh ones; smc.py). */
+ * Each pixel's N particles live in global memory across frames, as planes (sir.cl, store_planes):
+ *   particles (ω_i, W_i) (W normalised) and gammas (γ_{t−1}(ω_i), ·) between frames (γ of the
+ *   frame that placed the particle); state[p] = (Z, n, ·, ·) and carried_estimate[p] = the last
+ *   estimate (n: the importance samples behind Z and the estimate, which a static frame averages
+ *   with its fresh ones; smc.py).
+ * Two kernels per frame: smc_advance (every pixel that carries state: reweight, resample, MH
+ * moves, the re-init test, Eq. 7) and smc_init, the BIS (re-)initialisation of the pixels it
+ * flagged (all of them on a first frame), in lockstep groups over their list.  ENV_RES, the map's
+ * face size, is a compile-time constant (smc.py defines it), so the CDF searches unroll.
+ * smc_advance still runs one work item per pixel without LOCKSTEP (its loops exit early per
+ * pixel), so PoCL does not vectorise it. */
 #include "sir.cl"
 
 #define STREAM_SMC_MOVE 30u
 #define STREAM_SMC_RESAMPLE 31u
 #define STREAM_SMC_MAP_POINT 32u
+
+/* Component c of particle i from the planes of a pixel. */
+inline float plane_at(__global const float *planes, int N, int plane, int i, int c)
+{
+    return planes[(c * N + i) * plane];
+}
+
+inline float4 load_particle(__global const float *planes, int N, int plane, int i)
+{
+    return (float4)(plane_at(planes, N, plane, i, 0), plane_at(planes, N, plane, i, 1),
+                    plane_at(planes, N, plane, i, 2), plane_at(planes, N, plane, i, 3));
+}
+
+inline void store_particle(__global float *planes, int N, int plane, int i, float4 q)
+{
+    store_planes(planes, N, plane, i, q.x, q.y, q.z, q.w);
+}
+
+inline float2 load_gammas(__global const float *planes, int N, int plane, int i)
+{
+    return (float2)(plane_at(planes, N, plane, i, 0), plane_at(planes, N, plane, i, 1));
+}
+
+inline void store_gammas(__global float *planes, int N, int plane, int i, float2 g)
+{
+    planes[i * plane] = g.x;
+    planes[(N + i) * plane] = g.y;
+}
+
+inline vec3_t particle_direction(float4 q) { return vec3(q.x, q.y, q.z); }
 
 /* The tempered target π_α = γ_{t−1}^{1−α} γ_t^α of one step (α = 1: γ_t itself). */
 inline float tempered(float g0, float g1, float alpha)
@@ -30,60 +66,64 @@ inline int move_kind(int j, float nu)
 }
 
 /* Systematic resampling of the pixel's particles in place (through the scratch copies). */
-inline void resample_particles(__global float4 *particles, __global float2 *gammas,
-                               __global float4 *scratch_p, __global float2 *scratch_g, int N, float u)
+inline void resample_particles(__global float *particles, __global float *gammas,
+                               __global float *scratch_p, __global float *scratch_g, int N,
+                               int plane, float u)
 {
     acc_t total = 0, cumulative = 0;
     for (int i = 0; i < N; ++i) {
-        scratch_p[i] = particles[i];
-        scratch_g[i] = gammas[i];
-        total += scratch_p[i].w;
+        store_particle(scratch_p, N, plane, i, load_particle(particles, N, plane, i));
+        store_gammas(scratch_g, N, plane, i, load_gammas(gammas, N, plane, i));
+        total += plane_at(scratch_p, N, plane, i, 3);
     }
     int k = 0, last = 0;
     for (int i = 0; i < N && k < N; ++i) {
-        float w = scratch_p[i].w;
+        float w = plane_at(scratch_p, N, plane, i, 3);
         cumulative += w;
         if (w > 0.0f) last = i;
         while (k < N && w > 0.0f && systematic_position(k, N, u, total) < cumulative) {
-            particles[k] = (float4)(scratch_p[i].xyz, 1.0f / (float)N);
-            gammas[k++] = scratch_g[i];
+            float4 q = load_particle(scratch_p, N, plane, i);
+            store_particle(particles, N, plane, k, (float4)(q.xyz, 1.0f / (float)N));
+            store_gammas(gammas, N, plane, k++, load_gammas(scratch_g, N, plane, i));
         }
     }
     for (; k < N; ++k) {
-        particles[k] = (float4)(scratch_p[last].xyz, 1.0f / (float)N);
-        gammas[k] = scratch_g[last];
+        float4 q = load_particle(scratch_p, N, plane, last);
+        store_particle(particles, N, plane, k, (float4)(q.xyz, 1.0f / (float)N));
+        store_gammas(gammas, N, plane, k, load_gammas(scratch_g, N, plane, last));
     }
 }
 
-__kernel void render_smc(__global const float4 *normal, __global const float4 *view,
-                         __global const float4 *kd, __global const float4 *ks_m,
-                         __global const float4 *env, __global const float4 *prev_env,
-                         __global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                         __global const float *face_integral, const int res, const int N,
-                         const int M_init, const float init_env_pick, const int steps,
-                         const float nu, const float cos_delta, const float threshold,
-                         const int have_state, const int static_frame, const uint seed,
-                         const uint frame, __global float4 *all_particles,
-                         __global float2 *all_gammas, __global float4 *all_scratch_p,
-                         __global float2 *all_scratch_g, __global float4 *state,
-                         __global float4 *carried_estimate, __global float4 *radiance,
-                         __global float2 *counts, __global float4 *stats)
+/* One frame of every pixel that carries state (smc.py steps 2-6).  A pixel that needs a BIS
+ * re-init gets reinit[p] = 1 and stats[p] = (smallest ESS, ·, evaluations so far, resamplings);
+ * smc_init finishes it.  Every other pixel's outputs are final. */
+__kernel void smc_advance(__global const float4 *normal, __global const float4 *view,
+                          __global const float4 *kd, __global const float4 *ks_m,
+                          __global const float4 *env, __global const float4 *prev_env,
+                          __global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
+                          __global const float *faces, const int has_light,
+                          const int count, const int N,
+                          const int steps, const float nu, const float cos_delta,
+                          const float threshold, const int static_frame, const uint seed,
+                          const uint frame, __global float *all_particles, __global float *all_gammas,
+                          __global float *all_scratch_p, __global float *all_scratch_g,
+                          __global float4 *state, __global float4 *carried_estimate,
+                          __global float4 *radiance, __global float2 *counts, __global float4 *stats,
+                          __global int *reinit_flag)
 {
+    const int res = ENV_RES, plane = count;
     int p = get_global_id(0);
-    surface_t s = make_surface(normal[p], view[p], kd[p], ks_m[p]);
-    __global float4 *particles = all_particles + (size_t)p * N;
-    __global float2 *gammas = all_gammas + (size_t)p * N;
-    __global float4 *scratch_p = all_scratch_p + (size_t)p * N;
-    __global float2 *scratch_g = all_scratch_g + (size_t)p * N;
+    shading_t s = load_shading(normal, view, kd, ks_m, p);
+    __global float *particles = all_particles + p, *gammas = all_gammas + p;
+    __global float *scratch_p = all_scratch_p + p, *scratch_g = all_scratch_g + p;
 
-    /* MH's independent proposals (the map, the BRDF) and the (re-)init's BIS candidates. */
-    sir_proposal_t q_map = make_proposal(marginal, conditional, face_integral, 1.0f);
-    sir_proposal_t q_brdf = make_proposal(0, 0, 0, 0.0f);
-    sir_proposal_t q_init = make_proposal(marginal, conditional, face_integral, init_env_pick);
+    /* MH's independent proposals: the map and the BRDF. */
+    sir_proposal_t q_map = make_proposal(marginal, conditional, faces, has_light, 1.0f);
+    sir_proposal_t q_brdf = make_proposal(0, 0, 0, 0, 0.0f);
 
-    float4 carried = have_state ? state[p] : (float4)(0.0f);
+    float4 carried = state[p];
     float z_prev = carried.x, z = z_prev, z_count = carried.y;
-    int reinit = !(have_state && z_prev > 0.0f && isfinite(z_prev));
+    int reinit = !(z_prev > 0.0f && isfinite(z_prev));
     float evaluations = 0.0f, ess_min = -1.0f, resampled = 0.0f;
     /* A static frame's independent MH proposals, n_map from the map and n_brdf from the BRDF
      * (fixed by the schedule), give a fresh estimate of Z_t, Σ γ_t(ω)/(n_map p_map(ω) +
@@ -91,7 +131,7 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
     acc_t fresh = 0, fresh_x = 0, fresh_y = 0, fresh_z = 0;
     int n_map = 0, n_brdf = 0;
     for (int j = 0; static_frame && j < steps * N; ++j) {
-        int kind = particles[j % N].w > 0.0f ? move_kind(j, nu) : 0;
+        int kind = plane_at(particles, N, plane, j % N, 3) > 0.0f ? move_kind(j, nu) : 0;
         n_map += kind == 1;
         n_brdf += kind == 2;
     }
@@ -102,12 +142,13 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
          * increments are 1, Eq. 8 leaves Z unchanged). */
         float sum_sq = 0.0f;
         for (int i = 0; i < N; ++i) {
-            float3 L;
-            float2 g = gammas[i];
-            g.y = static_frame ? g.x : sir_target(&s, env, res, particles[i].xyz, &L);
-            gammas[i] = g;
-            if (particles[i].w > 0.0f && !(g.x > 0.0f)) reinit = 1;   /* guard: γ_{t−1} = 0 */
-            sum_sq += particles[i].w * particles[i].w;
+            float4 q = load_particle(particles, N, plane, i);
+            float2 g = load_gammas(gammas, N, plane, i);
+            vec3_t L, w = particle_direction(q);
+            g.y = static_frame ? g.x : sir_target(&s, env, res, w, phong_lobe_power(s.r, w, s.m), &L);
+            store_gammas(gammas, N, plane, i, g);
+            if (q.w > 0.0f && !(g.x > 0.0f)) reinit = 1;   /* guard: γ_{t−1} = 0 */
+            sum_sq += q.w * q.w;
         }
         if (!static_frame) evaluations += (float)N;
         ess_min = sum_sq > 0.0f ? 1.0f / sum_sq : 0.0f;
@@ -117,62 +158,64 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
                 /* Reweight (Eq. 5, tempered): w_i = W_i (γ_t/γ_{t−1})(ω_i)^{1/steps}. */
                 float sum = 0.0f;
                 for (int i = 0; i < N; ++i) {
-                    float4 q = particles[i];
-                    float2 g = gammas[i];
+                    float4 q = load_particle(particles, N, plane, i);
+                    float2 g = load_gammas(gammas, N, plane, i);
                     float incr = (q.w > 0.0f && g.x > 0.0f) ? pow(g.y / g.x, 1.0f / (float)steps) : 0.0f;
                     q.w *= incr;
-                    particles[i] = q;
+                    store_particle(particles, N, plane, i, q);
                     sum += q.w;
                 }
                 z *= sum;                                   /* Eq. 8, one factor per step */
                 if (!(sum > 0.0f) || !isfinite(sum) || !isfinite(z)) { reinit = 1; break; }
                 sum_sq = 0.0f;
                 for (int i = 0; i < N; ++i) {
-                    float4 q = particles[i];
+                    float4 q = load_particle(particles, N, plane, i);
                     q.w /= sum;
-                    particles[i] = q;
+                    store_particle(particles, N, plane, i, q);
                     sum_sq += q.w * q.w;
                 }
                 float ess = 1.0f / sum_sq;
                 ess_min = min(ess_min, ess);
                 if (ess < 2.0f * (float)N / 3.0f) {
-                    float u = rng_uniform4(seed, frame, STREAM_SMC_RESAMPLE, (uint)p, (uint)step, 0u).x;
-                    resample_particles(particles, gammas, scratch_p, scratch_g, N, u);
+                    float u = lane_uniform4(seed, frame, STREAM_SMC_RESAMPLE, (uint)p, (uint)step, 0u).x;
+                    resample_particles(particles, gammas, scratch_p, scratch_g, N, plane, u);
                     resampled += 1.0f;
                 }
             }
             /* One MH move targeting π_α (Eq. 6) with the mixture of kernels of smc.py. */
             for (int i = 0; i < N; ++i) {
-                float4 q = particles[i];
+                float4 q = load_particle(particles, N, plane, i);
                 if (!(q.w > 0.0f)) continue;
-                float2 g = gammas[i];
-                float4 a = rng_uniform4(seed, frame, STREAM_SMC_MOVE, (uint)p, (uint)i, 2u * (uint)step);
-                float4 b = rng_uniform4(seed, frame, STREAM_SMC_MOVE, (uint)p, (uint)i, 2u * (uint)step + 1u);
-                float3 w = q.xyz, w_new;
+                float2 g = load_gammas(gammas, N, plane, i);
+                uniform4_t a = lane_uniform4(seed, frame, STREAM_SMC_MOVE, (uint)p, (uint)i, 2u * (uint)step);
+                uniform4_t b = lane_uniform4(seed, frame, STREAM_SMC_MOVE, (uint)p, (uint)i, 2u * (uint)step + 1u);
+                vec3_t w = particle_direction(q), w_new;
                 int kind = move_kind((step - 1) * N + i, nu);
                 const sir_proposal_t *independent = kind == 1 ? &q_map : &q_brdf;
-                float q_new = 0.0f;
-                if (kind == 0)
-                    w_new = direction_about(w, 1.0f - b.x * (1.0f - cos_delta), b.y);
-                else
-                    q_new = proposal_sample(&s, independent, res, (float4)(a.z, b.x, b.y, 0.0f),
-                                            kind == 1 ? rng_words2(seed, frame, STREAM_SMC_MAP_POINT,
-                                                                   (uint)p, (uint)i, (uint)step)
-                                                      : (ulong2)(0), &w_new);
-                float3 L;
-                float g1_new = sir_target(&s, env, res, w_new, &L);
+                if (kind == 0) {
+                    w_new = direction_about_axis(w, 1.0f - b.x * (1.0f - cos_delta), b.y);
+                } else {
+                    uniform4_t xi = {a.z, b.x, b.y, 0.0f};
+                    words2_t none = {0, 0};
+                    w_new = proposal_sample(&s, independent, res, xi,
+                                            kind == 1 ? lane_words2(seed, frame, STREAM_SMC_MAP_POINT,
+                                                                    (uint)p, (uint)i, (uint)step) : none);
+                }
+                float power_new = phong_lobe_power(s.r, w_new, s.m);
+                vec3_t L, L_prev;
+                float g1_new = sir_target(&s, env, res, w_new, power_new, &L);
                 float g0_new = static_frame ? g1_new : 0.0f;
                 evaluations += 1.0f;
                 if (alpha < 1.0f) {
-                    g0_new = sir_target(&s, prev_env, res, w_new, &L);
+                    g0_new = sir_target(&s, prev_env, res, w_new, power_new, &L_prev);
                     evaluations += 1.0f;
                 }
                 if (static_frame && kind != 0 && g1_new > 0.0f) {
-                    float mixture = (float)n_map * proposal_pdf(&s, &q_map, res, w_new)
-                                  + (float)n_brdf * proposal_pdf(&s, &q_brdf, res, w_new);
+                    float mixture = (float)n_map * proposal_pdf(&s, &q_map, res, w_new, power_new)
+                                  + (float)n_brdf * proposal_pdf(&s, &q_brdf, res, w_new, power_new);
                     float term = g1_new / mixture;
                     if (isfinite(term)) {
-                        float3 f = term * sir_ratio(&s, w_new, L);   /* f/(n_map p_map + n_brdf p_B) */
+                        vec3_t f = vec3_scale(sir_ratio(&s, L, power_new), term);   /* f/(n_map p_map + n_brdf p_B) */
                         fresh += (acc_t)term;
                         fresh_x += (acc_t)f.x;
                         fresh_y += (acc_t)f.y;
@@ -185,12 +228,13 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
                 if (kind == 0) {
                     ratio = pi_new / pi_old;
                 } else {
-                    float q_old = proposal_pdf(&s, independent, res, w);
+                    float q_new = proposal_pdf(&s, independent, res, w_new, power_new);
+                    float q_old = proposal_pdf(&s, independent, res, w, phong_lobe_power(s.r, w, s.m));
                     ratio = (pi_new * q_old) / (pi_old * q_new);
                 }
                 if (pi_new > 0.0f && (!(pi_old > 0.0f) || a.w < ratio)) {   /* NaN: reject */
-                    particles[i] = (float4)(w_new, q.w);
-                    gammas[i] = (float2)(g0_new, g1_new);
+                    store_particle(particles, N, plane, i, (float4)(w_new.x, w_new.y, w_new.z, q.w));
+                    store_gammas(gammas, N, plane, i, (float2)(g0_new, g1_new));
                 }
             }
         }
@@ -199,17 +243,11 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
             if (!(ratio <= threshold && ratio >= 1.0f / threshold)) reinit = 1;
         }
     }
-    float3 estimate = have_state ? carried_estimate[p].xyz : (float3)(0.0f);
-    if (reinit) {
-        float3 sum, candidate_ratio;
-        z = bis_pixel(&s, &q_init, env, res, M_init, N, seed, frame, (uint)p, &sum, particles,
-                      gammas, &candidate_ratio);
-        evaluations += (float)(M_init + N);
-        for (int i = 0; i < N; ++i) gammas[i] = (float2)(gammas[i].x, gammas[i].x);
-        /* The init's estimate: its candidates' (the resampling Rao-Blackwellised, sir.cl). */
-        z_count = (float)M_init;
-        estimate = z * candidate_ratio;
-    } else if (static_frame && n_map + n_brdf > 0) {
+    reinit_flag[p] = reinit;
+    stats[p] = (float4)(ess_min, 0.0f, evaluations, resampled);
+    if (reinit) return;
+    float3 estimate = carried_estimate[p].xyz;
+    if (static_frame && n_map + n_brdf > 0) {
         /* A static frame: Z_t = Z_{t−1} and the integral is last frame's; average both with the
          * fresh estimates, by sample counts. */
         acc_t n_fresh = (acc_t)(n_map + n_brdf), n_old = (acc_t)z_count, n_all = n_old + n_fresh;
@@ -224,16 +262,19 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
     float3 ratio = (float3)(0.0f);
     float effective = 0.0f;
     for (int i = 0; i < N; ++i) {
-        float4 q = particles[i];
-        float2 g = gammas[i];
+        float4 q = load_particle(particles, N, plane, i);
+        float2 g = load_gammas(gammas, N, plane, i);
         if (q.w > 0.0f && g.y > 0.0f) {
-            if (!reinit && !static_frame)
-                ratio += q.w * sir_ratio(&s, q.xyz, env_radiance(env, res, q.xyz));
+            if (!static_frame) {
+                vec3_t w = particle_direction(q);
+                vec3_t f_over_gamma = sir_ratio(&s, env_radiance(env, res, w), phong_lobe_power(s.r, w, s.m));
+                ratio += q.w * (float3)(f_over_gamma.x, f_over_gamma.y, f_over_gamma.z);
+            }
             effective += 1.0f;
         }
-        gammas[i] = (float2)(g.y, 0.0f);
+        store_gammas(gammas, N, plane, i, (float2)(g.y, 0.0f));
     }
-    if (!reinit && !static_frame) {
+    if (!static_frame) {
         estimate = z * ratio;
         z_count = (float)N;        /* Eq. 7 rests on the N particles, whatever Z was built on */
         evaluations += (float)N;   /* f at the particles */
@@ -243,5 +284,47 @@ __kernel void render_smc(__global const float4 *normal, __global const float4 *v
     float3 out = z > 0.0f ? estimate : (float3)(0.0f);
     radiance[p] = (float4)(out, 0.0f);
     counts[p] = (float2)(z > 0.0f ? (float)N : 0.0f, z > 0.0f ? effective : 0.0f);
-    stats[p] = (float4)(ess_min, (float)(reinit && have_state), evaluations, resampled);
+    stats[p] = (float4)(ess_min, 0.0f, evaluations, resampled);
+}
+
+/* BIS (re-)initialisation (smc.py step 1) of the pixels pixels[offset …  offset + listed − 1],
+ * in lockstep groups (sir.cl): N particles resampled from M candidates, W = 1/N, Z = Ẑ, and
+ * the frame's estimate Ẑ·(the candidates' f/γ), the resampling Rao-Blackwellised.
+ * `have_state`: the pixel's stats already hold smc_advance's partial counts (else it starts
+ * them); its re-init then counts in stats.y. */
+__kernel void smc_init(__global const float4 *normal, __global const float4 *view,
+                       __global const float4 *kd, __global const float4 *ks_m,
+                       __global const float4 *env, __global const cdf_word_t *marginal,
+                       __global const cdf_word_t *conditional, __global const float *faces,
+                       const int has_light,
+                       const int count, const int N, const int M, const float init_env_pick,
+                       const int have_state, const uint seed, const uint frame,
+                       __global const int *pixels, const int offset, const int listed,
+                       __global float *weights, __global int *taken, __global acc_t *sums,
+                       __global float *all_particles, __global float *all_gammas,
+                       __global float4 *state, __global float4 *carried_estimate,
+                       __global float4 *radiance, __global float2 *counts, __global float4 *stats)
+{
+    /* Items past `listed` redo the last listed pixel in their own scratch slot, bit for bit, so
+     * their particle stores repeat the same values; they store nothing else. */
+    int item = get_global_id(0), p = pixels[offset + min(item, listed - 1)];
+    __global float *particles = all_particles + p, *gammas = all_gammas + p;
+    vec3_t sum, candidate_ratio;
+    float z = bis_pixel(normal, view, kd, ks_m, p, marginal, conditional, faces, has_light, init_env_pick,
+                        env, ENV_RES, M, N, seed, frame, (uint)p, GROUP_SCRATCH(weights, M),
+                        GROUP_SCRATCH(taken, N), GROUP_SCRATCH(sums, 6), get_local_id(0),
+                        get_local_size(0), &sum,
+                        particles, gammas, count, &candidate_ratio);
+    if (item >= listed) return;
+    float effective = 0.0f;
+    for (int i = 0; i < N; ++i)
+        effective += plane_at(particles, N, count, i, 3) > 0.0f && plane_at(gammas, N, count, i, 0) > 0.0f;
+    /* The init's estimate: its candidates' (the resampling Rao-Blackwellised, sir.cl). */
+    float3 estimate = z * (float3)(candidate_ratio.x, candidate_ratio.y, candidate_ratio.z);
+    float4 before = have_state ? stats[p] : (float4)(-1.0f, 0.0f, 0.0f, 0.0f);
+    state[p] = (float4)(z, (float)M, 0.0f, 0.0f);
+    carried_estimate[p] = (float4)(estimate, 0.0f);
+    radiance[p] = (float4)(z > 0.0f ? estimate : (float3)(0.0f), 0.0f);
+    counts[p] = (float2)(z > 0.0f ? (float)N : 0.0f, z > 0.0f ? effective : 0.0f);
+    stats[p] = (float4)(before.x, (float)have_state, before.z + (float)(M + N), before.w);
 }

@@ -67,6 +67,13 @@ before resampling over the frame's steps (NaN on an init frame); ``reinits``: pi
 re-initialised this frame (the first frame's init is not counted); ``resample_steps``: mean
 resamplings per pixel.
 
+Kernels (``smc.cl``).  ``smc_advance`` runs steps 2-6 for every pixel that carries state and
+flags those that need a BIS re-init; ``smc_init`` runs step 1 for the flagged pixels (all of them
+on a first frame), listed on the host, in padded groups whose candidate loops PoCL vectorises
+across pixels (``sir.cl``, ``lanes.cl``).  The frame's ``shade`` time is the sum of both kernels'
+device time and the copy of the map kept for γ_{t−1}.  The map proposal's face probabilities
+and running sums come from the host (:func:`face_choice`), in float32, summed as a kernel would.
+
 Not unbiased (``Tags.unbiased = False``).  An init frame is unbiased, and so is a static
 stretch after it; a continuing frame on a changing map
 is a consistent SMC sampler (error → 0 as N → ∞) but not unbiased at finite N: Eq. 5's weights
@@ -89,7 +96,25 @@ import numpy as np
 import pyopencl as cl
 
 from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
+from iblbench.estimators.bis import bis_chunks, run_lockstep
 from iblbench.harness.device import event_ms
+
+
+def face_choice(face_integrals) -> tuple[np.ndarray, bool]:
+    """The map proposal's face probabilities μ_f = max(I_f, 0)/Σ max(I, 0) and then their running
+    sums, float32 and added from f = 0 to 5 as a kernel would (sir.cl, make_proposal), and
+    whether the map has any light (Σ > 0)."""
+    weights = np.maximum(np.asarray(face_integrals, np.float32), np.float32(0.0))
+    total = np.float32(0.0)
+    for value in weights:
+        total = np.float32(total + value)
+    mu = weights / total if total > 0 else np.zeros(6, np.float32)
+    running = np.float32(0.0)
+    sums = []
+    for value in mu:
+        running = np.float32(running + value)
+        sums.append(running)
+    return np.concatenate([mu, sums]).astype(np.float32), bool(total > 0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,7 +143,7 @@ class SMC(Estimator):
     Params = SMCParams
     tags = Tags(unbiased=False, temporal=True, has_pdf=False)
     requires = ("cdf",)
-    kernel_files = ("smc.cl", "sir.cl")
+    kernel_files = ("smc.cl", "sir.cl", "lanes.cl")
 
     def __init__(self, params=None, **overrides):
         super().__init__(params, **overrides)
@@ -164,31 +189,53 @@ class SMC(Estimator):
         static_frame = have_state and (cache.env is self._prev_host_env
                                        or np.array_equal(cache.env, self._prev_host_env))
         self._prev_power, self._prev_host_env = power, cache.env
+        count = gbuffer.count
         if not have_state:
-            count = gbuffer.count
             self._buffers = [compute.empty(count * N * 16), compute.empty(count * N * 8),
                              compute.empty(count * N * 16), compute.empty(count * N * 8),
                              compute.empty(count * 16), compute.empty(count * 16)]
             self._prev_env = compute.empty(6 * cache.res * cache.res * 16)
             self._key = key
-        radiance = compute.empty(gbuffer.count * 16)
-        counts = compute.empty(gbuffer.count * 8)
-        stats = compute.empty(gbuffer.count * 16)
-        kernel = compute.kernel(self.kernel_package(), "smc.cl", "render_smc", self.defines(gbuffer))
-        event = compute.run(
-            kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-            cache.env_buffer, self._prev_env, cache.marginal, cache.conditional,
-            cache.face_integral_buffer, np.int32(cache.res), np.int32(N), np.int32(M),
-            np.float32(p.init_env_pick), np.int32(p.intermediates + 1), np.float32(p.nu),
-            np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
-            np.int32(have_state), np.int32(static_frame), np.uint32(seed), np.uint32(cache.frame), *self._buffers,
-            radiance, counts, stats)
+        particles, gammas, scratch_p, scratch_g, state, carried_estimate = self._buffers
+        radiance = compute.empty(count * 16)
+        counts = compute.empty(count * 8)
+        stats = compute.empty(count * 16)
+        defines = {**self.defines(gbuffer), "ENV_RES": cache.res,
+                   "CDF_STEPS": max(int(cache.res) - 1, 0).bit_length()}   # ⌈log2 R⌉ (lanes.cl)
+        mu_and_sums, has_light = face_choice(cache.face_integrals)
+        faces = compute.to_device(mu_and_sums)
+        events = []
+        if have_state:
+            flags = compute.empty(count * 4)
+            events.append(compute.run(
+                compute.kernel(self.kernel_package(), "smc.cl", "smc_advance", defines), count,
+                gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer,
+                self._prev_env, cache.marginal, cache.conditional, faces, np.int32(has_light),
+                np.int32(count), np.int32(N), np.int32(p.intermediates + 1), np.float32(p.nu),
+                np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
+                np.int32(static_frame), np.uint32(seed), np.uint32(cache.frame), particles, gammas,
+                scratch_p, scratch_g, state, carried_estimate, radiance, counts, stats, flags))
+            todo = np.flatnonzero(compute.to_host(flags, (count,), np.int32)).astype(np.int32)
+        else:
+            todo = np.arange(count, dtype=np.int32)
+        if len(todo):
+            init = compute.kernel(self.kernel_package(), "smc.cl", "smc_init", defines)
+            listed = compute.to_device(todo)
+            for offset, pixels, *scratch in bis_chunks(compute, init, len(todo), M, N):
+                events.append(run_lockstep(
+                    compute, init, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
+                    cache.env_buffer, cache.marginal, cache.conditional, faces, np.int32(has_light),
+                    np.int32(count), np.int32(N), np.int32(M), np.float32(p.init_env_pick),
+                    np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), listed,
+                    np.int32(offset), np.int32(pixels), *scratch, particles, gammas, state,
+                    carried_estimate, radiance, counts, stats))
         copy = cl.enqueue_copy(compute.queue, self._prev_env, cache.env_buffer)
         copy.wait()
+        events.append(copy)
         st = compute.to_host(stats, (gbuffer.count, 4), np.float32)
         carried = st[:, 0] >= 0
         estimate = read_estimate(compute, gbuffer, radiance, counts, float(st[:, 2].mean()),
-                                 {"shade": event_ms(event) + event_ms(copy)})
+                                 {"shade": sum(event_ms(e) for e in events)})
         estimate.extras = {
             "ess": float(st[carried, 0].mean()) if carried.any() else float("nan"),
             "reinits": float(gbuffer.count if map_jump else st[:, 1].sum()),

@@ -219,6 +219,21 @@ def test_the_map_pdf_is_its_density():
     assert bright.mean() > 10 * share
 
 
+@pytest.mark.parametrize("name", ["sun-1e6", "single-hot-texel", "all-black", "black-faces", "sphere-sun"])
+def test_the_device_map_is_the_numpy_map(compute, name):
+    """havran.cl builds the map's probabilities and CDFs as the NumPy build does: equal up to
+    the float32 luminance on the device (relative 1e-6; the CDF searches and the blend need no
+    more), and the marginal and every row's CDF end at exactly 1."""
+    env = (builtin_scene("sphere-sun", env_res=32).environment.frame(0) if name == "sphere-sun"
+           else stress_maps()[name])
+    device, host = EqualAreaMap.on_device(FrameCache(compute, env)), EqualAreaMap(env)
+    for array in ("row_prob", "row_cdf", "col_prob", "col_cdf"):
+        np.testing.assert_allclose(getattr(device, array), getattr(host, array), rtol=1e-6, atol=0,
+                                   err_msg=array)
+    assert device.row_cdf[-1] == 1.0 and np.all(device.col_cdf[:, -1] == 1.0)
+    assert device.build_ms > 0
+
+
 # ---- rendering --------------------------------------------------------------------------------
 
 def test_per_normal_culling_counts_the_lights_above_the_horizon(h):

@@ -1,0 +1,123 @@
+/* Lockstep loops for kernels that PoCL vectorises across work items (issue 10), on top of the
+ * scalar vec3_t / shading_t helpers of common.cl.
+ *
+ * PoCL 3.1 (LLVM 15) runs the work items of a group as SIMD lanes only over a region of code that
+ *   - holds no inner loop: a kernel's own loop (over samples, candidates) must end each iteration
+ *     at LOCKSTEP, a barrier, which makes the loop body a region of its own (PoCL then vectorises
+ *     the work-item loop inside it); loops of a fixed small count must unroll;
+ *   - holds no value of an OpenCL vector type: float3/float4 arithmetic, loads and returns stop
+ *     it ("instruction return type cannot be vectorized"), and so do the 2- and 4-vectors the
+ *     optimiser fuses out of adjacent stores, of a select or phi of structs, or of isomorphic
+ *     sums (three running sums per channel, six quotients);
+ *   - holds no call (helpers are forced inline; the library sin/cos are calls);
+ *   - carries only scalars across a barrier: a struct or float3 live there becomes a context array
+ *     of aggregates, which stops it too.
+ * Measured on small kernels: 10× per work item and iteration for the barrier, 8× for scalar
+ * instead of float3 code.  The helpers here complete common.cl's for the map's CDFs and the
+ * random streams; a GPU runs either form, one work item per lane. */
+#ifndef IBLBENCH_LANES_CL
+#define IBLBENCH_LANES_CL
+
+/* common.cl helpers on the hot paths that it does not force inline: forced here by a declaration
+ * before their definition. */
+#define FORCE_INLINE inline __attribute__((always_inline))
+FORCE_INLINE int cdf_search(__global const ulong *cdf, int n, ulong u);
+FORCE_INLINE ulong cdf_lower(__global const ulong *cdf, int i);
+FORCE_INLINE float cdf_bin(__global const ulong *cdf, int i);
+FORCE_INLINE float cdf_bin_position(__global const ulong *cdf, int i, ulong u);
+FORCE_INLINE int clamp_index(float x, int res);
+FORCE_INLINE int texel_index(int face, int row, int col, int res);
+FORCE_INLINE float area_per_solid_angle(float u, float v);
+#undef FORCE_INLINE
+#include "common.cl"
+
+/* Ends one iteration of a loop whose trip count is the same in every work item of the group (see
+ * the header).  Every work item must reach it: no early exit before or inside such a loop, and
+ * the host launches whole, padded groups (estimators/bis.py, run_lockstep). */
+#define LOCKSTEP() barrier(CLK_LOCAL_MEM_FENCE)
+
+/* Compensated sum (common.cl's kahan_add) on two scalars, which may be carried across LOCKSTEP. */
+ALWAYS_INLINE void kahan_add_to(acc_t *sum, acc_t *carry, acc_t x)
+{
+    acc_t y = x - *carry;
+    acc_t t = *sum + y;
+    *carry = (t - *sum) - y;
+    *sum = t;
+}
+
+/* ---- random numbers: common.cl's rng_uniform4 / rng_words2 without vector types --------------- */
+
+typedef struct { float x, y, z, w; } uniform4_t;
+typedef struct { ulong x, y; } words2_t;
+
+ALWAYS_INLINE uniform4_t lane_uniform4(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
+{
+    philox4x32_ctr_t r = rng_block(seed, frame, stream, pixel, sample, draw);
+    uniform4_t u = {rng_unit(r.v[0]), rng_unit(r.v[1]), rng_unit(r.v[2]), rng_unit(r.v[3])};
+    return u;
+}
+
+ALWAYS_INLINE words2_t lane_words2(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
+{
+    philox4x32_ctr_t r = rng_block(seed, frame, stream, pixel, sample, draw);
+    words2_t u = {upsample(r.v[0], r.v[1]), upsample(r.v[2], r.v[3])};
+    return u;
+}
+
+/* ---- the map: nearest texel, and common.cl's sample_face in scalars -------------------------- */
+
+/* The texel that holds direction w (nearest lookup, DESIGN §3). */
+ALWAYS_INLINE int lane_texel(vec3_t w, int res)
+{
+    float s, t;
+    int face = cube_face_st(w, &s, &t);
+    return texel_index(face, clamp_index(t, res), clamp_index(s, res), res);
+}
+
+/* face_uv_to_dir: face-plane point (u, v) -> (unnormalised) direction on the cube. */
+ALWAYS_INLINE vec3_t lane_face_dir(int face, float u, float v)
+{
+    float sign = (face & 1) ? -1.0f : 1.0f;
+    int x_major = face < 2, y_major = face == 2 || face == 3;
+    return vec3(x_major ? sign : y_major ? u : sign * u, y_major ? sign : -v,
+                x_major ? -sign * u : y_major ? sign * v : sign);
+}
+
+/* common.cl's cdf_search (first i with cdf[i] > u) with a fixed trip count: CDF_STEPS =
+ * ⌈log2 R⌉ halvings (the host defines it with ENV_RES), each a no-op once n = 1, so the loop
+ * unrolls and a loop body that samples the map stays one region (header).  Without CDF_STEPS it
+ * is common.cl's search. */
+ALWAYS_INLINE int lane_cdf_search(__global const cdf_word_t *cdf, int n, cdf_word_t u)
+{
+#ifdef CDF_STEPS
+    int base = 0;
+    __attribute__((opencl_unroll_hint))
+    for (int i = 0; i < CDF_STEPS; ++i) {
+        int step = n >> 1;
+        base = (step > 0 && cdf[base + step - 1] <= u) ? base + step : base;
+        n -= step;
+    }
+    return base;
+#else
+    return cdf_search(cdf, n, u);
+#endif
+}
+
+/* sample_face: a direction of face `face` from the 63-bit point u by its marginal and
+ * conditional CDFs; returns pdf_L(ω|f) and sets *texel. */
+ALWAYS_INLINE float lane_sample_face(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
+                                     int face, int res, words2_t u, vec3_t *dir, int *texel)
+{
+    __global const cdf_word_t *rows = marginal + face * res;
+    int row = lane_cdf_search(rows, res, u.x);
+    __global const cdf_word_t *cols = conditional + (face * res + row) * res;
+    int col = lane_cdf_search(cols, res, u.y);
+    float x = -1.0f + 2.0f * ((float)col + cdf_bin_position(cols, col, u.y)) / res;
+    float y = -1.0f + 2.0f * ((float)row + cdf_bin_position(rows, row, u.x)) / res;
+    *dir = vec3_normalize(lane_face_dir(face, x, y));
+    *texel = texel_index(face, row, col, res);
+    float texel_area = 4.0f / ((float)res * (float)res);
+    return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(x, y) / texel_area;
+}
+
+#endif
