@@ -248,26 +248,34 @@ inline float3 reflect_view(float3 n, float3 v) { return float3_of(vec3_reflect_v
  * (measured 1.5e-5; float exp2(m·log2 c) with libm's functions: 1.1e-5), absolute ≤ 2^-120 below.
  * The relative error grows as ln 2·|y|·ε with the float rounding ε of y = m·log2 c (1e-6 where
  * c^m ≥ 1e-3), as it does for exp2(m·log2 c) in float. */
-ALWAYS_INLINE float phong_power(float c, float m)
-{
-    int denormal = c < 0x1p-126f;
-    int bits = as_int(denormal ? c * 0x1p24f : c);
-    float f = as_float((bits & 0x007fffff) | 0x3f800000);          /* mantissa in [1, 2) */
-    int above = f > 1.41421356f;
-    f = above ? 0.5f * f : f;
-    int e = (bits >> 23) - 127 + above - (denormal ? 24 : 0);
-    float s = (f - 1.0f) / (f + 1.0f), z = s * s;
-    float log2_f = s * (2.8853900817779268f + z * (0.9617966939259756f + z * (0.5770780163555853f
-                 + z * (0.4121985831111324f + z * 0.3205988979753252f))));
-    float y = max(m * ((float)e + log2_f), -127.0f);
-    float n = -(float)(int)(0.5f - y), r = y - n;   /* n = round(y) (halves down), y ≤ 0 */
-    float exp2_r = 1.0f + r * (0.6931471805599453f + r * (0.2402265069591007f
-                 + r * (0.055504108664821576f + r * (0.009618129107628477f
-                 + r * (0.0013333558146428441f + r * (0.00015403530393381606f
-                 + r * 1.5252733804059838e-05f))))));
-    float scale = as_float(((int)n + 127) << 23);                   /* 2^n; 0 at n = −127 */
-    return c > 0.0f ? exp2_r * scale : 0.0f;
+#define DEFINE_PHONG_POWER(name, floatn, intn)                                                    \
+ALWAYS_INLINE floatn name(floatn c, floatn m)                                                      \
+{                                                                                                  \
+    intn denormal = c < (floatn)0x1p-126f;                                                         \
+    intn bits = as_##intn(select(c, c * 0x1p24f, denormal));                                       \
+    floatn f = as_##floatn((bits & 0x007fffff) | 0x3f800000);        /* mantissa in [1, 2) */      \
+    intn above = f > (floatn)1.41421356f;                                                          \
+    f = select(f, 0.5f * f, above);                                                                \
+    intn e = (bits >> 23) - 127 + select((intn)0, (intn)1, above)                                  \
+           - select((intn)0, (intn)24, denormal);                                                  \
+    floatn s = (f - 1.0f) / (f + 1.0f), z = s * s;                                                 \
+    floatn log2_f = s * (2.8853900817779268f + z * (0.9617966939259756f + z * (0.5770780163555853f \
+                  + z * (0.4121985831111324f + z * 0.3205988979753252f))));                        \
+    floatn y = max(m * (convert_##floatn(e) + log2_f), (floatn)-127.0f);                           \
+    floatn n = -convert_##floatn(convert_##intn(0.5f - y)), r = y - n; /* round(y), halves down */ \
+    floatn exp2_r = 1.0f + r * (0.6931471805599453f + r * (0.2402265069591007f                     \
+                  + r * (0.055504108664821576f + r * (0.009618129107628477f                        \
+                  + r * (0.0013333558146428441f + r * (0.00015403530393381606f                     \
+                  + r * 1.5252733804059838e-05f))))));                                             \
+    floatn scale = as_##floatn((convert_##intn(n) + 127) << 23);       /* 2^n; 0 at n = −127 */    \
+    return select((floatn)0.0f, exp2_r * scale, c > 0.0f);                                         \
 }
+
+/* The scalar form, and 8 and 16 lanes of it for code in explicit vectors (all selects, so the
+ * one body serves every width; the lanes' results are bit-identical to the scalar one's). */
+DEFINE_PHONG_POWER(phong_power, float, int)
+DEFINE_PHONG_POWER(phong_power8, float8, int8)
+DEFINE_PHONG_POWER(phong_power16, float16, int16)
 
 /* The specular lobe's power cos⁺(r, ω)^m.  phong_value and phong_mixture_pdf take it, so a
  * sample that needs the BRDF and the pdf at one direction computes it once. */
@@ -386,14 +394,17 @@ inline float3 direction_about(float3 z, float cos_theta, float u)
 /* Mixture pdf of sample_phong in solid angle, given cos(n, ω) and the lobe power cos⁺(r,ω)^m:
  * (1 − p_s)·cos⁺(n,ω)/π + p_s·(m+1)/(2π)·cos⁺(r,ω)^m.  The specular lobe's mass below the surface
  * counts: those directions are sampled (and get a zero integrand). */
-ALWAYS_INLINE float phong_mixture_pdf(float p_spec, float m, float cos_n, float power)
-{
-    float pdf = (1.0f - p_spec) * max(cos_n, 0.0f) / IBL_PI;
-#if SPECULAR_LOBE
-    pdf += p_spec * (m + 1.0f) / (2.0f * IBL_PI) * power;
-#endif
-    return pdf;
+#define DEFINE_PHONG_MIXTURE_PDF(name, floatn)                                                     \
+ALWAYS_INLINE floatn name(float p_spec, float m, floatn cos_n, floatn power)                       \
+{                                                                                                  \
+    floatn pdf = (1.0f - p_spec) * max(cos_n, 0.0f) / IBL_PI;                                      \
+    return SPECULAR_LOBE ? pdf + p_spec * (m + 1.0f) / (2.0f * IBL_PI) * power : pdf;              \
 }
+
+/* The scalar form and 8 and 16 lanes of it (phong_power's widths). */
+DEFINE_PHONG_MIXTURE_PDF(phong_mixture_pdf, float)
+DEFINE_PHONG_MIXTURE_PDF(phong_mixture_pdf8, float8)
+DEFINE_PHONG_MIXTURE_PDF(phong_mixture_pdf16, float16)
 
 inline float phong_pdf(float3 n, float3 r, float p_spec, float m, float3 w)
 {

@@ -127,7 +127,7 @@ ALWAYS_INLINE void strategy_ticks(vec3_t n, __global const float *face_integral,
  * work items in SIMD (and a GPU's warp stays converged), which a per-pixel trip count or a
  * data-dependent branch prevents. */
 
-/* A pixel's running estimate.  The radiance sum accumulates in the output's colour planes
+/* The BRDF samples' running estimate.  The radiance sum accumulates in the output's colour planes
  * (R, G, B at sum[0], sum[plane], sum[2·plane]), not in three registers: PoCL's compiler first
  * pairs such x/y accumulators into 2-vectors (its early SLP pass), and the work-item vectoriser
  * then rejects the loop; planes an unknown stride apart are never paired.  (The compiler hoists
@@ -183,48 +183,103 @@ inline void drawn_counts(const int ticks[7], int pool_size, int *used, int *draw
     }
 }
 
-/* Most light draws of any pixel, from the budget alone: Σ_f ⌈t_f/Q⌉ < Σ_f t_f/Q + 6, so at most
- * ⌈T/Q⌉ + 5 for light ticks T = Σ_f t_f. */
-inline int light_draws_bound(int light_ticks) { return draws_for(light_ticks) + 5; }
+/* ---- light samples in explicit vectors -------------------------------------------------------- */
 
-/* Light samples of every face (Eq. 4, or the g_{f,i} of Eq. 6).  A pixel reads face_draws(t_f)
- * consecutive pool entries of face f from `offset` (0 for the shared sequence; offset <
- * pool_size), wrapping at pool_size.  One loop over all the pixel's draws, face after face: its
- * trip count `bound` (light_draws_bound) is the same for every pixel, and draw j's face is found
- * by comparisons against the faces' cumulative draw counts instead of a search.
- * brdf_samples = 0 leaves the BRDF term out of the denominator (t_6 = 0 there). */
-ALWAYS_INLINE void shade_light_faces(accumulator_t *acc, const shading_t *s, const int ticks[7], int bound,
-                              int brdf_samples, __global const float4 *pool_dir_pdf,
-                              __global const float4 *pool_radiance, int pool_size, int offset)
+/* A pixel's light samples run POOL_LANES draws at a time in explicit vectors (the lanes of one
+ * work item are consecutive draws of one face), so they are SIMD on any device and compiler, not
+ * only where PoCL vectorises across work items.  The pool is read as planes (pool_planes kernel):
+ * x, y, z, pdf, R, G, B, each of POOL_PLANE_STRIDE(size) floats, face f's entries at
+ * [2·size·f, 2·size·f + size) and again after them, so a pixel's window of draws from any
+ * offset < size is contiguous (no wrap), and zeros past the last face pad the last lanes. */
+#ifndef POOL_LANES
+#define POOL_LANES 16
+#endif
+#if POOL_LANES == 16
+typedef float16 lanes_t;
+typedef int16 lane_ints_t;
+#define vload_lanes vload16
+#define convert_lanes convert_float16
+#define phong_power_lanes phong_power16
+#define phong_mixture_pdf_lanes phong_mixture_pdf16
+#define LANE_NUMBERS ((int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#define to8(v) ((v).lo + (v).hi)
+#else
+typedef float8 lanes_t;
+typedef int8 lane_ints_t;
+#define vload_lanes vload8
+#define convert_lanes convert_float8
+#define phong_power_lanes phong_power8
+#define phong_mixture_pdf_lanes phong_mixture_pdf8
+#define LANE_NUMBERS ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
+#define to8(v) (v)
+#endif
+#define POOL_PLANES 7
+#define POOL_PLANE_STRIDE(size) (12 * (size) + 16)
+
+/* Sums of a block's lanes, pairwise. */
+inline float sum_of8(float8 v)
 {
-    int end[6], total = 0;
-    #pragma unroll
+    float4 q = v.lo + v.hi;
+    return (q.x + q.z) + (q.y + q.w);
+}
+
+inline int int_sum_of8(int8 v)
+{
+    int4 q = v.lo + v.hi;
+    return (q.x + q.z) + (q.y + q.w);
+}
+
+/* A 3-vector of lanes and its dot product with a (per-pixel) vec3_t. */
+typedef struct { lanes_t x, y, z; } lanes3_t;
+
+ALWAYS_INLINE lanes_t lanes_dot(vec3_t a, lanes3_t b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+
+ALWAYS_INLINE lanes3_t lanes3_load(__global const float *plane0, int stride, int i)
+{
+    lanes3_t v = {vload_lanes(0, plane0 + i), vload_lanes(0, plane0 + stride + i),
+                  vload_lanes(0, plane0 + 2 * stride + i)};
+    return v;
+}
+
+/* Light samples of every face (Eq. 4, or the g_{f,i} of Eq. 6): face f's draws_for(t_f) draws
+ * read consecutive pool entries from `offset` (0 for the shared sequence; offset < pool_size).
+ * A draw adds β·s(ω)/D(ω) as add_sample does (D = Σ_k t_k p_k(ω), the balance denominator in
+ * ticks; brdf_samples = 0 leaves the BRDF term out, t_6 = 0 there); lanes past the face's draws
+ * are masked.  Returns the radiance sum; *effective gets the ticks of the samples that counted. */
+ALWAYS_INLINE vec3_t shade_light_faces(const shading_t *s, const int ticks[7], int brdf_samples,
+                                       __global const float *planes, int pool_size, int offset,
+                                       int *effective)
+{
+    int stride = POOL_PLANE_STRIDE(pool_size);
+    float lobe = (s->m + 2.0f) / (2.0f * IBL_PI);   /* phong_value's lobe factor */
+    lanes_t sum_r = 0.0f, sum_g = 0.0f, sum_b = 0.0f;
+    lane_ints_t counted = 0;
     for (int f = 0; f < 6; ++f) {
-        total += face_draws(ticks[f], pool_size);
-        end[f] = total;
-    }
-    for (int j = 0; j < bound; ++j) {
-        /* Draw j is draw i of face f: f counts the faces whose draws end at or before j. */
-        int f = 0, start = 0, face_ticks = ticks[0];
-        #pragma unroll
-        for (int k = 0; k < 5; ++k) {
-            int past = j >= end[k];
-            f += past;
-            start = past ? end[k] : start;
-            face_ticks = past ? ticks[k + 1] : face_ticks;
+        int draws = face_draws(ticks[f], pool_size);
+        float face_ticks = (float)ticks[f];
+        int first = 2 * pool_size * f + offset;
+        for (int i = 0; i < draws; i += POOL_LANES) {
+            lanes3_t w = lanes3_load(planes, stride, first + i);
+            lanes_t pdf = vload_lanes(0, planes + 3 * stride + first + i);
+            lanes3_t radiance = lanes3_load(planes + 4 * stride, stride, first + i);
+            /* β of Eq. 5, from the ticks left before this block (never overflows). */
+            lane_ints_t beta = min(TICKS_PER_SAMPLE, ticks[f] - i * TICKS_PER_SAMPLE - LANE_NUMBERS * TICKS_PER_SAMPLE);
+            lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
+            lanes_t cosine = lanes_dot(s->n, w);
+            lanes_t denominator = face_ticks * pdf;
+            if (brdf_samples)
+                denominator += (float)ticks[6] * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
+            lane_ints_t counts = (i + LANE_NUMBERS < draws) & (cosine > 0.0f) & (denominator > 0.0f);
+            lanes_t weight = convert_lanes(beta) / denominator * cosine;
+            lanes_t lobe_power = lobe * power;
+            sum_r += select((lanes_t)0.0f, (s->kd.x / IBL_PI + s->ks.x * lobe_power) * radiance.x * weight, counts);
+            sum_g += select((lanes_t)0.0f, (s->kd.y / IBL_PI + s->ks.y * lobe_power) * radiance.y * weight, counts);
+            sum_b += select((lanes_t)0.0f, (s->kd.z / IBL_PI + s->ks.z * lobe_power) * radiance.z * weight, counts);
+            counted += select((lane_ints_t)0, beta, counts);
         }
-        int active = j < total;
-        int i = active ? j - start : 0;
-        int index = offset + i;
-        int entry = f * pool_size + (index >= pool_size ? index - pool_size : index);
-        vec3_t w = vec3_load(pool_dir_pdf, entry);
-        float power = phong_lobe_power(s->r, w, s->m);
-        float denominator = (float)face_ticks * load_w(pool_dir_pdf, entry);
-        if (brdf_samples)
-            denominator += (float)ticks[6] * phong_mixture_pdf(s->p_spec, s->m, vec3_dot(s->n, w), power);
-        add_sample(acc, s, active, beta_ticks(face_ticks, i), w, power, vec3_load(pool_radiance, entry),
-                   denominator);
     }
+    *effective = int_sum_of8(to8(counted));
+    return vec3(sum_of8(to8(sum_r)), sum_of8(to8(sum_g)), sum_of8(to8(sum_b)));
 }
 
 /* BRDF samples of Eq. 6 (f_i): the denominator holds the full light mixture, which is the one
