@@ -45,24 +45,18 @@ __kernel void render_light_pool(__global const float4 *normal, __global const fl
      * Interleaved: a per-pixel offset into the pool and per-pixel BRDF streams. */
     int offset = shared_sequence ? 0
                : (int)(rng_unit(rng_block(seed, frame, STREAM_POOL_OFFSET, (uint)p, 0u, 0u).v[0]) * pool_size);
-    int effective;
-    vec3_t light = shade_light_faces(&s, ticks, LU_BRDF_SAMPLES, pool, pool_size, offset, &effective);
-    radiance[p] = light.x;
-    radiance[n + p] = light.y;
-    radiance[2 * n + p] = light.z;
+    lanes_sum_t acc = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lane_ints_t)0};
+    shade_light_faces(&acc, &s, ticks, LU_BRDF_SAMPLES, pool, pool_size, offset);
 #if LU_BRDF_SAMPLES
-    /* A work-group barrier, though nothing is shared: PoCL runs the code after it as a separate
-     * loop over the work items, and vectorises that one across them (SIMD across pixels, one
-     * sample at a time), which the explicit vectors above would prevent in a common loop. */
-    barrier(CLK_LOCAL_MEM_FENCE);
-    accumulator_t acc = {radiance + p, n, effective};
     shade_brdf(&acc, &s, ticks, env, marginal, conditional, res, seed, frame, shared_sequence ? 0u : (uint)p);
-    effective = acc.effective;
 #endif
+    radiance[p] = sum_of8(to8(acc.r));
+    radiance[n + p] = sum_of8(to8(acc.g));
+    radiance[2 * n + p] = sum_of8(to8(acc.b));
     int used, draws;
     drawn_counts(ticks, pool_size, &used, &draws);
     counts[p] = (float)used * (1.0f / TICKS_PER_SAMPLE);
-    counts[n + p] = (float)effective * (1.0f / TICKS_PER_SAMPLE);
+    counts[n + p] = (float)int_sum_of8(to8(acc.effective)) * (1.0f / TICKS_PER_SAMPLE);
     evaluations[p] = draws;
 }
 
