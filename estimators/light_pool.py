@@ -45,6 +45,7 @@ class PoolEstimator(Estimator):
     Params = PoolParams
     tags = Tags(unbiased=True, has_pdf=True)
     requires = ("cdf", "pool")
+    brdf_samples = False   # True where the kernel file sets LU_BRDF_SAMPLES (Eq. 6)
 
     @staticmethod
     def pool_size(spp: int) -> int:
@@ -73,8 +74,14 @@ class PoolEstimator(Estimator):
         pool = cache.light_pool(self.pool_size(spp), seed)
         plane = 12 * pool.per_face + 16   # POOL_PLANE_STRIDE (light_pool.cl)
         planes = compute.empty(7 * plane * 4)
-        planes_event = compute.run(self._kernel(compute, "pool_planes"), plane, pool.dir_pdf, pool.radiance,
-                                   np.int32(pool.per_face), planes)
+        events = [compute.run(self._kernel(compute, "pool_planes"), plane, pool.dir_pdf, pool.radiance,
+                              np.int32(pool.per_face), planes)]
+        shared_brdf = self.brdf_samples and self.params.shared_sequence
+        numbers_stride = 16 * (spp // 16 + 1)   # BRDF_NUMBERS_STRIDE (light_pool.cl)
+        numbers = compute.empty(4 * 4 * numbers_stride if shared_brdf else 4)
+        if shared_brdf:
+            events.append(compute.run(self._kernel(compute, "brdf_numbers"), numbers_stride, np.uint32(seed),
+                                      np.uint32(cache.frame), np.int32(spp), numbers))
         kernel = self._kernel(compute, "render_light_pool", gbuffer)
         radiance = compute.empty(gbuffer.count * 12)   # planes R, G, B (light_pool_kernels.cl)
         counts = compute.empty(gbuffer.count * 8)      # planes used, effective
@@ -84,10 +91,10 @@ class PoolEstimator(Estimator):
             cache.env_buffer, cache.marginal, cache.conditional, cache.face_integral_buffer,
             planes, np.int32(cache.res), np.int32(pool.per_face),
             np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),
-            np.uint32(cache.frame), radiance, counts, evaluations)
+            np.uint32(cache.frame), numbers, radiance, counts, evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean()
         return read_estimate(compute, gbuffer, radiance, counts, mean_evaluations,
-                             {"sample": pool.build_ms + event_ms(planes_event), "shade": event_ms(event)}, planar=True)
+                             {"sample": pool.build_ms + sum(map(event_ms, events)), "shade": event_ms(event)}, planar=True)
 
     # ---- χ² hooks and the per-normal split ---------------------------------------------------
 

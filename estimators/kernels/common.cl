@@ -402,15 +402,20 @@ DEFINE_SINCOS_TURN(sincos_turn16, float16, int16)
 /* Unit direction at polar cosine cos_theta and azimuth 2π·u about the unit axis z
  * (branchless orthonormal basis of Duff et al. 2017). */
 #define DEFINE_DIRECTION_ABOUT_AXIS(name, floatn, vecn, make_vec, sincos)                         \
-ALWAYS_INLINE vecn name(vecn z, floatn cos_theta, floatn u)                                        \
+/* The basis t, b ⟂ z. */                                                                          \
+ALWAYS_INLINE void name##_basis(vecn z, vecn *t, vecn *b)                                          \
 {                                                                                                  \
     floatn sign = copysign((floatn)1.0f, z.z);                                                     \
     floatn a = -1.0f / (sign + z.z);                                                               \
     floatn c = z.x * z.y * a;                                                                      \
-    vecn t = make_vec(1.0f + sign * z.x * z.x * a, sign * c, -sign * z.x);                         \
-    vecn b = make_vec(c, sign + z.y * z.y * a, -z.y);                                              \
-    floatn sin_theta = sqrt(max(0.0f, 1.0f - cos_theta * cos_theta)), sine, cosine;                \
-    sincos(u, &sine, &cosine);                                                                     \
+    *t = make_vec(1.0f + sign * z.x * z.x * a, sign * c, -sign * z.x);                             \
+    *b = make_vec(c, sign + z.y * z.y * a, -z.y);                                                  \
+}                                                                                                  \
+                                                                                                   \
+/* The direction in z's basis t, b, given the azimuth's sine and cosine. */                        \
+ALWAYS_INLINE vecn name##_in(vecn z, vecn t, vecn b, floatn cos_theta, floatn sine, floatn cosine) \
+{                                                                                                  \
+    floatn sin_theta = sqrt(max(0.0f, 1.0f - cos_theta * cos_theta));                              \
     floatn along_t = sin_theta * cosine, along_b = sin_theta * sine;                               \
     /* Products and sums in separate statements: not contracted into FMAs (as in vec3_add of   \
      * vec3_scale), so the rounding is the float3 form's. */                                      \
@@ -423,6 +428,15 @@ ALWAYS_INLINE vecn name(vecn z, floatn cos_theta, floatn u)                     
     w = w + on_z.z;                                                                                \
     floatn length_sq = x * x + y * y + w * w, k = 1.0f / sqrt(length_sq);                          \
     return make_vec(x * k, y * k, w * k);                                                          \
+}                                                                                                  \
+                                                                                                   \
+ALWAYS_INLINE vecn name(vecn z, floatn cos_theta, floatn u)                                        \
+{                                                                                                  \
+    vecn t, b;                                                                                     \
+    floatn sine, cosine;                                                                           \
+    name##_basis(z, &t, &b);                                                                       \
+    sincos(u, &sine, &cosine);                                                                     \
+    return name##_in(z, t, b, cos_theta, sine, cosine);                                            \
 }
 
 DEFINE_DIRECTION_ABOUT_AXIS(direction_about_axis, float, vec3_t, vec3, sincos_turn)

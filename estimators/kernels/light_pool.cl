@@ -165,7 +165,8 @@ typedef rng_block16_t lane_block_t;
 #define convert_lane_longs convert_long16
 #define phong_power_lanes phong_power16
 #define phong_mixture_pdf_lanes phong_mixture_pdf16
-#define direction_about_axis_lanes direction_about_axis16
+#define direction_in_lanes direction_about_axis16_in
+#define sincos_turn_lanes sincos_turn16
 #define cube_face_st_lanes cube_face_st16
 #define rng_block_lanes rng_block16
 #define make_lanes3 vec3x16
@@ -190,7 +191,8 @@ typedef rng_block8_t lane_block_t;
 #define convert_lane_longs convert_long8
 #define phong_power_lanes phong_power8
 #define phong_mixture_pdf_lanes phong_mixture_pdf8
-#define direction_about_axis_lanes direction_about_axis8
+#define direction_in_lanes direction_about_axis8_in
+#define sincos_turn_lanes sincos_turn8
 #define cube_face_st_lanes cube_face_st8
 #define rng_block_lanes rng_block8
 #define make_lanes3 vec3x8
@@ -316,33 +318,67 @@ ALWAYS_INLINE lanes_t lanes_light_pdf(__global const cdf_word_t *marginal,
     return p_texel * area * (float)(res * res) / 4.0f;
 }
 
+/* The BRDF draws' numbers where every pixel draws the same ones (the shared sequence), as planes
+ * of BRDF_NUMBERS_STRIDE(spp) floats (the brdf_numbers kernel): ξ_cos, ξ_lobe and the sine and
+ * cosine of the azimuth 2π·ξ_azimuth of draw i (draw_numbers), so the pixels do not each
+ * recompute them. */
+#define BRDF_NUMBERS_STRIDE(spp) (16 * ((spp) / 16 + 1))
+
+/* Draw i's numbers: rng_block(seed, frame, STREAM_BRDF, stream_pixel, i, 0) as uniforms, the
+ * azimuth through sincos_turn. */
+ALWAYS_INLINE void draw_numbers(uint seed, uint frame, uint stream_pixel, lane_ints_t draw,
+                                lanes_t *xi_cos, lanes_t *xi_lobe, lanes_t *sine, lanes_t *cosine)
+{
+    lane_block_t xi = rng_block_lanes(seed, frame, STREAM_BRDF, stream_pixel, convert_lane_uints(draw), 0u);
+    *xi_cos = lanes_unit(xi.v[0]);
+    *xi_lobe = lanes_unit(xi.v[2]);
+    sincos_turn_lanes(lanes_unit(xi.v[1]), sine, cosine);
+}
+
+/* lanes3_t of a where `pick`, else of b. */
+ALWAYS_INLINE lanes3_t lanes3_pick(lane_ints_t pick, vec3_t a, vec3_t b)
+{
+    return make_lanes3(select((lanes_t)b.x, (lanes_t)a.x, pick), select((lanes_t)b.y, (lanes_t)a.y, pick),
+                       select((lanes_t)b.z, (lanes_t)a.z, pick));
+}
+
 /* BRDF samples of Eq. 6 (f_i): the denominator holds the full light mixture, which is the one
  * face term t_{f(ω)}·pdf_L(ω|f(ω)) because pdf_L(ω|f) = 0 off face f.  Every pixel draws
- * draws_for(t_6) samples (t_6 depends on the budget alone); draw i uses rng_block(seed, frame,
- * STREAM_BRDF, stream_pixel, i, 0) and sample_phong_direction's arithmetic. */
+ * draws_for(t_6) samples (t_6 depends on the budget alone); draw i's numbers are draw_numbers
+ * (read from `shared_numbers` for the shared sequence), its direction sample_phong_direction's
+ * arithmetic, with the bases about n and r computed once per pixel. */
 ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ticks[7],
                               __global const float4 *env, __global const cdf_word_t *marginal,
                               __global const cdf_word_t *conditional, int res, uint seed,
-                              uint frame, uint stream_pixel)
+                              uint frame, int shared_sequence, uint stream_pixel,
+                              __global const float *shared_numbers, int numbers_stride)
 {
     int draws = draws_for(ticks[6]);
     __global const float *texels = (__global const float *)env;
+    vec3_t t_n, b_n, t_r, b_r;
+    direction_about_axis_basis(s->n, &t_n, &b_n);
+    direction_about_axis_basis(s->r, &t_r, &b_r);
     for (int i = 0; i < draws; i += POOL_LANES) {
         lane_ints_t draw = i + LANE_NUMBERS;
-        lane_block_t xi = rng_block_lanes(seed, frame, STREAM_BRDF, stream_pixel, convert_lane_uints(draw), 0u);
-        lanes_t xi_cos = lanes_unit(xi.v[0]), xi_azimuth = lanes_unit(xi.v[1]);
+        lanes_t xi_cos, xi_lobe, azimuth_sin, azimuth_cos;
+        if (shared_sequence) {
+            xi_cos = vload_lanes(0, shared_numbers + i);
+            xi_lobe = vload_lanes(0, shared_numbers + numbers_stride + i);
+            azimuth_sin = vload_lanes(0, shared_numbers + 2 * numbers_stride + i);
+            azimuth_cos = vload_lanes(0, shared_numbers + 3 * numbers_stride + i);
+        } else {
+            draw_numbers(seed, frame, stream_pixel, draw, &xi_cos, &xi_lobe, &azimuth_sin, &azimuth_cos);
+        }
 #if SPECULAR_LOBE
-        lane_ints_t specular = lanes_unit(xi.v[2]) < s->p_spec;
-        lanes3_t axis = make_lanes3(select((lanes_t)s->n.x, (lanes_t)s->r.x, specular),
-                                    select((lanes_t)s->n.y, (lanes_t)s->r.y, specular),
-                                    select((lanes_t)s->n.z, (lanes_t)s->r.z, specular));
+        lane_ints_t specular = xi_lobe < s->p_spec;
         lanes_t cos_theta = select(sqrt(xi_cos), phong_power_lanes(xi_cos, (lanes_t)(1.0f / (s->m + 1.0f))),
                                    specular);
 #else
-        lanes3_t axis = make_lanes3((lanes_t)s->n.x, (lanes_t)s->n.y, (lanes_t)s->n.z);
+        lane_ints_t specular = 0;
         lanes_t cos_theta = sqrt(xi_cos);
 #endif
-        lanes3_t w = direction_about_axis_lanes(axis, cos_theta, xi_azimuth);
+        lanes3_t w = direction_in_lanes(lanes3_pick(specular, s->r, s->n), lanes3_pick(specular, t_r, t_n),
+                                        lanes3_pick(specular, b_r, b_n), cos_theta, azimuth_sin, azimuth_cos);
         lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
         lanes_t cosine = lanes_dot(s->n, w);
         lanes_t pdf_brdf = phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);

@@ -26,6 +26,19 @@ __kernel void pool_planes(__global const float4 *dir_pdf, __global const float4 
     planes[6 * stride + k] = c.z;
 }
 
+/* The shared BRDF numbers of draw i = get_global_id(0) (see BRDF_NUMBERS_STRIDE): scalar lanes. */
+__kernel void brdf_numbers(const uint seed, const uint frame, const int spp, __global float *out)
+{
+    int i = get_global_id(0), stride = BRDF_NUMBERS_STRIDE(spp);
+    philox4x32_ctr_t xi = rng_block(seed, frame, STREAM_BRDF, 0u, (uint)i, 0u);
+    float sine, cosine;
+    sincos_turn(rng_unit(xi.v[1]), &sine, &cosine);
+    out[i] = rng_unit(xi.v[0]);
+    out[stride + i] = rng_unit(xi.v[2]);
+    out[2 * stride + i] = sine;
+    out[3 * stride + i] = cosine;
+}
+
 /* Outputs in planes of n = get_global_size(0) floats: radiance R, G, B; counts used, effective
  * (in samples); evaluations per pixel. */
 __kernel void render_light_pool(__global const float4 *normal, __global const float4 *view,
@@ -34,7 +47,7 @@ __kernel void render_light_pool(__global const float4 *normal, __global const fl
                                 __global const cdf_word_t *conditional, __global const float *face_integral,
                                 __global const float *pool, const int res, const int pool_size, const int spp,
                                 const int shared_sequence, const uint seed, const uint frame,
-                                __global float *radiance, __global float *counts,
+                                __global const float *shared_numbers, __global float *radiance, __global float *counts,
                                 __global int *evaluations)
 {
     int p = get_global_id(0), n = get_global_size(0);
@@ -48,7 +61,8 @@ __kernel void render_light_pool(__global const float4 *normal, __global const fl
     lanes_sum_t acc = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lane_ints_t)0};
     shade_light_faces(&acc, &s, ticks, LU_BRDF_SAMPLES, pool, pool_size, offset);
 #if LU_BRDF_SAMPLES
-    shade_brdf(&acc, &s, ticks, env, marginal, conditional, res, seed, frame, shared_sequence ? 0u : (uint)p);
+    shade_brdf(&acc, &s, ticks, env, marginal, conditional, res, seed, frame, shared_sequence, (uint)p,
+               shared_numbers, BRDF_NUMBERS_STRIDE(spp));
 #endif
     radiance[p] = sum_of8(to8(acc.r));
     radiance[n + p] = sum_of8(to8(acc.g));
