@@ -78,7 +78,7 @@ class PoolEstimator(Estimator):
                               np.int32(pool.per_face), planes)]
         shared_brdf = self.brdf_samples and self.params.shared_sequence
         numbers_stride = 16 * (spp // 16 + 1)   # BRDF_NUMBERS_STRIDE (light_pool.cl)
-        numbers = compute.empty(4 * 4 * numbers_stride if shared_brdf else 4)
+        numbers = compute.empty(6 * 4 * numbers_stride if shared_brdf else 4)   # 6 planes (brdf_numbers)
         if shared_brdf:
             events.append(compute.run(self._kernel(compute, "brdf_numbers"), numbers_stride, np.uint32(seed),
                                       np.uint32(cache.frame), np.int32(spp), numbers))

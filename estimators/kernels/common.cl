@@ -272,7 +272,8 @@ inline float3 reflect_view(float3 n, float3 v) { return float3_of(vec3_reflect_v
  * The relative error grows as ln 2·|y|·ε with the float rounding ε of y = m·log2 c (1e-6 where
  * c^m ≥ 1e-3), as it does for exp2(m·log2 c) in float. */
 #define DEFINE_PHONG_POWER(name, floatn, intn)                                                    \
-ALWAYS_INLINE floatn name(floatn c, floatn m)                                                      \
+/* log2 c for c > 0 (the first half; a base shared by many exponents takes it once). */            \
+ALWAYS_INLINE floatn name##_log2(floatn c)                                                         \
 {                                                                                                  \
     intn denormal = c < (floatn)0x1p-126f;                                                         \
     intn bits = as_##intn(select(c, c * 0x1p24f, denormal));                                       \
@@ -284,7 +285,13 @@ ALWAYS_INLINE floatn name(floatn c, floatn m)                                   
     floatn s = (f - 1.0f) / (f + 1.0f), z = s * s;                                                 \
     floatn log2_f = s * (2.8853900817779268f + z * (0.9617966939259756f + z * (0.5770780163555853f \
                   + z * (0.4121985831111324f + z * 0.3205988979753252f))));                        \
-    floatn y = max(m * (convert_##floatn(e) + log2_f), (floatn)-127.0f);                           \
+    return convert_##floatn(e) + log2_f;                                                           \
+}                                                                                                  \
+                                                                                                   \
+/* c^m given log2_c = name##_log2(c) (the second half). */                                         \
+ALWAYS_INLINE floatn name##_of_log2(floatn c, floatn log2_c, floatn m)                             \
+{                                                                                                  \
+    floatn y = max(m * log2_c, (floatn)-127.0f);                                                   \
     floatn n = -convert_##floatn(convert_##intn(0.5f - y)), r = y - n; /* round(y), halves down */ \
     floatn exp2_r = 1.0f + r * (0.6931471805599453f + r * (0.2402265069591007f                     \
                   + r * (0.055504108664821576f + r * (0.009618129107628477f                        \
@@ -292,7 +299,9 @@ ALWAYS_INLINE floatn name(floatn c, floatn m)                                   
                   + r * 1.5252733804059838e-05f))))));                                             \
     floatn scale = as_##floatn((convert_##intn(n) + 127) << 23);       /* 2^n; 0 at n = −127 */    \
     return select((floatn)0.0f, exp2_r * scale, c > 0.0f);                                         \
-}
+}                                                                                                  \
+                                                                                                   \
+ALWAYS_INLINE floatn name(floatn c, floatn m) { return name##_of_log2(c, name##_log2(c), m); }
 
 /* The scalar form, and 8 and 16 lanes of it for code in explicit vectors (all selects, so the
  * one body serves every width; the lanes' results are bit-identical to the scalar one's). */

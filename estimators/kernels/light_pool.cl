@@ -164,6 +164,8 @@ typedef rng_block16_t lane_block_t;
 #define convert_lane_ints convert_int16
 #define convert_lane_longs convert_long16
 #define phong_power_lanes phong_power16
+#define phong_power_log2_lanes phong_power16_log2
+#define phong_power_of_log2_lanes phong_power16_of_log2
 #define phong_mixture_pdf_lanes phong_mixture_pdf16
 #define direction_in_lanes direction_about_axis16_in
 #define sincos_turn_lanes sincos_turn16
@@ -190,6 +192,8 @@ typedef rng_block8_t lane_block_t;
 #define convert_lane_ints convert_int8
 #define convert_lane_longs convert_long8
 #define phong_power_lanes phong_power8
+#define phong_power_log2_lanes phong_power8_log2
+#define phong_power_of_log2_lanes phong_power8_of_log2
 #define phong_mixture_pdf_lanes phong_mixture_pdf8
 #define direction_in_lanes direction_about_axis8_in
 #define sincos_turn_lanes sincos_turn8
@@ -319,9 +323,9 @@ ALWAYS_INLINE lanes_t lanes_light_pdf(__global const cdf_word_t *marginal,
 }
 
 /* The BRDF draws' numbers where every pixel draws the same ones (the shared sequence), as planes
- * of BRDF_NUMBERS_STRIDE(spp) floats (the brdf_numbers kernel): ξ_cos, ξ_lobe and the sine and
- * cosine of the azimuth 2π·ξ_azimuth of draw i (draw_numbers), so the pixels do not each
- * recompute them. */
+ * of BRDF_NUMBERS_STRIDE(spp) floats (the brdf_numbers kernel), so the pixels do not each
+ * recompute them: those of draw_numbers, and the parts of the polar cosine that do not depend on
+ * the pixel (√ξ_cos of the diffuse lobe, log2 ξ_cos of the specular lobe's ξ_cos^{1/(m+1)}). */
 #define BRDF_NUMBERS_STRIDE(spp) (16 * ((spp) / 16 + 1))
 
 /* Draw i's numbers: rng_block(seed, frame, STREAM_BRDF, stream_pixel, i, 0) as uniforms, the
@@ -360,22 +364,28 @@ ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ti
     direction_about_axis_basis(s->r, &t_r, &b_r);
     for (int i = 0; i < draws; i += POOL_LANES) {
         lane_ints_t draw = i + LANE_NUMBERS;
-        lanes_t xi_cos, xi_lobe, azimuth_sin, azimuth_cos;
+        lanes_t xi_cos, xi_lobe, azimuth_sin, azimuth_cos, sqrt_xi_cos, log2_xi_cos;
         if (shared_sequence) {
-            xi_cos = vload_lanes(0, shared_numbers + i);
-            xi_lobe = vload_lanes(0, shared_numbers + numbers_stride + i);
-            azimuth_sin = vload_lanes(0, shared_numbers + 2 * numbers_stride + i);
-            azimuth_cos = vload_lanes(0, shared_numbers + 3 * numbers_stride + i);
+            __global const float *numbers = shared_numbers + i;
+            xi_cos = vload_lanes(0, numbers);
+            xi_lobe = vload_lanes(0, numbers + numbers_stride);
+            azimuth_sin = vload_lanes(0, numbers + 2 * numbers_stride);
+            azimuth_cos = vload_lanes(0, numbers + 3 * numbers_stride);
+            sqrt_xi_cos = vload_lanes(0, numbers + 4 * numbers_stride);
+            log2_xi_cos = vload_lanes(0, numbers + 5 * numbers_stride);
         } else {
             draw_numbers(seed, frame, stream_pixel, draw, &xi_cos, &xi_lobe, &azimuth_sin, &azimuth_cos);
+            sqrt_xi_cos = sqrt(xi_cos);
+            log2_xi_cos = phong_power_log2_lanes(xi_cos);
         }
 #if SPECULAR_LOBE
         lane_ints_t specular = xi_lobe < s->p_spec;
-        lanes_t cos_theta = select(sqrt(xi_cos), phong_power_lanes(xi_cos, (lanes_t)(1.0f / (s->m + 1.0f))),
+        lanes_t cos_theta = select(sqrt_xi_cos, phong_power_of_log2_lanes(xi_cos, log2_xi_cos,
+                                                                          (lanes_t)(1.0f / (s->m + 1.0f))),
                                    specular);
 #else
         lane_ints_t specular = 0;
-        lanes_t cos_theta = sqrt(xi_cos);
+        lanes_t cos_theta = sqrt_xi_cos;
 #endif
         lanes3_t w = direction_in_lanes(lanes3_pick(specular, s->r, s->n), lanes3_pick(specular, t_r, t_n),
                                         lanes3_pick(specular, b_r, b_n), cos_theta, azimuth_sin, azimuth_cos);

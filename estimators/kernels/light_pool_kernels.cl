@@ -26,17 +26,20 @@ __kernel void pool_planes(__global const float4 *dir_pdf, __global const float4 
     planes[6 * stride + k] = c.z;
 }
 
-/* The shared BRDF numbers of draw i = get_global_id(0) (see BRDF_NUMBERS_STRIDE): scalar lanes. */
+/* The shared BRDF numbers of draw i = get_global_id(0) (see BRDF_NUMBERS_STRIDE), the scalar
+ * forms of what shade_brdf computes in lanes for the interleaved sequence. */
 __kernel void brdf_numbers(const uint seed, const uint frame, const int spp, __global float *out)
 {
     int i = get_global_id(0), stride = BRDF_NUMBERS_STRIDE(spp);
     philox4x32_ctr_t xi = rng_block(seed, frame, STREAM_BRDF, 0u, (uint)i, 0u);
-    float sine, cosine;
+    float xi_cos = rng_unit(xi.v[0]), sine, cosine;
     sincos_turn(rng_unit(xi.v[1]), &sine, &cosine);
-    out[i] = rng_unit(xi.v[0]);
+    out[i] = xi_cos;
     out[stride + i] = rng_unit(xi.v[2]);
     out[2 * stride + i] = sine;
     out[3 * stride + i] = cosine;
+    out[4 * stride + i] = sqrt(xi_cos);
+    out[5 * stride + i] = phong_power_log2(xi_cos);
 }
 
 /* Outputs in planes of n = get_global_size(0) floats: radiance R, G, B; counts used, effective
