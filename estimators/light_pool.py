@@ -76,10 +76,6 @@ class PoolEstimator(Estimator):
         planes = compute.empty(7 * plane * 4)
         events = [compute.run(self._kernel(compute, "pool_planes"), plane, pool.dir_pdf, pool.radiance,
                               np.int32(pool.per_face), planes)]
-        texel_p = compute.empty(4 * 6 * cache.res ** 2 if self.brdf_samples else 4)
-        if self.brdf_samples:
-            events.append(compute.run(self._kernel(compute, "texel_probabilities"), 6 * cache.res ** 2,
-                                      cache.marginal, cache.conditional, np.int32(cache.res), texel_p))
         shared_brdf = self.brdf_samples and self.params.shared_sequence
         numbers_stride = 16 * (spp // 16 + 1)   # BRDF_NUMBERS_STRIDE (light_pool.cl)
         numbers = compute.empty(6 * 4 * numbers_stride if shared_brdf else 4)   # 6 planes (brdf_numbers)
@@ -92,7 +88,7 @@ class PoolEstimator(Estimator):
         evaluations = compute.empty(gbuffer.count * 4)
         event = compute.run(
             kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-            cache.env_buffer, texel_p, cache.face_integral_buffer,
+            cache.env_buffer, cache.marginal, cache.conditional, cache.face_integral_buffer,
             planes, np.int32(cache.res), np.int32(pool.per_face),
             np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),
             np.uint32(cache.frame), numbers, radiance, counts, evaluations)

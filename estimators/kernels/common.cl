@@ -221,14 +221,6 @@ inline float sample_face(__global const cdf_word_t *marginal,
     return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(x, y) / texel_area;
 }
 
-/* P(texel | face) of the fixed-point CDFs: its row's marginal bin times its column's conditional
- * bin (each exact to float rounding), the one float expression every light pdf lookup uses. */
-inline float texel_probability(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                               int res, int face, int row, int col)
-{
-    return cdf_bin(marginal + face * res, row) * cdf_bin(conditional + (face * res + row) * res, col);
-}
-
 /* pdf_L(ω|f) of sample_face for the face f that holds ω (it is zero on every other face);
  * *face and *texel get the face and the texel that hold ω. */
 ALWAYS_INLINE float light_pdf_on_face(__global const cdf_word_t *marginal,
@@ -238,7 +230,8 @@ ALWAYS_INLINE float light_pdf_on_face(__global const cdf_word_t *marginal,
     float s, t;
     int f = cube_face_st(w, &s, &t);
     int row = clamp_index(t, res), col = clamp_index(s, res);
-    float p_texel = texel_probability(marginal, conditional, res, f, row, col);
+    float p_texel = cdf_bin(marginal + f * res, row)
+                  * cdf_bin(conditional + (f * res + row) * res, col);
     *face = f;
     *texel = texel_index(f, row, col, res);
     return p_texel * area_per_solid_angle(2.0f * s - 1.0f, 2.0f * t - 1.0f) * (float)(res * res) / 4.0f;

@@ -153,6 +153,8 @@ inline void drawn_counts(const int ticks[7], int pool_size, int *used, int *draw
 #if POOL_LANES == 16
 typedef float16 lanes_t;
 typedef int16 lane_ints_t;
+typedef long16 lane_longs_t;
+typedef ulong16 lane_words_t;
 typedef uint16 lane_uints_t;
 typedef vec3x16_t lanes3_t;
 typedef rng_block16_t lane_block_t;
@@ -160,6 +162,7 @@ typedef rng_block16_t lane_block_t;
 #define vload_lanes vload16
 #define convert_lanes convert_float16
 #define convert_lane_ints convert_int16
+#define convert_lane_longs convert_long16
 #define phong_power_lanes phong_power16
 #define phong_power_log2_lanes phong_power16_log2
 #define phong_power_of_log2_lanes phong_power16_of_log2
@@ -178,6 +181,8 @@ typedef rng_block16_t lane_block_t;
 #else
 typedef float8 lanes_t;
 typedef int8 lane_ints_t;
+typedef long8 lane_longs_t;
+typedef ulong8 lane_words_t;
 typedef uint8 lane_uints_t;
 typedef vec3x8_t lanes3_t;
 typedef rng_block8_t lane_block_t;
@@ -185,6 +190,7 @@ typedef rng_block8_t lane_block_t;
 #define vload_lanes vload8
 #define convert_lanes convert_float8
 #define convert_lane_ints convert_int8
+#define convert_lane_longs convert_long8
 #define phong_power_lanes phong_power8
 #define phong_power_log2_lanes phong_power8_log2
 #define phong_power_of_log2_lanes phong_power8_of_log2
@@ -288,23 +294,32 @@ ALWAYS_INLINE void shade_light_faces(lanes_sum_t *acc, const shading_t *s, const
     }
 }
 
-/* light_pdf_on_face of common.cl for the lanes' directions, the same arithmetic, with each
- * texel's probability gathered from `texel_p` (texel_probability of every texel, from the
- * texel_probabilities kernel: the very floats light_pdf_on_face computes, with no 64-bit CDF
- * words in the sample loop); *face and *texel get the face and the texel of each. */
-ALWAYS_INLINE lanes_t lanes_light_pdf(__global const float *texel_p, int res, lanes3_t w,
+/* cdf_bin of common.cl for the bins base + i of the lanes. */
+ALWAYS_INLINE lanes_t lanes_cdf_bin(__global const cdf_word_t *cdf, lane_ints_t base, lane_ints_t i)
+{
+    lane_words_t upper = GATHER(lane_words_t, cdf, base + i);
+    lane_words_t lower = GATHER(lane_words_t, cdf, base + max(i - 1, 0));
+    lower = select((lane_words_t)0, lower, convert_lane_longs(i > 0));
+    return convert_lanes(upper - lower) * 0x1p-63f;
+}
+
+/* light_pdf_on_face of common.cl for the lanes' directions, the same arithmetic; *face and
+ * *texel get the face and the texel of each. */
+ALWAYS_INLINE lanes_t lanes_light_pdf(__global const cdf_word_t *marginal,
+                                      __global const cdf_word_t *conditional, int res, lanes3_t w,
                                       lane_ints_t *face, lane_ints_t *texel)
 {
     lanes_t s, t;
     lane_ints_t f = cube_face_st_lanes(w, &s, &t);
     lane_ints_t row = clamp(convert_lane_ints(floor(t * (float)res)), 0, res - 1);
     lane_ints_t col = clamp(convert_lane_ints(floor(s * (float)res)), 0, res - 1);
-    *face = f;
-    *texel = (f * res + row) * res + col;
+    lanes_t p_texel = lanes_cdf_bin(marginal, f * res, row) * lanes_cdf_bin(conditional, (f * res + row) * res, col);
     lanes_t u = 2.0f * s - 1.0f, v = 2.0f * t - 1.0f;
     lanes_t q = 1.0f + u * u + v * v;
     lanes_t area = q * sqrt(q);   /* area_per_solid_angle */
-    return GATHER(lanes_t, texel_p, *texel) * area * (float)(res * res) / 4.0f;
+    *face = f;
+    *texel = (f * res + row) * res + col;
+    return p_texel * area * (float)(res * res) / 4.0f;
 }
 
 /* The BRDF draws' numbers where every pixel draws the same ones (the shared sequence), as planes
@@ -337,7 +352,8 @@ ALWAYS_INLINE lanes3_t lanes3_pick(lane_ints_t pick, vec3_t a, vec3_t b)
  * (read from `shared_numbers` for the shared sequence), its direction sample_phong_direction's
  * arithmetic, with the bases about n and r computed once per pixel. */
 ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ticks[7],
-                              __global const float4 *env, __global const float *texel_p, int res, uint seed,
+                              __global const float4 *env, __global const cdf_word_t *marginal,
+                              __global const cdf_word_t *conditional, int res, uint seed,
                               uint frame, int shared_sequence, uint stream_pixel,
                               __global const float *shared_numbers, int numbers_stride)
 {
@@ -377,7 +393,7 @@ ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ti
         lanes_t cosine = lanes_dot(s->n, w);
         lanes_t pdf_brdf = phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
         lane_ints_t face, texel;
-        lanes_t pdf_light = lanes_light_pdf(texel_p, res, w, &face, &texel);
+        lanes_t pdf_light = lanes_light_pdf(marginal, conditional, res, w, &face, &texel);
         lane_ints_t face_ticks = ticks[0];
         #pragma unroll
         for (int k = 1; k < 6; ++k) face_ticks = select(face_ticks, (lane_ints_t)ticks[k], face == k);

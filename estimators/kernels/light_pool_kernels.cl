@@ -26,14 +26,6 @@ __kernel void pool_planes(__global const float4 *dir_pdf, __global const float4 
     planes[6 * stride + k] = c.z;
 }
 
-/* texel_probability of every texel (6·res² floats in texel order), for lanes_light_pdf. */
-__kernel void texel_probabilities(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                                  const int res, __global float *out)
-{
-    int texel = get_global_id(0), face = texel / (res * res), row = texel / res - face * res;
-    out[texel] = texel_probability(marginal, conditional, res, face, row, texel - (face * res + row) * res);
-}
-
 /* The shared BRDF numbers of draw i = get_global_id(0) (see BRDF_NUMBERS_STRIDE), the scalar
  * forms of what shade_brdf computes in lanes for the interleaved sequence. */
 __kernel void brdf_numbers(const uint seed, const uint frame, const int spp, __global float *out)
@@ -54,8 +46,8 @@ __kernel void brdf_numbers(const uint seed, const uint frame, const int spp, __g
  * (in samples); evaluations per pixel. */
 __kernel void render_light_pool(__global const float4 *normal, __global const float4 *view,
                                 __global const float4 *kd, __global const float4 *ks_m,
-                                __global const float4 *env, __global const float *texel_p,
-                                __global const float *face_integral,
+                                __global const float4 *env, __global const cdf_word_t *marginal,
+                                __global const cdf_word_t *conditional, __global const float *face_integral,
                                 __global const float *pool, const int res, const int pool_size, const int spp,
                                 const int shared_sequence, const uint seed, const uint frame,
                                 __global const float *shared_numbers, __global float *radiance, __global float *counts,
@@ -72,7 +64,7 @@ __kernel void render_light_pool(__global const float4 *normal, __global const fl
     lanes_sum_t acc = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lane_ints_t)0};
     shade_light_faces(&acc, &s, ticks, LU_BRDF_SAMPLES, pool, pool_size, offset);
 #if LU_BRDF_SAMPLES
-    shade_brdf(&acc, &s, ticks, env, texel_p, res, seed, frame, shared_sequence, (uint)p,
+    shade_brdf(&acc, &s, ticks, env, marginal, conditional, res, seed, frame, shared_sequence, (uint)p,
                shared_numbers, BRDF_NUMBERS_STRIDE(spp));
 #endif
     radiance[p] = sum_of8(to8(acc.r));
