@@ -7,6 +7,11 @@ lit face, drawn on the device from the face's CDFs.  Its 2-D points are a fixed 
 entry is an unbiased sample of pdf_L(ω|f).  A random fixed sequence, not Hammersley: the
 estimator reads a *prefix* of N_f(n) ≤ pool size points, and a Hammersley set's prefix covers
 only the first N_f/size of the unit square, while any prefix of a random sequence is random.
+
+A render's sample stage is the pool's build plus two small launches: ``pool_planes`` lays the
+pool out as planes for the kernel's vector loads, and ``brdf_numbers`` (``balanced_mis``, shared
+sequence) computes the BRDF draws' random numbers once for all pixels.  They change no sample: the
+same pool entries and the same Philox numbers reach the same arithmetic (``tests/test_lane_forms``).
 """
 from __future__ import annotations
 

@@ -2,8 +2,10 @@
  * includes this one:
  *   LU_BALANCED_FACES  0: μ_f = 1/6 (Sec. 2.1);  1: μ_f(n) of Eq. 3
  *   LU_BRDF_SAMPLES    0: light samples only (Eq. 4);  1: half the budget to BRDF samples (Eq. 6)
- * `render_light_pool` shades one pixel per work item; `pooled_directions`/`pooled_direction_pdf`
- * are the χ² hooks; `split_strategies` exposes the per-normal split for tests. */
+ * `render_light_pool` shades one pixel per work item, its samples in explicit vectors of
+ * POOL_LANES (light_pool.cl), from the pool laid out by `pool_planes` and, for BRDF samples of the
+ * shared sequence, the numbers of `brdf_numbers`; `pooled_directions`/`pooled_direction_pdf` are
+ * the χ² hooks; `split_strategies` exposes the per-normal split for tests. */
 #include "light_pool.cl"
 
 /* The pool as planes for shade_light_faces: work item k writes entry k of the planes x, y, z,
