@@ -7,6 +7,11 @@ lit face, drawn on the device from the face's CDFs.  Its 2-D points are a fixed 
 entry is an unbiased sample of pdf_L(ω|f).  A random fixed sequence, not Hammersley: the
 estimator reads a *prefix* of N_f(n) ≤ pool size points, and a Hammersley set's prefix covers
 only the first N_f/size of the unit square, while any prefix of a random sequence is random.
+
+A render's sample stage is the pool's build plus two small launches: ``pool_planes`` lays the
+pool out as planes for the kernel's vector loads, and ``brdf_numbers`` (``balanced_mis``, shared
+sequence) computes the BRDF draws' random numbers once for all pixels.  They change no sample: the
+same pool entries and the same Philox numbers reach the same arithmetic (``tests/test_lane_forms``).
 """
 from __future__ import annotations
 
@@ -45,6 +50,7 @@ class PoolEstimator(Estimator):
     Params = PoolParams
     tags = Tags(unbiased=True, has_pdf=True)
     requires = ("cdf", "pool")
+    brdf_samples = False   # True where the kernel file sets LU_BRDF_SAMPLES (Eq. 6)
 
     @staticmethod
     def pool_size(spp: int) -> int:
@@ -71,6 +77,16 @@ class PoolEstimator(Estimator):
             raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
         compute = cache.compute
         pool = cache.light_pool(self.pool_size(spp), seed)
+        plane = 12 * pool.per_face + 16   # POOL_PLANE_STRIDE (light_pool.cl)
+        planes = compute.empty(7 * plane * 4)
+        events = [compute.run(self._kernel(compute, "pool_planes"), plane, pool.dir_pdf, pool.radiance,
+                              np.int32(pool.per_face), planes)]
+        shared_brdf = self.brdf_samples and self.params.shared_sequence
+        numbers_stride = 16 * (spp // 16 + 1)   # BRDF_NUMBERS_STRIDE (light_pool.cl)
+        numbers = compute.empty(6 * 4 * numbers_stride if shared_brdf else 4)   # 6 planes (brdf_numbers)
+        if shared_brdf:
+            events.append(compute.run(self._kernel(compute, "brdf_numbers"), numbers_stride, np.uint32(seed),
+                                      np.uint32(cache.frame), np.int32(spp), numbers))
         kernel = self._kernel(compute, "render_light_pool", gbuffer)
         radiance = compute.empty(gbuffer.count * 12)   # planes R, G, B (light_pool_kernels.cl)
         counts = compute.empty(gbuffer.count * 8)      # planes used, effective
@@ -78,12 +94,12 @@ class PoolEstimator(Estimator):
         event = compute.run(
             kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
             cache.env_buffer, cache.marginal, cache.conditional, cache.face_integral_buffer,
-            pool.dir_pdf, pool.radiance, np.int32(cache.res), np.int32(pool.per_face),
+            planes, np.int32(cache.res), np.int32(pool.per_face),
             np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),
-            np.uint32(cache.frame), radiance, counts, evaluations)
+            np.uint32(cache.frame), numbers, radiance, counts, evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean()
         return read_estimate(compute, gbuffer, radiance, counts, mean_evaluations,
-                             {"sample": pool.build_ms, "shade": event_ms(event)}, planar=True)
+                             {"sample": pool.build_ms + sum(map(event_ms, events)), "shade": event_ms(event)}, planar=True)
 
     # ---- χ² hooks and the per-normal split ---------------------------------------------------
 
