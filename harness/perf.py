@@ -12,7 +12,9 @@ device stage (OpenCL profiling events, DESIGN §3 "Timing"):
   copy-bandwidth bound: the bytes it must move, a float4 texel read and a 64-bit CDF word
   written per texel (24 B), over the measured copy bandwidth;
 - ``sample`` and ``shade``: ``Estimate.timings_ms`` (the pool estimators' ``sample`` is the
-  draw of the light-sample pool; ``havran``'s is its host-built light set);
+  draw of the light-sample pool and its layout as planes, with ``balanced_mis``'s shared BRDF
+  numbers; ``havran``'s is its map's CDFs built on the device plus the host time of its K
+  lights and their filter);
 - the rates divide by the render's device time, sample + shade (build does not scale with spp
   and is reported beside them).
 
@@ -31,37 +33,70 @@ and its roofline fraction is achieved / attainable with attainable = min(peak FL
 intensity × peak bandwidth), i.e. max(gflops / peak_gflops, gbytes_per_s / peak_gbps).
 
 FLOP and byte counts (``KERNEL_COSTS``) are estimates, counted by reading the kernels as they
-are on main, rounded, good to perhaps ±30%.  FLOPs: an add, multiply, divide, sqrt, min/max is
-one, an FMA two; exp2, log2, sin, cos, pow count one each although each costs tens of cycles on
-a CPU without vector math (so kernels dominated by them show low fractions); integer work
-(Philox, CDF binary search, indexing) is not counted.  Bytes: the roofline's DRAM traffic, i.e.
-what each pixel must move (its four G-buffer float4s in, its outputs out, and smc's per-particle
-state), with the map, CDFs, light pool and light set taken as cache-resident: they are shared
-by every pixel, and at the default env 64 they fit in the last-level cache (6·64²·(16 + 8) B ≈
-0.6 MB); at large faces the random texel and CDF reads of balanced_mis, bis and smc also reach
-DRAM and the byte counts are lower bounds.  Per sample, at spp samples and E evaluations per
-pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``bytes_per_sample`` = B_s + B_p/spp.
+are as of this revision (``estimators/*.cl``, ``estimators/kernels/*.cl``), rounded, good to
+perhaps ±30%; they must be re-derived whenever a shading kernel changes (nothing checks them
+against the kernels; ``tests/test_perf.py`` only holds the table below and ``KERNEL_COSTS`` to
+each other).  FLOPs, counted per work item as the source reads after the compiler's exact
+simplifications:
+- an add, subtract, multiply, divide, sqrt, min, max, floor or ceil is one, a·b + c two (fused
+  or not); compares, selects, sign flips, fabs, int ↔ float conversions and all integer work
+  (Philox, CDF searches, indexing, tick arithmetic) are not counted;
+- the polynomial steps count their real FLOPs (no library exp2, log2, sin or cos is left on a
+  hot path): ``phong_power`` c^m = 35 (its log2 half, the atanh series, 16; its exp2 half, a
+  Taylor polynomial to r⁷ over the float's bits, 19), ``sincos_turn`` 24, a direction about an
+  axis 68 (its basis 13, sincos_turn, the rest 31), ``phong_mixture_pdf`` 5, a cube-map texel
+  lookup 10, ``light_pdf_on_face`` 26, ``sample_face``'s point and pdf 38;
+- a factor that is the same for every sample of a pixel (kd/π, (m+2)/2π, 1/(m+1), Y(kd), the
+  bases about n and r) counts once per pixel, as the compiler hoists it; a common subexpression
+  once; products by constant ±1, 0 or 1 (a corner of Eq. 3, a proposal with env_pick = 0)
+  nothing, as they fold.
+Evaluations are Estimate.evaluations, the useful ones: the pool kernels run their draws in
+blocks of 16 lanes and a strategy's last block is masked (uniform at spp 64: 6 × 16 lanes for 66
+draws), and bis/smc pad their pixels to whole groups; the masked lanes are not counted, so a
+fraction is one of useful work.
+Bytes: the roofline's DRAM traffic, i.e. what each pixel must move (its four G-buffer float4s in,
+64 B, its outputs out, and smc's particles), with the map, CDFs, face integrals, light pool,
+shared BRDF numbers and light set taken as cache-resident: they are shared by every pixel, and at
+the default env 64 they fit in the last-level cache (6·64²·(16 + 8) B ≈ 0.6 MB); so are bis's
+and smc's per-group scratch blocks (64 pixels × (M + N) words, 86 KB at spp 16), reused within
+the group's launch.  At large faces the random texel and CDF reads of balanced_mis, bis and smc
+also reach DRAM and the byte counts are lower bounds.  Per sample, at spp samples and E
+evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``bytes_per_sample``
+= B_s + B_p/spp.  The rows, F_e per evaluation, F_s / B_s per sample, F_p / B_p per pixel:
 
-    estimator     F_e per evaluation              F_s / B_s per sample  F_p / B_p per pixel
-    uniform        39 (cos 5, Phong 20: dot, (m+2)/2π, log2, exp2, kd/π + ks·lobe;
-                      ×cos·L 6, β/D·value + sum 7, D 1)     0 / 0       60 / 116 (surface 34,
-                      split 24; 4 G-buffer float4s in, 6 face integrals, 28 B out)
-    balanced       39                                        0 / 0      240 / 116 (+ F_f(n) of
-                      Eq. 3: 6 faces × 4 corners × 7, ×I_f)
-    balanced_mis  108 (mean of a light draw, 64: + phong_pdf 23 for Eq. 6's denominator, and
-                      a BRDF draw, 151: sample_phong ≈ 55, phong_pdf 23, light_pdf ≈ 30,
-                      add_sample 39)                         0 / 0      250 / 116
-    havran         29 (a light above the horizon: Phong 20, ×W·cos 6, sum 3)
-                                                             5 / 0       12 / 92  (every light:
-                      n·ω, culled or not; no face integrals)
-    bis           286 (per candidate ≈ 300: sample_phong + pdf ≈ 80, env lookup 14, γ = L_Y ρ_Y
-                      cos ≈ 25, γ/q, Kahan sum; regenerated in the resampling pass, + f/γ ≈ 46
-                      there; × M/(M+N) = 20/21)              6 / 0       40 / 88
-    smc           381 (the BIS init of sir.cl with ½ map candidates: + light_pdf ≈ 30 per pass,
-                      + the candidate ratio f/γ ≈ 46; ≈ 400 per candidate, × 20/21)
-                                                            10 / 56     100 / 136 (particle and
-                      γ written at the init, read and γ rewritten after; state, estimate,
-                      stats out)
+    estimator      F_e   F_s / B_s   F_p / B_p
+    uniform         65     0 / 0      88 / 88
+        a light sample: lobe power 41 (r·ω 5, max, phong_power 35), n·ω 5, D = t_f·pdf 1,
+        add_samples 18 (β/D·cos 2, lobe 1, 3 × (kd/π + ks·lobe 2, ×L, ×weight, +=)); per pixel:
+        shading 24 (reflection 12, Y(kd), Y(ks) 10, lobe choice 2), the face split 12 (μ_f = 1/6
+        folds), hoisted factors 5, the 16-lane sums out 47; bytes: 64 in, 24 out (radiance,
+        used, effective, evaluations)
+    balanced        65     0 / 0     214 / 88
+        uniform's samples; per pixel + F_f(n)·I_f of Eq. 3, 6 faces × 18 (4 corners × 4: n·c
+        with c = (±1, ±1, ±1) folds to 2 adds), and the split of split_ticks over weights 30
+    balanced_mis   110     0 / 0     246 / 88
+        the mean of a light sample, 72 (+ t_6·phong_mixture_pdf 7 in D), and a BRDF sample of
+        the shared sequence, 148 (cos θ from the shared log2 ξ: exp2 half 19; direction 31 in
+        the per-pixel bases; lobe power 41; n·ω 5; mixture pdf 5; light_pdf 26; D 3;
+        add_samples 18); per pixel balanced's 214 + the bases about n and r 26 + pdf factors 6
+    havran          57     5 / 0      17 / 92
+        a light above the horizon: lobe power 41, phong_value 7, ×W, ×cos 6, sum 3; per light
+        n·ω 5, culled or not; per pixel the reflection 12 and hoisted factors 5; bytes: 64 in,
+        radiance float4, counts float2 and evaluations out
+    bis            197     0 / 0      56 / 88
+        a candidate of the BRDF mixture, 197: uniforms 3, sample_phong_direction 104 (both
+        polar cosines, ξ^{1/(m+1)} 35 and √ξ, the direction 68), lobe power 41, q 10, γ = L_Y ρ_Y
+        cos 20 (texel lookup 10, Y(L) 5, ρ_Y 3, products 2), γ/q 1, and the Kahan sums and
+        systematic positions of the two passes over the stored weights 17; a resampled one,
+        regenerated, 195: the same 179 + f/γ 13 + its sums 3; per pixel shading 24, hoisted
+        factors 22, stratified pick, resampling and output 10
+    smc            274     1 / 24     60 / 136
+        the first frame's smc_init (BIS with M = 20 N, half the candidates from the map): a
+        candidate 275 = bis's 197 + the map proposal's sample_face 38 and stratum 2, q's
+        light_pdf term 30 (its texel lookup shared with γ's, −10) and the candidate ratio
+        w·f/γ 19; a resampled one 255; per sample the effective count 1 and the particle (ω, W)
+        and gammas written, 24 B; per pixel bis's factors + the estimate 60; bytes: 64 in,
+        state, carried estimate, radiance, counts and stats out
 
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
@@ -128,12 +163,12 @@ class KernelCost:
 
 
 KERNEL_COSTS = {
-    "uniform": KernelCost(39, 0, 0, 60, 116),
-    "balanced": KernelCost(39, 0, 0, 240, 116),
-    "balanced_mis": KernelCost(108, 0, 0, 250, 116),
-    "havran": KernelCost(29, 5, 0, 12, 92),
-    "bis": KernelCost(286, 6, 0, 40, 88),
-    "smc": KernelCost(381, 10, 56, 100, 136),
+    "uniform": KernelCost(65, 0, 0, 88, 88),
+    "balanced": KernelCost(65, 0, 0, 214, 88),
+    "balanced_mis": KernelCost(110, 0, 0, 246, 88),
+    "havran": KernelCost(57, 5, 0, 17, 92),
+    "bis": KernelCost(197, 0, 0, 56, 88),
+    "smc": KernelCost(274, 1, 24, 60, 136),
 }
 
 # Every column of perf.csv, in order, with what it means (the --help epilog and perf.html).
@@ -151,8 +186,8 @@ COLUMNS = {
     "cdf_ms": "device ms of the CDF build alone (part of build_ms; NaN: not required), median",
     "cdf_bound_ms": "the CDF build's copy-bandwidth bound: 6·R²·24 B (texels read, CDF words "
                     "written) / peak_gbps",
-    "sample_ms": "device ms of the sample stage (pool draw; havran: host light set; 0: none), "
-                 "median",
+    "sample_ms": "device ms of the sample stage (pool draw; havran: map build on the device "
+                 "+ host ms of the light set; 0: none), median",
     "sample_ms_min": "its minimum",
     "sample_ms_iqr": "its interquartile range",
     "shade_ms": "device ms of the shading kernel, median (the floor: host wall ms)",

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import subprocess
 import sys
 
@@ -116,6 +117,17 @@ def test_roofline_fraction_is_the_binding_roof():
     assert roof.fraction(10.0, 1.0) == pytest.approx(0.1)      # compute-bound share
     assert roof.fraction(1.0, 10.0) == pytest.approx(0.5)      # memory-bound share
     assert roof.bound(10.0) == "compute" and roof.bound(1.0) == "memory"
+
+
+def test_cost_table_of_the_docstring_is_kernel_costs():
+    """The docstring's table (F_e, F_s / B_s, F_p / B_p, where the counts are derived) and
+    KERNEL_COSTS agree, with a row for every registered estimator."""
+    rows = re.findall(r"^    (\w+) +(\d+) +(\d+) / (\d+) +(\d+) / (\d+)$", perf.__doc__, re.M)
+    table = {name: tuple(map(float, numbers)) for name, *numbers in rows}
+    assert table == {name: (c.flops_per_eval, c.flops_per_sample, c.bytes_per_sample,
+                            c.flops_per_pixel, c.bytes_per_pixel)
+                     for name, c in perf.KERNEL_COSTS.items()}
+    assert set(table) == set(estimator_names())
 
 
 # ---- the command ---------------------------------------------------------------------------------
