@@ -34,6 +34,7 @@ class BalancedMIS(PoolEstimator):
 
     name = "balanced_mis"
     kernel_files = ("balanced_mis.cl",)
+    brdf_samples = True
 
     def defines(self, gbuffer=None) -> dict:
         return specular_lobe_defines(gbuffer)

@@ -45,6 +45,7 @@ class PoolEstimator(Estimator):
     Params = PoolParams
     tags = Tags(unbiased=True, has_pdf=True)
     requires = ("cdf", "pool")
+    brdf_samples = False   # True where the kernel file sets LU_BRDF_SAMPLES (Eq. 6)
 
     @staticmethod
     def pool_size(spp: int) -> int:
@@ -71,6 +72,16 @@ class PoolEstimator(Estimator):
             raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
         compute = cache.compute
         pool = cache.light_pool(self.pool_size(spp), seed)
+        plane = 12 * pool.per_face + 16   # POOL_PLANE_STRIDE (light_pool.cl)
+        planes = compute.empty(7 * plane * 4)
+        events = [compute.run(self._kernel(compute, "pool_planes"), plane, pool.dir_pdf, pool.radiance,
+                              np.int32(pool.per_face), planes)]
+        shared_brdf = self.brdf_samples and self.params.shared_sequence
+        numbers_stride = 16 * (spp // 16 + 1)   # BRDF_NUMBERS_STRIDE (light_pool.cl)
+        numbers = compute.empty(6 * 4 * numbers_stride if shared_brdf else 4)   # 6 planes (brdf_numbers)
+        if shared_brdf:
+            events.append(compute.run(self._kernel(compute, "brdf_numbers"), numbers_stride, np.uint32(seed),
+                                      np.uint32(cache.frame), np.int32(spp), numbers))
         kernel = self._kernel(compute, "render_light_pool", gbuffer)
         radiance = compute.empty(gbuffer.count * 12)   # planes R, G, B (light_pool_kernels.cl)
         counts = compute.empty(gbuffer.count * 8)      # planes used, effective
@@ -78,12 +89,12 @@ class PoolEstimator(Estimator):
         event = compute.run(
             kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
             cache.env_buffer, cache.marginal, cache.conditional, cache.face_integral_buffer,
-            pool.dir_pdf, pool.radiance, np.int32(cache.res), np.int32(pool.per_face),
+            planes, np.int32(cache.res), np.int32(pool.per_face),
             np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),
-            np.uint32(cache.frame), radiance, counts, evaluations)
+            np.uint32(cache.frame), numbers, radiance, counts, evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean()
         return read_estimate(compute, gbuffer, radiance, counts, mean_evaluations,
-                             {"sample": pool.build_ms, "shade": event_ms(event)}, planar=True)
+                             {"sample": pool.build_ms + sum(map(event_ms, events)), "shade": event_ms(event)}, planar=True)
 
     # ---- χ² hooks and the per-normal split ---------------------------------------------------
 

@@ -232,4 +232,5 @@ def test_pool_is_a_timed_frame_cache_product_built_on_demand(h):
     gbuffer = DeviceGBuffer(h.compute, glossy_gbuffer())
     est = registry.make_estimator("balanced").render(gbuffer, cache, 8, 0)
     assert "pool" in cache.built and cache.timings_ms["pool"] >= 0
-    assert est.timings_ms["sample"] == cache.light_pool(9, 0).build_ms   # N_s + 1 per face
+    # N_s + 1 per face; the sample stage also lays the pool out as planes (pool_planes)
+    assert est.timings_ms["sample"] > cache.light_pool(9, 0).build_ms

@@ -86,6 +86,22 @@ ALWAYS_INLINE vec3_t vec3_mul(vec3_t a, vec3_t b) { return vec3(a.x * b.x, a.y *
 ALWAYS_INLINE vec3_t vec3_add(vec3_t a, vec3_t b) { return vec3(a.x + b.x, a.y + b.y, a.z + b.z); }
 ALWAYS_INLINE vec3_t vec3_normalize(vec3_t a) { return vec3_scale(a, 1.0f / sqrt(vec3_dot(a, a))); }
 
+/* 3-vectors of 8 and 16 lanes, for code in explicit vectors (one direction per lane). */
+typedef struct { float8 x, y, z; } vec3x8_t;
+typedef struct { float16 x, y, z; } vec3x16_t;
+
+ALWAYS_INLINE vec3x8_t vec3x8(float8 x, float8 y, float8 z)
+{
+    vec3x8_t v = {x, y, z};
+    return v;
+}
+
+ALWAYS_INLINE vec3x16_t vec3x16(float16 x, float16 y, float16 z)
+{
+    vec3x16_t v = {x, y, z};
+    return v;
+}
+
 ALWAYS_INLINE float vec3_luminance(vec3_t c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
 inline float luminance(float3 c) { return vec3_luminance(vec3_of(c)); }
 
@@ -93,19 +109,26 @@ inline float luminance(float3 c) { return vec3_luminance(vec3_of(c)); }
 
 /* Direction -> face and (s, t) in [0, 1] by the OpenGL table; ties go to x, then y.  Selects,
  * no branches, so it vectorises. */
-ALWAYS_INLINE int cube_face_st(vec3_t d, float *s, float *t)
-{
-    float ax = fabs(d.x), ay = fabs(d.y), az = fabs(d.z);
-    int x_major = ax >= ay && ax >= az, y_major = !x_major && ay >= az;
-    int positive = (x_major ? d.x : y_major ? d.y : d.z) >= 0.0f;
-    int face = (x_major ? 0 : y_major ? 2 : 4) + !positive;
-    float ma = x_major ? ax : y_major ? ay : az;
-    float sc = x_major ? (positive ? -d.z : d.z) : y_major ? d.x : (positive ? d.x : -d.x);
-    float tc = y_major ? (positive ? d.z : -d.z) : -d.y;
-    *s = (sc / ma + 1.0f) * 0.5f;
-    *t = (tc / ma + 1.0f) * 0.5f;
-    return face;
+#define DEFINE_CUBE_FACE_ST(name, floatn, intn, vecn)                                              \
+ALWAYS_INLINE intn name(vecn d, floatn *s, floatn *t)                                              \
+{                                                                                                  \
+    floatn ax = fabs(d.x), ay = fabs(d.y), az = fabs(d.z);                                         \
+    intn x_major = (ax >= ay) & (ax >= az), y_major = !x_major & (ay >= az);                       \
+    intn positive = select(select(d.z, d.y, y_major), d.x, x_major) >= 0.0f;                       \
+    intn face = select(select((intn)4, (intn)2, y_major), (intn)0, x_major)                        \
+              + select((intn)1, (intn)0, positive);                                                \
+    floatn ma = select(select(az, ay, y_major), ax, x_major);                                      \
+    floatn sc = select(select(select(-d.x, d.x, positive), d.x, y_major),                          \
+                       select(d.z, -d.z, positive), x_major);                                      \
+    floatn tc = select(-d.y, select(-d.z, d.z, positive), y_major);                                \
+    *s = (sc / ma + 1.0f) * 0.5f;                                                                  \
+    *t = (tc / ma + 1.0f) * 0.5f;                                                                  \
+    return face;                                                                                   \
 }
+
+DEFINE_CUBE_FACE_ST(cube_face_st, float, int, vec3_t)
+DEFINE_CUBE_FACE_ST(cube_face_st8, float8, int8, vec3x8_t)
+DEFINE_CUBE_FACE_ST(cube_face_st16, float16, int16, vec3x16_t)
 
 inline int dir_to_face_st(float3 d, float *s, float *t) { return cube_face_st(vec3_of(d), s, t); }
 
@@ -248,26 +271,43 @@ inline float3 reflect_view(float3 n, float3 v) { return float3_of(vec3_reflect_v
  * (measured 1.5e-5; float exp2(m·log2 c) with libm's functions: 1.1e-5), absolute ≤ 2^-120 below.
  * The relative error grows as ln 2·|y|·ε with the float rounding ε of y = m·log2 c (1e-6 where
  * c^m ≥ 1e-3), as it does for exp2(m·log2 c) in float. */
-ALWAYS_INLINE float phong_power(float c, float m)
-{
-    int denormal = c < 0x1p-126f;
-    int bits = as_int(denormal ? c * 0x1p24f : c);
-    float f = as_float((bits & 0x007fffff) | 0x3f800000);          /* mantissa in [1, 2) */
-    int above = f > 1.41421356f;
-    f = above ? 0.5f * f : f;
-    int e = (bits >> 23) - 127 + above - (denormal ? 24 : 0);
-    float s = (f - 1.0f) / (f + 1.0f), z = s * s;
-    float log2_f = s * (2.8853900817779268f + z * (0.9617966939259756f + z * (0.5770780163555853f
-                 + z * (0.4121985831111324f + z * 0.3205988979753252f))));
-    float y = max(m * ((float)e + log2_f), -127.0f);
-    float n = -(float)(int)(0.5f - y), r = y - n;   /* n = round(y) (halves down), y ≤ 0 */
-    float exp2_r = 1.0f + r * (0.6931471805599453f + r * (0.2402265069591007f
-                 + r * (0.055504108664821576f + r * (0.009618129107628477f
-                 + r * (0.0013333558146428441f + r * (0.00015403530393381606f
-                 + r * 1.5252733804059838e-05f))))));
-    float scale = as_float(((int)n + 127) << 23);                   /* 2^n; 0 at n = −127 */
-    return c > 0.0f ? exp2_r * scale : 0.0f;
-}
+#define DEFINE_PHONG_POWER(name, floatn, intn)                                                    \
+/* log2 c for c > 0 (the first half; a base shared by many exponents takes it once). */            \
+ALWAYS_INLINE floatn name##_log2(floatn c)                                                         \
+{                                                                                                  \
+    intn denormal = c < (floatn)0x1p-126f;                                                         \
+    intn bits = as_##intn(select(c, c * 0x1p24f, denormal));                                       \
+    floatn f = as_##floatn((bits & 0x007fffff) | 0x3f800000);        /* mantissa in [1, 2) */      \
+    intn above = f > (floatn)1.41421356f;                                                          \
+    f = select(f, 0.5f * f, above);                                                                \
+    intn e = (bits >> 23) - 127 + select((intn)0, (intn)1, above)                                  \
+           - select((intn)0, (intn)24, denormal);                                                  \
+    floatn s = (f - 1.0f) / (f + 1.0f), z = s * s;                                                 \
+    floatn log2_f = s * (2.8853900817779268f + z * (0.9617966939259756f + z * (0.5770780163555853f \
+                  + z * (0.4121985831111324f + z * 0.3205988979753252f))));                        \
+    return convert_##floatn(e) + log2_f;                                                           \
+}                                                                                                  \
+                                                                                                   \
+/* c^m given log2_c = name##_log2(c) (the second half). */                                         \
+ALWAYS_INLINE floatn name##_of_log2(floatn c, floatn log2_c, floatn m)                             \
+{                                                                                                  \
+    floatn y = max(m * log2_c, (floatn)-127.0f);                                                   \
+    floatn n = -convert_##floatn(convert_##intn(0.5f - y)), r = y - n; /* round(y), halves down */ \
+    floatn exp2_r = 1.0f + r * (0.6931471805599453f + r * (0.2402265069591007f                     \
+                  + r * (0.055504108664821576f + r * (0.009618129107628477f                        \
+                  + r * (0.0013333558146428441f + r * (0.00015403530393381606f                     \
+                  + r * 1.5252733804059838e-05f))))));                                             \
+    floatn scale = as_##floatn((convert_##intn(n) + 127) << 23);       /* 2^n; 0 at n = −127 */    \
+    return select((floatn)0.0f, exp2_r * scale, c > 0.0f);                                         \
+}                                                                                                  \
+                                                                                                   \
+ALWAYS_INLINE floatn name(floatn c, floatn m) { return name##_of_log2(c, name##_log2(c), m); }
+
+/* The scalar form, and 8 and 16 lanes of it for code in explicit vectors (all selects, so the
+ * one body serves every width; the lanes' results are bit-identical to the scalar one's). */
+DEFINE_PHONG_POWER(phong_power, float, int)
+DEFINE_PHONG_POWER(phong_power8, float8, int8)
+DEFINE_PHONG_POWER(phong_power16, float16, int16)
 
 /* The specular lobe's power cos⁺(r, ω)^m.  phong_value and phong_mixture_pdf take it, so a
  * sample that needs the BRDF and the pdf at one direction computes it once. */
@@ -349,34 +389,68 @@ inline surface_t make_surface(float4 normal, float4 view, float4 kd, float4 ks_m
  * in [−π/4, π/4], whose sine and cosine are their Taylor series to a⁹ and a¹⁰ (remainders under
  * 2e-9); the quarter turns rotate them.  Polynomials and selects, so it vectorises (the library
  * sin and cos are calls on PoCL). */
-ALWAYS_INLINE void sincos_turn(float u, float *sine, float *cosine)
-{
-    int q = (int)(4.0f * u + 0.5f);
-    float a = (4.0f * u - (float)q) * (0.5f * IBL_PI), a2 = a * a;
-    float sin_a = a * (1.0f + a2 * (-1.0f / 6.0f + a2 * (1.0f / 120.0f + a2 * (-1.0f / 5040.0f
-                + a2 * (1.0f / 362880.0f)))));
-    float cos_a = 1.0f + a2 * (-0.5f + a2 * (1.0f / 24.0f + a2 * (-1.0f / 720.0f + a2 * (1.0f / 40320.0f
-                + a2 * (-1.0f / 3628800.0f)))));
-    int quadrant = q & 3;
-    float c = (quadrant & 1) ? sin_a : cos_a, s = (quadrant & 1) ? cos_a : sin_a;
-    *cosine = (quadrant == 1 || quadrant == 2) ? -c : c;
-    *sine = (quadrant >= 2) ? -s : s;
+#define DEFINE_SINCOS_TURN(name, floatn, intn)                                                     \
+ALWAYS_INLINE void name(floatn u, floatn *sine, floatn *cosine)                                    \
+{                                                                                                  \
+    intn q = convert_##intn(4.0f * u + 0.5f);                                                      \
+    floatn a = (4.0f * u - convert_##floatn(q)) * (0.5f * IBL_PI), a2 = a * a;                     \
+    floatn sin_a = a * (1.0f + a2 * (-1.0f / 6.0f + a2 * (1.0f / 120.0f + a2 * (-1.0f / 5040.0f    \
+                 + a2 * (1.0f / 362880.0f)))));                                                    \
+    floatn cos_a = 1.0f + a2 * (-0.5f + a2 * (1.0f / 24.0f + a2 * (-1.0f / 720.0f                  \
+                 + a2 * (1.0f / 40320.0f + a2 * (-1.0f / 3628800.0f)))));                          \
+    intn quadrant = q & 3, odd = (quadrant & 1) != 0;                                              \
+    floatn c = select(cos_a, sin_a, odd), s = select(sin_a, cos_a, odd);                           \
+    *cosine = select(c, -c, (quadrant == 1) | (quadrant == 2));                                    \
+    *sine = select(s, -s, quadrant >= 2);                                                          \
 }
+
+DEFINE_SINCOS_TURN(sincos_turn, float, int)
+DEFINE_SINCOS_TURN(sincos_turn8, float8, int8)
+DEFINE_SINCOS_TURN(sincos_turn16, float16, int16)
 
 /* Unit direction at polar cosine cos_theta and azimuth 2π·u about the unit axis z
  * (branchless orthonormal basis of Duff et al. 2017). */
-ALWAYS_INLINE vec3_t direction_about_axis(vec3_t z, float cos_theta, float u)
-{
-    float sign = copysign(1.0f, z.z);
-    float a = -1.0f / (sign + z.z);
-    float c = z.x * z.y * a;
-    vec3_t t = vec3(1.0f + sign * z.x * z.x * a, sign * c, -sign * z.x);
-    vec3_t b = vec3(c, sign + z.y * z.y * a, -z.y);
-    float sin_theta = sqrt(max(0.0f, 1.0f - cos_theta * cos_theta)), sine, cosine;
-    sincos_turn(u, &sine, &cosine);
-    vec3_t around = vec3_add(vec3_scale(t, sin_theta * cosine), vec3_scale(b, sin_theta * sine));
-    return vec3_normalize(vec3_add(around, vec3_scale(z, cos_theta)));
+#define DEFINE_DIRECTION_ABOUT_AXIS(name, floatn, vecn, make_vec, sincos)                         \
+/* The basis t, b ⟂ z. */                                                                          \
+ALWAYS_INLINE void name##_basis(vecn z, vecn *t, vecn *b)                                          \
+{                                                                                                  \
+    floatn sign = copysign((floatn)1.0f, z.z);                                                     \
+    floatn a = -1.0f / (sign + z.z);                                                               \
+    floatn c = z.x * z.y * a;                                                                      \
+    *t = make_vec(1.0f + sign * z.x * z.x * a, sign * c, -sign * z.x);                             \
+    *b = make_vec(c, sign + z.y * z.y * a, -z.y);                                                  \
+}                                                                                                  \
+                                                                                                   \
+/* The direction in z's basis t, b, given the azimuth's sine and cosine. */                        \
+ALWAYS_INLINE vecn name##_in(vecn z, vecn t, vecn b, floatn cos_theta, floatn sine, floatn cosine) \
+{                                                                                                  \
+    floatn sin_theta = sqrt(max(0.0f, 1.0f - cos_theta * cos_theta));                              \
+    floatn along_t = sin_theta * cosine, along_b = sin_theta * sine;                               \
+    /* Products and sums in separate statements: not contracted into FMAs (as in vec3_add of   \
+     * vec3_scale), so the rounding is the float3 form's. */                                      \
+    vecn on_t = make_vec(t.x * along_t, t.y * along_t, t.z * along_t);                             \
+    vecn on_b = make_vec(b.x * along_b, b.y * along_b, b.z * along_b);                             \
+    vecn on_z = make_vec(z.x * cos_theta, z.y * cos_theta, z.z * cos_theta);                       \
+    floatn x = on_t.x + on_b.x, y = on_t.y + on_b.y, w = on_t.z + on_b.z;                          \
+    x = x + on_z.x;                                                                                \
+    y = y + on_z.y;                                                                                \
+    w = w + on_z.z;                                                                                \
+    floatn length_sq = x * x + y * y + w * w, k = 1.0f / sqrt(length_sq);                          \
+    return make_vec(x * k, y * k, w * k);                                                          \
+}                                                                                                  \
+                                                                                                   \
+ALWAYS_INLINE vecn name(vecn z, floatn cos_theta, floatn u)                                        \
+{                                                                                                  \
+    vecn t, b;                                                                                     \
+    floatn sine, cosine;                                                                           \
+    name##_basis(z, &t, &b);                                                                       \
+    sincos(u, &sine, &cosine);                                                                     \
+    return name##_in(z, t, b, cos_theta, sine, cosine);                                            \
 }
+
+DEFINE_DIRECTION_ABOUT_AXIS(direction_about_axis, float, vec3_t, vec3, sincos_turn)
+DEFINE_DIRECTION_ABOUT_AXIS(direction_about_axis8, float8, vec3x8_t, vec3x8, sincos_turn8)
+DEFINE_DIRECTION_ABOUT_AXIS(direction_about_axis16, float16, vec3x16_t, vec3x16, sincos_turn16)
 
 inline float3 direction_about(float3 z, float cos_theta, float u)
 {
@@ -386,14 +460,17 @@ inline float3 direction_about(float3 z, float cos_theta, float u)
 /* Mixture pdf of sample_phong in solid angle, given cos(n, ω) and the lobe power cos⁺(r,ω)^m:
  * (1 − p_s)·cos⁺(n,ω)/π + p_s·(m+1)/(2π)·cos⁺(r,ω)^m.  The specular lobe's mass below the surface
  * counts: those directions are sampled (and get a zero integrand). */
-ALWAYS_INLINE float phong_mixture_pdf(float p_spec, float m, float cos_n, float power)
-{
-    float pdf = (1.0f - p_spec) * max(cos_n, 0.0f) / IBL_PI;
-#if SPECULAR_LOBE
-    pdf += p_spec * (m + 1.0f) / (2.0f * IBL_PI) * power;
-#endif
-    return pdf;
+#define DEFINE_PHONG_MIXTURE_PDF(name, floatn)                                                     \
+ALWAYS_INLINE floatn name(float p_spec, float m, floatn cos_n, floatn power)                       \
+{                                                                                                  \
+    floatn pdf = (1.0f - p_spec) * max(cos_n, 0.0f) / IBL_PI;                                      \
+    return SPECULAR_LOBE ? pdf + p_spec * (m + 1.0f) / (2.0f * IBL_PI) * power : pdf;              \
 }
+
+/* The scalar form and 8 and 16 lanes of it (phong_power's widths). */
+DEFINE_PHONG_MIXTURE_PDF(phong_mixture_pdf, float)
+DEFINE_PHONG_MIXTURE_PDF(phong_mixture_pdf8, float8)
+DEFINE_PHONG_MIXTURE_PDF(phong_mixture_pdf16, float16)
 
 inline float phong_pdf(float3 n, float3 r, float p_spec, float m, float3 w)
 {
@@ -443,6 +520,33 @@ ALWAYS_INLINE philox4x32_ctr_t rng_block(uint seed, uint frame, uint stream, uin
 
 /* A uniform in [0, 1) from one word; 24-bit mantissas keep u < 1 exactly. */
 ALWAYS_INLINE float rng_unit(uint word) { return (float)(word >> 8) * (1.0f / 16777216.0f); }
+
+/* rng_block for lanes of sample numbers: lane k is rng_block(seed, frame, stream, pixel,
+ * sample.sk, draw), Philox4x32 with random123's constants and ten rounds, in explicit vectors. */
+#define DEFINE_RNG_BLOCK_LANES(name, uintn, ulongn, blockn)                                                \
+typedef struct { uintn v[4]; } blockn;                                                             \
+ALWAYS_INLINE blockn name(uint seed, uint frame, uint stream, uint pixel, uintn sample, uint draw) \
+{                                                                                                  \
+    uint key0 = seed, key1 = (frame << 8) | (stream & 0xffu);                                      \
+    uintn c0 = pixel, c1 = sample, c2 = draw, c3 = 0u;                                             \
+    _Pragma("unroll")                                                                              \
+    for (int round = 0; round < 10; ++round) {                                                     \
+        /* 32×32 → 64-bit products (one native multiply per lane pair; mul_hi is not). */          \
+        ulongn product0 = convert_##ulongn(c0) * 0xD2511F53ul;                                      \
+        ulongn product1 = convert_##ulongn(c2) * 0xCD9E8D57ul;                                      \
+        c0 = convert_##uintn(product1 >> 32) ^ c1 ^ key0;                                          \
+        c1 = convert_##uintn(product1);                                                            \
+        c2 = convert_##uintn(product0 >> 32) ^ c3 ^ key1;                                          \
+        c3 = convert_##uintn(product0);                                                            \
+        key0 += 0x9E3779B9u;                                                                       \
+        key1 += 0xBB67AE85u;                                                                       \
+    }                                                                                              \
+    blockn block = {{c0, c1, c2, c3}};                                                             \
+    return block;                                                                                  \
+}
+
+DEFINE_RNG_BLOCK_LANES(rng_block8, uint8, ulong8, rng_block8_t)
+DEFINE_RNG_BLOCK_LANES(rng_block16, uint16, ulong16, rng_block16_t)
 
 /* The block's four uniforms. */
 inline float4 rng_uniform4(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)

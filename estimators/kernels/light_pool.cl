@@ -122,48 +122,8 @@ ALWAYS_INLINE void strategy_ticks(vec3_t n, __global const float *face_integral,
 
 /* ---- shading (Algorithm 2) ------------------------------------------------------------------ */
 
-/* The sample loops run trip counts that depend on the budget alone, the same for every pixel,
- * and mask the draws past a pixel's own count: PoCL then runs each loop iteration across the
- * work items in SIMD (and a GPU's warp stays converged), which a per-pixel trip count or a
- * data-dependent branch prevents. */
-
-/* A pixel's running estimate.  The radiance sum accumulates in the output's colour planes
- * (R, G, B at sum[0], sum[plane], sum[2·plane]), not in three registers: PoCL's compiler first
- * pairs such x/y accumulators into 2-vectors (its early SLP pass), and the work-item vectoriser
- * then rejects the loop; planes an unknown stride apart are never paired.  (The compiler hoists
- * the pixel's plane addresses out of the sample loop, so the vector code gathers and scatters
- * them.)  The counts that do not depend on the samples (used ticks, evaluations) are set by the
- * kernel. */
-typedef struct {
-    __global float *sum;
-    int plane;
-    int effective;   /* ticks of the samples with a positive cosine and denominator */
-} accumulator_t;
-
-/* Add one sample of strategy weight β (in ticks) if `active`: β·s(ω) / D(ω), where
- * D(ω) = Σ_k t_k p_k(ω) is the balance-heuristic denominator in ticks.  With counts N_k = t_k/Q
- * this is (1/N_s)·β_i·s/(Σ_k (N_k/N_s) p_k), i.e. Eq. 4 when only the light faces have ticks
- * and Eq. 6 with the BRDF.  `power` is the lobe power cos⁺(r, ω)^m. */
-ALWAYS_INLINE void add_sample(accumulator_t *acc, const shading_t *s, int active, int beta,
-                              vec3_t w, float power, vec3_t radiance, float denominator)
-{
-    float cosine = vec3_dot(s->n, w);
-    int counts = active && cosine > 0.0f && denominator > 0.0f;
-    float weight = counts ? (float)beta / denominator * cosine : 0.0f;
-    vec3_t value = vec3_scale(vec3_mul(phong_value(s->kd, s->ks, s->m, power), radiance), weight);
-    acc->effective += counts ? beta : 0;
-    acc->sum[0] += value.x;
-    acc->sum[acc->plane] += value.y;
-    acc->sum[2 * acc->plane] += value.z;
-}
-
-/* Number of draws for t ticks and β (in ticks) of draw i: Eq. 5. */
+/* Number of draws for t ticks: Eq. 5. */
 inline int draws_for(int ticks) { return (ticks + TICKS_PER_SAMPLE - 1) / TICKS_PER_SAMPLE; }
-
-inline int beta_ticks(int ticks, int i)
-{
-    return min(TICKS_PER_SAMPLE, ticks - i * TICKS_PER_SAMPLE);
-}
 
 /* Draws of a light face with t ticks: draws_for(t), which the pool always holds (min() only
  * guards memory). */
@@ -183,71 +143,265 @@ inline void drawn_counts(const int ticks[7], int pool_size, int *used, int *draw
     }
 }
 
-/* Most light draws of any pixel, from the budget alone: Σ_f ⌈t_f/Q⌉ < Σ_f t_f/Q + 6, so at most
- * ⌈T/Q⌉ + 5 for light ticks T = Σ_f t_f. */
-inline int light_draws_bound(int light_ticks) { return draws_for(light_ticks) + 5; }
+/* A pixel's samples run POOL_LANES draws at a time in explicit vectors (the lanes of one work
+ * item are consecutive draws of one strategy), so they are SIMD on any device and compiler, not
+ * only where PoCL vectorises across work items (PoCL's work-item vectoriser rejects vector
+ * types, so each work item runs its own vector loop).  Lanes past a strategy's draws are masked. */
+#ifndef POOL_LANES
+#define POOL_LANES 16
+#endif
+#if POOL_LANES == 16
+typedef float16 lanes_t;
+typedef int16 lane_ints_t;
+typedef long16 lane_longs_t;
+typedef ulong16 lane_words_t;
+typedef uint16 lane_uints_t;
+typedef vec3x16_t lanes3_t;
+typedef rng_block16_t lane_block_t;
+#define convert_lane_uints convert_uint16
+#define vload_lanes vload16
+#define convert_lanes convert_float16
+#define convert_lane_ints convert_int16
+#define convert_lane_longs convert_long16
+#define phong_power_lanes phong_power16
+#define phong_power_log2_lanes phong_power16_log2
+#define phong_power_of_log2_lanes phong_power16_of_log2
+#define phong_mixture_pdf_lanes phong_mixture_pdf16
+#define direction_in_lanes direction_about_axis16_in
+#define sincos_turn_lanes sincos_turn16
+#define cube_face_st_lanes cube_face_st16
+#define rng_block_lanes rng_block16
+#define make_lanes3 vec3x16
+#define LANE_NUMBERS ((int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#define to8(v) ((v).lo + (v).hi)
+/* (p[i.s0], …, p[i.sf]) as a `type`: loads of one element per lane. */
+#define GATHER(type, p, i) ((type)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], \
+    (p)[(i).s5], (p)[(i).s6], (p)[(i).s7], (p)[(i).s8], (p)[(i).s9], (p)[(i).sa], (p)[(i).sb],     \
+    (p)[(i).sc], (p)[(i).sd], (p)[(i).se], (p)[(i).sf]))
+#else
+typedef float8 lanes_t;
+typedef int8 lane_ints_t;
+typedef long8 lane_longs_t;
+typedef ulong8 lane_words_t;
+typedef uint8 lane_uints_t;
+typedef vec3x8_t lanes3_t;
+typedef rng_block8_t lane_block_t;
+#define convert_lane_uints convert_uint8
+#define vload_lanes vload8
+#define convert_lanes convert_float8
+#define convert_lane_ints convert_int8
+#define convert_lane_longs convert_long8
+#define phong_power_lanes phong_power8
+#define phong_power_log2_lanes phong_power8_log2
+#define phong_power_of_log2_lanes phong_power8_of_log2
+#define phong_mixture_pdf_lanes phong_mixture_pdf8
+#define direction_in_lanes direction_about_axis8_in
+#define sincos_turn_lanes sincos_turn8
+#define cube_face_st_lanes cube_face_st8
+#define rng_block_lanes rng_block8
+#define make_lanes3 vec3x8
+#define LANE_NUMBERS ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
+#define to8(v) (v)
+#define GATHER(type, p, i) ((type)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], (p)[(i).s4], \
+    (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
+#endif
 
-/* Light samples of every face (Eq. 4, or the g_{f,i} of Eq. 6).  A pixel reads face_draws(t_f)
- * consecutive pool entries of face f from `offset` (0 for the shared sequence; offset <
- * pool_size), wrapping at pool_size.  One loop over all the pixel's draws, face after face: its
- * trip count `bound` (light_draws_bound) is the same for every pixel, and draw j's face is found
- * by comparisons against the faces' cumulative draw counts instead of a search.
- * brdf_samples = 0 leaves the BRDF term out of the denominator (t_6 = 0 there). */
-ALWAYS_INLINE void shade_light_faces(accumulator_t *acc, const shading_t *s, const int ticks[7], int bound,
-                              int brdf_samples, __global const float4 *pool_dir_pdf,
-                              __global const float4 *pool_radiance, int pool_size, int offset)
+/* Sums of a block's lanes, pairwise. */
+inline float sum_of8(float8 v)
 {
-    int end[6], total = 0;
-    #pragma unroll
+    float4 q = v.lo + v.hi;
+    return (q.x + q.z) + (q.y + q.w);
+}
+
+inline int int_sum_of8(int8 v)
+{
+    int4 q = v.lo + v.hi;
+    return (q.x + q.z) + (q.y + q.w);
+}
+
+/* rng_unit of each lane's word. */
+ALWAYS_INLINE lanes_t lanes_unit(lane_uints_t word) { return convert_lanes(word >> 8) * (1.0f / 16777216.0f); }
+
+ALWAYS_INLINE lanes_t lanes_dot(vec3_t a, lanes3_t b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+
+/* β (in ticks) of the draws i, i+1, … of the lanes, for a strategy of t ticks (Eq. 5); from the
+ * ticks left before the block, so it never overflows. */
+ALWAYS_INLINE lane_ints_t lanes_beta(int ticks, int i)
+{
+    return min(TICKS_PER_SAMPLE, ticks - i * TICKS_PER_SAMPLE - LANE_NUMBERS * TICKS_PER_SAMPLE);
+}
+
+/* A pixel's running estimate, one partial sum per lane. */
+typedef struct {
+    lanes_t r, g, b;
+    lane_ints_t effective;   /* ticks of the samples with a positive cosine and denominator */
+} lanes_sum_t;
+
+/* Add the lanes' samples of strategy weight β (in ticks) where `active`: β·s(ω) / D(ω), where
+ * D(ω) = Σ_k t_k p_k(ω) is the balance-heuristic denominator in ticks.  With counts N_k = t_k/Q
+ * this is (1/N_s)·β_i·s/(Σ_k (N_k/N_s) p_k), i.e. Eq. 4 when only the light faces have ticks
+ * and Eq. 6 with the BRDF.  `power` is the lobe power cos⁺(r, ω)^m, `cosine` is n·ω; the
+ * arithmetic is phong_value's, times the radiance, times the weight. */
+ALWAYS_INLINE void add_samples(lanes_sum_t *acc, const shading_t *s, lane_ints_t active,
+                               lane_ints_t beta, lanes_t cosine, lanes_t power, lanes3_t radiance,
+                               lanes_t denominator)
+{
+    lane_ints_t counts = active & (cosine > 0.0f) & (denominator > 0.0f);
+    lanes_t weight = convert_lanes(beta) / denominator * cosine;
+    lanes_t lobe = (s->m + 2.0f) / (2.0f * IBL_PI) * power;
+    acc->r += select((lanes_t)0.0f, (s->kd.x / IBL_PI + s->ks.x * lobe) * radiance.x * weight, counts);
+    acc->g += select((lanes_t)0.0f, (s->kd.y / IBL_PI + s->ks.y * lobe) * radiance.y * weight, counts);
+    acc->b += select((lanes_t)0.0f, (s->kd.z / IBL_PI + s->ks.z * lobe) * radiance.z * weight, counts);
+    acc->effective += select((lane_ints_t)0, beta, counts);
+}
+
+/* The pool is read as planes (pool_planes kernel): x, y, z, pdf, R, G, B, each of
+ * POOL_PLANE_STRIDE(size) floats, face f's entries at [2·size·f, 2·size·f + size) and again after
+ * them, so a pixel's window of draws from any offset < size is contiguous (no wrap), and zeros
+ * past the last face pad the last lanes. */
+#define POOL_PLANES 7
+#define POOL_PLANE_STRIDE(size) (12 * (size) + 16)
+
+ALWAYS_INLINE lanes3_t lanes3_load(__global const float *plane0, int stride, int i)
+{
+    return make_lanes3(vload_lanes(0, plane0 + i), vload_lanes(0, plane0 + stride + i),
+                       vload_lanes(0, plane0 + 2 * stride + i));
+}
+
+/* Light samples of every face (Eq. 4, or the g_{f,i} of Eq. 6): face f's draws_for(t_f) draws
+ * read consecutive pool entries from `offset` (0 for the shared sequence; offset < pool_size).
+ * brdf_samples = 0 leaves the BRDF term out of the denominator (t_6 = 0 there). */
+ALWAYS_INLINE void shade_light_faces(lanes_sum_t *acc, const shading_t *s, const int ticks[7],
+                                     int brdf_samples, __global const float *planes, int pool_size,
+                                     int offset)
+{
+    int stride = POOL_PLANE_STRIDE(pool_size);
     for (int f = 0; f < 6; ++f) {
-        total += face_draws(ticks[f], pool_size);
-        end[f] = total;
-    }
-    for (int j = 0; j < bound; ++j) {
-        /* Draw j is draw i of face f: f counts the faces whose draws end at or before j. */
-        int f = 0, start = 0, face_ticks = ticks[0];
-        #pragma unroll
-        for (int k = 0; k < 5; ++k) {
-            int past = j >= end[k];
-            f += past;
-            start = past ? end[k] : start;
-            face_ticks = past ? ticks[k + 1] : face_ticks;
+        int draws = face_draws(ticks[f], pool_size);
+        float face_ticks = (float)ticks[f];
+        int first = 2 * pool_size * f + offset;
+        for (int i = 0; i < draws; i += POOL_LANES) {
+            lanes3_t w = lanes3_load(planes, stride, first + i);
+            lanes_t pdf = vload_lanes(0, planes + 3 * stride + first + i);
+            lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
+            lanes_t cosine = lanes_dot(s->n, w);
+            lanes_t denominator = face_ticks * pdf;
+            if (brdf_samples)
+                denominator += (float)ticks[6] * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
+            add_samples(acc, s, i + LANE_NUMBERS < draws, lanes_beta(ticks[f], i), cosine, power,
+                        lanes3_load(planes + 4 * stride, stride, first + i), denominator);
         }
-        int active = j < total;
-        int i = active ? j - start : 0;
-        int index = offset + i;
-        int entry = f * pool_size + (index >= pool_size ? index - pool_size : index);
-        vec3_t w = vec3_load(pool_dir_pdf, entry);
-        float power = phong_lobe_power(s->r, w, s->m);
-        float denominator = (float)face_ticks * load_w(pool_dir_pdf, entry);
-        if (brdf_samples)
-            denominator += (float)ticks[6] * phong_mixture_pdf(s->p_spec, s->m, vec3_dot(s->n, w), power);
-        add_sample(acc, s, active, beta_ticks(face_ticks, i), w, power, vec3_load(pool_radiance, entry),
-                   denominator);
     }
+}
+
+/* cdf_bin of common.cl for the bins base + i of the lanes. */
+ALWAYS_INLINE lanes_t lanes_cdf_bin(__global const cdf_word_t *cdf, lane_ints_t base, lane_ints_t i)
+{
+    lane_words_t upper = GATHER(lane_words_t, cdf, base + i);
+    lane_words_t lower = GATHER(lane_words_t, cdf, base + max(i - 1, 0));
+    lower = select((lane_words_t)0, lower, convert_lane_longs(i > 0));
+    return convert_lanes(upper - lower) * 0x1p-63f;
+}
+
+/* light_pdf_on_face of common.cl for the lanes' directions, the same arithmetic; *face and
+ * *texel get the face and the texel of each. */
+ALWAYS_INLINE lanes_t lanes_light_pdf(__global const cdf_word_t *marginal,
+                                      __global const cdf_word_t *conditional, int res, lanes3_t w,
+                                      lane_ints_t *face, lane_ints_t *texel)
+{
+    lanes_t s, t;
+    lane_ints_t f = cube_face_st_lanes(w, &s, &t);
+    lane_ints_t row = clamp(convert_lane_ints(floor(t * (float)res)), 0, res - 1);
+    lane_ints_t col = clamp(convert_lane_ints(floor(s * (float)res)), 0, res - 1);
+    lanes_t p_texel = lanes_cdf_bin(marginal, f * res, row) * lanes_cdf_bin(conditional, (f * res + row) * res, col);
+    lanes_t u = 2.0f * s - 1.0f, v = 2.0f * t - 1.0f;
+    lanes_t q = 1.0f + u * u + v * v;
+    lanes_t area = q * sqrt(q);   /* area_per_solid_angle */
+    *face = f;
+    *texel = (f * res + row) * res + col;
+    return p_texel * area * (float)(res * res) / 4.0f;
+}
+
+/* The BRDF draws' numbers where every pixel draws the same ones (the shared sequence), as planes
+ * of BRDF_NUMBERS_STRIDE(spp) floats (the brdf_numbers kernel), so the pixels do not each
+ * recompute them: those of draw_numbers, and the parts of the polar cosine that do not depend on
+ * the pixel (√ξ_cos of the diffuse lobe, log2 ξ_cos of the specular lobe's ξ_cos^{1/(m+1)}). */
+#define BRDF_NUMBERS_STRIDE(spp) (16 * ((spp) / 16 + 1))
+
+/* Draw i's numbers: rng_block(seed, frame, STREAM_BRDF, stream_pixel, i, 0) as uniforms, the
+ * azimuth through sincos_turn. */
+ALWAYS_INLINE void draw_numbers(uint seed, uint frame, uint stream_pixel, lane_ints_t draw,
+                                lanes_t *xi_cos, lanes_t *xi_lobe, lanes_t *sine, lanes_t *cosine)
+{
+    lane_block_t xi = rng_block_lanes(seed, frame, STREAM_BRDF, stream_pixel, convert_lane_uints(draw), 0u);
+    *xi_cos = lanes_unit(xi.v[0]);
+    *xi_lobe = lanes_unit(xi.v[2]);
+    sincos_turn_lanes(lanes_unit(xi.v[1]), sine, cosine);
+}
+
+/* lanes3_t of a where `pick`, else of b. */
+ALWAYS_INLINE lanes3_t lanes3_pick(lane_ints_t pick, vec3_t a, vec3_t b)
+{
+    return make_lanes3(select((lanes_t)b.x, (lanes_t)a.x, pick), select((lanes_t)b.y, (lanes_t)a.y, pick),
+                       select((lanes_t)b.z, (lanes_t)a.z, pick));
 }
 
 /* BRDF samples of Eq. 6 (f_i): the denominator holds the full light mixture, which is the one
  * face term t_{f(ω)}·pdf_L(ω|f(ω)) because pdf_L(ω|f) = 0 off face f.  Every pixel draws
- * draws_for(t_6) samples (t_6 depends on the budget alone). */
-ALWAYS_INLINE void shade_brdf(accumulator_t *acc, const shading_t *s, const int ticks[7],
-                       __global const float4 *env, __global const cdf_word_t *marginal,
-                       __global const cdf_word_t *conditional, int res, uint seed, uint frame, uint stream_pixel)
+ * draws_for(t_6) samples (t_6 depends on the budget alone); draw i's numbers are draw_numbers
+ * (read from `shared_numbers` for the shared sequence), its direction sample_phong_direction's
+ * arithmetic, with the bases about n and r computed once per pixel. */
+ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ticks[7],
+                              __global const float4 *env, __global const cdf_word_t *marginal,
+                              __global const cdf_word_t *conditional, int res, uint seed,
+                              uint frame, int shared_sequence, uint stream_pixel,
+                              __global const float *shared_numbers, int numbers_stride)
 {
     int draws = draws_for(ticks[6]);
-    for (int i = 0; i < draws; ++i) {
-        philox4x32_ctr_t xi = rng_block(seed, frame, STREAM_BRDF, stream_pixel, (uint)i, 0u);
-        vec3_t w = sample_phong_direction(s->n, s->r, s->p_spec, s->m, rng_unit(xi.v[0]),
-                                          rng_unit(xi.v[1]), rng_unit(xi.v[2]));
-        float power = phong_lobe_power(s->r, w, s->m);
-        float pdf_brdf = phong_mixture_pdf(s->p_spec, s->m, vec3_dot(s->n, w), power);
-        int face, texel;
-        float pdf_light = light_pdf_on_face(marginal, conditional, res, w, &face, &texel);
-        int face_ticks = ticks[0];
+    __global const float *texels = (__global const float *)env;
+    vec3_t t_n, b_n, t_r, b_r;
+    direction_about_axis_basis(s->n, &t_n, &b_n);
+    direction_about_axis_basis(s->r, &t_r, &b_r);
+    for (int i = 0; i < draws; i += POOL_LANES) {
+        lane_ints_t draw = i + LANE_NUMBERS;
+        lanes_t xi_cos, xi_lobe, azimuth_sin, azimuth_cos, sqrt_xi_cos, log2_xi_cos;
+        if (shared_sequence) {
+            __global const float *numbers = shared_numbers + i;
+            xi_cos = vload_lanes(0, numbers);
+            xi_lobe = vload_lanes(0, numbers + numbers_stride);
+            azimuth_sin = vload_lanes(0, numbers + 2 * numbers_stride);
+            azimuth_cos = vload_lanes(0, numbers + 3 * numbers_stride);
+            sqrt_xi_cos = vload_lanes(0, numbers + 4 * numbers_stride);
+            log2_xi_cos = vload_lanes(0, numbers + 5 * numbers_stride);
+        } else {
+            draw_numbers(seed, frame, stream_pixel, draw, &xi_cos, &xi_lobe, &azimuth_sin, &azimuth_cos);
+            sqrt_xi_cos = sqrt(xi_cos);
+            log2_xi_cos = phong_power_log2_lanes(xi_cos);
+        }
+#if SPECULAR_LOBE
+        lane_ints_t specular = xi_lobe < s->p_spec;
+        lanes_t cos_theta = select(sqrt_xi_cos, phong_power_of_log2_lanes(xi_cos, log2_xi_cos,
+                                                                          (lanes_t)(1.0f / (s->m + 1.0f))),
+                                   specular);
+#else
+        lane_ints_t specular = 0;
+        lanes_t cos_theta = sqrt_xi_cos;
+#endif
+        lanes3_t w = direction_in_lanes(lanes3_pick(specular, s->r, s->n), lanes3_pick(specular, t_r, t_n),
+                                        lanes3_pick(specular, b_r, b_n), cos_theta, azimuth_sin, azimuth_cos);
+        lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
+        lanes_t cosine = lanes_dot(s->n, w);
+        lanes_t pdf_brdf = phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
+        lane_ints_t face, texel;
+        lanes_t pdf_light = lanes_light_pdf(marginal, conditional, res, w, &face, &texel);
+        lane_ints_t face_ticks = ticks[0];
         #pragma unroll
-        for (int k = 1; k < 6; ++k) face_ticks = face == k ? ticks[k] : face_ticks;
-        float denominator = (float)face_ticks * pdf_light + (float)ticks[6] * pdf_brdf;
-        add_sample(acc, s, 1, beta_ticks(ticks[6], i), w, power, vec3_load(env, texel), denominator);
+        for (int k = 1; k < 6; ++k) face_ticks = select(face_ticks, (lane_ints_t)ticks[k], face == k);
+        lanes_t denominator = convert_lanes(face_ticks) * pdf_light + (float)ticks[6] * pdf_brdf;
+        lane_ints_t at = 4 * texel;
+        lanes3_t radiance = make_lanes3(GATHER(lanes_t, texels, at), GATHER(lanes_t, texels, at + 1),
+                                        GATHER(lanes_t, texels, at + 2));
+        add_samples(acc, s, draw < draws, lanes_beta(ticks[6], i), cosine, power, radiance, denominator);
     }
 }
 

@@ -6,43 +6,74 @@
  * are the χ² hooks; `split_strategies` exposes the per-normal split for tests. */
 #include "light_pool.cl"
 
-/* Outputs in planes of n = get_global_size(0) floats (see accumulator_t): radiance R, G, B;
- * counts used, effective (in samples); evaluations per pixel. */
+/* The pool as planes for shade_light_faces: work item k writes entry k of the planes x, y, z,
+ * pdf, R, G, B (POOL_PLANE_STRIDE(size) floats each): face f's entry i at k = 2·size·f + i and
+ * 2·size·f + size + i, zeros past the six faces. */
+__kernel void pool_planes(__global const float4 *dir_pdf, __global const float4 *radiance,
+                          const int pool_size, __global float *planes)
+{
+    int k = get_global_id(0), stride = POOL_PLANE_STRIDE(pool_size);
+    int f = k / (2 * pool_size), i = k - 2 * pool_size * f;
+    int valid = f < 6;
+    int entry = valid ? f * pool_size + (i >= pool_size ? i - pool_size : i) : 0;
+    float4 d = valid ? dir_pdf[entry] : (float4)(0.0f), c = valid ? radiance[entry] : (float4)(0.0f);
+    planes[k] = d.x;
+    planes[stride + k] = d.y;
+    planes[2 * stride + k] = d.z;
+    planes[3 * stride + k] = d.w;
+    planes[4 * stride + k] = c.x;
+    planes[5 * stride + k] = c.y;
+    planes[6 * stride + k] = c.z;
+}
+
+/* The shared BRDF numbers of draw i = get_global_id(0) (see BRDF_NUMBERS_STRIDE), the scalar
+ * forms of what shade_brdf computes in lanes for the interleaved sequence. */
+__kernel void brdf_numbers(const uint seed, const uint frame, const int spp, __global float *out)
+{
+    int i = get_global_id(0), stride = BRDF_NUMBERS_STRIDE(spp);
+    philox4x32_ctr_t xi = rng_block(seed, frame, STREAM_BRDF, 0u, (uint)i, 0u);
+    float xi_cos = rng_unit(xi.v[0]), sine, cosine;
+    sincos_turn(rng_unit(xi.v[1]), &sine, &cosine);
+    out[i] = xi_cos;
+    out[stride + i] = rng_unit(xi.v[2]);
+    out[2 * stride + i] = sine;
+    out[3 * stride + i] = cosine;
+    out[4 * stride + i] = sqrt(xi_cos);
+    out[5 * stride + i] = phong_power_log2(xi_cos);
+}
+
+/* Outputs in planes of n = get_global_size(0) floats: radiance R, G, B; counts used, effective
+ * (in samples); evaluations per pixel. */
 __kernel void render_light_pool(__global const float4 *normal, __global const float4 *view,
                                 __global const float4 *kd, __global const float4 *ks_m,
                                 __global const float4 *env, __global const cdf_word_t *marginal,
                                 __global const cdf_word_t *conditional, __global const float *face_integral,
-                                __global const float4 *pool_dir_pdf, __global const float4 *pool_radiance,
-                                const int res, const int pool_size, const int spp,
+                                __global const float *pool, const int res, const int pool_size, const int spp,
                                 const int shared_sequence, const uint seed, const uint frame,
-                                __global float *radiance, __global float *counts,
+                                __global const float *shared_numbers, __global float *radiance, __global float *counts,
                                 __global int *evaluations)
 {
-    /* A work-group barrier, though nothing is shared: PoCL runs a loop whose trip count is the
-     * same for every work item with the work items innermost (SIMD across pixels, one sample at
-     * a time) only in a kernel that has barriers; without one, each work item runs its whole
-     * sample loop alone, in scalar code. */
-    barrier(CLK_LOCAL_MEM_FENCE);
     int p = get_global_id(0), n = get_global_size(0);
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     int ticks[7];
     strategy_ticks(s.n, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
     /* Shared: every pixel reads the same pool entries and BRDF numbers (Lu Sec. 2.2).
      * Interleaved: a per-pixel offset into the pool and per-pixel BRDF streams. */
-    uint stream_pixel = shared_sequence ? 0u : (uint)p;
     int offset = shared_sequence ? 0
                : (int)(rng_unit(rng_block(seed, frame, STREAM_POOL_OFFSET, (uint)p, 0u, 0u).v[0]) * pool_size);
-    accumulator_t acc = {radiance + p, n, 0};
-    acc.sum[0] = acc.sum[n] = acc.sum[2 * n] = 0.0f;
-    shade_light_faces(&acc, &s, ticks, light_draws_bound(light_ticks(spp, LU_BRDF_SAMPLES)), LU_BRDF_SAMPLES,
-                      pool_dir_pdf, pool_radiance, pool_size, offset);
+    lanes_sum_t acc = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lane_ints_t)0};
+    shade_light_faces(&acc, &s, ticks, LU_BRDF_SAMPLES, pool, pool_size, offset);
 #if LU_BRDF_SAMPLES
-    shade_brdf(&acc, &s, ticks, env, marginal, conditional, res, seed, frame, stream_pixel);
+    shade_brdf(&acc, &s, ticks, env, marginal, conditional, res, seed, frame, shared_sequence, (uint)p,
+               shared_numbers, BRDF_NUMBERS_STRIDE(spp));
 #endif
+    radiance[p] = sum_of8(to8(acc.r));
+    radiance[n + p] = sum_of8(to8(acc.g));
+    radiance[2 * n + p] = sum_of8(to8(acc.b));
     int used, draws;
     drawn_counts(ticks, pool_size, &used, &draws);
     counts[p] = (float)used * (1.0f / TICKS_PER_SAMPLE);
-    counts[n + p] = (float)acc.effective * (1.0f / TICKS_PER_SAMPLE);
+    counts[n + p] = (float)int_sum_of8(to8(acc.effective)) * (1.0f / TICKS_PER_SAMPLE);
     evaluations[p] = draws;
 }
 
