@@ -164,6 +164,74 @@ ALWAYS_INLINE float sir_candidate(const shading_t *s, const sir_proposal_t *q,
     return isfinite(weight) ? weight : 0.0f;
 }
 
+/* sir_candidate for the POOL_LANES candidates i0, i0 + 1, … in explicit vectors (lanes.cl), the
+ * same arithmetic lane by lane: their weights (0 past M), and in *ratio their f/γ (sir_ratio;
+ * meaningful where the weight is positive). */
+ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal_t *q,
+                                          __global const float4 *env, int res, uint seed, uint frame,
+                                          uint pixel, int i0, int M, lanes3_t *ratio)
+{
+    lane_ints_t index = i0 + LANE_NUMBERS;
+    lane_block_t block = rng_block_lanes(seed, frame, STREAM_SIR_CANDIDATE, pixel, convert_lane_uints(index), 0u);
+    lanes_t xi_cos = lanes_unit(block.v[0]), xi_azimuth = lanes_unit(block.v[1]);
+    lanes_t strategy = (convert_lanes(index) + 0.5f) / (float)M;
+    /* sample_phong_direction */
+#if SPECULAR_LOBE
+    lane_ints_t specular = lanes_unit(block.v[2]) < s->p_spec;
+    lanes3_t axis = select_lanes3(splat_lanes3(s->n), splat_lanes3(s->r), specular);
+    lanes_t cos_theta = select(sqrt(xi_cos), phong_power_lanes(xi_cos, (lanes_t)(1.0f / (s->m + 1.0f))), specular);
+#else
+    lanes3_t axis = splat_lanes3(s->n);
+    lanes_t cos_theta = sqrt(xi_cos);
+#endif
+    lanes3_t w = direction_about_axis_lanes(axis, cos_theta, xi_azimuth);
+    if (q->env_pick > 0.0f) {
+        /* proposal_sample's map branch: the face from xi_cos and the running μ, then sample_face */
+        lane_block_t words = rng_block_lanes(seed, frame, STREAM_SIR_CANDIDATE, pixel, convert_lane_uints(index), 1u);
+        lane_ints_t face = -1;
+        int last = 0;
+        for (int f = 0; f < 6; ++f) {
+            if (proposal_mu(q, f) > 0.0f) {
+                last = f;
+                face = select(face, (lane_ints_t)f, (face < 0) & (xi_cos < q->faces[6 + f]));
+            }
+        }
+        face = select(face, (lane_ints_t)last, face < 0);
+        lanes3_t map = lanes_sample_face(q->marginal, q->conditional, face, res,
+                                         upsample(words.v[0], words.v[1]) >> 1,
+                                         upsample(words.v[2], words.v[3]) >> 1);
+        w = select_lanes3(w, map, strategy < q->env_pick);
+    }
+    lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
+    lanes_t cosine = lanes_dot(s->n, w);
+    /* proposal_pdf */
+    lanes_t pdf = (1.0f - q->env_pick) * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
+    lane_ints_t face, texel;
+    if (q->env_pick > 0.0f) {
+        lanes_t light = lanes_light_pdf(q->marginal, q->conditional, res, w, &face, &texel);
+        pdf += q->env_pick * GATHER(lanes_t, q->faces, face) * light;
+    } else {
+        lanes_t u, v;
+        face = cube_face_st_lanes(w, &u, &v);
+        texel = (face * res + clamp(convert_lane_ints(floor(v * (float)res)), 0, res - 1)) * res
+              + clamp(convert_lane_ints(floor(u * (float)res)), 0, res - 1);
+    }
+    /* sir_target and sir_ratio */
+    __global const float *texels = (__global const float *)env;
+    lanes3_t radiance = make_lanes3(GATHER(lanes_t, texels, 4 * texel), GATHER(lanes_t, texels, 4 * texel + 1),
+                                    GATHER(lanes_t, texels, 4 * texel + 2));
+    lanes_t lobe = (s->m + 2.0f) / (2.0f * IBL_PI) * power;
+    lanes_t rho_y = vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * lobe;
+    lanes_t radiance_y = 0.2126f * radiance.x + 0.7152f * radiance.y + 0.0722f * radiance.z;
+    lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y * cosine, cosine > 0.0f);
+    lanes_t gamma_all = radiance_y * rho_y;
+    *ratio = make_lanes3(radiance.x * (s->kd.x / IBL_PI + s->ks.x * lobe) / gamma_all,
+                         radiance.y * (s->kd.y / IBL_PI + s->ks.y * lobe) / gamma_all,
+                         radiance.z * (s->kd.z / IBL_PI + s->ks.z * lobe) / gamma_all);
+    lanes_t weight = select((lanes_t)0.0f, gamma / pdf, (pdf > 0.0f) & (gamma > 0.0f));
+    return select((lanes_t)0.0f, weight, isfinite(weight) & (index < M));
+}
+
 /* Systematic resampling position k of N on a total `total`: (k + u)·total/N. */
 ALWAYS_INLINE acc_t systematic_position(int k, int n, float u, acc_t total)
 {
@@ -235,20 +303,32 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     acc_t total = 0, carry = 0;
     for (int c = 0; c < 6; ++c) sums[c * stride + slot] = 0;
-    for (int i = 0; i < M; ++i) {
-        sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
-        vec3_t w, radiance;
-        float gamma, power;
-        float weight = sir_candidate(&s, &q, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance, &power);
-        weights[i * stride + slot] = weight;
-        if (candidate_ratio && weight > 0.0f) {
-            vec3_t ratio = sir_ratio(&s, radiance, power);
-            sums[slot] += (acc_t)weight * ratio.x;
-            sums[stride + slot] += (acc_t)weight * ratio.y;
-            sums[2 * stride + slot] += (acc_t)weight * ratio.z;
+    /* The candidates in explicit vectors, POOL_LANES at a time (lanes.cl; no LOCKSTEP: each work
+     * item runs its own vector loop); the weights and the w·f/γ sums leave the lanes one by one,
+     * in the candidates' order. */
+    sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
+    acc_t ratio_x = 0, ratio_y = 0, ratio_z = 0;
+    for (int i = 0; i < M; i += POOL_LANES) {
+        lanes3_t ratio;
+        float lane_weight[POOL_LANES], lane_x[POOL_LANES], lane_y[POOL_LANES], lane_z[POOL_LANES];
+        vstore_lanes(sir_candidate_lanes(&s, &q, env, res, seed, frame, pixel, i, M, &ratio), 0, lane_weight);
+        vstore_lanes(ratio.x, 0, lane_x);
+        vstore_lanes(ratio.y, 0, lane_y);
+        vstore_lanes(ratio.z, 0, lane_z);
+        for (int k = 0; k < min(POOL_LANES, M - i); ++k) {
+            float weight = lane_weight[k];
+            weights[(i + k) * stride + slot] = weight;
+            if (candidate_ratio && weight > 0.0f) {
+                ratio_x += (acc_t)weight * lane_x[k];
+                ratio_y += (acc_t)weight * lane_y[k];
+                ratio_z += (acc_t)weight * lane_z[k];
+            }
         }
-        LOCKSTEP();
     }
+    sums[slot] = ratio_x;
+    sums[stride + slot] = ratio_y;
+    sums[2 * stride + slot] = ratio_z;
+    LOCKSTEP();
     /* The total apart from the candidates' loop: its doubles would halve that loop's vector width
      * (the widest type in a loop sets it). */
     for (int i = 0; i < M; ++i) {
