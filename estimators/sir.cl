@@ -19,11 +19,12 @@
  * Only the candidates' weights are stored (bis_pixel): the resampled candidates are regenerated
  * from their Philox counters for f/γ.
  *
- * Speed (issue 10).  Every loop runs the same count in every work item, with no early exit, ends
- * each iteration at LOCKSTEP and uses common.cl's scalar helpers, so PoCL runs the work items of
- * a group as SIMD lanes (lanes.cl says why each rule matters).  Data-dependent work is masked: a
- * candidate's copies are counted in closed form (positions_below), not by a while loop.  The
- * pixel's shading is loaded once (its scalars are carried across the barriers), the proposal is
+ * Speed (issue 10).  The M candidates run in explicit vectors, POOL_LANES per work item
+ * (sir_candidate_lanes).  Every other loop runs the same count in every work item, with no early
+ * exit, ends each iteration at LOCKSTEP and uses common.cl's scalar helpers, so PoCL runs the
+ * work items of a group as SIMD lanes (lanes.cl says why each rule matters).  Data-dependent
+ * work is masked: each resampled position finds its candidate by a fixed-step binary search over
+ * the candidates' cumulative sums, not by a walk over all M.  The pixel's shading is loaded once (its scalars are carried across the barriers), the proposal is
  * rebuilt in each iteration (a struct carried across would stop the vectorisation), and the
  * specular lobe's power is computed once per candidate and shared by q, γ and f/γ. */
 #ifndef IBLBENCH_SIR_CL
@@ -238,29 +239,19 @@ ALWAYS_INLINE acc_t systematic_position(int k, int n, float u, acc_t total)
     return ((acc_t)k + (acc_t)u) * (total / (acc_t)n);
 }
 
-/* #{k < n : systematic_position(k) < c}: the positions below a cumulative sum c (total > 0).
- * The positions grow with k, so this is ⌈c·n/total − u⌉ clamped to [0, n], made exact (it may be
- * one off by rounding) by the same comparison a walk over k would make. */
-ALWAYS_INLINE int positions_below(acc_t c, int n, float u, acc_t total)
-{
-    int k = (int)clamp(ceil(c / (total / (acc_t)n) - (acc_t)u), (acc_t)0, (acc_t)n);
-    k -= k > 0 && !(systematic_position(k - 1, n, u, total) < c);
-    k += k < n && systematic_position(k, n, u, total) < c;
-    return k;
-}
-
 /* The pixel's inputs: its G-buffer entry p and the proposal's (make_proposal). */
 #define SIR_PIXEL_ARGS __global const float4 *normal, __global const float4 *view, \
     __global const float4 *kd, __global const float4 *ks_m, int p, \
     __global const cdf_word_t *marginal, __global const cdf_word_t *conditional, \
     __global const float *faces, int has_light, float env_pick
 
-/* A work item's scratch: weights[i·stride + slot] holds candidate i's weight, taken[k·stride +
- * slot] the candidate of resampled position k, and sums[c·stride + slot] six running sums (the
+/* A work item's scratch: weights[i·stride + slot] holds candidate i's weight, bounds[i·stride +
+ * slot] the largest cumulative weight of a candidate ≤ i of positive weight (bis_pixel), and
+ * sums[c·stride + slot] six running sums (the
  * candidates' w·f/γ and the resampled f/γ, per channel).  Slot-minor, so the work items of a
  * group read and write them as contiguous vectors; the sums live in memory rather than in three
  * variables, which the optimiser would fuse into a vector (lanes.cl). */
-#define SIR_SCRATCH_ARGS __global float *weights, __global int *taken, __global acc_t *sums, \
+#define SIR_SCRATCH_ARGS __global float *weights, __global acc_t *bounds, __global acc_t *sums, \
     int slot, int stride
 
 /* A work group's block of a scratch buffer of `planes` planes: with slot = the local id and
@@ -288,10 +279,10 @@ ALWAYS_INLINE void store_planes(__global float *planes, int N, int plane, int i,
  * (1/M) Σ_i f/q = E[Ẑ/N Σ_k f/γ | candidates], the estimate with the resampling
  * Rao-Blackwellised.  Every work item of the group must call it (LOCKSTEP); `pixel` keys the
  * random streams.
- * Three passes: the M candidates, their weights stored; the systematic walk over the stored
- * weights, which records the candidate of each position; the N resampled candidates, regenerated
- * (same Philox counters, same float operations) for f/γ.  So the device evaluates M + N
- * candidates, as `evaluations` counts, with M + N words of scratch. */
+ * Three passes: the M candidates, their weights stored; the weights' total and cumulative bounds;
+ * the N resampled positions, each finding its candidate by a binary search of the bounds, the
+ * candidate regenerated (same Philox counters, same float operations) for f/γ.  So the device
+ * evaluates M + N candidates, as `evaluations` counts, with M words and M acc_t of scratch. */
 ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M, int N, uint seed,
                      uint frame, uint pixel, SIR_SCRATCH_ARGS, vec3_t *sum,
                      __global float *particles, __global float *gammas, int plane,
@@ -329,41 +320,37 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
     sums[stride + slot] = ratio_y;
     sums[2 * stride + slot] = ratio_z;
     LOCKSTEP();
-    /* The total apart from the candidates' loop: its doubles would halve that loop's vector width
-     * (the widest type in a loop sets it). */
+    /* The total, and bounds[i] = the largest cumulative sum of a candidate i' ≤ i of positive
+     * weight (−1 before the first), apart from the candidates' loop: its doubles would halve the
+     * loop's vector width (the widest type in a loop sets it). */
+    acc_t bound = -1;
+    int last = 0;
     for (int i = 0; i < M; ++i) {
-        kahan_add_to(&total, &carry, (acc_t)weights[i * stride + slot]);
+        float weight = weights[i * stride + slot];
+        kahan_add_to(&total, &carry, (acc_t)weight);
+        last = weight > 0.0f ? i : last;
+        bound = weight > 0.0f ? max(bound, total) : bound;
+        bounds[i * stride + slot] = bound;
         LOCKSTEP();
     }
     int positive = total > 0 && isfinite(total);
-    for (int k = 0; k < N; ++k) {
-        taken[k * stride + slot] = -1;
-        LOCKSTEP();
-    }
-    /* Candidate i of positive weight takes the positions below its cumulative sum that no earlier
-     * candidate took (⌊·⌋ or ⌈·⌉ of N·w_i/Σw copies); it is recorded at its last copy, and the
-     * copies below it are found by the walk down in pass 3. */
+    /* Systematic resampling: position k, (k + u)·Σw/N, takes the first candidate of positive
+     * weight whose cumulative sum exceeds it, which is the first i with bounds[i] above it (a
+     * binary search of ⌈log2 M⌉ steps, each a LOCKSTEP); positions that float rounding leaves at
+     * or above every cumulative sum take the last candidate of positive weight.  Then the
+     * candidate is regenerated (same Philox counters, same float operations) for f/γ. */
     float u = lane_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;
-    acc_t cumulative = 0;
-    carry = 0;
-    int k = 0, last = 0;
-    for (int i = 0; i < M; ++i) {
-        float weight = weights[i * stride + slot];
-        kahan_add_to(&cumulative, &carry, (acc_t)weight);
-        if (positive && weight > 0.0f) {
-            last = i;
-            int copies = max(positions_below(cumulative, N, u, total) - k, 0);
-            k += copies;
-            if (copies > 0) taken[(k - 1) * stride + slot] = i;
+    int search_steps = 32 - clz(max(M - 1, 1));
+    for (int k = N - 1; k >= 0; --k) {
+        acc_t position = systematic_position(k, N, u, total);
+        int base = 0, n = M;
+        for (int step = 0; step < search_steps; ++step) {
+            int width = n >> 1;
+            base = width > 0 && bounds[(base + width - 1) * stride + slot] <= position ? base + width : base;
+            n -= width;
+            LOCKSTEP();
         }
-        LOCKSTEP();
-    }
-    /* Pass 3, from the last position down.  Float rounding can leave the last position(s) at or
-     * above the final cumulative sum: they belong to the last candidate of positive weight. */
-    int candidate = last;
-    for (int j = N - 1; j >= 0; --j) {
-        int recorded = taken[j * stride + slot];
-        candidate = j < k && recorded >= 0 ? recorded : candidate;
+        int candidate = positive && bounds[base * stride + slot] > position ? base : last;
         sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
         vec3_t w, radiance;
         float gamma, power;
@@ -373,10 +360,10 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
         sums[4 * stride + slot] += positive ? ratio.y : 0.0f;
         sums[5 * stride + slot] += positive ? ratio.z : 0.0f;
         if (particles) {
-            store_planes(particles, N, plane, j, positive ? w.x : s.n.x, positive ? w.y : s.n.y,
+            store_planes(particles, N, plane, k, positive ? w.x : s.n.x, positive ? w.y : s.n.y,
                          positive ? w.z : s.n.z, positive ? 1.0f / (float)N : 0.0f);
-            gammas[j * plane] = positive ? gamma : 0.0f;
-            gammas[(N + j) * plane] = 0.0f;
+            gammas[k * plane] = positive ? gamma : 0.0f;
+            gammas[(N + k) * plane] = 0.0f;
         }
         LOCKSTEP();
     }

@@ -300,7 +300,7 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
                        const int count, const int N, const int M, const float init_env_pick,
                        const int have_state, const uint seed, const uint frame,
                        __global const int *pixels, const int offset, const int listed,
-                       __global float *weights, __global int *taken, __global acc_t *sums,
+                       __global float *weights, __global acc_t *bounds, __global acc_t *sums,
                        __global float *all_particles, __global float *all_gammas,
                        __global float4 *state, __global float4 *carried_estimate,
                        __global float4 *radiance, __global float2 *counts, __global float4 *stats)
@@ -312,7 +312,7 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
     vec3_t sum, candidate_ratio;
     float z = bis_pixel(normal, view, kd, ks_m, p, marginal, conditional, faces, has_light, init_env_pick,
                         env, ENV_RES, M, N, seed, frame, (uint)p, GROUP_SCRATCH(weights, M),
-                        GROUP_SCRATCH(taken, N), GROUP_SCRATCH(sums, 6), get_local_id(0),
+                        GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 6), get_local_id(0),
                         get_local_size(0), &sum,
                         particles, gammas, count, &candidate_ratio);
     if (item >= listed) return;
