@@ -176,17 +176,23 @@ ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal
     lane_block_t block = rng_block_lanes(seed, frame, STREAM_SIR_CANDIDATE, pixel, convert_lane_uints(index), 0u);
     lanes_t xi_cos = lanes_unit(block.v[0]), xi_azimuth = lanes_unit(block.v[1]);
     lanes_t strategy = (convert_lanes(index) + 0.5f) / (float)M;
-    /* sample_phong_direction */
+    /* The strategy is stratified (sir_candidate), so all the lanes of a block but one come from
+     * the same strategy: a block samples only the strategies its lanes use. */
+    lane_ints_t from_map = strategy < q->env_pick;
+    lanes3_t w = splat_lanes3(s->n);
+    if (!all(from_map)) {
+        /* sample_phong_direction */
 #if SPECULAR_LOBE
-    lane_ints_t specular = lanes_unit(block.v[2]) < s->p_spec;
-    lanes3_t axis = select_lanes3(splat_lanes3(s->n), splat_lanes3(s->r), specular);
-    lanes_t cos_theta = select(sqrt(xi_cos), phong_power_lanes(xi_cos, (lanes_t)(1.0f / (s->m + 1.0f))), specular);
+        lane_ints_t specular = lanes_unit(block.v[2]) < s->p_spec;
+        lanes3_t axis = select_lanes3(splat_lanes3(s->n), splat_lanes3(s->r), specular);
+        lanes_t cos_theta = select(sqrt(xi_cos), phong_power_lanes(xi_cos, (lanes_t)(1.0f / (s->m + 1.0f))), specular);
 #else
-    lanes3_t axis = splat_lanes3(s->n);
-    lanes_t cos_theta = sqrt(xi_cos);
+        lanes3_t axis = splat_lanes3(s->n);
+        lanes_t cos_theta = sqrt(xi_cos);
 #endif
-    lanes3_t w = direction_about_axis_lanes(axis, cos_theta, xi_azimuth);
-    if (q->env_pick > 0.0f) {
+        w = direction_about_axis_lanes(axis, cos_theta, xi_azimuth);
+    }
+    if (any(from_map)) {
         /* proposal_sample's map branch: the face from xi_cos and the running μ, then sample_face */
         lane_block_t words = rng_block_lanes(seed, frame, STREAM_SIR_CANDIDATE, pixel, convert_lane_uints(index), 1u);
         lane_ints_t face = -1;
@@ -201,7 +207,7 @@ ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal
         lanes3_t map = lanes_sample_face(q->marginal, q->conditional, face, res,
                                          upsample(words.v[0], words.v[1]) >> 1,
                                          upsample(words.v[2], words.v[3]) >> 1);
-        w = select_lanes3(w, map, strategy < q->env_pick);
+        w = select_lanes3(w, map, from_map);
     }
     lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
     lanes_t cosine = lanes_dot(s->n, w);
