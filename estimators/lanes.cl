@@ -30,6 +30,9 @@ FORCE_INLINE int texel_index(int face, int row, int col, int res);
 FORCE_INLINE float area_per_solid_angle(float u, float v);
 #undef FORCE_INLINE
 #include "common.cl"
+/* Explicit vectors of POOL_LANES lanes (lanes_t, GATHER, lanes_light_pdf, …), for loops that run
+ * their own lanes instead of PoCL's work-item vectorisation. */
+#include "light_pool.cl"
 
 /* Ends one iteration of a loop whose trip count is the same in every work item of the group (see
  * the header).  Every work item must reach it: no early exit before or inside such a loop, and
@@ -118,6 +121,69 @@ ALWAYS_INLINE float lane_sample_face(__global const cdf_word_t *marginal, __glob
     *texel = texel_index(face, row, col, res);
     float texel_area = 4.0f / ((float)res * (float)res);
     return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(x, y) / texel_area;
+}
+
+/* ---- explicit lanes: POOL_LANES candidates of one work item at a time ------------------------ */
+
+#if POOL_LANES == 16
+#define direction_about_axis_lanes direction_about_axis16
+#define vstore_lanes vstore16
+#else
+#define direction_about_axis_lanes direction_about_axis8
+#define vstore_lanes vstore8
+#endif
+
+ALWAYS_INLINE lanes3_t splat_lanes3(vec3_t a) { return make_lanes3((lanes_t)a.x, (lanes_t)a.y, (lanes_t)a.z); }
+
+ALWAYS_INLINE lanes3_t select_lanes3(lanes3_t a, lanes3_t b, lane_ints_t take_b)
+{
+    return make_lanes3(select(a.x, b.x, take_b), select(a.y, b.y, take_b), select(a.z, b.z, take_b));
+}
+
+/* lane_cdf_search for the lanes: the first i with cdf[first + i] > u, per lane (n is the work
+ * item's, so the halvings are a plain loop). */
+ALWAYS_INLINE lane_ints_t lanes_cdf_search(__global const cdf_word_t *cdf, lane_ints_t first, int n,
+                                           lane_words_t u)
+{
+    lane_ints_t base = 0;
+    for (; n > 1; ) {
+        int step = n >> 1;
+        lane_words_t word = GATHER(lane_words_t, cdf, first + base + step - 1);
+        base = select(base, base + step, convert_lane_ints(word <= u));
+        n -= step;
+    }
+    return base;
+}
+
+/* cdf_bin_position for the lanes' bins first + i. */
+ALWAYS_INLINE lanes_t lanes_cdf_bin_position(__global const cdf_word_t *cdf, lane_ints_t first,
+                                             lane_ints_t i, lane_words_t u)
+{
+    lane_words_t upper = GATHER(lane_words_t, cdf, first + i);
+    lane_words_t lower = GATHER(lane_words_t, cdf, first + max(i - 1, 0));
+    lower = select((lane_words_t)0, lower, convert_lane_longs(i > 0));
+    return clamp(convert_lanes(u - lower) / convert_lanes(upper - lower), 0.0f, 0x1.fffffep-1f);
+}
+
+/* lane_sample_face's direction for the lanes' faces and 63-bit points (ux, uy). */
+ALWAYS_INLINE lanes3_t lanes_sample_face(__global const cdf_word_t *marginal,
+                                         __global const cdf_word_t *conditional, lane_ints_t face,
+                                         int res, lane_words_t ux, lane_words_t uy)
+{
+    lane_ints_t rows = face * res;
+    lane_ints_t row = lanes_cdf_search(marginal, rows, res, ux);
+    lane_ints_t cols = (face * res + row) * res;
+    lane_ints_t col = lanes_cdf_search(conditional, cols, res, uy);
+    lanes_t x = -1.0f + 2.0f * (convert_lanes(col) + lanes_cdf_bin_position(conditional, cols, col, uy)) / (float)res;
+    lanes_t y = -1.0f + 2.0f * (convert_lanes(row) + lanes_cdf_bin_position(marginal, rows, row, ux)) / (float)res;
+    /* lane_face_dir */
+    lanes_t sign = select((lanes_t)1.0f, (lanes_t)-1.0f, (face & 1) != 0);
+    lane_ints_t x_major = face < 2, y_major = (face == 2) | (face == 3);
+    lanes_t dx = select(select(sign * x, x, y_major), sign, x_major);
+    lanes_t dy = select(-y, sign, y_major);
+    lanes_t dz = select(select(sign, sign * y, y_major), -sign * x, x_major);
+    lanes_t k = 1.0f / sqrt(dx * dx + dy * dy + dz * dz);   /* vec3_normalize */
+    return make_lanes3(dx * k, dy * k, dz * k);
 }
 
 #endif

@@ -19,11 +19,12 @@
  * Only the candidates' weights are stored (bis_pixel): the resampled candidates are regenerated
  * from their Philox counters for f/γ.
  *
- * Speed (issue 10).  Every loop runs the same count in every work item, with no early exit, ends
- * each iteration at LOCKSTEP and uses common.cl's scalar helpers, so PoCL runs the work items of
- * a group as SIMD lanes (lanes.cl says why each rule matters).  Data-dependent work is masked: a
- * candidate's copies are counted in closed form (positions_below), not by a while loop.  The
- * pixel's shading is loaded once (its scalars are carried across the barriers), the proposal is
+ * Speed (issue 10).  The M candidates run in explicit vectors, POOL_LANES per work item
+ * (sir_candidate_lanes).  Every other loop runs the same count in every work item, with no early
+ * exit, ends each iteration at LOCKSTEP and uses common.cl's scalar helpers, so PoCL runs the
+ * work items of a group as SIMD lanes (lanes.cl says why each rule matters).  Data-dependent
+ * work is masked: each resampled position finds its candidate by a fixed-step binary search over
+ * the candidates' cumulative sums, not by a walk over all M.  The pixel's shading is loaded once (its scalars are carried across the barriers), the proposal is
  * rebuilt in each iteration (a struct carried across would stop the vectorisation), and the
  * specular lobe's power is computed once per candidate and shared by q, γ and f/γ. */
 #ifndef IBLBENCH_SIR_CL
@@ -164,21 +165,84 @@ ALWAYS_INLINE float sir_candidate(const shading_t *s, const sir_proposal_t *q,
     return isfinite(weight) ? weight : 0.0f;
 }
 
+/* sir_candidate for the POOL_LANES candidates i0, i0 + 1, … in explicit vectors (lanes.cl), the
+ * same arithmetic lane by lane: their weights (0 past M), and in *ratio their f/γ (sir_ratio;
+ * meaningful where the weight is positive). */
+ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal_t *q,
+                                          __global const float4 *env, int res, uint seed, uint frame,
+                                          uint pixel, int i0, int M, lanes3_t *ratio)
+{
+    lane_ints_t index = i0 + LANE_NUMBERS;
+    lane_block_t block = rng_block_lanes(seed, frame, STREAM_SIR_CANDIDATE, pixel, convert_lane_uints(index), 0u);
+    lanes_t xi_cos = lanes_unit(block.v[0]), xi_azimuth = lanes_unit(block.v[1]);
+    lanes_t strategy = (convert_lanes(index) + 0.5f) / (float)M;
+    /* The strategy is stratified (sir_candidate), so all the lanes of a block but one come from
+     * the same strategy: a block samples only the strategies its lanes use. */
+    lane_ints_t from_map = strategy < q->env_pick;
+    lanes3_t w = splat_lanes3(s->n);
+    if (!all(from_map)) {
+        /* sample_phong_direction */
+#if SPECULAR_LOBE
+        lane_ints_t specular = lanes_unit(block.v[2]) < s->p_spec;
+        lanes3_t axis = select_lanes3(splat_lanes3(s->n), splat_lanes3(s->r), specular);
+        lanes_t cos_theta = select(sqrt(xi_cos), phong_power_lanes(xi_cos, (lanes_t)(1.0f / (s->m + 1.0f))), specular);
+#else
+        lanes3_t axis = splat_lanes3(s->n);
+        lanes_t cos_theta = sqrt(xi_cos);
+#endif
+        w = direction_about_axis_lanes(axis, cos_theta, xi_azimuth);
+    }
+    if (any(from_map)) {
+        /* proposal_sample's map branch: the face from xi_cos and the running μ, then sample_face */
+        lane_block_t words = rng_block_lanes(seed, frame, STREAM_SIR_CANDIDATE, pixel, convert_lane_uints(index), 1u);
+        lane_ints_t face = -1;
+        int last = 0;
+        for (int f = 0; f < 6; ++f) {
+            if (proposal_mu(q, f) > 0.0f) {
+                last = f;
+                face = select(face, (lane_ints_t)f, (face < 0) & (xi_cos < q->faces[6 + f]));
+            }
+        }
+        face = select(face, (lane_ints_t)last, face < 0);
+        lanes3_t map = lanes_sample_face(q->marginal, q->conditional, face, res,
+                                         upsample(words.v[0], words.v[1]) >> 1,
+                                         upsample(words.v[2], words.v[3]) >> 1);
+        w = select_lanes3(w, map, from_map);
+    }
+    lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
+    lanes_t cosine = lanes_dot(s->n, w);
+    /* proposal_pdf */
+    lanes_t pdf = (1.0f - q->env_pick) * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
+    lane_ints_t face, texel;
+    if (q->env_pick > 0.0f) {
+        lanes_t light = lanes_light_pdf(q->marginal, q->conditional, res, w, &face, &texel);
+        pdf += q->env_pick * GATHER(lanes_t, q->faces, face) * light;
+    } else {
+        lanes_t u, v;
+        face = cube_face_st_lanes(w, &u, &v);
+        texel = (face * res + clamp(convert_lane_ints(floor(v * (float)res)), 0, res - 1)) * res
+              + clamp(convert_lane_ints(floor(u * (float)res)), 0, res - 1);
+    }
+    /* sir_target and sir_ratio */
+    __global const float *texels = (__global const float *)env;
+    lanes3_t radiance = make_lanes3(GATHER(lanes_t, texels, 4 * texel), GATHER(lanes_t, texels, 4 * texel + 1),
+                                    GATHER(lanes_t, texels, 4 * texel + 2));
+    lanes_t lobe = (s->m + 2.0f) / (2.0f * IBL_PI) * power;
+    lanes_t rho_y = vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * lobe;
+    lanes_t radiance_y = 0.2126f * radiance.x + 0.7152f * radiance.y + 0.0722f * radiance.z;
+    lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y * cosine, cosine > 0.0f);
+    lanes_t gamma_all = radiance_y * rho_y;
+    *ratio = make_lanes3(radiance.x * (s->kd.x / IBL_PI + s->ks.x * lobe) / gamma_all,
+                         radiance.y * (s->kd.y / IBL_PI + s->ks.y * lobe) / gamma_all,
+                         radiance.z * (s->kd.z / IBL_PI + s->ks.z * lobe) / gamma_all);
+    lanes_t weight = select((lanes_t)0.0f, gamma / pdf, (pdf > 0.0f) & (gamma > 0.0f));
+    return select((lanes_t)0.0f, weight, isfinite(weight) & (index < M));
+}
+
 /* Systematic resampling position k of N on a total `total`: (k + u)·total/N. */
 ALWAYS_INLINE acc_t systematic_position(int k, int n, float u, acc_t total)
 {
     return ((acc_t)k + (acc_t)u) * (total / (acc_t)n);
-}
-
-/* #{k < n : systematic_position(k) < c}: the positions below a cumulative sum c (total > 0).
- * The positions grow with k, so this is ⌈c·n/total − u⌉ clamped to [0, n], made exact (it may be
- * one off by rounding) by the same comparison a walk over k would make. */
-ALWAYS_INLINE int positions_below(acc_t c, int n, float u, acc_t total)
-{
-    int k = (int)clamp(ceil(c / (total / (acc_t)n) - (acc_t)u), (acc_t)0, (acc_t)n);
-    k -= k > 0 && !(systematic_position(k - 1, n, u, total) < c);
-    k += k < n && systematic_position(k, n, u, total) < c;
-    return k;
 }
 
 /* The pixel's inputs: its G-buffer entry p and the proposal's (make_proposal). */
@@ -187,12 +251,13 @@ ALWAYS_INLINE int positions_below(acc_t c, int n, float u, acc_t total)
     __global const cdf_word_t *marginal, __global const cdf_word_t *conditional, \
     __global const float *faces, int has_light, float env_pick
 
-/* A work item's scratch: weights[i·stride + slot] holds candidate i's weight, taken[k·stride +
- * slot] the candidate of resampled position k, and sums[c·stride + slot] six running sums (the
+/* A work item's scratch: weights[i·stride + slot] holds candidate i's weight, bounds[i·stride +
+ * slot] the largest cumulative weight of a candidate ≤ i of positive weight (bis_pixel), and
+ * sums[c·stride + slot] six running sums (the
  * candidates' w·f/γ and the resampled f/γ, per channel).  Slot-minor, so the work items of a
  * group read and write them as contiguous vectors; the sums live in memory rather than in three
  * variables, which the optimiser would fuse into a vector (lanes.cl). */
-#define SIR_SCRATCH_ARGS __global float *weights, __global int *taken, __global acc_t *sums, \
+#define SIR_SCRATCH_ARGS __global float *weights, __global acc_t *bounds, __global acc_t *sums, \
     int slot, int stride
 
 /* A work group's block of a scratch buffer of `planes` planes: with slot = the local id and
@@ -220,10 +285,10 @@ ALWAYS_INLINE void store_planes(__global float *planes, int N, int plane, int i,
  * (1/M) Σ_i f/q = E[Ẑ/N Σ_k f/γ | candidates], the estimate with the resampling
  * Rao-Blackwellised.  Every work item of the group must call it (LOCKSTEP); `pixel` keys the
  * random streams.
- * Three passes: the M candidates, their weights stored; the systematic walk over the stored
- * weights, which records the candidate of each position; the N resampled candidates, regenerated
- * (same Philox counters, same float operations) for f/γ.  So the device evaluates M + N
- * candidates, as `evaluations` counts, with M + N words of scratch. */
+ * Three passes: the M candidates, their weights stored; the weights' total and cumulative bounds;
+ * the N resampled positions, each finding its candidate by a binary search of the bounds, the
+ * candidate regenerated (same Philox counters, same float operations) for f/γ.  So the device
+ * evaluates M + N candidates, as `evaluations` counts, with M words and M acc_t of scratch. */
 ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int res, int M, int N, uint seed,
                      uint frame, uint pixel, SIR_SCRATCH_ARGS, vec3_t *sum,
                      __global float *particles, __global float *gammas, int plane,
@@ -235,55 +300,63 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     acc_t total = 0, carry = 0;
     for (int c = 0; c < 6; ++c) sums[c * stride + slot] = 0;
-    for (int i = 0; i < M; ++i) {
-        sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
-        vec3_t w, radiance;
-        float gamma, power;
-        float weight = sir_candidate(&s, &q, env, res, seed, frame, pixel, i, M, &w, &gamma, &radiance, &power);
-        weights[i * stride + slot] = weight;
-        if (candidate_ratio && weight > 0.0f) {
-            vec3_t ratio = sir_ratio(&s, radiance, power);
-            sums[slot] += (acc_t)weight * ratio.x;
-            sums[stride + slot] += (acc_t)weight * ratio.y;
-            sums[2 * stride + slot] += (acc_t)weight * ratio.z;
+    /* The candidates in explicit vectors, POOL_LANES at a time (lanes.cl; no LOCKSTEP: each work
+     * item runs its own vector loop); the weights and the w·f/γ sums leave the lanes one by one,
+     * in the candidates' order. */
+    sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
+    acc_t ratio_x = 0, ratio_y = 0, ratio_z = 0;
+    for (int i = 0; i < M; i += POOL_LANES) {
+        lanes3_t ratio;
+        float lane_weight[POOL_LANES], lane_x[POOL_LANES], lane_y[POOL_LANES], lane_z[POOL_LANES];
+        vstore_lanes(sir_candidate_lanes(&s, &q, env, res, seed, frame, pixel, i, M, &ratio), 0, lane_weight);
+        vstore_lanes(ratio.x, 0, lane_x);
+        vstore_lanes(ratio.y, 0, lane_y);
+        vstore_lanes(ratio.z, 0, lane_z);
+        for (int k = 0; k < min(POOL_LANES, M - i); ++k) {
+            float weight = lane_weight[k];
+            weights[(i + k) * stride + slot] = weight;
+            if (candidate_ratio && weight > 0.0f) {
+                ratio_x += (acc_t)weight * lane_x[k];
+                ratio_y += (acc_t)weight * lane_y[k];
+                ratio_z += (acc_t)weight * lane_z[k];
+            }
         }
-        LOCKSTEP();
     }
-    /* The total apart from the candidates' loop: its doubles would halve that loop's vector width
-     * (the widest type in a loop sets it). */
+    sums[slot] = ratio_x;
+    sums[stride + slot] = ratio_y;
+    sums[2 * stride + slot] = ratio_z;
+    LOCKSTEP();
+    /* The total, and bounds[i] = the largest cumulative sum of a candidate i' ≤ i of positive
+     * weight (−1 before the first), apart from the candidates' loop: its doubles would halve the
+     * loop's vector width (the widest type in a loop sets it). */
+    acc_t bound = -1;
+    int last = 0;
     for (int i = 0; i < M; ++i) {
-        kahan_add_to(&total, &carry, (acc_t)weights[i * stride + slot]);
+        float weight = weights[i * stride + slot];
+        kahan_add_to(&total, &carry, (acc_t)weight);
+        last = weight > 0.0f ? i : last;
+        bound = weight > 0.0f ? max(bound, total) : bound;
+        bounds[i * stride + slot] = bound;
         LOCKSTEP();
     }
     int positive = total > 0 && isfinite(total);
-    for (int k = 0; k < N; ++k) {
-        taken[k * stride + slot] = -1;
-        LOCKSTEP();
-    }
-    /* Candidate i of positive weight takes the positions below its cumulative sum that no earlier
-     * candidate took (⌊·⌋ or ⌈·⌉ of N·w_i/Σw copies); it is recorded at its last copy, and the
-     * copies below it are found by the walk down in pass 3. */
+    /* Systematic resampling: position k, (k + u)·Σw/N, takes the first candidate of positive
+     * weight whose cumulative sum exceeds it, which is the first i with bounds[i] above it (a
+     * binary search of ⌈log2 M⌉ steps, each a LOCKSTEP); positions that float rounding leaves at
+     * or above every cumulative sum take the last candidate of positive weight.  Then the
+     * candidate is regenerated (same Philox counters, same float operations) for f/γ. */
     float u = lane_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;
-    acc_t cumulative = 0;
-    carry = 0;
-    int k = 0, last = 0;
-    for (int i = 0; i < M; ++i) {
-        float weight = weights[i * stride + slot];
-        kahan_add_to(&cumulative, &carry, (acc_t)weight);
-        if (positive && weight > 0.0f) {
-            last = i;
-            int copies = max(positions_below(cumulative, N, u, total) - k, 0);
-            k += copies;
-            if (copies > 0) taken[(k - 1) * stride + slot] = i;
+    int search_steps = 32 - clz(max(M - 1, 1));
+    for (int k = N - 1; k >= 0; --k) {
+        acc_t position = systematic_position(k, N, u, total);
+        int base = 0, n = M;
+        for (int step = 0; step < search_steps; ++step) {
+            int width = n >> 1;
+            base = width > 0 && bounds[(base + width - 1) * stride + slot] <= position ? base + width : base;
+            n -= width;
+            LOCKSTEP();
         }
-        LOCKSTEP();
-    }
-    /* Pass 3, from the last position down.  Float rounding can leave the last position(s) at or
-     * above the final cumulative sum: they belong to the last candidate of positive weight. */
-    int candidate = last;
-    for (int j = N - 1; j >= 0; --j) {
-        int recorded = taken[j * stride + slot];
-        candidate = j < k && recorded >= 0 ? recorded : candidate;
+        int candidate = positive && bounds[base * stride + slot] > position ? base : last;
         sir_proposal_t q = make_proposal(marginal, conditional, faces, has_light, stratified_pick);
         vec3_t w, radiance;
         float gamma, power;
@@ -293,10 +366,10 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
         sums[4 * stride + slot] += positive ? ratio.y : 0.0f;
         sums[5 * stride + slot] += positive ? ratio.z : 0.0f;
         if (particles) {
-            store_planes(particles, N, plane, j, positive ? w.x : s.n.x, positive ? w.y : s.n.y,
+            store_planes(particles, N, plane, k, positive ? w.x : s.n.x, positive ? w.y : s.n.y,
                          positive ? w.z : s.n.z, positive ? 1.0f / (float)N : 0.0f);
-            gammas[j * plane] = positive ? gamma : 0.0f;
-            gammas[(N + j) * plane] = 0.0f;
+            gammas[k * plane] = positive ? gamma : 0.0f;
+            gammas[(N + k) * plane] = 0.0f;
         }
         LOCKSTEP();
     }

@@ -160,7 +160,9 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
                 for (int i = 0; i < N; ++i) {
                     float4 q = load_particle(particles, N, plane, i);
                     float2 g = load_gammas(gammas, N, plane, i);
-                    float incr = (q.w > 0.0f && g.x > 0.0f) ? pow(g.y / g.x, 1.0f / (float)steps) : 0.0f;
+                    /* (γ_t/γ_{t−1})^{1/steps} as exp(log(·)/steps): equal to float rounding, and
+                     * PoCL's pow (an extended-precision log and exp) cost a quarter of the frame. */
+                    float incr = (q.w > 0.0f && g.x > 0.0f) ? exp(log(g.y / g.x) / (float)steps) : 0.0f;
                     q.w *= incr;
                     store_particle(particles, N, plane, i, q);
                     sum += q.w;
@@ -300,7 +302,7 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
                        const int count, const int N, const int M, const float init_env_pick,
                        const int have_state, const uint seed, const uint frame,
                        __global const int *pixels, const int offset, const int listed,
-                       __global float *weights, __global int *taken, __global acc_t *sums,
+                       __global float *weights, __global acc_t *bounds, __global acc_t *sums,
                        __global float *all_particles, __global float *all_gammas,
                        __global float4 *state, __global float4 *carried_estimate,
                        __global float4 *radiance, __global float2 *counts, __global float4 *stats)
@@ -312,7 +314,7 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
     vec3_t sum, candidate_ratio;
     float z = bis_pixel(normal, view, kd, ks_m, p, marginal, conditional, faces, has_light, init_env_pick,
                         env, ENV_RES, M, N, seed, frame, (uint)p, GROUP_SCRATCH(weights, M),
-                        GROUP_SCRATCH(taken, N), GROUP_SCRATCH(sums, 6), get_local_id(0),
+                        GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 6), get_local_id(0),
                         get_local_size(0), &sum,
                         particles, gammas, count, &candidate_ratio);
     if (item >= listed) return;

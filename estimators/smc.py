@@ -69,8 +69,9 @@ resamplings per pixel.
 
 Kernels (``smc.cl``).  ``smc_advance`` runs steps 2-6 for every pixel that carries state and
 flags those that need a BIS re-init; ``smc_init`` runs step 1 for the flagged pixels (all of them
-on a first frame), listed on the host, in padded groups whose candidate loops PoCL vectorises
-across pixels (``sir.cl``, ``lanes.cl``).  The frame's ``shade`` time is the sum of both kernels'
+on a first frame), listed on the host, in padded groups: each work item runs its candidates in
+explicit vectors of 16 lanes, and its other loops are vectorised by PoCL across pixels
+(``sir.cl``, ``lanes.cl``).  The frame's ``shade`` time is the sum of both kernels'
 device time and the copy of the map kept for γ_{t−1}.  The map proposal's face probabilities
 and running sums come from the host (:func:`face_choice`), in float32, summed as a kernel would.
 
