@@ -75,7 +75,6 @@ import time
 import weakref
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from iblbench.estimators.base import Estimator, Tags, read_estimate
 from iblbench.harness.device import event_ms
@@ -115,6 +114,8 @@ def lloyd_step(points: np.ndarray, movable: np.ndarray, samples_per_point: int =
                ) -> np.ndarray:
     """One toroidal Lloyd step: each movable point goes to the centroid of its Voronoi cell on the
     unit torus, estimated on a regular grid of about ``samples_per_point`` samples per point."""
+    from scipy.spatial import cKDTree   # here, not at import: `iblbench list` stays fast
+
     n = len(points)
     side = int(min(2048, max(32, np.ceil(np.sqrt(samples_per_point * n)))))
     g = (np.arange(side) + 0.5) / side
