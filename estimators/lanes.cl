@@ -115,12 +115,11 @@ ALWAYS_INLINE float lane_sample_face(__global const cdf_word_t *marginal, __glob
     int row = lane_cdf_search(rows, res, u.x);
     __global const cdf_word_t *cols = conditional + (face * res + row) * res;
     int col = lane_cdf_search(cols, res, u.y);
-    float x = -1.0f + 2.0f * ((float)col + cdf_bin_position(cols, col, u.y)) / res;
-    float y = -1.0f + 2.0f * ((float)row + cdf_bin_position(rows, row, u.x)) / res;
+    float x, y;
+    float pdf = face_point_pdf(rows, cols, row, col, res, u.x, u.y, &x, &y);
     *dir = vec3_normalize(lane_face_dir(face, x, y));
     *texel = texel_index(face, row, col, res);
-    float texel_area = 4.0f / ((float)res * (float)res);
-    return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(x, y) / texel_area;
+    return pdf;
 }
 
 /* ---- explicit lanes: POOL_LANES candidates of one work item at a time ------------------------ */

@@ -205,6 +205,19 @@ inline float cdf_bin_position(__global const cdf_word_t *cdf, int i, cdf_word_t 
  * marginal (rows) and conditional (columns | row) CDFs; the position of u inside the chosen bins
  * is the point in the texel's face square.  Returns pdf_L(ω|f) in solid angle (DESIGN §3):
  * P(texel|f) · (1+u²+v²)^{3/2} / a_texel with a_texel = (2/R)².  *texel gets the texel index. */
+/* sample_face once its texel (row, col) is chosen from the face's marginal `rows` and conditional
+ * `cols` by the point (ux, uy): the face-plane point (*x, *y) and pdf_L(ω|f).  Shared with the
+ * scalar-lane form in estimators/lanes.cl, which searches the CDFs its own way. */
+ALWAYS_INLINE float face_point_pdf(__global const cdf_word_t *rows, __global const cdf_word_t *cols,
+                                   int row, int col, int res, cdf_word_t ux, cdf_word_t uy,
+                                   float *x, float *y)
+{
+    *x = -1.0f + 2.0f * ((float)col + cdf_bin_position(cols, col, uy)) / res;
+    *y = -1.0f + 2.0f * ((float)row + cdf_bin_position(rows, row, ux)) / res;
+    float texel_area = 4.0f / ((float)res * (float)res);
+    return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area;
+}
+
 inline float sample_face(__global const cdf_word_t *marginal,
                                __global const cdf_word_t *conditional,
                                int face, int res, ulong2 u, float3 *dir, int *texel)
@@ -213,12 +226,11 @@ inline float sample_face(__global const cdf_word_t *marginal,
     int row = cdf_search(rows, res, u.x);
     __global const cdf_word_t *cols = conditional + (face * res + row) * res;
     int col = cdf_search(cols, res, u.y);
-    float x = -1.0f + 2.0f * ((float)col + cdf_bin_position(cols, col, u.y)) / res;
-    float y = -1.0f + 2.0f * ((float)row + cdf_bin_position(rows, row, u.x)) / res;
+    float x, y;
+    float pdf = face_point_pdf(rows, cols, row, col, res, u.x, u.y, &x, &y);
     *dir = normalize(face_uv_to_dir(face, x, y));
     *texel = texel_index(face, row, col, res);
-    float texel_area = 4.0f / ((float)res * (float)res);
-    return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(x, y) / texel_area;
+    return pdf;
 }
 
 /* pdf_L(ω|f) of sample_face for the face f that holds ω (it is zero on every other face);
