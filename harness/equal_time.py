@@ -6,7 +6,8 @@ the calibration adds the frame's build time (``build_ms``) to every timed render
 budget below the build alone cannot be met by any spp.
 
 For one (scene, estimator) the runner times renders on the scene's first frame to run (after
-the warm-up; ``CALIBRATION_REPEATS`` per spp, on seeds no cell uses) at ``CALIBRATION_SPP``,
+the warm-up; ``CALIBRATION_REPEATS`` per spp, on seeds no cell uses, through the same
+:func:`~iblbench.harness.timing.timed_renders` as a cell's repeats, so in the same context) at ``CALIBRATION_SPP``,
 then at larger spp until the calibrated range brackets the choice.  Each spp's median is fitted
 as ``a + b·spp`` by least squares on relative error, and the first choice is the largest spp
 whose predicted time is within the budget.  A line fitted from 1 to hundreds of spp misses by
@@ -22,11 +23,10 @@ runner's ``time_budget.achieved``).
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
-from iblbench.harness.timing import TimedRender, device_ms, render_stages
+from iblbench.harness.timing import device_ms, timed_renders
 
 CALIBRATION_SEED = 0xFFFFFF00   # + repeat index: seeds no benchmark cell uses
 CALIBRATION_SPP = (1, 4, 16, 64)
@@ -66,19 +66,16 @@ class Calibration:
         self.renders = []   # every TimedRender, for the run's device-time total
 
     def measure(self, spp: int) -> float:
-        """Time ``CALIBRATION_REPEATS`` renders at ``spp`` (once per spp); their median."""
+        """Time ``CALIBRATION_REPEATS`` renders at ``spp`` (once per spp) the way a cell's
+        repeats are timed (:func:`~iblbench.harness.timing.timed_renders`); their median."""
         if spp not in self.runs:
-            device, host = [], []
-            for repeat in range(CALIBRATION_REPEATS):
-                start = time.perf_counter()
-                estimate = self.estimator.render(self.gbuffer, self.cache, spp,
-                                                 CALIBRATION_SEED + repeat)
-                render = TimedRender(render_stages(self.build_ms, estimate.timings_ms),
-                                     (time.perf_counter() - start) * 1e3)
-                self.renders.append(render)
-                host.append(render.host_ms)
-                device.append(device_ms(render.stages))
-            self.runs[spp], self.host[spp] = device, host
+            seeds = [CALIBRATION_SEED + repeat for repeat in range(CALIBRATION_REPEATS)]
+            renders = [render for _, render in timed_renders(
+                [self.estimator] * CALIBRATION_REPEATS, self.gbuffer, self.cache, spp, seeds,
+                self.build_ms)]
+            self.renders += renders
+            self.runs[spp] = [device_ms(r.stages) for r in renders]
+            self.host[spp] = [r.host_ms for r in renders]
         return float(np.median(self.runs[spp]))
 
     def choose(self, budget_ms: float) -> dict:

@@ -93,7 +93,7 @@ from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, ima
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
 from iblbench.harness.equal_time import CALIBRATION_REPEATS, TOLERANCE, Calibration
-from iblbench.harness.timing import (MEASURE, TimedRender, cell_times, device_ms, render_stages,
+from iblbench.harness.timing import (MEASURE, cell_times, device_ms, timed_renders,
                                      time_columns)
 from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
                                     select_frames)
@@ -558,14 +558,13 @@ class Runner:
     def _stage(self, scene: str, frame, stage: str, ms: float) -> None:
         self.manifest["stages"].append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
 
-    def _timed_render(self, renderer, gbuffer, cache, spp: int, seed: int,
-                      build_ms: float) -> tuple:
-        """(estimate, TimedRender) of one render, counted in the run's device time."""
-        start = time.perf_counter()
-        estimate = renderer.render(gbuffer, cache, spp, seed)
-        host_ms = (time.perf_counter() - start) * 1e3
-        self.device_ms_total += device_ms(estimate.timings_ms)
-        return estimate, TimedRender(render_stages(build_ms, estimate.timings_ms), host_ms)
+    def _timed_renders(self, renderers, gbuffer, cache, spp: int, seeds,
+                       build_ms: float) -> list[tuple]:
+        """(estimate, TimedRender) per (renderer, seed) (:func:`timed_renders`), counted in the
+        run's device time."""
+        renders = timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+        self.device_ms_total += sum(device_ms(e.timings_ms) for e, _ in renders)
+        return renders
 
     def _run_frame(self, plan: _ScenePlan, gbuffer: DeviceGBuffer, warm_up: DeviceGBuffer,
                    cache: FrameCache, built: dict[str, float], bar, sequences: dict,
@@ -596,7 +595,7 @@ class Runner:
             build_ms = sum(built.get(p, 0.0) for p in ("upload",) + spec.cls.requires)
             repeats = self.repeats[spec.label]
             estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
-            self._timed_render(spec.make(), warm_up, cache, 1, WARMUP_SEED, 0.0)
+            self._timed_renders([spec.make()], warm_up, cache, 1, [WARMUP_SEED], 0.0)
             self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
             for key in cells:
                 _, label, spp, frame, seed, budget = key
@@ -611,11 +610,10 @@ class Runner:
                     renderers = sequences[sequence_key]
                 else:
                     renderers = [estimator] * repeats
-                estimate, scored = self._timed_render(renderers[0], gbuffer, cache, spp, seed,
-                                                      build_ms)
-                renders = [scored] + [
-                    self._timed_render(renderers[r], gbuffer, cache, spp, timing_seed(seed, r),
-                                       build_ms)[1] for r in range(1, repeats)]
+                # Render 0 is the scored one; all of them back to back before scoring.
+                seeds = [seed] + [timing_seed(seed, r) for r in range(1, repeats)]
+                timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+                estimate, renders = timed[0][0], [render for _, render in timed]
                 metrics, delta_e = scorer.score(estimate)
                 row = {
                     "scene": scene_name, "estimator": label, "spp": int(spp), "frame": frame,

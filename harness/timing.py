@@ -26,6 +26,16 @@ included, builds excluded; never used to rank estimators) and ``time_repeats`` t
 renders.  How the runner gets those renders without disturbing a temporal estimator's state is
 in :mod:`iblbench.harness.runner`.
 
+**Context.**  The device is the CPU (PoCL) shared with the host, so a render's device time
+depends on what the host did just before it.  Measured on 2 cores (blob-sun, uniform, 387 spp,
+30 renders each): back to back 5.6 ms median but bimodal (5.2 / 8.8 ms); after a NumPy matrix
+product 8.2 ms (OpenBLAS's threads spin ~0.1 s after a call, taking a core from PoCL's
+workers); after that product and a 150 ms pause 5.15 ms (p10-p90 5.0-6.1).  Cells follow
+host scoring and image writes, calibration renders did not: cells took 1.4-1.9x the
+calibrated time at the same spp.  So every group of timed renders, a cell's repeats and each
+calibration spp alike, goes through :func:`timed_renders`: a pause of ``SETTLE_S`` (the host
+threads go idle), then the renders back to back.
+
 **Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
 time is the median of the rows' ``time_ms`` (:func:`median_time`, :func:`cell_times`).
 """
@@ -33,6 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 
 import numpy as np
 
@@ -40,6 +51,7 @@ STAGES = ("build", "sample", "shade")
 TIME = "time_ms"
 COLUMNS = ("time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build", "time_ms_sample",
            "time_ms_shade", "time_ms_host", "time_repeats")
+SETTLE_S = 0.15   # pause before a group of timed renders: longer than OpenBLAS's thread spin
 MEASURE = ("device time per frame of the stages the estimator needs: build + sample + shade "
            "(OpenCL profiling events), ms")
 
@@ -58,6 +70,19 @@ def render_stages(build_ms: float, timings_ms: dict[str, float]) -> dict[str, fl
     stages = dict(timings_ms)
     stages["build"] = build_ms + stages.get("build", 0.0)
     return stages
+
+
+def timed_renders(renderers, gbuffer, cache, spp: int, seeds, build_ms: float) -> list[tuple]:
+    """(estimate, TimedRender) of one render per (renderer, seed), after a ``SETTLE_S`` pause
+    and back to back (module docstring, "Context")."""
+    time.sleep(SETTLE_S)
+    out = []
+    for renderer, seed in zip(renderers, seeds, strict=True):
+        start = time.perf_counter()
+        estimate = renderer.render(gbuffer, cache, spp, seed)
+        host_ms = (time.perf_counter() - start) * 1e3
+        out.append((estimate, TimedRender(render_stages(build_ms, estimate.timings_ms), host_ms)))
+    return out
 
 
 def device_ms(stages: dict[str, float]) -> float:
