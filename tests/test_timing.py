@@ -10,6 +10,7 @@ import dataclasses
 import itertools
 import json
 import math
+import time
 
 import numpy as np
 import pandas as pd
@@ -18,7 +19,7 @@ import trimesh
 
 from iblbench.estimators.base import Estimate, Estimator, Tags
 from iblbench.estimators.registry import _registry, register
-from iblbench.harness import budgets, cli, runner
+from iblbench.harness import budgets, cli, runner, timing
 from iblbench.harness.equal_time import TOLERANCE, Calibration
 from iblbench.harness.framecache import FrameCache
 from iblbench.harness.runner import TIMING_SEED, WARMUP_PIXELS, WARMUP_SEED, RunConfig, run
@@ -65,6 +66,21 @@ class Linear(Estimator):
         return fake_estimate(gbuffer, spp, 0.5, {"shade": 0.7 + 0.013 * spp ** self.POWER})
 
 
+class HostSensitive(Linear):
+    """Linear's cost, ``SLOWDOWN`` times it within ``WINDOW_S`` of the host's last scoring: the
+    CPU device sharing its cores with host threads that still spin after the host's work."""
+
+    name = "host_sensitive_timing_test"
+    SLOWDOWN, WINDOW_S = 1.6, 0.01
+    last_scoring = -math.inf
+
+    def render(self, gbuffer, cache, spp, seed):
+        estimate = super().render(gbuffer, cache, spp, seed)
+        if time.monotonic() - HostSensitive.last_scoring < self.WINDOW_S:
+            estimate.timings_ms["shade"] *= self.SLOWDOWN
+        return estimate
+
+
 class Counting(Estimator):
     """Temporal: its image is the number of frames this instance has rendered, so a scored
     image shows whether anything else rendered on the scored instance."""
@@ -90,12 +106,12 @@ class Counting(Estimator):
 
 @pytest.fixture
 def fakes():
-    for cls in (Scripted, Linear, Counting):
+    for cls in (Scripted, Linear, HostSensitive, Counting):
         register(cls)
     Counting.log.clear()
     Scripted.log.clear()
     yield
-    for cls in (Scripted, Linear, Counting):
+    for cls in (Scripted, Linear, HostSensitive, Counting):
         _registry.pop(cls.name)
 
 
@@ -205,6 +221,26 @@ def test_budget_cells_report_their_achieved_device_time(tmp_path, fakes, known_b
     cells = equal_time_cells(table).set_index("time_budget_ms")
     assert cells.loc[0.5, "time_ms"] == pytest.approx(achieved[0.5]["time_ms"])
     assert not cells.loc[0.5, "within"] and cells.loc[20.0, "within"]
+
+
+def test_cells_are_timed_in_the_calibrations_context(tmp_path, fakes, known_builds,
+                                                     monkeypatch):
+    """Host work between cells (scoring) slows the renders that follow it; calibration renders
+    follow none.  Both must pause before timing (timing.timed_renders), or the second seed's
+    cell, scored right after the first, lands 1.6x over its budget."""
+    class MarkedScorer(runner.Scorer):
+        def score(self, estimate):
+            scored = super().score(estimate)
+            HostSensitive.last_scoring = time.monotonic()
+            return scored
+
+    monkeypatch.setattr(runner, "Scorer", MarkedScorer)
+    monkeypatch.setattr(timing, "SETTLE_S", 2 * HostSensitive.WINDOW_S)
+    table = run(tiny(tmp_path / "out", ("host_sensitive_timing_test",), spp=(), seeds=2,
+                     time_budget_ms=(20.0,)))
+    assert len(table) == 2
+    for time_ms in table.time_ms:
+        assert abs(time_ms - 20.0) <= TOLERANCE * 20.0, table.time_ms.tolist()
 
 
 def test_terminal_check_and_report_show_one_time_per_cell(tmp_path):
