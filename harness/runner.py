@@ -93,7 +93,7 @@ from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, ima
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
 from iblbench.harness.equal_time import CALIBRATION_REPEATS, TOLERANCE, Calibration
-from iblbench.harness.timing import (MEASURE, cell_times, device_ms, timed_renders,
+from iblbench.harness.timing import (MEASURE, SETTLE_S, cell_times, device_ms, timed_renders,
                                      time_columns)
 from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
                                     select_frames)
@@ -380,6 +380,8 @@ class Runner:
             "timing": {"measure": MEASURE, "repeats": dict(self.repeats),
                        "cell": "median of the estimator's repeats of timed renders after "
                                "warm-up; min and IQR beside it (harness/timing.py)",
+                       "context": f"a {SETTLE_S * 1e3:g} ms pause, then a cell's repeats (or a "
+                                  "calibration spp's renders) back to back before scoring",
                        "warm_up": f"1 spp on {WARMUP_PIXELS} pixels per frame and estimator",
                        "temporal": "timing renders on repeats - 1 twin instances per "
                                    "sequence; the scored render is the real state's"},
