@@ -121,6 +121,7 @@ import time
 
 import numpy as np
 
+from iblbench.harness.timing import required_build_ms, spread
 from iblbench.scenes.errors import InputError
 
 DEFAULT_SCENES = ("sphere-sun", "blob-sun")
@@ -234,17 +235,6 @@ def columns_help() -> str:
                                      "shade_ms_iqr / shade_ms.", 92))
 
 
-# ---- statistics --------------------------------------------------------------------------------
-
-def stats(values) -> tuple[float, float, float]:
-    """(median, min, IQR) of repeated timings; NaNs where no value is finite."""
-    values = np.asarray([v for v in values if math.isfinite(v)], np.float64)
-    if not len(values):
-        return math.nan, math.nan, math.nan
-    q25, q75 = np.percentile(values, [25, 75])
-    return float(np.median(values)), float(values.min()), float(q75 - q25)
-
-
 # ---- the roofline --------------------------------------------------------------------------------
 
 @dataclasses.dataclass(frozen=True)
@@ -320,7 +310,7 @@ def measure_roofline(compute, repeats: int) -> Roofline:
         iterations *= 2 if ms > 0 else 16
     _, fma_ms, flops = run_fma(compute, FMA_ITEMS, iterations, repeats)
     _, copy_ms, moved = run_copy(compute, np.ones(copy_size(compute) // 4, np.float32), repeats)
-    return Roofline(gflops=flops / stats(fma_ms)[0] / 1e6, gbps=moved / stats(copy_ms)[0] / 1e6,
+    return Roofline(gflops=flops / spread(fma_ms)[0] / 1e6, gbps=moved / spread(copy_ms)[0] / 1e6,
                     fma_flops=flops, copy_bytes=moved)
 
 
@@ -426,11 +416,6 @@ def floor_difference(floor: np.ndarray, kernel: np.ndarray) -> float:
 
 # ---- measuring -----------------------------------------------------------------------------------
 
-def _build_ms(cache, requires) -> float:
-    """Device ms of the per-frame products an estimator requires (the pool is its sample stage)."""
-    return sum(cache.timings_ms.get(p, 0.0) for p in ("upload", *requires) if p != "pool")
-
-
 @dataclasses.dataclass
 class _Cell:
     """The repeated renders of one (scene, estimator)."""
@@ -458,7 +443,7 @@ class _Cell:
             raise InputError(None, f"estimator '{self.label}' at spp {self.spp}: {error}") from None
         host = (time.perf_counter() - start) * 1e3
         if timed:
-            self.build.append(_build_ms(cache, type(self.estimator).requires))
+            self.build.append(required_build_ms(cache.timings_ms, type(self.estimator).requires))
             self.cdf.append(cache.timings_ms.get("cdf", math.nan))
             self.sample.append(estimate.timings_ms.get("sample", 0.0))
             self.shade.append(estimate.timings_ms.get("shade", math.nan))
@@ -496,11 +481,11 @@ def _budget(config: PerfConfig, name: str) -> tuple[int, int]:
 
 def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
          device: str) -> dict:
-    build, sample, shade = stats(cell.build), stats(cell.sample), stats(cell.shade)
-    frame = stats([b + s + h for b, s, h in zip(cell.build, cell.sample, cell.shade)])
-    render_ms = stats([s + h for s, h in zip(cell.sample, cell.shade)])[0]
+    build, sample, shade = spread(cell.build), spread(cell.sample), spread(cell.shade)
+    frame = spread([b + s + h for b, s, h in zip(cell.build, cell.sample, cell.shade)])
+    render_ms = spread([s + h for s, h in zip(cell.sample, cell.shade)])[0]
     samples = pixels * cell.spp
-    cdf_ms = stats(cell.cdf)[0]
+    cdf_ms = spread(cell.cdf)[0]
     cdf_bound_ms = (6 * env_res ** 2 * CDF_BYTES_PER_TEXEL / (roofline.gbps * 1e6)
                     if math.isfinite(cdf_ms) else math.nan)
     row = {"scene": scene, "estimator": cell.label,
@@ -511,7 +496,7 @@ def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
               (("build", build), ("sample", sample), ("shade", shade), ("frame", frame))
               for suffix, value in zip(("", "_min", "_iqr"), values)},
            "cdf_ms": cdf_ms, "cdf_bound_ms": cdf_bound_ms,
-           "render_ms": render_ms, "host_ms": stats(cell.host)[0],
+           "render_ms": render_ms, "host_ms": spread(cell.host)[0],
            "msamples_per_s": samples / (render_ms * 1e3),
            "mevals_per_s": pixels * cell.evaluations / (render_ms * 1e3)}
     cost = KERNEL_COSTS.get(getattr(cell.estimator, "name", ""))
@@ -531,7 +516,7 @@ def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
 def _floor_row(scene: str, spp: int, evaluations: int, pixels: int, times: list,
                difference: float, roofline: Roofline, device: str) -> dict:
     """The floor's row: ``evaluations`` pool entries read per pixel; host times ``times``."""
-    median, low, iqr = stats(times)
+    median, low, iqr = spread(times)
     flops, nbytes = KERNEL_COSTS["uniform"].per_sample(spp, evaluations)
     row = {column: math.nan for column in COLUMNS}
     row.update({"scene": scene, "estimator": FLOOR, "estimator_version": "", "spp": spp,

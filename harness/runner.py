@@ -93,8 +93,8 @@ from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, ima
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
 from iblbench.harness.equal_time import CALIBRATION_REPEATS, TOLERANCE, Calibration
-from iblbench.harness.timing import (MEASURE, SETTLE_S, cell_times, device_ms, timed_renders,
-                                     time_columns)
+from iblbench.harness.timing import (MEASURE, SETTLE_S, cell_times, device_ms, required_build_ms,
+                                     time_columns, timed_renders)
 from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
                                     select_frames)
 from iblbench.reports.previews import write_heat_map, write_preview
@@ -593,8 +593,7 @@ class Runner:
             cells = [key for key in todo if key[1] == spec.label]
             if not cells:
                 continue
-            # Per-frame builds only; a pool is drawn per render and timed as its "sample" stage.
-            build_ms = sum(built.get(p, 0.0) for p in ("upload",) + spec.cls.requires)
+            build_ms = required_build_ms(built, spec.cls.requires)
             repeats = self.repeats[spec.label]
             estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
             self._timed_renders([spec.make()], warm_up, cache, 1, [WARMUP_SEED], 0.0)

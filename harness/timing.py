@@ -85,6 +85,23 @@ def timed_renders(renderers, gbuffer, cache, spp: int, seeds, build_ms: float) -
     return out
 
 
+def required_build_ms(timings_ms: dict[str, float], requires) -> float:
+    """Device ms of the per-frame FrameCache products an estimator requires (the map upload and
+    its ``requires``), from the cache's ``timings_ms``; the light pool is not a build: it is drawn
+    per render and timed as the render's ``sample`` stage."""
+    return float(sum(timings_ms.get(p, 0.0) for p in ("upload", *requires) if p != "pool"))
+
+
+def spread(values) -> tuple[float, float, float]:
+    """(median, min, IQR) of repeated timings (NumPy's linear quantiles), over the finite ones;
+    NaNs where none is finite."""
+    values = np.asarray([v for v in values if math.isfinite(v)], np.float64)
+    if not len(values):
+        return math.nan, math.nan, math.nan
+    q25, q75 = np.percentile(values, [25, 75])
+    return float(np.median(values)), float(values.min()), float(q75 - q25)
+
+
 def device_ms(stages: dict[str, float]) -> float:
     """A render's device time: the sum of its stages (missing or non-finite ones count 0)."""
     return float(sum(v for v in stages.values() if math.isfinite(v)))
@@ -94,10 +111,8 @@ def time_columns(renders: list[TimedRender]) -> dict:
     """The results row's time columns of one cell from its timed renders (module docstring)."""
     if not renders:
         raise ValueError("a cell needs at least one timed render")
-    totals = np.array([device_ms(r.stages) for r in renders])
-    q25, median, q75 = np.percentile(totals, [25, 50, 75])
-    columns = {"time_ms": float(median), "time_ms_min": float(totals.min()),
-               "time_ms_iqr": float(q75 - q25)}
+    median, low, iqr = spread(device_ms(r.stages) for r in renders)
+    columns = {"time_ms": median, "time_ms_min": low, "time_ms_iqr": iqr}
     for stage in STAGES:
         values = [r.stages[stage] for r in renders if stage in r.stages]
         columns[f"time_ms_{stage}"] = float(np.median(values)) if values else math.nan

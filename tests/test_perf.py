@@ -15,7 +15,7 @@ import pytest
 
 from iblbench.estimators.registry import estimator_names, get_estimator_class
 from iblbench.estimators.uniform import Uniform
-from iblbench.harness import perf
+from iblbench.harness import perf, timing
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import FrameCache
 from iblbench.scenes.gbuffer import trace_gbuffer
@@ -217,6 +217,6 @@ def test_malformed_flags_exit_2(cli, tmp_path, flag, value):
     assert "Traceback" not in result.stderr and not out.exists()
 
 
-def test_stats_are_median_min_and_iqr():
-    median, low, iqr = perf.stats([4.0, 1.0, 3.0, 2.0, math.nan])
+def test_spread_is_median_min_and_iqr():
+    median, low, iqr = timing.spread([4.0, 1.0, 3.0, 2.0, math.nan])
     assert (median, low, iqr) == (2.5, 1.0, 1.5)
