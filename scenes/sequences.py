@@ -1,4 +1,5 @@
-"""Built-in environment sequences (DESIGN §5): ``day``, ``moving-lights`` and ``switch``.
+"""Built-in environment sequences (DESIGN §5): ``day``, ``moving-lights``, ``switch`` and
+``rotating-sun``.
 
 Every sequence is an :class:`EnvSequence` whose frames are made on demand by ``make_frame(index)``
 and cached per (parameters, index), so a long sequence is never held whole and a frame asked for
@@ -48,6 +49,16 @@ Y up, azimuth 0 → +Z, 90° → +X).
     ``SWITCH_POWER_RATIO`` = 100× the background's) is on in frames
     ``SWITCH_ON`` = 10 … ``SWITCH_OFF`` − 1 = 19 and off otherwise.  Frames 0–9 and 20–29 are the
     same array object, and so are frames 10–19.
+
+``rotating-sun`` — a map that changes smoothly, with no jump that would force a re-init
+    A blue, asymmetric sky (its three channels vary differently with x, y and z, so no face is
+    uniform) and a warm sun disc (``ROTATING_SUN`` = elevation 35°, azimuth 60° at frame 0,
+    angular radius 5°, power ``ROTATING_SUN_POWER`` = 4× the sky's Σ Y·Ω) turn together about
+    the vertical axis by ``ROTATING_STEP_DEG`` = 1° per moving frame, a fifth of the sun's radius:
+    a pixel's target γ_t changes by a few percent a frame, far inside smc's ×4 re-init threshold.
+    Frames listed in ``ROTATING_HOLDS`` repeat the previous frame (the same array object), so one
+    run passes both smc's continuing-frame path (Kronander Eq. 5/7/8) and its static-stretch
+    path, right after the init (frame 1) and in mid-run.  ``ROTATING_FRAMES`` = 24.
 """
 from __future__ import annotations
 
@@ -238,4 +249,54 @@ def switch(res: int = 64) -> EnvSequence:
                        source=f"builtin:switch (on {SWITCH_ON}..{SWITCH_OFF - 1} of {SWITCH_FRAMES})")
 
 
-SEQUENCES = {"day": day, "moving-lights": moving_lights, "switch": switch}
+# ---- rotating sun -------------------------------------------------------------------------------
+
+ROTATING_FRAMES = 24
+ROTATING_STEP_DEG = 1.0
+ROTATING_HOLDS = frozenset({1, 7, 8, 15})
+ROTATING_SUN = (35.0, 60.0, 5.0)   # elevation°, azimuth° at frame 0, angular radius°
+ROTATING_SUN_POWER = 4.0           # × the sky's Σ Y·Ω
+
+
+def rotating_angle(index: int) -> float:
+    """The rotation (degrees of azimuth) of frame ``index``: one step per frame not held."""
+    return ROTATING_STEP_DEG * sum(1 for t in range(1, index + 1) if t not in ROTATING_HOLDS)
+
+
+def rotating_sky(directions: np.ndarray) -> np.ndarray:
+    """The unrotated sky's radiance at unit ``directions`` ``[..., 3]``: blue, brighter up and
+    towards +X, different in every channel and on every face."""
+    x, y, z = np.moveaxis(np.asarray(directions, np.float64), -1, 0)
+    return 0.1 * np.stack([0.35 + 0.15 * x + 0.1 * y * z, 0.55 + 0.25 * y + 0.1 * x * y,
+                           1.0 + 0.4 * y - 0.2 * z + 0.15 * x * x], axis=-1)
+
+
+@functools.lru_cache(maxsize=64)
+def _rotating_frame_at(angle_deg: float, res: int) -> np.ndarray:
+    theta = np.radians(angle_deg)
+    x, y, z = np.moveaxis(cubemap.texel_directions(res), -1, 0)
+    # The sky turned by θ in azimuth (azimuth = atan2(x, z)): look it up at the direction turned back.
+    env = rotating_sky(np.stack([x * np.cos(theta) - z * np.sin(theta), y,
+                                 z * np.cos(theta) + x * np.sin(theta)], axis=-1))
+    elevation, azimuth, radius = ROTATING_SUN
+    env += _disc(res, sky.sun_direction(elevation, azimuth + angle_deg), radius,
+                 ROTATING_SUN_POWER * total_power(env), sky.SUN_CHROMATICITY)
+    env = env.astype(np.float32)
+    env.flags.writeable = False
+    return env
+
+
+def rotating_sun_frame(index: int, res: int) -> np.ndarray:
+    if not 0 <= index < ROTATING_FRAMES:
+        raise IndexError(f"rotating-sun has {ROTATING_FRAMES} frames, asked for {index}")
+    return _rotating_frame_at(rotating_angle(index), res)
+
+
+def rotating_sun(res: int = 64) -> EnvSequence:
+    return EnvSequence(ROTATING_FRAMES, lambda index: rotating_sun_frame(int(index), int(res)),
+                       source=f"builtin:rotating-sun ({ROTATING_STEP_DEG:g}° a frame, "
+                              f"held at {sorted(ROTATING_HOLDS)})")
+
+
+SEQUENCES = {"day": day, "moving-lights": moving_lights, "switch": switch,
+             "rotating-sun": rotating_sun}
