@@ -28,15 +28,20 @@ SUN = sky.sun_direction(35.0, 63.0)   # the sun of rotating-sun at frame 3
 
 
 def shading_points():
-    """(normal, view, kd, ks, m) of four points: a rough one facing the sun, two glossy ones
-    mirroring the sun's path (m = 200 and 60), and one facing away from the sun (sky only)."""
+    """(normal, view, kd, ks, m) of five points: a rough one facing the sun, two glossy ones
+    mirroring the sun's path (m = 200 and 60), and two lit by the sun at a grazing angle
+    (n·sun = 0.15, so the warm sun and the blue sky share γ and a sampler that overweights
+    either is seen in the colour)."""
     def mirrored(n):
         n = np.asarray(n, float) / np.linalg.norm(n)
         return n, 2 * np.dot(n, SUN) * n - SUN
+    side = np.cross(SUN, [0.0, 1.0, 0.0])
+    grazing = 0.15 * SUN + np.sqrt(1 - 0.15 ** 2) * np.cross(side / np.linalg.norm(side), SUN)
     points = [(SUN + [0.0, 0.3, 0.0], SUN, 0.5, 0.3, 20.0),
               (*mirrored([0, 1, 0]), 0.3, 0.6, 200.0),
-              ([-0.3, 0.2, -1.0], [0.0, 0.3, -1.0], 0.6, 0.2, 10.0),
-              (*mirrored([0.6, 1.0, 0.4]), 0.2, 0.7, 60.0)]
+              (*mirrored([0.6, 1.0, 0.4]), 0.2, 0.7, 60.0),
+              (grazing, grazing, 0.8, 0.0, 1.0),
+              (grazing, grazing, 0.5, 0.3, 20.0)]
     normal, view, kd, ks, m = (np.array(column, float) for column in zip(*points))
     unit = lambda a: a / np.linalg.norm(a, axis=-1, keepdims=True)
     return unit(normal), unit(view), kd[:, None] * np.ones(3), ks[:, None] * np.ones(3), m
