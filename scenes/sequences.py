@@ -52,10 +52,13 @@ Y up, azimuth 0 → +Z, 90° → +X).
 
 ``rotating-sun`` — a map that changes smoothly, with no jump that would force a re-init
     A blue, asymmetric sky (its three channels vary differently with x, y and z, so no face is
-    uniform) and a warm sun disc (``ROTATING_SUN`` = elevation 35°, azimuth 60° at frame 0,
-    angular radius 5°, power ``ROTATING_SUN_POWER`` = 4× the sky's Σ Y·Ω) turn together about
-    the vertical axis by ``ROTATING_STEP_DEG`` = 1° per moving frame, a fifth of the sun's radius:
-    a pixel's target γ_t changes by a few percent a frame, far inside smc's ×4 re-init threshold.
+    uniform) and a warm, soft sun (``ROTATING_SUN`` = elevation 35°, azimuth 60° at frame 0; a
+    glow exp((cos θ − 1)/σ²) of width σ = 8° about it, power ``ROTATING_SUN_POWER`` = 4× the sky's
+    Σ Y·Ω, peak ~400× the sky) turn together about the vertical axis by ``ROTATING_STEP_DEG`` = 1°
+    per moving frame.  Every texel's radiance changes by at most ~30% a frame (the glow's flank at
+    2σ), so a pixel's γ_t/γ_{t−1} stays bounded everywhere, far inside smc's ×4 re-init
+    threshold.  (A hard disc would not be smooth: a texel that its edge reaches jumps from sky to
+    sun, ×1000, in one frame.)
     Frames listed in ``ROTATING_HOLDS`` repeat the previous frame (the same array object), so one
     run passes both smc's continuing-frame path (Kronander Eq. 5/7/8) and its static-stretch
     path, right after the init (frame 1) and in mid-run.  ``ROTATING_FRAMES`` = 24.
@@ -254,7 +257,7 @@ def switch(res: int = 64) -> EnvSequence:
 ROTATING_FRAMES = 24
 ROTATING_STEP_DEG = 1.0
 ROTATING_HOLDS = frozenset({1, 7, 8, 15})
-ROTATING_SUN = (35.0, 60.0, 5.0)   # elevation°, azimuth° at frame 0, angular radius°
+ROTATING_SUN = (35.0, 60.0, 8.0)   # elevation°, azimuth° at frame 0, the glow's width σ°
 ROTATING_SUN_POWER = 4.0           # × the sky's Σ Y·Ω
 
 
@@ -278,9 +281,10 @@ def _rotating_frame_at(angle_deg: float, res: int) -> np.ndarray:
     # The sky turned by θ in azimuth (azimuth = atan2(x, z)): look it up at the direction turned back.
     env = rotating_sky(np.stack([x * np.cos(theta) - z * np.sin(theta), y,
                                  z * np.cos(theta) + x * np.sin(theta)], axis=-1))
-    elevation, azimuth, radius = ROTATING_SUN
-    env += _disc(res, sky.sun_direction(elevation, azimuth + angle_deg), radius,
-                 ROTATING_SUN_POWER * total_power(env), sky.SUN_CHROMATICITY)
+    elevation, azimuth, width = ROTATING_SUN
+    cosine = np.stack([x, y, z], axis=-1) @ sky.sun_direction(elevation, azimuth + angle_deg)
+    glow = np.exp((cosine - 1.0) / np.radians(width) ** 2)[..., None] * sky.xyY_to_rec709(*sky.SUN_CHROMATICITY, 1.0)
+    env += glow * (ROTATING_SUN_POWER * total_power(env) / total_power(glow))
     env = env.astype(np.float32)
     env.flags.writeable = False
     return env
