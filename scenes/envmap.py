@@ -7,17 +7,38 @@ Lat-long (equirectangular, aspect 2:1)
     Pixel (0, 0) is the top-left corner; u, v ∈ [0, 1] run across columns and down rows.
     Polar angle θ = π·v from +Y (up) at the top row; azimuth φ = 2π·(u − 0.5);
     direction = (sin θ sin φ, cos θ, −sin θ cos φ). The image centre looks toward −Z,
-    u = 0.75 toward +X and u = 0.25 toward −X.
+    u = 0.75 toward +X and u = 0.25 toward −X: the inside view of a right-handed, Y-up frame
+    with forward = −Z at the centre, as in Debevec's light probes (https://www.debevec.org/probes/).
+    Mitsuba 3's ``envmap`` (src/emitters/envmap.cpp: u = atan2(x, −z)/2π, v = acos(y)/π) has
+    the same handedness and v but puts u = 0 at −Z: its image is this one rolled by half its
+    width (a 180° turn about +Y).
 
-Crosses (unfolded cube, seen from inside)
-    ``hcross`` (4 faces wide × 3 tall) and ``vcross`` (3 wide × 4 tall), in face-sized cells
-    (column, row): +Y at (1, 0); −X, +Z, +X at (0, 1), (1, 1), (2, 1); −Y at (1, 2); −Z at
-    (3, 1) in the horizontal cross, or at (1, 3) rotated 180° in the vertical one. With the
-    OpenGL face table these cells hold the faces exactly as stored (only the vertical cross's
-    −Z is turned), and the picture is continuous across every fold. Like OpenGL cube faces,
-    it is the inside view of a left-handed frame (+X to the right of +Z, +Y up), so a
-    panorama in the lat-long convention above (a right-handed inside view) shows mirrored
-    in a cross. Unused cells are ignored, except that they too must hold valid texels.
+Crosses (unfolded cube, seen from inside; HDRShop's and Debevec's light-probe layout)
+    ``vcross`` (3 faces wide × 4 tall) and ``hcross`` (4 wide × 3 tall), in face-sized cells
+    (column, row): +Y at (1, 0); −X, −Z, +X at (0, 1), (1, 1), (2, 1); −Y at (1, 2); +Z at
+    (1, 3) in the vertical cross, or at (3, 1) in the horizontal one.  Each cell is what a
+    viewer at the centre sees through that face of the cube, in the same right-handed frame
+    as the lat-long: the middle row reads left, front, right (−X, −Z, +X; +X to the right of
+    the front), the top cell's bottom edge and the bottom cell's top edge meet the front, and
+    the vertical cross's +Z cell hangs upside down below −Y (its top edge meets −Y's bottom
+    edge).  So a lat-long and a cross of one panorama give the same cube map, and the cross is
+    the lat-long's picture unmirrored.  Source: the vertical-cross image-to-direction mapping of
+    Reinhard, Ward, Pattanaik and Debevec, *High Dynamic Range Imaging* (2005), §9.4.4 (quoted
+    by G. Ward on radiance-general, 13 June 2010), which is HDRShop's "Cubic Environment
+    (Vertical Cross)" and the layout of the crosses in Debevec's Light Probe Image Gallery
+    (https://www.debevec.org/probes/): forward = −Z at the centre, x growing to the right on
+    the front, up and down cells, and y growing downward on the +Z cell.  (The OpenGL
+    cube-map layout, +Z at the centre with the faces as stored, is the mirror image in z.)
+    With ``layout = "auto"`` a 3:4 or 4:3 image is taken as a cross only when its six unused
+    cells are black (every channel ≤ :data:`BLACK_LEVEL` × the mean of the used cells), since
+    a 3:4 crop of a lat-long has the same aspect; otherwise the layout must be given.  Unused
+    cells must hold valid texels either way.
+
+Face files (``faces``, and ``.npy`` cube maps)
+    Read as stored: the cube map itself (:mod:`~iblbench.scenes.cubemap`, the OpenGL face
+    table, as GPU cube maps and ``iblbench run --save-inputs`` keep them): face +X's columns
+    run toward −Z and its rows toward −Y, and so on.  Shown as pictures they are inside views
+    of a left-handed frame, each the mirror image of its cross cell.
 
 Resampling (lat-long, or a cube at another resolution)
     Each cube texel is the solid-angle-weighted mean of an n×n grid of sub-texel samples
@@ -58,13 +79,23 @@ MAX_SUBSAMPLES = 16
 _SAMPLES_PER_SOURCE_PIXEL = 4  # sub-texel samples per source pixel width (per axis)
 _SAMPLES_PER_BATCH = 1 << 20  # bounds temporary memory
 
-# Cell (column, row) of each face, in face order; faces in _CROSS_ROTATED are turned 180°.
+# With layout "auto", a 3:4 or 4:3 image is a cross only if no unused cell's channel exceeds
+# BLACK_LEVEL × the mean of the used cells (real crosses hold exact zeros there).
+BLACK_LEVEL = 1e-3
+
+# Cell (column, row) of each face, in face order (module docstring; HDR Imaging §9.4.4).
 _CROSS_CELLS = {
-    "hcross": ((2, 1), (0, 1), (1, 0), (1, 2), (1, 1), (3, 1)),
-    "vcross": ((2, 1), (0, 1), (1, 0), (1, 2), (1, 1), (1, 3)),
+    "hcross": ((2, 1), (0, 1), (1, 0), (1, 2), (3, 1), (1, 1)),
+    "vcross": ((2, 1), (0, 1), (1, 0), (1, 2), (1, 3), (1, 1)),
 }
-_CROSS_ROTATED = {"hcross": (), "vcross": (5,)}
+_X, _Y, _Z = np.eye(3, dtype=np.int64)
+# The directions in which each face's cell grows (to the right, downward), in face order.
+_CELL_AXES = {
+    "vcross": ((_Z, -_Y), (-_Z, -_Y), (_X, -_Z), (_X, _Z), (_X, _Y), (_X, -_Y)),
+    "hcross": ((_Z, -_Y), (-_Z, -_Y), (_X, -_Z), (_X, _Z), (-_X, -_Y), (_X, -_Y)),
+}
 _CROSS_SHAPE = {"hcross": (3, 4), "vcross": (4, 3)}  # (rows, columns) of face cells
+_ASPECT_NAMES = {"hcross": "horizontal cross", "vcross": "vertical cross"}
 
 PathLike = Union[str, os.PathLike]
 Source = Union[PathLike, Sequence[PathLike]]
@@ -95,7 +126,7 @@ def load_environment(
         raise InputError(None, f"unknown layout '{layout}' (choose from {', '.join(LAYOUTS)})")
     if res is not None and (not isinstance(res, (int, np.integer)) or not 1 <= res <= MAX_RES):
         raise InputError(None, f"cube-map resolution must be an integer in 1..{MAX_RES}, got {res!r}")
-    paths = _source_paths(source)
+    paths, requested = _source_paths(source), layout
     if len(paths) == 1 and os.fspath(paths[0]).lower().endswith(".npy"):
         images, paths = _read_cube_npy(paths[0]), paths * 6
     else:
@@ -105,6 +136,8 @@ def load_environment(
     else:
         layout = _check_single_layout(paths[0], images[0], layout)
     fixed = _validate_texels(paths, images, sanitize)
+    if requested == "auto" and layout in _CROSS_CELLS:
+        _require_black_unused_cells(paths[0], images[0], layout)
     env = _to_cube(images, layout, res)
     height, width = images[0].shape[:2]
     report = EnvironmentReport(layout, tuple(map(str, paths)), (width, height), env.shape[1], fixed)
@@ -238,14 +271,55 @@ def _to_cube(images: list[np.ndarray], layout: str, res: int | None) -> np.ndarr
     return _resample_cube(faces, res)
 
 
-def _extract_cross_faces(cross: np.ndarray, layout: str) -> np.ndarray:
+def _cross_cells(cross: np.ndarray, layout: str) -> list[np.ndarray]:
+    """The 12 face-sized cells of a cross, row by row; the used ones at :data:`_CROSS_CELLS`."""
     rows, columns = _CROSS_SHAPE[layout]
     size = cross.shape[0] // rows
+    return [cross[row * size:(row + 1) * size, column * size:(column + 1) * size]
+            for row in range(rows) for column in range(columns)]
+
+
+def _extract_cross_faces(cross: np.ndarray, layout: str) -> np.ndarray:
+    """The cube map of a cross: each face's texels, fetched from its cell (exact, no resampling).
+
+    Face texel (row i, column j) looks along u·U + v·V + W (the cube-map basis); its cell pixel
+    is found by projecting that direction on the cell's rightward and downward axes.  The axes
+    are ± U or ± V, so each face is its cell transposed and/or flipped.
+    """
+    cells = _cross_cells(cross, layout)
+    columns = _CROSS_SHAPE[layout][1]
+    size = cells[0].shape[0]
+    rows_of_face, columns_of_face = np.indices((size, size))
     faces = np.empty((6, size, size, 3), dtype=np.float32)
-    for face, (column, row) in enumerate(_CROSS_CELLS[layout]):
-        cell = cross[row * size:(row + 1) * size, column * size:(column + 1) * size]
-        faces[face] = cell[::-1, ::-1] if face in _CROSS_ROTATED[layout] else cell
+    for face, ((column, row), axes) in enumerate(zip(_CROSS_CELLS[layout], _CELL_AXES[layout])):
+        face_u, face_v, _ = cubemap.face_basis(face).astype(np.int64)
+
+        def cell_index(axis):
+            grid, sign = ((columns_of_face, axis @ face_u) if axis @ face_u
+                          else (rows_of_face, axis @ face_v))
+            return grid if sign > 0 else size - 1 - grid
+
+        right, down = axes
+        faces[face] = cells[row * columns + column][cell_index(down), cell_index(right)]
     return faces
+
+
+def _require_black_unused_cells(path, cross: np.ndarray, layout: str) -> None:
+    """Refuse an auto-detected cross whose unused cells are not black (a cropped lat-long?)."""
+    columns = _CROSS_SHAPE[layout][1]
+    used = {row * columns + column for column, row in _CROSS_CELLS[layout]}
+    cells = _cross_cells(cross, layout)
+    used_mean = float(np.mean([cells[k].mean(dtype=np.float64) for k in sorted(used)]))
+    unused_max = max(float(cells[k].max()) for k in range(len(cells)) if k not in used)
+    if unused_max > BLACK_LEVEL * used_mean:
+        height, width = cross.shape[:2]
+        raise InputError(
+            path,
+            f"a {width}x{height} image has a {_ASPECT_NAMES[layout]}'s aspect, but its six unused "
+            f"cells are not black (up to {unused_max:.3g}, against a mean of {used_mean:.3g} in "
+            f"the used ones; black means at most {BLACK_LEVEL:g}× that); set the environment's "
+            f"layout explicitly (layout = \"{layout}\" to read it as a cross anyway)",
+        )
 
 
 def _resample_cube(faces: np.ndarray, res: int) -> np.ndarray:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from iblbench.scenes import cubemap
-from iblbench.scenes.envmap import default_latlong_res, load_environment, resample_latlong
+from iblbench.scenes.envmap import BLACK_LEVEL, default_latlong_res, load_environment, resample_latlong
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.imageio import write_exr, write_hdr
 
@@ -47,11 +47,12 @@ def latlong_pixel_integral(image: np.ndarray) -> np.ndarray:
 
 
 def cross_directions(layout: str, size: int) -> np.ndarray:
-    """Direction of every pixel centre of a cross, by folding the paper cross onto the cube.
+    """Direction of every pixel centre of a cross, from the image-to-direction mapping of the
+    vertical cross in Reinhard, Ward, Pattanaik and Debevec, *High Dynamic Range Imaging* (2005),
+    §9.4.4 (HDRShop's layout; the horizontal cross hangs +Z right of +X instead).
 
-    (a, b) are paper coordinates in face half-widths, a to the right and b down, with the +Z
-    cell at [-1, 1]² in cell (1, 1). Each neighbouring cell is folded about its shared edge,
-    going round the cube; pixels outside the cross are NaN.
+    (a, b) are paper coordinates in face half-widths, a to the right and b down, with the front
+    (-Z) cell at [-1, 1]² in cell (1, 1); pixels outside the cross are NaN.
     """
     rows, columns = (4, 3) if layout == "vcross" else (3, 4)
     b = 2 * (np.arange(rows * size) + 0.5) / size - 3
@@ -60,13 +61,13 @@ def cross_directions(layout: str, size: int) -> np.ndarray:
     one = np.ones_like(a)
     middle_column, middle_row = np.abs(a) < 1, np.abs(b) < 1
     pieces = [
-        (middle_column & middle_row, (a, -b, one)),  # +Z
-        (middle_column & (b < -1), (a, one, b + 2)),  # +Y, folded up from +Z's top edge
-        (middle_column & (b > 1) & (b < 3), (a, -one, 2 - b)),  # -Y, below +Z
-        (middle_column & (b > 3), (a, b - 4, -one)),  # -Z, below -Y (vertical cross)
-        (middle_row & (a > 1) & (a < 3), (one, -b, 2 - a)),  # +X, right of +Z
-        (middle_row & (a < -1), (-one, -b, a + 2)),  # -X, left of +Z
-        (middle_row & (a > 3), (4 - a, -b, -one)),  # -Z, right of +X (horizontal cross)
+        (middle_column & middle_row, (a, -b, -one)),  # -Z, forward
+        (middle_column & (b < -1), (a, one, -(b + 2))),  # +Y, above the front
+        (middle_column & (b > 1) & (b < 3), (a, -one, b - 2)),  # -Y, below the front
+        (middle_column & (b > 3), (a, b - 4, one)),  # +Z, upside down below -Y (vertical cross)
+        (middle_row & (a > 1) & (a < 3), (one, -b, a - 2)),  # +X, right of the front
+        (middle_row & (a < -1), (-one, -b, -(a + 2))),  # -X, left of the front
+        (middle_row & (a > 3), (4 - a, -b, one)),  # +Z, right of +X (horizontal cross)
     ]
     points = np.full(a.shape + (3,), np.nan)
     for inside, point in pieces:
@@ -152,9 +153,9 @@ def test_cross_extraction_matches_the_folded_cube(tmp_path, layout):
 @pytest.mark.parametrize(
     "layout, rows, columns, step",
     [
-        ("vcross", 23, range(8, 16), (1, 0)),  # -Y above the rotated -Z
-        ("hcross", range(8, 16), 23, (0, 1)),  # +X left of -Z
-        ("hcross", 7, range(8, 16), (1, 0)),  # +Y above +Z
+        ("vcross", 23, range(8, 16), (1, 0)),  # -Y above the rotated +Z
+        ("hcross", range(8, 16), 23, (0, 1)),  # +X left of +Z
+        ("hcross", 7, range(8, 16), (1, 0)),  # +Y above -Z
     ],
 )
 def test_cross_is_continuous_across_folds(layout, rows, columns, step):
@@ -171,10 +172,67 @@ def test_cross_is_resampled_energy_exactly_when_halved(tmp_path):
     rng = np.random.default_rng(7)
     cross = rng.random((16, 12, 3)).astype(np.float32)
     write_exr(tmp_path / "c.exr", cross)
-    full, _ = load_environment(tmp_path / "c.exr")
-    half, report = load_environment(tmp_path / "c.exr", res=2)
+    full, _ = load_environment(tmp_path / "c.exr", layout="vcross")
+    half, report = load_environment(tmp_path / "c.exr", layout="vcross", res=2)
     assert report.resolution == 2
     np.testing.assert_allclose(cubemap.integrate(half), cubemap.integrate(full), rtol=1e-5)
+
+
+def nearest_latlong(image: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """The lat-long pixel nearest to each direction, from the documented formula (NaN -> 0)."""
+    height, width = image.shape[:2]
+    d = np.nan_to_num(d)
+    u = (np.arctan2(d[..., 0], -d[..., 2]) / (2 * np.pi) + 0.5) % 1.0
+    v = np.arccos(np.clip(d[..., 1], -1, 1)) / np.pi
+    row = np.minimum((v * height).astype(int), height - 1)
+    column = np.minimum((u * width).astype(int), width - 1)
+    return np.where(np.linalg.norm(d, axis=-1, keepdims=True) > 0, image[row, column], 0.0)
+
+
+def test_one_panorama_gives_one_cube_map_in_every_layout(tmp_path):
+    """Issue 11, defect 11: a lat-long, the HDRShop crosses and six face files cut from it light
+    the scene alike (a cross read mirrored in z differs by up to 0.6 in red: -0.3 z)."""
+    size = 16
+    latlong = smooth_radiance(latlong_directions(256)).astype(np.float32)
+    write_exr(tmp_path / "pano.exr", latlong)
+    for layout in ("vcross", "hcross"):
+        write_exr(tmp_path / f"{layout}.exr", nearest_latlong(latlong, cross_directions(layout, size)))
+    faces = nearest_latlong(latlong, cubemap.texel_directions(size))
+    _write_faces(tmp_path, faces)
+    sources = {"latlong": tmp_path / "pano.exr", "vcross": tmp_path / "vcross.exr",
+               "hcross": tmp_path / "hcross.exr", "faces": str(tmp_path / "env_{face}.exr")}
+    expected = smooth_radiance(cubemap.texel_directions(size))
+    for layout, source in sources.items():
+        env, report = load_environment(source, res=size)
+        assert report.layout == layout
+        # Nearest lat-long pixels (0.7° apart) against the exact function: within 3%.
+        np.testing.assert_allclose(env, expected, rtol=0.03, err_msg=layout)
+
+
+@pytest.mark.parametrize("layout, crop", [("vcross", (slice(None), slice(40, 88))),
+                                          ("hcross", (slice(10, 46), slice(16, 64)))])
+def test_auto_refuses_a_latlong_crop_with_a_cross_aspect(tmp_path, smooth_latlong, layout, crop):
+    """Issue 11, defect 7: a 3:4 (or 4:3) crop of a lat-long is not read as a cross."""
+    write_exr(tmp_path / "crop.exr", smooth_latlong[1][crop])
+    with pytest.raises(InputError, match=f"unused cells are not black.*layout = \"{layout}\"") as err:
+        load_environment(tmp_path / "crop.exr")
+    assert err.value.source == str(tmp_path / "crop.exr")
+    env, report = load_environment(tmp_path / "crop.exr", layout=layout)
+    assert report.layout == layout
+
+
+@pytest.mark.parametrize("fraction_of_the_limit, accepted", [(0.5, True), (2.0, False)])
+def test_black_level_of_the_unused_cross_cells(tmp_path, fraction_of_the_limit, accepted):
+    size = 4
+    inside = np.isfinite(cross_directions("vcross", size)[..., 0])
+    cross = np.where(inside[..., None], np.full(3, 2.0), 0.0).astype(np.float32)
+    cross[0, 0] = fraction_of_the_limit * BLACK_LEVEL * 2.0   # one texel of one unused cell
+    write_exr(tmp_path / "cross.exr", cross)
+    if accepted:
+        assert load_environment(tmp_path / "cross.exr")[1].layout == "vcross"
+    else:
+        with pytest.raises(InputError, match="not black"):
+            load_environment(tmp_path / "cross.exr")
 
 
 def _write_faces(tmp_path, faces, ext="exr"):
