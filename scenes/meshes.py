@@ -120,6 +120,42 @@ def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     return mesh.process()
 
 
+# The rotation that stands a Z-up mesh (as Blender, 3ds Max and most scans store it) up in this
+# Y-up frame: (x, y, z) -> (x, z, -y), a -90° turn about X (what Blender's glTF export applies).
+Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+
+
+def rotation_xyz(degrees) -> np.ndarray:
+    """The 3×3 rotation by ``degrees`` = (rx, ry, rz) about the fixed X, then Y, then Z axes.
+
+    Right-handed: a positive angle turns counter-clockwise seen from the axis's positive end
+    (rotating +X by 90° about Y gives −Z).
+    """
+    rx, ry, rz = np.radians(np.asarray(degrees, np.float64))
+
+    def about(angle, i, j):   # rotation in the (i, j) coordinate plane, i toward j
+        turn = np.eye(3)
+        turn[[i, j, i, j], [i, j, j, i]] = np.cos(angle), np.cos(angle), -np.sin(angle), np.sin(angle)
+        return turn
+
+    return about(rz, 0, 1) @ about(ry, 2, 0) @ about(rx, 1, 2)
+
+
+def transform_mesh(mesh: trimesh.Trimesh, linear: np.ndarray, translate) -> trimesh.Trimesh:
+    """A copy of ``mesh`` with vertices ``linear @ v + translate``.
+
+    ``linear`` must have a positive determinant (no mirroring, so the winding keeps its sense).
+    Vertex normals follow the inverse transpose of ``linear`` (right under non-uniform scale).
+    """
+    import trimesh
+
+    linear = np.asarray(linear, np.float64)
+    vertices = np.asarray(mesh.vertices, np.float64) @ linear.T + np.asarray(translate, np.float64)
+    normals = np.asarray(mesh.vertex_normals, np.float64) @ np.linalg.inv(linear)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)   # 0 stays 0
+    return trimesh.Trimesh(vertices, np.asarray(mesh.faces), vertex_normals=normals, process=False)
+
+
 def _reason(error: Exception) -> str:
     """What a trimesh exception says about the file."""
     if isinstance(error, ImportError) and error.name == "charset_normalizer":

@@ -24,6 +24,13 @@ User scene format (paths are relative to the TOML file's folder)::
 
     [mesh]
     path = "bunny.obj"              # required: OBJ, PLY or GLB (multi-object files are merged)
+    up = "z"                        # optional: "y" (default) or "z"; "z" stands a Z-up mesh up
+                                    # by turning it -90° about X: (x, y, z) -> (x, z, -y)
+    scale = 0.01                    # optional: a positive number or three (x, y, z)
+    rotate = [0.0, 90.0, 0.0]       # optional: degrees about X, then Y, then Z (fixed axes,
+                                    # right-handed: 90° about Y takes +X to -Z)
+    translate = [0.0, -0.5, 0.0]    # optional
+                                    # applied in this order: up, scale, rotate, translate
 
     [environment]
     path = "sky.exr"                # required: EXR/HDR lat-long or cross, "sky_{face}.exr" for six
@@ -208,7 +215,7 @@ def load_scene(name_or_path: str | os.PathLike, sanitize: bool = False, env_res:
 # --- TOML scenes -------------------------------------------------------------------------------
 
 _SECTIONS = {
-    "mesh": ({"path"}, set()),
+    "mesh": ({"path"}, {"up", "scale", "rotate", "translate"}),
     "environment": ({"path"}, {"layout", "res"}),
     "material": (set(), {"kd", "ks", "shininess"}),
     "camera": ({"eye", "target"}, {"up", "fov_y"}),
@@ -298,12 +305,40 @@ def _toml_scene(path: Path, sanitize: bool, env_res: int | None) -> Scene:
     camera = _camera(fields["camera"])
     environment = _environment(fields["environment"], folder, sanitize, env_res)
     mesh_path = folder / fields["mesh"].string("path")
-    mesh = meshes.load_mesh(mesh_path)
+    mesh = _placed_mesh(fields["mesh"], meshes.load_mesh(mesh_path))
     render = fields["render"]
     resolution = tuple(render.positive_int(k, MAX_IMAGE_SIDE) if render.has(k) else 128
                        for k in ("width", "height"))
     return Scene(path.stem, mesh, material, camera, environment, resolution, source=os.fspath(path),
                  mesh_source=os.fspath(mesh_path))
+
+
+def _placed_mesh(fields: _Fields, mesh):
+    """``mesh`` after the optional [mesh] up, scale, rotate and translate, in that order."""
+    if not any(fields.has(key) for key in ("up", "scale", "rotate", "translate")):
+        return mesh
+    up = fields.string("up") if fields.has("up") else "y"
+    if up not in ("y", "z"):
+        fields.fail(f'mesh.up must be "y" or "z", got {up!r}')
+    scale = np.ones(3)
+    if fields.has("scale"):
+        scale = (np.full(3, fields.number("scale")) if not isinstance(fields.table["scale"], list)
+                 else np.array(fields.vector("scale")))
+        if scale.min() <= 0.0:
+            fields.fail(f"mesh.scale must be positive (a mirror would turn the mesh inside out), "
+                        f"got {fields.table['scale']!r}")
+    rotate = fields.vector("rotate") if fields.has("rotate") else (0.0, 0.0, 0.0)
+    translate = fields.vector("translate", meshes.MAX_COORDINATE) if fields.has("translate") else (0.0, 0.0, 0.0)
+    linear = meshes.rotation_xyz(rotate) @ np.diag(scale)
+    if up == "z":
+        linear = linear @ meshes.Z_UP_TO_Y_UP
+    with np.errstate(over="ignore", invalid="ignore"):   # reported just below
+        placed = meshes.transform_mesh(mesh, linear, translate)
+    peak = float(np.abs(placed.vertices).max())
+    if not peak <= meshes.MAX_COORDINATE:
+        fields.fail(f"the placed mesh reaches {peak:g}; coordinates must stay within "
+                    f"±{meshes.MAX_COORDINATE:g} (check mesh.scale and mesh.translate)")
+    return placed
 
 
 def _material(fields: _Fields) -> Material:

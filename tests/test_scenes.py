@@ -445,3 +445,78 @@ def test_sanitize_fixes_bad_npy_texels_and_counts_them(scene_folder):
 def test_missing_toml_file(tmp_path):
     with pytest.raises(InputError, match="scene file not found"):
         registry.load_scene(tmp_path / "absent.toml")
+
+
+# --- [mesh] placement (issue 11, defect 12) -----------------------------------------------------
+
+def _z_up_box(folder):
+    """A 1 × 2 × 3 box standing on z = 0 (Z up: 3 tall), corner at the origin, as an OBJ."""
+    box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
+    box.apply_translation((0.5, 1.0, 1.5))
+    box.export(folder / "ball.obj")
+    return box
+
+
+def test_mesh_up_z_stands_a_z_up_mesh_up(scene_folder):
+    box = _z_up_box(scene_folder)
+    (scene_folder / "scene.toml").write_text(edit(SCENE_TOML, 'path = "ball.obj"', 'path = "ball.obj"\nup = "z"'))
+    mesh = registry.load_scene(scene_folder / "scene.toml").mesh
+    # Z up becomes Y up, Y (Blender's back) becomes -Z: x in [0, 1], y in [0, 3], z in [-2, 0].
+    np.testing.assert_allclose(mesh.bounds, [[0.0, 0.0, -2.0], [1.0, 3.0, 0.0]], atol=1e-12)
+    # The box's top face (normal +Z in the file) is now the face with normal +Y, at y = 3.
+    top = np.isclose(np.asarray(box.vertices)[:, 2], 3.0)
+    normals = np.asarray(mesh.vertex_normals)
+    assert np.all(normals[top, 1] > 0.5) and np.all(normals[~top, 1] < 0.0)
+    np.testing.assert_allclose(normals[:, [0, 2]] @ [[1, 0], [0, -1]], np.asarray(box.vertex_normals)[:, [0, 1]], atol=1e-12)
+    buffer = gbuffer.trace_gbuffer(mesh, Material(), Camera(eye=(0.5, 10.0, -1.0), target=(0.5, 0.0, -1.0),
+                                                           up=(0.0, 0.0, -1.0)), 8, 8)
+    # Seen from straight above, every covered pixel is the top face at y = 3, its (smoothed
+    # corner) normals leaning up.
+    assert buffer.covered > 0
+    np.testing.assert_allclose(buffer.position[buffer.mask][:, 1], 3.0, atol=1e-5)
+    assert np.all(buffer.normal[buffer.mask][:, 1] > 0.5)
+
+
+def test_mesh_scale_rotate_translate(scene_folder):
+    box = _z_up_box(scene_folder)
+    placement = 'path = "ball.obj"\nscale = 2\nrotate = [0, 90, 0]\ntranslate = [10, 0, 0]'
+    (scene_folder / "scene.toml").write_text(edit(SCENE_TOML, 'path = "ball.obj"', placement))
+    mesh = registry.load_scene(scene_folder / "scene.toml").mesh
+    # Scaled to 2 × 4 × 6, then 90° about Y takes x to -z and z to x: x in [0, 6] + 10, z in [-2, 0].
+    np.testing.assert_allclose(mesh.bounds, [[10.0, 0.0, -2.0], [16.0, 4.0, 0.0]], atol=1e-12)
+    assert len(mesh.faces) == len(box.faces)
+
+
+def test_mesh_non_uniform_scale_gives_ellipsoid_normals(scene_folder):
+    trimesh.creation.icosphere(4).export(scene_folder / "ball.obj")
+    (scene_folder / "scene.toml").write_text(edit(SCENE_TOML, 'path = "ball.obj"', 'path = "ball.obj"\nscale = [3, 1, 1]'))
+    mesh = registry.load_scene(scene_folder / "scene.toml").mesh
+    # The ellipsoid x²/9 + y² + z² = 1 has normal ∝ (x/9, y, z); the vertex normals (the sphere's,
+    # carried by the inverse transpose) must match it to within the tessellation's 2°.
+    v = np.asarray(mesh.vertices)
+    analytic = v * [1 / 9, 1, 1]
+    analytic /= np.linalg.norm(analytic, axis=1, keepdims=True)
+    cosines = np.einsum("ij,ij->i", np.asarray(mesh.vertex_normals), analytic)
+    assert np.degrees(np.arccos(np.clip(cosines, -1, 1))).max() < 2.0
+
+
+@pytest.mark.parametrize(
+    "placement, problem",
+    [
+        ('up = "x"', 'mesh.up must be "y" or "z", got \'x\''),
+        ("up = 1", "mesh.up must be a non-empty string"),
+        ("scale = 0", "mesh.scale must be positive"),
+        ("scale = [1, -1, 1]", "mesh.scale must be positive"),
+        ('scale = "big"', "mesh.scale must be a finite number"),
+        ("rotate = [90, 0]", "mesh.rotate must be a list of 3 finite numbers"),
+        ("translate = [0, 0, 1e300]", "mesh.translate must lie within ±1e\\+09"),
+        ("scale = 1e300", "the placed mesh reaches 1e\\+300; coordinates must stay within ±1e\\+09"),
+        ("turn = 3", "unknown key 'turn' in \\[mesh\\]"),
+    ],
+)
+def test_mesh_placement_errors_name_the_scene_file(scene_folder, placement, problem):
+    path = scene_folder / "scene.toml"
+    path.write_text(edit(SCENE_TOML, 'path = "ball.obj"', f'path = "ball.obj"\n{placement}'))
+    with pytest.raises(InputError, match=problem) as error:
+        registry.load_scene(path)
+    assert error.value.source == str(path) and "\n" not in str(error.value)
