@@ -100,6 +100,7 @@ from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, p
 from iblbench.reports.previews import write_heat_map, write_preview
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
+from iblbench.scenes.framing import warn_about_framing
 from iblbench.scenes.gbuffer import trace_gbuffer
 from iblbench.scenes.imageio import read_exr, write_exr
 from iblbench.scenes.registry import load_scene
@@ -495,6 +496,7 @@ class Runner:
             raise InputError(scene.source or scene.name,
                              f"the camera sees none of the mesh{mesh}; check the camera's eye "
                              "and target, and the mesh's position and size")
+        warn_about_framing(scene, gbuffer)   # too few mesh pixels, or the camera inside the mesh
         return gbuffer
 
     def _run_scene(self, plan: _ScenePlan, gbuffer, bar) -> None:
