@@ -6,8 +6,13 @@ integrals over the sphere.
 """
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
+import trimesh
 
 from iblbench.scenes import cubemap
 from iblbench.scenes.envmap import BLACK_LEVEL, default_latlong_res, load_environment, resample_latlong
@@ -219,6 +224,23 @@ def test_auto_refuses_a_latlong_crop_with_a_cross_aspect(tmp_path, smooth_latlon
     assert err.value.source == str(tmp_path / "crop.exr")
     env, report = load_environment(tmp_path / "crop.exr", layout=layout)
     assert report.layout == layout
+
+
+def test_a_latlong_crop_stops_a_run_with_exit_2_on_one_line(tmp_path, smooth_latlong):
+    """Issue 11, defect 7, through the command line: nothing is run or written."""
+    write_exr(tmp_path / "crop.exr", smooth_latlong[1][:, 40:88])   # 48 x 64: a 3:4 crop
+    trimesh.creation.icosphere(1).export(tmp_path / "ball.obj")
+    (tmp_path / "scene.toml").write_text('[mesh]\npath = "ball.obj"\n[environment]\npath = "crop.exr"\n'
+                                         "[camera]\neye = [0, 0, 3]\ntarget = [0, 0, 0]\n")
+    result = subprocess.run([sys.executable, "-m", "iblbench.harness.cli", "run", "--scene",
+                             str(tmp_path / "scene.toml"), "--estimator", "uniform", "--spp", "1",
+                             "--seeds", "1", "--out", str(tmp_path / "out"), "--no-progress"],
+                            capture_output=True, text=True, timeout=120,
+                            env=dict(os.environ, IBLBENCH_CACHE=str(tmp_path / "cache")))
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.startswith(f"iblbench: error: {tmp_path / 'crop.exr'}: ")
+    assert result.stderr.count("\n") == 1 and 'layout = "vcross"' in result.stderr
+    assert not (tmp_path / "out" / "results.parquet").exists()
 
 
 @pytest.mark.parametrize("fraction_of_the_limit, accepted", [(0.5, True), (2.0, False)])
