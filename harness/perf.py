@@ -13,8 +13,7 @@ device stage (OpenCL profiling events, DESIGN §3 "Timing"):
   the bytes it must move (:func:`cdf_build_bytes`) over the measured copy bandwidth;
 - ``sample`` and ``shade``: ``Estimate.timings_ms`` (the pool estimators' ``sample`` is the
   draw of the light-sample pool and its layout as planes, with ``balanced_mis``'s shared BRDF
-  numbers; ``havran``'s is its map's CDFs built on the device plus the host time of its K
-  lights and their filter);
+  numbers; ``havran``'s is the device time of its map's CDFs, its K lights and their filter);
 - the rates divide by the render's device time, sample + shade (build does not scale with spp
   and is reported beside them).
 
@@ -197,8 +196,8 @@ COLUMNS = {
     "cdf_ms": "device ms of the CDF build alone (part of build_ms; NaN: not required), median",
     "cdf_bound_ms": "the CDF build's copy-bandwidth bound: 6·(R²·(16 + 8) + R·8) B (float4 "
                     "texels read once, conditional and marginal CDF words written once) / peak_gbps",
-    "sample_ms": "device ms of the sample stage (pool draw; havran: map build on the device "
-                 "+ host ms of the light set; 0: none), median",
+    "sample_ms": "device ms of the sample stage (pool draw; havran: map build, light placement "
+                 "and filter; 0: none), median",
     "sample_ms_min": "its minimum",
     "sample_ms_iqr": "its interquartile range",
     "shade_ms": "device ms of the shading kernel, median (the floor: host wall ms)",
