@@ -39,16 +39,22 @@ __kernel void cell_lookups(__global const float4 *env, __global const int *looku
     value[cell] = largest;
 }
 
+/* The max of value over columns j − 1, j, j + 1 of a row (φ wraps). */
+ALWAYS_INLINE float row_max3(__global const float *row, int j, int nphi)
+{
+    int left = j > 0 ? j - 1 : nphi - 1, right = j < nphi - 1 ? j + 1 : 0;
+    return max(max(row[left], row[j]), row[right]);
+}
+
 /* mass = (1 − conservative)·mean + conservative·(max of value over the 3×3 cells around; φ wraps,
- * rows clamp at the poles). */
+ * rows clamp at the poles).  Straight-line code (no loops, no modulo), so it vectorises. */
 __kernel void cell_mass(__global const float *mean, __global const float *value, const int nz,
                         const int nphi, const float conservative, __global acc_t *mass)
 {
-    int cell = get_global_id(0), i = cell / nphi, j = cell % nphi;
-    float bound = 0.0f;
-    for (int a = -1; a <= 1; ++a)
-        for (int b = -1; b <= 1; ++b)
-            bound = max(bound, value[clamp(i + a, 0, nz - 1) * nphi + (j + b + nphi) % nphi]);
+    int cell = get_global_id(0), i = cell / nphi, j = cell - i * nphi;
+    float bound = max(max(row_max3(value + max(i - 1, 0) * nphi, j, nphi),
+                          row_max3(value + i * nphi, j, nphi)),
+                      row_max3(value + min(i + 1, nz - 1) * nphi, j, nphi));
     mass[cell] = (1.0 - (acc_t)conservative) * (acc_t)mean[cell] + (acc_t)conservative * (acc_t)bound;
 }
 
