@@ -62,10 +62,19 @@ its entry).
 
 **Shading.**  L ≈ Σ_k W_k ρ(ω_k) cos⁺(n, ω_k) over the lights with n·ω_k > 0 (per-normal
 culling).  used = K, effective = the lights above the horizon, evaluations = the lights shaded.
+**On the device.**  The map, the K lights and the filter run as ``havran.cl`` kernels on
+device buffers: nothing of a frame goes back to the host (the relaxed, rotated points are
+uploaded once per sequence, the filter's history is a device ring of the last
+``len(fir_taps)`` frames' lights, slot frame mod ``len(fir_taps)``).  Their arithmetic is that
+of the NumPy twins, :class:`EqualAreaMap` (its ``sample`` and ``radiance``) and
+:func:`fir_filter`, in acc_t (float64 where the device has it) without multiply-add
+contraction; the tests hold the device lights to those twins.  Only libm's cos and sin (a few ulps) and the texel lookup of a
+direction within rounding of a texel edge can differ, so the lights are those of the NumPy
+path to ~1e-15 and the estimator is statistically unchanged.
+
 The ``sample`` timing is the device time of the kernels that build the frame's map CDFs
-(``havran.cl``; once per frame, but counted in every render, as a light pool's build is) plus
-the host time of the K lights and the filter (NumPy: K points through the copied-back CDFs);
-the ``shade`` timing is the kernel's device time.
+(once per frame, but counted in every render, as a light pool's build is), place the K lights
+and filter them; the ``shade`` timing is the kernel's device time.
 """
 from __future__ import annotations
 
@@ -212,9 +221,9 @@ def centre_cells(res: int) -> np.ndarray:
 class EqualAreaMap:
     """The frame's luminance pdf on the equal-area grid and its continuous inversion.
 
-    ``EqualAreaMap(env)`` builds it with NumPy (the twin the tests hold the device build to);
-    :meth:`on_device` builds the same arrays with the kernels of ``havran.cl`` and copies them
-    back for the inversion of the K points."""
+    ``EqualAreaMap(env)`` builds it with NumPy: the twin (the tests' oracle) of the device map
+    that :meth:`on_device` builds with the kernels of ``havran.cl``, and of ``place_lights``,
+    the device twin of :meth:`sample`."""
 
     def __init__(self, env: np.ndarray):
         start = time.perf_counter()
@@ -248,42 +257,10 @@ class EqualAreaMap:
         self.col_cdf /= self.col_cdf[:, -1:]
         self.build_ms = (time.perf_counter() - start) * 1e3
 
-    @classmethod
-    def on_device(cls, cache) -> "EqualAreaMap":
-        """The map of a FrameCache's frame, built by havran.cl from the uploaded map (its
-        ``build_ms`` is the kernels' device time); the arrays are those of the NumPy build up to
-        float rounding (luminance in float32 on the device)."""
-        compute, res = cache.compute, cache.res
-        self = cls.__new__(cls)
-        self.nz, self.nphi = grid_shape(res)
-        self.env = cache.env
-        lookup, offsets, texels = _device_tables(compute, res)
-        cells = self.nz * self.nphi
-        acc = np.float64 if compute.info.has_fp64 else np.float32
-        width = np.dtype(acc).itemsize
-        mean, value, mass = compute.empty(4 * cells), compute.empty(4 * cells), compute.empty(width * cells)
-        row_mass, row_prob, row_cdf = (compute.empty(width * self.nz) for _ in range(3))
-        col_prob, col_cdf, factors = compute.empty(width * cells), compute.empty(width * cells), compute.empty(2 * width)
-
-        def run(name, size, *args):
-            return compute.run(compute.kernel(Havran.kernel_package(), "havran.cl", name), size, *args)
-
-        nz, nphi = np.int32(self.nz), np.int32(self.nphi)
-        events = [
-            run("cell_lookups", cells, cache.env_buffer, lookup, nphi, np.int32(SUPERSAMPLE), offsets,
-                texels, mean, value),
-            run("cell_mass", cells, mean, value, nz, nphi, np.float32(CONSERVATIVE), mass),
-            run("row_mass", self.nz, mass, nphi, row_mass),
-            run("grid_factors", 1, row_mass, nz, nphi, np.float32(DEFENSIVE), factors),
-            run("row_cdfs", self.nz, mass, factors, nphi, row_prob, col_prob, col_cdf),
-            run("marginal_cdf", 1, row_prob, nz, row_cdf),
-        ]
-        self.row_prob = compute.to_host(row_prob, (self.nz,), acc).astype(np.float64)
-        self.row_cdf = compute.to_host(row_cdf, (self.nz,), acc).astype(np.float64)
-        self.col_prob = compute.to_host(col_prob, (self.nz, self.nphi), acc).astype(np.float64)
-        self.col_cdf = compute.to_host(col_cdf, (self.nz, self.nphi), acc).astype(np.float64)
-        self.build_ms = sum(event_ms(e) for e in events)
-        return self
+    @staticmethod
+    def on_device(cache) -> "DeviceEqualAreaMap":
+        """The map of a FrameCache's frame, built by havran.cl from the uploaded map."""
+        return DeviceEqualAreaMap(cache)
 
     def sample(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Points ``[n, 2]`` in [0, 1)² → (directions ``[n, 3]``, pdf in solid angle ``[n]``)."""
@@ -310,6 +287,51 @@ class EqualAreaMap:
         return self.env[face, row, col].astype(np.float64)
 
 
+class DeviceEqualAreaMap:
+    """The frame's map on the device: the arrays of :class:`EqualAreaMap` (row_prob, row_cdf,
+    col_prob, col_cdf) as acc_t buffers (``buffers``), equal to the NumPy build up to float
+    rounding (luminance in float32 on the device); ``build_ms`` is the kernels' device time.
+    The arrays' attributes are host copies made on first access (tests and inspection)."""
+
+    ARRAYS = ("row_prob", "row_cdf", "col_prob", "col_cdf")
+
+    def __init__(self, cache):
+        compute, res = cache.compute, cache.res
+        self.compute = compute
+        self.nz, self.nphi = grid_shape(res)
+        lookup, offsets, texels = _device_tables(compute, res)
+        cells = self.nz * self.nphi
+        self.acc = np.dtype(np.float64 if compute.info.has_fp64 else np.float32)
+        width = self.acc.itemsize
+        mean, value, mass = compute.empty(4 * cells), compute.empty(4 * cells), compute.empty(width * cells)
+        row_mass, row_prob, row_cdf = (compute.empty(width * self.nz) for _ in range(3))
+        col_prob, col_cdf, factors = compute.empty(width * cells), compute.empty(width * cells), compute.empty(2 * width)
+
+        def run(name, size, *args):
+            return compute.run(compute.kernel(Havran.kernel_package(), "havran.cl", name), size, *args)
+
+        nz, nphi = np.int32(self.nz), np.int32(self.nphi)
+        events = [
+            run("cell_lookups", cells, cache.env_buffer, lookup, nphi, np.int32(SUPERSAMPLE), offsets,
+                texels, mean, value),
+            run("cell_mass", cells, mean, value, nz, nphi, np.float32(CONSERVATIVE), mass),
+            run("row_mass", self.nz, mass, nphi, row_mass),
+            run("grid_factors", 1, row_mass, nz, nphi, np.float32(DEFENSIVE), factors),
+            run("row_cdfs", self.nz, mass, factors, nphi, row_prob, col_prob, col_cdf),
+            run("marginal_cdf", 1, row_prob, nz, row_cdf),
+        ]
+        self.buffers = dict(zip(self.ARRAYS, (row_prob, row_cdf, col_prob, col_cdf)))
+        self.build_ms = sum(event_ms(e) for e in events)
+
+    def __getattr__(self, name):
+        if name not in DeviceEqualAreaMap.ARRAYS:
+            raise AttributeError(name)
+        shape = (self.nz,) if name.startswith("row") else (self.nz, self.nphi)
+        array = self.compute.to_host(self.buffers[name], shape, self.acc).astype(np.float64)
+        setattr(self, name, array)
+        return array
+
+
 _maps: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 _tables: dict = {}
 
@@ -328,7 +350,7 @@ def _device_tables(compute, res: int) -> tuple:
     return _tables[key]
 
 
-def frame_map(cache) -> EqualAreaMap:
+def frame_map(cache) -> DeviceEqualAreaMap:
     """The map of a FrameCache's frame, built on the device once per cache."""
     if cache not in _maps:
         _maps[cache] = EqualAreaMap.on_device(cache)
@@ -390,51 +412,89 @@ class Havran(Estimator):
 
     def reset(self) -> None:
         self._key = None          # (seed, K) of the history
-        self._history: list[tuple[int, np.ndarray, np.ndarray]] = []   # (frame, ω, W), newest first
+        self._history: list[int] = []   # the frames whose lights the ring holds, newest first
+        self._ring = None         # (compute, K, directions, weights): acc_t [len(taps), K, 4] each
+        self._points = None       # (compute, K, seed, the points' buffer)
+
+    def _kernel(self, compute, name):
+        return compute.kernel(self.kernel_package(), self.kernel_files[0], name)
+
+    def _points_buffer(self, compute, k: int, seed: int):
+        """The rotated relaxed points on the device, uploaded once per (context, K, seed)."""
+        if self._points is None or self._points[:3] != (compute, k, seed):
+            acc = np.float64 if compute.info.has_fp64 else np.float32
+            points = (relaxed_points(k) + seed_shift(seed)) % 1.0
+            self._points = (compute, k, seed, compute.to_device(points.astype(acc)))
+        return self._points[3]
+
+    def _place(self, cache, k: int, seed: int, directions, weights, slot: int) -> float:
+        """This frame's unfiltered lights into slot ``slot`` of ``directions`` and ``weights``
+        (acc_t [slots, K, 4]); returns the device ms of the map and the placement."""
+        compute, envmap = cache.compute, frame_map(cache)
+        maps = [envmap.buffers[name] for name in DeviceEqualAreaMap.ARRAYS]
+        event = compute.run(self._kernel(compute, "place_lights"), k, cache.env_buffer,
+                            np.int32(cache.res), *maps, np.int32(envmap.nz), np.int32(envmap.nphi),
+                            self._points_buffer(compute, k, seed), np.int32(k), np.int32(slot),
+                            directions, weights)
+        return envmap.build_ms + event_ms(event)
+
+    def _acc_buffers(self, compute, k: int, slots: int = 1):
+        width = 8 if compute.info.has_fp64 else 4
+        return compute.empty(slots * k * 4 * width), compute.empty(slots * k * 4 * width)
+
+    def _to_host(self, compute, buffer, k: int) -> np.ndarray:
+        acc = np.float64 if compute.info.has_fp64 else np.float32
+        return compute.to_host(buffer, (k, 4), acc)[:, :3].astype(np.float64)
 
     def raw_lights(self, cache, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-        """This frame's unfiltered lights: directions ``[k, 3]`` and weights L/(p·K) ``[k, 3]``."""
-        points = (relaxed_points(k) + seed_shift(seed)) % 1.0
-        envmap = frame_map(cache)
-        dirs, pdf = envmap.sample(points)
-        weights = envmap.radiance(dirs) / (pdf[:, None] * k)
-        return dirs, weights
+        """This frame's unfiltered lights, host copies (tests): directions ``[k, 3]`` and weights
+        L/(p·K) ``[k, 3]``; the history is untouched."""
+        directions, weights = self._acc_buffers(cache.compute, k)
+        self._place(cache, k, seed, directions, weights, 0)
+        return self._to_host(cache.compute, directions, k), self._to_host(cache.compute, weights, k)
+
+    def _filtered(self, cache, k: int, seed: int) -> tuple:
+        """The filtered lights of this frame on the device, updating the history: (float4
+        directions, float4 weights, acc_t directions, acc_t weights, device ms)."""
+        compute, taps = cache.compute, self.params.fir_taps
+        frame = int(cache.frame)
+        if self._key != (int(seed), k) or (self._history and frame < self._history[0]):
+            self.reset()
+        if not (self._history and frame == self._history[0]):
+            self._history.insert(0, frame)
+        self._key = (int(seed), k)
+        self._history = [f for f in self._history if frame - f < len(taps)]
+        if self._ring is None or self._ring[:2] != (compute, k):
+            self._ring = (compute, k) + self._acc_buffers(compute, k, len(taps))
+        rings = self._ring[2:]
+        ms = self._place(cache, k, seed, *rings, frame % len(taps))
+        a = np.asarray([taps[frame - f] for f in self._history], np.float64)
+        acc = np.float64 if compute.info.has_fp64 else np.float32
+        slots = compute.to_device(np.asarray([f % len(taps) for f in self._history], np.int32))
+        outputs = self._acc_buffers(compute, k) + (compute.empty(k * 16), compute.empty(k * 16))
+        event = compute.run(self._kernel(compute, "filter_lights"), k, *rings, np.int32(k), slots,
+                            compute.to_device((a / a.sum()).astype(acc)), np.int32(len(a)), *outputs)
+        return outputs[2:] + outputs[:2] + (ms + event_ms(event),)
 
     def lights(self, cache, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-        """The filtered lights of this frame, updating the history."""
-        dirs, weights = self.raw_lights(cache, k, seed)
-        frame = int(cache.frame)
-        if self._key != (int(seed), k) or (self._history and frame < self._history[0][0]):
-            self.reset()
-        if self._history and frame == self._history[0][0]:
-            self._history[0] = (frame, dirs, weights)
-        else:
-            self._history.insert(0, (frame, dirs, weights))
-        self._key = (int(seed), k)
-        taps = self.params.fir_taps
-        self._history = [h for h in self._history if frame - h[0] < len(taps)]
-        return fir_filter([h[1] for h in self._history], [h[2] for h in self._history], taps,
-                          [frame - h[0] for h in self._history])
+        """The filtered lights of this frame, host copies (tests), updating the history."""
+        _, _, directions, weights, _ = self._filtered(cache, k, seed)
+        return self._to_host(cache.compute, directions, k), self._to_host(cache.compute, weights, k)
 
     def render(self, gbuffer, cache, spp, seed):
         if not 1 <= spp <= MAX_K:
             raise ValueError(f"spp (K lights) must be in [1, {MAX_K}], got {spp}")
         compute = cache.compute
-        map_ms = frame_map(cache).build_ms   # built (on the device) before the host clock starts
-        start = time.perf_counter()
-        dirs, weights = self.lights(cache, int(spp), seed)
-        packed = np.zeros((2, spp, 4), np.float32)
-        packed[0, :, :3], packed[1, :, :3] = dirs, weights
         # Like a light pool's build_ms, the frame's map build counts in every render's "sample"
         # stage, though it is built once per frame and reused.
-        sample_ms = (time.perf_counter() - start) * 1e3 + map_ms
+        light_dir, light_weight, _, _, sample_ms = self._filtered(cache, int(spp), seed)
         kernel = compute.kernel(self.kernel_package(), self.kernel_files[0], "render_havran")
         radiance = compute.empty(gbuffer.count * 16)
         counts = compute.empty(gbuffer.count * 8)
         evaluations = compute.empty(gbuffer.count * 4)
         event = compute.run(kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd,
-                            gbuffer.ks, compute.to_device(packed[0]), compute.to_device(packed[1]),
-                            np.int32(spp), radiance, counts, evaluations)
+                            gbuffer.ks, light_dir, light_weight, np.int32(spp), radiance, counts,
+                            evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean() \
             if gbuffer.count else 0.0
         return read_estimate(compute, gbuffer, radiance, counts, mean_evaluations,

@@ -23,6 +23,7 @@ import numpy as np
 import pyopencl as cl
 
 import dataclasses
+import weakref
 
 from iblbench.harness.device import Compute, event_ms
 from iblbench.scenes import cubemap
@@ -30,6 +31,7 @@ from iblbench.scenes import cubemap
 PRODUCTS = ("env", "cdf", "pool")
 CDF_ONE = 2 ** 63   # the fixed-point CDFs' total (kernels/common.cl)
 POOLS_KEPT = 4   # pools of recent (size, seed) kept resident
+SPARE_BUFFERS_KEPT = 2   # buffers of one size kept for the next frame's cache
 
 
 def build_fixed_point_cdfs(compute: Compute, weights: cl.Buffer, runs: int,
@@ -47,6 +49,38 @@ def build_fixed_point_cdfs(compute: Compute, weights: cl.Buffer, runs: int,
     event = compute.run(compute.kernel("iblbench.harness", "framecache.cl", "weight_cdfs"), runs,
                         weights, np.int32(n), cdfs, totals)
     return cdfs, totals, event_ms(event)
+
+
+_solid_angles: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_spare_buffers: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _texel_solid_angles(compute: Compute, res: int) -> cl.Buffer:
+    """Ω per texel of a face, float32 ``[R, R]`` on the device: geometry, uploaded once per
+    (context, face size), not per frame."""
+    per_res = _solid_angles.setdefault(compute, {})
+    if res not in per_res:
+        per_res[res] = compute.to_device(cubemap.texel_solid_angles(res).astype(np.float32))
+    return per_res[res]
+
+
+def _spare_buffer(compute: Compute, nbytes: int) -> cl.Buffer:
+    """A buffer of ``nbytes`` that a dead cache left (else a new one).  Device buffers stay
+    resident across frames: a fresh one pays its first-touch page faults inside the kernel that
+    first writes it (on PoCL, 45 ms of a 1024² CDF build that takes 25 ms without them)."""
+    spare = _spare_buffers.get(compute, {}).get(nbytes)
+    return spare.pop() if spare else compute.empty(nbytes)
+
+
+def _keep_spares(compute_ref: weakref.ref, buffers: list) -> None:
+    """A cache's finaliser: its buffers become spares for the next cache of the context."""
+    compute = compute_ref()
+    if compute is not None:
+        per_size = _spare_buffers.setdefault(compute, {})
+        for buffer in buffers:
+            spare = per_size.setdefault(buffer.size, [])
+            if len(spare) < SPARE_BUFFERS_KEPT:
+                spare.append(buffer)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,8 +105,11 @@ class FrameCache:
         self.frame = frame
         self.res = env.shape[1]
         self.timings_ms: dict[str, float] = {}
+        self._owned: list[cl.Buffer] = []   # the map's and the CDFs' buffers: spares once dead
+        weakref.finalize(self, _keep_spares, weakref.ref(compute), self._owned)
         self._env_buffer = self._upload_env()
         self._cdf: tuple | None = None
+        self._face_integrals: np.ndarray | None = None
         self._pools: dict[tuple[int, int], LightPool] = {}
 
     def retarget(self, frame: int) -> None:
@@ -113,13 +150,21 @@ class FrameCache:
 
     @property
     def face_integrals(self) -> np.ndarray:
-        """I_f = Σ Y·Ω per face, float32 ``[6]`` (host copy)."""
-        return self._build_cdf()[3]
+        """I_f = Σ Y·Ω per face, float32 ``[6]`` (host copy, made on first use)."""
+        if self._face_integrals is None:
+            self._face_integrals = self.compute.to_host(self.face_integral_buffer, (6,), np.float32)
+        return self._face_integrals
+
+    def _buffer(self, nbytes: int) -> cl.Buffer:
+        """A device buffer this cache owns (a spare of a dead cache where there is one)."""
+        buffer = _spare_buffer(self.compute, nbytes)
+        self._owned.append(buffer)
+        return buffer
 
     def _upload_env(self) -> cl.Buffer:
         padded = np.zeros(self.env.shape[:3] + (4,), np.float32)
         padded[..., :3] = self.env
-        buffer = self.compute.empty(padded.nbytes)
+        buffer = self._buffer(padded.nbytes)
         event = cl.enqueue_copy(self.compute.queue, buffer, padded)
         event.wait()
         self.timings_ms["upload"] = event_ms(event)
@@ -128,15 +173,14 @@ class FrameCache:
     def _build_cdf(self) -> tuple:
         if self._cdf is None:
             c, res = self.compute, self.res
-            omega = c.to_device(cubemap.texel_solid_angles(res).astype(np.float32))
-            conditional = c.empty(6 * res * res * 8)      # fixed-point CDF words (common.cl)
-            row_weight = c.empty(6 * res * 4)
+            conditional = self._buffer(6 * res * res * 8)      # fixed-point CDF words (common.cl)
+            row_weight = self._buffer(6 * res * 4)
             rows = c.run(c.kernel("iblbench.harness", "framecache.cl", "row_cdfs"), 6 * res,
-                         self._env_buffer, omega, np.int32(res), conditional, row_weight)
+                         self._env_buffer, _texel_solid_angles(c, res), np.int32(res), conditional,
+                         row_weight)
             marginal, integral, faces_ms = build_fixed_point_cdfs(c, row_weight, 6, res)
-            face_integrals = c.to_host(integral, (6,), np.float32)
             self.timings_ms["cdf"] = event_ms(rows) + faces_ms
-            self._cdf = (marginal, conditional, integral, face_integrals)
+            self._cdf = (marginal, conditional, integral)
         return self._cdf
 
     def light_pool(self, per_face: int, seed: int) -> LightPool:
@@ -147,7 +191,7 @@ class FrameCache:
         """
         key = (int(per_face), int(seed))
         if key not in self._pools:
-            marginal, conditional, integral, _ = self._build_cdf()
+            marginal, conditional, integral = self._build_cdf()
             c, count = self.compute, 6 * key[0]
             dir_pdf, radiance = c.empty(count * 16), c.empty(count * 16)
             event = c.run(c.kernel("iblbench.harness", "framecache.cl", "build_light_pool"), count,

@@ -8,13 +8,12 @@ device stage (OpenCL profiling events, DESIGN §3 "Timing"):
 
 - ``build``: the per-frame FrameCache products the estimator requires (the map's upload and,
   where required, the CDFs), from ``FrameCache.timings_ms``; every repeat builds a fresh cache,
-  as a new frame would.  ``cdf_ms`` is the CDF build alone and ``cdf_bound_ms`` its
-  copy-bandwidth bound: the bytes it must move, a float4 texel read and a 64-bit CDF word
-  written per texel (24 B), over the measured copy bandwidth;
+  as a new frame would (reusing the dead cache's device buffers, as a renderer keeps them
+  resident).  ``cdf_ms`` is the CDF build alone and ``cdf_bound_ms`` its copy-bandwidth bound:
+  the bytes it must move (:func:`cdf_build_bytes`) over the measured copy bandwidth;
 - ``sample`` and ``shade``: ``Estimate.timings_ms`` (the pool estimators' ``sample`` is the
   draw of the light-sample pool and its layout as planes, with ``balanced_mis``'s shared BRDF
-  numbers; ``havran``'s is its map's CDFs built on the device plus the host time of its K
-  lights and their filter);
+  numbers; ``havran``'s is the device time of its map's CDFs, its K lights and their filter);
 - the rates divide by the render's device time, sample + shade (build does not scale with spp
   and is reported beside them).
 
@@ -144,8 +143,16 @@ FMA_CHAINS = 8                 # perf.cl's fma_throughput: chains of float8 per 
 FMA_LANES = 8
 FMA_ITEMS = 1 << 17
 COPY_MIN_BYTES = 64 << 20      # each copy buffer: at least this, and 8× the device's cache
-CDF_BYTES_PER_TEXEL = 24       # the CDF build must read a float4 texel and write a 64-bit word
 ROOF_MIN_MS = 20.0             # each roofline launch is sized to take at least this
+
+
+def cdf_build_bytes(res: int) -> int:
+    """The bytes a frame's CDF build must move at faces of ``res`` texels: every float4 texel
+    read once (16 B) and every 64-bit CDF word written once, R² conditional and R marginal words
+    per face.  Not counted: the texel solid angles Ω (R² floats shared by the six faces, and
+    geometry a kernel could compute), the row and face totals (R + 1 floats per face) and a
+    CPU's write-allocate reads (the copy roofline does not count them either)."""
+    return 6 * (res * res * (16 + 8) + res * 8)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,10 +194,10 @@ COLUMNS = {
     "build_ms_min": "its minimum over repeats",
     "build_ms_iqr": "its interquartile range",
     "cdf_ms": "device ms of the CDF build alone (part of build_ms; NaN: not required), median",
-    "cdf_bound_ms": "the CDF build's copy-bandwidth bound: 6·R²·24 B (texels read, CDF words "
-                    "written) / peak_gbps",
-    "sample_ms": "device ms of the sample stage (pool draw; havran: map build on the device "
-                 "+ host ms of the light set; 0: none), median",
+    "cdf_bound_ms": "the CDF build's copy-bandwidth bound: 6·(R²·(16 + 8) + R·8) B (float4 "
+                    "texels read once, conditional and marginal CDF words written once) / peak_gbps",
+    "sample_ms": "device ms of the sample stage (pool draw; havran: map build, light placement "
+                 "and filter; 0: none), median",
     "sample_ms_min": "its minimum",
     "sample_ms_iqr": "its interquartile range",
     "shade_ms": "device ms of the shading kernel, median (the floor: host wall ms)",
@@ -486,7 +493,7 @@ def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
     render_ms = spread([s + h for s, h in zip(cell.sample, cell.shade)])[0]
     samples = pixels * cell.spp
     cdf_ms = spread(cell.cdf)[0]
-    cdf_bound_ms = (6 * env_res ** 2 * CDF_BYTES_PER_TEXEL / (roofline.gbps * 1e6)
+    cdf_bound_ms = (cdf_build_bytes(env_res) / (roofline.gbps * 1e6)
                     if math.isfinite(cdf_ms) else math.nan)
     row = {"scene": scene, "estimator": cell.label,
            "estimator_version": type(cell.estimator).version(), "spp": cell.spp,

@@ -234,6 +234,27 @@ def test_the_device_map_is_the_numpy_map(compute, name):
     assert device.build_ms > 0
 
 
+@pytest.mark.parametrize("name", ["sun-1e6", "black-faces", "sphere-sun"])
+def test_the_device_lights_are_the_numpy_inversion(compute, name):
+    """place_lights inverts the device map as EqualAreaMap.sample does (the NumPy twin, run on
+    the device map's own arrays), and weights its lights L/(p·K) with the texel of ω: equal up
+    to libm's cos and sin."""
+    env = (builtin_scene("sphere-sun", env_res=32).environment.frame(0) if name == "sphere-sun"
+           else stress_maps()[name])
+    cache = FrameCache(compute, env)
+    device = hv.frame_map(cache)
+    twin = EqualAreaMap.__new__(EqualAreaMap)
+    twin.nz, twin.nphi, twin.env = device.nz, device.nphi, env
+    for array in ("row_prob", "row_cdf", "col_prob", "col_cdf"):
+        setattr(twin, array, getattr(device, array))
+    k, seed = 500, 7
+    want_dirs, pdf = twin.sample((hv.relaxed_points(k) + hv.seed_shift(seed)) % 1.0)
+    want_weights = twin.radiance(want_dirs) / (pdf[:, None] * k)
+    dirs, weights = Havran().raw_lights(cache, k, seed)
+    np.testing.assert_allclose(dirs, want_dirs, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(weights, want_weights, rtol=1e-12, atol=0)
+
+
 # ---- rendering --------------------------------------------------------------------------------
 
 def test_per_normal_culling_counts_the_lights_above_the_horizon(h):
