@@ -1,7 +1,6 @@
 """``iblbench compare``: flags a deliberately worse estimator, not a rerun with other seeds;
 pairing, thresholds, differences and bad input on hand-made tables."""
 import json
-import shutil
 
 import numpy as np
 import pandas as pd
@@ -69,12 +68,12 @@ def test_seed_only_rerun_is_not_flagged(runs, capsys):
         assert "flip" not in cell["metrics"]   # not computed by either run
 
 
-def _table(path, estimator, values, seeds=None, **columns):
+def _table(path, estimator, values, seeds=None, spp=64, time_budget_ms=np.nan, **columns):
     """A hand-made run folder: one cell (sphere-sun, estimator, spp 64, frame 0)."""
     path.mkdir()
     seeds = range(len(values)) if seeds is None else seeds
-    rows = [{"scene": "sphere-sun", "estimator": estimator, "spp": 64, "frame": 0, "seed": s,
-             "time_budget_ms": np.nan, "estimator_version": "v1", "device": "dev",
+    rows = [{"scene": "sphere-sun", "estimator": estimator, "spp": spp, "frame": 0, "seed": s,
+             "time_budget_ms": time_budget_ms, "estimator_version": "v1", "device": "dev",
              "protocol": "lab-reinhard-v1", "mean_delta_e76": v, "time_ms": 1.0 + 0.1 * s,
              **columns} for s, v in zip(seeds, values)]
     pd.DataFrame(rows).to_parquet(path / TABLE, index=False)
@@ -101,6 +100,14 @@ def test_one_seed_is_never_significant(tmp_path, capsys):
     b = _table(tmp_path / "b", "uniform", [3.0])
     status, out = _compare(capsys, a, b, "--fail-if", "mean_delta_e76>5%")
     assert status == 0 and "n=1" in out.out
+
+
+def test_equal_time_cells_match_by_budget(tmp_path, capsys):
+    """The spp an equal-time cell chose may differ between runs: its budget identifies it."""
+    a = _table(tmp_path / "a", "uniform", [1.0, 1.1, 0.9], spp=40, time_budget_ms=5.0)
+    b = _table(tmp_path / "b", "uniform", [2.0, 2.2, 1.8], spp=52, time_budget_ms=5.0)
+    status, out = _compare(capsys, a, b, "--fail-if", "mean_delta_e76>5%")
+    assert status == 1 and "sphere-sun uniform 5 ms frame 0: mean_delta_e76 ratio 2.000" in out.out
 
 
 def test_says_what_differs(tmp_path, capsys):
