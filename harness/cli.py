@@ -28,6 +28,7 @@ examples:
   iblbench check runs/a --budgets budgets.toml   CI gate: exit 1 if any error budget fails
   iblbench stress --out runs/stress              adversarial inputs; exit 1 if an estimator fails
   iblbench perf --out runs/perf                  throughput against the roofline and a NumPy floor
+  iblbench compare runs/a runs/b --fail-if 'mean_delta_e76>5%'   B against A, intervals over seeds
 """
 
 
@@ -207,7 +208,39 @@ def build_parser() -> argparse.ArgumentParser:
                         help="output directory for stress.csv/.parquet/.html "
                              "(default: results/stress)")
     _add_perf(commands, device)
+    _add_compare(commands)
     return parser
+
+
+# ---- iblbench compare (harness/compare.py) ------------------------------------------------------
+
+def _add_compare(commands) -> None:
+    compare = commands.add_parser(
+        "compare", help="compare two run folders cell by cell: ratios B/A with 95%% intervals "
+                        "over seeds; exit 1 on a significant change beyond a --fail-if",
+        description="Compare run folders A and B per cell (scene, estimator, spp or time "
+                    "budget, frame): for mean_delta_e76, mean_delta_e2000, rel_mse, flip, "
+                    "effective_ratio and time_ms, the mean over seeds on each side and the "
+                    "ratio B/A with its 95%% interval (delta method on log, Welch df); a change "
+                    "is significant when the interval excludes 1. Says when A and B differ in "
+                    "code, device, protocol or configuration. An estimator label with "
+                    "parameters (balanced{uniform_faces=true}) is paired with the other side's "
+                    "label of the same base name when no equal label exists. Exit 0, 1 when a "
+                    "cell has a significant change beyond a --fail-if threshold, 2 on bad input.")
+    compare.add_argument("a", type=pathlib.Path, metavar="A", help="the baseline run folder")
+    compare.add_argument("b", type=pathlib.Path, metavar="B", help="the run folder compared with A")
+    compare.add_argument("--fail-if", action="append", default=[], metavar="METRIC>P%%",
+                         help="fail (exit 1) when a cell's METRIC changes significantly by "
+                              "more than P%%: 'mean_delta_e76>5%%' (an increase), "
+                              "'effective_ratio<-5%%' (a decrease); repeatable")
+    compare.add_argument("--json", action="store_true",
+                         help="print a machine-readable summary (JSON) instead of the table")
+
+
+def _compare(args) -> int:
+    from iblbench.harness.compare import run_command
+
+    return run_command(args.a, args.b, args.fail_if, as_json=args.json)
 
 
 # ---- iblbench perf (harness/perf.py, imported only when the command runs or prints its help) --
@@ -455,7 +488,7 @@ def main(argv=None) -> int:
     try:
         status = {"run": _run, "reproduce": _reproduce, "list": _list,
                   "check": _check, "report": _report, "stress": _stress,
-                  "perf": _perf}[args.command](args)
+                  "perf": _perf, "compare": _compare}[args.command](args)
     except InputError as error:
         print(f"iblbench: error: {error}", file=sys.stderr)
         return 2

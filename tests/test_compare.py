@@ -1,0 +1,151 @@
+"""``iblbench compare``: flags a deliberately worse estimator, not a rerun with other seeds;
+pairing, thresholds, differences and bad input on hand-made tables."""
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from iblbench.harness.cli import main
+from iblbench.harness.compare import pair_estimators, parse_threshold
+from iblbench.harness.results import TABLE, read_manifest, write_manifest
+from iblbench.harness.runner import RunConfig, run
+from iblbench.scenes.errors import InputError
+
+MUTANT = "balanced{uniform_faces=true}"
+SCENES = ("sphere-backlit",)
+SEEDS = 8   # per side; at 32x32 the mutant's +17% in ΔE76 needs about 8 seeds to resolve
+SPP = (64, 256)
+
+
+def _subset(source, dest, seeds):
+    """A copy of run folder ``source`` with only ``seeds``: a rerun with other seeds."""
+    dest.mkdir()
+    table = pd.read_parquet(source / TABLE)
+    table[table.seed.isin(seeds)].to_parquet(dest / TABLE, index=False)
+    write_manifest(dest, read_manifest(source))
+    return dest
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """balanced over 2·SEEDS seeds, split into two seed sets, and the uniform_faces mutant."""
+    root = tmp_path_factory.mktemp("compare")
+    common = dict(scenes=SCENES, spp=SPP, resolution=(32, 32), env_res=16, repeats=1,
+                  metrics=("de76", "relmse"), progress=False)
+    run(RunConfig(out=root / "both", estimators=("balanced",), seeds=2 * SEEDS, **common))
+    run(RunConfig(out=root / "mutant", estimators=(MUTANT,), seeds=SEEDS, **common))
+    return {"a": _subset(root / "both", root / "a", range(SEEDS)),
+            "b": _subset(root / "both", root / "b", range(SEEDS, 2 * SEEDS)),
+            "mutant": root / "mutant"}
+
+
+def _compare(capsys, *args):
+    status = main(["compare", *map(str, args)])
+    return status, capsys.readouterr()
+
+
+def test_flags_the_uniform_faces_mutant(runs, capsys):
+    status, out = _compare(capsys, runs["a"], runs["mutant"], "--fail-if", "mean_delta_e76>5%")
+    assert status == 1, out.out
+    for scene in SCENES:
+        for spp in SPP:
+            assert f"{scene} balanced → {MUTANT} spp={spp} frame 0: mean_delta_e76" in out.out
+    assert f"balanced (A) paired with {MUTANT} (B) by base name" in out.out
+
+
+def test_seed_only_rerun_is_not_flagged(runs, capsys):
+    status, out = _compare(capsys, runs["a"], runs["b"], "--fail-if", "mean_delta_e76>5%",
+                           "--fail-if", "rel_mse>10%", "--json")
+    assert status == 0, out.out
+    summary = json.loads(out.out)
+    assert summary["failures"] == [] and summary["differences"] == []
+    assert len(summary["cells"]) == len(SCENES) * len(SPP)
+    for cell in summary["cells"]:
+        delta_e = cell["metrics"]["mean_delta_e76"]
+        assert delta_e["a"]["n"] == delta_e["b"]["n"] == SEEDS
+        assert delta_e["low"] <= 1 <= delta_e["high"]
+        assert "flip" not in cell["metrics"]   # not computed by either run
+
+
+def _table(path, estimator, values, seeds=None, spp=64, time_budget_ms=np.nan, **columns):
+    """A hand-made run folder: one cell (sphere-sun, estimator, spp 64, frame 0)."""
+    path.mkdir()
+    seeds = range(len(values)) if seeds is None else seeds
+    rows = [{"scene": "sphere-sun", "estimator": estimator, "spp": spp, "frame": 0, "seed": s,
+             "time_budget_ms": time_budget_ms, "estimator_version": "v1", "device": "dev",
+             "protocol": "lab-reinhard-v1", "mean_delta_e76": v, "time_ms": 1.0 + 0.1 * s,
+             **columns} for s, v in zip(seeds, values)]
+    pd.DataFrame(rows).to_parquet(path / TABLE, index=False)
+    return path
+
+
+def test_threshold_needs_significance_and_size(tmp_path, capsys):
+    a = _table(tmp_path / "a", "uniform", [1.0, 1.1, 0.9, 1.0])
+    noisy = _table(tmp_path / "noisy", "uniform", [0.5, 2.0, 1.0, 1.3])    # +20%, not significant
+    small = _table(tmp_path / "small", "uniform", [1.03, 1.13, 0.93, 1.03])   # +3%, within 5%
+    large = _table(tmp_path / "large", "uniform", [1.3, 1.4, 1.2, 1.3])      # +30%, significant
+    for folder, expected in ((noisy, 0), (small, 0), (large, 1)):
+        status, out = _compare(capsys, a, folder, "--fail-if", "mean_delta_e76>5%")
+        assert status == expected, out.out
+    # A decrease fails only a '<' threshold.
+    status, _ = _compare(capsys, large, a, "--fail-if", "mean_delta_e76>5%")
+    assert status == 0
+    status, out = _compare(capsys, large, a, "--fail-if", "mean_delta_e76<-5%")
+    assert status == 1 and "sphere-sun uniform spp=64 frame 0: mean_delta_e76" in out.out
+
+
+def test_one_seed_is_never_significant(tmp_path, capsys):
+    a = _table(tmp_path / "a", "uniform", [1.0])
+    b = _table(tmp_path / "b", "uniform", [3.0])
+    status, out = _compare(capsys, a, b, "--fail-if", "mean_delta_e76>5%")
+    assert status == 0 and "n=1" in out.out
+
+
+def test_equal_time_cells_match_by_budget(tmp_path, capsys):
+    """The spp an equal-time cell chose may differ between runs: its budget identifies it."""
+    a = _table(tmp_path / "a", "uniform", [1.0, 1.1, 0.9], spp=40, time_budget_ms=5.0)
+    b = _table(tmp_path / "b", "uniform", [2.0, 2.2, 1.8], spp=52, time_budget_ms=5.0)
+    status, out = _compare(capsys, a, b, "--fail-if", "mean_delta_e76>5%")
+    assert status == 1 and "sphere-sun uniform 5 ms frame 0: mean_delta_e76 ratio 2.000" in out.out
+
+
+def test_says_what_differs(tmp_path, capsys):
+    a = _table(tmp_path / "a", "uniform", [1.0, 1.1])
+    b = _table(tmp_path / "b", "uniform", [1.0, 1.1], estimator_version="v2", device="other",
+               protocol="lab-other")
+    write_manifest(a, {"git_revision": "aaa"})
+    write_manifest(b, {"git_revision": "bbb"})
+    _, out = _compare(capsys, a, b)
+    for text in ("code: git revision aaa (A) vs bbb (B)", "estimator_version v1 (A) vs v2 (B)",
+                 "device: device dev (A) vs other (B)", "protocol: protocol lab-reinhard-v1"):
+        assert text in out.out
+
+
+def test_pairing():
+    assert pair_estimators(["balanced", "uniform"], ["uniform", MUTANT]) == (
+        [("uniform", "uniform"), ("balanced", MUTANT)], [], [])
+    # An equal label wins; two candidates of one base name are ambiguous and stay unpaired.
+    assert pair_estimators(["balanced"], ["balanced", MUTANT]) == ([("balanced", "balanced")],
+                                                                   [], [MUTANT])
+    assert pair_estimators(["balanced"], [MUTANT, "balanced{shared_sequence=false}"]) == (
+        [], ["balanced"], ["balanced{shared_sequence=false}", MUTANT])
+
+
+@pytest.mark.parametrize("text, problem", [("mean_delta_e76>5", "write METRIC>P%"),
+                                           ("mean_delta_e67>5%", "did you mean 'mean_delta_e76'"),
+                                           ("rel_mse>-5%", "use '>' with an increase")])
+def test_bad_thresholds(text, problem):
+    with pytest.raises(InputError, match=problem):
+        parse_threshold(text)
+
+
+def test_bad_input_exits_2_with_one_line(tmp_path, capsys):
+    a = _table(tmp_path / "a", "uniform", [1.0, 1.1])
+    b = _table(tmp_path / "b", "bis", [1.0, 1.1])
+    for args, problem in (((a, tmp_path / "missing"), "no such run directory"),
+                          ((a, b), "no cell in common"),
+                          ((a, a, "--fail-if", "flip>5%"), "no common cell has it"),
+                          ((a, a, "--fail-if", "x>5%"), "unknown metric")):
+        status, out = _compare(capsys, *args)
+        assert status == 2 and problem in out.err and len(out.err.strip().splitlines()) == 1

@@ -1,0 +1,108 @@
+"""The one aggregation (harness/stats.py): hand-computed cases with table t quantiles, and
+coverage simulated with stated tolerances."""
+import math
+
+import numpy as np
+import pytest
+
+from iblbench.harness.stats import mean_ci, ratio_ci, separated, t_quantile
+
+# Two-sided 95% critical values of Student's t from printed tables (e.g. NIST/SEMATECH
+# e-Handbook 1.4.2.5.2, upper 0.025 point).
+T_TABLE = {1: 12.706, 2: 4.303, 4: 2.776, 9: 2.262, 29: 2.045, 120: 1.980}
+
+
+@pytest.mark.parametrize("df, expected", sorted(T_TABLE.items()))
+def test_t_quantile_matches_tables(df, expected):
+    assert t_quantile(df) == pytest.approx(expected, abs=6e-4)
+
+
+def test_mean_interval_by_hand():
+    # [1, 2, 3, 4, 5]: mean 3, s = √2.5, half-width t(4) · s/√5 = 2.776 · 0.70711 = 1.9632.
+    ci = mean_ci([1, 2, 3, 4, 5])
+    assert (ci.mean, ci.n) == (3.0, 5)
+    assert ci.sd == pytest.approx(math.sqrt(2.5))
+    assert (ci.low, ci.high) == pytest.approx((3 - 1.9632, 3 + 1.9632), abs=2e-3)
+
+
+def test_one_seed_has_no_interval():
+    ci = mean_ci([2.5])
+    assert ci.mean == 2.5 and not ci.resolved and math.isnan(ci.low)
+    assert "no interval" in ci.text()
+    ratio = ratio_ci([2.0], [3.0, 3.2])
+    assert ratio.ratio == pytest.approx(3.1 / 2.0)
+    assert not ratio.resolved and not ratio.significant and "n=1" in ratio.reason
+
+
+def test_ratio_interval_by_hand():
+    # A = [1, 2, 3]: mean 2, s² = 1; B = [2, 4, 6]: mean 4, s² = 4.  Relative variances of the
+    # means 1/(3·4) = 4/(3·16) = 1/12, se = √(1/6), Welch df = (1/6)² / (2 · (1/144)/2) = 4,
+    # interval 2 · exp(± 2.776 · 0.40825) = [0.6439, 6.212].
+    ratio = ratio_ci([1, 2, 3], [2, 4, 6])
+    assert ratio.ratio == pytest.approx(2.0)
+    assert ratio.df == pytest.approx(4.0)
+    assert (ratio.low, ratio.high) == pytest.approx((0.6439, 6.212), rel=2e-3)
+    assert not ratio.significant
+
+
+def test_constant_samples_give_a_point_interval():
+    same = ratio_ci([3.0, 3.0, 3.0], [3.0, 3.0, 3.0])
+    assert (same.low, same.ratio, same.high) == (1.0, 1.0, 1.0) and not same.significant
+    shifted = ratio_ci([1.0, 1.0], [0.9, 0.9])
+    assert shifted.high == pytest.approx(0.9) and shifted.significant
+
+
+def test_undefined_ratios_say_why():
+    assert "positive" in ratio_ci([0.0, 0.0], [1.0, 2.0]).reason
+    assert "NaN" in ratio_ci([1.0, math.nan], [1.0, 2.0]).reason
+    assert not ratio_ci([0.0, 0.0], [1.0, 2.0]).significant
+
+
+def test_separated():
+    assert separated(mean_ci([1.0, 1.1, 0.9]), mean_ci([5.0, 5.1, 4.9]))
+    assert not separated(mean_ci([1.0, 2.0, 3.0]), mean_ci([2.5, 3.5, 4.5]))
+    assert not separated(mean_ci([1.0]), mean_ci([5.0, 5.1]))
+
+
+def _binomial_band(p: float, trials: int, sigmas: float = 4.0) -> float:
+    return sigmas * math.sqrt(p * (1 - p) / trials)
+
+
+def test_mean_interval_coverage():
+    """Exact for normal data: coverage 0.95 within 4 binomial σ of 4000 trials (± 0.014)."""
+    rng = np.random.default_rng(11)
+    trials, true_mean = 4000, 5.0
+    covered = 0
+    for n in (2, 4, 8, 16):
+        for _ in range(trials // 4):
+            ci = mean_ci(rng.normal(true_mean, 1.5, n))
+            covered += ci.low <= true_mean <= ci.high
+    assert abs(covered / trials - 0.95) < _binomial_band(0.95, trials)
+
+
+@pytest.mark.parametrize("n_a, n_b, cv_a, cv_b", [(4, 4, 0.15, 0.15), (6, 8, 0.05, 0.25),
+                                                  (8, 8, 0.3, 0.3)])
+def test_ratio_interval_coverage(n_a, n_b, cv_a, cv_b):
+    """Normal seeds with coefficients of variation up to 0.3 per seed (a benchmark's ΔE spread
+    over seeds is 5-40%): the log-scale delta interval covers the true ratio 95% ± 0.03 of
+    3000 trials (binomial 4σ is 0.016; the rest allows the approximation's own error), and its
+    false-positive rate under equal means is therefore within 5% ± 0.03."""
+    rng = np.random.default_rng(n_a * 100 + n_b)
+    trials, mean_a = 3000, 2.0
+    for true_ratio in (1.0, 1.3):
+        mean_b = mean_a * true_ratio
+        covered = 0
+        for _ in range(trials):
+            ci = ratio_ci(rng.normal(mean_a, cv_a * mean_a, n_a),
+                          rng.normal(mean_b, cv_b * mean_b, n_b))
+            covered += ci.low <= true_ratio <= ci.high
+        assert abs(covered / trials - 0.95) < 0.03, (true_ratio, covered / trials)
+
+
+def test_ratio_detects_a_real_difference():
+    """A 20% increase at 8 seeds with a 5% spread per seed is flagged (power ≫ 0.99: the
+    expected z is 0.2 / (0.05·√(2/8)) ≈ 8); ratio_ci's verdict is checked on 200 draws."""
+    rng = np.random.default_rng(3)
+    flagged = sum(ratio_ci(rng.normal(1.0, 0.05, 8), rng.normal(1.2, 0.06, 8)).low > 1
+                  for _ in range(200))
+    assert flagged == 200
