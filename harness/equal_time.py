@@ -34,6 +34,7 @@ CALIBRATION_REPEATS = 3
 BUDGET_MAX_SPP = 32767     # the most spp an equal-time cell may choose (the pool estimators' limit)
 TOLERANCE = 0.10           # a cell's time should land within ±10% of its budget
 REFINE_STEPS = 4
+CELL_CORRECTIONS = 2      # steps of corrected_spp on the first cell of a budget (the runner)
 
 
 def fit_linear(runs: dict[int, list[float]]) -> tuple[float, float]:
@@ -92,11 +93,8 @@ class Calibration:
             chosen = choose_spp(a, b, budget_ms)
         fitted = chosen
         for _ in range(REFINE_STEPS):
-            measured = self.measure(chosen)
-            if abs(measured - budget_ms) <= TOLERANCE / 2 * budget_ms or measured <= a:
-                break
-            step = choose_spp(a, (measured - a) / chosen, budget_ms)
-            if step in self.runs:
+            step = corrected_spp(a, chosen, self.measure(chosen), budget_ms)
+            if step is None or step in self.runs:
                 break
             chosen = step
         medians = {s: float(np.median(v)) for s, v in self.runs.items()}
@@ -106,6 +104,16 @@ class Calibration:
                 "measured_ms": medians[chosen], "over_budget": medians[chosen] > budget_ms,
                 "runs": [{"spp": s, "device_ms": self.runs[s], "host_frame_ms": self.host[s],
                           "median_device_ms": medians[s]} for s in sorted(self.runs)]}
+
+
+def corrected_spp(a: float, spp: int, measured_ms: float, budget_ms: float) -> int | None:
+    """One refinement step from a time measured at ``spp``: the per-spp slope re-estimated
+    through that point, keeping the fitted intercept ``a``, and the largest spp it predicts
+    within the budget; None when the measurement is already within half of ``TOLERANCE`` of
+    the budget (so that noise keeps the cells within it) or at most the intercept."""
+    if abs(measured_ms - budget_ms) <= TOLERANCE / 2 * budget_ms or measured_ms <= a:
+        return None
+    return choose_spp(a, (measured_ms - a) / spp, budget_ms)
 
 
 def best_measured(medians: dict[int, float], budget_ms: float) -> int:
