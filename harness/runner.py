@@ -1,8 +1,9 @@
 """``iblbench run``: scenes × estimators × spp × frames × seeds → results table, manifest, images.
 
-The runner skips what a scene does not need (DESIGN §2): the G-buffer is traced once per scene,
-a frame cache builds only the products the chosen estimators require, and a cached reference is
-never recomputed.  Every skipped stage is recorded in the manifest.
+The runner skips what a scene does not need (DESIGN §2): the G-buffer is traced once per scene
+(and read from its on-disk cache, :func:`iblbench.scenes.gbuffer.cached_trace`, when an earlier
+run traced the same one), a frame cache builds only the products the chosen estimators require,
+and a cached reference is never recomputed.  Every skipped stage is recorded in the manifest.
 
 Resumption.  Before rendering, the runner plans every cell of the sweep and counts a cell as
 done when ``out`` already holds its row made with the same configuration (cell key, image size,
@@ -90,7 +91,7 @@ import numpy as np
 from tqdm import tqdm
 
 from iblbench.estimators.registry import get_estimator_class
-from iblbench.harness.device import get_compute
+from iblbench.harness.device import cache_dir, get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
 from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
@@ -107,7 +108,7 @@ from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, p
 from iblbench.reports.previews import write_heat_map, write_preview
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
-from iblbench.scenes.gbuffer import trace_gbuffer
+from iblbench.scenes.gbuffer import cached_trace
 from iblbench.scenes.imageio import read_exr, write_exr
 from iblbench.scenes.registry import load_scene
 
@@ -498,8 +499,13 @@ class Runner:
     def _trace(self, plan: _ScenePlan):
         scene = plan.scene
         start = time.perf_counter()
-        gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, plan.width, plan.height)
-        self._stage(scene.name, None, "gbuffer", (time.perf_counter() - start) * 1e3)
+        gbuffer, cached = cached_trace(scene.mesh, scene.material, scene.camera, plan.width,
+                                       plan.height, cache_dir() / "gbuffer")
+        if cached:
+            self.manifest["skipped"].append({"scene": scene.name, "stage": "gbuffer",
+                                             "why": "cached"})
+        else:
+            self._stage(scene.name, None, "gbuffer", (time.perf_counter() - start) * 1e3)
         if gbuffer.covered == 0:
             mesh = f" {scene.mesh_source}" if scene.mesh_source else ""
             raise InputError(scene.source or scene.name,
