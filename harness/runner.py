@@ -94,6 +94,7 @@ from iblbench.estimators.registry import get_estimator_class
 from iblbench.harness.device import cache_dir, get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
+from iblbench.harness import metrics as metrics_module
 from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.harness.reference import Reference
 from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, image_stem,
@@ -393,6 +394,11 @@ class Runner:
                                   "(threadpoolctl); a cell's repeats (or a calibration spp's "
                                   "renders) back to back before scoring",
                        "warm_up": f"1 spp on {WARMUP_PIXELS} pixels per frame and estimator",
+                       "wall": "wall_s: host wall time from the first frame's set-up to the "
+                               "last cell's write; start-up (imports, colour-science included, "
+                               "scenes, G-buffers, the device) before it; device_s: the run's "
+                               "device time, timed renders, warm-ups, calibrations, builds and "
+                               "references",
                        "temporal": "timing renders on repeats - 1 twin instances per "
                                    "sequence; the scored render is the real state's"},
             "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": MEASURE,
@@ -428,6 +434,8 @@ class Runner:
         # input must leave no partial output behind.
         gbuffers = {plan.scene.name: self._trace(plan) for plan in self.plans
                     if self._scene_todo(plan.scene.name)}
+        if self.todo:
+            metrics_module._colour()   # start-up, like every other import: not in wall_s
         prepare_out(self.out)
         with _locked(self.out), host_threads_capped():
             if self.resumed:
@@ -612,7 +620,7 @@ class Runner:
             build_ms = required_build_ms(built, spec.cls.requires)
             repeats = self.repeats[spec.label]
             estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
-            # Compiles and touches each kernel once; not timed, so no settle pause before it.
+            # Compiles and touches each kernel once (not timed).
             warmed = spec.make().render(warm_up, cache, 1, WARMUP_SEED)
             self.device_ms_total += device_ms(warmed.timings_ms)
             for key in cells:
