@@ -27,17 +27,25 @@ renders.  How the runner gets those renders without disturbing a temporal estima
 in :mod:`iblbench.harness.runner`.
 
 **Context.**  The device is the CPU (PoCL) shared with the host, so a render's device time
-depends on what the host threads do while it runs.  The host's own work (scoring, image writes)
-runs on the calling thread between renders, never beside them; the one host thread that did
-run beside them is OpenBLAS's worker, which spins ~0.1 s after a NumPy matrix product (host
-scoring), taking a core from PoCL's workers.  Measured on 2 cores (blob-sun, uniform, 256 spp,
-20 interleaved rounds, a loaded machine): the first render after a large NumPy product 20.3 ms
-median, against 5.2 ms with BLAS at one thread and 6.7 ms back to back.  So a run holds
-:func:`host_threads_capped` (BLAS and OpenMP pools at one thread, threadpoolctl) around every
-render, calibration included, and a group of timed renders (a cell's repeats, each
-calibration spp) runs back to back in :func:`timed_renders`, with no pause before it.  (A 150 ms
-pause before each group did the same job before, at 0.15 s of wall time per cell: 8 s of a
-12.7 s warm default run whose device time is 0.95 s.)
+depends on what host threads do while it runs.  The host's own work (scoring, image writes)
+runs on the calling thread between renders, never beside them (it waits on the events without
+spinning: 1.5 ms of CPU for a 100 ms render); the one host thread that ran beside them was
+OpenBLAS's worker, which spins ~0.1 s after a NumPy matrix product (host scoring) and takes a
+core from PoCL's two workers.  So a run holds :func:`host_threads_capped` (BLAS and OpenMP
+pools at one thread, threadpoolctl) around everything it renders, warm-up and calibration
+included, and a group of timed renders (a cell's repeats, each calibration spp) runs back to
+back in :func:`timed_renders`, with no pause before it.  Measured on 2 cores shared with other
+jobs (load 8-12), interleaved in rounds, one process:
+
+- the first render after a 200k×3 NumPy product (blob-sun, uniform, 256 spp, 20 rounds): 20.3 ms
+  median with BLAS's two threads, 5.2 ms with one, 6.7 ms with no product before it;
+- groups of 5 renders after a cell's scoring and image writes (25 rounds; blob-sun uniform 256
+  spp, sphere-sun balanced_mis 64 spp): IQR/median ≤ 15% in 48% and 44% of the groups with
+  BLAS at one thread and no pause, 52% and 24% with two threads and the 150 ms pause this
+  replaces, 24% and 36% with neither; medians 5.44 / 6.94 ms, 5.64 / 7.49 ms, 6.73 / 7.55 ms.
+
+The pause cost 0.15 s of wall time per cell: 8 s of a 12.7 s warm default run with 0.95 s of
+device time (idle machine).
 
 **Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
 time is the median of the rows' ``time_ms`` (:func:`median_time`, :func:`cell_times`).
