@@ -5,9 +5,9 @@ The measure is the cell time of :mod:`iblbench.harness.timing`: device time per 
 the calibration adds the frame's build time (``build_ms``) to every timed render.  A
 budget below the build alone cannot be met by any spp.
 
-For one (scene, estimator) the runner times renders on the scene's first frame to run (after
-the warm-up; ``CALIBRATION_REPEATS`` per spp, on seeds no cell uses, through the same
-:func:`~iblbench.harness.timing.timed_renders` as a cell's repeats, so in the same context) at
+For one (scene, estimator) the runner times renders on the scene's first frame to run, just
+before its first equal-time cell (``CALIBRATION_REPEATS`` per spp, on seeds no cell uses,
+through the same :func:`~iblbench.harness.timing.timed_renders` as a cell's repeats) at
 ``CALIBRATION_SPP``, then at larger spp until the calibrated range brackets the choice. Each
 spp's median is fitted as ``a + b·spp`` by least squares on relative error, and the first
 choice is the largest spp whose predicted time is within the budget. A line fitted from 1 to
@@ -15,10 +15,11 @@ hundreds of spp misses by more than 10% where the cost is not quite linear, so t
 then refined on measurements: the spp chosen is timed, the per-spp slope is re-estimated
 through that point (keeping the intercept), and the largest spp predicted to fit is timed
 again, up to ``REFINE_STEPS`` times, until the measured time lies within half of ``TOLERANCE``
-of the budget (so that the cells' own noise keeps them within it). The spp run is then chosen
-among the measured ones (:func:`best_measured`).
-Whether the cells then landed within ``TOLERANCE`` is checked on the cells themselves (the
-runner's ``time_budget.achieved``).
+of the budget (so that the cells' own noise keeps them within it) (:func:`corrected_spp`). The
+spp run is then chosen among the measured ones (:func:`best_measured`).  The runner takes up to
+``CELL_CORRECTIONS`` more such steps on the time of the budget's first cell, in the cells' own
+context (:mod:`iblbench.harness.runner`, "Equal time").  Whether the cells then landed within
+``TOLERANCE`` is checked on the cells themselves (the runner's ``time_budget.achieved``).
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ CALIBRATION_REPEATS = 3
 BUDGET_MAX_SPP = 32767     # the most spp an equal-time cell may choose (the pool estimators' limit)
 TOLERANCE = 0.10           # a cell's time should land within ±10% of its budget
 REFINE_STEPS = 4
+CELL_CORRECTIONS = 2      # steps of corrected_spp on the first cell of a budget (the runner)
 
 
 def fit_linear(runs: dict[int, list[float]]) -> tuple[float, float]:
@@ -92,11 +94,8 @@ class Calibration:
             chosen = choose_spp(a, b, budget_ms)
         fitted = chosen
         for _ in range(REFINE_STEPS):
-            measured = self.measure(chosen)
-            if abs(measured - budget_ms) <= TOLERANCE / 2 * budget_ms or measured <= a:
-                break
-            step = choose_spp(a, (measured - a) / chosen, budget_ms)
-            if step in self.runs:
+            step = corrected_spp(a, chosen, self.measure(chosen), budget_ms)
+            if step is None or step in self.runs:
                 break
             chosen = step
         medians = {s: float(np.median(v)) for s, v in self.runs.items()}
@@ -106,6 +105,16 @@ class Calibration:
                 "measured_ms": medians[chosen], "over_budget": medians[chosen] > budget_ms,
                 "runs": [{"spp": s, "device_ms": self.runs[s], "host_frame_ms": self.host[s],
                           "median_device_ms": medians[s]} for s in sorted(self.runs)]}
+
+
+def corrected_spp(a: float, spp: int, measured_ms: float, budget_ms: float) -> int | None:
+    """One refinement step from a time measured at ``spp``: the per-spp slope re-estimated
+    through that point, keeping the fitted intercept ``a``, and the largest spp it predicts
+    within the budget; None when the measurement is already within half of ``TOLERANCE`` of
+    the budget (so that noise keeps the cells within it) or at most the intercept."""
+    if abs(measured_ms - budget_ms) <= TOLERANCE / 2 * budget_ms or measured_ms <= a:
+        return None
+    return choose_spp(a, (measured_ms - a) / spp, budget_ms)
 
 
 def best_measured(medians: dict[int, float], budget_ms: float) -> int:

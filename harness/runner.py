@@ -1,8 +1,9 @@
 """``iblbench run``: scenes × estimators × spp × frames × seeds → results table, manifest, images.
 
-The runner skips what a scene does not need (DESIGN §2): the G-buffer is traced once per scene,
-a frame cache builds only the products the chosen estimators require, and a cached reference is
-never recomputed.  Every skipped stage is recorded in the manifest.
+The runner skips what a scene does not need (DESIGN §2): the G-buffer is traced once per scene
+(and read from its on-disk cache, :func:`iblbench.scenes.gbuffer.cached_trace`, when an earlier
+run traced the same one), a frame cache builds only the products the chosen estimators require,
+and a cached reference is never recomputed.  Every skipped stage is recorded in the manifest.
 
 Resumption.  Before rendering, the runner plans every cell of the sweep and counts a cell as
 done when ``out`` already holds its row made with the same configuration (cell key, image size,
@@ -56,11 +57,17 @@ it), and its time columns summarise those renders:
 
 Equal time.  For each budget T in ``time_budget_ms`` and each (scene, estimator), the runner
 calibrates the estimator's cell time (build + sample + shade) against spp
-(:mod:`iblbench.harness.equal_time`) and runs the spp it chose.  Those rows carry
-``time_budget_ms = T`` and the chosen ``spp``; the calibration runs and fits are in the manifest
-under ``time_budget``.  A resumed run reuses the spp its earlier rows chose.  At the end, each
-equal-time cell's time is compared with its budget: one outside ±10% is printed and listed in
-the manifest (``time_budget.achieved``), and the report shows the achieved time.
+(:mod:`iblbench.harness.equal_time`), just before the first of those cells, and runs the spp it
+chose.  The first cell of each budget is then corrected on its own time, in its own context
+(after scoring and image writes, on its own seeds): while its median lies outside half of ±10%
+of T, up to ``CELL_CORRECTIONS`` times, the per-spp slope is re-estimated through it (keeping
+the calibration's intercept) and the cell is rendered again, from ``reset()``, at the spp that
+predicts T; the last rendering is the cell, and its spp is every other cell's of that budget.
+Those rows carry ``time_budget_ms = T`` and the chosen ``spp``; the calibration runs, fits and
+the cell's corrections (``cell_runs``) are in the manifest under ``time_budget``.  A resumed run
+reuses the spp its earlier rows chose.  At the end, each equal-time cell's time is compared
+with its budget: one outside ±10% is printed and listed in the manifest
+(``time_budget.achieved``), and the report shows the achieved time.
 
 Scores.  The reference-side work of the metrics (exposure, L*a*b*, FLIP's exposure range) is
 done once per frame (:class:`iblbench.harness.metrics.Scorer`); ``metrics`` leaves metrics out.
@@ -84,24 +91,26 @@ import numpy as np
 from tqdm import tqdm
 
 from iblbench.estimators.registry import get_estimator_class
-from iblbench.harness.device import get_compute
+from iblbench.harness.device import cache_dir, get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
+from iblbench.harness import metrics as metrics_module
 from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.harness.reference import Reference
 from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, image_stem,
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
-from iblbench.harness.equal_time import CALIBRATION_REPEATS, TOLERANCE, Calibration
-from iblbench.harness.timing import (MEASURE, SETTLE_S, cell_times, device_ms, required_build_ms,
-                                     time_columns, timed_renders)
+from iblbench.harness.equal_time import (CALIBRATION_REPEATS, CELL_CORRECTIONS, TOLERANCE,
+                                        Calibration, corrected_spp)
+from iblbench.harness.timing import (MEASURE, cell_times, device_ms, host_threads_capped,
+                                     required_build_ms, time_columns, timed_renders)
 from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
                                     select_frames)
 from iblbench.reports.previews import write_heat_map, write_preview
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.framing import warn_about_framing
-from iblbench.scenes.gbuffer import trace_gbuffer
+from iblbench.scenes.gbuffer import cached_trace
 from iblbench.scenes.imageio import read_exr, write_exr
 from iblbench.scenes.registry import load_scene
 
@@ -288,6 +297,7 @@ class Runner:
                         for spec in self.specs}
         self.previous_manifest = read_manifest(self.out)
         self.todo, self.total, self.chosen = self._plan_cells()
+        self.unverified = {}   # (scene, label, budget) → its calibration, until its first cell
         self.resumed = self.total - len(self.todo)
         self.manifest = self._new_manifest()
 
@@ -381,16 +391,23 @@ class Runner:
             "timing": {"measure": MEASURE, "repeats": dict(self.repeats),
                        "cell": "median of the estimator's repeats of timed renders after "
                                "warm-up; min and IQR beside it (harness/timing.py)",
-                       "context": f"a {SETTLE_S * 1e3:g} ms pause, then a cell's repeats (or a "
-                                  "calibration spp's renders) back to back before scoring",
+                       "context": "BLAS and OpenMP pools at one host thread for the whole run "
+                                  "(threadpoolctl); a cell's repeats (or a calibration spp's "
+                                  "renders) back to back before scoring",
                        "warm_up": f"1 spp on {WARMUP_PIXELS} pixels per frame and estimator",
+                       "wall": "wall_s: host wall time from the first frame's set-up to the "
+                               "last cell's write; start-up (imports, colour-science included, "
+                               "scenes, G-buffers, the device) before it; device_s: the run's "
+                               "device time, timed renders, warm-ups, calibrations, builds and "
+                               "references",
                        "temporal": "timing renders on repeats - 1 twin instances per "
                                    "sequence; the scored render is the real state's"},
             "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": MEASURE,
                              "model": "time = a_ms + b_ms_per_spp * spp, least squares on "
                                       "relative error over the median of "
                                       f"{CALIBRATION_REPEATS} renders per spp, then refined on "
-                                      "renders at the chosen spp",
+                                      "renders at the chosen spp and on the budget's first "
+                                      "cell (cell_runs)",
                              "chosen": f"a measured spp within ±{TOLERANCE:.0%} of the budget, "
                                        "the largest within it first (harness/equal_time.py)",
                              "calibrations": self._resumed_calibrations()}
@@ -418,8 +435,10 @@ class Runner:
         # input must leave no partial output behind.
         gbuffers = {plan.scene.name: self._trace(plan) for plan in self.plans
                     if self._scene_todo(plan.scene.name)}
+        if self.todo:
+            metrics_module._colour()   # start-up, like every other import: not in wall_s
         prepare_out(self.out)
-        with _locked(self.out):
+        with _locked(self.out), host_threads_capped():
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
                       file=sys.stderr)
@@ -489,8 +508,13 @@ class Runner:
     def _trace(self, plan: _ScenePlan):
         scene = plan.scene
         start = time.perf_counter()
-        gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, plan.width, plan.height)
-        self._stage(scene.name, None, "gbuffer", (time.perf_counter() - start) * 1e3)
+        gbuffer, cached = cached_trace(scene.mesh, scene.material, scene.camera, plan.width,
+                                       plan.height, cache_dir() / "gbuffer")
+        if cached:
+            self.manifest["skipped"].append({"scene": scene.name, "stage": "gbuffer",
+                                             "why": "cached"})
+        else:
+            self._stage(scene.name, None, "gbuffer", (time.perf_counter() - start) * 1e3)
         if gbuffer.covered == 0:
             mesh = f" {scene.mesh_source}" if scene.mesh_source else ""
             raise InputError(scene.source or scene.name,
@@ -598,14 +622,16 @@ class Runner:
             build_ms = required_build_ms(built, spec.cls.requires)
             repeats = self.repeats[spec.label]
             estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
-            # Compiles and touches each kernel once; not timed, so no settle pause before it.
+            # Compiles and touches each kernel once (not timed).
             warmed = spec.make().render(warm_up, cache, 1, WARMUP_SEED)
             self.device_ms_total += device_ms(warmed.timings_ms)
-            self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
             for key in cells:
                 _, label, spp, frame, seed, budget = key
+                budget_key = (scene_name, label, budget)
                 if budget is not None:
-                    spp = self.chosen[(scene_name, label, budget)]
+                    if budget_key not in self.chosen:   # calibrated just before its cells
+                        self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
+                    spp = self.chosen[budget_key]
                 sequence_key = (label, key[2], budget, seed)
                 if spec.cls.tags.temporal:
                     if sequence_key not in sequences:
@@ -618,6 +644,9 @@ class Runner:
                 # Render 0 is the scored one; all of them back to back before scoring.
                 seeds = [seed] + [timing_seed(seed, r) for r in range(1, repeats)]
                 timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+                if budget_key in self.unverified:
+                    spp, timed = self._correct_budget_cell(budget_key, renderers, gbuffer,
+                                                           cache, spp, seeds, build_ms, timed)
                 estimate, renders = timed[0][0], [render for _, render in timed]
                 metrics, delta_e = scorer.score(estimate)
                 row = {
@@ -648,6 +677,28 @@ class Runner:
                 if time.monotonic() - self._last_fold > FOLD_SECONDS:
                     self._fold()
                     self._last_fold = time.monotonic()
+
+    def _correct_budget_cell(self, budget_key: tuple, renderers, gbuffer, cache, spp: int,
+                             seeds, build_ms: float, timed: list) -> tuple[int, list]:
+        """The first cell of a budget this run calibrated, timed at the calibrated spp
+        (``timed``), corrected on its own time: up to ``CELL_CORRECTIONS`` steps of
+        :func:`corrected_spp`, each rendering the cell again from ``reset()`` (it is the first
+        frame the renderers see); the last one is the cell, and its spp the budget's for every
+        other cell (module docstring, "Equal time")."""
+        fit = self.unverified.pop(budget_key)
+        for correction in range(CELL_CORRECTIONS + 1):
+            measured = float(np.median([device_ms(render.stages) for _, render in timed]))
+            fit["cell_runs"].append({"spp": spp, "median_device_ms": measured})
+            step = (corrected_spp(fit["a_ms"], spp, measured, fit["budget_ms"])
+                    if correction < CELL_CORRECTIONS else None)
+            if step is None or step == spp:
+                break
+            for renderer in set(renderers):
+                renderer.reset()
+            spp = step
+            timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+        fit["chosen_spp"] = self.chosen[budget_key] = spp
+        return spp, timed
 
     def _previous_map(self, plan: _ScenePlan, sequence_key: tuple, previous_frame: int | None,
                       stem: str, mask: np.ndarray) -> np.ndarray | None:
@@ -681,9 +732,12 @@ class Runner:
         calibration = Calibration(estimator, gbuffer, cache, build_ms)
         for budget in budgets:
             fit = calibration.choose(budget)
-            self.chosen[(scene_name, spec.label, budget)] = fit["chosen_spp"]
-            self.manifest["time_budget"]["calibrations"].append(
-                {"scene": scene_name, "estimator": spec.label, "frame": cache.frame, **fit})
+            key = (scene_name, spec.label, budget)
+            self.chosen[key] = fit["chosen_spp"]
+            entry = {"scene": scene_name, "estimator": spec.label, "frame": cache.frame,
+                     **fit, "calibrated_spp": fit["chosen_spp"], "cell_runs": []}
+            self.unverified[key] = entry
+            self.manifest["time_budget"]["calibrations"].append(entry)
             if fit["over_budget"] and fit["chosen_spp"] == 1:
                 print(f"iblbench: {spec.label} on {scene_name}: even 1 spp takes "
                       f"{fit['measured_ms']:.3g} ms > the {budget:g} ms budget; running 1 spp",

@@ -27,14 +27,25 @@ renders.  How the runner gets those renders without disturbing a temporal estima
 in :mod:`iblbench.harness.runner`.
 
 **Context.**  The device is the CPU (PoCL) shared with the host, so a render's device time
-depends on what the host did just before it.  Measured on 2 cores (blob-sun, uniform, 387 spp,
-30 renders each): back to back 5.6 ms median but bimodal (5.2 / 8.8 ms); after a NumPy matrix
-product 8.2 ms (OpenBLAS's threads spin ~0.1 s after a call, taking a core from PoCL's
-workers); after that product and a 150 ms pause 5.15 ms (p10-p90 5.0-6.1).  Cells follow
-host scoring and image writes, calibration renders did not: cells took 1.4-1.9x the
-calibrated time at the same spp.  So every group of timed renders, a cell's repeats and each
-calibration spp alike, goes through :func:`timed_renders`: a pause of ``SETTLE_S`` (the host
-threads go idle), then the renders back to back.
+depends on what host threads do while it runs.  The host's own work (scoring, image writes)
+runs on the calling thread between renders, never beside them (it waits on the events without
+spinning: 1.5 ms of CPU for a 100 ms render); the one host thread that ran beside them was
+OpenBLAS's worker, which spins ~0.1 s after a NumPy matrix product (host scoring) and takes a
+core from PoCL's two workers.  So a run holds :func:`host_threads_capped` (BLAS and OpenMP
+pools at one thread, threadpoolctl) around everything it renders, warm-up and calibration
+included, and a group of timed renders (a cell's repeats, each calibration spp) runs back to
+back in :func:`timed_renders`, with no pause before it.  Measured on 2 cores shared with other
+jobs (load 8-12), interleaved in rounds, one process:
+
+- the first render after a 200k×3 NumPy product (blob-sun, uniform, 256 spp, 20 rounds): 20.3 ms
+  median with BLAS's two threads, 5.2 ms with one, 6.7 ms with no product before it;
+- groups of 5 renders after a cell's scoring and image writes (25 rounds; blob-sun uniform 256
+  spp, sphere-sun balanced_mis 64 spp): IQR/median ≤ 15% in 48% and 44% of the groups with
+  BLAS at one thread and no pause, 52% and 24% with two threads and the 150 ms pause this
+  replaces, 24% and 36% with neither; medians 5.44 / 6.94 ms, 5.64 / 7.49 ms, 6.73 / 7.55 ms.
+
+The pause cost 0.15 s of wall time per cell: 8 s of a 12.7 s warm default run with 0.95 s of
+device time (idle machine).
 
 **Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
 time is the median of the rows' ``time_ms`` (:func:`median_time`, :func:`cell_times`).
@@ -46,12 +57,12 @@ import math
 import time
 
 import numpy as np
+import threadpoolctl
 
 STAGES = ("build", "sample", "shade")
 TIME = "time_ms"
 COLUMNS = ("time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build", "time_ms_sample",
            "time_ms_shade", "time_ms_host", "time_repeats")
-SETTLE_S = 0.15   # pause before a group of timed renders: longer than OpenBLAS's thread spin
 MEASURE = ("device time per frame of the stages the estimator needs: build + sample + shade "
            "(OpenCL profiling events), ms")
 
@@ -72,10 +83,15 @@ def render_stages(build_ms: float, timings_ms: dict[str, float]) -> dict[str, fl
     return stages
 
 
+def host_threads_capped():
+    """A context in which NumPy's BLAS and any OpenMP pool run on the calling thread alone, so
+    no host thread spins beside a render (module docstring, "Context")."""
+    return threadpoolctl.threadpool_limits(limits=1)
+
+
 def timed_renders(renderers, gbuffer, cache, spp: int, seeds, build_ms: float) -> list[tuple]:
-    """(estimate, TimedRender) of one render per (renderer, seed), after a ``SETTLE_S`` pause
-    and back to back (module docstring, "Context")."""
-    time.sleep(SETTLE_S)
+    """(estimate, TimedRender) of one render per (renderer, seed), back to back (module
+    docstring, "Context"; callers hold :func:`host_threads_capped`)."""
     out = []
     for renderer, seed in zip(renderers, seeds, strict=True):
         start = time.perf_counter()

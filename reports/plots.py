@@ -16,10 +16,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
-from iblbench.reports.previews import HEAT_MAX  # noqa: E402
+from iblbench.reports.previews import HEAT_CMAP, HEAT_MAX  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
 
-HEAT_CMAP = "inferno"   # the colormap of previews.write_heat_map
 DPI = 100
 
 # (column, axis label) of the two error measures the report plots.

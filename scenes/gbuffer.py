@@ -18,11 +18,21 @@ that keeps the mirror direction r = 2(n·view)n − view on the lit side, and th
 covered, shaded continuously with its neighbours, instead of being masked.  So every covered
 pixel of a traced G-buffer has a finite unit normal with n·view ≥ MIN_COS_VIEW.
 (:meth:`GBuffer.from_pixels` takes its normals as given.)
+
+Cache.  :func:`cached_trace` keeps traced G-buffers on disk (``<folder>/<key>.npz``, written
+atomically), keyed by a hash of what the trace reads: this module's source, the mesh's
+vertices, faces and vertex normals, the material, the camera and the image size.  The
+geometric normals are not hashed: trimesh derives them from the vertices and faces (no loader
+here supplies its own).  A file that cannot be read back whole, or holds another image size, is
+traced again and replaced.
 """
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
+import pathlib
+import zipfile
 
 import numpy as np
 
@@ -160,3 +170,31 @@ def trace_gbuffer(mesh, material, camera, width: int, height: int) -> GBuffer:
         ks=per_pixel(np.asarray(material.ks, np.float32)),
         shininess=per_pixel(np.float32(material.shininess), ()),
     )
+
+
+def gbuffer_key(mesh, material, camera, width: int, height: int) -> str:
+    """The content hash of a trace's inputs (module docstring, "Cache")."""
+    digest = hashlib.sha256(pathlib.Path(__file__).read_bytes())
+    for array in (mesh.vertices, mesh.faces, mesh.vertex_normals):
+        array = np.ascontiguousarray(array)
+        digest.update(f"{array.dtype}{array.shape}".encode())
+        digest.update(array.tobytes())
+    digest.update(repr((dataclasses.astuple(material), dataclasses.astuple(camera),
+                        int(width), int(height))).encode())
+    return digest.hexdigest()[:24]
+
+
+def cached_trace(mesh, material, camera, width: int, height: int,
+                 folder: str | os.PathLike) -> tuple[GBuffer, bool]:
+    """:func:`trace_gbuffer`'s G-buffer from the cache in ``folder`` (module docstring, "Cache"),
+    traced and stored there on a miss; and whether it was a hit."""
+    path = pathlib.Path(folder) / f"{gbuffer_key(mesh, material, camera, width, height)}.npz"
+    try:
+        gbuffer = GBuffer.load_npz(path)
+        if gbuffer.shape == (height, width):
+            return gbuffer, True
+    except (OSError, EOFError, KeyError, ValueError, zipfile.BadZipFile):
+        pass   # absent or damaged: traced again and replaced
+    gbuffer = trace_gbuffer(mesh, material, camera, width, height)
+    gbuffer.save_npz(path)
+    return gbuffer, False

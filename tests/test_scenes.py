@@ -95,6 +95,50 @@ def test_gbuffer_npz_round_trip_leaves_no_temporary(tmp_path):
 # --- sky ---------------------------------------------------------------------------------------
 
 
+def assert_same_gbuffer(a, b):
+    for name in gbuffer.GBUFFER_ARRAYS:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_cached_trace_hits_on_the_same_inputs_and_misses_on_any_changed_one(tmp_path):
+    mesh, material, camera = meshes.sphere(2), Material(), Camera()
+    traced = gbuffer.trace_gbuffer(mesh, material, camera, 24, 16)
+    first, hit = gbuffer.cached_trace(mesh, material, camera, 24, 16, tmp_path)
+    assert not hit and len(list(tmp_path.glob("*.npz"))) == 1
+    assert_same_gbuffer(first, traced)
+    again, hit = gbuffer.cached_trace(meshes.sphere(2), Material(), Camera(), 24, 16, tmp_path)
+    assert hit
+    assert_same_gbuffer(again, traced)
+    moved = meshes.sphere(2)
+    moved.vertices[0] += 0.01
+    bent = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False,
+                           vertex_normals=mesh.vertex_normals + [0.0, 0.3, 0.0])
+    changes = [(moved, material, camera, 24, 16), (bent, material, camera, 24, 16),
+               (meshes.sphere(2, radius=0.9), material, camera, 24, 16),
+               (mesh, Material(kd=(0.4, 0.5, 0.5)), camera, 24, 16),
+               (mesh, Material(shininess=20.0), camera, 24, 16),
+               (mesh, material, Camera(eye=(0.0, 0.1, 3.0)), 24, 16),
+               (mesh, material, Camera(fov_y=40.0), 24, 16),
+               (mesh, material, camera, 16, 24), (mesh, material, camera, 24, 24)]
+    for inputs in changes:
+        changed, hit = gbuffer.cached_trace(*inputs, tmp_path)
+        assert not hit, inputs[1:]
+        assert_same_gbuffer(changed, gbuffer.trace_gbuffer(*inputs))
+    assert len(list(tmp_path.glob("*.npz"))) == 1 + len(changes)
+    assert not list(tmp_path.glob(".*"))   # atomic writes leave no temporary behind
+
+
+def test_a_damaged_cached_gbuffer_is_traced_again_and_replaced(tmp_path):
+    mesh, material, camera = meshes.sphere(2), Material(), Camera()
+    gbuffer.cached_trace(mesh, material, camera, 24, 16, tmp_path)
+    path, = tmp_path.glob("*.npz")
+    path.write_bytes(path.read_bytes()[:100])
+    repaired, hit = gbuffer.cached_trace(mesh, material, camera, 24, 16, tmp_path)
+    assert not hit
+    assert_same_gbuffer(repaired, gbuffer.trace_gbuffer(mesh, material, camera, 24, 16))
+    assert gbuffer.cached_trace(mesh, material, camera, 24, 16, tmp_path)[1]
+
+
 def test_preetham_zenith_luminance_by_hand():
     # T = 2, θ_s = 60° = π/3:  χ = (4/9 − 2/120)(π − 2π/3) = 0.427778 · 1.047198 = 0.447968,
     # tan χ = 0.480551;  Y_z = (4.0453·2 − 4.9710)·0.480551 − 0.2155·2 + 2.4192

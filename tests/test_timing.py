@@ -10,17 +10,17 @@ import dataclasses
 import itertools
 import json
 import math
-import time
 
 import numpy as np
 import pandas as pd
 import pytest
+import threadpoolctl
 import trimesh
 
 from iblbench.estimators.base import Estimate, Estimator, Tags
 from iblbench.estimators.registry import _registry, register
-from iblbench.harness import budgets, cli, runner, timing
-from iblbench.harness.equal_time import TOLERANCE, Calibration
+from iblbench.harness import budgets, cli, runner
+from iblbench.harness.equal_time import CALIBRATION_SEED, TOLERANCE, Calibration
 from iblbench.harness.framecache import FrameCache
 from iblbench.harness.runner import TIMING_SEED, WARMUP_PIXELS, WARMUP_SEED, RunConfig, run
 from iblbench.harness.timing import TimedRender, time_columns
@@ -66,19 +66,42 @@ class Linear(Estimator):
         return fake_estimate(gbuffer, spp, 0.5, {"shade": 0.7 + 0.013 * spp ** self.POWER})
 
 
-class HostSensitive(Linear):
-    """Linear's cost, ``SLOWDOWN`` times it within ``WINDOW_S`` of the host's last scoring: the
-    CPU device sharing its cores with host threads that still spin after the host's work."""
+class CellContext(Linear):
+    """Linear's cost, ``SLOWDOWN`` times it on the seeds of cells and their timing renders (not
+    on calibration seeds): cells rendered in another context than their calibration.  Temporal,
+    and its image is the number of frames rendered since ``reset()``, so a scored image shows
+    whether its instance rendered anything else first."""
 
-    name = "host_sensitive_timing_test"
-    SLOWDOWN, WINDOW_S = 1.6, 0.01
-    last_scoring = -math.inf
+    name = "cell_context_timing_test"
+    tags = Tags(unbiased=False, temporal=True)
+    SLOWDOWN = 1.3
+
+    def __init__(self, params=None, **overrides):
+        super().__init__(params, **overrides)
+        self.frames = 0
+
+    def reset(self):
+        self.frames = 0
 
     def render(self, gbuffer, cache, spp, seed):
+        self.frames += 1
         estimate = super().render(gbuffer, cache, spp, seed)
-        if time.monotonic() - HostSensitive.last_scoring < self.WINDOW_S:
+        estimate.radiance[:] = self.frames
+        if seed < CALIBRATION_SEED:
             estimate.timings_ms["shade"] *= self.SLOWDOWN
         return estimate
+
+
+class BlasProbe(Linear):
+    """Linear, logging the BLAS threads NumPy may use during each render."""
+
+    name = "blas_probe_timing_test"
+    log: list = []
+
+    def render(self, gbuffer, cache, spp, seed):
+        self.log.append({pool["num_threads"] for pool in threadpoolctl.threadpool_info()
+                         if pool["user_api"] == "blas"})
+        return super().render(gbuffer, cache, spp, seed)
 
 
 class Counting(Estimator):
@@ -106,12 +129,13 @@ class Counting(Estimator):
 
 @pytest.fixture
 def fakes():
-    for cls in (Scripted, Linear, HostSensitive, Counting):
+    for cls in (Scripted, Linear, CellContext, BlasProbe, Counting):
         register(cls)
     Counting.log.clear()
     Scripted.log.clear()
+    BlasProbe.log.clear()
     yield
-    for cls in (Scripted, Linear, HostSensitive, Counting):
+    for cls in (Scripted, Linear, CellContext, BlasProbe, Counting):
         _registry.pop(cls.name)
 
 
@@ -223,24 +247,33 @@ def test_budget_cells_report_their_achieved_device_time(tmp_path, fakes, known_b
     assert not cells.loc[0.5, "within"] and cells.loc[20.0, "within"]
 
 
-def test_cells_are_timed_in_the_calibrations_context(tmp_path, fakes, known_builds,
-                                                     monkeypatch):
-    """Host work between cells (scoring) slows the renders that follow it; calibration renders
-    follow none.  Both must pause before timing (timing.timed_renders), or the second seed's
-    cell, scored right after the first, lands 1.6x over its budget."""
-    class MarkedScorer(runner.Scorer):
-        def score(self, estimate):
-            scored = super().score(estimate)
-            HostSensitive.last_scoring = time.monotonic()
-            return scored
+def test_a_budgets_first_cell_corrects_the_spp_on_its_own_time(tmp_path, fakes, known_builds):
+    """Cells cost 1.3x their calibration renders at the same spp (another context): the
+    calibrated spp lands 1.3x over the budget, so the first cell is rendered again at a
+    corrected spp, from reset(), and every cell of the budget runs that spp."""
+    out = tmp_path / "out"
+    table = run(tiny(out, ("cell_context_timing_test",), scenes=(sequence_scene(tmp_path, 2),),
+                     env_res=None, spp=(), seeds=2, time_budget_ms=(20.0,)))
+    assert len(table) == 2 * 2 and table.spp.nunique() == 1
+    for row in table.itertuples():
+        assert abs(row.time_ms - 20.0) <= TOLERANCE * 20.0, table.time_ms.tolist()
+        assert row.used_samples == row.spp   # the scored render is the corrected one
+        image = read_exr(out / "images" / "seq" / f"f{row.frame}" /
+                         f"{row.estimator}_t20ms_spp{row.spp}_s{row.seed}.exr")
+        assert image.max() == row.frame + 1   # nothing rendered on it before, reset or not
+    fit, = json.loads((out / "manifest.json").read_text())["time_budget"]["calibrations"]
+    first, *corrected = fit["cell_runs"]
+    assert first["spp"] == fit["calibrated_spp"] and first["median_device_ms"] > 1.2 * 20.0
+    assert corrected and corrected[-1]["spp"] == fit["chosen_spp"] == table.spp.iloc[0]
 
-    monkeypatch.setattr(runner, "Scorer", MarkedScorer)
-    monkeypatch.setattr(timing, "SETTLE_S", 2 * HostSensitive.WINDOW_S)
-    table = run(tiny(tmp_path / "out", ("host_sensitive_timing_test",), spp=(), seeds=2,
-                     time_budget_ms=(20.0,)))
-    assert len(table) == 2
-    for time_ms in table.time_ms:
-        assert abs(time_ms - 20.0) <= TOLERANCE * 20.0, table.time_ms.tolist()
+
+def test_every_render_runs_with_host_blas_at_one_thread(tmp_path, fakes):
+    """OpenBLAS's worker spins beside the device's threads after a NumPy product: a run keeps
+    BLAS on the calling thread for the warm-up, calibration and cells, and gives it back."""
+    before = [pool["num_threads"] for pool in threadpoolctl.threadpool_info()]
+    run(tiny(tmp_path, ("blas_probe_timing_test",), time_budget_ms=(20.0,)))
+    assert len(BlasProbe.log) > 10 and all(threads == {1} for threads in BlasProbe.log)
+    assert [pool["num_threads"] for pool in threadpoolctl.threadpool_info()] == before
 
 
 def test_terminal_check_and_report_show_one_time_per_cell(tmp_path):
