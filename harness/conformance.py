@@ -50,6 +50,30 @@ def smooth_map(res: int = 8) -> np.ndarray:
                     axis=-1).astype(np.float32)
 
 
+# One blob per face: its centre (u, v) on the face plane and its RGB tint.  Every centre is at
+# least 0.15 off both axes and its two diagonals lie ≥ 0.25/√2 away, so each of the 7 flips and
+# turns of a face square moves its blob by ≥ 0.3 (1.2 texels at R = 8); tints and places differ
+# between faces, so swapping two faces changes the map too.
+FACE_BLOBS = (((0.55, -0.2), (3.0, 0.9, 0.4)), ((-0.25, 0.6), (0.4, 2.5, 0.8)),
+              ((0.6, 0.25), (0.8, 0.5, 3.0)), ((-0.5, -0.2), (2.5, 2.0, 0.3)),
+              ((0.2, -0.55), (0.3, 1.5, 2.0)), ((-0.6, 0.3), (2.0, 0.4, 2.5)))
+FACE_BLOB_WIDTH = 0.3
+
+
+def face_pattern_map(res: int = 8) -> np.ndarray:
+    """``smooth_map`` plus a bright, tinted Gaussian blob on every face, placed so that no flip
+    or turn of a face and no swap of two faces leaves the map (and its luminance) unchanged
+    (``FACE_BLOBS``): a sign or orientation error on any face then moves light, which the z-tests
+    and the χ² test see (issue 13: ``smooth_map`` on ±Y changed by 3% under a half turn)."""
+    centre = (np.arange(res) + 0.5) * (2.0 / res) - 1.0
+    v, u = np.meshgrid(centre, centre, indexing="ij")          # rows are v (t), columns u (s)
+    env = smooth_map(res).astype(np.float64)
+    for face, ((u0, v0), tint) in enumerate(FACE_BLOBS):
+        blob = np.exp(-((u - u0) ** 2 + (v - v0) ** 2) / (2 * FACE_BLOB_WIDTH ** 2))
+        env[face] += blob[..., None] * np.asarray(tint)
+    return env.astype(np.float32)
+
+
 def constant_map(value: float = 0.7, res: int = 8) -> np.ndarray:
     return np.full((6, res, res, 3), value, np.float32)
 
@@ -170,6 +194,46 @@ def check_sample_counts(estimator, h: Harness) -> None:
         assert np.all(est.effective >= 0), "effective must be non-negative"
 
 
+EFFECTIVE_SEEDS = 40          # renders whose effective shares are averaged per pixel
+EFFECTIVE_SPP = 64
+EFFECTIVE_GRID = 128          # pdf points per cube face side for the mass above the horizon
+EFFECTIVE_FLOOR = 5e-3        # that mass's quadrature error (cells the horizon cuts)
+
+
+def upper_hemisphere_mass(pdf: Callable, normal: np.ndarray, grid: int = EFFECTIVE_GRID) -> float:
+    """∫_{n·ω > 0} pdf(ω) dω by the midpoint rule on ``grid``² cells per face with exact cell
+    solid angles (good to about 1/grid: the cells the horizon cuts)."""
+    dirs = cubemap.texel_directions(grid).reshape(-1, 3)
+    omega = np.broadcast_to(cubemap.texel_solid_angles(grid), (6, grid, grid)).reshape(-1)
+    above = dirs @ np.asarray(normal, np.float64) > 0
+    return float(np.sum(pdf(dirs[above].astype(np.float32)) * omega[above]))
+
+
+def check_effective_share(estimator, h: Harness) -> None:
+    """Estimators with a pdf (``tags.has_pdf``): each pixel's effective share (effective / used:
+    the β-weighted samples with a positive cosine) equals, in the mean over seeds, the mass its
+    pdf puts above the horizon, ∫_{n·ω>0} pdf dω: the analytic value the share must not exceed
+    in expectation nor fall short of (a count that took every sample as effective gave 1.0).
+    z-tests per pixel at family-wise α = 1e-3 (Šidák), the standard error over seeds plus
+    ``EFFECTIVE_FLOOR``; the map lights every face, with light below every horizon."""
+    gb = glossy_gbuffer(2)
+    gbuffer, cache = h.inputs(gb, face_pattern_map())
+    cache.require(type(estimator).requires)
+    expected = np.array([upper_hemisphere_mass(lambda d: estimator.pdf(cache, n, v, d), n)
+                         for n, v in zip(gb.normal.reshape(-1, 3), gb.view.reshape(-1, 3))])
+    shares = []
+    for seed in range(EFFECTIVE_SEEDS):
+        est = h.render(estimator, gbuffer, cache, EFFECTIVE_SPP, seed)
+        shares.append((est.effective / np.maximum(est.used, 1e-30)).reshape(-1))
+    shares = np.array(shares)
+    mean = shares.mean(0)
+    z = (mean - expected) / (shares.std(0, ddof=1) / np.sqrt(EFFECTIVE_SEEDS) + EFFECTIVE_FLOOR)
+    worst = int(np.argmax(np.abs(z)))
+    assert np.abs(z).max() < sidak_z(z.size), \
+        (f"effective share {mean[worst]:.4f} at pixel {worst}, but the pdf puts "
+         f"{expected[worst]:.4f} of its samples above the horizon (z = {z[worst]:.1f})")
+
+
 def check_white_furnace(estimator, h: Harness) -> None:
     """A constant map on a white Lambertian integrates to the map's value: the mean over 1000
     seeds is within 3 standard errors of it (a relative error of about 0.1%)."""
@@ -262,12 +326,12 @@ def bias_test(samples: np.ndarray, reference: np.ndarray) -> BiasTest:
 
 
 def check_unbiased(estimator, h: Harness) -> None:
-    """z-tests of the mean over seeds against the exact reference, on a glossy, a purely specular
-    and a black-faces case.  Two families, each at α = 1e-3 with Šidák correction: the image mean
+    """z-tests of the mean over seeds against the exact reference, on a glossy and a purely
+    specular case on ``face_pattern_map`` and a black-faces case.  Two families, each at α = 1e-3 with Šidák correction: the image mean
     per channel (it sees a bias of about 1%) and every pixel and channel."""
     seeds, spp = 1000, 8
-    cases = {"glossy": (glossy_gbuffer(), smooth_map()),
-             "specular-only": (glossy_gbuffer(ks=0.8, kd=0.0), smooth_map()),
+    cases = {"glossy": (glossy_gbuffer(), face_pattern_map()),
+             "specular-only": (glossy_gbuffer(ks=0.8, kd=0.0), face_pattern_map()),
              "black-faces": (glossy_gbuffer(), stress_maps(8)["black-faces"])}
     failures = []
     for case, (gb, env) in cases.items():
@@ -291,8 +355,9 @@ def check_unbiased(estimator, h: Harness) -> None:
 
 
 def _error_ratio_8_to_128(estimator, h: Harness) -> float:
-    """RMS error over 6 seeds at 8 spp divided by that at 128 spp (16× the samples)."""
-    gbuffer, cache = h.inputs(glossy_gbuffer(), smooth_map())
+    """RMS error over 6 seeds at 8 spp divided by that at 128 spp (16× the samples), on
+    ``face_pattern_map`` (a face error leaves a bias floor there)."""
+    gbuffer, cache = h.inputs(glossy_gbuffer(), face_pattern_map())
     reference = h.reference(gbuffer, cache)
 
     def rms(spp):
@@ -413,9 +478,10 @@ def chi2_sampling(estimator, cache, normal, view, seed: int, n: int = 200_000) -
 
 
 def check_chi2_sampling(estimator, h: Harness) -> None:
-    """χ² goodness-of-fit of ``sample_directions`` against the integrated ``pdf`` hook."""
+    """χ² goodness-of-fit of ``sample_directions`` against the integrated ``pdf`` hook, on the
+    map whose every face is asymmetric (``face_pattern_map``)."""
     gb = glossy_gbuffer(2)
-    _, cache = h.inputs(gb, smooth_map())
+    _, cache = h.inputs(gb, face_pattern_map())
     cache.require(type(estimator).requires)
     cases = [(gb.normal[i, j], gb.view[i, j]) for i, j in ((0, 0), (1, 1))]
     limit = sidak_alpha(ALPHA_CHI2, len(cases))
@@ -489,6 +555,7 @@ def yield_checks(estimator) -> Iterator[Callable]:
         yield check_error_falls
     if tags.has_pdf:
         yield check_chi2_sampling
+        yield check_effective_share
     if tags.temporal:
         yield check_temporal_consistency
     yield check_timing

@@ -282,6 +282,12 @@ CASES: dict[str, StressCase] = {case.name: case for case in (
                                   [conformance.constant_map(0.7, s.res)], exact=0.7)],
                _ALL_PIXELS, notes="fixed by de34403: conformance.white_lambertian looked from "
                                   "(0, 0, 1), behind half its normals (n·view < 0)"),
+    StressCase("face-pattern", "a distinct, asymmetric blob on every face "
+               "(conformance.face_pattern_map): a flipped, turned or swapped face moves light "
+               "(issue 13: the built-in skies' −Y ground face is uniform, so a sign error there "
+               "passed)", lambda s: [Variant(f"R={s.res}", _glossy(s),
+                                             [conformance.face_pattern_map(s.res)])],
+               _ALL_PIXELS),
     StressCase("grazing", f"views at {GRAZING_DEGREES}° to the normal, and interpolated shading "
                "normals that face away from the viewer (traced, bent to the view's horizon by "
                "scenes.gbuffer)", _grazing, _ALL_PIXELS),

@@ -92,6 +92,39 @@ def test_tightening_one_budget_fails_and_names_the_rule(quick_run, tmp_path):
     assert verdict.startswith("check: FAIL") and "sun-mis-64" in verdict, verdict
 
 
+TWO_SIDED = ("mean_delta_e76", "rel_mse", "effective_ratio", "used_samples", "evaluations")
+
+
+def test_every_quality_rule_bounds_both_sides():
+    """Issue 13: a count that took every sample as effective (ratio 1.0) passed a lower bound."""
+    for rule in load_budgets(BUDGETS):
+        if rule.nonfinite is not None and not rule.bounds:
+            continue
+        kinds = {(metric, kind) for metric, kind, _ in rule.bounds}
+        for metric in TWO_SIDED:
+            assert {(metric, "min"), (metric, "max")} <= kinds, (rule.name, metric)
+
+
+@pytest.mark.parametrize("bug, column, value", [
+    ("every sample counted effective", "effective_ratio", 1.0),
+    ("no sample counted effective", "effective_ratio", 0.0),
+    ("a strategy's samples dropped", "used_samples", 0.5),
+    ("the estimate scored against itself", "mean_delta_e76", 0.0)])
+def test_a_count_or_score_bug_fails_the_repo_budgets(quick_run, tmp_path, bug, column, value):
+    """The quick sweep's table with one column broken as the bug would break it, in every row
+    (``used_samples`` scaled by ``value``), fails every quality rule on that column."""
+    table = pd.read_parquet(quick_run / "results.parquet")
+    table[column] = table[column] * value if column == "used_samples" else value
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    write_results(broken, table.to_dict("records"))
+    result = iblbench("check", broken, "--budgets", "budgets.toml")
+    assert result.returncode == 1, check_output(result)
+    failing = [line.split() for line in result.stdout.splitlines() if line.rstrip().endswith("FAIL")]
+    quality_rules = [rule for rule in load_budgets(BUDGETS) if rule.bounds]
+    assert {line[0] for line in failing if line[4] == column} == {r.name for r in quality_rules}, bug
+
+
 # --- semantics on synthetic tables ---------------------------------------------------------------
 
 
