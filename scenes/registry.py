@@ -148,30 +148,34 @@ def _torus_sun(env_res: int | None) -> Scene:
     return _sun_sky_scene("torus-sun", meshes.torus(), camera, env_res)
 
 
-def _sequence_scene(name: str, mesh, camera: Camera, environment: EnvSequence) -> Scene:
-    return Scene(name=name, mesh=mesh, material=_MATERIAL, camera=camera, environment=environment,
+# The environment sequence of each built-in sequence scene; every other built-in scene is static.
+_SEQUENCES: dict[str, Callable[[int], EnvSequence]] = {
+    "blob-day": sequences.day, "torus-moving": sequences.moving_lights,
+    "sphere-switch": sequences.switch}
+
+
+def _sequence_scene(name: str, mesh, camera: Camera, env_res: int | None) -> Scene:
+    return Scene(name=name, mesh=mesh, material=_MATERIAL, camera=camera,
+                 environment=_SEQUENCES[name](env_res or DEFAULT_ENV_RES),
                  resolution=(128, 128), source=f"builtin:{name}")
 
 
 def _blob_day(env_res: int | None) -> Scene:
     """The blob-sun blob and camera under the 67-frame ``day`` sequence (Lu 2013, Fig. 1)."""
     camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
-    return _sequence_scene("blob-day", meshes.blob(), camera,
-                           sequences.day(env_res or DEFAULT_ENV_RES))
+    return _sequence_scene("blob-day", meshes.blob(), camera, env_res)
 
 
 def _torus_moving(env_res: int | None) -> Scene:
     """The torus-sun torus and camera under ``moving-lights``."""
     camera = Camera(eye=(0.0, 2.2, 3.3), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
-    return _sequence_scene("torus-moving", meshes.torus(), camera,
-                           sequences.moving_lights(env_res or DEFAULT_ENV_RES))
+    return _sequence_scene("torus-moving", meshes.torus(), camera, env_res)
 
 
 def _sphere_switch(env_res: int | None) -> Scene:
     """The sphere-sun sphere and camera under ``switch`` (light on in frames 10..19)."""
     camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
-    return _sequence_scene("sphere-switch", meshes.sphere(), camera,
-                           sequences.switch(env_res or DEFAULT_ENV_RES))
+    return _sequence_scene("sphere-switch", meshes.sphere(), camera, env_res)
 
 
 # Every built-in scene: kd = 0.5, ks = 0.3, shininess = 150, 128 × 128; the *-sun ones static
@@ -190,6 +194,12 @@ BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {
 
 def scene_names() -> list[str]:
     return sorted(BUILTIN_SCENES)
+
+
+def builtin_frames(name: str) -> int:
+    """A built-in scene's frame count, without building its mesh or environment."""
+    sequence = _SEQUENCES.get(name.lower())
+    return sequence(DEFAULT_ENV_RES).num_frames if sequence else 1
 
 
 def builtin_scene(name: str, env_res: int | None = None) -> Scene:

@@ -359,7 +359,60 @@ def test_list_devices_marks_exactly_one(cli):
     assert sum(line.startswith("*") for line in lines) == 1, result.stdout
 
 
-def test_list_estimators(cli):
-    result = cli("list", "estimators")
+def listing(command: str, columns: int) -> dict[str, str]:
+    """``iblbench list COMMAND`` at a terminal width: name -> its text, continuation lines joined;
+    every line fits the width."""
+    env = dict(os.environ, COLUMNS=str(columns), PYTHONWARNINGS="ignore")
+    result = subprocess.run([sys.executable, "-m", "iblbench.harness.cli", "list", command],
+                            capture_output=True, text=True, env=env, timeout=120)
     assert result.returncode == 0, result.stderr
-    assert re.search(r"^uniform\b", result.stdout, re.M), result.stdout
+    entries: dict[str, str] = {}
+    for line in result.stdout.splitlines():
+        assert len(line) <= columns, f"line wider than {columns}:\n{result.stdout}"
+        if line.startswith(" "):
+            entries[name] += " " + line.strip()
+        else:
+            name, _, text = line.partition(" ")
+            entries[name] = text.strip()
+    return entries
+
+
+def test_list_estimators_one_plain_sentence_each():
+    """Each estimator's first docstring sentence, whole, without reST, wrapped to the terminal."""
+    entries = listing("estimators", columns=60)
+    assert {"uniform", "balanced", "balanced_mis", "havran", "bis", "smc"} <= set(entries), entries
+    for name, text in entries.items():
+        assert not re.search(r"``|:[a-z]+:`", text), f"reST left in {name}: {text}"
+        assert text.endswith("."), f"{name}'s sentence is cut: {text}"
+    assert entries["bis"] == ("Burke et al. 2005 bidirectional importance sampling, as Kronander "
+                              "et al. §5 use it.")
+    assert entries["havran"].endswith("per-normal culling; K = spp lights."), entries["havran"]
+    assert entries["uniform"].endswith("(Lu 2013 Sec. 2.1, Eq. 4 with μ_f = 1/6)."), entries
+
+
+def test_list_scenes_gives_frames_and_description():
+    from iblbench.scenes import sequences
+
+    entries = listing("scenes", columns=70)
+    frames = {"sphere-sun": 1, "blob-sun": 1, "blob-day": sequences.DAY_FRAMES,
+              "torus-moving": sequences.MOVING_FRAMES, "sphere-switch": sequences.SWITCH_FRAMES}
+    for name, count in frames.items():
+        assert entries[name].startswith(f"{count} frame"), entries
+    assert "moving-lights" in entries["torus-moving"] and "``" not in entries["blob-day"], entries
+    assert "smooth sphere" in entries["sphere-sun"], entries
+
+
+def test_version(cli):
+    result = cli("--version")
+    assert result.returncode == 0, result.stderr
+    assert re.fullmatch(r"iblbench \d+\.\d+\S* \(git ([0-9a-f]{7,}(-dirty)?|unknown)\)\n",
+                        result.stdout), result.stdout
+
+
+@pytest.mark.parametrize("args, needle", [(("run", "--spp", "x"), "argument --spp"),
+                                          (("no-such-command",), "invalid choice"),
+                                          ((), "required")])
+def test_argument_errors_are_one_line_with_a_help_hint(cli, args, needle):
+    result = cli(*args)
+    assert_input_error(result, None, needle, "--help")
+
