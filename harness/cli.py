@@ -424,23 +424,27 @@ def _run(args) -> None:
 
 def terminal_summaries(table):
     """The tables ``iblbench run`` prints: per (scene, estimator, spp) cell, then per equal-time
-    cell, each with the cell's time of :mod:`iblbench.harness.timing` (``time_ms``: device ms
+    cell. Beside spp each shows what a sample costs, as the estimators' spp are not comparable
+    (one bis or smc sample costs 21 integrand evaluations): ``evaluations`` (integrand evaluations per
+    covered pixel) and the cell's time of :mod:`iblbench.harness.timing` (``time_ms``: device ms
     per frame, build + sample + shade) as the report and ``check`` show it."""
     from iblbench.harness.timing import TIME, cell_times
 
     summaries = []
     for keys, rows, title in (
-            (["scene", "estimator", "spp"], table[table.time_budget_ms.isna()], None),
+            (["scene", "estimator", "spp"], table[table.time_budget_ms.isna()],
+             "error at equal spp (an spp costs each estimator different evaluations and time: "
+             "compare estimators at equal time_ms, as --time-budget-ms does):"),
             (["scene", "time_budget_ms", "estimator"], table[table.time_budget_ms.notna()],
              "error at equal time (the spp chosen so that the device time per frame, build + "
              "sample + shade, lands within 10% of time_budget_ms):")):
         if len(rows):
             spp = {} if "spp" in keys else {"spp": ("spp", "first")}
             summary = rows.groupby(keys).agg(
-                **spp, mean_delta_e76=("mean_delta_e76", "mean"), rel_mse=("rel_mse", "mean"),
-                effective=("effective_samples", "mean"), used=("used_samples", "mean"),
-                nonfinite=("nonfinite", "sum"))
-            summary[TIME] = cell_times(rows, keys)
+                **spp, evaluations=("evaluations", "mean"), mean_delta_e76=("mean_delta_e76", "mean"),
+                rel_mse=("rel_mse", "mean"), effective=("effective_samples", "mean"),
+                used=("used_samples", "mean"), nonfinite=("nonfinite", "sum"))
+            summary.insert(len(spp) + 1, TIME, cell_times(rows, keys))
             summaries.append((title, summary))
     return summaries
 

@@ -416,3 +416,29 @@ def test_argument_errors_are_one_line_with_a_help_hint(cli, args, needle):
     result = cli(*args)
     assert_input_error(result, None, needle, "--help")
 
+
+# --- the printed tables --------------------------------------------------------------------------
+
+
+def summary_rows(estimator: str, spp: int, evaluations: float, time_ms: float,
+                 time_budget_ms: float = float("nan")) -> list[dict]:
+    return [{"scene": "s", "estimator": estimator, "spp": spp, "frame": 0, "seed": seed,
+             "time_budget_ms": time_budget_ms, "mean_delta_e76": 1.0 + seed, "rel_mse": 0.1,
+             "effective_samples": spp / 2, "used_samples": spp, "evaluations": evaluations,
+             "nonfinite": 0, "time_ms": time_ms + seed} for seed in (0, 1, 2)]
+
+
+def test_terminal_tables_show_evaluations_and_time_beside_spp():
+    """One bis sample is 21 integrand evaluations: spp alone would compare unequal work."""
+    from iblbench.harness.cli import terminal_summaries
+
+    table = pd.DataFrame(summary_rows("uniform", 16, 16.0, 2.0) + summary_rows("bis", 16, 336.0, 30.0)
+                         + summary_rows("uniform", 64, 64.0, 10.0, time_budget_ms=10.0)
+                         + summary_rows("bis", 4, 84.0, 9.0, time_budget_ms=10.0))
+    (spp_title, by_spp), (time_title, by_time) = terminal_summaries(table)
+    assert list(by_spp.columns[:3]) == ["evaluations", "time_ms", "mean_delta_e76"]
+    assert by_spp.loc[("s", "bis", 16), "evaluations"] == 336.0
+    assert by_spp.loc[("s", "bis", 16), "time_ms"] == 31.0     # median over the seeds' 30, 31, 32
+    assert "equal time" in spp_title and "equal time" in time_title
+    assert list(by_time.columns[:4]) == ["spp", "evaluations", "time_ms", "mean_delta_e76"]
+    assert by_time.loc[("s", 10.0, "bis"), "evaluations"] == 84.0
