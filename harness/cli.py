@@ -193,8 +193,10 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--spp", type=_positive_int, metavar="N",
                         help="spp of the image grid and sample picture (default: the largest "
                              "spp every estimator of the scene ran)")
-    report.add_argument("--seed", type=int, default=0, help="seed of the images shown (default: 0)")
-    report.add_argument("--frame", type=int, default=0, help="frame of the images shown (default: 0)")
+    report.add_argument("--seed", type=int, help="seed of the images shown (default: the run's "
+                                                 "first; one the run lacks is an error)")
+    report.add_argument("--frame", type=int, help="frame of the images shown (default: each "
+                                                  "scene's first; one the run lacks is an error)")
     report.add_argument("--pixel", type=_pixel, metavar="X,Y",
                         help="pixel of the sample picture (default: the covered pixel nearest "
                              "the image centre)")

@@ -217,9 +217,20 @@ def load_scene(name_or_path: str | os.PathLike, sanitize: bool = False, env_res:
     loader repair NaN, Inf and negative texels instead of refusing them.
     """
     text = os.fspath(name_or_path)
-    if text.lower().endswith(".toml"):
+    if _is_toml(text):
         return _toml_scene(Path(text), sanitize, env_res)
     return builtin_scene(text, env_res)
+
+
+def scene_entry(name_or_path: str | os.PathLike) -> str:
+    """A scene as a run records it: a TOML path made absolute, so that the record names the same
+    file from any working directory; a built-in name as given."""
+    text = os.fspath(name_or_path)
+    return os.path.abspath(text) if _is_toml(text) else text
+
+
+def _is_toml(text: str) -> bool:
+    return text.lower().endswith(".toml")
 
 
 # --- TOML scenes -------------------------------------------------------------------------------
