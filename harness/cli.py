@@ -347,10 +347,10 @@ def _list(args) -> None:
             print(f"{mark} [{kind}] {info.label}{speed}")
         print("(* = chosen; override with --device or IBLBENCH_DEVICE)")
     elif args.what == "estimators":
-        from iblbench.estimators.registry import get_estimator_class, estimator_names
+        from iblbench.estimators.registry import estimator_docstrings
 
-        for name in estimator_names():
-            print(_listing_line(name, summary(get_estimator_class(name).__doc__, name)))
+        for name, docstring in estimator_docstrings().items():
+            print(_listing_line(name, summary(docstring, name)))
     else:
         from iblbench.scenes.registry import BUILTIN_SCENES, builtin_frames, scene_names
 

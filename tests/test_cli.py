@@ -402,6 +402,31 @@ def test_list_scenes_gives_frames_and_description():
     assert "smooth sphere" in entries["sphere-sun"], entries
 
 
+def test_list_estimators_imports_no_estimator_nor_opencl():
+    """Listing reads the built-ins' docstrings from their source: no kernel module nor OpenCL
+    is loaded (they were most of the time of a ``list``)."""
+    code = ("import contextlib, io, sys\n"
+            "from iblbench.harness.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            "    main(['list', 'estimators'])\n"
+            "print(','.join(sorted(m for m in sys.modules if m.split('.')[0] == 'pyopencl'\n"
+            "                      or m.startswith('iblbench.estimators.') and m != "
+            "'iblbench.estimators.registry')))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "", result.stdout
+
+
+def test_docstrings_read_from_source_are_the_classes_own():
+    from iblbench.estimators import registry
+
+    read = registry.estimator_docstrings()
+    assert list(read) == registry.estimator_names()
+    for name, docstring in read.items():
+        assert docstring == registry.get_estimator_class(name).__doc__, name
+
+
 def test_version(cli):
     result = cli("--version")
     assert result.returncode == 0, result.stderr
