@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import pathlib
+import re
 import sys
 
 from iblbench.scenes.errors import InputError
@@ -78,11 +79,36 @@ def _pixel(text: str) -> tuple[int, int]:
     return x, y
 
 
+class _Parser(argparse.ArgumentParser):
+    """Reports a bad argument in one line, as every other input error is, not under the usage."""
+
+    def error(self, message):
+        self.exit(2, f"iblbench: error: {message} (see '{self.prog} --help')\n")
+
+
+class _Version(argparse.Action):
+    """``--version``: the package version, and the source checkout's git revision where there is one
+    (imported only when asked: the runner that records it in every manifest is heavy)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from importlib.metadata import version
+
+        from iblbench.harness.runner import _git_revision
+
+        print(f"iblbench {version('iblbench')} (git {_git_revision()})")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     from iblbench.harness import sweep
 
-    parser = argparse.ArgumentParser(prog="iblbench", description=DESCRIPTION, epilog=EPILOG,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = _Parser(prog="iblbench", description=DESCRIPTION, epilog=EPILOG,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action=_Version,
+                        help="print the version and the git revision of the source, and exit")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     # Flags every rendering command shares.
     device = argparse.ArgumentParser(add_help=False)
@@ -168,8 +194,10 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--spp", type=_positive_int, metavar="N",
                         help="spp of the image grid and sample picture (default: the largest "
                              "spp every estimator of the scene ran)")
-    report.add_argument("--seed", type=int, default=0, help="seed of the images shown (default: 0)")
-    report.add_argument("--frame", type=int, default=0, help="frame of the images shown (default: 0)")
+    report.add_argument("--seed", type=int, help="seed of the images shown (default: the run's "
+                                                 "first; one the run lacks is an error)")
+    report.add_argument("--frame", type=int, help="frame of the images shown (default: each "
+                                                  "scene's first; one the run lacks is an error)")
     report.add_argument("--pixel", type=_pixel, metavar="X,Y",
                         help="pixel of the sample picture (default: the covered pixel nearest "
                              "the image centre)")
@@ -352,15 +380,46 @@ def _list(args) -> None:
             print(f"{mark} [{kind}] {info.label}{speed}")
         print("(* = chosen; override with --device or IBLBENCH_DEVICE)")
     elif args.what == "estimators":
-        from iblbench.estimators.registry import get_estimator_class, estimator_names
+        from iblbench.estimators.registry import estimator_docstrings
 
-        for name in estimator_names():
-            doc = (get_estimator_class(name).__doc__ or "").strip().splitlines()[0]
-            print(f"{name:14s} {doc}")
+        for name, docstring in estimator_docstrings().items():
+            print(_listing_line(name, summary(docstring, name)))
     else:
-        from iblbench.scenes.registry import scene_names
+        from iblbench.scenes.registry import BUILTIN_SCENES, builtin_frames, scene_names
 
-        print("\n".join(scene_names()))
+        for name in scene_names():
+            frames = builtin_frames(name)
+            print(_listing_line(name, f"{frames} frame{'s' * (frames > 1)}. "
+                                      f"{summary(BUILTIN_SCENES[name].__doc__, name)}"))
+
+
+_NAME_WIDTH = 15
+# Roles (:class:`~a.b.C` -> C), literals and emphasis (``x``, *x* -> x).
+_REST_ROLE = re.compile(r":[a-z]+:`~?(?:[\w.]*\.)?([^`]+)`")
+_REST_MARKUP = re.compile(r"``([^`]+)``|\*\*([^*]+)\*\*|\*([^*\s][^*]*)\*")
+# A full stop ends a sentence before a capital, or at the end, but not after an abbreviation.
+_SENTENCE_END = re.compile(r"(?<!\bal)(?<!\bEq)(?<!\bSec)(?<!\bFig)(?<!\bet)(?<!e\.g)(?<!i\.e)"
+                           r"\.(?=\s+[A-Z]|\s*$)")
+
+
+def summary(docstring: str | None, name: str) -> str:
+    """The first sentence of a docstring as plain text: reST markup stripped, the lines of its
+    first paragraph joined, and a leading "name:" dropped (the listing shows the name)."""
+    paragraph = " ".join((docstring or "").strip().split("\n\n")[0].split())
+    text = _REST_MARKUP.sub(lambda m: next(g for g in m.groups() if g), _REST_ROLE.sub(r"\1", paragraph))
+    end = _SENTENCE_END.search(text)
+    text = text[:end.end()] if end else text
+    return text.removeprefix(f"{name}: ")
+
+
+def _listing_line(name: str, text: str) -> str:
+    """``name`` then ``text`` wrapped to the terminal, continuation lines under the text."""
+    import shutil
+    import textwrap
+
+    width = max(shutil.get_terminal_size().columns, _NAME_WIDTH + 30)
+    return textwrap.fill(text, width, initial_indent=f"{name:{_NAME_WIDTH - 1}s} ", break_on_hyphens=False,
+                         subsequent_indent=" " * _NAME_WIDTH)
 
 
 def _run(args) -> None:
@@ -400,23 +459,27 @@ def _run(args) -> None:
 
 def terminal_summaries(table):
     """The tables ``iblbench run`` prints: per (scene, estimator, spp) cell, then per equal-time
-    cell, each with the cell's time of :mod:`iblbench.harness.timing` (``time_ms``: device ms
+    cell. Beside spp each shows what a sample costs, as the estimators' spp are not comparable
+    (one bis or smc sample costs 21 integrand evaluations): ``evaluations`` (integrand evaluations per
+    covered pixel) and the cell's time of :mod:`iblbench.harness.timing` (``time_ms``: device ms
     per frame, build + sample + shade) as the report and ``check`` show it."""
     from iblbench.harness.timing import TIME, cell_times
 
     summaries = []
     for keys, rows, title in (
-            (["scene", "estimator", "spp"], table[table.time_budget_ms.isna()], None),
+            (["scene", "estimator", "spp"], table[table.time_budget_ms.isna()],
+             "error at equal spp (an spp costs each estimator different evaluations and time: "
+             "compare estimators at equal time_ms, as --time-budget-ms does):"),
             (["scene", "time_budget_ms", "estimator"], table[table.time_budget_ms.notna()],
              "error at equal time (the spp chosen so that the device time per frame, build + "
              "sample + shade, lands within 10% of time_budget_ms):")):
         if len(rows):
             spp = {} if "spp" in keys else {"spp": ("spp", "first")}
             summary = rows.groupby(keys).agg(
-                **spp, mean_delta_e76=("mean_delta_e76", "mean"), rel_mse=("rel_mse", "mean"),
-                effective=("effective_samples", "mean"), used=("used_samples", "mean"),
-                nonfinite=("nonfinite", "sum"))
-            summary[TIME] = cell_times(rows, keys)
+                **spp, evaluations=("evaluations", "mean"), mean_delta_e76=("mean_delta_e76", "mean"),
+                rel_mse=("rel_mse", "mean"), effective=("effective_samples", "mean"),
+                used=("used_samples", "mean"), nonfinite=("nonfinite", "sum"))
+            summary.insert(len(spp) + 1, TIME, cell_times(rows, keys))
             summaries.append((title, summary))
     return summaries
 

@@ -112,7 +112,7 @@ from iblbench.scenes.errors import InputError
 from iblbench.scenes.framing import warn_about_framing
 from iblbench.scenes.gbuffer import cached_trace
 from iblbench.scenes.imageio import read_exr, write_exr
-from iblbench.scenes.registry import load_scene
+from iblbench.scenes.registry import load_scene, scene_entry
 
 DEFAULT_SCENES = ("sphere-sun",)
 DEFAULT_ESTIMATORS = ("uniform",)
@@ -366,7 +366,8 @@ class Runner:
         sweep = c.sweep or {"source": "RunConfig (Python API)"}
         return {
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
-            "config": {"scenes": list(c.scenes), "estimators": [s.label for s in self.specs],
+            "config": {"scenes": [scene_entry(s) for s in c.scenes],
+                       "estimators": [s.label for s in self.specs],
                        "spp": list(c.spp), "seeds": c.seeds, "resolution": c.resolution,
                        "frames": frames_text(c.frames),
                        "time_budget_ms": list(c.time_budget_ms), "force": c.force,

@@ -381,17 +381,21 @@ def _manifest_context(manifest: dict | None) -> dict | None:
     }
 
 
-def write_report(run_dir, *, spp: int | None = None, seed: int = 0, frame: int = 0,
-                 pixel: tuple[int, int] | None = None, device: str | None = None) -> dict:
+def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
+                 frame: int | None = None, pixel: tuple[int, int] | None = None,
+                 device: str | None = None) -> dict:
     """Write ``run_dir/report/index.html`` and its images; returns the template context
-    (``path`` is the page).  ``spp``/``seed``/``frame`` pick the images shown and ``pixel``
-    (x, y) the sample picture's pixel (default: the covered pixel nearest the centre)."""
+    (``path`` is the page).  ``spp``/``seed``/``frame`` pick the images shown (default: the
+    largest spp every estimator ran, the run's first seed, each scene's first frame; one the run
+    lacks is an InputError) and ``pixel`` (x, y) the sample picture's pixel (default: the covered
+    pixel nearest the centre)."""
     run_dir = pathlib.Path(run_dir)
     table, manifest = load_run(run_dir)
     table, equal_time = split_equal_time(table)
-    if spp is not None and spp not in set(table.spp):
-        raise InputError(None, f"--spp {spp} is not in the run (spp: "
-                               f"{', '.join(map(str, sorted(set(table.spp))))})")
+    for flag, value, column in (("--spp", spp, "spp"), ("--seed", seed, "seed"),
+                                ("--frame", frame, "frame")):
+        _require_in_run(table, flag, value, column)
+    seed = int(table.seed.min()) if seed is None else seed
     report = run_dir / "report"
     try:
         report.mkdir(exist_ok=True)
@@ -418,6 +422,8 @@ def write_report(run_dir, *, spp: int | None = None, seed: int = 0, frame: int =
         plots.plot_convergence(report / figures["spp"], scene_cells, scene)
         plots.plot_effective(report / figures["effective"], scene_cells, scene)
         frames = sorted(set(rows.frame))
+        if frame is not None and len(frames) > 1:
+            _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
         scene_frame = frame if frame in frames else frames[0]
         grid = image_grid(run_dir, report, table, scene, scene_frame, seed, spp)
         per_frame = None
@@ -456,6 +462,15 @@ def write_report(run_dir, *, spp: int | None = None, seed: int = 0, frame: int =
         tmp.write_text(text, encoding="utf-8")
     context["path"] = report / "index.html"
     return context
+
+
+def _require_in_run(rows: pd.DataFrame, flag: str, value: int | None, column: str,
+                    where: str = "the run") -> None:
+    """An InputError naming what ``rows`` hold when ``value`` is given but not among them."""
+    have = sorted(set(int(v) for v in rows[column]))
+    if value is not None and value not in have:
+        raise InputError(None, f"{flag} {value} is not in {where} ({column}: "
+                               f"{', '.join(map(str, have))})")
 
 
 def stress_html(table: pd.DataFrame, cases: list[dict], context: dict) -> str:

@@ -148,30 +148,34 @@ def _torus_sun(env_res: int | None) -> Scene:
     return _sun_sky_scene("torus-sun", meshes.torus(), camera, env_res)
 
 
-def _sequence_scene(name: str, mesh, camera: Camera, environment: EnvSequence) -> Scene:
-    return Scene(name=name, mesh=mesh, material=_MATERIAL, camera=camera, environment=environment,
+# The environment sequence of each built-in sequence scene; every other built-in scene is static.
+_SEQUENCES: dict[str, Callable[[int], EnvSequence]] = {
+    "blob-day": sequences.day, "torus-moving": sequences.moving_lights,
+    "sphere-switch": sequences.switch}
+
+
+def _sequence_scene(name: str, mesh, camera: Camera, env_res: int | None) -> Scene:
+    return Scene(name=name, mesh=mesh, material=_MATERIAL, camera=camera,
+                 environment=_SEQUENCES[name](env_res or DEFAULT_ENV_RES),
                  resolution=(128, 128), source=f"builtin:{name}")
 
 
 def _blob_day(env_res: int | None) -> Scene:
     """The blob-sun blob and camera under the 67-frame ``day`` sequence (Lu 2013, Fig. 1)."""
     camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
-    return _sequence_scene("blob-day", meshes.blob(), camera,
-                           sequences.day(env_res or DEFAULT_ENV_RES))
+    return _sequence_scene("blob-day", meshes.blob(), camera, env_res)
 
 
 def _torus_moving(env_res: int | None) -> Scene:
     """The torus-sun torus and camera under ``moving-lights``."""
     camera = Camera(eye=(0.0, 2.2, 3.3), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
-    return _sequence_scene("torus-moving", meshes.torus(), camera,
-                           sequences.moving_lights(env_res or DEFAULT_ENV_RES))
+    return _sequence_scene("torus-moving", meshes.torus(), camera, env_res)
 
 
 def _sphere_switch(env_res: int | None) -> Scene:
     """The sphere-sun sphere and camera under ``switch`` (light on in frames 10..19)."""
     camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
-    return _sequence_scene("sphere-switch", meshes.sphere(), camera,
-                           sequences.switch(env_res or DEFAULT_ENV_RES))
+    return _sequence_scene("sphere-switch", meshes.sphere(), camera, env_res)
 
 
 # Every built-in scene: kd = 0.5, ks = 0.3, shininess = 150, 128 × 128; the *-sun ones static
@@ -192,6 +196,12 @@ def scene_names() -> list[str]:
     return sorted(BUILTIN_SCENES)
 
 
+def builtin_frames(name: str) -> int:
+    """A built-in scene's frame count, without building its mesh or environment."""
+    sequence = _SEQUENCES.get(name.lower())
+    return sequence(DEFAULT_ENV_RES).num_frames if sequence else 1
+
+
 def builtin_scene(name: str, env_res: int | None = None) -> Scene:
     """A built-in scene by case-insensitive name; an unknown name lists the valid ones."""
     factory = BUILTIN_SCENES.get(name.lower())
@@ -207,9 +217,20 @@ def load_scene(name_or_path: str | os.PathLike, sanitize: bool = False, env_res:
     loader repair NaN, Inf and negative texels instead of refusing them.
     """
     text = os.fspath(name_or_path)
-    if text.lower().endswith(".toml"):
+    if _is_toml(text):
         return _toml_scene(Path(text), sanitize, env_res)
     return builtin_scene(text, env_res)
+
+
+def scene_entry(name_or_path: str | os.PathLike) -> str:
+    """A scene as a run records it: a TOML path made absolute, so that the record names the same
+    file from any working directory; a built-in name as given."""
+    text = os.fspath(name_or_path)
+    return os.path.abspath(text) if _is_toml(text) else text
+
+
+def _is_toml(text: str) -> bool:
+    return text.lower().endswith(".toml")
 
 
 # --- TOML scenes -------------------------------------------------------------------------------

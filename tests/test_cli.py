@@ -111,21 +111,27 @@ def test_run_help_lists_every_flag(cli):
         assert flag in result.stdout, f"{flag} missing from 'run --help':\n{result.stdout}"
 
 
-def test_help_imports_no_heavy_module():
-    """``iblbench --help`` builds every subparser without importing colour-science, scipy,
-    trimesh, OpenCL or the stress battery (they cost seconds at start-up)."""
+def modules_imported_by(argv: list[str], heavy: tuple[str, ...]) -> list[str]:
+    """The modules of ``heavy`` (a package or module name each) that ``main(argv)`` imports, in
+    a fresh interpreter."""
     code = ("import contextlib, io, sys\n"
             "from iblbench.harness.cli import main\n"
             "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
-            "    main(['--help'])\n"
-            "heavy = ('colour', 'scipy', 'trimesh', 'pyopencl', 'matplotlib', 'flip_evaluator',\n"
-            "         'iblbench.harness.stress')\n"
+            f"    main({argv!r})\n"
+            f"heavy = {heavy!r}\n"
             "print(','.join(sorted(m for m in sys.modules if m.split('.')[0] in heavy\n"
             "                      or m in heavy)))\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             timeout=60)
     assert result.returncode == 0, result.stderr
-    assert result.stdout.strip() == "", result.stdout
+    return [name for name in result.stdout.strip().split(",") if name]
+
+
+def test_help_imports_no_heavy_module():
+    """``iblbench --help`` builds every subparser without importing colour-science, scipy,
+    trimesh, OpenCL or the stress battery (they cost seconds at start-up)."""
+    assert modules_imported_by(["--help"], ("colour", "scipy", "trimesh", "pyopencl", "matplotlib",
+                                            "flip_evaluator", "iblbench.harness.stress")) == []
 
 
 def test_stress_help_still_lists_the_cases(cli):
@@ -359,7 +365,104 @@ def test_list_devices_marks_exactly_one(cli):
     assert sum(line.startswith("*") for line in lines) == 1, result.stdout
 
 
-def test_list_estimators(cli):
-    result = cli("list", "estimators")
+def listing(command: str, columns: int) -> dict[str, str]:
+    """``iblbench list COMMAND`` at a terminal width: name -> its text, continuation lines joined;
+    every line fits the width."""
+    env = dict(os.environ, COLUMNS=str(columns), PYTHONWARNINGS="ignore")
+    result = subprocess.run([sys.executable, "-m", "iblbench.harness.cli", "list", command],
+                            capture_output=True, text=True, env=env, timeout=120)
     assert result.returncode == 0, result.stderr
-    assert re.search(r"^uniform\b", result.stdout, re.M), result.stdout
+    entries: dict[str, str] = {}
+    for line in result.stdout.splitlines():
+        assert len(line) <= columns, f"line wider than {columns}:\n{result.stdout}"
+        if line.startswith(" "):
+            entries[name] += " " + line.strip()
+        else:
+            name, _, text = line.partition(" ")
+            entries[name] = text.strip()
+    return entries
+
+
+def test_list_estimators_one_plain_sentence_each():
+    """Each estimator's first docstring sentence, whole, without reST, wrapped to the terminal."""
+    entries = listing("estimators", columns=60)
+    assert {"uniform", "balanced", "balanced_mis", "havran", "bis", "smc"} <= set(entries), entries
+    for name, text in entries.items():
+        assert not re.search(r"``|:[a-z]+:`", text), f"reST left in {name}: {text}"
+        assert text.endswith("."), f"{name}'s sentence is cut: {text}"
+    assert entries["bis"] == ("Burke et al. 2005 bidirectional importance sampling, as Kronander "
+                              "et al. §5 use it.")
+    assert entries["havran"].endswith("per-normal culling; K = spp lights."), entries["havran"]
+    assert entries["uniform"].endswith("(Lu 2013 Sec. 2.1, Eq. 4 with μ_f = 1/6)."), entries
+
+
+def test_list_scenes_gives_frames_and_description():
+    from iblbench.scenes import sequences
+
+    entries = listing("scenes", columns=70)
+    frames = {"sphere-sun": 1, "blob-sun": 1, "blob-day": sequences.DAY_FRAMES,
+              "torus-moving": sequences.MOVING_FRAMES, "sphere-switch": sequences.SWITCH_FRAMES}
+    for name, count in frames.items():
+        assert entries[name].startswith(f"{count} frame"), entries
+    assert "moving-lights" in entries["torus-moving"] and "``" not in entries["blob-day"], entries
+    assert "smooth sphere" in entries["sphere-sun"], entries
+
+
+def test_list_estimators_imports_no_estimator_nor_opencl():
+    """Listing reads the built-ins' docstrings from their source: no kernel module nor OpenCL
+    is loaded (they were most of the time of a ``list``)."""
+    from iblbench.estimators.registry import _BUILTINS
+
+    modules = tuple(f"iblbench.estimators.{module}" for module in _BUILTINS)
+    assert modules_imported_by(["list", "estimators"], ("pyopencl", *modules)) == []
+
+
+def test_docstrings_read_from_source_are_the_classes_own():
+    from iblbench.estimators import registry
+
+    read = registry.estimator_docstrings()
+    assert list(read) == registry.estimator_names()
+    for name, docstring in read.items():
+        assert docstring == registry.get_estimator_class(name).__doc__, name
+
+
+def test_version(cli):
+    result = cli("--version")
+    assert result.returncode == 0, result.stderr
+    assert re.fullmatch(r"iblbench \d+\.\d+\S* \(git ([0-9a-f]{7,}(-dirty)?|unknown)\)\n",
+                        result.stdout), result.stdout
+
+
+@pytest.mark.parametrize("args, needle", [(("run", "--spp", "x"), "argument --spp"),
+                                          (("no-such-command",), "invalid choice"),
+                                          ((), "required")])
+def test_argument_errors_are_one_line_with_a_help_hint(cli, args, needle):
+    result = cli(*args)
+    assert_input_error(result, None, needle, "--help")
+
+
+# --- the printed tables --------------------------------------------------------------------------
+
+
+def summary_rows(estimator: str, spp: int, evaluations: float, time_ms: float,
+                 time_budget_ms: float = float("nan")) -> list[dict]:
+    return [{"scene": "s", "estimator": estimator, "spp": spp, "frame": 0, "seed": seed,
+             "time_budget_ms": time_budget_ms, "mean_delta_e76": 1.0 + seed, "rel_mse": 0.1,
+             "effective_samples": spp / 2, "used_samples": spp, "evaluations": evaluations,
+             "nonfinite": 0, "time_ms": time_ms + seed} for seed in (0, 1, 2)]
+
+
+def test_terminal_tables_show_evaluations_and_time_beside_spp():
+    """One bis sample is 21 integrand evaluations: spp alone would compare unequal work."""
+    from iblbench.harness.cli import terminal_summaries
+
+    table = pd.DataFrame(summary_rows("uniform", 16, 16.0, 2.0) + summary_rows("bis", 16, 336.0, 30.0)
+                         + summary_rows("uniform", 64, 64.0, 10.0, time_budget_ms=10.0)
+                         + summary_rows("bis", 4, 84.0, 9.0, time_budget_ms=10.0))
+    (spp_title, by_spp), (time_title, by_time) = terminal_summaries(table)
+    assert list(by_spp.columns[:3]) == ["evaluations", "time_ms", "mean_delta_e76"]
+    assert by_spp.loc[("s", "bis", 16), "evaluations"] == 336.0
+    assert by_spp.loc[("s", "bis", 16), "time_ms"] == 31.0     # median over the seeds' 30, 31, 32
+    assert "equal time" in spp_title and "equal time" in time_title
+    assert list(by_time.columns[:4]) == ["spp", "evaluations", "time_ms", "mean_delta_e76"]
+    assert by_time.loc[("s", 10.0, "bis"), "evaluations"] == 84.0

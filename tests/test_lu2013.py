@@ -234,3 +234,33 @@ def test_pool_is_a_timed_frame_cache_product_built_on_demand(h):
     assert "pool" in cache.built and cache.timings_ms["pool"] >= 0
     # N_s + 1 per face; the sample stage also lays the pool out as planes (pool_planes)
     assert est.timings_ms["sample"] > cache.light_pool(9, 0).build_ms
+
+
+# --- reproduce lu2013: claim 2's verdict follows its stated ±10% test -----------------------------
+
+
+def claim2_cells(balanced_over_uniform_3n: dict[str, float]):
+    """Cells where balanced@60 beats uniform@60 by far in every scene, and balanced@60 / uniform@180
+    is the given ratio per scene."""
+    import pandas as pd
+
+    rows = []
+    for scene, ratio in balanced_over_uniform_3n.items():
+        for estimator, spp, de in (("uniform", 60, 9.0), ("uniform", 180, 4.0),
+                                   ("balanced", 60, 4.0 * ratio)):
+            rows.append({"scene": scene, "estimator": estimator, "spp": spp, "mean_delta_e76": de,
+                         "effective_ratio": 0.5, "time_ms": 1.0})
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize("ratios, verdict", [
+    ((1.3, 1.5, 1.2), "does not hold"),     # better than uniform@60 everywhere, never within 10%
+    ((1.05, 1.5, 0.95), "partly holds"),
+    ((1.05, 0.92, 1.08), "holds")])
+def test_claim2_verdict_follows_the_within_10_percent_test(ratios, verdict):
+    from iblbench.harness.reproduce import lu2013_verdicts
+
+    scenes = ("sphere-sun", "blob-sun", "sphere-backlit")
+    claim2 = lu2013_verdicts(claim2_cells(dict(zip(scenes, ratios))), scenes)[1]
+    assert claim2.claim.startswith("2.") and "10%" in claim2.claim
+    assert claim2.verdict == verdict, claim2

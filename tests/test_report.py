@@ -287,3 +287,50 @@ def test_report_renders_in_headless_chromium(reported):
     broken = [src for src, complete, width in images if not complete or width == 0]
     assert not broken, broken
     assert not errors, errors
+
+
+# --- the report shows what the run has, from any working directory -------------------------------
+
+
+def test_seed_or_frame_not_in_the_run_is_an_error_naming_the_run_s(reported, capsys):
+    out, _ = reported
+    assert "--seed 3 is not in the run (seed: 0)" in _cli_error(capsys, out, "--seed", "3")
+    assert "--frame 2 is not in the run (frame: 0)" in _cli_error(capsys, out, "--frame", "2")
+
+
+def test_a_sequence_scene_without_the_frame_is_an_error(reported, tmp_path, capsys):
+    out, _ = reported
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    table = pd.read_parquet(copy / "results.parquet")
+    frames = pd.concat([table.assign(frame=f) for f in (3, 6)])
+    pd.concat([table.assign(scene="other"), frames]).to_parquet(copy / "results.parquet")
+    # Frame 0 is in the run (scene "other") but not among sphere-sun's frames 3 and 6.
+    assert "--frame 0 is not in scene sphere-sun (frame: 3, 6)" in _cli_error(
+        capsys, copy, "--frame", "0")
+
+
+def test_a_user_scene_run_reports_from_another_working_directory(tmp_path, monkeypatch):
+    """The manifest names the scene TOML by an absolute path, so the sample picture's inputs are
+    rebuilt from the same file whatever the working directory of ``report``."""
+    import trimesh
+
+    folder = tmp_path / "made-here" / "scene"
+    folder.mkdir(parents=True)
+    trimesh.creation.icosphere(subdivisions=1).export(folder / "ball.obj")
+    np.save(folder / "sky.npy", np.full((6, 8, 8, 3), 0.5, np.float32))
+    (folder / "ball.toml").write_text(
+        '[mesh]\npath = "ball.obj"\n\n[environment]\npath = "sky.npy"\n\n'
+        "[camera]\neye = [0.0, 0.0, 3.0]\ntarget = [0.0, 0.0, 0.0]\n\n"
+        "[render]\nwidth = 12\nheight = 12\n")
+    out = tmp_path / "out"
+    monkeypatch.chdir(tmp_path / "made-here")
+    run(RunConfig(out=out, scenes=("scene/ball.toml",), estimators=("uniform",), spp=(4,),
+                  seeds=1, progress=False))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    _, manifest = load_run(out)
+    inputs = scene_inputs(out, manifest, "ball", 0)
+    assert "rebuilt from the scene registry" in inputs.source
+    assert inputs.mask.shape == (12, 12) and inputs.mask.any()
