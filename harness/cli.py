@@ -7,6 +7,7 @@ what it needs when it runs.
 from __future__ import annotations
 
 import argparse
+import errno
 import pathlib
 import sys
 
@@ -28,7 +29,14 @@ examples:
   iblbench check runs/a --budgets budgets.toml   CI gate: exit 1 if any error budget fails
   iblbench stress --out runs/stress              adversarial inputs; exit 1 if an estimator fails
   iblbench perf --out runs/perf                  throughput against the roofline and a NumPy floor
+
+exit codes: 0 done; 1 a check or stress gate failed; 2 bad input (one line naming it);
+  3 the disk is full (free space and rerun: a run resumes); 130 interrupted (Ctrl-C; a run saves
+  its finished cells first)
 """
+
+
+EXIT_DISK_FULL = 3
 
 
 def _spp_list(text: str) -> tuple[int, ...]:
@@ -136,7 +144,9 @@ def build_parser() -> argparse.ArgumentParser:
     metrics.add_argument("--no-flip", action="store_true",
                          help="leave HDR-FLIP out (the slowest metric)")
     run.add_argument("--force", action="store_true",
-                     help="recompute the selected cells even where --out already has them")
+                     help="recompute the selected cells even where --out already has them, and "
+                          "replace the results of another --res or --env-res there (without it, "
+                          "a run refuses an --out made with another of those)")
     run.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/latest"),
                      help="output directory (default: results/latest)")
     run.add_argument("--save-inputs", action="store_true",
@@ -459,10 +469,23 @@ def main(argv=None) -> int:
     except InputError as error:
         print(f"iblbench: error: {error}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("iblbench: interrupted", file=sys.stderr)
+    except OSError as error:
+        if not _disk_full(error):
+            raise
+        where = error.filename or getattr(args, "out", None) or "the output"
+        print(f"iblbench: error: {where}: no space left on device; free some and rerun "
+              "(a run resumes from its saved cells)", file=sys.stderr)
+        return EXIT_DISK_FULL
+    except KeyboardInterrupt as error:
+        print(f"iblbench: interrupted{f': {error}' if str(error) else ''}", file=sys.stderr)
         return 130
     return status or 0
+
+
+def _disk_full(error: OSError) -> bool:
+    """ENOSPC or EDQUOT, also from writers (pyarrow) that give only the message, not errno."""
+    return (error.errno in (errno.ENOSPC, errno.EDQUOT)
+            or "No space left on device" in str(error) or "Disk quota exceeded" in str(error))
 
 
 if __name__ == "__main__":

@@ -75,8 +75,10 @@ import math
 import os
 import pathlib
 import platform
+import signal
 import subprocess
 import sys
+import threading
 import time
 from importlib.metadata import PackageNotFoundError, version
 
@@ -89,7 +91,8 @@ from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
 from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.harness.reference import Reference
-from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, image_stem,
+from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
+                                      configuration_differences, image_configuration, image_stem,
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
 from iblbench.harness.equal_time import CALIBRATION_REPEATS, TOLERANCE, Calibration
@@ -210,18 +213,39 @@ def prepare_out(out: pathlib.Path) -> None:
 
 @contextlib.contextmanager
 def _locked(out: pathlib.Path):
-    """One run at a time per folder (the OS drops the lock when a killed run dies)."""
-    path = out / LOCK
-    handle = open(path, "a")
-    try:
+    """One run at a time per folder (the OS drops the lock when a killed run dies).  The lock
+    file stays: unlinking it would let a run that opened it before the unlink and one that
+    creates a new file after it both hold "the" lock."""
+    with open(out / LOCK, "a") as handle:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             raise InputError(out, "another iblbench run is writing to this folder") from None
         yield
-        path.unlink(missing_ok=True)
+
+
+def _require_spp_within_bounds(specs, spp_values) -> None:
+    """Every spp of the sweep within every selected estimator's ``max_spp``, checked before
+    anything is written (a render past the bound fails mid-run)."""
+    for spec in specs:
+        bound = spec.cls.max_spp
+        above = [spp for spp in spp_values if bound is not None and spp > bound]
+        if above:
+            raise InputError(None, f"--spp {max(above)} is above {spec.label}'s limit of "
+                                   f"{bound} samples per pixel")
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored inside (the main thread only may set signal handlers)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
     finally:
-        handle.close()
+        signal.signal(signal.SIGINT, previous)
 
 
 def _remove_stale_temporaries(out: pathlib.Path) -> None:
@@ -266,6 +290,7 @@ class Runner:
         labels = [spec.label for spec in self.specs]
         if len(set(labels)) != len(labels):
             raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
+        _require_spp_within_bounds(self.specs, config.spp)
         self.scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
                        for name in config.scenes]
         _require_unique_names(self.scenes)
@@ -280,11 +305,27 @@ class Runner:
         self.out = pathlib.Path(config.out)
         if self.out.exists() and not self.out.is_dir():
             raise InputError(self.out, "--out exists and is not a directory")
-        self.rows = {row_key(row): row for row in read_results(self.out)}
         self.params = {spec.label: spec.params_json() for spec in self.specs}
         overrides = {get_estimator_class(name).name: n for name, n in config.repeats_for}
         self.repeats = {spec.label: overrides.get(spec.cls.name, config.repeats)
                         for spec in self.specs}
+        self.stages = []   # the manifest's "stages": G-buffers may be traced before it is made
+
+    def _read_state(self) -> None:
+        """What ``out`` holds, read under its lock (a snapshot read before it could be stale by
+        the time the run folds it back, and drop another run's cells): its rows, checked against
+        this configuration, its manifest, and the plan of the cells left."""
+        rows = read_results(self.out)
+        configured = {p.scene.name: (p.width, p.height, p.env_res) for p in self.plans}
+        differences = configuration_differences(rows, configured)
+        if differences and not self.config.force:
+            raise InputError(self.out, f"holds results of another configuration ("
+                                       f"{'; '.join(differences)}); use another --out, or "
+                                       "--force to replace them")
+        if differences:   # --force: this configuration replaces the scenes' other rows
+            rows = [row for row in rows if row["scene"] not in configured
+                    or image_configuration(row) == configured[row["scene"]]]
+        self.rows = {row_key(row): row for row in rows}
         self.previous_manifest = read_manifest(self.out)
         self.todo, self.total, self.chosen = self._plan_cells()
         self.resumed = self.total - len(self.todo)
@@ -324,7 +365,8 @@ class Runner:
                 and set(self.config.metrics) <= set(str(row.get("metrics")).split(","))
                 and row.get("time_repeats", 0) >= self.repeats[spec.label]
                 and (row.get("width"), row.get("height"), row.get("env_res"))
-                == (plan.width, plan.height, plan.env_res))
+                == (plan.width, plan.height, plan.env_res)
+                and all(path.is_file() for path in cell_files(self.out, row)))
 
     def _plan_cells(self):
         """The keys of the cells to run, how many cells the sweep has, and the spp earlier rows
@@ -353,7 +395,7 @@ class Runner:
     def _new_manifest(self) -> dict:
         c = self.config
         sweep = c.sweep or {"source": "RunConfig (Python API)"}
-        return {
+        manifest = {
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
             "config": {"scenes": list(c.scenes), "estimators": [s.label for s in self.specs],
                        "spp": list(c.spp), "seeds": c.seeds, "resolution": c.resolution,
@@ -373,9 +415,10 @@ class Runner:
             "estimator_params": dict(self.params),
             "device": _device_record(self.compute),
             "sanitized": {p.scene.name: p.scene.environment.texels_fixed for p in self.plans},
+            "runs": self._run_history(),
             "resumed_cells": self.resumed,
             "cells_to_run": len(self.todo),
-            "stages": [],
+            "stages": self.stages,
             "skipped": [],
             "timing": {"measure": MEASURE, "repeats": dict(self.repeats),
                        "cell": "median of the estimator's repeats of timed renders after "
@@ -395,6 +438,16 @@ class Runner:
                              "calibrations": self._resumed_calibrations()}
                             if c.time_budget_ms else None),
         }
+        manifest["runs"].append({"created": manifest["created"], "config": manifest["config"]})
+        return manifest
+
+    def _run_history(self) -> list[dict]:
+        """The runs into ``out`` before this one, oldest first: when each started and its
+        ``config`` (several sweeps with one image configuration share the table)."""
+        previous = self.previous_manifest
+        if "runs" in previous or "config" not in previous:
+            return list(previous.get("runs", []))
+        return [{"created": previous.get("created"), "config": previous["config"]}]
 
     def _resumed_calibrations(self) -> list[dict]:
         """The earlier manifest's calibrations of the budgets whose spp resumed rows chose."""
@@ -406,19 +459,20 @@ class Runner:
                 kept.append(dict(entry, resumed=True))
         return kept
 
-    @property
-    def total_cells(self) -> int:
-        return self.total
-
     # ---- running -----------------------------------------------------------------------------
 
     def run(self):
-        # Traced before --out is touched: a camera that sees no geometry is bad input, and bad
-        # input must leave no partial output behind.
-        gbuffers = {plan.scene.name: self._trace(plan) for plan in self.plans
-                    if self._scene_todo(plan.scene.name)}
+        # A new --out is made only after its scenes are traced: a camera that sees no geometry
+        # is bad input, and bad input must leave no partial output behind.  In an existing --out,
+        # the scenes with cells left are traced once its state has been read under the lock.
+        gbuffers = ({} if self.out.exists()
+                    else {plan.scene.name: self._trace(plan) for plan in self.plans})
         prepare_out(self.out)
         with _locked(self.out):
+            self._read_state()
+            for plan in self.plans:
+                if plan.scene.name not in gbuffers and self._scene_todo(plan.scene.name):
+                    gbuffers[plan.scene.name] = self._trace(plan)
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
                       file=sys.stderr)
@@ -440,6 +494,9 @@ class Runner:
                     bar.update(self.resumed)
                     for plan in self.plans:
                         self._run_scene(plan, gbuffers.pop(plan.scene.name, None), bar)
+            except KeyboardInterrupt:
+                saved = len(self._save_interrupted())
+                raise KeyboardInterrupt(f"{saved} cells saved; rerun to resume") from None
             finally:
                 self.journal.close()
             table = self._fold()
@@ -473,6 +530,15 @@ class Runner:
                       f" spp against the {budget:g} ms budget ({ms / budget - 1:+.0%}), outside "
                       f"±{TOLERANCE:.0%}", file=sys.stderr)
         return achieved
+
+    def _save_interrupted(self):
+        """Ctrl-C: fold the finished cells into the table and mark the manifest "interrupted"
+        (a second Ctrl-C meanwhile is ignored, as it would lose them); returns the table."""
+        with _sigint_ignored():
+            table = self._fold()
+            self.manifest["status"] = "interrupted"
+            write_manifest(self.out, self.manifest)
+        return table
 
     def _fold(self):
         self.journal.close()
@@ -558,7 +624,7 @@ class Runner:
                        f"every estimator, spp and seed ({renders} cells)"})
 
     def _stage(self, scene: str, frame, stage: str, ms: float) -> None:
-        self.manifest["stages"].append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
+        self.stages.append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
 
     def _timed_renders(self, renderers, gbuffer, cache, spp: int, seeds,
                        build_ms: float) -> list[tuple]:
