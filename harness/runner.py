@@ -8,9 +8,16 @@ Resumption.  Before rendering, the runner plans every cell of the sweep and coun
 done when ``out`` already holds its row made with the same configuration (cell key, image size,
 cube face size, estimator parameters), the same code (``estimator_version``, ``schema_version``,
 protocol) and on the same device; it prints ``resumed: N cells already done, M to run`` and runs
-only the M (``force`` runs them all).  Each finished cell is appended to the results journal
-before the next one starts (see :mod:`iblbench.harness.results`), so a killed run, ``kill -9``
-included, loses only the cell in flight.  A scene none of whose cells is left is not even traced.
+only the M (``force`` runs them all).  A cell also counts as done only while its image files
+exist.  Each finished cell is appended to the results journal before the next one starts (see
+:mod:`iblbench.harness.results`), so a killed run, ``kill -9`` included, loses only the cell in
+flight; Ctrl-C folds the journal into the table and marks the manifest "interrupted".  A scene
+none of whose cells is left is not even traced.
+
+One folder, one run at a time, one image configuration.  ``out``'s rows and manifest are read
+only under its lock (``_locked``), so a run folds back what the folder holds then, not a stale
+snapshot.  Rows of a scene made with another (width, height, env_res) make the run refuse the
+folder, unless ``force``, which drops them; the manifest's ``runs`` lists every run's config.
 
 The unit of work is a property of the estimator's ``Tags.temporal``.  A frame-by-frame estimator
 resumes cell by cell.  A temporal estimator carries state from frame to frame, so its unit of
