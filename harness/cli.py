@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import os
 import pathlib
 import sys
 
@@ -466,26 +467,28 @@ def main(argv=None) -> int:
         status = {"run": _run, "reproduce": _reproduce, "list": _list,
                   "check": _check, "report": _report, "stress": _stress,
                   "perf": _perf}[args.command](args)
-    except InputError as error:
+    except (InputError, OSError) as error:
+        if _disk_full(error):
+            where = (getattr(error, "source", None) or getattr(error, "filename", None)
+                     or getattr(args, "out", None) or "the output")
+            print(f"iblbench: error: {where}: no space left on device; free some and rerun "
+                  "(a run resumes from its saved cells)", file=sys.stderr)
+            return EXIT_DISK_FULL
+        if not isinstance(error, InputError):
+            raise
         print(f"iblbench: error: {error}", file=sys.stderr)
         return 2
-    except OSError as error:
-        if not _disk_full(error):
-            raise
-        where = error.filename or getattr(args, "out", None) or "the output"
-        print(f"iblbench: error: {where}: no space left on device; free some and rerun "
-              "(a run resumes from its saved cells)", file=sys.stderr)
-        return EXIT_DISK_FULL
     except KeyboardInterrupt as error:
         print(f"iblbench: interrupted{f': {error}' if str(error) else ''}", file=sys.stderr)
         return 130
     return status or 0
 
 
-def _disk_full(error: OSError) -> bool:
-    """ENOSPC or EDQUOT, also from writers (pyarrow) that give only the message, not errno."""
-    return (error.errno in (errno.ENOSPC, errno.EDQUOT)
-            or "No space left on device" in str(error) or "Disk quota exceeded" in str(error))
+def _disk_full(error: Exception) -> bool:
+    """ENOSPC or EDQUOT, also where only the message tells: pyarrow gives no errno, and the EXR
+    writer wraps its failure in an InputError."""
+    return (getattr(error, "errno", None) in (errno.ENOSPC, errno.EDQUOT)
+            or os.strerror(errno.ENOSPC) in str(error) or os.strerror(errno.EDQUOT) in str(error))
 
 
 if __name__ == "__main__":

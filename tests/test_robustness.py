@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import OpenEXR
 import pandas as pd
 import pytest
 
@@ -115,6 +116,7 @@ def _pyarrow_no_space(*args, **kwargs):   # pyarrow's IO errors carry the messag
 
 @pytest.mark.parametrize("target, replacement", [
     ((runner_module, "write_preview"), _no_space),
+    ((OpenEXR, "File"), _no_space),                        # write_exr makes it an InputError
     ((pd.DataFrame, "to_parquet"), _pyarrow_no_space),
     ((runner_module, "write_manifest"), _no_space),
 ])
