@@ -57,6 +57,7 @@ class Estimator:
     tags: ClassVar[Tags] = Tags()
     requires: ClassVar[tuple[str, ...]] = ()
     kernel_files: ClassVar[tuple[str, ...]] = ()
+    max_spp: ClassVar[int | None] = None   # the most spp render accepts; None: no bound
 
     def __init__(self, params=None, **overrides):
         base = params if params is not None else self.Params()

@@ -401,6 +401,7 @@ class Havran(Estimator):
     Params = HavranParams
     tags = Tags(unbiased=False, temporal=True, has_pdf=False)
     requires = ()
+    max_spp = MAX_K
     kernel_files = ("havran.cl",)
 
     def __init__(self, params=None, **overrides):

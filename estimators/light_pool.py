@@ -50,6 +50,7 @@ class PoolEstimator(Estimator):
     Params = PoolParams
     tags = Tags(unbiased=True, has_pdf=True)
     requires = ("cdf", "pool")
+    max_spp = MAX_SPP
     brdf_samples = False   # True where the kernel file sets LU_BRDF_SAMPLES (Eq. 6)
 
     @staticmethod

@@ -7,6 +7,8 @@ what it needs when it runs.
 from __future__ import annotations
 
 import argparse
+import errno
+import os
 import pathlib
 import re
 import sys
@@ -30,7 +32,14 @@ examples:
   iblbench stress --out runs/stress              adversarial inputs; exit 1 if an estimator fails
   iblbench perf --out runs/perf                  throughput against the roofline and a NumPy floor
   iblbench compare runs/a runs/b --fail-if 'mean_delta_e76>5%'   B against A, intervals over seeds
+
+exit codes: 0 done; 1 a check or stress gate failed; 2 bad input (one line naming it);
+  3 the disk is full (free space and rerun: a run resumes); 130 interrupted (Ctrl-C; a run saves
+  its finished cells first)
 """
+
+
+EXIT_DISK_FULL = 3
 
 
 def _spp_list(text: str) -> tuple[int, ...]:
@@ -163,7 +172,9 @@ def build_parser() -> argparse.ArgumentParser:
     metrics.add_argument("--no-flip", action="store_true",
                          help="leave HDR-FLIP out (the slowest metric)")
     run.add_argument("--force", action="store_true",
-                     help="recompute the selected cells even where --out already has them")
+                     help="recompute the selected cells even where --out already has them, and "
+                          "replace the results of another --res or --env-res there (without it, "
+                          "a run refuses an --out made with another of those)")
     run.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/latest"),
                      help="output directory (default: results/latest)")
     run.add_argument("--save-inputs", action="store_true",
@@ -552,13 +563,28 @@ def main(argv=None) -> int:
         status = {"run": _run, "reproduce": _reproduce, "list": _list,
                   "check": _check, "report": _report, "stress": _stress,
                   "perf": _perf, "compare": _compare}[args.command](args)
-    except InputError as error:
+    except (InputError, OSError) as error:
+        if _disk_full(error):
+            where = (getattr(error, "source", None) or getattr(error, "filename", None)
+                     or getattr(args, "out", None) or "the output")
+            print(f"iblbench: error: {where}: no space left on device; free some and rerun "
+                  "(a run resumes from its saved cells)", file=sys.stderr)
+            return EXIT_DISK_FULL
+        if not isinstance(error, InputError):
+            raise
         print(f"iblbench: error: {error}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("iblbench: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as error:
+        print(f"iblbench: interrupted{f': {error}' if str(error) else ''}", file=sys.stderr)
         return 130
     return status or 0
+
+
+def _disk_full(error: Exception) -> bool:
+    """ENOSPC or EDQUOT, also where only the message tells: pyarrow gives no errno, and the EXR
+    writer wraps its failure in an InputError."""
+    return (getattr(error, "errno", None) in (errno.ENOSPC, errno.EDQUOT)
+            or os.strerror(errno.ENOSPC) in str(error) or os.strerror(errno.EDQUOT) in str(error))
 
 
 if __name__ == "__main__":

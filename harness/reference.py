@@ -4,6 +4,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import pathlib
+import time
 from typing import Iterator
 
 import numpy as np
@@ -16,7 +17,8 @@ from iblbench.scenes.atomic import atomic_path
 # Sub-cells per lobe width for the specular quadrature (see reference.cl); part of the cache key.
 DEFAULT_DENSITY = 16
 LANES = 8              # texels per vector step of reference.cl: the tables' padding
-CHUNK_PIXELS = 4096    # pixels per enqueue: Ctrl-C stops a reference between chunks
+FIRST_CHUNK_PIXELS = 256   # pixels of the first enqueue; later ones aim at CHUNK_MS each
+CHUNK_MS = 100.0           # device time per enqueue: a Ctrl-C waits for at most about this
 WORK_GROUP = 64        # pixels per work group, at most: many groups, so every core gets some
 
 
@@ -90,6 +92,15 @@ def texel_tables(res: int) -> tuple[np.ndarray, np.ndarray]:
     return centres.reshape(-1, 4), vectors.reshape(-1, 4)
 
 
+def _wait(queue, event) -> None:
+    """Wait for ``event`` in short sleeps: Python runs its SIGINT handler between them, while a
+    blocking ``event.wait()`` would hold a Ctrl-C until the kernel ends."""
+    queue.flush()
+    while event.command_execution_status > cl.command_execution_status.COMPLETE:
+        time.sleep(0.002)
+    event.wait()   # raises if the command failed
+
+
 class Reference:
     """Computes (or loads from the cache) the exact image for one G-buffer and one frame."""
 
@@ -140,8 +151,9 @@ class Reference:
             yield c.to_host(out, (6, res, res, 2), np.float32)
 
     def _compute(self, gbuffer, cache) -> np.ndarray:
-        """The image's covered pixels, CHUNK_PIXELS per enqueue (so that a Ctrl-C between two
-        chunks stops it); ``last_ms`` sums the chunks' device times."""
+        """The image's covered pixels in chunks of about ``CHUNK_MS`` device time each, waited
+        for in short sleeps (:func:`_wait`), so that a Ctrl-C stops it within about a chunk;
+        ``last_ms`` sums the chunks' device times."""
         c = self.compute
         table = texel_table(cache.res)
         table_buffer = c.to_device(table)
@@ -152,13 +164,18 @@ class Reference:
         group = min(WORK_GROUP, kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
                                                              c.info.device))
         self.last_ms = 0.0
-        for first in range(0, gbuffer.count, CHUNK_PIXELS):
-            count = min(CHUNK_PIXELS, gbuffer.count - first)
+        first, chunk = 0, FIRST_CHUNK_PIXELS
+        while first < gbuffer.count:
+            count = min(chunk, gbuffer.count - first)
             kernel.set_args(gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, env_planes,
                             table_buffer, np.int32(cache.res), np.int32(table.shape[1]),
                             np.int32(first), np.int32(count), out)
             size = -(-count // group) * group
             event = cl.enqueue_nd_range_kernel(c.queue, kernel, (size,), (group,))
-            event.wait()
-            self.last_ms += event_ms(event)
+            _wait(c.queue, event)
+            ms = event_ms(event)
+            self.last_ms += ms
+            first += count
+            # Grows at most 4× a chunk, so one slow estimate cannot make a chunk minutes long.
+            chunk = max(group, min(4 * count, int(count * CHUNK_MS / max(ms, 1e-3))))
         return c.to_host(out, (gbuffer.count, 4), np.float32)[:, :3]

@@ -41,6 +41,7 @@ import json
 import math
 import os
 import pathlib
+import sys
 
 import numpy as np
 import pandas as pd
@@ -151,24 +152,89 @@ def _read_table(out_dir: pathlib.Path) -> list[dict]:
                                "use a new --out") from None
 
 
+_TEXT_COLUMNS = ("scene", "estimator", "estimator_params", "estimator_version", "metrics",
+                 "device", "protocol")
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def journal_row_is_sound(row) -> bool:
+    """A journal line's JSON is a row :func:`results_frame` can hold: an object with every key
+    column, text where the table has text, numbers (or null) everywhere else."""
+    if not isinstance(row, dict) or not all(column in row for column in KEY_COLUMNS):
+        return False
+    if not all(isinstance(row[c], int) and not isinstance(row[c], bool)
+               for c in ("spp", "frame", "seed")):
+        return False
+    for column, value in row.items():
+        if column in _TEXT_COLUMNS:
+            if not isinstance(value, str):
+                return False
+        elif value is not None and not _is_number(value):
+            return False
+    return True
+
+
 def read_journal(out_dir: pathlib.Path) -> list[dict]:
-    """Rows appended by a run that has not folded them yet; a torn last line is dropped."""
+    """Rows appended by a run that has not folded them yet; a torn last line is dropped, and a
+    line that is JSON but not a sound row (:func:`journal_row_is_sound`) is skipped and counted
+    in a warning on stderr (its cell is run again)."""
     path = out_dir / JOURNAL
     if not path.exists():
         return []
     lines = path.read_bytes().split(b"\n")
-    rows = []
+    rows, unsound = [], 0
     for number, line in enumerate(lines):
         if not line.strip():
             continue
         try:
-            rows.append(json.loads(line))
+            row = json.loads(line)
         except ValueError:
             if number == len(lines) - 1:   # the line being written when the run was killed
                 break
             raise InputError(path, f"line {number + 1} is damaged; move the journal away to "
                                    "resume without its cells") from None
+        if journal_row_is_sound(row):
+            rows.append(row)
+        else:
+            unsound += 1
+    if unsound:
+        print(f"iblbench: warning: skipped {unsound} damaged line{'s' * (unsound > 1)} of {path} "
+              "(their cells will be run again)", file=sys.stderr)
     return rows
+
+
+def cell_files(out_dir: pathlib.Path, row: dict) -> list[pathlib.Path]:
+    """The image files a finished cell leaves under ``images/<scene>/f<frame>/``."""
+    folder = out_dir / "images" / str(row["scene"]) / f"f{int(row['frame'])}"
+    stem = image_stem(row)
+    return [folder / f"{stem}.exr", folder / f"{stem}.png", folder / f"{stem}_de76.png"]
+
+
+def image_configuration(row: dict) -> tuple[int, int, int] | None:
+    """A row's (width, height, env_res); None for a row from before those columns."""
+    values = tuple(row.get(column) for column in ("width", "height", "env_res"))
+    return tuple(int(v) for v in values) if all(pd.notna(v) for v in values) else None
+
+
+def configuration_differences(rows: list[dict], expected: dict[str, tuple[int, int, int]]) -> list[str]:
+    """What differs between the rows' image configuration and ``expected`` (scene → (width,
+    height, env_res)), one phrase per (scene, configuration) found, for scenes in ``expected``."""
+    found = sorted({(row["scene"], image_configuration(row)) for row in rows
+                    if row["scene"] in expected and image_configuration(row) is not None})
+    differences = []
+    for scene, (width, height, env_res) in found:
+        new_width, new_height, new_env_res = expected[scene]
+        parts = []
+        if (width, height) != (new_width, new_height):
+            parts.append(f"--res {width}x{height} (now {new_width}x{new_height})")
+        if env_res != new_env_res:
+            parts.append(f"--env-res {env_res} (now {new_env_res})")
+        if parts:
+            differences.append(f"{scene} was run with {' and '.join(parts)}")
+    return differences
 
 
 def read_results(out_dir: pathlib.Path) -> list[dict]:

@@ -9,9 +9,16 @@ Resumption.  Before rendering, the runner plans every cell of the sweep and coun
 done when ``out`` already holds its row made with the same configuration (cell key, image size,
 cube face size, estimator parameters), the same code (``estimator_version``, ``schema_version``,
 protocol) and on the same device; it prints ``resumed: N cells already done, M to run`` and runs
-only the M (``force`` runs them all).  Each finished cell is appended to the results journal
-before the next one starts (see :mod:`iblbench.harness.results`), so a killed run, ``kill -9``
-included, loses only the cell in flight.  A scene none of whose cells is left is not even traced.
+only the M (``force`` runs them all).  A cell also counts as done only while its image files
+exist.  Each finished cell is appended to the results journal before the next one starts (see
+:mod:`iblbench.harness.results`), so a killed run, ``kill -9`` included, loses only the cell in
+flight; Ctrl-C folds the journal into the table and marks the manifest "interrupted".  A scene
+none of whose cells is left is not even traced.
+
+One folder, one run at a time, one image configuration.  ``out``'s rows and manifest are read
+only under its lock (``_locked``), so a run folds back what the folder holds then, not a stale
+snapshot.  Rows of a scene made with another (width, height, env_res) make the run refuse the
+folder, unless ``force``, which drops them; the manifest's ``runs`` lists every run's config.
 
 The unit of work is a property of the estimator's ``Tags.temporal``.  A frame-by-frame estimator
 resumes cell by cell.  A temporal estimator carries state from frame to frame, so its unit of
@@ -82,8 +89,10 @@ import math
 import os
 import pathlib
 import platform
+import signal
 import subprocess
 import sys
+import threading
 import time
 from importlib.metadata import PackageNotFoundError, version
 
@@ -97,7 +106,8 @@ from iblbench.harness.framecache import PRODUCTS, FrameCache
 from iblbench.harness import metrics as metrics_module
 from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.harness.reference import Reference
-from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, image_stem,
+from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
+                                      configuration_differences, image_configuration, image_stem,
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
 from iblbench.harness.equal_time import (CALIBRATION_REPEATS, CELL_CORRECTIONS, TOLERANCE,
@@ -220,18 +230,39 @@ def prepare_out(out: pathlib.Path) -> None:
 
 @contextlib.contextmanager
 def _locked(out: pathlib.Path):
-    """One run at a time per folder (the OS drops the lock when a killed run dies)."""
-    path = out / LOCK
-    handle = open(path, "a")
-    try:
+    """One run at a time per folder (the OS drops the lock when a killed run dies).  The lock
+    file stays: unlinking it would let a run that opened it before the unlink and one that
+    creates a new file after it both hold "the" lock."""
+    with open(out / LOCK, "a") as handle:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             raise InputError(out, "another iblbench run is writing to this folder") from None
         yield
-        path.unlink(missing_ok=True)
+
+
+def _require_spp_within_bounds(specs, spp_values) -> None:
+    """Every spp of the sweep within every selected estimator's ``max_spp``, checked before
+    anything is written (a render past the bound fails mid-run)."""
+    for spec in specs:
+        bound = spec.cls.max_spp
+        above = [spp for spp in spp_values if bound is not None and spp > bound]
+        if above:
+            raise InputError(None, f"--spp {max(above)} is above {spec.label}'s limit of "
+                                   f"{bound} samples per pixel")
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored inside (the main thread only may set signal handlers)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
     finally:
-        handle.close()
+        signal.signal(signal.SIGINT, previous)
 
 
 def _remove_stale_temporaries(out: pathlib.Path) -> None:
@@ -276,6 +307,7 @@ class Runner:
         labels = [spec.label for spec in self.specs]
         if len(set(labels)) != len(labels):
             raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
+        _require_spp_within_bounds(self.specs, config.spp)
         self.scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
                        for name in config.scenes]
         _require_unique_names(self.scenes)
@@ -290,11 +322,28 @@ class Runner:
         self.out = pathlib.Path(config.out)
         if self.out.exists() and not self.out.is_dir():
             raise InputError(self.out, "--out exists and is not a directory")
-        self.rows = {row_key(row): row for row in read_results(self.out)}
         self.params = {spec.label: spec.params_json() for spec in self.specs}
         overrides = {get_estimator_class(name).name: n for name, n in config.repeats_for}
         self.repeats = {spec.label: overrides.get(spec.cls.name, config.repeats)
                         for spec in self.specs}
+        # The manifest's "stages" and "skipped": G-buffers may be traced before it is made.
+        self.stages, self.skipped = [], []
+
+    def _read_state(self) -> None:
+        """What ``out`` holds, read under its lock (a snapshot read before it could be stale by
+        the time the run folds it back, and drop another run's cells): its rows, checked against
+        this configuration, its manifest, and the plan of the cells left."""
+        rows = read_results(self.out)
+        configured = {p.scene.name: (p.width, p.height, p.env_res) for p in self.plans}
+        differences = configuration_differences(rows, configured)
+        if differences and not self.config.force:
+            raise InputError(self.out, f"holds results of another configuration ("
+                                       f"{'; '.join(differences)}); use another --out, or "
+                                       "--force to replace them")
+        if differences:   # --force: this configuration replaces the scenes' other rows
+            rows = [row for row in rows if row["scene"] not in configured
+                    or image_configuration(row) == configured[row["scene"]]]
+        self.rows = {row_key(row): row for row in rows}
         self.previous_manifest = read_manifest(self.out)
         self.todo, self.total, self.chosen = self._plan_cells()
         self.unverified = {}   # (scene, label, budget) → its calibration, until its first cell
@@ -335,7 +384,8 @@ class Runner:
                 and set(self.config.metrics) <= set(str(row.get("metrics")).split(","))
                 and row.get("time_repeats", 0) >= self.repeats[spec.label]
                 and (row.get("width"), row.get("height"), row.get("env_res"))
-                == (plan.width, plan.height, plan.env_res))
+                == (plan.width, plan.height, plan.env_res)
+                and all(path.is_file() for path in cell_files(self.out, row)))
 
     def _plan_cells(self):
         """The keys of the cells to run, how many cells the sweep has, and the spp earlier rows
@@ -364,7 +414,7 @@ class Runner:
     def _new_manifest(self) -> dict:
         c = self.config
         sweep = c.sweep or {"source": "RunConfig (Python API)"}
-        return {
+        manifest = {
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
             "config": {"scenes": [scene_entry(s) for s in c.scenes],
                        "estimators": [s.label for s in self.specs],
@@ -385,10 +435,11 @@ class Runner:
             "estimator_params": dict(self.params),
             "device": _device_record(self.compute),
             "sanitized": {p.scene.name: p.scene.environment.texels_fixed for p in self.plans},
+            "runs": self._run_history(),
             "resumed_cells": self.resumed,
             "cells_to_run": len(self.todo),
-            "stages": [],
-            "skipped": [],
+            "stages": self.stages,
+            "skipped": self.skipped,
             "timing": {"measure": MEASURE, "repeats": dict(self.repeats),
                        "cell": "median of the estimator's repeats of timed renders after "
                                "warm-up; min and IQR beside it (harness/timing.py)",
@@ -414,6 +465,16 @@ class Runner:
                              "calibrations": self._resumed_calibrations()}
                             if c.time_budget_ms else None),
         }
+        manifest["runs"].append({"created": manifest["created"], "config": manifest["config"]})
+        return manifest
+
+    def _run_history(self) -> list[dict]:
+        """The runs into ``out`` before this one, oldest first: when each started and its
+        ``config`` (several sweeps with one image configuration share the table)."""
+        previous = self.previous_manifest
+        if "runs" in previous or "config" not in previous:
+            return list(previous.get("runs", []))
+        return [{"created": previous.get("created"), "config": previous["config"]}]
 
     def _resumed_calibrations(self) -> list[dict]:
         """The earlier manifest's calibrations of the budgets whose spp resumed rows chose."""
@@ -425,21 +486,22 @@ class Runner:
                 kept.append(dict(entry, resumed=True))
         return kept
 
-    @property
-    def total_cells(self) -> int:
-        return self.total
-
     # ---- running -----------------------------------------------------------------------------
 
     def run(self):
-        # Traced before --out is touched: a camera that sees no geometry is bad input, and bad
-        # input must leave no partial output behind.
-        gbuffers = {plan.scene.name: self._trace(plan) for plan in self.plans
-                    if self._scene_todo(plan.scene.name)}
-        if self.todo:
-            metrics_module._colour()   # start-up, like every other import: not in wall_s
+        # A new --out is made only after its scenes are traced: a camera that sees no geometry
+        # is bad input, and bad input must leave no partial output behind.  In an existing --out,
+        # the scenes with cells left are traced once its state has been read under the lock.
+        gbuffers = ({} if self.out.exists()
+                    else {plan.scene.name: self._trace(plan) for plan in self.plans})
         prepare_out(self.out)
         with _locked(self.out), host_threads_capped():
+            self._read_state()
+            for plan in self.plans:
+                if plan.scene.name not in gbuffers and self._scene_todo(plan.scene.name):
+                    gbuffers[plan.scene.name] = self._trace(plan)
+            if self.todo:
+                metrics_module._colour()   # start-up, like every other import: not in wall_s
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
                       file=sys.stderr)
@@ -461,6 +523,9 @@ class Runner:
                     bar.update(self.resumed)
                     for plan in self.plans:
                         self._run_scene(plan, gbuffers.pop(plan.scene.name, None), bar)
+            except KeyboardInterrupt:
+                saved = len(self._save_interrupted())
+                raise KeyboardInterrupt(f"{saved} cells saved; rerun to resume") from None
             finally:
                 self.journal.close()
             table = self._fold()
@@ -495,6 +560,15 @@ class Runner:
                       f"±{TOLERANCE:.0%}", file=sys.stderr)
         return achieved
 
+    def _save_interrupted(self):
+        """Ctrl-C: fold the finished cells into the table and mark the manifest "interrupted"
+        (a second Ctrl-C meanwhile is ignored, as it would lose them); returns the table."""
+        with _sigint_ignored():
+            table = self._fold()
+            self.manifest["status"] = "interrupted"
+            write_manifest(self.out, self.manifest)
+        return table
+
     def _fold(self):
         self.journal.close()
         return write_results(self.out, list(self.rows.values()))
@@ -512,8 +586,7 @@ class Runner:
         gbuffer, cached = cached_trace(scene.mesh, scene.material, scene.camera, plan.width,
                                        plan.height, cache_dir() / "gbuffer")
         if cached:
-            self.manifest["skipped"].append({"scene": scene.name, "stage": "gbuffer",
-                                             "why": "cached"})
+            self.skipped.append({"scene": scene.name, "stage": "gbuffer", "why": "cached"})
         else:
             self._stage(scene.name, None, "gbuffer", (time.perf_counter() - start) * 1e3)
         if gbuffer.covered == 0:
@@ -585,7 +658,7 @@ class Runner:
                        f"every estimator, spp and seed ({renders} cells)"})
 
     def _stage(self, scene: str, frame, stage: str, ms: float) -> None:
-        self.manifest["stages"].append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
+        self.stages.append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
 
     def _timed_renders(self, renderers, gbuffer, cache, spp: int, seeds,
                        build_ms: float) -> list[tuple]:

@@ -83,10 +83,11 @@ def test_force_recomputes(tmp_path, tiny_config, capsys):
 def test_a_changed_configuration_is_recomputed_not_duplicated(tmp_path, tiny_config, capsys):
     out = tmp_path / "out"
     cli_run(capsys, tiny_config, out)
-    table, err = cli_run(capsys, tiny_config, out, "--res", "20x12", "--spp", "4")
+    # Another --res is refused without --force (tests/test_robustness.py); with it, it replaces.
+    table, err = cli_run(capsys, tiny_config, out, "--res", "20x12", "--spp", "4", "--force")
     assert "resumed" not in err
-    assert len(table) == 8 and not table.duplicated(KEY).any()
-    assert sorted(set(zip(table.spp, table.width))) == [(4, 20), (8, 16)]
+    assert len(table) == 4 and not table.duplicated(KEY).any()
+    assert sorted(set(zip(table.spp, table.width))) == [(4, 20)]
     table, err = cli_run(capsys, tiny_config, out, "--res", "20x12", "--spp", "4")
     assert "resumed: 4 cells already done, 0 to run" in err
 

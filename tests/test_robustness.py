@@ -1,0 +1,224 @@
+"""Defects hostile testing found (issue 11, 1-6): concurrent runs, a reused --out, spp bounds, a
+full disk, Ctrl-C, a damaged journal."""
+from __future__ import annotations
+
+import errno
+import fcntl
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import OpenEXR
+import pandas as pd
+import pytest
+
+from iblbench.harness import runner as runner_module
+from iblbench.harness.cli import EXIT_DISK_FULL, main
+from iblbench.harness.results import JOURNAL, read_journal, read_results
+from iblbench.harness.runner import LOCK, RunConfig, Runner, _locked, run
+from iblbench.scenes.errors import InputError
+
+SMALL = dict(scenes=("sphere-sun",), estimators=("uniform",), seeds=1, resolution=(16, 16),
+             env_res=8, repeats=1, metrics=("de76",), progress=False)
+FLAGS = ["--scene", "sphere-sun", "--estimator", "uniform", "--seeds", "1", "--res", "16x16",
+         "--env-res", "8", "--repeats", "1", "--metrics", "de76", "--no-progress"]
+
+
+def cli(capsys, out: Path, *flags: str) -> tuple[int, str]:
+    code = main(["run", "--out", str(out), *FLAGS, *flags])
+    return code, capsys.readouterr().err
+
+
+def subprocess_env() -> dict:
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    env.pop("IBLBENCH_DEVICE", None)
+    return env
+
+
+# ---- 1. concurrent runs ----------------------------------------------------------------------
+
+
+def test_a_run_made_before_another_finished_keeps_that_runs_cells(tmp_path):
+    """Run A is set up, run B finishes into the same folder, then A runs: B's cells stay."""
+    out = tmp_path / "out"
+    first = Runner(RunConfig(out=out, spp=(4,), **SMALL))
+    run(RunConfig(out=out, spp=(8,), **SMALL))
+    first.run()
+    table = pd.read_parquet(out / "results.parquet")
+    assert sorted(table.spp) == [4, 8]
+
+
+def test_the_lock_file_outlives_a_run_so_no_two_runs_hold_it(tmp_path):
+    """A run that opened the lock file before another released it, then locks it, must still
+    exclude a third (it did not when the release unlinked the file: the third made a new one)."""
+    out = tmp_path / "out"
+    out.mkdir()
+    with open(out / LOCK, "a") as early:
+        run(RunConfig(out=out, spp=(4,), **SMALL))
+        fcntl.flock(early, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(InputError, match="another iblbench run is writing"):
+            with _locked(out):
+                pass
+
+
+# ---- 2. a reused --out -----------------------------------------------------------------------
+
+
+def test_another_resolution_in_a_used_out_is_refused_and_force_replaces(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert cli(capsys, out, "--spp", "4,8")[0] == 0
+    before = pd.read_parquet(out / "results.parquet")
+    code, err = cli(capsys, out, "--spp", "4", "--res", "20x12", "--env-res", "6")
+    assert code == 2 and err.count("\n") == 1, err
+    assert "--res 16x16 (now 20x12)" in err and "--env-res 8 (now 6)" in err and "--force" in err
+    pd.testing.assert_frame_equal(pd.read_parquet(out / "results.parquet"), before)
+    code, err = cli(capsys, out, "--spp", "4", "--res", "20x12", "--force")
+    assert code == 0, err
+    table = pd.read_parquet(out / "results.parquet")
+    assert list(zip(table.spp, table.width, table.height)) == [(4, 20, 12)]
+
+
+def test_the_manifest_lists_every_sweep_that_shares_the_table(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert cli(capsys, out, "--spp", "4")[0] == 0
+    assert cli(capsys, out, "--spp", "8")[0] == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [entry["config"]["spp"] for entry in manifest["runs"]] == [[4], [8]]
+    assert len(pd.read_parquet(out / "results.parquet")) == 2
+
+
+# ---- 3. spp bounds ---------------------------------------------------------------------------
+
+
+def test_spp_above_an_estimators_bound_is_refused_before_anything_is_written(tmp_path, capsys):
+    out = tmp_path / "out"
+    code, err = cli(capsys, out, "--spp", "4,40000")
+    assert code == 2 and err.count("\n") == 1, err
+    assert "--spp 40000" in err and "uniform" in err and "32767" in err
+    assert not out.exists()
+
+
+# ---- 4. a full disk --------------------------------------------------------------------------
+
+
+def _no_space(*args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "somewhere.png")
+
+
+def _pyarrow_no_space(*args, **kwargs):   # pyarrow's IO errors carry the message, no errno
+    raise OSError("error writing to file: No space left on device")
+
+
+@pytest.mark.parametrize("target, replacement", [
+    ((runner_module, "write_preview"), _no_space),
+    ((OpenEXR, "File"), _no_space),                        # write_exr makes it an InputError
+    ((pd.DataFrame, "to_parquet"), _pyarrow_no_space),
+    ((runner_module, "write_manifest"), _no_space),
+])
+def test_a_full_disk_is_one_line_and_its_own_exit_code(tmp_path, capsys, monkeypatch, target,
+                                                       replacement):
+    monkeypatch.setattr(*target, replacement)
+    code, err = cli(capsys, tmp_path / "out", "--spp", "4")
+    assert code == EXIT_DISK_FULL != 2
+    assert err.count("\n") == 1 and "no space left on device" in err, err
+
+
+# ---- 5. Ctrl-C -------------------------------------------------------------------------------
+
+
+def test_ctrl_c_saves_the_finished_cells_and_releases_the_folder(tmp_path):
+    out = tmp_path / "out"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "iblbench.harness.cli", "run", "--out", str(out), *FLAGS,
+         "--spp", "1,2,3,4,5,6,7,8", "--seeds", "4"],
+        env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while len(read_journal(out)) < 2:
+        assert process.poll() is None, process.stderr.read()
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    table = pd.read_parquet(out / "results.parquet")
+    assert 2 <= len(table) < 32
+    assert f"{len(table)} cells saved; rerun to resume" in stderr and "Traceback" not in stderr
+    assert not (out / JOURNAL).exists()
+    assert json.loads((out / "manifest.json").read_text())["status"] == "interrupted"
+    with open(out / LOCK, "a") as handle:          # released: this would fail while held
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+REFERENCE_SCRIPT = """
+import sys
+from iblbench.harness.device import get_compute
+from iblbench.harness.device_gbuffer import DeviceGBuffer
+from iblbench.harness.framecache import FrameCache
+from iblbench.harness.reference import Reference
+from iblbench.scenes.gbuffer import trace_gbuffer
+from iblbench.scenes.registry import load_scene
+
+compute = get_compute()
+scene = load_scene("sphere-sun", env_res=64)
+cache = FrameCache(compute, scene.environment.frame(0), 0)
+reference = Reference(compute, use_cache=False)
+for size in (8, 160):   # the first compiles the kernel; the second takes many seconds
+    gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, size, size)
+    print("computing", flush=True)
+    reference.image(DeviceGBuffer(compute, gbuffer), cache)
+print("finished", flush=True)
+"""
+
+
+def test_ctrl_c_stops_a_long_reference_within_seconds(tmp_path):
+    process = subprocess.Popen([sys.executable, "-c", REFERENCE_SCRIPT], env=subprocess_env(),
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for _ in range(2):
+        assert process.stdout.readline() == "computing\n", process.stderr.read()
+    time.sleep(1.0)
+    process.send_signal(signal.SIGINT)
+    sent = time.monotonic()
+    stdout, stderr = process.communicate(timeout=60)
+    waited = time.monotonic() - sent
+    assert "finished" not in stdout, "the reference ended before the signal; make it larger"
+    assert "KeyboardInterrupt" in stderr
+    assert waited < 2.0, f"{waited:.1f} s from SIGINT to exit"
+
+
+# ---- 6. a damaged journal --------------------------------------------------------------------
+
+
+def test_journal_lines_of_valid_json_but_wrong_content_are_skipped_and_counted(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert cli(capsys, out, "--spp", "4,8")[0] == 0
+    good = read_results(out)[0]
+    lines = [json.dumps(row) for row in (
+        {"scene": "sphere-sun"},                                  # keys missing
+        dict(good, spp="4"),                                      # a key of the wrong type
+        dict(good, mean_delta_e76="small"),                       # a metric of the wrong type
+        [1, 2, 3],                                                # not an object
+    )]
+    (out / JOURNAL).write_text("\n".join(lines + [json.dumps(good)]) + "\n")
+    assert len(read_journal(out)) == 1
+    assert "skipped 4 damaged lines" in capsys.readouterr().err
+    code, err = cli(capsys, out, "--spp", "4,8")
+    assert code == 0 and "skipped 4 damaged lines" in err, err
+    assert "resumed: 2 cells already done, 0 to run" in err
+    assert len(pd.read_parquet(out / "results.parquet")) == 2
+
+
+def test_a_resume_redraws_cells_whose_images_were_deleted(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert cli(capsys, out, "--spp", "4,8")[0] == 0
+    shutil.rmtree(out / "images")
+    code, err = cli(capsys, out, "--spp", "4,8")
+    assert code == 0 and "resumed" not in err, err
+    stems = sorted(p.name for p in (out / "images" / "sphere-sun" / "f0").iterdir())
+    assert stems == sorted(["reference.exr", "reference.png"]
+                           + [f"uniform_spp{n}_s0{end}" for n in (4, 8)
+                              for end in (".exr", ".png", "_de76.png")])
