@@ -211,31 +211,35 @@ ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal
                                          upsample(words.v[2], words.v[3]) >> 1, &map_texel, &map_p_texel);
         w = select_lanes3(w, map, from_map);
     }
+    /* The texel of w, and its radiance first: the gather misses the cache, and the lobe's power
+     * and the pdfs below overlap it. */
+    lane_ints_t face, row, col;
+    lanes_t area = 0.0f;
+    if (q->env_pick > 0.0f) {
+        area = lanes_texel_of(res, w, &face, &row, &col);
+    } else {
+        lanes_t u, v;
+        face = cube_face_st_lanes(w, &u, &v);
+        row = clamp(convert_lane_ints(floor(v * (float)res)), 0, res - 1);
+        col = clamp(convert_lane_ints(floor(u * (float)res)), 0, res - 1);
+    }
+    lane_ints_t texel = (face * res + row) * res + col;
+    __global const float *texels = (__global const float *)env;
+    lanes3_t radiance = make_lanes3(GATHER(lanes_t, texels, 4 * texel), GATHER(lanes_t, texels, 4 * texel + 1),
+                                    GATHER(lanes_t, texels, 4 * texel + 2));
     lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
     lanes_t cosine = lanes_dot(s->n, w);
     /* proposal_pdf */
     lanes_t pdf = (1.0f - q->env_pick) * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
-    lane_ints_t face, texel;
     if (q->env_pick > 0.0f) {
         /* lanes_light_pdf; where every lane's direction lies in the texel it was drawn from (all
          * but a rounding at a texel's edge, in a block of map draws), with that draw's bins. */
-        lane_ints_t row, col;
-        lanes_t area = lanes_texel_of(res, w, &face, &row, &col);
-        texel = (face * res + row) * res + col;
         lanes_t p_texel = all(texel == map_texel) ? map_p_texel
             : lanes_cdf_bin(q->marginal, face * res, row) * lanes_cdf_bin(q->conditional, (face * res + row) * res, col);
         lanes_t light = p_texel * area * (float)(res * res) / 4.0f;
         pdf += q->env_pick * GATHER(lanes_t, q->faces, face) * light;
-    } else {
-        lanes_t u, v;
-        face = cube_face_st_lanes(w, &u, &v);
-        texel = (face * res + clamp(convert_lane_ints(floor(v * (float)res)), 0, res - 1)) * res
-              + clamp(convert_lane_ints(floor(u * (float)res)), 0, res - 1);
     }
     /* sir_target and sir_ratio */
-    __global const float *texels = (__global const float *)env;
-    lanes3_t radiance = make_lanes3(GATHER(lanes_t, texels, 4 * texel), GATHER(lanes_t, texels, 4 * texel + 1),
-                                    GATHER(lanes_t, texels, 4 * texel + 2));
     lanes_t lobe = (s->m + 2.0f) / (2.0f * IBL_PI) * power;
     lanes_t rho_y = vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * lobe;
     lanes_t radiance_y = 0.2126f * radiance.x + 0.7152f * radiance.y + 0.0722f * radiance.z;
