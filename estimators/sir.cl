@@ -32,6 +32,9 @@
 
 #include "lanes.cl"
 
+/* Candidates per LOCKSTEP of bis_pixel's pass over the weights. */
+#define BOUNDS_PER_LOCKSTEP 4
+
 #define STREAM_SIR_CANDIDATE 20u
 #define STREAM_SIR_RESAMPLE 21u
 
@@ -347,12 +350,21 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
      * loop's vector width (the widest type in a loop sets it). */
     acc_t bound = -1;
     int last = 0;
-    for (int i = 0; i < M; ++i) {
-        float weight = weights[i * stride + slot];
-        kahan_add_to(&total, &carry, (acc_t)weight);
-        last = weight > 0.0f ? i : last;
-        bound = weight > 0.0f ? max(bound, total) : bound;
-        bounds[i * stride + slot] = bound;
+    for (int first = 0; first < M; first += BOUNDS_PER_LOCKSTEP) {
+        /* BOUNDS_PER_LOCKSTEP candidates per LOCKSTEP (each barrier reloads the loop's state);
+         * those past M redo candidate M − 1's store, changing nothing. */
+        __attribute__((opencl_unroll_hint))
+        for (int j = 0; j < BOUNDS_PER_LOCKSTEP; ++j) {
+            int i = min(first + j, M - 1), counted = first + j < M;
+            float weight = weights[i * stride + slot];
+            acc_t sum = total, compensation = carry;
+            kahan_add_to(&sum, &compensation, (acc_t)weight);
+            total = counted ? sum : total;
+            carry = counted ? compensation : carry;
+            last = counted && weight > 0.0f ? i : last;
+            bound = counted && weight > 0.0f ? max(bound, total) : bound;
+            bounds[i * stride + slot] = bound;
+        }
         LOCKSTEP();
     }
     int positive = total > 0 && isfinite(total);
@@ -366,10 +378,18 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
     for (int k = N - 1; k >= 0; --k) {
         acc_t position = systematic_position(k, N, u, total);
         int base = 0, n = M;
-        for (int step = 0; step < search_steps; ++step) {
-            int width = n >> 1;
-            base = width > 0 && bounds[(base + width - 1) * stride + slot] <= position ? base + width : base;
-            n -= width;
+        /* Two halvings per LOCKSTEP, the second's bound for either outcome of the first loaded
+         * with it (lane_cdf_search); indices clamped where a halving is a no-op. */
+        for (int step = 0; step < (search_steps + 1) / 2; ++step) {
+            int width = n >> 1, rest = n - width, next = rest >> 1;
+            acc_t probe = bounds[(base + max(width - 1, 0)) * stride + slot];
+            acc_t probe_low = bounds[(base + max(next - 1, 0)) * stride + slot];
+            acc_t probe_high = bounds[(base + width + max(next - 1, 0)) * stride + slot];
+            int taken = width > 0 && probe <= position;
+            acc_t second = taken ? probe_high : probe_low;
+            base = taken ? base + width : base;
+            base = next > 0 && second <= position ? base + next : base;
+            n = rest - next;
             LOCKSTEP();
         }
         int candidate = positive && bounds[base * stride + slot] > position ? base : last;
