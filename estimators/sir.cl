@@ -32,9 +32,6 @@
 
 #include "lanes.cl"
 
-/* Candidates per LOCKSTEP of bis_pixel's pass over the weights. */
-#define BOUNDS_PER_LOCKSTEP 4
-
 #define STREAM_SIR_CANDIDATE 20u
 #define STREAM_SIR_RESAMPLE 21u
 
@@ -168,6 +165,13 @@ ALWAYS_INLINE float sir_candidate(const shading_t *s, const sir_proposal_t *q,
     return isfinite(weight) ? weight : 0.0f;
 }
 
+/* The RGB of the lanes' texels of a float4 map. */
+ALWAYS_INLINE lanes3_t lanes_radiance(__global const float *texels, lane_ints_t texel)
+{
+    return make_lanes3(GATHER(lanes_t, texels, 4 * texel), GATHER(lanes_t, texels, 4 * texel + 1),
+                       GATHER(lanes_t, texels, 4 * texel + 2));
+}
+
 /* sir_candidate for the POOL_LANES candidates i0, i0 + 1, … in explicit vectors (lanes.cl), the
  * same arithmetic lane by lane: their weights (0 past M), and in *ratio their f/γ (sir_ratio;
  * meaningful where the weight is positive). */
@@ -214,22 +218,17 @@ ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal
                                          upsample(words.v[2], words.v[3]) >> 1, &map_texel, &map_p_texel);
         w = select_lanes3(w, map, from_map);
     }
-    /* The texel of w, and its radiance first: the gather misses the cache, and the lobe's power
-     * and the pdfs below overlap it. */
-    lane_ints_t face, row, col;
-    lanes_t area = 0.0f;
-    if (q->env_pick > 0.0f) {
-        area = lanes_texel_of(res, w, &face, &row, &col);
-    } else {
-        lanes_t u, v;
-        face = cube_face_st_lanes(w, &u, &v);
-        row = clamp(convert_lane_ints(floor(v * (float)res)), 0, res - 1);
-        col = clamp(convert_lane_ints(floor(u * (float)res)), 0, res - 1);
-    }
-    lane_ints_t texel = (face * res + row) * res + col;
     __global const float *texels = (__global const float *)env;
-    lanes3_t radiance = make_lanes3(GATHER(lanes_t, texels, 4 * texel), GATHER(lanes_t, texels, 4 * texel + 1),
-                                    GATHER(lanes_t, texels, 4 * texel + 2));
+    lane_ints_t face, row, col, texel;
+    lanes_t area;
+    lanes3_t radiance;
+    if (q->env_pick > 0.0f) {
+        /* With map draws, the texel of w and its radiance first: the gather misses the cache
+         * (the map draws spread over the map), and the lobe's power and the pdfs overlap it. */
+        area = lanes_texel_of(res, w, &face, &row, &col);
+        texel = (face * res + row) * res + col;
+        radiance = lanes_radiance(texels, texel);
+    }
     lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
     lanes_t cosine = lanes_dot(s->n, w);
     /* proposal_pdf */
@@ -241,6 +240,12 @@ ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal
             : lanes_cdf_bin(q->marginal, face * res, row) * lanes_cdf_bin(q->conditional, (face * res + row) * res, col);
         lanes_t light = p_texel * area * (float)(res * res) / 4.0f;
         pdf += q->env_pick * GATHER(lanes_t, q->faces, face) * light;
+    } else {
+        lanes_t u, v;
+        face = cube_face_st_lanes(w, &u, &v);
+        texel = (face * res + clamp(convert_lane_ints(floor(v * (float)res)), 0, res - 1)) * res
+              + clamp(convert_lane_ints(floor(u * (float)res)), 0, res - 1);
+        radiance = lanes_radiance(texels, texel);
     }
     /* sir_target and sir_ratio */
     lanes_t lobe = (s->m + 2.0f) / (2.0f * IBL_PI) * power;
@@ -350,21 +355,12 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
      * loop's vector width (the widest type in a loop sets it). */
     acc_t bound = -1;
     int last = 0;
-    for (int first = 0; first < M; first += BOUNDS_PER_LOCKSTEP) {
-        /* BOUNDS_PER_LOCKSTEP candidates per LOCKSTEP (each barrier reloads the loop's state);
-         * those past M redo candidate M − 1's store, changing nothing. */
-        __attribute__((opencl_unroll_hint))
-        for (int j = 0; j < BOUNDS_PER_LOCKSTEP; ++j) {
-            int i = min(first + j, M - 1), counted = first + j < M;
-            float weight = weights[i * stride + slot];
-            acc_t sum = total, compensation = carry;
-            kahan_add_to(&sum, &compensation, (acc_t)weight);
-            total = counted ? sum : total;
-            carry = counted ? compensation : carry;
-            last = counted && weight > 0.0f ? i : last;
-            bound = counted && weight > 0.0f ? max(bound, total) : bound;
-            bounds[i * stride + slot] = bound;
-        }
+    for (int i = 0; i < M; ++i) {
+        float weight = weights[i * stride + slot];
+        kahan_add_to(&total, &carry, (acc_t)weight);
+        last = weight > 0.0f ? i : last;
+        bound = weight > 0.0f ? max(bound, total) : bound;
+        bounds[i * stride + slot] = bound;
         LOCKSTEP();
     }
     int positive = total > 0 && isfinite(total);
@@ -378,18 +374,10 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
     for (int k = N - 1; k >= 0; --k) {
         acc_t position = systematic_position(k, N, u, total);
         int base = 0, n = M;
-        /* Two halvings per LOCKSTEP, the second's bound for either outcome of the first loaded
-         * with it (lane_cdf_search); indices clamped where a halving is a no-op. */
-        for (int step = 0; step < (search_steps + 1) / 2; ++step) {
-            int width = n >> 1, rest = n - width, next = rest >> 1;
-            acc_t probe = bounds[(base + max(width - 1, 0)) * stride + slot];
-            acc_t probe_low = bounds[(base + max(next - 1, 0)) * stride + slot];
-            acc_t probe_high = bounds[(base + width + max(next - 1, 0)) * stride + slot];
-            int taken = width > 0 && probe <= position;
-            acc_t second = taken ? probe_high : probe_low;
-            base = taken ? base + width : base;
-            base = next > 0 && second <= position ? base + next : base;
-            n = rest - next;
+        for (int step = 0; step < search_steps; ++step) {
+            int width = n >> 1;
+            base = width > 0 && bounds[(base + width - 1) * stride + slot] <= position ? base + width : base;
+            n -= width;
             LOCKSTEP();
         }
         int candidate = positive && bounds[base * stride + slot] > position ? base : last;
