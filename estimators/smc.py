@@ -72,10 +72,11 @@ flags those that need a BIS re-init; ``smc_list_reinit`` lists them on the devic
 to the host within a frame); ``smc_init`` runs step 1 for the listed pixels (all of them on a
 first frame) in padded groups, launched over every pixel, its groups past the list returning at
 once: each work item runs its candidates in explicit vectors of 16 lanes, and its other loops
-are vectorised by PoCL across pixels (``sir.cl``, ``lanes.cl``).  The frame's ``shade`` time is the sum of the kernels' device
-time and the copy of the map kept for γ_{t−1}.  Device buffers (particles, BIS scratch, outputs)
-are kept across frames and :meth:`reset`, so a frame allocates and first-touches none.  The map proposal's face probabilities
-and running sums come from the host (:func:`face_choice`), in float32, summed as a kernel would.
+are vectorised by PoCL across pixels (``sir.cl``, ``lanes.cl``).  The frame's ``shade`` time is
+the sum of the kernels' device time and the copy of the map kept for γ_{t−1}.  Device buffers
+(particles, BIS scratch, outputs) are kept across frames and :meth:`reset`, so a frame allocates
+and first-touches none.  The map proposal's face probabilities and running sums come from the
+host (:func:`face_choice`), in float32, summed as a kernel would.
 
 Not unbiased (``Tags.unbiased = False``).  An init frame is unbiased, and so is a static
 stretch after it; a continuing frame on a changing map
