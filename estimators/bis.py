@@ -84,14 +84,17 @@ def run_lockstep(compute, kernel, count: int, *args) -> cl.Event:
     return event
 
 
-def bis_chunks(compute, kernel, count: int, M: int, N: int):
+def bis_chunks(compute, kernel, count: int, M: int, N: int, empty=None):
     """Split ``count`` pixels into launches whose BIS scratch fits SCRATCH_BYTES: yields
     (offset, pixels, weights, bounds, sums) with scratch buffers (sir.cl, SIR_SCRATCH_ARGS) sized
-    for the padded launch."""
+    for the padded launch, from ``empty(name, nbytes)`` if given (a caller's reused buffers),
+    else newly allocated."""
     group = lockstep_group(compute, kernel)
     per_launch = max(group, SCRATCH_BYTES // (4 * M + 8 * M + 6 * 8) // group * group)
     size = min(per_launch, max(-(-int(count) // group), 1) * group)
-    scratch = compute.empty(4 * M * size), compute.empty(8 * M * size), compute.empty(6 * 8 * size)
+    empty = empty or (lambda name, nbytes: compute.empty(nbytes))
+    scratch = (empty("weights", 4 * M * size), empty("bounds", 8 * M * size),
+               empty("sums", 6 * 8 * size))
     for offset in range(0, int(count), per_launch):
         yield offset, min(per_launch, int(count) - offset), *scratch
 

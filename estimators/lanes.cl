@@ -88,17 +88,25 @@ ALWAYS_INLINE vec3_t lane_face_dir(int face, float u, float v)
 
 /* common.cl's cdf_search (first i with cdf[i] > u) with a fixed trip count: CDF_STEPS =
  * ⌈log2 R⌉ halvings (the host defines it with ENV_RES), each a no-op once n = 1, so the loop
- * unrolls and a loop body that samples the map stays one region (header).  Without CDF_STEPS it
- * is common.cl's search. */
+ * unrolls and a loop body that samples the map stays one region (header).  The halvings go in
+ * pairs: the second's probe for either outcome of the first is loaded with the first's, so a
+ * pair costs one dependent load instead of two (the search is a chain of loads that miss L1);
+ * the probes compared and the result are cdf_search's.  Without CDF_STEPS it is cdf_search. */
 ALWAYS_INLINE int lane_cdf_search(__global const cdf_word_t *cdf, int n, cdf_word_t u)
 {
 #ifdef CDF_STEPS
     int base = 0;
     __attribute__((opencl_unroll_hint))
-    for (int i = 0; i < CDF_STEPS; ++i) {
-        int step = n >> 1;
-        base = (step > 0 && cdf[base + step - 1] <= u) ? base + step : base;
-        n -= step;
+    for (int i = 0; i < (CDF_STEPS + 1) / 2; ++i) {
+        int step = n >> 1, rest = n - step, next = rest >> 1;
+        /* Indices clamped where a halving is a no-op (step or next 0): never read, never past n. */
+        cdf_word_t probe = cdf[base + max(step - 1, 0)];
+        cdf_word_t probe_low = cdf[base + max(next - 1, 0)], probe_high = cdf[base + step + max(next - 1, 0)];
+        int taken = step > 0 && probe <= u;
+        cdf_word_t second = taken ? probe_high : probe_low;
+        base = taken ? base + step : base;
+        base = (next > 0 && second <= u) ? base + next : base;
+        n = rest - next;
     }
     return base;
 #else
@@ -140,41 +148,58 @@ ALWAYS_INLINE lanes3_t select_lanes3(lanes3_t a, lanes3_t b, lane_ints_t take_b)
 }
 
 /* lane_cdf_search for the lanes: the first i with cdf[first + i] > u, per lane (n is the work
- * item's, so the halvings are a plain loop). */
+ * item's, so the halvings are a plain loop), the halvings in pairs as there (one dependent
+ * gather per pair). */
 ALWAYS_INLINE lane_ints_t lanes_cdf_search(__global const cdf_word_t *cdf, lane_ints_t first, int n,
                                            lane_words_t u)
 {
     lane_ints_t base = 0;
     for (; n > 1; ) {
-        int step = n >> 1;
-        lane_words_t word = GATHER(lane_words_t, cdf, first + base + step - 1);
-        base = select(base, base + step, convert_lane_ints(word <= u));
-        n -= step;
+        int step = n >> 1, rest = n - step, next = rest >> 1;
+        lane_words_t probe = GATHER(lane_words_t, cdf, first + base + step - 1);
+        if (next > 0) {
+            lane_words_t probe_low = GATHER(lane_words_t, cdf, first + base + next - 1);
+            lane_words_t probe_high = GATHER(lane_words_t, cdf, first + base + step + next - 1);
+            lane_longs_t taken = probe <= u;
+            lane_words_t second = select(probe_low, probe_high, taken);
+            base = select(base, base + step, convert_lane_ints(taken));
+            base = select(base, base + next, convert_lane_ints(second <= u));
+        } else {
+            base = select(base, base + step, convert_lane_ints(probe <= u));
+        }
+        n = rest - next;
     }
     return base;
 }
 
-/* cdf_bin_position for the lanes' bins first + i. */
+/* cdf_bin_position for the lanes' bins first + i; *bin gets lanes_cdf_bin of the same words. */
 ALWAYS_INLINE lanes_t lanes_cdf_bin_position(__global const cdf_word_t *cdf, lane_ints_t first,
-                                             lane_ints_t i, lane_words_t u)
+                                             lane_ints_t i, lane_words_t u, lanes_t *bin)
 {
     lane_words_t upper = GATHER(lane_words_t, cdf, first + i);
     lane_words_t lower = GATHER(lane_words_t, cdf, first + max(i - 1, 0));
     lower = select((lane_words_t)0, lower, convert_lane_longs(i > 0));
+    *bin = convert_lanes(upper - lower) * 0x1p-63f;
     return clamp(convert_lanes(u - lower) / convert_lanes(upper - lower), 0.0f, 0x1.fffffep-1f);
 }
 
-/* lane_sample_face's direction for the lanes' faces and 63-bit points (ux, uy). */
+/* lane_sample_face's direction for the lanes' faces and 63-bit points (ux, uy); *texel gets the
+ * texel drawn and *p_texel its probability, lanes_light_pdf's product of the two bins, so a
+ * caller whose direction falls back into that texel needs no second look-up of the CDFs. */
 ALWAYS_INLINE lanes3_t lanes_sample_face(__global const cdf_word_t *marginal,
                                          __global const cdf_word_t *conditional, lane_ints_t face,
-                                         int res, lane_words_t ux, lane_words_t uy)
+                                         int res, lane_words_t ux, lane_words_t uy,
+                                         lane_ints_t *texel, lanes_t *p_texel)
 {
     lane_ints_t rows = face * res;
     lane_ints_t row = lanes_cdf_search(marginal, rows, res, ux);
     lane_ints_t cols = (face * res + row) * res;
     lane_ints_t col = lanes_cdf_search(conditional, cols, res, uy);
-    lanes_t x = -1.0f + 2.0f * (convert_lanes(col) + lanes_cdf_bin_position(conditional, cols, col, uy)) / (float)res;
-    lanes_t y = -1.0f + 2.0f * (convert_lanes(row) + lanes_cdf_bin_position(marginal, rows, row, ux)) / (float)res;
+    lanes_t row_bin, col_bin;
+    lanes_t x = -1.0f + 2.0f * (convert_lanes(col) + lanes_cdf_bin_position(conditional, cols, col, uy, &col_bin)) / (float)res;
+    lanes_t y = -1.0f + 2.0f * (convert_lanes(row) + lanes_cdf_bin_position(marginal, rows, row, ux, &row_bin)) / (float)res;
+    *texel = cols + col;
+    *p_texel = row_bin * col_bin;
     /* lane_face_dir */
     lanes_t sign = select((lanes_t)1.0f, (lanes_t)-1.0f, (face & 1) != 0);
     lane_ints_t x_major = face < 2, y_major = (face == 2) | (face == 3);

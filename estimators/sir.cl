@@ -165,6 +165,13 @@ ALWAYS_INLINE float sir_candidate(const shading_t *s, const sir_proposal_t *q,
     return isfinite(weight) ? weight : 0.0f;
 }
 
+/* The RGB of the lanes' texels of a float4 map. */
+ALWAYS_INLINE lanes3_t lanes_radiance(__global const float *texels, lane_ints_t texel)
+{
+    return make_lanes3(GATHER(lanes_t, texels, 4 * texel), GATHER(lanes_t, texels, 4 * texel + 1),
+                       GATHER(lanes_t, texels, 4 * texel + 2));
+}
+
 /* sir_candidate for the POOL_LANES candidates i0, i0 + 1, … in explicit vectors (lanes.cl), the
  * same arithmetic lane by lane: their weights (0 past M), and in *ratio their f/γ (sir_ratio;
  * meaningful where the weight is positive). */
@@ -180,6 +187,8 @@ ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal
      * the same strategy: a block samples only the strategies its lanes use. */
     lane_ints_t from_map = strategy < q->env_pick;
     lanes3_t w = splat_lanes3(s->n);
+    lane_ints_t map_texel = -1;
+    lanes_t map_p_texel = 0.0f;
     if (!all(from_map)) {
         /* sample_phong_direction */
 #if SPECULAR_LOBE
@@ -206,27 +215,39 @@ ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal
         face = select(face, (lane_ints_t)last, face < 0);
         lanes3_t map = lanes_sample_face(q->marginal, q->conditional, face, res,
                                          upsample(words.v[0], words.v[1]) >> 1,
-                                         upsample(words.v[2], words.v[3]) >> 1);
+                                         upsample(words.v[2], words.v[3]) >> 1, &map_texel, &map_p_texel);
         w = select_lanes3(w, map, from_map);
+    }
+    __global const float *texels = (__global const float *)env;
+    lane_ints_t face, row, col, texel;
+    lanes_t area;
+    lanes3_t radiance;
+    if (q->env_pick > 0.0f) {
+        /* With map draws, the texel of w and its radiance first: the gather misses the cache
+         * (the map draws spread over the map), and the lobe's power and the pdfs overlap it. */
+        area = lanes_texel_of(res, w, &face, &row, &col);
+        texel = (face * res + row) * res + col;
+        radiance = lanes_radiance(texels, texel);
     }
     lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
     lanes_t cosine = lanes_dot(s->n, w);
     /* proposal_pdf */
     lanes_t pdf = (1.0f - q->env_pick) * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
-    lane_ints_t face, texel;
     if (q->env_pick > 0.0f) {
-        lanes_t light = lanes_light_pdf(q->marginal, q->conditional, res, w, &face, &texel);
+        /* lanes_light_pdf; where every lane's direction lies in the texel it was drawn from (all
+         * but a rounding at a texel's edge, in a block of map draws), with that draw's bins. */
+        lanes_t p_texel = all(texel == map_texel) ? map_p_texel
+            : lanes_cdf_bin(q->marginal, face * res, row) * lanes_cdf_bin(q->conditional, (face * res + row) * res, col);
+        lanes_t light = p_texel * area * (float)(res * res) / 4.0f;
         pdf += q->env_pick * GATHER(lanes_t, q->faces, face) * light;
     } else {
         lanes_t u, v;
         face = cube_face_st_lanes(w, &u, &v);
         texel = (face * res + clamp(convert_lane_ints(floor(v * (float)res)), 0, res - 1)) * res
               + clamp(convert_lane_ints(floor(u * (float)res)), 0, res - 1);
+        radiance = lanes_radiance(texels, texel);
     }
     /* sir_target and sir_ratio */
-    __global const float *texels = (__global const float *)env;
-    lanes3_t radiance = make_lanes3(GATHER(lanes_t, texels, 4 * texel), GATHER(lanes_t, texels, 4 * texel + 1),
-                                    GATHER(lanes_t, texels, 4 * texel + 2));
     lanes_t lobe = (s->m + 2.0f) / (2.0f * IBL_PI) * power;
     lanes_t rho_y = vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * lobe;
     lanes_t radiance_y = 0.2126f * radiance.x + 0.7152f * radiance.y + 0.0722f * radiance.z;
@@ -308,17 +329,20 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
     for (int i = 0; i < M; i += POOL_LANES) {
         lanes3_t ratio;
         float lane_weight[POOL_LANES], lane_x[POOL_LANES], lane_y[POOL_LANES], lane_z[POOL_LANES];
-        vstore_lanes(sir_candidate_lanes(&s, &q, env, res, seed, frame, pixel, i, M, &ratio), 0, lane_weight);
-        vstore_lanes(ratio.x, 0, lane_x);
-        vstore_lanes(ratio.y, 0, lane_y);
-        vstore_lanes(ratio.z, 0, lane_z);
+        lanes_t weight = sir_candidate_lanes(&s, &q, env, res, seed, frame, pixel, i, M, &ratio);
+        /* f/γ zeroed where the weight is 0 (it may be NaN there), so that each candidate adds
+         * w·f/γ without a branch: +0 for those, which leaves the sums as they were. */
+        lane_ints_t positive = weight > 0.0f;
+        vstore_lanes(weight, 0, lane_weight);
+        vstore_lanes(select((lanes_t)0.0f, ratio.x, positive), 0, lane_x);
+        vstore_lanes(select((lanes_t)0.0f, ratio.y, positive), 0, lane_y);
+        vstore_lanes(select((lanes_t)0.0f, ratio.z, positive), 0, lane_z);
         for (int k = 0; k < min(POOL_LANES, M - i); ++k) {
-            float weight = lane_weight[k];
-            weights[(i + k) * stride + slot] = weight;
-            if (candidate_ratio && weight > 0.0f) {
-                ratio_x += (acc_t)weight * lane_x[k];
-                ratio_y += (acc_t)weight * lane_y[k];
-                ratio_z += (acc_t)weight * lane_z[k];
+            weights[(i + k) * stride + slot] = lane_weight[k];
+            if (candidate_ratio) {
+                ratio_x += (acc_t)lane_weight[k] * lane_x[k];
+                ratio_y += (acc_t)lane_weight[k] * lane_y[k];
+                ratio_z += (acc_t)lane_weight[k] * lane_z[k];
             }
         }
     }

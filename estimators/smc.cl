@@ -5,9 +5,10 @@
  *   frame that placed the particle); state[p] = (Z, n, ·, ·) and carried_estimate[p] = the last
  *   estimate (n: the importance samples behind Z and the estimate, which a static frame averages
  *   with its fresh ones; smc.py).
- * Two kernels per frame: smc_advance (every pixel that carries state: reweight, resample, MH
- * moves, the re-init test, Eq. 7) and smc_init, the BIS (re-)initialisation of the pixels it
- * flagged (all of them on a first frame), in lockstep groups over their list.  ENV_RES, the map's
+ * Kernels per frame: smc_advance (every pixel that carries state: reweight, resample, MH
+ * moves, the re-init test, Eq. 7), smc_list_reinit (the list of the pixels it flagged) and
+ * smc_init, the BIS (re-)initialisation of the listed pixels (all of them on a first frame), in
+ * lockstep groups over their list.  ENV_RES, the map's
  * face size, is a compile-time constant (smc.py defines it), so the CDF searches unroll.
  * smc_advance still runs one work item per pixel without LOCKSTEP (its loops exit early per
  * pixel), so PoCL does not vectorise it. */
@@ -289,9 +290,25 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
     stats[p] = (float4)(ess_min, 0.0f, evaluations, resampled);
 }
 
-/* BIS (re-)initialisation (smc.py step 1) of the pixels pixels[offset …  offset + listed − 1],
- * in lockstep groups (sir.cl): N particles resampled from M candidates, W = 1/N, Z = Ẑ, and
- * the frame's estimate Ẑ·(the candidates' f/γ), the resampling Rao-Blackwellised.
+/* The pixels smc_advance flagged, in ascending order, into pixels[0 … listed[0] − 1]: one work
+ * item's branch-free scan (tens of µs at 256²), so that smc_init takes its list from the device
+ * and a frame needs no round trip to the host. */
+__kernel void smc_list_reinit(__global const int *reinit_flag, const int count, __global int *pixels,
+                              __global int *listed)
+{
+    int n = 0;
+    for (int p = 0; p < count; ++p) {
+        pixels[n] = p;   /* kept when flagged, overwritten by the next pixel otherwise */
+        n += reinit_flag[p] != 0;
+    }
+    listed[0] = n;
+}
+
+/* BIS (re-)initialisation (smc.py step 1) of the pixels pixels[offset …  listed[0] − 1] (at most
+ * the launch's size), in lockstep groups (sir.cl): N particles resampled from M candidates,
+ * W = 1/N, Z = Ẑ, and the frame's estimate Ẑ·(the candidates' f/γ), the resampling
+ * Rao-Blackwellised.  The list's length is the device's (smc_list_reinit): groups past it return
+ * at once (all their work items alike, before any LOCKSTEP).
  * `have_state`: the pixel's stats already hold smc_advance's partial counts (else it starts
  * them); its re-init then counts in stats.y. */
 __kernel void smc_init(__global const float4 *normal, __global const float4 *view,
@@ -301,7 +318,7 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
                        const int has_light,
                        const int count, const int N, const int M, const float init_env_pick,
                        const int have_state, const uint seed, const uint frame,
-                       __global const int *pixels, const int offset, const int listed,
+                       __global const int *pixels, __global const int *listed_total, const int offset,
                        __global float *weights, __global acc_t *bounds, __global acc_t *sums,
                        __global float *all_particles, __global float *all_gammas,
                        __global float4 *state, __global float4 *carried_estimate,
@@ -309,6 +326,8 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
 {
     /* Items past `listed` redo the last listed pixel in their own scratch slot, bit for bit, so
      * their particle stores repeat the same values; they store nothing else. */
+    int listed = listed_total[0] - offset;
+    if ((int)(get_group_id(0) * get_local_size(0)) >= listed) return;
     int item = get_global_id(0), p = pixels[offset + min(item, listed - 1)];
     __global float *particles = all_particles + p, *gammas = all_gammas + p;
     vec3_t sum, candidate_ratio;

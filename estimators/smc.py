@@ -68,12 +68,15 @@ re-initialised this frame (the first frame's init is not counted); ``resample_st
 resamplings per pixel.
 
 Kernels (``smc.cl``).  ``smc_advance`` runs steps 2-6 for every pixel that carries state and
-flags those that need a BIS re-init; ``smc_init`` runs step 1 for the flagged pixels (all of them
-on a first frame), listed on the host, in padded groups: each work item runs its candidates in
-explicit vectors of 16 lanes, and its other loops are vectorised by PoCL across pixels
-(``sir.cl``, ``lanes.cl``).  The frame's ``shade`` time is the sum of both kernels'
-device time and the copy of the map kept for γ_{t−1}.  The map proposal's face probabilities
-and running sums come from the host (:func:`face_choice`), in float32, summed as a kernel would.
+flags those that need a BIS re-init; ``smc_list_reinit`` lists them on the device (no round trip
+to the host within a frame); ``smc_init`` runs step 1 for the listed pixels (all of them on a
+first frame) in padded groups, launched over every pixel, its groups past the list returning at
+once: each work item runs its candidates in explicit vectors of 16 lanes, and its other loops
+are vectorised by PoCL across pixels (``sir.cl``, ``lanes.cl``).  The frame's ``shade`` time is
+the sum of the kernels' device time and the copy of the map kept for γ_{t−1}.  Device buffers
+(particles, BIS scratch, outputs) are kept across frames and :meth:`reset`, so a frame allocates
+and first-touches none.  The map proposal's face probabilities and running sums come from the
+host (:func:`face_choice`), in float32, summed as a kernel would.
 
 Not unbiased (``Tags.unbiased = False``).  An init frame is unbiased, and so is a static
 stretch after it; a continuing frame on a changing map
@@ -91,6 +94,7 @@ light switching), ``init_candidates`` = 20 (Kronander's BIS M/N = 400/20).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -153,7 +157,17 @@ class SMC(Estimator):
                 or p.intermediates < 0 or not p.reinit_threshold > 1.0 or p.init_candidates < 1 \
                 or not 0.0 <= p.init_env_pick <= 1.0:
             raise ValueError(f"invalid smc parameters {p}")
+        self._spare = {}
         self.reset()
+
+    def _buffer(self, compute, name: str, nbytes: int) -> cl.Buffer:
+        """The device buffer ``name`` of at least ``nbytes``, kept across frames and resets: every
+        kernel writes what it later reads of it, and fresh buffers (tens of MB of BIS scratch and
+        particles on an init frame) cost the kernels about a sixth of their time in page faults."""
+        kept = self._spare.get(name)
+        if kept is None or kept.size < nbytes or kept.context != compute.context:
+            kept = self._spare[name] = compute.empty(nbytes)
+        return kept
 
     def reset(self) -> None:
         self._key = None
@@ -191,23 +205,24 @@ class SMC(Estimator):
                                        or np.array_equal(cache.env, self._prev_host_env))
         self._prev_power, self._prev_host_env = power, cache.env
         count = gbuffer.count
+        buffer = functools.partial(self._buffer, compute)
         if not have_state:
-            self._buffers = [compute.empty(count * N * 16), compute.empty(count * N * 8),
-                             compute.empty(count * N * 16), compute.empty(count * N * 8),
-                             compute.empty(count * 16), compute.empty(count * 16)]
-            self._prev_env = compute.empty(6 * cache.res * cache.res * 16)
+            self._buffers = [buffer("particles", count * N * 16), buffer("gammas", count * N * 8),
+                             buffer("scratch_p", count * N * 16), buffer("scratch_g", count * N * 8),
+                             buffer("state", count * 16), buffer("carried_estimate", count * 16)]
+            self._prev_env = buffer("prev_env", 6 * cache.res * cache.res * 16)
             self._key = key
         particles, gammas, scratch_p, scratch_g, state, carried_estimate = self._buffers
-        radiance = compute.empty(count * 16)
-        counts = compute.empty(count * 8)
-        stats = compute.empty(count * 16)
+        radiance = buffer("radiance", count * 16)
+        counts = buffer("counts", count * 8)
+        stats = buffer("stats", count * 16)
         defines = {**self.defines(gbuffer), "ENV_RES": cache.res,
                    "CDF_STEPS": max(int(cache.res) - 1, 0).bit_length()}   # ⌈log2 R⌉ (lanes.cl)
         mu_and_sums, has_light = face_choice(cache.face_integrals)
         faces = compute.to_device(mu_and_sums)
         events = []
         if have_state:
-            flags = compute.empty(count * 4)
+            flags = buffer("flags", count * 4)
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_advance", defines), count,
                 gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer,
@@ -216,20 +231,23 @@ class SMC(Estimator):
                 np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
                 np.int32(static_frame), np.uint32(seed), np.uint32(cache.frame), particles, gammas,
                 scratch_p, scratch_g, state, carried_estimate, radiance, counts, stats, flags))
-            todo = np.flatnonzero(compute.to_host(flags, (count,), np.int32)).astype(np.int32)
+            listed, listed_total = buffer("listed", count * 4), buffer("listed_total", 4)
+            events.append(compute.run(
+                compute.kernel(self.kernel_package(), "smc.cl", "smc_list_reinit", defines), 1,
+                flags, np.int32(count), listed, listed_total))
         else:
-            todo = np.arange(count, dtype=np.int32)
-        if len(todo):
-            init = compute.kernel(self.kernel_package(), "smc.cl", "smc_init", defines)
-            listed = compute.to_device(todo)
-            for offset, pixels, *scratch in bis_chunks(compute, init, len(todo), M, N):
-                events.append(run_lockstep(
-                    compute, init, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-                    cache.env_buffer, cache.marginal, cache.conditional, faces, np.int32(has_light),
-                    np.int32(count), np.int32(N), np.int32(M), np.float32(p.init_env_pick),
-                    np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), listed,
-                    np.int32(offset), np.int32(pixels), *scratch, particles, gammas, state,
-                    carried_estimate, radiance, counts, stats))
+            listed = compute.to_device(np.arange(count, dtype=np.int32))
+            listed_total = compute.to_device(np.array([count], np.int32))
+        # Launches over every pixel: smc_init's groups past the device's list return at once.
+        init = compute.kernel(self.kernel_package(), "smc.cl", "smc_init", defines)
+        for offset, pixels, *scratch in bis_chunks(compute, init, count, M, N, buffer):
+            events.append(run_lockstep(
+                compute, init, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
+                cache.env_buffer, cache.marginal, cache.conditional, faces, np.int32(has_light),
+                np.int32(count), np.int32(N), np.int32(M), np.float32(p.init_env_pick),
+                np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), listed, listed_total,
+                np.int32(offset), *scratch, particles, gammas, state, carried_estimate, radiance,
+                counts, stats))
         copy = cl.enqueue_copy(compute.queue, self._prev_env, cache.env_buffer)
         copy.wait()
         events.append(copy)

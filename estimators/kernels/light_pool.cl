@@ -303,20 +303,29 @@ ALWAYS_INLINE lanes_t lanes_cdf_bin(__global const cdf_word_t *cdf, lane_ints_t 
     return convert_lanes(upper - lower) * 0x1p-63f;
 }
 
+/* The texel of each lane's direction (*face, *row, *col) and its area_per_solid_angle, as
+ * light_pdf_on_face of common.cl finds them. */
+ALWAYS_INLINE lanes_t lanes_texel_of(int res, lanes3_t w, lane_ints_t *face, lane_ints_t *row,
+                                     lane_ints_t *col)
+{
+    lanes_t s, t;
+    *face = cube_face_st_lanes(w, &s, &t);
+    *row = clamp(convert_lane_ints(floor(t * (float)res)), 0, res - 1);
+    *col = clamp(convert_lane_ints(floor(s * (float)res)), 0, res - 1);
+    lanes_t u = 2.0f * s - 1.0f, v = 2.0f * t - 1.0f;
+    lanes_t q = 1.0f + u * u + v * v;
+    return q * sqrt(q);   /* area_per_solid_angle */
+}
+
 /* light_pdf_on_face of common.cl for the lanes' directions, the same arithmetic; *face and
  * *texel get the face and the texel of each. */
 ALWAYS_INLINE lanes_t lanes_light_pdf(__global const cdf_word_t *marginal,
                                       __global const cdf_word_t *conditional, int res, lanes3_t w,
                                       lane_ints_t *face, lane_ints_t *texel)
 {
-    lanes_t s, t;
-    lane_ints_t f = cube_face_st_lanes(w, &s, &t);
-    lane_ints_t row = clamp(convert_lane_ints(floor(t * (float)res)), 0, res - 1);
-    lane_ints_t col = clamp(convert_lane_ints(floor(s * (float)res)), 0, res - 1);
+    lane_ints_t f, row, col;
+    lanes_t area = lanes_texel_of(res, w, &f, &row, &col);
     lanes_t p_texel = lanes_cdf_bin(marginal, f * res, row) * lanes_cdf_bin(conditional, (f * res + row) * res, col);
-    lanes_t u = 2.0f * s - 1.0f, v = 2.0f * t - 1.0f;
-    lanes_t q = 1.0f + u * u + v * v;
-    lanes_t area = q * sqrt(q);   /* area_per_solid_angle */
     *face = f;
     *texel = (f * res + row) * res + col;
     return p_texel * area * (float)(res * res) / 4.0f;
