@@ -47,7 +47,9 @@ RESULT_TAG = "MUTANT-RESULT "
 class Mutant:
     """One realistic bug: ``old`` → ``new`` in ``path`` (``estimators/...``, ``harness/...``,
     relative to the ``iblbench`` namespace).  ``estimators``: the built-ins whose conformance
-    and stress rows run; ``stress``: the stress cases that guard the broken code;
+    and stress rows run, as a sweep names them (``name`` or ``name{param=value,...}``: a
+    configuration where the bug shows, such as bis with M = 2 candidates per sample); ``stress``:
+    the stress cases that guard the broken code;
     ``budgets``: whether the budgets layer applies (the quick sweep runs uniform, balanced and
     balanced_mis)."""
 
@@ -90,9 +92,9 @@ CATALOGUE: tuple[Mutant, ...] = (
     _m("balanced-form-factor-unclamped", POOL,
        "sum += max(0.0f, vec3_dot(n, corner));", "sum += vec3_dot(n, corner);",
        ["balanced"], ["black-faces"]),
-    _m("balanced-face-split-drops-raised-face", POOL,
-       "ticks[f] = positive ? part + raised : 0;", "ticks[f] = positive ? part : 0;",
-       ["balanced"], ["sun-1e9"]),
+    _m("balanced-mu-without-face-integral", POOL,
+       "weight[f] = balanced_faces ? face_form_factor(n, f) * face_integral[f] : 1.0f;",
+       "weight[f] = balanced_faces ? face_form_factor(n, f) : 1.0f;", ["balanced"], budgets=True),
     _m("mis-denominator-without-brdf", POOL,
        "            if (brdf_samples)\n                denominator +=",
        "            if (0)\n                denominator +=", ["balanced_mis"], ["shininess"]),
@@ -121,13 +123,14 @@ CATALOGUE: tuple[Mutant, ...] = (
     _m("havran-lobe-axis-normal", "estimators/havran.cl",
        "float3 r = reflect_view(n, view[p].xyz);", "float3 r = n;", ["havran"], ["shininess"]),
     _m("havran-fir-not-renormalised", "estimators/havran.py",
-       "    a = a / a.sum()\n", "", ["havran"], ["temporal-dropout"]),
+       "    a = a / a.sum()\n", "", ["havran"], ["static-sequence"]),
     _m("havran-pdf-blend-row0-only", "estimators/havran.py",
        "width = (1.0 - t) * self.col_prob[r0, j] + t * self.col_prob[r1, j]",
-       "width = self.col_prob[r0, j]", ["havran"], ["static-sequence"]),
+       "width = self.col_prob[r0, j]", ["havran"], ["hot-texel", "black-faces"]),
     _m("havran-pdf-of-own-row-not-blend", "estimators/havran.py",
        "pdf = self.row_prob[i] * self.nz * width * self.nphi",
-       "pdf = self.row_prob[i] * self.nz * self.col_prob[i, j] * self.nphi", ["havran"], ["static-sequence"]),
+       "pdf = self.row_prob[i] * self.nz * self.col_prob[i, j] * self.nphi", ["havran"],
+       ["hot-texel", "black-faces"]),
     _m("havran-weight-without-k", "estimators/havran.py",
        "weights = envmap.radiance(dirs) / (pdf[:, None] * k)",
        "weights = envmap.radiance(dirs) / (pdf[:, None] * max(k - 1, 1))", ["havran"], ["constant"]),
@@ -137,16 +140,13 @@ CATALOGUE: tuple[Mutant, ...] = (
     # ---- bis (sir.cl) ----------------------------------------------------------------------------
     _m("bis-resampling-fixed-variate", "estimators/sir.cl",
        "float u = lane_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;",
-       "float u = 0.5f;", ["bis"], ["sun-1e6"]),
+       "float u = 0.5f;", ["bis{M=2,N=1}"], ["one-sample"]),
     _m("bis-target-without-cosine", "estimators/sir.cl",
        "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y * cosine, cosine > 0.0f);",
        "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y, cosine > 0.0f);", ["bis"], ["constant"]),
-    _m("bis-proposal-pdf-without-map-share", "estimators/sir.cl",
-       "pdf += q->env_pick * GATHER(lanes_t, q->faces, face) * light;",
-       "pdf += GATHER(lanes_t, q->faces, face) * light;", ["bis"], ["sun-1e6"]),
-    _m("bis-systematic-position-offset", "estimators/sir.cl",
-       "return ((acc_t)k + (acc_t)u) * (total / (acc_t)n);",
-       "return ((acc_t)k + (acc_t)u) * (total / (acc_t)(n + 1));", ["bis"], ["sun-1e6"]),
+    _m("bis-normaliser-over-n-not-m", "estimators/sir.cl",
+       "return positive ? (float)(total / (acc_t)M) : 0.0f;",
+       "return positive ? (float)(total / (acc_t)N) : 0.0f;", ["bis"], ["constant"]),
     # ---- smc -----------------------------------------------------------------------------------
     _m("smc-weight-update-without-previous-target", "estimators/smc.cl",
        "exp(log(g.y / g.x) / (float)steps)", "exp(log(g.y) / (float)steps)", ["smc"],
@@ -155,9 +155,17 @@ CATALOGUE: tuple[Mutant, ...] = (
        "ratio = (pi_new * q_old) / (pi_old * q_new);", "ratio = (pi_new * q_new) / (pi_old * q_old);",
        ["smc"], ["temporal-dropout"],
        expect_killed_after="smc NumPy twin on a smoothly rotating map (§1, smctwin)"),
-    _m("smc-reinit-threshold-inverted", "estimators/smc.cl",
+    _m("smc-reinit-threshold-one-sided", "estimators/smc.cl",
        "if (!(ratio <= threshold && ratio >= 1.0f / threshold)) reinit = 1;",
-       "if (!(ratio <= threshold)) reinit = 1;", ["smc"], ["temporal-dropout"]),
+       "if (!(ratio <= threshold)) reinit = 1;", ["smc"], ["temporal-dropout"],
+       expect_killed_after="a pixel whose Z_t falls by more than the threshold while the map's "
+                           "power does not (the host re-initialises every pixel on a global drop; "
+                           "smc twin, §1)"),
+    _m("smc-estimate-without-normaliser", "estimators/smc.cl",
+       "estimate = z * ratio;", "estimate = ratio;", ["smc"], ["smooth-rotation"]),
+    _m("smc-init-proposal-pdf-without-map-share", "estimators/sir.cl",
+       "pdf += q->env_pick * GATHER(lanes_t, q->faces, face) * light;",
+       "pdf += GATHER(lanes_t, q->faces, face) * light;", ["smc"], ["constant"]),
     # ---- the frame cache --------------------------------------------------------------------
     _m("framecache-luminance-weights-swapped", "harness/framecache.cl",
        "return (0.2126f * red + 0.7152f * green + 0.0722f * blue) * vload8(0, run->omega_row + i);",
@@ -178,7 +186,7 @@ CATALOGUE: tuple[Mutant, ...] = (
     _m("reference-specular-without-cos-clamp", "harness/reference.cl",
        "term = select((float16)0.0f, term, c_r > 0.0f && c_n > 0.0f && index < count);",
        "term = select((float16)0.0f, term, c_r > 0.0f && index < count);",
-       ["uniform"], ["grazing", "shininess"]),
+       ["bis"], ["grazing"]),
     _m("reference-cache-key-without-material", "harness/reference.py",
        "for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],\n"
        "                      g.shininess[g.mask], np.ascontiguousarray(env, np.float32)):",
@@ -246,14 +254,19 @@ def copy_sources(folder: pathlib.Path) -> pathlib.Path:
     return folder
 
 
-def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout: float = 600.0) -> Outcome:
-    """Apply ``mutant`` to a temporary copy and run ``layers`` on it in a fresh interpreter."""
+def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout: float = 600.0,
+               cache: pathlib.Path | None = None) -> Outcome:
+    """Apply ``mutant`` to a temporary copy and run ``layers`` on it in a fresh interpreter.
+
+    ``cache``: the reference cache it uses (default: its own, fresh).  Mutants may share one:
+    a reference's key hashes its kernel, its host code and its inputs, so a mutant of those
+    never reads a clean entry (and the cache-key mutant only mixes up its own entries)."""
     start = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix=f"iblbench-mutant-{mutant.name}-") as tmp:
         root = copy_sources(pathlib.Path(tmp))
         mutant.apply(root)
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
-                   IBLBENCH_CACHE=str(root / "cache"), IBLBENCH_CHI2_PLOTS=str(root / "chi2"))
+                   IBLBENCH_CACHE=str(cache or root / "cache"), IBLBENCH_CHI2_PLOTS=str(root / "chi2"))
         budgets = budgets_file()
         command = [sys.executable, "-m", "iblbench.harness.mutants", mutant.name, ",".join(layers),
                    "all" if all_layers else "first", str(budgets) if budgets else "-"]
@@ -273,8 +286,10 @@ def run_catalogue(mutants, layers=LAYERS, all_layers: bool = False, jobs: int = 
                   progress=None) -> list[Outcome]:
     """:func:`run_mutant` over ``mutants``, ``jobs`` at a time (kernel builds and imports are
     single-threaded; two overlap well on two cores); ``progress(outcome)`` after each."""
-    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        futures = [pool.submit(run_mutant, m, layers, all_layers) for m in mutants]
+    with tempfile.TemporaryDirectory(prefix="iblbench-mutants-cache-") as cache, \
+            concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        futures = [pool.submit(run_mutant, m, layers, all_layers, cache=pathlib.Path(cache))
+                   for m in mutants]
         outcomes = []
         for future in futures:
             outcomes.append(future.result())
@@ -291,12 +306,12 @@ def _first_line(error: BaseException) -> str:
 
 
 def _conformance(mutant: Mutant, compute) -> str:
-    from iblbench.estimators import registry
     from iblbench.harness import conformance
+    from iblbench.harness.sweep import parse_estimator
 
     h = conformance.Harness(compute)
     for name in mutant.estimators:
-        estimator = registry.make_estimator(name)
+        estimator = parse_estimator(name).make()
         for check in conformance.yield_checks(estimator):
             try:
                 check(estimator, h)
@@ -306,11 +321,11 @@ def _conformance(mutant: Mutant, compute) -> str:
 
 
 def _stress(mutant: Mutant, compute) -> str:
-    from iblbench.estimators import registry
     from iblbench.harness import stress
+    from iblbench.harness.sweep import parse_estimator
 
     names = mutant.estimators or ("uniform",)
-    estimators = {name: registry.make_estimator(name) for name in names}
+    estimators = {name: parse_estimator(name).make() for name in names}
     try:
         table = stress.run_stress(estimators, mutant.stress, stress.SMALL, compute, progress=False)
     except Exception as error:

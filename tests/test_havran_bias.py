@@ -1,17 +1,18 @@
 """``havran``'s bias bound (estimators/havran.py, "Bias bound") and the map pdf on a sharp map.
 
-The density of the map is written here again from its definition (the docstring's formula and
-its closed-form cell probabilities), not taken from ``EqualAreaMap.sample``, and the variance V of
-one light is integrated by quadrature, so a pdf that disagrees with the sampler, or a bias that
-does not shrink with K, fails.
+The map's density and cell probabilities come from their definition (``stress.havran_map_density``
+and ``havran_cell_probabilities``, which the stress battery also checks the map with), not from
+``EqualAreaMap.sample``, and the variance V of one light is integrated by quadrature, so a pdf
+that disagrees with the sampler, or a bias that does not shrink with K, fails.
 """
 import numpy as np
 import pytest
 from scipy import stats
 
-from iblbench.estimators.havran import Havran, direction_to_equal_area, equal_area_to_direction, frame_map
+from iblbench.estimators.havran import Havran, equal_area_to_direction, frame_map
 from iblbench.harness.conformance import Harness, glossy_gbuffer, sidak_z, sun_map
 from iblbench.harness.framecache import FrameCache
+from iblbench.harness.stress import havran_map_chi2, havran_map_density
 
 K_LARGE = 4096
 SEEDS = 16
@@ -24,28 +25,6 @@ def h(compute):
     return Harness(compute)
 
 
-def map_density(envmap, x, y) -> np.ndarray:
-    """p(ω) at equal-area point (x, y): the row's marginal density times the column density of
-    the conditional CDFs blended linearly in y between the rows whose centres bracket y."""
-    nz, nphi = envmap.nz, envmap.nphi
-    row = np.minimum((y * nz).astype(np.int64), nz - 1)
-    col = np.minimum((x * nphi).astype(np.int64), nphi - 1)
-    below = np.floor(y * nz - 0.5).astype(np.int64)
-    t = y * nz - 0.5 - below
-    lower, upper = np.clip(below, 0, nz - 1), np.clip(below + 1, 0, nz - 1)
-    column = (1 - t) * envmap.col_prob[lower, col] + t * envmap.col_prob[upper, col]
-    return envmap.row_prob[row] * nz * column * nphi / (4 * np.pi)
-
-
-def cell_probabilities(envmap) -> np.ndarray:
-    """P(grid cell i, j) ``[NZ, NPHI]`` in closed form: row i has density m_i·NZ in y; over its
-    lower half the blend weight t of row i runs 0.5 → 1 against row i − 1 (mean 0.75), over its
-    upper half 0 → 0.5 toward row i + 1 (mean 0.25), rows clamped at the poles."""
-    c = envmap.col_prob
-    previous, following = np.vstack([c[:1], c[:-1]]), np.vstack([c[1:], c[-1:]])
-    return envmap.row_prob[:, None] * (0.125 * previous + 0.75 * c + 0.125 * following)
-
-
 def sharp_map(res: int = 16) -> np.ndarray:
     """A 1e6 sun, hot texels on a face edge and corner, and two black faces: steps everywhere."""
     env = sun_map(res, 1e6)
@@ -55,24 +34,10 @@ def sharp_map(res: int = 16) -> np.ndarray:
 
 
 def test_map_pdf_on_a_sharp_map(compute):
-    """The pdf ``sample`` returns is the density above at its samples, and 2·10^5 samples fall
-    in the grid cells as the closed-form cell probabilities say (χ², cells expecting < 5
-    pooled, α = 1e-3)."""
-    envmap = frame_map(FrameCache(compute, sharp_map()))
-    n = 200_000
-    dirs, pdf = envmap.sample(np.random.default_rng(3).random((n, 2)))
-    x, y = direction_to_equal_area(dirs)
-    np.testing.assert_allclose(pdf, map_density(envmap, x, y), rtol=1e-6)
-    cells = (np.minimum((y * envmap.nz).astype(np.int64), envmap.nz - 1) * envmap.nphi
-             + np.minimum((x * envmap.nphi).astype(np.int64), envmap.nphi - 1))
-    observed = np.bincount(cells, minlength=envmap.nz * envmap.nphi)
-    expected = n * cell_probabilities(envmap).reshape(-1)
-    assert expected.sum() == pytest.approx(n, rel=1e-9)
-    order = np.argsort(expected)
-    pooled = int(np.searchsorted(np.cumsum(expected[order]), 5.0)) + 1
-    obs = np.append(observed[order[pooled:]], observed[order[:pooled]].sum())
-    exp = np.append(expected[order[pooled:]], expected[order[:pooled]].sum())
-    p_value = stats.chi2.sf(np.sum((obs - exp) ** 2 / exp), len(exp) - 1)
+    """The pdf ``sample`` returns is the map's density at its samples, and 2·10^5 samples fall in
+    the grid cells as the closed-form cell probabilities say (χ², α = 1e-3)."""
+    p_value, problems = havran_map_chi2(frame_map(FrameCache(compute, sharp_map())), 200_000, seed=3)
+    assert not problems, problems
     assert p_value > 1e-3, f"χ² rejects the map's sampler on a sharp map: p = {p_value:.2e}"
 
 
@@ -85,7 +50,7 @@ def one_light_variance(envmap, gbuffer) -> tuple[np.ndarray, np.ndarray]:
     y = (np.arange(nz * QUADRATURE) + 0.5) / (nz * QUADRATURE)
     x, y = (a.reshape(-1) for a in np.meshgrid(x, y))
     w = equal_area_to_direction(x, y)
-    p = map_density(envmap, x, y)
+    p = havran_map_density(envmap, x, y)
     radiance = envmap.radiance(w)
     mask = gbuffer.mask
     normal, view = gbuffer.normal[mask], gbuffer.view[mask]
