@@ -268,8 +268,8 @@ def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout:
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
                    IBLBENCH_CACHE=str(cache or root / "cache"), IBLBENCH_CHI2_PLOTS=str(root / "chi2"))
         budgets = budgets_file()
-        command = [sys.executable, "-m", "iblbench.harness.mutants", mutant.name, ",".join(layers),
-                   "all" if all_layers else "first", str(budgets) if budgets else "-"]
+        command = [sys.executable, "-m", "iblbench.harness.mutants", json.dumps(dataclasses.asdict(mutant)),
+                   ",".join(layers), "all" if all_layers else "first", str(budgets) if budgets else "-"]
         try:
             done = subprocess.run(command, env=env, cwd=tmp, capture_output=True, text=True,
                                   timeout=timeout)
@@ -348,10 +348,11 @@ def _budgets(budgets: str) -> str:
     return "" if status == 0 else verdict[:300]
 
 
-def _child(name: str, layers: str, mode: str, budgets: str) -> None:
+def _child(fields: str, layers: str, mode: str, budgets: str) -> None:
     from iblbench.harness.device import get_compute
 
-    mutant = catalogue([name])[0]
+    mutant = Mutant(**{key: tuple(value) if isinstance(value, list) else value
+                       for key, value in json.loads(fields).items()})
     compute = get_compute()
     results: dict[str, str] = {}
     for layer in layers.split(","):
