@@ -1,0 +1,63 @@
+"""The mutation suite (harness/mutants.py, issue 13): every realistic bug of the catalogue is
+rejected by the conformance suite, the stress battery or the budgets, not only by a unit test.
+
+The catalogue runs once per module, two mutants at a time, each stopping at the first layer
+that rejects it.  A mutant whose catalogue entry waits for a check still to land
+(``expect_killed_after``) may survive (xfail, not strict).
+"""
+import pathlib
+import tempfile
+
+import pytest
+
+from iblbench.harness import mutants
+from iblbench.harness.cli import main
+
+pytestmark = pytest.mark.slow
+AREAS = ("uniform", "balanced", "balanced_mis", "havran", "bis", "smc")
+
+
+def test_catalogue_covers_every_estimator_and_harness_part_and_applies_cleanly():
+    names = [m.name for m in mutants.CATALOGUE]
+    assert len(names) >= 30 and len(set(names)) == len(names)
+    covered = {e.partition("{")[0] for m in mutants.CATALOGUE for e in m.estimators}
+    assert set(AREAS) <= covered
+    paths = {m.path for m in mutants.CATALOGUE}
+    for part in ("harness/framecache", "harness/reference", "harness/metrics"):
+        assert any(p.startswith(part) for p in paths), part
+    with tempfile.TemporaryDirectory() as tmp:
+        root = mutants.copy_sources(pathlib.Path(tmp))
+        for mutant in mutants.CATALOGUE:       # each replaces text that occurs exactly once
+            mutant.apply(root)
+    for mutant in mutants.CATALOGUE:          # every layer a mutant names has something to run
+        assert mutant.estimators or mutant.stress or mutant.budgets, mutant.name
+
+
+def test_a_null_mutation_survives_every_layer():
+    """The layers do not reject correct code: a mutation that changes nothing passes them."""
+    null = mutants.Mutant("null", "estimators/kernels/common.cl", "#define IBL_PI", "#define IBL_PI",
+                          ("uniform",), ("constant",))
+    outcome = mutants.run_mutant(null, all_layers=True)
+    assert not outcome.error, outcome.error
+    assert outcome.rejected_by == {"conformance": "", "stress": ""}
+
+
+@pytest.fixture(scope="module")
+def outcomes():
+    return {o.mutant.name: o for o in mutants.run_catalogue(mutants.CATALOGUE, jobs=2)}
+
+
+@pytest.mark.parametrize("name", [m.name for m in mutants.CATALOGUE])
+def test_mutant_is_rejected(outcomes, name):
+    outcome = outcomes[name]
+    assert not outcome.error, outcome.error
+    if not outcome.killed and outcome.mutant.expect_killed_after:
+        pytest.xfail(f"survives until: {outcome.mutant.expect_killed_after}")
+    assert outcome.killed, f"{name} survived conformance, stress and budgets: {outcome.rejected_by}"
+
+
+def test_selftest_lists_the_catalogue(capsys):
+    assert main(["selftest", "--list"]) == 0
+    listed = capsys.readouterr().out
+    assert all(m.name in listed for m in mutants.CATALOGUE)
+    assert main(["selftest", "--mutant", "no-such-bug"]) == 2
