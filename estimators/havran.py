@@ -278,6 +278,16 @@ class EqualAreaMap:
         """The map of a FrameCache's frame, built by havran.cl from the uploaded map."""
         return DeviceEqualAreaMap(cache)
 
+    @classmethod
+    def of_device_map(cls, device: "DeviceEqualAreaMap", env: np.ndarray) -> "EqualAreaMap":
+        """The NumPy inversion (:meth:`sample`) over a device map's own arrays (host copies):
+        the twin of ``place_lights`` for tests and the stress battery's χ²."""
+        twin = cls.__new__(cls)
+        twin.nz, twin.nphi, twin.env, twin.build_ms = device.nz, device.nphi, env, device.build_ms
+        for name in DeviceEqualAreaMap.ARRAYS:
+            setattr(twin, name, getattr(device, name))
+        return twin
+
     def sample(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Points ``[n, 2]`` in [0, 1)² → (directions ``[n, 3]``, pdf in solid angle ``[n]``)."""
         u = np.asarray(u, np.float64)

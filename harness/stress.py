@@ -785,9 +785,11 @@ def havran_map_chi2(envmap, n: int, seed: int) -> tuple[float, list[str]]:
 
 
 def _havran_map(row: _Row, prepared: Prepared, scale: Scale) -> None:
-    from iblbench.estimators.havran import frame_map
+    from iblbench.estimators.havran import EqualAreaMap, frame_map
 
-    p_value, problems = havran_map_chi2(frame_map(prepared.caches[0]), scale.chi2_samples, seed=7)
+    cache = prepared.caches[0]
+    envmap = EqualAreaMap.of_device_map(frame_map(cache), prepared.variant.frames[0])
+    p_value, problems = havran_map_chi2(envmap, scale.chi2_samples, seed=7)
     row.chi2.append((p_value, f"{prepared.variant.name} havran map", problems))
 
 

@@ -242,11 +242,7 @@ def test_the_device_lights_are_the_numpy_inversion(compute, name):
     env = (builtin_scene("sphere-sun", env_res=32).environment.frame(0) if name == "sphere-sun"
            else stress_maps()[name])
     cache = FrameCache(compute, env)
-    device = hv.frame_map(cache)
-    twin = EqualAreaMap.__new__(EqualAreaMap)
-    twin.nz, twin.nphi, twin.env = device.nz, device.nphi, env
-    for array in ("row_prob", "row_cdf", "col_prob", "col_cdf"):
-        setattr(twin, array, getattr(device, array))
+    twin = EqualAreaMap.of_device_map(hv.frame_map(cache), env)
     k, seed = 500, 7
     want_dirs, pdf = twin.sample((hv.relaxed_points(k) + hv.seed_shift(seed)) % 1.0)
     want_weights = twin.radiance(want_dirs) / (pdf[:, None] * k)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from iblbench.estimators.havran import Havran, equal_area_to_direction, frame_map
+from iblbench.estimators.havran import EqualAreaMap, Havran, equal_area_to_direction, frame_map
 from iblbench.harness.conformance import Harness, glossy_gbuffer, sidak_z, sun_map
 from iblbench.harness.framecache import FrameCache
 from iblbench.harness.stress import havran_map_chi2, havran_map_density
@@ -36,7 +36,9 @@ def sharp_map(res: int = 16) -> np.ndarray:
 def test_map_pdf_on_a_sharp_map(compute):
     """The pdf ``sample`` returns is the map's density at its samples, and 2·10^5 samples fall in
     the grid cells as the closed-form cell probabilities say (χ², α = 1e-3)."""
-    p_value, problems = havran_map_chi2(frame_map(FrameCache(compute, sharp_map())), 200_000, seed=3)
+    env = sharp_map()
+    envmap = EqualAreaMap.of_device_map(frame_map(FrameCache(compute, env)), env)
+    p_value, problems = havran_map_chi2(envmap, 200_000, seed=3)
     assert not problems, problems
     assert p_value > 1e-3, f"χ² rejects the map's sampler on a sharp map: p = {p_value:.2e}"
 
@@ -71,9 +73,10 @@ def test_bias_shrinks_with_k_to_the_reference_on_a_static_sun_map(h):
     seeds within √(V/K)/I times the χ²(S − 1) upper 1e-3 quantile's √(q/(S − 1)) (the bound's
     assumption, that the relaxed set does no worse than independent lights)."""
     gb = glossy_gbuffer()
-    gbuffer, cache = h.inputs(gb, sun_map(16, 1e3))
+    env = sun_map(16, 1e3)
+    gbuffer, cache = h.inputs(gb, env)
     reference = h.reference(gbuffer, cache)[gb.mask].astype(np.float64).sum(0)
-    integral, variance = one_light_variance(frame_map(cache), gb)
+    integral, variance = one_light_variance(EqualAreaMap.of_device_map(frame_map(cache), env), gb)
     np.testing.assert_allclose(integral, reference, rtol=5e-3)   # the quadrature sees the map
     estimator = Havran()
     sums = np.array([h.render(estimator, gbuffer, cache, K_LARGE, seed).radiance[gb.mask].sum(0)
