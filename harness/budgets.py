@@ -65,22 +65,32 @@ absent all FAIL; nothing is skipped.
 
 Output: one line per rule × cell × limit (rule, scene, estimator, spp, metric, value, ci95,
 budget, result: PASS, FAIL or n/a), then a one-line verdict that names the failing rules. Exit
-status: 0 when no check fails, 1 when any fails, 2 on bad input (no results table, unreadable table, missing or invalid
-budgets file, a typo, contradictory limits, another configuration).
+status: 0 when no check fails, 1 when any fails, 2 on bad input (no results table, unreadable
+table, missing or invalid budgets file, a typo, contradictory limits, another configuration).
+
+Deriving budgets. ``iblbench budgets DIR --margin M [--se-multiple K]`` (:func:`write_budgets`)
+writes a budgets file, in one rename, from a run of at least :data:`MIN_SEEDS` seeds per cell:
+the run's ``[configuration]``, one rule per equal-spp cell, each bound the measured mean over
+seeds ± K standard errors ± M·mean on both sides (shapes in :data:`BUDGETS_HEADER`, which heads
+the file), and the measured mean, se and interval in each bound's comment.
 """
 from __future__ import annotations
 
 import dataclasses
 import difflib
 import fnmatch
+import glob
+import json
 import math
 import pathlib
 
+import numpy as np
 import pandas as pd
 
-from iblbench.harness.results import METRIC_COLUMNS, load_table
+from iblbench.harness.results import METRIC_COLUMNS, load_table, read_manifest
 from iblbench.harness.stats import mean_ci
 from iblbench.harness.timing import COLUMNS as TIME_COLUMNS, TIME, median_time
+from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.tomlfile import read_toml
 
@@ -420,3 +430,155 @@ def check(out_dir: str | pathlib.Path, budgets: str | pathlib.Path) -> tuple[pd.
         raise InputError(budgets, "; ".join(mistakes))
     checks = evaluate(rules, table, configuration.seeds)
     return checks, verdict(checks), 0 if (checks["result"] != "FAIL").all() else 1
+
+
+# --- deriving budgets from a run: ``iblbench budgets DIR --margin M`` -----------------------------
+
+MIN_SEEDS = 8          # issue 11: a 2-seed budget passed or failed at random
+DEFAULT_SE_MULTIPLE = 3.0
+DERIVED_METRICS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "flicker",
+                   "effective_ratio", "evaluations")
+TIME_BASELINE = "uniform"
+TIME_METRIC = "time_ms_shade"
+TIME_FACTOR = 3.0      # the time ratio's margin: a ratio swung ×2 under load (budgets.toml)
+USED_SLACK = 0.01      # used samples in [spp − 1%, spp]: an analytic bound, not a measured one
+
+BUDGETS_HEADER = """\
+# Error budgets made by `iblbench budgets {dir} --margin {margin:g} --se-multiple {k:g}`
+# (harness/budgets.py; checked by `iblbench check DIR --budgets FILE`). Do not edit by hand:
+# rerun the command on a fresh multi-seed run of the [configuration] below.
+#
+# Run: {seeds} seeds per cell, git revision {revision}, device {device}.
+# Each cell's value is the mean over seeds of each seed's mean over its frames; the measured
+# mean, its standard error (se) and 95% Student-t interval are in the comment of each bound.
+# Both sides are bounded:
+# - ΔE76, ΔE2000, relMSE, FLIP, flicker, effective ratio, evaluations:
+#   mean ± {k:g}·se ± {margin:g}·mean (the se covers a rerun's seed noise, the margin stated
+#   changes of the sample streams), lower bounds at least 0, the effective ratio at most 1;
+#   rounded outward to 4 significant digits;
+# - used samples in [spp − 1%, spp] where the run measured it there (the strategies' ticks sum
+#   to the budget: more is an overrun, less a dropped strategy), else as the metrics above;
+# - nonfinite = 0 (the run had none: budgets are not made from a run with NaN/Inf pixels);
+# - time only as a ratio to `{baseline}` in the same run, same scene and spp: medians of
+#   {time_metric}, at most {time_factor:g}× the measured ratio (absolute times are not budgeted).
+"""
+
+
+def _outward(value: float, up: bool) -> float:
+    """``value`` rounded to 4 significant digits away from the measured mean (up for a maximum),
+    so the bound written never excludes what was measured."""
+    if value == 0 or not math.isfinite(value):
+        return value
+    quantum = 10.0 ** (math.floor(math.log10(abs(value))) - 3)
+    rounded = float(f"{(math.ceil if up else math.floor)(value / quantum) * quantum:.4g}")
+    while (rounded < value) if up else (rounded > value):   # the decimal text rounded back
+        rounded = float(f"{rounded + (quantum if up else -quantum):.4g}")
+    return rounded
+
+
+def _single(table: pd.DataFrame, column: str, out_dir) -> object:
+    values = table[column].dropna().unique() if column in table.columns else []
+    if len(values) != 1:
+        raise InputError(out_dir, f"results hold {len(values) or 'no'} {column} values "
+                                  f"({', '.join(map(str, values))}); budgets are made from one "
+                                  "configuration")
+    value = values[0]
+    return value.item() if hasattr(value, "item") else value
+
+
+def _measured_bounds(rows: pd.DataFrame, metric: str, margin: float, k: float) -> list[str]:
+    """``min_``/``max_`` lines: the mean over seeds ± k·se ± margin·mean, outward, with the
+    measured values in the comment; none for a metric the run left out (NaN)."""
+    seeds = _seed_values(rows, metric).to_numpy(dtype=float)
+    if not np.isfinite(seeds).all():
+        return []
+    ci = mean_ci(seeds)
+    se = ci.sd / math.sqrt(ci.n)
+    measured = f"measured {ci.mean:.6g}, se {se:.3g}, 95% [{ci.low:.6g}, {ci.high:.6g}]"
+    low = max(0.0, ci.mean - k * se - margin * abs(ci.mean))
+    high = ci.mean + k * se + margin * abs(ci.mean)
+    if metric == "effective_ratio":
+        high = min(1.0, high)
+    return [f"min_{metric} = {_outward(low, up=False)!r}  # {measured}",
+            f"max_{metric} = {_outward(high, up=True)!r}  # {measured}"]
+
+
+def _bound_lines(rows: pd.DataFrame, spp: int, margin: float, k: float) -> list[str]:
+    lines = []
+    for metric in DERIVED_METRICS:
+        if metric != "flicker" or rows["frame"].nunique() > 1:   # a static scene has none
+            lines += _measured_bounds(rows, metric, margin, k)
+    used = rows["used_samples"].astype(float)
+    if not used.between(spp * (1 - USED_SLACK), spp).all():
+        return lines + _measured_bounds(rows, "used_samples", margin, k)
+    return lines + [f"min_used_samples = {spp * (1 - USED_SLACK):.6g}  # spp - 1%: measured "
+                    f"{used.min():.6g}..{used.max():.6g}",
+                    f"max_used_samples = {spp}  # the budget, spp"]
+
+
+def derive_budgets(out_dir: str | pathlib.Path, margin: float,
+                   se_multiple: float = DEFAULT_SE_MULTIPLE) -> str:
+    """The text of a budgets file for the equal-spp cells of ``out_dir``'s run (module doc,
+    :data:`BUDGETS_HEADER`); :class:`InputError` for fewer than :data:`MIN_SEEDS` seeds in a
+    cell, non-finite pixels, mixed configurations or a bad margin."""
+    if not (math.isfinite(margin) and margin >= 0 and math.isfinite(se_multiple)
+            and se_multiple >= 0):
+        raise InputError(None, f"--margin and --se-multiple must be finite and >= 0, got "
+                               f"{margin!r} and {se_multiple!r}")
+    out_dir = pathlib.Path(out_dir)
+    table = equal_spp_rows(load_results(out_dir))
+    if table.empty:
+        raise InputError(out_dir, "no equal-spp results to make budgets from")
+    cells = table.groupby(CELL, sort=True)
+    seeds = cells["seed"].nunique()
+    if seeds.min() < MIN_SEEDS:
+        scene, estimator, spp = seeds.idxmin()
+        raise InputError(out_dir, f"{scene} {estimator} spp={spp} has {seeds.min()} seed(s); "
+                                  f"budgets need at least {MIN_SEEDS} (rerun with --seeds "
+                                  f"{MIN_SEEDS})")
+    broken = cells["nonfinite"].sum()
+    if (broken > 0).any():
+        cells_hit = ", ".join(map(str, broken[broken > 0].index))
+        raise InputError(out_dir, f"non-finite pixels in {cells_hit}; budgets are not made "
+                                  "from a broken run")
+    configuration = Configuration(
+        width=int(_single(table, "width", out_dir)), height=int(_single(table, "height", out_dir)),
+        env_res=int(_single(table, "env_res", out_dir)), seeds=int(seeds.max()),
+        protocol=str(_single(table, "protocol", out_dir)))
+    if seeds.nunique() != 1:
+        raise InputError(out_dir, f"cells hold {seeds.min()} to {seeds.max()} seeds; budgets "
+                                  "are made from one seed count (finish the run)")
+    manifest = read_manifest(out_dir)
+    device = manifest.get("device", {})
+    text = [BUDGETS_HEADER.format(
+        dir=out_dir, margin=margin, k=se_multiple, seeds=configuration.seeds,
+        revision=manifest.get("git_revision", "unknown"),
+        device=device.get("name", "unknown") if isinstance(device, dict) else device,
+        baseline=TIME_BASELINE, time_metric=TIME_METRIC, time_factor=TIME_FACTOR),
+        "[configuration]"]
+    text += [f"{key} = {json.dumps(value)}"
+             for key, value in dataclasses.asdict(configuration).items()]
+    groups = dict(iter(cells))
+    for (scene, estimator, spp), rows in groups.items():
+        text += ["", "[[rule]]", f"name = {json.dumps(f'{scene} {estimator} spp={spp}')}",
+                 f"scene = {json.dumps(glob.escape(scene))}",
+                 f"estimator = {json.dumps(glob.escape(estimator))}", f"spp = {spp}",
+                 "nonfinite = 0  # measured 0"]
+        text += _bound_lines(rows, spp, margin, se_multiple)
+        base = groups.get((scene, TIME_BASELINE, spp))
+        if estimator != TIME_BASELINE and base is not None:
+            ratio = median_time(rows[TIME_METRIC]) / median_time(base[TIME_METRIC])
+            if math.isfinite(ratio) and ratio > 0:
+                text.append(f'max_time_ratio = {{ baseline = "{TIME_BASELINE}", metric = '
+                            f'"{TIME_METRIC}", max = {_outward(TIME_FACTOR * ratio, True)!r} }}'
+                            f"  # measured {ratio:.4g}, x{TIME_FACTOR:g}")
+    return "\n".join(text) + "\n"
+
+
+def write_budgets(out_dir: str | pathlib.Path, path: str | pathlib.Path, margin: float,
+                  se_multiple: float = DEFAULT_SE_MULTIPLE) -> int:
+    """Write :func:`derive_budgets` to ``path`` in one rename; the number of rules written."""
+    text = derive_budgets(out_dir, margin, se_multiple)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return text.count("[[rule]]")

@@ -24,6 +24,12 @@ protocol = "lab-reinhard-v1"
 """
 
 
+def rule(scene: str, estimator: str, *limits: str, name: str = "r") -> str:
+    """One [[rule]] at spp 16 with the given limit lines."""
+    return (f'\n[[rule]]\nname = "{name}"\nscene = "{scene}"\nestimator = "{estimator}"\n'
+            f"spp = 16\n" + "\n".join(limits) + "\n")
+
+
 def configured(**changes) -> dict:
     return {"width": 48, "height": 48, "env_res": 32} | changes
 
@@ -57,28 +63,17 @@ def check(run_dir: Path, text: str, capsys) -> tuple[int, str, str]:
                                                ("scene", "sphere-snu", "sphere-sun")])
 def test_a_typo_in_a_rule_exits_2_with_did_you_mean(run_dir, capsys, key, typo, meant):
     names = {"scene": "sphere-sun", "estimator": "uniform"} | {key: typo}
-    status, out, err = check(run_dir, CONFIGURATION + f"""
-[[rule]]
-name = "typo"
-scene = "{names['scene']}"
-estimator = "{names['estimator']}"
-spp = 16
-max_rel_mse = 1.0
-""", capsys)
+    status, out, err = check(run_dir, CONFIGURATION + rule(names["scene"], names["estimator"],
+                                                           "max_rel_mse = 1.0", name="typo"),
+                             capsys)
     assert status == 2, out + err
     assert f"did you mean '{meant}'?" in err and "typo" in err and typo in err, err
     assert out == ""
 
 
 def test_max_flicker_on_a_static_scene_is_not_applicable(run_dir, capsys):
-    status, out, err = check(run_dir, CONFIGURATION + """
-[[rule]]
-name = "steady"
-scene = "*"
-estimator = "uniform"
-spp = 16
-max_flicker = 1.0
-""", capsys)
+    status, out, err = check(run_dir, CONFIGURATION + rule("*", "uniform", "max_flicker = 1.0",
+                                                           name="steady"), capsys)
     assert status == 0, out + err
     lines = {line.split()[1]: line for line in out.splitlines() if line.startswith("steady ")}
     assert "n/a: static scene (no flicker)" in lines["sphere-sun"], out
@@ -93,13 +88,8 @@ max_flicker = 1.0
                                     ("max_time_ratio = { baseline = 'uniform', max = 2 }",
                                      "max_mean_delta_e76 = 1.0\nmin_mean_delta_e76 = 1.5")])
 def test_a_minimum_above_the_maximum_exits_2_naming_the_rule(run_dir, capsys, limits):
-    status, out, err = check(run_dir, CONFIGURATION + """
-[[rule]]
-name = "impossible"
-scene = "sphere-sun"
-estimator = "balanced"
-spp = 16
-""" + "\n".join(limits) + "\n", capsys)
+    status, out, err = check(run_dir, CONFIGURATION + rule("sphere-sun", "balanced", *limits,
+                                                           name="impossible"), capsys)
     assert status == 2, out + err
     assert "impossible" in err and "min" in err and "max" in err, err
 
@@ -115,13 +105,8 @@ def test_results_of_another_configuration_are_refused(tmp_path, capsys, change, 
     out_dir = tmp_path / "run"
     out_dir.mkdir()
     write_results(out_dir, rows)
-    status, out, err = check(out_dir, CONFIGURATION + """
-[[rule]]
-scene = "sphere-sun"
-estimator = "uniform"
-spp = 16
-max_rel_mse = 1.0
-""", capsys)
+    status, out, err = check(out_dir, CONFIGURATION
+                             + rule("sphere-sun", "uniform", "max_rel_mse = 1.0"), capsys)
     assert status == 2, out + err
     assert "configuration" in err and all(word in err for word in named), err
 
@@ -131,24 +116,13 @@ def test_results_with_another_seed_count_are_refused(tmp_path, capsys):
     out_dir.mkdir()
     write_results(out_dir, [row("sphere-sun", "uniform", 16, seed=seed, **configured())
                             for seed in range(5)])
-    status, out, err = check(out_dir, CONFIGURATION + """
-[[rule]]
-scene = "sphere-sun"
-estimator = "uniform"
-spp = 16
-max_rel_mse = 1.0
-""", capsys)
+    status, out, err = check(out_dir, CONFIGURATION
+                             + rule("sphere-sun", "uniform", "max_rel_mse = 1.0"), capsys)
     assert status == 2 and "seeds" in err and "5" in err, out + err
 
 
 def test_a_budgets_file_without_its_configuration_is_refused(run_dir, capsys):
-    status, out, err = check(run_dir, """
-[[rule]]
-scene = "sphere-sun"
-estimator = "uniform"
-spp = 16
-max_rel_mse = 1.0
-""", capsys)
+    status, out, err = check(run_dir, rule("sphere-sun", "uniform", "max_rel_mse = 1.0"), capsys)
     assert status == 2 and "[configuration]" in err, out + err
 
 
@@ -159,13 +133,8 @@ def test_the_value_is_the_mean_over_seeds_with_its_interval(tmp_path, capsys):
     out_dir.mkdir()
     write_results(out_dir, [row("s", "a", 16, seed=seed, mean_delta_e76=value, **configured())
                             for seed, value in enumerate((1.0, 2.0, 6.0))])
-    status, out, err = check(out_dir, CONFIGURATION.replace("seeds = 2", "seeds = 3") + """
-[[rule]]
-scene = "s"
-estimator = "a"
-spp = 16
-max_mean_delta_e76 = 3.5
-""", capsys)
+    status, out, err = check(out_dir, CONFIGURATION.replace("seeds = 2", "seeds = 3")
+                             + rule("s", "a", "max_mean_delta_e76 = 3.5"), capsys)
     assert status == 0, out + err
     line = next(line for line in out.splitlines() if "mean_delta_e76" in line)
     assert re.search(r"\b3\s+± 6.6\s", line), line
