@@ -1,8 +1,15 @@
 """CI error budgets: ``iblbench check DIR --budgets budgets.toml``.
 
-A budgets file is TOML with one ``[[rule]]`` table per rule. A rule picks cells of the results
-table (``DIR/results.parquet``, DESIGN §6) by scene glob, estimator glob and spp, and sets limits
-on them::
+A budgets file is TOML with the ``[configuration]`` the budgets were made for and one
+``[[rule]]`` table per rule. A rule picks cells of the results table (``DIR/results.parquet``,
+DESIGN §6) by scene glob, estimator glob and spp, and sets limits on them::
+
+    [configuration]              # required: what the budgets were measured on
+    width = 48                   # the image size and cube face size of every row (``--res``,
+    height = 48                  #   ``--env-res``: the effective sizes of the results table)
+    env_res = 32
+    seeds = 2                    # seeds per cell (``--seeds``)
+    protocol = "lab-reinhard-v1" # the scoring protocol (harness/metrics.py PROTOCOL)
 
     [[rule]]
     name = "sun-mis-64"          # optional; shown in the output (default: "scene estimator spp=N")
@@ -24,37 +31,66 @@ results table* (``metric`` is one of the time columns: time_ms, the cell's devic
 frame of :mod:`iblbench.harness.timing`, the default; time_ms_min, time_ms_iqr,
 time_ms_build, time_ms_sample, time_ms_shade, time_ms_host). Absolute times cannot be budgeted:
 they are too noisy across machines.
-Any other key is an error (exit 2), so a typo never silently disables a limit.
+``max_flicker``/``min_flicker`` judge a sequence over its frames after the first (the first
+has no previous frame, so its flicker is NaN by definition); on a static scene (one frame) the
+check is shown as ``n/a: static scene (no flicker)`` and neither passes nor fails the run.
+Any other key is an error (exit 2), so a typo never silently disables a limit, and so is a
+``min_<metric>`` above the rule's ``max_<metric>`` (no value could pass).
 
 What is compared. Only equal-spp rows count: rows with a ``time_budget_ms`` (equal-time cells,
-whose spp is whatever fitted the budget on that device) are left out. Rows are grouped into cells by (scene, estimator, spp). A cell's value for a
-``max_``/``min_`` limit is the **mean over its rows** (its frames × seeds); a NaN in any row makes
-the value NaN, and NaN always fails. ``nonfinite`` is the sum over the rows. The time ratio is a
+whose spp is whatever fitted the budget on that device) are left out. Rows are grouped into
+cells by (scene, estimator, spp). A cell's value for a ``max_``/``min_`` limit is the one
+aggregation of :mod:`iblbench.harness.stats`: each seed's mean over its frames, then
+:func:`~iblbench.harness.stats.mean_ci` over the seeds (the mean, with its 95% Student-t interval
+printed beside it in the ``ci95`` column as ``± half-width``). The bound is compared with the
+mean; a NaN in any row makes the value NaN, and NaN always fails. ``nonfinite`` is the sum over the rows. The time ratio is a
 ratio of the two cells' times (:func:`iblbench.harness.timing.median_time`: the **median over
 the rows**, frames × seeds), the same time the report and ``iblbench run`` print; both times are
 shown beside the ratio.
+
+Configuration. ``check`` refuses (exit 2, naming what differs) results whose rows were made at
+another width, height, env_res or protocol than the budgets' ``[configuration]``, or whose seed
+count differs from its ``seeds``: a budget holds only for the configuration it was measured on.
+A checked cell with another seed count (a run cut short) FAILs (``seeds``).
+
+Typos. A rule's scene or estimator without glob characters that names nothing in the table and no
+registered estimator or built-in scene, but is close to a name in the table
+(:func:`difflib.get_close_matches`), is a typo: exit 2 with "did you mean '...'?". A registered
+name absent from the table is a missing cell (below).
 
 Fail closed. The cells a rule expects are (every scene in the table matching its scene glob) ×
 (every estimator in the table matching its estimator glob) × (each of its spp). A rule whose globs
 match nothing, an expected cell absent from the table, and a time ratio whose baseline cell is
 absent all FAIL; nothing is skipped.
 
-Output: one line per rule × cell × limit (rule, scene, estimator, spp, metric, value, budget,
-result), then a one-line verdict that names the failing rules. Exit status: 0 when every check
-passes, 1 when any fails, 2 on bad input (no results table, unreadable table, missing or invalid
-budgets file).
+Output: one line per rule × cell × limit (rule, scene, estimator, spp, metric, value, ci95,
+budget, result: PASS, FAIL or n/a), then a one-line verdict that names the failing rules. Exit
+status: 0 when no check fails, 1 when any fails, 2 on bad input (no results table, unreadable
+table, missing or invalid budgets file, a typo, contradictory limits, another configuration).
+
+Deriving budgets. ``iblbench budgets DIR --margin M [--se-multiple K]`` (:func:`write_budgets`)
+writes a budgets file, in one rename, from a run of at least :data:`MIN_SEEDS` seeds per cell:
+the run's ``[configuration]``, one rule per equal-spp cell, each bound the measured mean over
+seeds ± K standard errors ± M·mean on both sides (shapes in :data:`BUDGETS_HEADER`, which heads
+the file), and the measured mean, se and interval in each bound's comment.
 """
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import fnmatch
+import glob
+import json
 import math
 import pathlib
 
+import numpy as np
 import pandas as pd
 
-from iblbench.harness.results import METRIC_COLUMNS, load_table
+from iblbench.harness.results import METRIC_COLUMNS, load_table, read_manifest
+from iblbench.harness.stats import mean_ci
 from iblbench.harness.timing import COLUMNS as TIME_COLUMNS, TIME, median_time
+from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.tomlfile import read_toml
 
@@ -66,7 +102,22 @@ LIMIT_KEYS = tuple([f"max_{m}" for m in QUALITY_METRICS] + [f"min_{m}" for m in 
                    + ["nonfinite", "max_time_ratio"])
 RULE_KEYS = ("name", "scene", "estimator", "spp") + LIMIT_KEYS
 TIME_RATIO_KEYS = ("baseline", "metric", "max")
-OUTPUT_COLUMNS = ["rule", "scene", "estimator", "spp", "metric", "value", "budget", "result"]
+OUTPUT_COLUMNS = ["rule", "scene", "estimator", "spp", "metric", "value", "ci95", "budget",
+                  "result"]
+CONFIGURATION_KEYS = {"width": int, "height": int, "env_res": int, "seeds": int, "protocol": str}
+IMAGE_KEYS = ("width", "height", "env_res", "protocol")   # one value per row of the table
+GLOB_CHARACTERS = "*?["
+STATIC = "n/a: static scene (no flicker)"
+
+
+@dataclasses.dataclass(frozen=True)
+class Configuration:
+    """What a budgets file was measured on (its ``[configuration]`` table)."""
+    width: int
+    height: int
+    env_res: int
+    seeds: int
+    protocol: str
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,6 +173,12 @@ def _parse_rule(path, index: int, table) -> Rule:
     for key in LIMIT_KEYS:
         if key in table and key[:4] in ("max_", "min_") and key != "max_time_ratio":
             bounds.append((key[4:], key[:3], _number(path, where, key, table[key])))
+    limits = {(metric, kind): limit for metric, kind, limit in bounds}
+    for metric in QUALITY_METRICS:
+        low, high = limits.get((metric, "min")), limits.get((metric, "max"))
+        if low is not None and high is not None and low > high:
+            raise InputError(path, f"{where}: min_{metric} = {low:g} is above max_{metric} = "
+                                   f"{high:g}; no value can pass")
     nonfinite = table.get("nonfinite")
     if nonfinite is not None and (isinstance(nonfinite, bool) or not isinstance(nonfinite, int)
                                   or nonfinite < 0):
@@ -157,18 +214,44 @@ def _parse_rule(path, index: int, table) -> Rule:
                 nonfinite, time_ratio)
 
 
-def load_budgets(path: str | pathlib.Path) -> list[Rule]:
-    """The rules of a budgets file; :class:`InputError` naming the file if it is missing or bad."""
+def _parse_configuration(path, table) -> Configuration:
+    if not isinstance(table, dict):
+        raise InputError(path, "no [configuration] table: budgets hold only for the width, "
+                               f"height, env_res, seeds and protocol they were measured on")
+    keys = set(CONFIGURATION_KEYS)
+    if set(table) != keys:
+        raise InputError(path, f"[configuration] needs exactly {', '.join(CONFIGURATION_KEYS)}; "
+                               f"missing {sorted(keys - set(table))}, "
+                               f"unknown {sorted(set(table) - keys)}")
+    for key, kind in CONFIGURATION_KEYS.items():
+        value = table[key]
+        if (isinstance(value, bool) or not isinstance(value, kind)
+                or (kind is int and value < 1) or (kind is str and not value)):
+            raise InputError(path, f"[configuration] '{key}' must be a "
+                                   f"{'positive integer' if kind is int else 'non-empty string'}, "
+                                   f"got {value!r}")
+    return Configuration(**table)
+
+
+def read_budgets(path: str | pathlib.Path) -> tuple[Configuration, list[Rule]]:
+    """The configuration and rules of a budgets file; :class:`InputError` naming the file if it
+    is missing or bad."""
     path = pathlib.Path(path)
     document = read_toml(path, "budgets file")
-    unknown = sorted(set(document) - {"rule"})
+    unknown = sorted(set(document) - {"rule", "configuration"})
     if unknown:
         raise InputError(path, f"unknown top-level key(s) {', '.join(map(repr, unknown))}; "
-                               "a budgets file holds only [[rule]] tables")
+                               "a budgets file holds a [configuration] and [[rule]] tables")
     rules = document.get("rule")
     if not isinstance(rules, list) or not rules:
         raise InputError(path, "no [[rule]] tables")
-    return [_parse_rule(path, index, table) for index, table in enumerate(rules, start=1)]
+    rules = [_parse_rule(path, index, table) for index, table in enumerate(rules, start=1)]
+    return _parse_configuration(path, document.get("configuration")), rules
+
+
+def load_budgets(path: str | pathlib.Path) -> list[Rule]:
+    """The rules of a budgets file (:func:`read_budgets`)."""
+    return read_budgets(path)[1]
 
 
 # --- reading the results -------------------------------------------------------------------------
@@ -186,19 +269,89 @@ def _fmt(value: float) -> str:
     return "nan" if value is None or not math.isfinite(value) else f"{value:.4g}"
 
 
-def evaluate(rules: list[Rule], table: pd.DataFrame) -> pd.DataFrame:
-    """One row per rule × expected cell × limit: value, budget and PASS/FAIL (see module doc)."""
-    if "time_budget_ms" in table.columns:   # equal-time cells are not budgeted (module doc)
-        table = table[table["time_budget_ms"].isna()]
+def equal_spp_rows(table: pd.DataFrame) -> pd.DataFrame:
+    """The rows budgets judge: equal-time cells are left out (module doc)."""
+    if "time_budget_ms" in table.columns:
+        return table[table["time_budget_ms"].isna()]
+    return table
+
+
+def configuration_differences(configuration: Configuration, table: pd.DataFrame) -> list[str]:
+    """What differs between the (equal-spp) rows of ``table`` and the budgets' configuration,
+    one phrase each; empty when they agree (an empty table agrees with anything)."""
+    table = equal_spp_rows(table)
+    if table.empty:
+        return []
+    differences = []
+    for key in IMAGE_KEYS:
+        expected = getattr(configuration, key)
+        found = (sorted({str(v) for v in table[key].dropna()}) if key in table.columns else [])
+        if found != [str(expected)]:
+            differences.append(f"{key} {', '.join(found) or 'not recorded'} (budgets: {expected})")
+    seeds = table["seed"].nunique() if "seed" in table.columns else 0
+    if seeds != configuration.seeds:
+        differences.append(f"seeds {seeds} (budgets: {configuration.seeds})")
+    return differences
+
+
+def _known_names() -> set[str]:
+    """Registered estimators and built-in scenes: a rule naming one is never a typo."""
+    from iblbench.estimators.registry import estimator_names
+    from iblbench.scenes.registry import scene_names
+
+    return set(estimator_names()) | set(scene_names())
+
+
+def typos(rules: list[Rule], table: pd.DataFrame) -> list[str]:
+    """"rule R: estimator 'unifrom' is in no result; did you mean 'uniform'?" for each plain
+    (glob-free) scene or estimator name of a rule that the table lacks, that is no registered
+    name, and that is close to a name in the table (module doc)."""
+    known = None
+    found = []
+    for rule in rules:
+        for column in ("scene", "estimator"):
+            name = getattr(rule, column)
+            names = sorted(table[column].astype(str).unique()) if len(table) else []
+            if any(c in name for c in GLOB_CHARACTERS) or name in names:
+                continue
+            close = difflib.get_close_matches(name, names, n=1)
+            known = _known_names() if known is None and close else known
+            if close and name not in known:
+                found.append(f"rule '{rule.name}': {column} '{name}' is in no result; "
+                             f"did you mean '{close[0]}'?")
+    return found
+
+
+def _seed_values(rows: pd.DataFrame, metric: str) -> pd.Series:
+    """Each seed's mean over its frames (NaN if any frame's is); for flicker, over the frames
+    after the first, which has no previous frame."""
+    if metric == "flicker":
+        rows = rows[rows["frame"] != rows["frame"].min()]
+    return rows.groupby("seed")[metric].apply(lambda v: v.astype(float).mean(skipna=False))
+
+
+def _interval(seeds: pd.Series) -> tuple[float, str]:
+    """The mean over seeds and its 95% interval as ``± half-width`` (:func:`mean_ci`)."""
+    ci = mean_ci(seeds.to_numpy())
+    if not math.isfinite(ci.mean):
+        return ci.mean, ""
+    return ci.mean, f"± {ci.half_width:.2g}" if ci.resolved else f"(n={ci.n}, no interval)"
+
+
+def evaluate(rules: list[Rule], table: pd.DataFrame,
+             seeds: int | None = None) -> pd.DataFrame:
+    """One row per rule × expected cell × limit: value, interval, budget and PASS/FAIL/n/a (see
+    module doc); with ``seeds``, a cell with another seed count FAILs."""
+    table = equal_spp_rows(table)
     groups = {key: rows for key, rows in table.groupby(CELL, sort=True)} if len(table) else {}
     scenes = sorted(table["scene"].astype(str).unique()) if len(table) else []
     estimators = sorted(table["estimator"].astype(str).unique()) if len(table) else []
     out: list[dict] = []
 
-    def emit(rule, scene, estimator, spp, metric, value, budget, ok):
+    def emit(rule, scene, estimator, spp, metric, value, budget, ok, ci95=""):
         out.append({"rule": rule.name, "scene": scene, "estimator": estimator, "spp": spp,
-                    "metric": metric, "value": value, "budget": budget,
-                    "result": "PASS" if ok else "FAIL"})
+                    "metric": metric, "value": value, "ci95": ci95, "budget": budget,
+                    "result": ok if isinstance(ok, str) else "PASS" if ok else "FAIL"})
 
     for rule in rules:
         rule_scenes = [s for s in scenes if fnmatch.fnmatchcase(s, rule.scene)]
@@ -216,12 +369,19 @@ def evaluate(rules: list[Rule], table: pd.DataFrame) -> pd.DataFrame:
                     if rows is None:
                         emit(rule, scene, estimator, spp, "cell", "missing", "present", False)
                         continue
+                    n_seeds = rows["seed"].nunique()
+                    if seeds is not None and n_seeds != seeds:
+                        emit(rule, scene, estimator, spp, "seeds", str(n_seeds), f"== {seeds}",
+                             False)
                     for metric, kind, limit in rule.bounds:
-                        value = float(rows[metric].astype(float).mean(skipna=False))
+                        budget = f"{'<=' if kind == 'max' else '>='} {limit:.4g}"
+                        if metric == "flicker" and rows["frame"].nunique() < 2:
+                            emit(rule, scene, estimator, spp, metric, STATIC, budget, "n/a")
+                            continue
+                        value, ci95 = _interval(_seed_values(rows, metric))
                         ok = math.isfinite(value) and (value <= limit if kind == "max"
                                                        else value >= limit)
-                        emit(rule, scene, estimator, spp, metric, _fmt(value),
-                             f"{'<=' if kind == 'max' else '>='} {limit:.4g}", ok)
+                        emit(rule, scene, estimator, spp, metric, _fmt(value), budget, ok, ci95)
                     if rule.nonfinite is not None:
                         count = rows["nonfinite"].astype(float).sum(skipna=False)
                         ok = math.isfinite(count) and count <= rule.nonfinite
@@ -246,10 +406,12 @@ def evaluate(rules: list[Rule], table: pd.DataFrame) -> pd.DataFrame:
 
 
 def verdict(checks: pd.DataFrame) -> str:
-    failed = checks[checks["result"] != "PASS"]
+    failed = checks[checks["result"] == "FAIL"]
     rules = checks["rule"].nunique()
     if failed.empty:
-        return f"check: PASS, all {len(checks)} checks of {rules} rules within budget"
+        skipped = (checks["result"] == "n/a").sum()
+        return (f"check: PASS, all {len(checks) - skipped} checks of {rules} rules within budget"
+                + (f" ({skipped} n/a)" if skipped else ""))
     names = list(dict.fromkeys(failed["rule"]))
     return (f"check: FAIL, {len(failed)} of {len(checks)} checks failed, in rule(s): "
             + "; ".join(names))
@@ -257,7 +419,166 @@ def verdict(checks: pd.DataFrame) -> str:
 
 def check(out_dir: str | pathlib.Path, budgets: str | pathlib.Path) -> tuple[pd.DataFrame, str, int]:
     """Evaluate ``budgets`` on ``out_dir``'s results: (checks table, verdict line, exit status)."""
-    rules = load_budgets(budgets)
+    configuration, rules = read_budgets(budgets)
     table = load_results(out_dir)
-    checks = evaluate(rules, table)
-    return checks, verdict(checks), 0 if (checks["result"] == "PASS").all() else 1
+    differences = configuration_differences(configuration, table)
+    if differences:
+        raise InputError(out_dir, f"results of another configuration than {budgets} was made "
+                                  f"for: {'; '.join(differences)}")
+    mistakes = typos(rules, equal_spp_rows(table))
+    if mistakes:
+        raise InputError(budgets, "; ".join(mistakes))
+    checks = evaluate(rules, table, configuration.seeds)
+    return checks, verdict(checks), 0 if (checks["result"] != "FAIL").all() else 1
+
+
+# --- deriving budgets from a run: ``iblbench budgets DIR --margin M`` -----------------------------
+
+MIN_SEEDS = 8          # issue 11: a 2-seed budget passed or failed at random
+DEFAULT_SE_MULTIPLE = 3.0
+DERIVED_METRICS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "flicker",
+                   "effective_ratio", "evaluations")
+TIME_BASELINE = "uniform"
+TIME_METRIC = "time_ms_shade"
+TIME_FACTOR = 3.0      # the time ratio's margin: a ratio swung ×2 under load (budgets.toml)
+USED_SLACK = 0.01      # used samples in [spp − 1%, spp]: an analytic bound, not a measured one
+
+BUDGETS_HEADER = """\
+# Error budgets made by `iblbench budgets {dir} --margin {margin:g} --se-multiple {k:g}`
+# (harness/budgets.py; checked by `iblbench check DIR --budgets FILE`). Do not edit by hand:
+# rerun the command on a fresh multi-seed run of the [configuration] below.
+#
+# Run: {seeds} seeds per cell, git revision {revision}, device {device}.
+# Each cell's value is the mean over seeds of each seed's mean over its frames; the measured
+# mean, its standard error (se) and 95% Student-t interval are in the comment of each bound.
+# Both sides are bounded:
+# - ΔE76, ΔE2000, relMSE, FLIP, flicker, effective ratio, evaluations:
+#   mean ± {k:g}·se ± {margin:g}·mean (the se covers a rerun's seed noise, the margin stated
+#   changes of the sample streams), lower bounds at least 0, the effective ratio at most 1;
+#   rounded outward to 4 significant digits;
+# - used samples in [spp − 1%, spp] where the run measured it there (the strategies' ticks sum
+#   to the budget: more is an overrun, less a dropped strategy), else as the metrics above;
+# - nonfinite = 0 (the run had none: budgets are not made from a run with NaN/Inf pixels);
+# - time only as a ratio to `{baseline}` in the same run, same scene and spp: medians of
+#   {time_metric}, at most {time_factor:g}× the measured ratio (absolute times are not budgeted).
+"""
+
+
+def _outward(value: float, up: bool) -> float:
+    """``value`` rounded to 4 significant digits away from the measured mean (up for a maximum),
+    so the bound written never excludes what was measured."""
+    if value == 0 or not math.isfinite(value):
+        return value
+    quantum = 10.0 ** (math.floor(math.log10(abs(value))) - 3)
+    rounded = float(f"{(math.ceil if up else math.floor)(value / quantum) * quantum:.4g}")
+    while (rounded < value) if up else (rounded > value):   # the decimal text rounded back
+        rounded = float(f"{rounded + (quantum if up else -quantum):.4g}")
+    return rounded
+
+
+def _single(table: pd.DataFrame, column: str, out_dir) -> object:
+    values = table[column].dropna().unique() if column in table.columns else []
+    if len(values) != 1:
+        raise InputError(out_dir, f"results hold {len(values) or 'no'} {column} values "
+                                  f"({', '.join(map(str, values))}); budgets are made from one "
+                                  "configuration")
+    value = values[0]
+    return value.item() if hasattr(value, "item") else value
+
+
+def _measured_bounds(rows: pd.DataFrame, metric: str, margin: float, k: float) -> list[str]:
+    """``min_``/``max_`` lines: the mean over seeds ± k·se ± margin·mean, outward, with the
+    measured values in the comment; none for a metric the run left out (NaN)."""
+    seeds = _seed_values(rows, metric).to_numpy(dtype=float)
+    if not np.isfinite(seeds).all():
+        return []
+    ci = mean_ci(seeds)
+    se = ci.sd / math.sqrt(ci.n)
+    measured = f"measured {ci.mean:.6g}, se {se:.3g}, 95% [{ci.low:.6g}, {ci.high:.6g}]"
+    low = max(0.0, ci.mean - k * se - margin * abs(ci.mean))
+    high = ci.mean + k * se + margin * abs(ci.mean)
+    if metric == "effective_ratio":
+        high = min(1.0, high)
+    return [f"min_{metric} = {_outward(low, up=False)!r}  # {measured}",
+            f"max_{metric} = {_outward(high, up=True)!r}  # {measured}"]
+
+
+def _bound_lines(rows: pd.DataFrame, spp: int, margin: float, k: float) -> list[str]:
+    lines = []
+    for metric in DERIVED_METRICS:
+        if metric != "flicker" or rows["frame"].nunique() > 1:   # a static scene has none
+            lines += _measured_bounds(rows, metric, margin, k)
+    used = rows["used_samples"].astype(float)
+    if not used.between(spp * (1 - USED_SLACK), spp).all():
+        return lines + _measured_bounds(rows, "used_samples", margin, k)
+    return lines + [f"min_used_samples = {spp * (1 - USED_SLACK):.6g}  # spp - 1%: measured "
+                    f"{used.min():.6g}..{used.max():.6g}",
+                    f"max_used_samples = {spp}  # the budget, spp"]
+
+
+def derive_budgets(out_dir: str | pathlib.Path, margin: float,
+                   se_multiple: float = DEFAULT_SE_MULTIPLE) -> str:
+    """The text of a budgets file for the equal-spp cells of ``out_dir``'s run (module doc,
+    :data:`BUDGETS_HEADER`); :class:`InputError` for fewer than :data:`MIN_SEEDS` seeds in a
+    cell, non-finite pixels, mixed configurations or a bad margin."""
+    if not (math.isfinite(margin) and margin >= 0 and math.isfinite(se_multiple)
+            and se_multiple >= 0):
+        raise InputError(None, f"--margin and --se-multiple must be finite and >= 0, got "
+                               f"{margin!r} and {se_multiple!r}")
+    out_dir = pathlib.Path(out_dir)
+    table = equal_spp_rows(load_results(out_dir))
+    if table.empty:
+        raise InputError(out_dir, "no equal-spp results to make budgets from")
+    cells = table.groupby(CELL, sort=True)
+    seeds = cells["seed"].nunique()
+    if seeds.min() < MIN_SEEDS:
+        scene, estimator, spp = seeds.idxmin()
+        raise InputError(out_dir, f"{scene} {estimator} spp={spp} has {seeds.min()} seed(s); "
+                                  f"budgets need at least {MIN_SEEDS} (rerun with --seeds "
+                                  f"{MIN_SEEDS})")
+    broken = cells["nonfinite"].sum()
+    if (broken > 0).any():
+        cells_hit = ", ".join(map(str, broken[broken > 0].index))
+        raise InputError(out_dir, f"non-finite pixels in {cells_hit}; budgets are not made "
+                                  "from a broken run")
+    configuration = Configuration(
+        width=int(_single(table, "width", out_dir)), height=int(_single(table, "height", out_dir)),
+        env_res=int(_single(table, "env_res", out_dir)), seeds=int(seeds.max()),
+        protocol=str(_single(table, "protocol", out_dir)))
+    if seeds.nunique() != 1:
+        raise InputError(out_dir, f"cells hold {seeds.min()} to {seeds.max()} seeds; budgets "
+                                  "are made from one seed count (finish the run)")
+    manifest = read_manifest(out_dir)
+    device = manifest.get("device", {})
+    text = [BUDGETS_HEADER.format(
+        dir=out_dir, margin=margin, k=se_multiple, seeds=configuration.seeds,
+        revision=manifest.get("git_revision", "unknown"),
+        device=device.get("name", "unknown") if isinstance(device, dict) else device,
+        baseline=TIME_BASELINE, time_metric=TIME_METRIC, time_factor=TIME_FACTOR),
+        "[configuration]"]
+    text += [f"{key} = {json.dumps(value)}"
+             for key, value in dataclasses.asdict(configuration).items()]
+    groups = dict(iter(cells))
+    for (scene, estimator, spp), rows in groups.items():
+        text += ["", "[[rule]]", f"name = {json.dumps(f'{scene} {estimator} spp={spp}')}",
+                 f"scene = {json.dumps(glob.escape(scene))}",
+                 f"estimator = {json.dumps(glob.escape(estimator))}", f"spp = {spp}",
+                 "nonfinite = 0  # measured 0"]
+        text += _bound_lines(rows, spp, margin, se_multiple)
+        base = groups.get((scene, TIME_BASELINE, spp))
+        if estimator != TIME_BASELINE and base is not None:
+            ratio = median_time(rows[TIME_METRIC]) / median_time(base[TIME_METRIC])
+            if math.isfinite(ratio) and ratio > 0:
+                text.append(f'max_time_ratio = {{ baseline = "{TIME_BASELINE}", metric = '
+                            f'"{TIME_METRIC}", max = {_outward(TIME_FACTOR * ratio, True)!r} }}'
+                            f"  # measured {ratio:.4g}, x{TIME_FACTOR:g}")
+    return "\n".join(text) + "\n"
+
+
+def write_budgets(out_dir: str | pathlib.Path, path: str | pathlib.Path, margin: float,
+                  se_multiple: float = DEFAULT_SE_MULTIPLE) -> int:
+    """Write :func:`derive_budgets` to ``path`` in one rename; the number of rules written."""
+    text = derive_budgets(out_dir, margin, se_multiple)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return text.count("[[rule]]")

@@ -29,6 +29,7 @@ examples:
   iblbench report runs/a                         runs/a/report/index.html (open it from disk)
   iblbench list devices                          OpenCL platforms/devices and which is chosen
   iblbench check runs/a --budgets budgets.toml   CI gate: exit 1 if any error budget fails
+  iblbench budgets runs/q8 --margin 0.1          budgets.toml from a run of >= 8 seeds
   iblbench stress --out runs/stress              adversarial inputs; exit 1 if an estimator fails
   iblbench perf --out runs/perf                  throughput against the roofline and a NumPy floor
   iblbench compare runs/a runs/b --fail-if 'mean_delta_e76>5%'   B against A, intervals over seeds
@@ -232,6 +233,22 @@ def build_parser() -> argparse.ArgumentParser:
                        help="a run's output directory (holds results.parquet)")
     check.add_argument("--budgets", type=pathlib.Path, default=pathlib.Path("budgets.toml"),
                        metavar="FILE", help="budgets TOML file (default: budgets.toml)")
+
+    make_budgets = commands.add_parser(
+        "budgets", help="write a budgets file from a multi-seed run (>= 8 seeds)",
+        description="Write a fresh budgets file for `check` from DIR's equal-spp cells: each "
+                    "bound is the measured mean over seeds ± K standard errors ± MARGIN × the "
+                    "mean, on both sides, with the run's configuration and the measured values "
+                    "in it (format and bound shapes in harness/budgets.py). Exit 2 on fewer than "
+                    "8 seeds per cell.")
+    make_budgets.add_argument("dir", type=pathlib.Path, metavar="DIR",
+                              help="a run's output directory (holds results.parquet)")
+    make_budgets.add_argument("--margin", type=float, required=True, metavar="M",
+                              help="relative margin beyond the standard errors, e.g. 0.1 for 10%%")
+    make_budgets.add_argument("--se-multiple", type=float, metavar="K",
+                              help="standard errors of the mean on each side (default: 3)")
+    make_budgets.add_argument("--output", type=pathlib.Path, default=pathlib.Path("budgets.toml"),
+                              metavar="FILE", help="file to write (default: budgets.toml)")
 
     stress = commands.add_parser(
         "stress", help="run the adversarial input battery: exit 0 when every estimator passes it, "
@@ -577,6 +594,14 @@ def _check(args) -> int:
     return status
 
 
+def _budgets(args) -> None:
+    from iblbench.harness.budgets import write_budgets
+
+    extra = {} if args.se_multiple is None else {"se_multiple": args.se_multiple}
+    rules = write_budgets(args.dir, args.output, args.margin, **extra)
+    print(f"wrote {rules} rules to {args.output}")
+
+
 def _report(args) -> None:
     from iblbench.reports.report import write_report
 
@@ -622,7 +647,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         status = {"run": _run, "reproduce": _reproduce, "list": _list,
-                  "check": _check, "report": _report, "stress": _stress,
+                  "check": _check, "budgets": _budgets, "report": _report, "stress": _stress,
                   "perf": _perf, "compare": _compare,
                   "selftest": _selftest}[args.command](args)
     except (InputError, OSError) as error:

@@ -133,7 +133,8 @@ def row(scene, estimator, spp, seed=0, frame=0, **metrics) -> dict:
               "used_samples": spp, "effective_samples": spp * 0.8, "effective_ratio": 0.8,
               "evaluations": spp, "nonfinite": 0, "time_ms": 3.0, "time_ms_min": 3.0,
               "time_ms_iqr": 0.0, "time_ms_build": 1.0, "time_ms_sample": 1.0,
-              "time_ms_shade": 1.0, "time_ms_host": 2.0, "time_repeats": 5, "metrics": "de76"}
+              "time_ms_shade": 1.0, "time_ms_host": 2.0, "time_repeats": 5, "metrics": "de76",
+              "width": 48, "height": 48, "env_res": 32}
     values.update(metrics)
     return {column: None for column in COLUMNS} | values | {
         "scene": scene, "estimator": estimator, "spp": spp, "seed": seed, "frame": frame,
@@ -159,9 +160,16 @@ def results_dir(tmp_path) -> Path:
     return out
 
 
-def run_check(results_dir: Path, budgets_text: str, capsys) -> tuple[int, pd.DataFrame, str, str]:
+def configuration(seeds: int) -> str:
+    """The [configuration] of the synthetic tables: row()'s sizes and protocol."""
+    return (f"[configuration]\nwidth = 48\nheight = 48\nenv_res = 32\nseeds = {seeds}\n"
+            "protocol = 'lab-reinhard-v1'\n")
+
+
+def run_check(results_dir: Path, budgets_text: str, capsys,
+              seeds: int = 2) -> tuple[int, pd.DataFrame, str, str]:
     budgets = results_dir.parent / "budgets.toml"
-    budgets.write_text(budgets_text, encoding="utf-8")
+    budgets.write_text(configuration(seeds) + budgets_text, encoding="utf-8")
     status = cli.main(["check", str(results_dir), "--budgets", str(budgets)])
     captured = capsys.readouterr()
     checks = evaluate(load_budgets(budgets), pd.read_parquet(results_dir / "results.parquet")) \
@@ -250,14 +258,15 @@ estimator = "slow"
 spp = 16
 max_time_ratio = {{ baseline = "fast", metric = "time_ms_shade", max = {limit} }}
 """
-    status, checks, _, _ = run_check(out_dir, rule.format(limit=2.5), capsys)
+    status, checks, _, _ = run_check(out_dir, rule.format(limit=2.5), capsys, seeds=3)
     assert status == 0 and list(checks.value) == ["2"]   # median 2 / median 1, not mean 13/3
-    status, checks, _, _ = run_check(out_dir, rule.format(limit=1.5), capsys)
+    status, checks, _, _ = run_check(out_dir, rule.format(limit=1.5), capsys, seeds=3)
     assert status == 1 and list(checks.result) == ["FAIL"]
     assert "(2 / 1 ms)" in checks.metric.iloc[0]   # both cells' times beside the ratio
     # The metric defaults to time_ms, the cell's device time per frame: 100 / 100.
     status, checks, _, _ = run_check(
-        out_dir, rule.format(limit=1.01).replace('metric = "time_ms_shade", ', ""), capsys)
+        out_dir, rule.format(limit=1.01).replace('metric = "time_ms_shade", ', ""), capsys,
+        seeds=3)
     assert status == 0 and list(checks.value) == ["1"]
 
 
@@ -271,7 +280,7 @@ scene = "s"
 estimator = "slow"
 spp = 16
 max_time_ratio = { baseline = "fast", max = 100 }
-""", capsys)
+""", capsys, seeds=1)
     assert status == 1 and list(checks.value) == ["baseline missing"]
     assert list(checks.result) == ["FAIL"]
 
@@ -305,7 +314,7 @@ def test_equal_time_rows_are_left_out(tmp_path):
             row("s", "a", 16, mean_delta_e76=9.0) | {"time_budget_ms": 5.0},
             row("s", "b", 16, mean_delta_e76=9.0) | {"time_budget_ms": 5.0}]
     budgets = tmp_path / "b.toml"
-    budgets.write_text("[[rule]]\nscene = 's'\nestimator = '*'\nspp = 16\n"
+    budgets.write_text(configuration(1) + "[[rule]]\nscene = 's'\nestimator = '*'\nspp = 16\n"
                        "max_mean_delta_e76 = 2\n", encoding="utf-8")
     checks = evaluate(load_budgets(budgets), pd.DataFrame(rows))
     # 'a' is judged on its equal-spp row only; 'b' has only an equal-time row, so it is
