@@ -13,8 +13,8 @@ from iblbench.harness.device import Compute, cache_dir, event_ms, kernel_path
 from iblbench.scenes import cubemap
 from iblbench.scenes.atomic import atomic_path
 
-# Sub-cells per lobe width for the specular quadrature (see reference.cl); part of the cache key.
-DEFAULT_DENSITY = 16
+# Quadrature points per lobe width for the specular quadrature (see reference.cl); part of the cache key.
+DEFAULT_DENSITY = 6
 LANES = 8              # texels per vector step of reference.cl: the tables' padding
 CHUNK_PIXELS = 4096    # pixels per enqueue: Ctrl-C stops a reference between chunks
 WORK_GROUP = 64        # pixels per work group, at most: many groups, so every core gets some
