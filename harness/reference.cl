@@ -140,21 +140,6 @@ inline float16 log2_one_minus(float16 s)
     return select(log2_lanes(1.0f - s), (2.0f * 1.44269504088896341f) * t * series, s < 0.25f);
 }
 
-/* r·ω and n·ω over face f as linear forms of the face point (u, v), times √q: the point's
- * direction N + uU + vV (face_uv_to_dir is linear) has orthonormal N, U, V and squared length
- * q = 1 + u² + v².  Each form holds (x·N, x·U, x·V). */
-typedef struct { float3 r, n; } face_forms_t;
-
-inline face_forms_t face_forms(float3 n, float3 r, int face)
-{
-    float3 origin = face_uv_to_dir(face, 0.0f, 0.0f);
-    float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin;
-    float3 along_v = face_uv_to_dir(face, 0.0f, 1.0f) - origin;
-    face_forms_t forms = {(float3)(dot(r, origin), dot(r, along_u), dot(r, along_v)),
-                          (float3)(dot(n, origin), dot(n, along_u), dot(n, along_v))};
-    return forms;
-}
-
 /* The lobe falls below LOBE_CUTOFF beyond angle θ_cut from r: (cos θ_cut, sin θ_cut). */
 inline float2 lobe_cut(float m)
 {
@@ -166,21 +151,37 @@ inline float2 lobe_cut(float m)
  * least 1/CELL_RADIANS (the cosines curve on a scale of 1 rad however wide the lobe). */
 inline float points_per_radian(float m) { return max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS); }
 
-/* Half the side of a square on face plane around the lobe's centre r_w⁻¹(r_u, r_v) that holds
- * every direction within θ_cut of r (none beyond it is above LOBE_CUTOFF), or INFINITY where the
- * cap reaches within 3° of the face's plane: a great-circle path of angle θ from r stays within
- * the angle β + θ of the face's axis W (cos β = r_w), where the face plane stretches lengths by at
- * most 1/cos²(β + θ). */
-inline float lobe_half_box(face_forms_t forms, float m)
+/* r·ω and n·ω over face f as linear forms of the face point (u, v), times √q: the point's
+ * direction N + uU + vV (face_uv_to_dir is linear) has orthonormal N, U, V and squared length
+ * q = 1 + u² + v².  Each form holds (x·N, x·U, x·V).  With them, the lobe's box: its centre g =
+ * r_N⁻¹(r_U, r_V) on the face plane, 1/(1 + |g|²) = r_N²/|r|², and the half side of a square
+ * around g that holds every direction within θ_cut of r (none beyond it is above LOBE_CUTOFF),
+ * or INFINITY where the cap reaches within 3° of the face's plane: a great-circle path of angle
+ * θ from r stays within the angle β + θ of N (cos β = r_N), where the face plane stretches
+ * lengths by at most 1/cos²(β + θ). */
+typedef struct {
+    float3 r, n;
+    float centre_u, centre_v, inverse_centre_q, half_box, inverse_r2;
+    int centred;   /* is g near enough (|r_N| > |r|/10) for sin² from the offset to g? */
+} face_forms_t;
+
+inline face_forms_t face_forms(float3 n, float3 r, float2 cut, int face)
 {
-    float2 cut = lobe_cut(m);
-    float sin_beta = sqrt(max(0.0f, 1.0f - forms.r.x * forms.r.x));
-    float cos_far = forms.r.x * cut.x - sin_beta * cut.y;
-    return cos_far > 0.05f ? atan2(cut.y, cut.x) / (cos_far * cos_far) : INFINITY;
+    float3 origin = face_uv_to_dir(face, 0.0f, 0.0f);
+    float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin;
+    float3 along_v = face_uv_to_dir(face, 0.0f, 1.0f) - origin;
+    float3 form_r = (float3)(dot(r, origin), dot(r, along_u), dot(r, along_v));
+    float cos_beta = form_r.x * rsqrt(dot(r, r)), sin_beta = sqrt(max(0.0f, 1.0f - cos_beta * cos_beta));
+    float cos_far = cos_beta * cut.x - sin_beta * cut.y;
+    face_forms_t forms = {form_r, (float3)(dot(n, origin), dot(n, along_u), dot(n, along_v)),
+                          form_r.y / form_r.x, form_r.z / form_r.x, cos_beta * cos_beta,
+                          cos_far > 0.05f ? atan2(cut.y, cut.x) / (cos_far * cos_far) : INFINITY,
+                          1.0f / dot(r, r), fabs(cos_beta) > 0.1f};
+    return forms;
 }
 
 /* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by a composite Gauss–Legendre rule (2 × 2 points per
- * sub-cell) on the texel's face square, cut down to the lobe's box (lobe_half_box).  The
+ * sub-cell) on the texel's face square, cut down to the lobe's box (face_forms).  The
  * horizon is integrated exactly, not as a kink inside cells: the inner coordinate s is the face
  * axis along which n·ω changes faster, and each row (fixed outer coordinate t) has its sub-cells
  * over only the part of the row above the horizon (the row integral stays C¹ in t: the
@@ -193,8 +194,7 @@ inline float lobe_half_box(face_forms_t forms, float m)
 inline acc_t specular_integral(face_forms_t forms, float m, float density, int row, int col,
                                int res, int cut_by_lobe_plane)
 {
-    float side = 2.0f / res, half_box = lobe_half_box(forms, m);
-    float centre_u = forms.r.y / forms.r.x, centre_v = forms.r.z / forms.r.x;
+    float side = 2.0f / res, half_box = forms.half_box, centre_u = forms.centre_u, centre_v = forms.centre_v;
     float u_lo = -1.0f + side * col, v_lo = -1.0f + side * row, u_hi = u_lo + side, v_hi = v_lo + side;
     if (half_box < INFINITY) {
         u_lo = max(u_lo, centre_u - half_box);
@@ -215,7 +215,6 @@ inline acc_t specular_integral(face_forms_t forms, float m, float density, int r
     int cells_s = swap ? cells_v : cells_u, points_s = 2 * cells_s;
     float step_t = ((swap ? u_hi : v_hi) - t_lo) / (swap ? cells_u : cells_v);
     float per_point_s = 1.0f / points_s, per_cell_s = 1.0f / cells_s;
-    float inverse_centre_q = forms.r.x * forms.r.x / dot(forms.r, forms.r);   /* 1/(1 + |g|²) */
     const float16 lane = (float16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     const float offset = 0.577350269189625765f;   /* Gauss–Legendre nodes 1/2 ± 1/(2√3) */
     acc8_t sum = 0;      /* positive terms */
@@ -239,9 +238,15 @@ inline acc_t specular_integral(face_forms_t forms, float m, float density, int r
         float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z;   /* times √q */
         float16 c_n = forms.n.x + u * forms.n.y + v * forms.n.z;
         /* sin²(r, ω) from the offset δ to the lobe's centre g: (|δ|² + (g × δ)²)/(|g|² + 1)/q,
-         * a sum of squares, where 1 − cos² would cancel to ~1/m of its float precision. */
-        float16 du = u - centre_u, dv = v - centre_v, twist = centre_u * dv - centre_v * du;
-        float16 sin2 = (du * du + dv * dv + twist * twist) * inverse_q * inverse_centre_q;
+         * a sum of squares, where 1 − cos² would cancel to ~1/m of its float precision (which
+         * only lobes wide enough to reach a face from beyond 84° of its axis, m ≲ 150, see). */
+        float16 sin2;
+        if (forms.centred) {
+            float16 du = u - centre_u, dv = v - centre_v, twist = centre_u * dv - centre_v * du;
+            sin2 = (du * du + dv * dv + twist * twist) * inverse_q * forms.inverse_centre_q;
+        } else {
+            sin2 = max(0.0f, 1.0f - c_r * c_r * inverse_q * forms.inverse_r2);
+        }
         float16 term = exp2(0.5f * m * log2_one_minus(sin2)) * max(c_n, 0.0f)
                      * inverse_q * inverse_q * weight;
         term = select((float16)0.0f, term, c_r > 0.0f && step_s > 0.0f && index < count);
@@ -296,7 +301,7 @@ inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cu
     if (cut_by_horizon)
         *cosine = clipped_cosine(n, t / (res * res), (t / res) % res, t % res, res);
     if (specular && in_lobe && (above || cut_by_horizon))
-        *lobe = texel_lobe(n, r, m, face_forms(n, r, t / (res * res)), t, res, sin_a, cr);
+        *lobe = texel_lobe(n, r, m, face_forms(n, r, cut, t / (res * res)), t, res, sin_a, cr);
 }
 
 inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }
@@ -334,7 +339,7 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
     acc_t diffuse[3] = {0, 0, 0}, glossy[3] = {0, 0, 0};   /* the texels taken one by one */
     for (int face = 0; face < 6; ++face) {
         if (face_below(n, face)) continue;
-        face_forms_t forms = face_forms(n, r, face);
+        face_forms_t forms = face_forms(n, r, cut, face);
         int end = (face + 1) * res * res;
         for (int t = face * res * res; t < end; t += LANES) {
             float8 red = PLANE_LANES(env_planes, 0, t, texels), green = PLANE_LANES(env_planes, 1, t, texels),
