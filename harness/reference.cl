@@ -115,6 +115,15 @@ inline acc_t half_space_cosine(float3 n, float3 r, int face, int row, int col, i
     return polygon_cosine(n, both, clip_to_halfspace(by_r, k, REAL3(n), both));
 }
 
+/* log2 x = (2/ln 2)·atanh t for t = (x − 1)/(x + 1), |t| ≤ 0.172, by its series to t^9 (the
+ * next term is below 2^-28 relative, under float rounding). */
+inline float16 log2_of_ratio(float16 t)
+{
+    float16 t2 = t * t;
+    float16 series = 1.0f + t2 * (1.0f / 3.0f + t2 * (1.0f / 5.0f + t2 * (1.0f / 7.0f + t2 * (1.0f / 9.0f))));
+    return (2.0f * 1.44269504088896341f) * t * series;
+}
+
 /* log2 x for positive normal x, without table lookups (PoCL's log2 gathers its table lane by
  * lane): x = 2^e·a with a in [√½, √2), ln a = 2 atanh(t), t = (a − 1)/(a + 1), |t| ≤ 0.172, by
  * its series to t^9 (the next term is below 2^-28 relative, under float rounding).  Relative
@@ -126,18 +135,14 @@ inline float16 log2_lanes(float16 x)
     int16 upper = a > 1.41421356f;                              /* −1 where a ≥ √2 */
     a = select(a, 0.5f * a, upper);
     float16 exponent = convert_float16(((bits >> 23) & 0xff) - 127 - upper);
-    float16 t = (a - 1.0f) / (a + 1.0f), t2 = t * t;
-    float16 series = 1.0f + t2 * (1.0f / 3.0f + t2 * (1.0f / 5.0f + t2 * (1.0f / 7.0f + t2 * (1.0f / 9.0f))));
-    return exponent + (2.0f * 1.44269504088896341f) * t * series;
+    return exponent + log2_of_ratio((a - 1.0f) / (a + 1.0f));
 }
 
 /* log2(1 − s) for s in [0, 1), accurate relative to s where s is small: 2 atanh(t)/ln 2 with
  * t = −s/(2 − s) by log2_lanes's series up to s = 1/4 (|t| ≤ 1/7), log2_lanes(1 − s) above. */
 inline float16 log2_one_minus(float16 s)
 {
-    float16 t = -s / (2.0f - s), t2 = t * t;
-    float16 series = 1.0f + t2 * (1.0f / 3.0f + t2 * (1.0f / 5.0f + t2 * (1.0f / 7.0f + t2 * (1.0f / 9.0f))));
-    return select(log2_lanes(1.0f - s), (2.0f * 1.44269504088896341f) * t * series, s < 0.25f);
+    return select(log2_lanes(1.0f - s), log2_of_ratio(-s / (2.0f - s)), s < 0.25f);
 }
 
 /* The lobe falls below LOBE_CUTOFF beyond angle θ_cut from r: (cos θ_cut, sin θ_cut). */
@@ -211,7 +216,7 @@ inline acc_t specular_integral(face_forms_t forms, float m, float density, int r
     /* s inner, t outer: (u, v) or (v, u); n·ω·√q = a + b_s·s + b_t·t. */
     int swap = fabs(forms.n.z) > fabs(forms.n.y);
     float s_lo = swap ? v_lo : u_lo, s_hi = swap ? v_hi : u_hi, t_lo = swap ? u_lo : v_lo;
-    float b_s = swap ? forms.n.z : forms.n.y, b_t = swap ? forms.n.y : forms.n.z;
+    float b_s = swap ? forms.n.z : forms.n.y, b_t = swap ? forms.n.y : forms.n.z, inverse_b_s = 1.0f / b_s;
     int cells_s = swap ? cells_v : cells_u, points_s = 2 * cells_s;
     float step_t = ((swap ? u_hi : v_hi) - t_lo) / (swap ? cells_u : cells_v);
     float per_point_s = 1.0f / points_s, per_cell_s = 1.0f / cells_s;
@@ -227,7 +232,7 @@ inline acc_t specular_integral(face_forms_t forms, float m, float density, int r
         float16 cell_j = convert_float16(convert_int16((j + 0.5f) * 0.5f)), node_j = j - 2.0f * cell_j;
         float16 t = t_lo + (cell_i + 0.5f + (node_i - 0.5f) * offset) * step_t;
         /* The row's part above the horizon: s ≥ or ≤ −(a + b_t·t)/b_s. */
-        float16 edge = -(forms.n.x + b_t * t) / b_s;
+        float16 edge = -(forms.n.x + b_t * t) * inverse_b_s;
         float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_lo;
         float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_hi;
         float16 step_s = (row_hi - row_lo) * per_cell_s;
@@ -238,8 +243,8 @@ inline acc_t specular_integral(face_forms_t forms, float m, float density, int r
         float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z;   /* times √q */
         float16 c_n = forms.n.x + u * forms.n.y + v * forms.n.z;
         /* sin²(r, ω) from the offset δ to the lobe's centre g: (|δ|² + (g × δ)²)/(|g|² + 1)/q,
-         * a sum of squares, where 1 − cos² would cancel to ~1/m of its float precision (which
-         * only lobes wide enough to reach a face from beyond 84° of its axis, m ≲ 150, see). */
+         * a sum of squares, where 1 − cos² would cancel to ~1/m of its float precision; 1 − cos²
+         * where g is far off, on faces that only lobes with m ≲ 150 reach from beyond 84°. */
         float16 sin2;
         if (forms.centred) {
             float16 du = u - centre_u, dv = v - centre_v, twist = centre_u * dv - centre_v * du;
