@@ -14,7 +14,7 @@ from iblbench.scenes import cubemap
 from iblbench.scenes.atomic import atomic_path
 
 # Quadrature points per lobe width for the specular quadrature (see reference.cl); part of the cache key.
-DEFAULT_DENSITY = 6
+DEFAULT_DENSITY = 4
 LANES = 8              # texels per vector step of reference.cl: the tables' padding
 CHUNK_PIXELS = 4096    # pixels per enqueue: Ctrl-C stops a reference between chunks
 WORK_GROUP = 64        # pixels per work group, at most: many groups, so every core gets some

@@ -227,7 +227,7 @@ def test_twin_rule_is_converged():
 
 DIFFUSE_RTOL = 1e-5            # measured ≤ 1.1e-7 (float32 output) at R = 2, 8, 16
 # The specular part (Gauss–Legendre sub-cells, the horizon cut exactly, sin² without
-# cancellation): measured ≤ 4e-6 at R = 2, 8, 16 for m from 1 to 1e4 (issue 13 §4).
+# cancellation): measured ≤ 1.5e-5 at R = 2, 8, 16 for m from 1 to 1e4 (issue 13 §4).
 SPECULAR_RTOL = RTOL
 
 
