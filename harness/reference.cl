@@ -139,10 +139,12 @@ inline float16 log2_lanes(float16 x)
 }
 
 /* log2(1 − s) for s in [0, 1), accurate relative to s where s is small: 2 atanh(t)/ln 2 with
- * t = −s/(2 − s) by log2_lanes's series up to s = 1/4 (|t| ≤ 1/7), log2_lanes(1 − s) above. */
+ * t = −s/(2 − s) by log2_lanes's series up to s = 1/4 (|t| ≤ 1/7), log2_lanes(1 − s) above
+ * (skipped when no lane needs it: in narrow lobes, none does). */
 inline float16 log2_one_minus(float16 s)
 {
-    return select(log2_lanes(1.0f - s), log2_of_ratio(-s / (2.0f - s)), s < 0.25f);
+    float16 near_one = log2_of_ratio(-s / (2.0f - s));
+    return all(s < 0.25f) ? near_one : select(log2_lanes(1.0f - s), near_one, s < 0.25f);
 }
 
 /* The lobe falls below LOBE_CUTOFF beyond angle θ_cut from r: (cos θ_cut, sin θ_cut). */
