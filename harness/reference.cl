@@ -3,15 +3,16 @@
  * Diffuse part: exact.  ∫_texel cos⁺ dω = n · Φ_t for a texel wholly above the horizon, with
  * Φ_t = ∫_texel ω dω its vector irradiance (Lambert/Arvo polygon formula, precomputed in float64
  * on the host); a texel cut by the horizon is clipped to n·x ≥ 0 and the same formula applied.
- * Specular part: sub-texel midpoint quadrature, with as many sub-cells as the lobe's width
- * asks for (REF_DENSITY sub-cells per lobe width 1/√m across the texel's angular radius, and
- * none wider than CELL_RADIANS: the cosines curve on a scale of 1 rad however wide the lobe),
- * at least 8 where the horizon cuts the texel, and none wider than KINK_CELL_RADIANS where the
- * lobe's own plane r·ω = 0 does for m < 2: the lobe's slope jumps there (from ~(m+2)/(2π) to
- * 0), and the midpoint rule's error per unit length of the kink goes as the sub-cell width
- * squared, so the width, not the count, sets it (up to MAX_CELLS² sub-cells per texel: on faces
- * of R ≤ 8 the cells are wider, 1.4e-3 rad at R = 8, 7.5e-3 at R = 1).  At m = 0 the lobe is the
- * half-space r·ω > 0: exact, by clipping the texel to both planes.
+ * Specular part: a composite 2 × 2 Gauss–Legendre rule on sub-cells of the texel's face square
+ * cut down to the box that holds the lobe (specular_integral), REF_DENSITY points per lobe width
+ * 1/√m and none sparser than 1/CELL_RADIANS a radian (the cosines curve on a scale of 1 rad
+ * however wide the lobe), with the horizon integrated exactly (each row of points spans only its
+ * part above the horizon) and sin²(r, ω) formed as a sum of squares (1 − cos² would lose ~m·1e-7
+ * of the lobe to float cancellation at m = 1e4).  Where the lobe's own plane r·ω = 0 cuts the
+ * texel for m < 2 the lobe's slope jumps: sub-cells there are no wider than KINK_CELL_RADIANS
+ * (up to MAX_CELLS a side).  Measured against tests/test_reference_twin.py's independent
+ * quadrature: ≤ 1.5e-5 relative for m from 1 to 1e4 at R = 2, 8, 16, grazing views.  At m = 0
+ * the lobe is the half-space r·ω > 0: exact, by clipping the texel to both planes.
  * Texels whose bounding cap keeps the lobe below LOBE_CUTOFF of its peak are skipped: their
  * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
  *
@@ -29,7 +30,7 @@
 #define REF_DENSITY 16
 #endif
 #define LOBE_CUTOFF 1e-9f
-#define CELL_RADIANS 0.02f
+#define CELL_RADIANS 0.05f
 #define KINK_CELL_RADIANS 1e-3f
 #define MAX_CELLS 128
 #define LANES 8
@@ -114,6 +115,15 @@ inline acc_t half_space_cosine(float3 n, float3 r, int face, int row, int col, i
     return polygon_cosine(n, both, clip_to_halfspace(by_r, k, REAL3(n), both));
 }
 
+/* log2 x = (2/ln 2)·atanh t for t = (x − 1)/(x + 1), |t| ≤ 0.172, by its series to t^9 (the
+ * next term is below 2^-28 relative, under float rounding). */
+inline float16 log2_of_ratio(float16 t)
+{
+    float16 t2 = t * t;
+    float16 series = 1.0f + t2 * (1.0f / 3.0f + t2 * (1.0f / 5.0f + t2 * (1.0f / 7.0f + t2 * (1.0f / 9.0f))));
+    return (2.0f * 1.44269504088896341f) * t * series;
+}
+
 /* log2 x for positive normal x, without table lookups (PoCL's log2 gathers its table lane by
  * lane): x = 2^e·a with a in [√½, √2), ln a = 2 atanh(t), t = (a − 1)/(a + 1), |t| ≤ 0.172, by
  * its series to t^9 (the next term is below 2^-28 relative, under float rounding).  Relative
@@ -125,59 +135,16 @@ inline float16 log2_lanes(float16 x)
     int16 upper = a > 1.41421356f;                              /* −1 where a ≥ √2 */
     a = select(a, 0.5f * a, upper);
     float16 exponent = convert_float16(((bits >> 23) & 0xff) - 127 - upper);
-    float16 t = (a - 1.0f) / (a + 1.0f), t2 = t * t;
-    float16 series = 1.0f + t2 * (1.0f / 3.0f + t2 * (1.0f / 5.0f + t2 * (1.0f / 7.0f + t2 * (1.0f / 9.0f))));
-    return exponent + (2.0f * 1.44269504088896341f) * t * series;
+    return exponent + log2_of_ratio((a - 1.0f) / (a + 1.0f));
 }
 
-/* r·ω and n·ω over face f as linear forms of the face point (u, v), times √q: the point's
- * direction N + uU + vV (face_uv_to_dir is linear) has orthonormal N, U, V and squared length
- * q = 1 + u² + v².  Each form holds (x·N, x·U, x·V). */
-typedef struct { float3 r, n; } face_forms_t;
-
-inline face_forms_t face_forms(float3 n, float3 r, int face)
+/* log2(1 − s) for s in [0, 1), accurate relative to s where s is small: 2 atanh(t)/ln 2 with
+ * t = −s/(2 − s) by log2_lanes's series up to s = 1/4 (|t| ≤ 1/7), log2_lanes(1 − s) above
+ * (skipped when no lane needs it: in narrow lobes, none does). */
+inline float16 log2_one_minus(float16 s)
 {
-    float3 origin = face_uv_to_dir(face, 0.0f, 0.0f);
-    float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin;
-    float3 along_v = face_uv_to_dir(face, 0.0f, 1.0f) - origin;
-    face_forms_t forms = {(float3)(dot(r, origin), dot(r, along_u), dot(r, along_v)),
-                          (float3)(dot(n, origin), dot(n, along_u), dot(n, along_v))};
-    return forms;
-}
-
-/* Sub-cells per radian of a texel's angular radius for shininess m: REF_DENSITY per lobe width
- * 1/√m, and none wider than CELL_RADIANS. */
-inline float cells_per_radian(float m) { return max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS); }
-
-/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by midpoint quadrature on sub-cells of the face square;
- * cells per side follow the lobe width across the texel's angular radius α and the cut planes
- * (see the top of this file).  With the face forms, cos_r^m = exp2(m/2 · log2((r·d)²/q)) (exact
- * exp2 and log2_lanes, not a fast power: the reference needs ~1e-6) and dω = dA/q^{3/2}.
- * SUBCELL_LANES sub-cells per step. */
-inline acc_t specular_integral(face_forms_t forms, float m, float density, int row, int col,
-                               int res, float alpha, int cut_by_horizon, int cut_by_lobe_plane)
-{
-    int cells = clamp((int)ceil(alpha * density), 2, 64);
-    if (cut_by_horizon) cells = max(cells, 8);
-    if (cut_by_lobe_plane) cells = clamp((int)ceil(alpha / KINK_CELL_RADIANS), cells, MAX_CELLS);
-    float step = 2.0f / (res * cells), per_cell = 1.0f / cells;
-    float u0 = -1.0f + 2.0f * col / res, v0 = -1.0f + 2.0f * row / res;
-    const float16 lane = (float16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-    acc8_t sum = 0;      /* up to MAX_CELLS² positive terms */
-    int count = cells * cells;
-    for (int k = 0; k < count; k += SUBCELL_LANES) {
-        float16 index = (float)k + lane;
-        /* Row and column of the sub-cell: exact for these small integers (truncation is floor). */
-        float16 i = convert_float16(convert_int16((index + 0.5f) * per_cell)), j = index - i * cells;
-        float16 v = v0 + (i + 0.5f) * step, u = u0 + (j + 0.5f) * step;
-        float16 inverse_q = 1.0f / (1.0f + u * u + v * v);
-        float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z;   /* times √q */
-        float16 c_n = forms.n.x + u * forms.n.y + v * forms.n.z;
-        float16 term = exp2(0.5f * m * log2_lanes(c_r * c_r * inverse_q)) * c_n * inverse_q * inverse_q;
-        term = select((float16)0.0f, term, c_r > 0.0f && c_n > 0.0f && index < count);
-        sum += convert_acc8(term.lo) + convert_acc8(term.hi);
-    }
-    return sum_acc8(sum) * step * step;
+    float16 near_one = log2_of_ratio(-s / (2.0f - s));
+    return all(s < 0.25f) ? near_one : select(log2_lanes(1.0f - s), near_one, s < 0.25f);
 }
 
 /* The lobe falls below LOBE_CUTOFF beyond angle θ_cut from r: (cos θ_cut, sin θ_cut). */
@@ -185,6 +152,114 @@ inline float2 lobe_cut(float m)
 {
     float cos_cut = exp(log(LOBE_CUTOFF) / m);
     return (float2)(cos_cut, sqrt(1.0f - cos_cut * cos_cut));
+}
+
+/* Quadrature points per radian for shininess m: REF_DENSITY per lobe width 1/√m, and at
+ * least 1/CELL_RADIANS (the cosines curve on a scale of 1 rad however wide the lobe). */
+inline float points_per_radian(float m) { return max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS); }
+
+/* r·ω and n·ω over face f as linear forms of the face point (u, v), times √q: the point's
+ * direction N + uU + vV (face_uv_to_dir is linear) has orthonormal N, U, V and squared length
+ * q = 1 + u² + v².  Each form holds (x·N, x·U, x·V).  With them, the lobe's box: its centre g =
+ * r_N⁻¹(r_U, r_V) on the face plane, 1/(1 + |g|²) = r_N²/|r|², and the half side of a square
+ * around g that holds every direction within θ_cut of r (none beyond it is above LOBE_CUTOFF),
+ * or INFINITY where the cap reaches within 3° of the face's plane: a great-circle path of angle
+ * θ from r stays within the angle β + θ of N (cos β = r_N), where the face plane stretches
+ * lengths by at most 1/cos²(β + θ). */
+typedef struct {
+    float3 r, n;
+    float centre_u, centre_v, inverse_centre_q, half_box, inverse_r2;
+    int centred;   /* is g near enough (|r_N| > |r|/10) for sin² from the offset to g? */
+} face_forms_t;
+
+inline face_forms_t face_forms(float3 n, float3 r, float2 cut, int face)
+{
+    float3 origin = face_uv_to_dir(face, 0.0f, 0.0f);
+    float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin;
+    float3 along_v = face_uv_to_dir(face, 0.0f, 1.0f) - origin;
+    float3 form_r = (float3)(dot(r, origin), dot(r, along_u), dot(r, along_v));
+    float cos_beta = form_r.x * rsqrt(dot(r, r)), sin_beta = sqrt(max(0.0f, 1.0f - cos_beta * cos_beta));
+    float cos_far = cos_beta * cut.x - sin_beta * cut.y;
+    face_forms_t forms = {form_r, (float3)(dot(n, origin), dot(n, along_u), dot(n, along_v)),
+                          form_r.y / form_r.x, form_r.z / form_r.x, cos_beta * cos_beta,
+                          cos_far > 0.05f ? atan2(cut.y, cut.x) / (cos_far * cos_far) : INFINITY,
+                          1.0f / dot(r, r), fabs(cos_beta) > 0.1f};
+    return forms;
+}
+
+/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by a composite Gauss–Legendre rule (2 × 2 points per
+ * sub-cell) on the texel's face square, cut down to the lobe's box (face_forms).  The
+ * horizon is integrated exactly, not as a kink inside cells: the inner coordinate s is the face
+ * axis along which n·ω changes faster, and each row (fixed outer coordinate t) has its sub-cells
+ * over only the part of the row above the horizon (the row integral stays C¹ in t: the
+ * integrand vanishes where the horizon leaves the row).  Points per side follow
+ * points_per_radian over the side's angular length (face-plane length / √q at its point nearest
+ * the face centre bounds it), and none wider than KINK_CELL_RADIANS where the lobe's own plane
+ * r·ω = 0 cuts the texel for m < 2 (the lobe's slope jumps there; up to MAX_CELLS sub-cells a
+ * side).  With the face forms, cos_r^m = exp2(m/2 · log2((r·d)²/q)) (exact exp2 and log2_lanes,
+ * not a fast power: the reference needs ~1e-6) and dω = dA/q^{3/2}.  SUBCELL_LANES points per step. */
+inline acc_t specular_integral(face_forms_t forms, float m, float density, int row, int col,
+                               int res, int cut_by_lobe_plane)
+{
+    float side = 2.0f / res, half_box = forms.half_box, centre_u = forms.centre_u, centre_v = forms.centre_v;
+    float u_lo = -1.0f + side * col, v_lo = -1.0f + side * row, u_hi = u_lo + side, v_hi = v_lo + side;
+    if (half_box < INFINITY) {
+        u_lo = max(u_lo, centre_u - half_box);
+        u_hi = min(u_hi, centre_u + half_box);
+        v_lo = max(v_lo, centre_v - half_box);
+        v_hi = min(v_hi, centre_v + half_box);
+    }
+    if (u_lo >= u_hi || v_lo >= v_hi) return 0;
+    float nearest_u = max(0.0f, max(u_lo, -u_hi)), nearest_v = max(0.0f, max(v_lo, -v_hi));
+    float per_length = density / sqrt(1.0f + nearest_u * nearest_u + nearest_v * nearest_v);
+    if (cut_by_lobe_plane) per_length = max(per_length, 1.0f / KINK_CELL_RADIANS);
+    int cells_u = clamp((int)ceil((u_hi - u_lo) * per_length / 2.0f), 1, MAX_CELLS);
+    int cells_v = clamp((int)ceil((v_hi - v_lo) * per_length / 2.0f), 1, MAX_CELLS);
+    /* s inner, t outer: (u, v) or (v, u); n·ω·√q = a + b_s·s + b_t·t. */
+    int swap = fabs(forms.n.z) > fabs(forms.n.y);
+    float s_lo = swap ? v_lo : u_lo, s_hi = swap ? v_hi : u_hi, t_lo = swap ? u_lo : v_lo;
+    float b_s = swap ? forms.n.z : forms.n.y, b_t = swap ? forms.n.y : forms.n.z, inverse_b_s = 1.0f / b_s;
+    int cells_s = swap ? cells_v : cells_u, points_s = 2 * cells_s;
+    float step_t = ((swap ? u_hi : v_hi) - t_lo) / (swap ? cells_u : cells_v);
+    float per_point_s = 1.0f / points_s, per_cell_s = 1.0f / cells_s;
+    const float16 lane = (float16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    const float offset = 0.577350269189625765f;   /* Gauss–Legendre nodes 1/2 ± 1/(2√3) */
+    acc8_t sum = 0;      /* positive terms */
+    int count = points_s * 2 * (swap ? cells_u : cells_v);
+    for (int k = 0; k < count; k += SUBCELL_LANES) {
+        float16 index = (float)k + lane;
+        /* Point (i, j), in sub-cell (i / 2, j / 2) at node (i % 2, j % 2): truncation is floor. */
+        float16 i = convert_float16(convert_int16((index + 0.5f) * per_point_s)), j = index - i * points_s;
+        float16 cell_i = convert_float16(convert_int16((i + 0.5f) * 0.5f)), node_i = i - 2.0f * cell_i;
+        float16 cell_j = convert_float16(convert_int16((j + 0.5f) * 0.5f)), node_j = j - 2.0f * cell_j;
+        float16 t = t_lo + (cell_i + 0.5f + (node_i - 0.5f) * offset) * step_t;
+        /* The row's part above the horizon: s ≥ or ≤ −(a + b_t·t)/b_s. */
+        float16 edge = -(forms.n.x + b_t * t) * inverse_b_s;
+        float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_lo;
+        float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_hi;
+        float16 step_s = (row_hi - row_lo) * per_cell_s;
+        float16 s = row_lo + (cell_j + 0.5f + (node_j - 0.5f) * offset) * step_s;
+        float16 weight = 0.25f * step_s;   /* both nodes weigh 1/2 */
+        float16 u = swap ? t : s, v = swap ? s : t;
+        float16 inverse_q = 1.0f / (1.0f + u * u + v * v);
+        float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z;   /* times √q */
+        float16 c_n = forms.n.x + u * forms.n.y + v * forms.n.z;
+        /* sin²(r, ω) from the offset δ to the lobe's centre g: (|δ|² + (g × δ)²)/(|g|² + 1)/q,
+         * a sum of squares, where 1 − cos² would cancel to ~1/m of its float precision; 1 − cos²
+         * where g is far off, on faces that only lobes with m ≲ 150 reach from beyond 84°. */
+        float16 sin2;
+        if (forms.centred) {
+            float16 du = u - centre_u, dv = v - centre_v, twist = centre_u * dv - centre_v * du;
+            sin2 = (du * du + dv * dv + twist * twist) * inverse_q * forms.inverse_centre_q;
+        } else {
+            sin2 = max(0.0f, 1.0f - c_r * c_r * inverse_q * forms.inverse_r2);
+        }
+        float16 term = exp2(0.5f * m * log2_one_minus(sin2)) * max(c_n, 0.0f)
+                     * inverse_q * inverse_q * weight;
+        term = select((float16)0.0f, term, c_r > 0.0f && step_s > 0.0f && index < count);
+        sum += convert_acc8(term.lo) + convert_acc8(term.hi);
+    }
+    return sum_acc8(sum) * step_t;
 }
 
 /* Texel tables as structures of arrays: plane k of `table` holds, for every texel t (stride
@@ -206,13 +281,13 @@ inline float2 lobe_cut(float m)
 /* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω of texel t, whose cap reaches the lobe and the upper
  * hemisphere (cr = r·centre); `forms` are those of its face. */
 inline acc_t texel_lobe(float3 n, float3 r, float m, face_forms_t forms, int t, int res, float sin_a,
-                        float alpha, float cr, int cut_by_horizon)
+                        float cr)
 {
     int face = t / (res * res), row = (t / res) % res, col = t % res;
     int cut_by_lobe_plane = m < 2.0f && fabs(cr) < sin_a;
     return m == 0.0f ? half_space_cosine(n, r, face, row, col, res)
-                     : specular_integral(forms, m, cells_per_radian(m), row, col, res, alpha,
-                                         cut_by_horizon, cut_by_lobe_plane);
+                     : specular_integral(forms, m, points_per_radian(m), row, col, res,
+                                         cut_by_lobe_plane);
 }
 
 /* ∫_texel cos⁺(n·ω) dω (x) and ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω (y, 0 without a lobe or where
@@ -233,8 +308,7 @@ inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cu
     if (cut_by_horizon)
         *cosine = clipped_cosine(n, t / (res * res), (t / res) % res, t % res, res);
     if (specular && in_lobe && (above || cut_by_horizon))
-        *lobe = texel_lobe(n, r, m, face_forms(n, r, t / (res * res)), t, res, sin_a,
-                           PLANE(table, 7, t, texels), cr, cut_by_horizon);
+        *lobe = texel_lobe(n, r, m, face_forms(n, r, cut, t / (res * res)), t, res, sin_a, cr);
 }
 
 inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }
@@ -272,7 +346,7 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
     acc_t diffuse[3] = {0, 0, 0}, glossy[3] = {0, 0, 0};   /* the texels taken one by one */
     for (int face = 0; face < 6; ++face) {
         if (face_below(n, face)) continue;
-        face_forms_t forms = face_forms(n, r, face);
+        face_forms_t forms = face_forms(n, r, cut, face);
         int end = (face + 1) * res * res;
         for (int t = face * res * res; t < end; t += LANES) {
             float8 red = PLANE_LANES(env_planes, 0, t, texels), green = PLANE_LANES(env_planes, 1, t, texels),
@@ -302,7 +376,7 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
                 }
                 if (specular && ((int *)&in_lobe)[k]) {
                     acc_t lobe = texel_lobe(n, r, m, forms, texel, res, ((float *)&sin_a)[k],
-                                            PLANE(table, 7, texel, texels), ((float *)&cr)[k], cut_k);
+                                            ((float *)&cr)[k]);
                     glossy[0] += lobe * radiance.x;
                     glossy[1] += lobe * radiance.y;
                     glossy[2] += lobe * radiance.z;

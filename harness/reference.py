@@ -14,8 +14,8 @@ from iblbench.harness.device import Compute, cache_dir, event_ms, kernel_path
 from iblbench.scenes import cubemap
 from iblbench.scenes.atomic import atomic_path
 
-# Sub-cells per lobe width for the specular quadrature (see reference.cl); part of the cache key.
-DEFAULT_DENSITY = 16
+# Quadrature points per lobe width for the specular quadrature (see reference.cl); part of the cache key.
+DEFAULT_DENSITY = 4
 LANES = 8              # texels per vector step of reference.cl: the tables' padding
 FIRST_CHUNK_PIXELS = 256   # pixels of the first enqueue; later ones aim at CHUNK_MS each
 CHUNK_MS = 100.0           # device time per enqueue: a Ctrl-C waits for at most about this
