@@ -784,12 +784,31 @@ def havran_map_chi2(envmap, n: int, seed: int) -> tuple[float, list[str]]:
     return (0.0 if problems else p_value), problems
 
 
+def havran_placement_problems(envmap, cache, k: int = 256, seed: int = 7) -> list[str]:
+    """The lights the renderer places on the device (``place_lights``) against the inversion
+    that :func:`havran_map_chi2` tests (``EqualAreaMap.sample`` on the device map's arrays):
+    directions to 1e-9 and weights L/(p·K) to 1e-9 relative (libm's cos and sin differ by
+    ulps), so a kernel whose pdf or weight departs from its map is caught."""
+    from iblbench.estimators.havran import Havran, relaxed_points, seed_shift
+
+    want_dirs, pdf = envmap.sample((relaxed_points(k) + seed_shift(seed)) % 1.0)
+    want_weights = envmap.radiance(want_dirs) / (pdf[:, None] * k)
+    dirs, weights = Havran().raw_lights(cache, k, seed)
+    problems = []
+    if not np.allclose(dirs, want_dirs, rtol=0, atol=1e-9):
+        problems.append("havran's device lights are not at its map's inversion")
+    if not np.allclose(weights, want_weights, rtol=1e-9, atol=0):
+        problems.append("havran's device light weights are not L/(p·K) of its map")
+    return problems
+
+
 def _havran_map(row: _Row, prepared: Prepared, scale: Scale) -> None:
     from iblbench.estimators.havran import EqualAreaMap, frame_map
 
     cache = prepared.caches[0]
     envmap = EqualAreaMap.of_device_map(frame_map(cache), prepared.variant.frames[0])
     p_value, problems = havran_map_chi2(envmap, scale.chi2_samples, seed=7)
+    problems = problems + havran_placement_problems(envmap, cache)
     row.chi2.append((p_value, f"{prepared.variant.name} havran map", problems))
 
 
