@@ -142,16 +142,20 @@ def ratio_ci(a, b, level: float = LEVEL) -> RatioCI:
 
 
 def interval_text(mean: float, half_width: float, n: int, digits: int = 4) -> str:
-    """How every table shows a cell: ``mean ± half-width`` of its 95% interval, ``mean (n=1,
-    no interval)`` without one, and ``–`` for a NaN mean.  A half-width below the mean's last
-    shown digit is shown as 0 (equal values give a rounding-error spread, 1e-17)."""
+    """How every table shows a cell: ``mean ± half-width`` of its 95% interval, both rounded at
+    the half-width's second significant digit (``3.0 ± 6.6``, ``5800 ± 4000``); ``mean (n=1, no
+    interval)`` without one and ``–`` for a NaN mean.  A half-width below the mean's ``digits``-th
+    significant digit is shown as 0 (equal values give a rounding-error spread, 1e-17)."""
     if not math.isfinite(mean):
         return "–"
     if not math.isfinite(half_width):
         return f"{mean:.{digits}g} (n={n}, no interval)"
-    if half_width < abs(mean) * 10.0 ** -digits:
-        half_width = 0.0
-    return f"{mean:.{digits}g} ± {half_width:.2g}"
+    if half_width <= abs(mean) * 10.0 ** -digits:
+        return f"{mean:.{digits}g} ± 0"
+    place = math.floor(math.log10(half_width)) - 1
+    decimals = max(-place, 0)
+    mean = round(mean, -place) + 0.0            # + 0.0: no "-0.0"
+    return f"{mean:.{decimals}f} ± {round(half_width, -place):.{decimals}f}"
 
 
 def cell_intervals(table, keys, columns):

@@ -299,7 +299,7 @@ def test_terminal_check_and_report_show_one_time_per_cell(tmp_path):
     rule = budgets.Rule("r", "s", "b", (16,), (), None, budgets.TimeRatio("a", "time_ms", 3.0))
     check = budgets.evaluate([rule], table).iloc[0]
     for estimator, ms in expected.items():
-        assert terminal[("s", estimator, 16)].startswith(f"{ms:.4g} ± ")
+        assert terminal[("s", estimator, 16)].startswith(f"{ms:.1f} ± ")   # ± 1.6, ± 3.1
         assert report[estimator] == pytest.approx(ms)
     assert check.metric == "time_ms / a (8.5 / 4.25 ms)" and check.value == "2"
 
