@@ -76,7 +76,8 @@ def _cell_means(table: pd.DataFrame) -> pd.DataFrame:
     ``_half``) and ``seeds`` (:func:`iblbench.harness.stats.cell_intervals`)."""
     cells = cell_intervals(table, ["scene", "estimator", "spp"],
                            ["mean_delta_e76", *COUNTS, "effective_ratio", *TIMES]).reset_index()
-    return cells.rename(columns={f"{name}{suffix}": f"{short}{suffix}" for name, short in COUNTS.items()
+    return cells.rename(columns={f"{name}{suffix}": f"{short}{suffix}"
+                                 for name, short in COUNTS.items()
                                  for suffix in ("", "_low", "_high", "_half")})
 
 

@@ -16,9 +16,10 @@ shown as ``mean ± half-width`` in every table and as error bars in the plots.  
 cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`), aggregated
 the same way; efficiency = 1 / (relMSE · s per frame) is computed per seed and then aggregated.
 The Pareto fronts call a cell dominated only where the intervals of time and of error both
-separate (:func:`iblbench.reports.plots.pareto_calls`); otherwise it is "not resolved at N seeds".  Host
-wall time is shown beside device time and never ranks anything.  Equal-time cells are tabled with their budget,
-the time they achieved and whether it is within ±10% of the budget.
+separate (:func:`iblbench.reports.plots.pareto_calls`); otherwise it is "not resolved at N
+seeds".  Host wall time is shown beside device time and never ranks anything.  Equal-time cells
+are tabled with their budget, the time they achieved and whether it is within ±10% of the
+budget.
 """
 from __future__ import annotations
 
@@ -137,7 +138,7 @@ def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
 
 
 def _intervals(cells: pd.DataFrame, column: str) -> list[str]:
-    """The column's cells as ``mean ± half-width`` (:func:`iblbench.harness.stats.interval_text`)."""
+    """The column's cells as ``mean ± half-width`` (``stats.interval_text``)."""
     return [interval_text(mean, half, n) for mean, half, n in
             zip(cells[column], cells[f"{column}_half"], cells.seeds)]
 
