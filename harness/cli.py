@@ -551,9 +551,14 @@ def terminal_summaries(table):
     cell. Beside spp each shows what a sample costs, as the estimators' spp are not comparable
     (one bis or smc sample costs 21 integrand evaluations): ``evaluations`` (integrand evaluations per
     covered pixel) and the cell's time of :mod:`iblbench.harness.timing` (``time_ms``: device ms
-    per frame, build + sample + shade) as the report and ``check`` show it."""
-    from iblbench.harness.timing import TIME, cell_times
+    per frame, build + sample + shade) as the report and ``check`` show it.  Time, errors and
+    samples are the mean over seeds with its 95% Student-t interval, ``mean ± half-width``
+    (:func:`iblbench.harness.stats.cell_intervals`); ``seeds`` says how many."""
+    from iblbench.harness.stats import cell_intervals, interval_text
+    from iblbench.harness.timing import TIME
 
+    shown = {TIME: TIME, "mean_delta_e76": "mean_delta_e76", "rel_mse": "rel_mse", "flip": "flip",
+             "effective_samples": "effective", "used_samples": "used"}
     summaries = []
     for keys, rows, title in (
             (["scene", "estimator", "spp"], table[table.time_budget_ms.isna()],
@@ -563,12 +568,15 @@ def terminal_summaries(table):
              "error at equal time (the spp chosen so that the device time per frame, build + "
              "sample + shade, lands within 10% of time_budget_ms):")):
         if len(rows):
+            columns = [c for c in shown if c in rows and rows[c].notna().any()]
+            cells = cell_intervals(rows, keys, columns)
             spp = {} if "spp" in keys else {"spp": ("spp", "first")}
-            summary = rows.groupby(keys).agg(
-                **spp, evaluations=("evaluations", "mean"), mean_delta_e76=("mean_delta_e76", "mean"),
-                rel_mse=("rel_mse", "mean"), effective=("effective_samples", "mean"),
-                used=("used_samples", "mean"), nonfinite=("nonfinite", "sum"))
-            summary.insert(len(spp) + 1, TIME, cell_times(rows, keys))
+            summary = rows.groupby(keys).agg(**spp, evaluations=("evaluations", "mean"))
+            for column in columns:
+                summary[shown[column]] = [interval_text(*cells.loc[key, [column, f"{column}_half"]],
+                                                        cells.seeds[key]) for key in summary.index]
+            summary["seeds"] = cells.seeds
+            summary["nonfinite"] = rows.groupby(keys).nonfinite.sum()
             summaries.append((title, summary))
     return summaries
 

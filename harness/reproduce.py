@@ -4,6 +4,11 @@ Each reproduction is one sweep through the ordinary runner (so its results table
 images are those of ``iblbench run``), then an analysis that turns the table into the paper's
 tables and plots and one verdict line per claim: holds, partly holds or does not hold, with our
 numbers beside the paper's.  Scenes are not tuned to make a claim hold.
+
+Every number is a cell's mean over seeds with its 95% Student-t interval
+(:func:`iblbench.harness.stats.cell_intervals`), and a comparison in a claim is called only where
+the intervals separate (:func:`iblbench.harness.stats.separated`); a claim that hangs on an
+unresolved comparison is "not resolved at N seeds" (N: the fewest seeds of a cell).
 """
 from __future__ import annotations
 
@@ -14,11 +19,14 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.runner import RunConfig, run
-from iblbench.harness.timing import TIME, cell_times
+from iblbench.harness.stats import MeanCI, cell_intervals, separated
+from iblbench.harness.timing import TIME
 from iblbench.scenes.errors import InputError
 
 HOLDS, PARTLY, FAILS = "holds", "partly holds", "does not hold"
 TIMES = (TIME, "time_ms_build", "time_ms_sample", "time_ms_shade")
+# results column → the reproduction's name for it
+COUNTS = {"used_samples": "used", "effective_samples": "effective"}
 
 
 @dataclasses.dataclass
@@ -52,84 +60,142 @@ LU2013_SETUP_DIFFERENCES = [
     "Direct lighting without visibility, as in the paper (V is omitted there too).",
     "Errors are mean ΔE76 under protocol lab-reinhard-v1 against an exact reference; the paper "
     "does not state its tone mapping or reference for ΔE.",
-    "Timings are OpenCL device times per frame (build + sample + shade, the median of the run's "
-    "timed renders) on the machine's chosen device (see manifest), not a GTX 680 with "
-    "CUDA/DirectX; only ratios within one run are compared.",
+    "Timings are OpenCL device times per frame (build + sample + shade, the median of a cell's "
+    "timed renders, then the mean over seeds) on the machine's chosen device (see manifest), not "
+    "a GTX 680 with CUDA/DirectX; only ratios within one run are compared.",
+    "Every figure is the mean over seeds ± the half-width of its 95% Student-t interval; a "
+    "claim is judged only on comparisons whose intervals separate.",
     "A backlit scene (low sun behind the sphere) is included because per-normal balancing "
     "should matter most there; it is not in the paper.",
 ]
 
 
 def _cell_means(table: pd.DataFrame) -> pd.DataFrame:
-    """Per (scene, estimator, spp): mean errors and counts over the rows, and each time column
-    as the cell's time (:func:`iblbench.harness.timing.cell_times`)."""
-    keys = ["scene", "estimator", "spp"]
-    cells = table.groupby(keys).agg(
-        mean_delta_e76=("mean_delta_e76", "mean"), used=("used_samples", "mean"),
-        effective=("effective_samples", "mean"), effective_ratio=("effective_ratio", "mean"))
-    for column in TIMES:
-        cells[column] = cell_times(table, keys, column)
-    return cells.reset_index()
+    """Per (scene, estimator, spp): the mean error, sample counts (``used``, ``effective``),
+    effective ratio and each time column over seeds, with their intervals (``_low``, ``_high``,
+    ``_half``) and ``seeds`` (:func:`iblbench.harness.stats.cell_intervals`)."""
+    cells = cell_intervals(table, ["scene", "estimator", "spp"],
+                           ["mean_delta_e76", *COUNTS, "effective_ratio", *TIMES]).reset_index()
+    return cells.rename(columns={f"{name}{suffix}": f"{short}{suffix}"
+                                 for name, short in COUNTS.items()
+                                 for suffix in ("", "_low", "_high", "_half")})
 
 
-def _value(cells: pd.DataFrame, scene: str, estimator: str, spp: int, column: str) -> float:
+def _ci(cells: pd.DataFrame, scene: str, estimator: str, spp: int, column: str) -> MeanCI:
+    """The cell's ``column`` with its interval (NaN when the cell is missing)."""
     row = cells[(cells.scene == scene) & (cells.estimator == estimator) & (cells.spp == spp)]
-    return float(row[column].iloc[0]) if len(row) else float("nan")
+    if not len(row):
+        return MeanCI(float("nan"), float("nan"), float("nan"), 0, float("nan"))
+    row = row.iloc[0]
+    return MeanCI(float(row[column]), float(row[f"{column}_low"]), float(row[f"{column}_high"]),
+                  int(row.seeds), float("nan"))
 
 
-def _judge(flags: list[bool], partial: list[bool] | None = None) -> str:
-    if flags and all(flags):
+def _below(a: MeanCI, b: MeanCI) -> bool | None:
+    """Whether a < b, called only where the intervals separate (None: not resolved)."""
+    return a.mean < b.mean if separated(a, b) else None
+
+
+def _judge(flags: list, seeds: int, partial: list | None = None) -> str:
+    """The verdict on per-scene results True, False or None (not resolved): holds where every
+    scene holds, partly where some resolved scene holds and another not (or ``partial`` holds
+    somewhere), does not hold where every scene is resolved and none holds, else not resolved."""
+    if flags and all(f is True for f in flags):
         return HOLDS
-    if any(flags) or (partial and any(partial)):
+    if True in flags and False in flags:
         return PARTLY
-    return FAILS
+    if flags and all(f is False for f in flags):
+        if partial and True in partial:
+            return PARTLY
+        if not partial or all(f is False for f in partial):
+            return FAILS
+    return f"not resolved at {seeds} seed{'s' if seeds != 1 else ''}"
 
 
-def _time_for_quality(cells, scene, target_de) -> float:
-    """Frame time uniform needs to reach ``target_de``: log-log interpolation of its ΔE(time)."""
+def _time_for_quality(cells, scene, target_de, column: str = TIME) -> float:
+    """Frame time uniform needs to reach ``target_de``: log-log interpolation of its ΔE(time)
+    (``column``: the time column or one end of its interval)."""
     rows = cells[(cells.scene == scene) & (cells.estimator == "uniform")].sort_values("spp")
-    log_t, log_e = np.log(rows[TIME].to_numpy()), np.log(rows.mean_delta_e76.to_numpy())
+    with np.errstate(invalid="ignore", divide="ignore"):   # a time interval reaching 0
+        log_t, log_e = np.log(rows[column].to_numpy()), np.log(rows.mean_delta_e76.to_numpy())
     order = np.argsort(log_e)
     return float(np.exp(np.interp(np.log(target_de), log_e[order], log_t[order])))
 
 
+def _uniform_time_for(cells, scene, de: MeanCI) -> MeanCI:
+    """The time uniform needs for balanced's ΔE, with the range its interval spans: from the
+    upper end of the ΔE interval on uniform's lower time ends to the lower end on the upper time
+    ends (uniform's own ΔE interval is not propagated)."""
+    return MeanCI(_time_for_quality(cells, scene, de.mean),
+                  _time_for_quality(cells, scene, de.high, f"{TIME}_low"),
+                  _time_for_quality(cells, scene, de.low, f"{TIME}_high"), de.n, float("nan"))
+
+
+def _within(ratio_low: float, ratio_high: float, tolerance: float) -> bool | None:
+    """Whether the ratio lies within 1 ± tolerance: True when its whole range does, False when
+    none of it does, None (not resolved) otherwise."""
+    if 1 - tolerance <= ratio_low and ratio_high <= 1 + tolerance:
+        return True
+    if ratio_high < 1 - tolerance or ratio_low > 1 + tolerance:
+        return False
+    return None
+
+
+def _range_text(value: MeanCI) -> str:
+    """An asymmetric range: ``mean [low, high]``, or ``mean (no interval)``."""
+    if not value.resolved:
+        return f"{value.mean:.3g} (no interval)"
+    return f"{value.mean:.3g} [{value.low:.3g}, {value.high:.3g}]"
+
+
 def lu2013_verdicts(cells: pd.DataFrame, scenes) -> list[Verdict]:
+    """The paper's four claims on ``cells`` (:func:`_cell_means`), each comparison called only
+    where the intervals separate.  Claim 2's ratio balanced@N / uniform@3N has the range of the
+    two intervals' ends (wider than the ratio's own 95% interval, so conservative)."""
     n = 60
+    seeds = int(cells.seeds.min())
     fmt = lambda xs: "; ".join(xs)
-    ratio_b = {s: _value(cells, s, "balanced", n, "effective_ratio") for s in scenes}
-    ratio_u = {s: _value(cells, s, "uniform", n, "effective_ratio") for s in scenes}
+    ratio_b = {s: _ci(cells, s, "balanced", n, "effective_ratio") for s in scenes}
+    ratio_u = {s: _ci(cells, s, "uniform", n, "effective_ratio") for s in scenes}
     claim1 = Verdict(
         "1. balanced has a higher effective ratio than uniform (60 spp)",
-        _judge([ratio_b[s] > ratio_u[s] for s in scenes]),
-        fmt(f"{s}: {ratio_b[s]:.2f} vs {ratio_u[s]:.2f}" for s in scenes),
+        _judge([_below(ratio_u[s], ratio_b[s]) for s in scenes], seeds),
+        fmt(f"{s}: {ratio_b[s].text(2)} vs {ratio_u[s].text(2)}" for s in scenes),
         "47/60 = 0.78 vs 116/180 = 0.64")
 
-    de = {(s, e, k): _value(cells, s, e, k, "mean_delta_e76") for s in scenes
+    de = {(s, e, k): _ci(cells, s, e, k, "mean_delta_e76") for s in scenes
           for e, k in (("balanced", n), ("uniform", n), ("uniform", 3 * n))}
     # The verdict is the stated test alone: beating uniform at equal spp is shown, not judged.
-    close = [abs(de[s, "balanced", n] / de[s, "uniform", 3 * n] - 1) <= 0.10 for s in scenes]
+    close = []
+    for s in scenes:
+        balanced, uniform = de[s, "balanced", n], de[s, "uniform", 3 * n]
+        low, high = (balanced.low / uniform.high, balanced.high / uniform.low) \
+            if uniform.low > 0 else (float("nan"), float("nan"))
+        close.append(_within(low, high, 0.10))
     claim2 = Verdict(
         "2. balanced at N spp ≈ uniform at 3N spp in ΔE (within 10%; N = 60)",
-        _judge(close),
-        fmt(f"{s}: {de[s, 'balanced', n]:.2f} vs {de[s, 'uniform', 3 * n]:.2f} "
-            f"(uniform@{n}: {de[s, 'uniform', n]:.2f})" for s in scenes),
+        _judge(close, seeds),
+        fmt(f"{s}: {de[s, 'balanced', n].text(3)} vs {de[s, 'uniform', 3 * n].text(3)} "
+            f"(uniform@{n}: {de[s, 'uniform', n].text(3)})" for s in scenes),
         "6.44 (balanced@60) vs 6.22 (uniform@180)")
 
-    mis = {s: [_value(cells, s, "balanced_mis", k, "mean_delta_e76") for k in LU2013_MIS_SPP]
+    mis = {s: [_ci(cells, s, "balanced_mis", k, "mean_delta_e76") for k in LU2013_MIS_SPP]
            for s in scenes}
-    monotone = [all(np.diff(mis[s]) < 0) for s in scenes]
+    steps = {s: [_below(b, a) for a, b in zip(mis[s], mis[s][1:])] for s in scenes}
+    monotone = [True if all(f is True for f in steps[s]) else False if False in steps[s] else None
+                for s in scenes]
     claim3 = Verdict(
         "3. MIS error falls monotonically with spp (15 → 240)",
-        _judge(monotone, [mis[s][-1] < mis[s][0] for s in scenes]),
-        fmt(f"{s}: " + " → ".join(f"{v:.2f}" for v in mis[s]) for s in scenes),
+        _judge(monotone, seeds, [_below(mis[s][-1], mis[s][0]) for s in scenes]),
+        fmt(f"{s}: " + " → ".join(v.text(3) for v in mis[s]) for s in scenes),
         "Fig. 3: error decreases from 15 to 240 spp")
 
-    t_b = {s: _value(cells, s, "balanced", n, TIME) for s in scenes}
-    t_u = {s: _time_for_quality(cells, s, de[s, "balanced", n]) for s in scenes}
+    t_b = {s: _ci(cells, s, "balanced", n, TIME) for s in scenes}
+    t_u = {s: _uniform_time_for(cells, s, de[s, "balanced", n]) for s in scenes}
     claim4 = Verdict(
         "4. balanced is faster than uniform at equal quality",
-        _judge([t_b[s] < t_u[s] for s in scenes]),
-        fmt(f"{s}: {t_b[s]:.1f} ms vs {t_u[s]:.1f} ms" for s in scenes),
+        _judge([_below(t_b[s], t_u[s]) for s in scenes], seeds),
+        fmt(f"{s}: {t_b[s].text(3)} ms vs {_range_text(t_u[s])} ms" for s in scenes),
         "higher frame rate than uniform for the same quality (Sec. 3)")
     return [claim1, claim2, claim3, claim4]
 
@@ -148,18 +214,24 @@ def lu2013(out: pathlib.Path, seeds: int, device: str | None, progress: bool | N
     fig2 = cells[((cells.estimator == "balanced") & (cells.spp == 60))
                  | ((cells.estimator == "uniform") & cells.spp.isin([60, 180]))]
     fig3 = cells[(cells.estimator == "balanced_mis") & cells.spp.isin(LU2013_MIS_SPP)]
-    timing = (cells[cells.spp == 60][["scene", "estimator", *TIMES]]
-              .rename(columns={"time_ms_sample": "time_ms_pool"}))
+    timing = (_shown(cells[cells.spp == 60], ["scene", "estimator"], TIMES)
+              .rename(columns=lambda c: c.replace("time_ms_sample", "time_ms_pool")))
     return Reproduction(
         title="Lu, Pacanowski & Granier 2013: Real-Time Importance Sampling of Dynamic "
               "Environment Maps",
         setup_differences=LU2013_SETUP_DIFFERENCES,
-        tables={"fig2": fig2[["scene", "estimator", "spp", "mean_delta_e76", "used", "effective",
-                              "effective_ratio"]],
-                "fig3": fig3[["scene", "spp", "mean_delta_e76", "used", "effective"]],
+        tables={"fig2": _shown(fig2, ["scene", "estimator", "spp"],
+                               ["mean_delta_e76", "used", "effective", "effective_ratio"]),
+                "fig3": _shown(fig3, ["scene", "spp"], ["mean_delta_e76", "used", "effective"]),
                 "timing": timing},
         verdicts=lu2013_verdicts(cells, scenes),
         results=table)
+
+
+def _shown(cells: pd.DataFrame, keys: list[str], columns) -> pd.DataFrame:
+    """A table of a reproduction: ``keys``, ``seeds`` and each column beside its ``_half``
+    (:func:`iblbench.reports.reproduction.write_summary` shows them as mean ± half-width)."""
+    return cells[[*keys, "seeds", *(name for c in columns for name in (c, f"{c}_half"))]]
 
 
 REPRODUCTIONS = {"lu2013": lu2013}

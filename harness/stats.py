@@ -68,9 +68,7 @@ class MeanCI:
 
     def text(self, digits: int = 4) -> str:
         """``mean ± half-width``, or ``mean (n=1, no interval)``."""
-        if not self.resolved:
-            return f"{self.mean:.{digits}g} (n={self.n}, no interval)"
-        return f"{self.mean:.{digits}g} ± {self.half_width:.2g}"
+        return interval_text(self.mean, self.half_width, self.n, digits)
 
     def to_dict(self) -> dict:
         return {"mean": _finite(self.mean), "low": _finite(self.low), "high": _finite(self.high),
@@ -141,6 +139,46 @@ def ratio_ci(a, b, level: float = LEVEL) -> RatioCI:
     df = total ** 2 / (var_a ** 2 / (a.size - 1) + var_b ** 2 / (b.size - 1))
     spread = math.exp(t_quantile(df, level) * math.sqrt(total))
     return RatioCI(ratio, ratio / spread, ratio * spread, float(df))
+
+
+def interval_text(mean: float, half_width: float, n: int, digits: int = 4) -> str:
+    """How every table shows a cell: ``mean ± half-width`` of its 95% interval, both rounded at
+    the half-width's second significant digit (``3.0 ± 6.6``, ``5800 ± 4000``); ``mean (n=1, no
+    interval)`` without one and ``–`` for a NaN mean.  A half-width below the mean's ``digits``-th
+    significant digit is shown as 0 (equal values give a rounding-error spread, 1e-17)."""
+    if not math.isfinite(mean):
+        return "–"
+    if not math.isfinite(half_width):
+        return f"{mean:.{digits}g} (n={n}, no interval)"
+    if half_width <= abs(mean) * 10.0 ** -digits:
+        return f"{mean:.{digits}g} ± 0"
+    place = math.floor(math.log10(half_width)) - 1
+    decimals = max(-place, 0)
+    mean = round(mean, -place) + 0.0            # + 0.0: no "-0.0"
+    return f"{mean:.{decimals}f} ± {round(half_width, -place):.{decimals}f}"
+
+
+def cell_intervals(table, keys, columns):
+    """The cells of a results table with :func:`mean_ci` of each column: per seed the mean of
+    its rows (its frames; a NaN row makes it NaN: fail closed), then the mean over seeds and
+    its interval.  A pandas DataFrame indexed by ``keys`` with, per column ``c``, ``c`` (the
+    mean), ``c_low``, ``c_high`` and ``c_half`` (NaN with one seed), and ``seeds`` (how many)."""
+    import pandas as pd
+
+    keys, columns = list(keys), list(columns)
+    per_seed = table.groupby(keys + ["seed"], sort=False)[columns].mean(skipna=False)
+    cells = {}
+    for key, seeds in per_seed.groupby(level=keys, sort=False):
+        cell = {"seeds": len(seeds)}
+        for column in columns:
+            ci = mean_ci(seeds[column])
+            cell.update({column: ci.mean, f"{column}_low": ci.low, f"{column}_high": ci.high,
+                         f"{column}_half": ci.half_width})
+        cells[key] = cell
+    frame = pd.DataFrame.from_dict(cells, orient="index")
+    index = pd.MultiIndex.from_tuples(list(cells), names=keys)
+    frame.index = index if len(keys) > 1 else index.get_level_values(0)
+    return frame
 
 
 def separated(a: MeanCI, b: MeanCI) -> bool:

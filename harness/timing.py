@@ -48,7 +48,11 @@ The pause cost 0.15 s of wall time per cell: 8 s of a 12.7 s warm default run wi
 device time (idle machine).
 
 **Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
-time is the median of the rows' ``time_ms`` (:func:`median_time`, :func:`cell_times`).
+time is aggregated as every other figure is (:func:`iblbench.harness.stats.cell_intervals`):
+per seed the mean of its frames' ``time_ms``, then the mean over seeds with its 95% Student-t
+interval (:func:`cell_times`).  The median stays where it guards against outliers of one
+machine moment: over a row's repeats (above).  :func:`median_time` (the median of rows' times)
+is what ``check``'s time ratios still use (:mod:`iblbench.harness.budgets`).
 """
 from __future__ import annotations
 
@@ -58,6 +62,8 @@ import time
 
 import numpy as np
 import threadpoolctl
+
+from iblbench.harness.stats import cell_intervals
 
 STAGES = ("build", "sample", "shade")
 TIME = "time_ms"
@@ -143,6 +149,7 @@ def median_time(values) -> float:
 
 
 def cell_times(table, keys, column: str = TIME):
-    """The time of each cell of ``table`` grouped by ``keys``: :func:`median_time` of
-    ``column`` over the cell's rows (a pandas Series indexed by ``keys``)."""
-    return table.groupby(list(keys), sort=False)[column].agg(median_time)
+    """The time of each cell of ``table`` grouped by ``keys``: the mean over seeds of each
+    seed's mean ``column`` over its frames (a pandas Series indexed by ``keys``; the interval is
+    in :func:`iblbench.harness.stats.cell_intervals`)."""
+    return cell_intervals(table, keys, [column])[column]

@@ -3,7 +3,9 @@ convergence against spp, effective samples, error per frame, and the ΔE colour 
 
 Every plot takes the per-cell summary of one scene (``summary`` from :mod:`.report`: one row per
 (estimator, spp) with ``time_ms`` (the cell's device time per frame), ``rel_mse``, ``mean_delta_e76``, ``used_samples``,
-``effective_samples``, ``effective_ratio``) and writes a PNG atomically.
+``effective_samples``, ``effective_ratio``, each the mean over seeds with ``_low`` and ``_high``,
+its 95% interval) and writes a PNG atomically.  Every plotted mean carries its interval as an
+error bar (none with one seed); on a log axis a lower end at or below 0 runs off the axis.
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
+from iblbench.harness.stats import MeanCI, separated  # noqa: E402
 from iblbench.reports.previews import HEAT_CMAP, HEAT_MAX  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
 
@@ -39,6 +42,46 @@ def pareto_front(x, y) -> np.ndarray:
         others = finite & (x <= x[i]) & (y <= y[i]) & ((x < x[i]) | (y < y[i]))
         front[i] = not others.any()
     return front
+
+
+def pareto_calls(cells, column: str) -> list[str]:
+    """Each cell's place on the (``time_ms``, ``column``) Pareto front, called only where the
+    intervals say so: "◆" on the front of the means (:func:`pareto_front`), "dominated" when
+    another cell is faster and more accurate with both intervals separated
+    (:func:`~iblbench.harness.stats.separated`), else "not resolved at N seeds" (the means
+    alone put it behind the front)."""
+    def ci(row, name):
+        return MeanCI(row[name], row[f"{name}_low"], row[f"{name}_high"], row["seeds"], np.nan)
+
+    def beats(j, i):
+        return all(separated(ci(j, name), ci(i, name)) and j[name] < i[name]
+                   for name in ("time_ms", column))
+
+    rows = [row for _, row in cells.iterrows()]
+    error = _positive(cells[column])
+    front = pareto_front(cells.time_ms, error)
+    calls = []
+    for i, row in enumerate(rows):
+        if front[i] or not np.isfinite(error[i]):
+            calls.append("◆" if front[i] else "–")
+        elif any(beats(other, row) for other in rows):
+            calls.append("dominated")
+        else:
+            calls.append(f"not resolved at {row['seeds']} seeds")
+    return calls
+
+
+def _errorbar(ax, summary, x: str, y: str, fmt: str, colour, label: str,
+              x_interval: bool = False, log: bool = True):
+    """``y`` against ``x`` of ``summary`` with the 95% interval of ``y`` (and of ``x`` when
+    ``x_interval``) as error bars; ``log``: ``y`` is drawn on a log axis (values ≤ 0 left out)."""
+    def bars(name):
+        mean = np.asarray(summary[name], float)
+        return np.vstack([mean - summary[f"{name}_low"], summary[f"{name}_high"] - mean])
+
+    return ax.errorbar(summary[x], _positive(summary[y]) if log else summary[y], yerr=bars(y),
+                       xerr=bars(x) if x_interval else None, fmt=fmt, color=colour,
+                       label=label, capsize=2, elinewidth=0.8)
 
 
 def _save(fig, path: pathlib.Path) -> None:
@@ -93,22 +136,27 @@ def _positive(values) -> np.ndarray:
 
 def plot_error_vs_time(path: pathlib.Path, summary, scene: str) -> None:
     """relMSE and mean ΔE76 against ms/frame, log-log, a curve per estimator (points labelled
-    with their spp), the Pareto front over all cells ringed and joined."""
+    with their spp, error bars in time and error), the Pareto front of the means over all cells
+    ringed and joined, cells behind it by their means only, not resolved, ringed in grey."""
     colours = _colours(summary)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
     for ax, (column, label) in zip(axes, ERRORS):
         for name in _estimators(summary):
             rows = summary[summary.estimator == name].sort_values("spp")
-            ax.plot(rows.time_ms, _positive(rows[column]), "o-", color=colours[name], label=name)
+            _errorbar(ax, rows, "time_ms", column, "o-", colours[name], name, x_interval=True)
             for r in rows.itertuples():
                 ax.annotate(str(r.spp), (r.time_ms, getattr(r, column)), textcoords="offset points",
                             xytext=(4, 4), fontsize=7, color=colours[name])
-        front = pareto_front(summary.time_ms, _positive(summary[column]))
-        cells = summary[front].sort_values("time_ms")
+        calls = np.array(pareto_calls(summary, column))
+        cells = summary[calls == "◆"].sort_values("time_ms")
         ax.step(cells.time_ms, cells[column], where="post", color="black", lw=1, ls=":",
                 zorder=1)
         ax.plot(cells.time_ms, cells[column], "o", ms=12, mfc="none", mec="black",
                 label="Pareto front (non-dominated cells)")
+        unresolved = summary[np.char.startswith(calls.astype(str), "not resolved")]
+        if len(unresolved):
+            ax.plot(unresolved.time_ms, unresolved[column], "o", ms=12, mfc="none", mec="grey",
+                    ls="none", label="behind the front by the means only (not resolved)")
         ax.set_xscale("log")
         ax.set_yscale("log")
         _plain_log_axes(ax, "xy")
@@ -137,7 +185,7 @@ def plot_convergence(path: pathlib.Path, summary, scene: str) -> None:
     for ax, (column, label) in zip(axes, ERRORS):
         for name in _estimators(summary):
             rows = summary[summary.estimator == name].sort_values("spp")
-            ax.plot(rows.spp, _positive(rows[column]), "o-", color=colours[name], label=name)
+            _errorbar(ax, rows, "spp", column, "o-", colours[name], name)
         first = summary[summary.spp == summary.spp.min()]
         slope, text = guides[column]
         _guide(ax, summary.spp, np.nanmax(_positive(first[column])), slope, text)
@@ -162,11 +210,9 @@ def plot_effective(path: pathlib.Path, summary, scene: str) -> None:
     ax.plot(spp, spp, color="grey", lw=1, ls="--", label="budget (= spp)")
     for name in _estimators(summary):
         rows = summary[summary.estimator == name].sort_values("spp")
-        ax.plot(rows.spp, _positive(rows.effective_samples), "o-", color=colours[name],
-                label=f"{name}: effective")
-        ax.plot(rows.spp, _positive(rows.used_samples), "x:", color=colours[name],
-                label=f"{name}: used")
-        ratio.plot(rows.spp, rows.effective_ratio, "o-", color=colours[name], label=name)
+        _errorbar(ax, rows, "spp", "effective_samples", "o-", colours[name], f"{name}: effective")
+        _errorbar(ax, rows, "spp", "used_samples", "x:", colours[name], f"{name}: used")
+        _errorbar(ratio, rows, "spp", "effective_ratio", "o-", colours[name], name, log=False)
     ax.set_xscale("log")
     ax.set_yscale("log")
     _plain_log_axes(ax, "y")
@@ -187,13 +233,14 @@ def plot_effective(path: pathlib.Path, summary, scene: str) -> None:
 
 
 def plot_per_frame(path: pathlib.Path, per_frame, scene: str, spp: int) -> None:
-    """Mean ΔE76 and relMSE per frame of a sequence (mean over seeds) at ``spp``."""
+    """Mean ΔE76 and relMSE per frame of a sequence (mean over seeds, with its interval) at
+    ``spp``."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
     colours = _colours(per_frame)
     for ax, (column, label) in zip(axes, ERRORS):
         for name in _estimators(per_frame):
             rows = per_frame[per_frame.estimator == name].sort_values("frame")
-            ax.plot(rows.frame, _positive(rows[column]), ".-", color=colours[name], label=name)
+            _errorbar(ax, rows, "frame", column, ".-", colours[name], name)
         ax.set_yscale("log")
         _plain_log_axes(ax, "y")
         ax.set_xlabel("frame (index in the sequence)")

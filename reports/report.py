@@ -10,12 +10,16 @@ image grid (reference, each estimator at one spp, ΔE76 heat maps with one share
 Lu 2013 Fig. 1/2's sample picture (:mod:`.sample_picture`); then the run's manifest.
 
 Aggregation: a cell is (scene, estimator, spp).  Each seed's metrics are first averaged over the
-frames, then the cell's value is the median over seeds (robust to one unlucky seed); ms/frame is
-the cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`, the
-median over the cell's rows of ``time_ms``), the time ``iblbench run`` prints and ``check``
-compares; the Pareto fronts and efficiency = 1 / (relMSE · s per frame) use it.  Host wall time
-is shown beside it and never ranks anything.  Equal-time cells are tabled with their budget,
-the time they achieved and whether it is within ±10% of the budget.
+frames, then the cell's value is the mean over seeds with its 95% Student-t interval
+(:func:`iblbench.harness.stats.cell_intervals`, the one aggregation ``iblbench run`` prints too),
+shown as ``mean ± half-width`` in every table and as error bars in the plots.  ms/frame is the
+cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`), aggregated
+the same way; efficiency = 1 / (relMSE · s per frame) is computed per seed and then aggregated.
+The Pareto fronts call a cell dominated only where the intervals of time and of error both
+separate (:func:`iblbench.reports.plots.pareto_calls`); otherwise it is "not resolved at N
+seeds".  Host wall time is shown beside device time and never ranks anything.  Equal-time cells
+are tabled with their budget, the time they achieved and whether it is within ±10% of the
+budget.
 """
 from __future__ import annotations
 
@@ -31,7 +35,8 @@ import pandas as pd
 
 from iblbench.harness.equal_time import TOLERANCE
 from iblbench.harness.results import load_table
-from iblbench.harness.timing import TIME, cell_times
+from iblbench.harness.stats import cell_intervals, interval_text
+from iblbench.harness.timing import TIME
 from iblbench.reports import plots
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
@@ -41,6 +46,8 @@ REQUIRED_COLUMNS = ("scene", "estimator", "spp", "frame", "seed", "mean_delta_e7
                     "effective_ratio", "nonfinite", TIME, "time_ms_iqr", "time_ms_host")
 MEAN_COLUMNS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "used_samples",
                 "effective_samples", "effective_ratio")
+# Each is a cell's mean over seeds with its interval (module docstring).
+INTERVAL_COLUMNS = (*MEAN_COLUMNS, "flip", TIME, "time_ms_iqr", "time_ms_host", "efficiency")
 
 _TEMPLATES = jinja2.Environment(
     loader=jinja2.PackageLoader("iblbench.reports", "templates"),
@@ -68,26 +75,24 @@ def load_run(run_dir: pathlib.Path) -> tuple[pd.DataFrame, dict | None]:
 
 
 def summarize(table: pd.DataFrame) -> pd.DataFrame:
-    """One row per (scene, estimator, spp): per seed the mean over frames, then the median over
-    seeds; ``seeds`` counts them, ``nonfinite`` sums every row's; ``time_ms``, ``time_ms_iqr``
-    and ``time_ms_host`` are the cell's times (:func:`iblbench.harness.timing.cell_times`);
-    ``efficiency`` = 1/(relMSE·s), ``pareto_rel_mse``/``pareto_delta_e76`` mark the scene's
-    non-dominated cells (time, error)."""
+    """One row per (scene, estimator, spp): each column of INTERVAL_COLUMNS the table has (FLIP
+    only where it was computed) as :func:`iblbench.harness.stats.cell_intervals` gives it (the
+    mean over seeds of the per-seed means over frames, with ``_low``, ``_high``, ``_half``);
+    ``seeds`` counts the seeds, ``nonfinite`` sums every row's; ``efficiency`` = 1/(relMSE·s)
+    per row; ``pareto_rel_mse``/``pareto_delta_e76`` are :func:`~.plots.pareto_calls` over the
+    scene's cells (time, error)."""
     keys = ["scene", "estimator", "spp"]
-    per_seed = table.groupby(keys + ["seed"], sort=False)[list(MEAN_COLUMNS)].mean().reset_index()
-    cells = per_seed.groupby(keys, sort=False)[list(MEAN_COLUMNS)].median()
-    cells["seeds"] = per_seed.groupby(keys, sort=False).seed.nunique()
-    cells["nonfinite"] = table.groupby(keys, sort=False).nonfinite.sum()
-    for column in (TIME, "time_ms_iqr", "time_ms_host"):
-        cells[column] = cell_times(table, keys, column)
-    cells = cells.reset_index()
     with np.errstate(divide="ignore", invalid="ignore"):
-        cells["efficiency"] = 1.0 / (cells.rel_mse * cells.time_ms / 1e3)
+        table = table.assign(efficiency=1e3 / (table.rel_mse * table.time_ms))
+    columns = [c for c in INTERVAL_COLUMNS if c in table and table[c].notna().any()]
+    cells = cell_intervals(table, keys, columns)
+    cells["nonfinite"] = table.groupby(keys, sort=False).nonfinite.sum()
+    cells = cells.reset_index()
     for column in ("rel_mse", "mean_delta_e76"):
-        cells[f"pareto_{column.replace('mean_', '')}"] = False
+        name = f"pareto_{column.replace('mean_', '')}"
+        cells[name] = ""
         for _, rows in cells.groupby("scene", sort=False):
-            front = plots.pareto_front(rows.time_ms, rows[column])
-            cells.loc[rows.index, f"pareto_{column.replace('mean_', '')}"] = front
+            cells.loc[rows.index, name] = plots.pareto_calls(rows, column)
     order = {name: i for i, name in enumerate(dict.fromkeys(table.estimator))}
     cells["_order"] = cells.estimator.map(order)
     scene_order = {name: i for i, name in enumerate(dict.fromkeys(table.scene))}
@@ -109,42 +114,48 @@ def split_equal_time(table: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
 
 
 def equal_time_cells(rows: pd.DataFrame) -> pd.DataFrame:
-    """Error at equal time: per (budget, estimator) the spp run, errors (median over seeds of
-    the means over frames), the achieved device time per frame and whether it is within
-    ±TOLERANCE of the budget."""
+    """Error at equal time: per (budget, estimator) the spp run, errors and the achieved device
+    time per frame (means over seeds of the means over frames, with their intervals, as in
+    :func:`summarize`) and whether the achieved time is within ±TOLERANCE of the budget."""
     keys = ["time_budget_ms", "estimator", "spp"]
-    columns = ["mean_delta_e76", "mean_delta_e2000", "rel_mse", "effective_ratio"]
-    per_seed = rows.groupby(keys + ["seed"], sort=False)[columns].mean().reset_index()
-    cells = per_seed.groupby(keys, sort=False)[columns].median()
-    cells[TIME] = cell_times(rows, keys)
-    cells = cells.reset_index()
+    columns = ["mean_delta_e76", "mean_delta_e2000", "rel_mse", "effective_ratio", TIME]
+    cells = cell_intervals(rows, keys, columns).reset_index()
     cells["within"] = (cells[TIME] - cells.time_budget_ms).abs() <= TOLERANCE * cells.time_budget_ms
     return cells.sort_values(["time_budget_ms", "rel_mse"])
 
 
 def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
     cells = equal_time_cells(rows)
-    cells["within"] = cells.within.map({True: "yes", False: "NO"})
-    cells.columns = ["budget (ms/frame)", "estimator", "spp run", "mean ΔE76", "mean ΔE2000",
-                     "relMSE", "effective ratio", "achieved ms/frame (device)",
-                     f"within ±{TOLERANCE:.0%}"]
-    return _frame_html(cells)
+    shown = pd.DataFrame({
+        "budget (ms/frame)": cells.time_budget_ms, "estimator": cells.estimator,
+        "spp run": cells.spp, "seeds": cells.seeds,
+        **{header: _intervals(cells, column) for column, header in (
+            ("mean_delta_e76", "mean ΔE76"), ("mean_delta_e2000", "mean ΔE2000"),
+            ("rel_mse", "relMSE"), ("effective_ratio", "effective ratio"),
+            (TIME, "achieved ms/frame (device)"))},
+        f"within ±{TOLERANCE:.0%}": cells.within.map({True: "yes", False: "NO"})})
+    return _frame_html(shown)
+
+
+def _intervals(cells: pd.DataFrame, column: str) -> list[str]:
+    """The column's cells as ``mean ± half-width`` (``stats.interval_text``)."""
+    return [interval_text(mean, half, n) for mean, half, n in
+            zip(cells[column], cells[f"{column}_half"], cells.seeds)]
 
 
 _TABLE_COLUMNS = {   # summary column → header (with units)
     "estimator": "estimator", "spp": "spp", "seeds": "seeds",
     "mean_delta_e76": "mean ΔE76", "mean_delta_e2000": "mean ΔE2000", "rel_mse": "relMSE",
     "effective_ratio": "effective ratio", "effective_samples": "effective spp",
-    "used_samples": "used spp", "time_ms": "ms/frame (device)", "time_ms_iqr": "IQR ms",
-    "time_ms_host": "ms/frame (host wall)", "efficiency": "efficiency 1/(relMSE·s)",
+    "used_samples": "used spp", "flip": "FLIP", "time_ms": "ms/frame (device)",
+    "time_ms_iqr": "IQR ms", "time_ms_host": "ms/frame (host wall)",
+    "efficiency": "efficiency 1/(relMSE·s)",
     "nonfinite": "non-finite px", "pareto_rel_mse": "Pareto (relMSE)",
     "pareto_delta_e76": "Pareto (ΔE76)",
 }
 
 
 def _number(value) -> str:
-    if isinstance(value, (bool, np.bool_)):
-        return "◆" if value else ""
     if isinstance(value, (float, np.floating)):
         if not np.isfinite(value):
             return "–"
@@ -153,8 +164,11 @@ def _number(value) -> str:
 
 
 def summary_html(cells: pd.DataFrame) -> markupsafe.Markup:
-    """The summary table of one scene (pandas → escaped HTML)."""
-    frame = cells[list(_TABLE_COLUMNS)].rename(columns=_TABLE_COLUMNS)
+    """The summary table of one scene (pandas → escaped HTML); every aggregated figure as
+    ``mean ± half-width``."""
+    frame = pd.DataFrame({header: _intervals(cells, column) if column in INTERVAL_COLUMNS
+                          else cells[column] for column, header in _TABLE_COLUMNS.items()
+                          if column in cells})
     text = frame.to_html(index=False, border=0, classes="summary", escape=True,
                          formatters={c: _number for c in frame.columns})
     return markupsafe.Markup(text)
@@ -429,8 +443,8 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         per_frame = None
         if len(frames) > 1:
             shown = max(grid["spp"]) if grid["spp"] else int(rows.spp.max())
-            data = rows[rows.spp == shown].groupby(["estimator", "frame"], sort=False)[
-                ["mean_delta_e76", "rel_mse"]].mean().reset_index()
+            data = cell_intervals(rows[rows.spp == shown], ["estimator", "frame"],
+                                  ["mean_delta_e76", "rel_mse"]).reset_index()
             per_frame = f"per_frame_{slug}.png"
             plots.plot_per_frame(report / per_frame, data, scene, shown)
         try:

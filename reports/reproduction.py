@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
+from iblbench.harness.stats import interval_text  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
 
 _TEMPLATES = jinja2.Environment(
@@ -24,16 +25,32 @@ def _format(value) -> str:
     return str(value)
 
 
-def _rows(frame) -> list[list[str]]:
-    return [[_format(v) for v in row] for row in frame.itertuples(index=False)]
+def _shown(frame) -> tuple[list[str], list[list[str]]]:
+    """(columns, rows) of a table: a column with a ``_half`` beside it (its 95% interval's
+    half-width) as ``mean ± half-width`` (:func:`iblbench.harness.stats.interval_text`)."""
+    columns = [c for c in frame.columns if not c.endswith("_half")]
+    rows = []
+    for _, row in frame.iterrows():
+        rows.append([interval_text(row[c], row[f"{c}_half"], row["seeds"])
+                     if f"{c}_half" in frame else _format(row[c]) for c in columns])
+    return columns, rows
+
+
+def _half(table, column: str):
+    """The half-widths of ``column``'s intervals, for error bars (None where the table has none)."""
+    return table[f"{column}_half"] if f"{column}_half" in table else None
 
 
 def plot_error_vs_spp(path: pathlib.Path, table) -> None:
-    """Mean ΔE76 against spp on log-log axes, one line per scene, with a −½ slope guide."""
+    """Mean ΔE76 against spp on log-log axes, one line per scene (with its 95% intervals as error
+    bars where the table has them), with a −½ slope guide."""
     fig, ax = plt.subplots(figsize=(6, 4.5))
     for scene, rows in table.groupby("scene"):
         rows = rows.sort_values("spp")
-        ax.loglog(rows.spp, rows.mean_delta_e76, "o-", label=scene)
+        ax.errorbar(rows.spp, rows.mean_delta_e76, yerr=_half(rows, "mean_delta_e76"), fmt="o-",
+                    capsize=2, label=scene)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
     spp = np.array(sorted(table.spp.unique()), float)
     start = table[table.spp == spp[0]].mean_delta_e76.max()
     ax.loglog(spp, start * (spp / spp[0]) ** -0.5, "k--", label="slope −½")
@@ -53,8 +70,9 @@ def plot_effective_samples(path: pathlib.Path, table) -> None:
     labels = [f"{r.scene}\n{r.estimator}@{r.spp}" for r in table.itertuples()]
     x = np.arange(len(labels))
     fig, ax = plt.subplots(figsize=(max(6, 0.9 * len(labels)), 4.5))
-    ax.bar(x - 0.2, table.used, 0.4, label="used")
-    ax.bar(x + 0.2, table.effective, 0.4, label="effective (cos > 0)")
+    ax.bar(x - 0.2, table.used, 0.4, yerr=_half(table, "used"), capsize=2, label="used")
+    ax.bar(x + 0.2, table.effective, 0.4, yerr=_half(table, "effective"), capsize=2,
+           label="effective (cos > 0)")
     ax.set_xticks(x, labels, fontsize=7, rotation=45, ha="right")
     ax.set_ylabel("samples per pixel")
     ax.legend()
@@ -72,7 +90,7 @@ def write_summary(out: pathlib.Path, result) -> pathlib.Path:
         "title": result.title,
         "differences": result.setup_differences,
         "verdicts": result.verdicts,
-        "tables": {name: {"columns": list(t.columns), "rows": _rows(t)}
+        "tables": {name: dict(zip(("columns", "rows"), _shown(t)))
                    for name, t in result.tables.items()},
         "plots": plots,
     }

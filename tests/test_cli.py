@@ -462,7 +462,32 @@ def test_terminal_tables_show_evaluations_and_time_beside_spp():
     (spp_title, by_spp), (time_title, by_time) = terminal_summaries(table)
     assert list(by_spp.columns[:3]) == ["evaluations", "time_ms", "mean_delta_e76"]
     assert by_spp.loc[("s", "bis", 16), "evaluations"] == 336.0
-    assert by_spp.loc[("s", "bis", 16), "time_ms"] == 31.0     # median over the seeds' 30, 31, 32
+    # The seeds' 30, 31, 32: mean 31 ± t(0.975, 2) · 1 / √3 = 2.48.
+    assert by_spp.loc[("s", "bis", 16), "time_ms"] == "31.0 ± 2.5"
     assert "equal time" in spp_title and "equal time" in time_title
     assert list(by_time.columns[:4]) == ["spp", "evaluations", "time_ms", "mean_delta_e76"]
     assert by_time.loc[("s", 10.0, "bis"), "evaluations"] == 84.0
+
+
+def test_terminal_table_shows_the_mean_over_seeds_and_its_t_interval():
+    """Per-seed frame means 1, 2 and 6 (mean 3, median 2, sd √7): the printed cell is the mean
+    ± t(0.975, 2)·√7/√3 = 6.57 (t = 4.3027 from the t table), both rounded at the half-width's
+    second significant digit; one seed prints no interval."""
+    from iblbench.harness.cli import terminal_summaries
+
+    rows = [{"scene": "s", "estimator": "a", "spp": 16, "frame": frame, "seed": seed,
+             "time_budget_ms": float("nan"), "mean_delta_e76": value, "rel_mse": value / 10,
+             "flip": value / 100, "effective_samples": 8.0, "used_samples": 16.0,
+             "evaluations": 16.0, "nonfinite": 0, "time_ms": 2 * value}
+            for seed, pair in enumerate([(0.5, 1.5), (2.0, 2.0), (5.0, 7.0)])
+            for frame, value in enumerate(pair)]
+    table = pd.DataFrame(rows)
+    (_, summary), = terminal_summaries(table)
+    cell = summary.loc[("s", "a", 16)]
+    assert cell.mean_delta_e76 == "3.0 ± 6.6"
+    assert cell.rel_mse == "0.30 ± 0.66"
+    assert cell.flip == "0.030 ± 0.066"
+    assert cell.time_ms == "6 ± 13"
+    assert cell.effective == "8 ± 0" and cell.seeds == 3
+    (_, single), = terminal_summaries(table[table.seed == 1])
+    assert single.loc[("s", "a", 16)].mean_delta_e76 == "2 (n=1, no interval)"

@@ -248,8 +248,10 @@ def claim2_cells(balanced_over_uniform_3n: dict[str, float]):
     for scene, ratio in balanced_over_uniform_3n.items():
         for estimator, spp, de in (("uniform", 60, 9.0), ("uniform", 180, 4.0),
                                    ("balanced", 60, 4.0 * ratio)):
-            rows.append({"scene": scene, "estimator": estimator, "spp": spp, "mean_delta_e76": de,
-                         "effective_ratio": 0.5, "time_ms": 1.0})
+            rows.append({"scene": scene, "estimator": estimator, "spp": spp, "seeds": 8,
+                         **{f"{column}{end}": value for column, value in (
+                             ("mean_delta_e76", de), ("effective_ratio", 0.5), ("time_ms", 1.0))
+                            for end in ("", "_low", "_high")}})   # exact: point intervals
     return pd.DataFrame(rows)
 
 

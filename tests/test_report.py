@@ -9,6 +9,7 @@ from __future__ import annotations
 import html.parser
 import math
 import pathlib
+import re
 import shutil
 
 import numpy as np
@@ -18,8 +19,10 @@ import pytest
 from iblbench.estimators.light_pool import TICKS_PER_SAMPLE
 from iblbench.harness import cli
 from iblbench.harness.runner import RunConfig, run
+from iblbench.reports import plots
 from iblbench.reports.plots import pareto_front
-from iblbench.reports.report import default_pixel, load_run, scene_inputs, summarize, write_report
+from iblbench.reports.report import (default_pixel, load_run, scene_inputs, summarize, summary_html,
+                                     write_report)
 from iblbench.scenes import cubemap
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.gbuffer import GBuffer
@@ -114,15 +117,15 @@ def test_summary_table_lists_every_cell(reported):
         assert column in header, column
     cells = {(r[header.index("estimator")], int(r[header.index("spp")])) for r in rows}
     assert cells == {(e, s) for e in ESTIMATORS for s in SPP}
-    # ms/frame is the cell's device time: the median over its rows of time_ms.
+    # ms/frame is the cell's device time: the run's one row per cell (one seed: no interval).
     table, _ = load_run(out)
-    medians = table.groupby(["estimator", "spp"]).time_ms.median()
+    times = table.set_index(["estimator", "spp"]).time_ms
     for r in rows:
         cell = (r[header.index("estimator")], int(r[header.index("spp")]))
-        assert r[header.index("ms/frame (device)")] == f"{medians[cell]:.4g}"
+        assert r[header.index("ms/frame (device)")] == f"{times[cell]:.4g} (n=1, no interval)"
     # The efficiency column is 1/(relMSE·s) of the table's own relMSE and ms/frame.
     for r in summarize(table).itertuples():
-        assert r.efficiency == pytest.approx(1e3 / (r.rel_mse * r.time_ms))
+        assert r.efficiency == pytest.approx(1e3 / (r.rel_mse * r.time_ms))   # one row per cell
 
 
 def test_static_run_has_no_per_frame_section_and_shows_manifest(reported):
@@ -167,14 +170,15 @@ def test_summary_marks_a_dominated_cell():
             rows.append({"scene": "s", "estimator": estimator, "spp": spp, "frame": 0,
                          "seed": seed, "mean_delta_e76": rel * 10, "mean_delta_e2000": rel * 8,
                          "rel_mse": rel, "used_samples": spp, "effective_samples": spp / 2,
-                         "effective_ratio": 0.5, "nonfinite": 0, "time_ms": ms + seed * 0.1,
+                         "effective_ratio": 0.5, "nonfinite": 0, "time_ms": ms + seed * 0.01,
                          "time_ms_iqr": 0.0, "time_ms_host": 9.0})
     cells = summarize(pd.DataFrame(rows)).set_index(["estimator", "spp"])
-    # b@4 (2.05 ms, 0.6) is slower and worse than a@4 (1.05 ms, 0.5); a@16 (4.05 ms, 0.1) is
-    # slower and worse than b@16 (3.05 ms, 0.05).
-    assert cells.pareto_rel_mse.to_dict() == {("a", 4): True, ("a", 16): False,
-                                             ("b", 4): False, ("b", 16): True}
-    assert cells.loc[("a", 4), "time_ms"] == pytest.approx(1.05)   # median over seeds
+    # b@4 (2.005 ms, 0.6) is slower and worse than a@4 (1.005 ms, 0.5); a@16 (4.005 ms, 0.1) is
+    # slower and worse than b@16 (3.005 ms, 0.05); times ± 0.064 ms (t(0.975, 1) = 12.7 × 0.005)
+    # and errors equal over seeds (point intervals): all separate.
+    assert cells.pareto_rel_mse.to_dict() == {("a", 4): "◆", ("a", 16): "dominated",
+                                             ("b", 4): "dominated", ("b", 16): "◆"}
+    assert cells.loc[("a", 4), "time_ms"] == pytest.approx(1.005)   # mean over seeds
 
 
 def _face_weights(normal: np.ndarray, env: np.ndarray) -> np.ndarray:
@@ -266,10 +270,34 @@ def test_cli_writes_the_report(reported, capsys):
 CHROMIUM = shutil.which("chromium")
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium installed (Debian package 'chromium')")
-def test_report_renders_in_headless_chromium(reported):
-    sync_api = pytest.importorskip("playwright.sync_api")
+@pytest.fixture(scope="module")
+def two_seeds(reported, tmp_path_factory):
+    """The tiny run with a second seed (errors × 1.5, times × 1.2) and an equal-time copy of
+    every row: a report whose every aggregated table has an interval to show."""
     out, _ = reported
+    copy = tmp_path_factory.mktemp("two-seeds") / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    table = pd.read_parquet(copy / "results.parquet")
+    errors = ["mean_delta_e76", "mean_delta_e2000", "rel_mse"]
+    second = table.assign(seed=1, **{c: table[c] * 1.5 for c in errors},
+                          time_ms=table.time_ms * 1.2)
+    both = pd.concat([table, second])
+    timed = both.assign(time_budget_ms=both.groupby("estimator").time_ms.transform("max"))
+    pd.concat([both, timed]).to_parquet(copy / "results.parquet", index=False)
+    return copy, write_report(copy)
+
+
+# Headers of the aggregated tables that are not figures over seeds.
+NOT_AGGREGATED = {"estimator", "spp", "seeds", "non-finite px", "Pareto (relMSE)", "Pareto (ΔE76)",
+                  "budget (ms/frame)", "spp run", "within ±10%"}
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium installed (Debian package 'chromium')")
+def test_report_renders_in_headless_chromium(two_seeds):
+    """Every image loads, no script error, and every table of figures over seeds (the summary
+    and the equal-time table) shows each figure as mean ± half-width."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    out, _ = two_seeds
     errors: list[str] = []
     with sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
@@ -281,12 +309,24 @@ def test_report_renders_in_headless_chromium(reported):
             page.wait_for_load_state("load")
             images = page.evaluate("Array.from(document.images).map(i => "
                                    "[i.getAttribute('src'), i.complete, i.naturalWidth])")
+            tables = page.evaluate("Array.from(document.querySelectorAll('table')).map(t => "
+                                   "Array.from(t.rows).map(r => Array.from(r.cells).map("
+                                   "c => c.innerText.trim())))")
         finally:
             browser.close()
     assert len(images) >= 10
     broken = [src for src, complete, width in images if not complete or width == 0]
     assert not broken, broken
     assert not errors, errors
+    over_seeds = [t for t in tables if t and "seeds" in t[0]]
+    assert len(over_seeds) == 2                               # the summary and the equal time
+    for header, *rows in over_seeds:
+        figures = [i for i, name in enumerate(header) if name not in NOT_AGGREGATED]
+        assert len(figures) >= 5, header
+        for row in rows:
+            assert row[header.index("seeds")] == "2"
+            for i in figures:
+                assert re.fullmatch(r"\S+ ± \S+", row[i]), (header[i], row[i])
 
 
 # --- the report shows what the run has, from any working directory -------------------------------
@@ -334,3 +374,90 @@ def test_a_user_scene_run_reports_from_another_working_directory(tmp_path, monke
     inputs = scene_inputs(out, manifest, "ball", 0)
     assert "rebuilt from the scene registry" in inputs.source
     assert inputs.mask.shape == (12, 12) and inputs.mask.any()
+
+
+# --- intervals over seeds (issue 11) ---------------------------------------------------------------
+
+T_975_2 = 4.302652729911275   # Student t, two-sided 95%, 2 degrees of freedom (printed tables)
+
+
+def _seed_rows(estimator: str, spp: int, per_seed: list[tuple[float, float]], ms: float,
+               **columns) -> list[dict]:
+    """One cell of a synthetic results table: two frames per seed, whose values are given."""
+    return [{"scene": "s", "estimator": estimator, "spp": spp, "frame": frame, "seed": seed,
+             "time_budget_ms": math.nan, "mean_delta_e76": pair[frame],
+             "mean_delta_e2000": pair[frame] / 2, "rel_mse": pair[frame] / 10,
+             "used_samples": spp, "effective_samples": spp / 2, "effective_ratio": 0.5,
+             "nonfinite": 0, "time_ms": ms * pair[frame], "time_ms_iqr": 0.0,
+             "time_ms_host": 9.0, "evaluations": float(spp), **columns}
+            for seed, pair in enumerate(per_seed) for frame in (0, 1)]
+
+
+# Per-seed frame means 1, 2 and 6: mean 3, median 2, sd √7.
+KNOWN = [(0.5, 1.5), (2.0, 2.0), (5.0, 7.0)]
+KNOWN_HALF = T_975_2 * math.sqrt(7.0) / math.sqrt(3.0)
+
+
+def test_report_table_shows_the_mean_over_seeds_and_its_t_interval(tmp_path):
+    table = pd.DataFrame(_seed_rows("a", 16, KNOWN, ms=2.0))
+    row = summarize(table).iloc[0]
+    assert row.mean_delta_e76 == pytest.approx(3.0)          # the mean, not the median 2
+    assert (row.mean_delta_e76_low, row.mean_delta_e76_high) == pytest.approx(
+        (3.0 - KNOWN_HALF, 3.0 + KNOWN_HALF))
+    assert (row.time_ms, row.time_ms_half) == pytest.approx((6.0, 2.0 * KNOWN_HALF))
+    page = _Page()
+    page.feed(str(summary_html(summarize(table))))
+    header, cells = page.tables[0]["rows"]
+    shown = dict(zip(header, cells))
+    assert shown["seeds"] == "3"
+    assert shown["mean ΔE76"] == "3.0 ± 6.6"                 # rounded at 6.57's second digit
+    assert shown["relMSE"] == "0.30 ± 0.66"
+    assert shown["ms/frame (device)"] == "6 ± 13"
+
+
+def _captured_figures(monkeypatch) -> list:
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig))
+    return figures
+
+
+def test_plots_draw_each_cells_interval_as_an_error_bar(monkeypatch):
+    from matplotlib.container import ErrorbarContainer
+
+    table = pd.DataFrame(_seed_rows("a", 4, KNOWN, ms=1.0)
+                         + _seed_rows("a", 16, [(v / 2, w / 2) for v, w in KNOWN], ms=3.0))
+    cells = summarize(table)
+    figures = _captured_figures(monkeypatch)
+    plots.plot_convergence(pathlib.Path("unused.png"), cells, "s")
+    plots.plot_error_vs_time(pathlib.Path("unused.png"), cells, "s")
+    convergence, against_time = figures
+    ax = convergence.axes[1]                                 # mean ΔE76 against spp
+    bars = [c for c in ax.containers if isinstance(c, ErrorbarContainer)]
+    assert len(bars) == 1 and bars[0].has_yerr
+    segments = sorted(tuple(map(tuple, s)) for s in bars[0].lines[2][0].get_segments())
+    expected = [((4.0, 3.0 - KNOWN_HALF), (4.0, 3.0 + KNOWN_HALF)),
+                ((16.0, 1.5 - KNOWN_HALF / 2), (16.0, 1.5 + KNOWN_HALF / 2))]
+    np.testing.assert_allclose(np.array(segments), np.array(expected))
+    time_bars = [c for c in against_time.axes[0].containers if isinstance(c, ErrorbarContainer)]
+    assert time_bars and time_bars[0].has_xerr and time_bars[0].has_yerr
+
+
+def test_a_pareto_ordering_is_called_only_where_intervals_separate():
+    steady = [(3.0, 3.0)] * 3
+    rows = (_seed_rows("a", 16, KNOWN, ms=1.0, time_ms=1.0)       # 1 ms, ΔE 3 ± 6.6
+            + _seed_rows("b", 16, [(v + 1, w + 1) for v, w in KNOWN], ms=1.0, time_ms=2.0)
+            + _seed_rows("c", 16, steady, ms=1.0, time_ms=0.5)      # 0.5 ms, ΔE exactly 3
+            + _seed_rows("d", 16, [(4.0, 4.0)] * 3, ms=1.0, time_ms=3.0))
+    cells = summarize(pd.DataFrame(rows)).set_index("estimator")
+    # b (2 ms, 4 ± 6.6) and a (1 ms, 3 ± 6.6) are behind c (0.5 ms, 3) by the means (a ties c in
+    # ΔE), but their ΔE intervals contain c's: not resolved.  d (3 ms, exactly 4) is behind c in
+    # both, with separated intervals: dominated.
+    assert cells.pareto_delta_e76.to_dict() == {
+        "a": "not resolved at 3 seeds", "b": "not resolved at 3 seeds", "c": "◆",
+        "d": "dominated"}
+
+
+def test_one_seed_resolves_no_ordering():
+    table = pd.DataFrame(_seed_rows("a", 16, [(1.0, 1.0)], ms=1.0)
+                         + _seed_rows("b", 16, [(2.0, 2.0)], ms=1.0))
+    assert summarize(table).pareto_delta_e76.tolist() == ["◆", "not resolved at 1 seeds"]

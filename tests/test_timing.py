@@ -277,8 +277,9 @@ def test_every_render_runs_with_host_blas_at_one_thread(tmp_path, fakes):
 
 
 def test_terminal_check_and_report_show_one_time_per_cell(tmp_path):
-    """A cell of 2 frames × 3 seeds whose per-seed means and median differ from the median
-    over its rows: every reader shows the median over the rows, 4 ms."""
+    """A cell of 2 frames × 3 seeds whose mean over seeds differs from the median over its rows:
+    the terminal and the report show the mean over seeds of the per-seed frame means, ``check``'s
+    time ratio (harness/budgets.py, not yet moved to the one aggregation) the median over rows."""
     times = {(0, 0): 1.0, (1, 0): 9.0, (0, 1): 4.0, (1, 1): 4.5, (0, 2): 3.0, (1, 2): 8.0}
     rows = []
     for estimator, scale in (("a", 1.0), ("b", 2.0)):
@@ -292,13 +293,13 @@ def test_terminal_check_and_report_show_one_time_per_cell(tmp_path):
                          "time_ms_sample": 0.0, "time_ms_shade": ms, "time_ms_host": 99.0,
                          "time_repeats": 5})
     table = pd.DataFrame(rows)
-    expected = {"a": 4.25, "b": 8.5}   # medians of (1, 3, 4, 4.5, 8, 9) and of twice those
+    expected = {"a": 59 / 12, "b": 59 / 6}   # seeds' means (5, 4.25, 5.5) and twice those
     terminal = cli.terminal_summaries(table)[0][1].time_ms
     report = summarize(table).set_index("estimator").time_ms
     rule = budgets.Rule("r", "s", "b", (16,), (), None, budgets.TimeRatio("a", "time_ms", 3.0))
     check = budgets.evaluate([rule], table).iloc[0]
     for estimator, ms in expected.items():
-        assert terminal[("s", estimator, 16)] == pytest.approx(ms)
+        assert terminal[("s", estimator, 16)].startswith(f"{ms:.1f} ± ")   # ± 1.6, ± 3.1
         assert report[estimator] == pytest.approx(ms)
     assert check.metric == "time_ms / a (8.5 / 4.25 ms)" and check.value == "2"
 
