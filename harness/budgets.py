@@ -25,8 +25,8 @@ DESIGN §6) by scene glob, estimator glob and spp, and sets limits on them::
 Limits. ``max_<metric>`` and ``min_<metric>`` work for every quality metric of the table
 (mean_delta_e76, mean_delta_e2000, rel_mse, flip, used_samples, effective_samples,
 effective_ratio, evaluations); ``nonfinite = N`` bounds the total count of non-finite pixels
-(use 0); ``max_time_ratio`` bounds ``median(metric of the cell) / median(metric of the baseline
-cell)``, where the baseline cell is the named estimator on the same scene and spp *in the same
+(use 0); ``max_time_ratio`` bounds ``time(metric of the cell) / time(metric of the baseline
+cell)`` (times as below), where the baseline cell is the named estimator on the same scene and spp *in the same
 results table* (``metric`` is one of the time columns: time_ms, the cell's device time per
 frame of :mod:`iblbench.harness.timing`, the default; time_ms_min, time_ms_iqr,
 time_ms_build, time_ms_sample, time_ms_shade, time_ms_host). Absolute times cannot be budgeted:
@@ -44,9 +44,9 @@ aggregation of :mod:`iblbench.harness.stats`: each seed's mean over its frames, 
 :func:`~iblbench.harness.stats.mean_ci` over the seeds (the mean, with its 95% Student-t interval
 printed beside it in the ``ci95`` column as ``± half-width``). The bound is compared with the
 mean; a NaN in any row makes the value NaN, and NaN always fails. ``nonfinite`` is the sum over the rows. The time ratio is a
-ratio of the two cells' times (:func:`iblbench.harness.timing.median_time`: the **median over
-the rows**, frames × seeds), the same time the report and ``iblbench run`` print; both times are
-shown beside the ratio.
+ratio of the two cells' times (:func:`iblbench.harness.timing.one_cell_time`: the same one
+aggregation, per seed the mean over frames, then the mean over seeds), the time the report and
+``iblbench run`` print; both times are shown beside the ratio.
 
 Configuration. ``check`` refuses (exit 2, naming what differs) results whose rows were made at
 another width, height, env_res or protocol than the budgets' ``[configuration]``, or whose seed
@@ -89,7 +89,7 @@ import pandas as pd
 
 from iblbench.harness.results import METRIC_COLUMNS, load_table, read_manifest
 from iblbench.harness.stats import mean_ci
-from iblbench.harness.timing import COLUMNS as TIME_COLUMNS, TIME, median_time
+from iblbench.harness.timing import COLUMNS as TIME_COLUMNS, TIME, one_cell_time
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.tomlfile import read_toml
@@ -395,8 +395,8 @@ def evaluate(rules: list[Rule], table: pd.DataFrame,
                             emit(rule, scene, estimator, spp, f"{ratio.metric} / {ratio.baseline}",
                                  "baseline missing", budget, False)
                             continue
-                        mine = median_time(rows[ratio.metric])
-                        theirs = median_time(base[ratio.metric])
+                        mine = one_cell_time(rows, ratio.metric)
+                        theirs = one_cell_time(base, ratio.metric)
                         metric = (f"{ratio.metric} / {ratio.baseline} "
                                   f"({_fmt(mine)} / {_fmt(theirs)} ms)")
                         value = mine / theirs if theirs > 0 else math.nan
@@ -459,8 +459,8 @@ BUDGETS_HEADER = """\
 # - used samples in [spp − 1%, spp] where the run measured it there (the strategies' ticks sum
 #   to the budget: more is an overrun, less a dropped strategy), else as the metrics above;
 # - nonfinite = 0 (the run had none: budgets are not made from a run with NaN/Inf pixels);
-# - time only as a ratio to `{baseline}` in the same run, same scene and spp: medians of
-#   {time_metric}, at most {time_factor:g}× the measured ratio (absolute times are not budgeted).
+# - time only as a ratio to `{baseline}` in the same run, same scene and spp: means of
+#   {time_metric} over seeds, at most {time_factor:g}× the measured ratio (absolute times are not budgeted).
 """
 
 
@@ -567,7 +567,7 @@ def derive_budgets(out_dir: str | pathlib.Path, margin: float,
         text += _bound_lines(rows, spp, margin, se_multiple)
         base = groups.get((scene, TIME_BASELINE, spp))
         if estimator != TIME_BASELINE and base is not None:
-            ratio = median_time(rows[TIME_METRIC]) / median_time(base[TIME_METRIC])
+            ratio = one_cell_time(rows, TIME_METRIC) / one_cell_time(base, TIME_METRIC)
             if math.isfinite(ratio) and ratio > 0:
                 text.append(f'max_time_ratio = {{ baseline = "{TIME_BASELINE}", metric = '
                             f'"{TIME_METRIC}", max = {_outward(TIME_FACTOR * ratio, True)!r} }}'

@@ -50,9 +50,8 @@ device time (idle machine).
 **Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
 time is aggregated as every other figure is (:func:`iblbench.harness.stats.cell_intervals`):
 per seed the mean of its frames' ``time_ms``, then the mean over seeds with its 95% Student-t
-interval (:func:`cell_times`).  The median stays where it guards against outliers of one
-machine moment: over a row's repeats (above).  :func:`median_time` (the median of rows' times)
-is what ``check``'s time ratios still use (:mod:`iblbench.harness.budgets`).
+interval (:func:`cell_times`, :func:`one_cell_time`; ``check``'s time ratios too).  The median
+stays where it guards against outliers of one machine moment: over a row's repeats (above).
 """
 from __future__ import annotations
 
@@ -143,9 +142,10 @@ def time_columns(renders: list[TimedRender]) -> dict:
     return columns
 
 
-def median_time(values) -> float:
-    """One cell's time from its rows' times: their median (NaN if any is NaN: fail closed)."""
-    return float(np.median(np.asarray(values, np.float64)))
+def one_cell_time(rows, column: str = TIME) -> float:
+    """The time of one cell from its rows (frames × seeds, a DataFrame with a ``seed`` column):
+    as :func:`cell_times` aggregates (NaN if any row is NaN: fail closed)."""
+    return float(cell_intervals(rows.assign(cell=0), ["cell"], [column])[column].iloc[0])
 
 
 def cell_times(table, keys, column: str = TIME):
