@@ -149,6 +149,7 @@ class SMC(Estimator):
     tags = Tags(unbiased=False, temporal=True, has_pdf=False)
     requires = ("cdf",)
     kernel_files = ("smc.cl", "sir.cl", "lanes.cl")
+    twin = "iblbench.harness.twins.ghosh2006"   # its NumPy twin (conformance.check_matches_twin)
 
     def __init__(self, params=None, **overrides):
         super().__init__(params, **overrides)

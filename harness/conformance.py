@@ -531,6 +531,46 @@ def check_temporal_consistency(estimator, h: Harness) -> None:
     assert end <= 2.0 * start + 1e-6, f"error drifts on a static map: RMS {start:.4g} → {end:.4g}"
 
 
+TWIN_FRAMES = 10    # rotating-sun: the init, holds (1, 7, 8) and turning frames (2-6, 9)
+# Runs of each of the 5 shading points: the MH misprint scores |z| 7.8 (6.1 at 128), the weight
+# update without γ_{t−1} 115; the check costs 1.2-4 s (smc's kernels built).
+TWIN_CHAINS = 256
+TWIN_SPP = 8
+
+
+def check_matches_twin(estimator, h: Harness) -> None:
+    """Estimators that declare an independent NumPy twin (``twin``, harness/twins): per frame
+    of ``rotating-sun`` (a smoothly turning map that never re-initialises), shading point and
+    channel, the estimator's and the twin's estimates over ``TWIN_CHAINS`` independent chains
+    agree in distribution (harness/twins/crosscheck.py): the means by Welch z, the variances by
+    the kurtosis-scaled log ratio, one family at α = 1e-3 (Šidák).  It sees a reweighting or an
+    MH acceptance off the paper, which leaves every single frame plausible."""
+    from iblbench.harness.twins import crosscheck
+
+    args = (TWIN_FRAMES, TWIN_CHAINS, TWIN_SPP)
+    estimates = crosscheck.estimator_runs(h.compute, estimator, *args, seed=1)[0]
+    twin = crosscheck.twin_runs(estimator, *args, seed=7)[0]
+    tests = {"mean": crosscheck.mean_z(estimates, twin),
+             "variance": crosscheck.log_variance_z(estimates, twin)}
+    bound = sidak_z(sum(z.size for z in tests.values()))
+    failures = []
+    for name, z in tests.items():
+        worst = np.unravel_index(np.argmax(np.abs(z)), z.shape)
+        if not np.abs(z[worst]) < bound:        # NaN fails too
+            failures.append(f"{name} |z| = {abs(z[worst]):.1f} at (frame, point, channel) {worst}: "
+                            f"mean {estimates.mean(2)[worst]:.4g} vs twin {twin.mean(2)[worst]:.4g}, "
+                            f"variance ratio {estimates.var(2)[worst] / twin.var(2)[worst]:.2f}")
+    assert not failures, f"off its twin {type(estimator).twin} (|z| bound {bound:.2f}): " + "; ".join(failures)
+
+
+def skipped_checks(estimator) -> dict[str, str]:
+    """Checks that do not apply to this estimator and why (reported, not run)."""
+    if getattr(type(estimator), "twin", ""):
+        return {}
+    return {"check_matches_twin": "no independent NumPy twin declared (class attribute twin, "
+                                  "harness/twins)"}
+
+
 def check_timing(estimator, h: Harness) -> None:
     gbuffer, cache = h.inputs(glossy_gbuffer(), smooth_map())
     timings = h.render(estimator, gbuffer, cache, 8, 0).timings_ms
@@ -558,12 +598,15 @@ def yield_checks(estimator) -> Iterator[Callable]:
         yield check_effective_share
     if tags.temporal:
         yield check_temporal_consistency
+    if "check_matches_twin" not in skipped_checks(estimator):
+        yield check_matches_twin
     yield check_timing
 
 
 def check_estimator(estimator, expected_failed_checks: dict[str, str] | None = None,
                     compute=None) -> dict[str, str]:
-    """Run every applicable check; returns ``{check: "passed" | "xfail: reason"}``.
+    """Run every applicable check; returns ``{check: "passed" | "xfail: reason" | "skipped: reason"}``
+    (``skipped_checks``).
 
     ``expected_failed_checks`` maps check names to the reason they are known to fail; those
     are run and reported, not raised.  Any other failure raises ``AssertionError`` naming all
@@ -571,7 +614,8 @@ def check_estimator(estimator, expected_failed_checks: dict[str, str] | None = N
     """
     expected = expected_failed_checks or {}
     h = Harness(compute or get_compute())
-    outcome, failures = {}, []
+    outcome = {name: f"skipped: {why}" for name, why in skipped_checks(estimator).items()}
+    failures = []
     for check in yield_checks(estimator):
         try:
             check(estimator, h)
@@ -602,6 +646,9 @@ def parametrize_with_checks(estimators, expected_failed_checks: Callable | None 
                 if check.__name__ in known else []
             params.append(pytest.param(estimator, _bound(check), marks=marks,
                                        id=f"{type(estimator).name}-{check.__name__}"))
+        for name, why in skipped_checks(estimator).items():
+            params.append(pytest.param(estimator, None, marks=pytest.mark.skip(reason=why),
+                                       id=f"{type(estimator).name}-{name}"))
     return pytest.mark.parametrize("estimator, check", params)
 
 

@@ -153,17 +153,13 @@ CATALOGUE: tuple[Mutant, ...] = (
     # ---- smc -----------------------------------------------------------------------------------
     _m("smc-weight-update-without-previous-target", "estimators/smc.cl",
        "exp(log(g.y / g.x) / (float)steps)", "exp(log(g.y) / (float)steps)", ["smc"],
-       ["temporal-dropout"], expect_killed_after="smc NumPy twin on a smoothly rotating map (§1, smctwin)"),
+       ["temporal-dropout"]),
     _m("smc-mh-acceptance-inverted-proposal", "estimators/smc.cl",
        "ratio = (pi_new * q_old) / (pi_old * q_new);", "ratio = (pi_new * q_new) / (pi_old * q_old);",
-       ["smc"], ["temporal-dropout"],
-       expect_killed_after="smc NumPy twin on a smoothly rotating map (§1, smctwin)"),
+       ["smc"], ["temporal-dropout"]),
     _m("smc-reinit-threshold-one-sided", "estimators/smc.cl",
        "if (!(ratio <= threshold && ratio >= 1.0f / threshold)) reinit = 1;",
-       "if (!(ratio <= threshold)) reinit = 1;", ["smc"], ["temporal-dropout"],
-       expect_killed_after="a pixel whose Z_t falls by more than the threshold while the map's "
-                           "power does not (the host re-initialises every pixel on a global drop; "
-                           "smc twin, §1)"),
+       "if (!(ratio <= threshold)) reinit = 1;", ["smc"], ["temporal-dropout", "dimming-sun"]),
     _m("smc-estimate-without-normaliser", "estimators/smc.cl",
        "estimate = z * ratio;", "estimate = ratio;", ["smc"], ["smooth-rotation"]),
     _m("smc-init-proposal-pdf-without-map-share", "estimators/sir.cl",

@@ -61,3 +61,4 @@ def test_check_estimator_rejects_a_biased_plugin_and_records_known_failures():
     assert outcome["check_unbiased"].startswith("xfail: scaled")
     assert outcome["check_white_furnace"].startswith("xfail")
     assert outcome["check_deterministic"] == "passed"
+    assert outcome["check_matches_twin"].startswith("skipped: no independent NumPy twin")

@@ -1,5 +1,6 @@
 """An independent NumPy twin of Ghosh, Doucet & Heidrich 2006's sequential sampler for a batch of
-independent shading points, the oracle that ``smc`` (estimators/smc.cl) is checked against.
+independent shading points, the oracle that ``smc`` (estimators/smc.cl) is checked against
+(``SMC.twin`` names this module: :func:`sampler` builds the twin of an ``smc`` instance).
 
 Written from the papers, not from the kernel: Kronander et al. §5-6 (their Eq. 3-8, the form
 in which ``smc`` implements Ghosh's sampler; equation numbers below are Kronander's) and the
@@ -338,6 +339,15 @@ class GhoshSampler:
                 s[key] = np.where(mask, value, s[key])
         s.pop("g0", None)
         return s
+
+
+def sampler(shading: Shading, params, spp: int, seed: int) -> GhoshSampler:
+    """The twin of ``smc`` with ``params`` (``SMCParams``) at ``spp`` for the chains of ``shading``."""
+    return GhoshSampler(shading, N=params.N or int(spp), nu=params.nu,
+                        local_degrees=params.local_degrees, intermediates=params.intermediates,
+                        reinit_threshold=params.reinit_threshold,
+                        init_candidates=params.init_candidates, init_env_pick=params.init_env_pick,
+                        seed=seed)
 
 
 def tempered(g0, g1, alpha):
