@@ -72,6 +72,19 @@ class Mutant:
         target.write_text(text.replace(self.old, self.new), encoding="utf-8")
 
 
+
+def _horizon_unclipped() -> tuple[str, str]:
+    """(old, new) of the reference's specular row loop without its horizon: from the rows'
+    clipping to the cosine's clamp (one contiguous text, so the mutant stays one replacement)."""
+    text = (pathlib.Path(__file__).parent / "reference.cl").read_text(encoding="utf-8")
+    start = text.index("        float16 row_lo = b_s > 0.0f")
+    end = text.index("* max(c_n, 0.0f)\n") + len("* max(c_n, 0.0f)\n")
+    old = text[start:end]
+    new = (old.replace("clamp(edge, s_lo, s_hi) : (float16)s_lo;", "s_lo + 0.0f * edge : (float16)s_lo;")
+           .replace("clamp(edge, s_lo, s_hi) : (float16)s_hi;", "(float16)s_hi : (float16)s_hi;")
+           .replace("* max(c_n, 0.0f)\n", "* c_n\n"))
+    return old, new
+
 def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed_after=""):
     return Mutant(name, path, old, new, tuple(estimators), tuple(stress), budgets, expect_killed_after)
 
@@ -182,10 +195,12 @@ CATALOGUE: tuple[Mutant, ...] = (
        "theta = np.arctan2(s, np.sum(a * b, axis=-1, keepdims=True))",
        "theta = 2.0 * np.sin(np.arctan2(s, np.sum(a * b, axis=-1, keepdims=True)) / 2.0)",
        ["uniform"], ["constant", "tiny-faces"]),
+    # The specular integral clips each row of points at the horizon and clamps c_n (reference.cl);
+    # without both it integrates the lobe's part below the horizon with negative cosines.
     _m("reference-specular-without-cos-clamp", "harness/reference.cl",
-       "term = select((float16)0.0f, term, c_r > 0.0f && c_n > 0.0f && index < count);",
-       "term = select((float16)0.0f, term, c_r > 0.0f && index < count);",
-       ["bis"], ["grazing"]),
+       *_horizon_unclipped(), ["bis"], ["grazing"],
+       expect_killed_after="a stress view as grazing as tests/test_reference_twin.py's (89.94°, "
+                           "m = 2 on R = 2 faces), where this mutant makes the reference negative"),
     _m("reference-cache-key-without-material", "harness/reference.py",
        "for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],\n"
        "                      g.shininess[g.mask], np.ascontiguousarray(env, np.float32)):",

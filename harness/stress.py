@@ -13,6 +13,8 @@ One row per (case, estimator), over the case's variants (placements, sizes, fram
   frame so far (a temporal filter may carry light out of earlier frames);
 - ``reference_error``: where a variant's exact value is known (white furnace, black map), the
   reference's largest relative deviation from it (must be ≤ ``EXACT_RTOL``);
+- ``reference_impossible``: reference values that are negative or not finite (radiance cannot
+  be; must be 0);
 - ``gbuffer_invalid``: covered pixels whose normal or view is not a finite unit vector or whose
   n·view < ``MIN_COS_VIEW`` (the G-buffer contract of ``scenes.gbuffer``);
 - ``bias_pixels``, ``bias_z``, ``bias_p`` (unbiased estimators): how many (pixel, frame) pairs
@@ -617,6 +619,7 @@ class _Row:
     rel_rmse: float = 0.0
     dark_nonzero: int = 0
     reference_error: float = np.nan
+    reference_impossible: int = 0
     gbuffer_invalid: int = 0
     bias_pixels: int = 0
     bias_tests: int = 0
@@ -634,6 +637,7 @@ def _scan(row: _Row, prepared: Prepared, images: np.ndarray, tags) -> None:
     """Non-finite and negative values, range, error, exactness where the reference is 0."""
     values = prepared.covered(images).astype(np.float64)      # [seeds, frames, n, 3]
     references = prepared.covered(prepared.references)        # [frames, n, 3]
+    row.reference_impossible = int(np.count_nonzero(~(references >= 0)))   # negative or NaN
     finite = np.isfinite(values)
     row.nonfinite += int(np.count_nonzero(~finite))
     row.negative += int(np.count_nonzero(values < 0))
@@ -927,6 +931,8 @@ def _finish(case: StressCase, label: str, row: _Row, tags, variants: list[str], 
         failures.append(f"{row.dark_nonzero} values ≠ 0 where the reference is 0")
     if row.reference_error > EXACT_RTOL:
         failures.append(f"reference off the exact value by {row.reference_error:.3g}")
+    if row.reference_impossible:
+        failures.append(f"{row.reference_impossible} negative or non-finite reference values")
     if row.gbuffer_invalid:
         failures.append(f"{row.gbuffer_invalid} invalid G-buffer pixels")
     bias_p = np.nan
@@ -961,7 +967,8 @@ def _finish(case: StressCase, label: str, row: _Row, tags, variants: list[str], 
         "min": row.low if np.isfinite(row.low) else np.nan,
         "max": row.high if np.isfinite(row.high) else np.nan,
         "rel_rmse": row.rel_rmse, "dark_nonzero": row.dark_nonzero,
-        "reference_error": row.reference_error, "gbuffer_invalid": row.gbuffer_invalid,
+        "reference_error": row.reference_error,
+        "reference_impossible": row.reference_impossible, "gbuffer_invalid": row.gbuffer_invalid,
         "bias_pixels": row.bias_pixels if row.bias_tests else np.nan, "bias_z": row.bias_z,
         "bias_p": bias_p, "chi2_tests": len(row.chi2) if tags.has_pdf else np.nan,
         "chi2_p": chi2_p, "recovery": row.recovery, "counts_z": row.counts_z,
