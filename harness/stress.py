@@ -171,6 +171,7 @@ class StressCase:
 
 HOT_TEXEL = 1e3
 GRAZING_DEGREES = 89.9
+HORIZON_DEGREES = 89.94   # the reference twin's grazing view (tests/test_reference_twin.py)
 LEAN_DEGREES = 70.0
 BLACK_FACE_ORDER = (5, 1, 3, 0, 2)     # five black faces leave +Z lit
 HUGE_RES = 1024
@@ -262,15 +263,24 @@ def _black_faces(s: Scale) -> list[Variant]:
     return variants
 
 
+def _view_at(normal: np.ndarray, side: np.ndarray, degrees: float) -> np.ndarray:
+    angle = np.radians(degrees)
+    return np.cos(angle) * normal + np.sin(angle) * side
+
+
 def _grazing(s: Scale) -> list[Variant]:
     normal = conformance.fibonacci_directions(s.normals ** 2).reshape(s.normals, s.normals, 3)
     side = _unit(np.cross(normal, (0.3, 0.5, 0.81)))
-    angle = np.radians(GRAZING_DEGREES)
-    view = np.cos(angle) * normal + np.sin(angle) * side
+    view = _view_at(normal, side, GRAZING_DEGREES)
     return [Variant(f"view-{GRAZING_DEGREES:g}deg", GBuffer.from_pixels(normal, view, 0.5, 0.3, 20.0),
                     [_smooth(s)]),
             Variant(f"view-{GRAZING_DEGREES:g}deg-specular",
                     GBuffer.from_pixels(normal, view, 0.0, 0.8, 20.0), [_smooth(s)]),
+            # A broad lobe that the horizon halves, on coarse faces whose texels the horizon
+            # cuts: the specular integral must clip each texel at the horizon and clamp cos.
+            Variant(f"view-{HORIZON_DEGREES:g}deg-specular-m2-R2",
+                    GBuffer.from_pixels(normal, _view_at(normal, side, HORIZON_DEGREES), 0.0,
+                                        0.8, 2.0), [conformance.face_pattern_map(2)]),
             Variant("shading-normals-facing-away", _trace(leaning_normals_sphere(), s), [_smooth(s)])]
 
 
