@@ -573,7 +573,8 @@ def sample_budget(estimator, cache: FrameCache, normals: np.ndarray, spp: int
         return np.zeros((n, 6)), np.full(n, float(estimator.budget(spp)[0])), True
     cache.require(("cdf",))        # the face integrals (an estimator that needs no CDFs)
     if isinstance(estimator, Havran):   # K = spp lights from the map's pdf, (1 − δ) ∝ luminance
-        share = cache.face_integrals / max(float(cache.face_integrals.sum()), 1e-300)
+        integrals = cache.face_integrals.astype(np.float64)   # 1e-300 underflows in float32
+        share = integrals / max(float(integrals.sum()), 1e-300)
         return np.tile((1.0 - HAVRAN_DEFENSIVE) * spp * share, (n, 1)), np.zeros(n), True
     lit = (cache.face_integrals > 0).astype(np.float64)
     return np.tile(lit, (n, 1)), np.full(n, spp / 2), False
