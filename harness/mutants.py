@@ -55,8 +55,8 @@ class Mutant:
 
     name: str
     path: str
-    old: str
-    new: str
+    old: str | tuple[str, ...]   # a tuple: several places of one bug, replaced pairwise with new
+    new: str | tuple[str, ...]
     estimators: tuple[str, ...]
     stress: tuple[str, ...] = ()
     budgets: bool = False
@@ -65,11 +65,14 @@ class Mutant:
     def apply(self, root: pathlib.Path) -> None:
         target = root / "iblbench" / self.path
         text = target.read_text(encoding="utf-8")
-        count = text.count(self.old)
-        if count != 1:
-            raise ValueError(f"mutant {self.name}: the text to replace occurs {count} times in "
-                             f"{self.path} (must be once): {self.old!r}")
-        target.write_text(text.replace(self.old, self.new), encoding="utf-8")
+        olds, news = ((self.old,), (self.new,)) if isinstance(self.old, str) else (self.old, self.new)
+        for old, new in zip(olds, news, strict=True):
+            count = text.count(old)
+            if count != 1:
+                raise ValueError(f"mutant {self.name}: the text to replace occurs {count} times "
+                                 f"in {self.path} (must be once): {old!r}")
+            text = text.replace(old, new)
+        target.write_text(text, encoding="utf-8")
 
 
 
@@ -186,46 +189,10 @@ CATALOGUE: tuple[Mutant, ...] = (
     # The specular integral clips each row of points at the horizon and clamps c_n (reference.cl);
     # without both it integrates the lobe's part below the horizon with negative cosines.
     _m("reference-specular-without-cos-clamp", "harness/reference.cl",
-       '        float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_lo;\n'
-       '        float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_hi;\n'
-       '        float16 step_s = (row_hi - row_lo) * per_cell_s;\n'
-       '        float16 s = row_lo + (cell_j + 0.5f + (node_j - 0.5f) * offset) * step_s;\n'
-       '        float16 weight = 0.25f * step_s;   /* both nodes weigh 1/2 */\n'
-       '        float16 u = swap ? t : s, v = swap ? s : t;\n'
-       '        float16 inverse_q = 1.0f / (1.0f + u * u + v * v);\n'
-       '        float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z;   /* times √q */\n'
-       '        float16 c_n = forms.n.x + u * forms.n.y + v * forms.n.z;\n'
-       "        /* sin²(r, ω) from the offset δ to the lobe's centre g: (|δ|² + (g × δ)²)/(|g|² + 1)/q,\n"
-       '         * a sum of squares, where 1 − cos² would cancel to ~1/m of its float precision; 1 − cos²\n'
-       '         * where g is far off, on faces that only lobes with m ≲ 150 reach from beyond 84°. */\n'
-       '        float16 sin2;\n'
-       '        if (forms.centred) {\n'
-       '            float16 du = u - centre_u, dv = v - centre_v, twist = centre_u * dv - centre_v * du;\n'
-       '            sin2 = (du * du + dv * dv + twist * twist) * inverse_q * forms.inverse_centre_q;\n'
-       '        } else {\n'
-       '            sin2 = max(0.0f, 1.0f - c_r * c_r * inverse_q * forms.inverse_r2);\n'
-       '        }\n'
-       '        float16 term = exp2(0.5f * m * log2_one_minus(sin2)) * max(c_n, 0.0f)\n',
-       '        float16 row_lo = b_s > 0.0f ? s_lo + 0.0f * edge : (float16)s_lo;\n'
-       '        float16 row_hi = b_s < 0.0f ? (float16)s_hi : (float16)s_hi;\n'
-       '        float16 step_s = (row_hi - row_lo) * per_cell_s;\n'
-       '        float16 s = row_lo + (cell_j + 0.5f + (node_j - 0.5f) * offset) * step_s;\n'
-       '        float16 weight = 0.25f * step_s;   /* both nodes weigh 1/2 */\n'
-       '        float16 u = swap ? t : s, v = swap ? s : t;\n'
-       '        float16 inverse_q = 1.0f / (1.0f + u * u + v * v);\n'
-       '        float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z;   /* times √q */\n'
-       '        float16 c_n = forms.n.x + u * forms.n.y + v * forms.n.z;\n'
-       "        /* sin²(r, ω) from the offset δ to the lobe's centre g: (|δ|² + (g × δ)²)/(|g|² + 1)/q,\n"
-       '         * a sum of squares, where 1 − cos² would cancel to ~1/m of its float precision; 1 − cos²\n'
-       '         * where g is far off, on faces that only lobes with m ≲ 150 reach from beyond 84°. */\n'
-       '        float16 sin2;\n'
-       '        if (forms.centred) {\n'
-       '            float16 du = u - centre_u, dv = v - centre_v, twist = centre_u * dv - centre_v * du;\n'
-       '            sin2 = (du * du + dv * dv + twist * twist) * inverse_q * forms.inverse_centre_q;\n'
-       '        } else {\n'
-       '            sin2 = max(0.0f, 1.0f - c_r * c_r * inverse_q * forms.inverse_r2);\n'
-       '        }\n'
-       '        float16 term = exp2(0.5f * m * log2_one_minus(sin2)) * c_n\n',
+       ("        float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_lo;\n"
+        "        float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_hi;\n",
+        "* max(c_n, 0.0f)\n"),
+       ("        float16 row_lo = s_lo + 0.0f * edge, row_hi = s_hi;\n", "* c_n\n"),
        ["bis"], ["grazing"]),
     _m("reference-cache-key-without-material", "harness/reference.py",
        "for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],\n"
