@@ -34,9 +34,7 @@ OpenBLAS's worker, which spins ~0.1 s after a NumPy matrix product (host scoring
 core from PoCL's two workers.  So a run holds :func:`host_threads_capped` (BLAS and OpenMP
 pools at one thread, threadpoolctl) around everything it renders, warm-up and calibration
 included, and a group of timed renders (a cell's repeats, each calibration spp) runs back to
-back in :func:`timed_renders`, with no pause before it but after ``os.sync()``: the files the
-previous cell wrote (EXR, PNG, journal) are otherwise flushed by the kernel's writeback
-threads at some moment during later renders, taking a core from PoCL.  Measured on 2 cores shared with other
+back in :func:`timed_renders`, with no pause before it.  Measured on 2 cores shared with other
 jobs (load 8-12), interleaved in rounds, one process:
 
 - the first render after a 200k×3 NumPy product (blob-sun, uniform, 256 spp, 20 rounds): 20.3 ms
@@ -47,10 +45,7 @@ jobs (load 8-12), interleaved in rounds, one process:
   replaces, 24% and 36% with neither; medians 5.44 / 6.94 ms, 5.64 / 7.49 ms, 6.73 / 7.55 ms.
 
 The pause cost 0.15 s of wall time per cell: 8 s of a 12.7 s warm default run with 0.95 s of
-device time (idle machine).  On the idle machine, 3 warm default runs per variant, interleaved
-(54 cells each): cells with IQR/median ≤ 15% 67% with no pause, 85% with the 150 ms pause
-(wall 12.1× device), 85% with ``os.sync()`` before each group (wall 1.9× device, as with
-nothing).
+device time (idle machine).
 
 **Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
 time is aggregated as every other figure is (:func:`iblbench.harness.stats.cell_intervals`):
@@ -62,7 +57,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
 
 import numpy as np
@@ -102,9 +96,7 @@ def host_threads_capped():
 
 def timed_renders(renderers, gbuffer, cache, spp: int, seeds, build_ms: float) -> list[tuple]:
     """(estimate, TimedRender) of one render per (renderer, seed), back to back (module
-    docstring, "Context"; callers hold :func:`host_threads_capped`), after ``os.sync()``: no
-    writeback of the previous cell's files runs beside them."""
-    os.sync()
+    docstring, "Context"; callers hold :func:`host_threads_capped`)."""
     out = []
     for renderer, seed in zip(renderers, seeds, strict=True):
         start = time.perf_counter()
