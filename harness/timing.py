@@ -45,7 +45,10 @@ jobs (load 8-12), interleaved in rounds, one process:
   replaces, 24% and 36% with neither; medians 5.44 / 6.94 ms, 5.64 / 7.49 ms, 6.73 / 7.55 ms.
 
 The pause cost 0.15 s of wall time per cell: 8 s of a 12.7 s warm default run with 0.95 s of
-device time (idle machine).
+device time (idle machine).  What remains is the platform's: on the idle machine, renders back
+to back in one process with no host work between them are bimodal (balanced, 256 spp, 128²:
+2.9 and 4.1 ms in runs of ~8 renders), and 57-80% of a warm default run's 54 cells have
+IQR/median ≤ 15% (5 runs; an ``os.sync()`` before each group changed nothing: 63% against 65%).
 
 **Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
 time is aggregated as every other figure is (:func:`iblbench.harness.stats.cell_intervals`):
