@@ -43,7 +43,7 @@ def parse_metrics(text: str) -> tuple[str, ...]:
 
 
 @functools.lru_cache(maxsize=None)
-def _colour():
+def colour_science():
     """colour-science and the protocol's D65 white and sRGB space (imported on first use)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")   # colour warns about optional packages at import
@@ -77,7 +77,7 @@ def tonemap(rgb: np.ndarray, k: float) -> np.ndarray:
 
 
 def to_lab(display_rgb: np.ndarray) -> np.ndarray:
-    colour, d65, srgb = _colour()
+    colour, d65, srgb = colour_science()
     xyz = colour.RGB_to_XYZ(display_rgb, srgb, apply_cctf_decoding=False)
     return colour.XYZ_to_Lab(xyz, d65)
 
@@ -85,7 +85,7 @@ def to_lab(display_rgb: np.ndarray) -> np.ndarray:
 def lab_differences(lab_a: np.ndarray, lab_b: np.ndarray,
                     de2000: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """ΔE76 and ΔE2000 (None when ``de2000`` is False) between L*a*b* arrays ``[..., 3]``."""
-    colour = _colour()[0]
+    colour = colour_science()[0]
     return (colour.delta_E(lab_a, lab_b, method="CIE 1976"),
             colour.delta_E(lab_a, lab_b, method="CIE 2000") if de2000 else None)
 

@@ -103,8 +103,8 @@ from iblbench.estimators.registry import get_estimator_class
 from iblbench.harness.device import cache_dir, get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
-from iblbench.harness import metrics as metrics_module
-from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
+from iblbench.harness.metrics import (METRICS, PROTOCOL, Scorer, colour_science, delta_e_images,
+                                      flicker)
 from iblbench.harness.reference import Reference
 from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
                                       configuration_differences, image_configuration, image_stem,
@@ -501,7 +501,7 @@ class Runner:
                 if plan.scene.name not in gbuffers and self._scene_todo(plan.scene.name):
                     gbuffers[plan.scene.name] = self._trace(plan)
             if self.todo:
-                metrics_module._colour()   # start-up, like every other import: not in wall_s
+                colour_science()   # start-up, like every other import: not in wall_s
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
                       file=sys.stderr)
