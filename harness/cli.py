@@ -34,6 +34,19 @@ examples:
   iblbench perf --out runs/perf                  throughput against the roofline and a NumPy floor
   iblbench compare runs/a runs/b --fail-if 'mean_delta_e76>5%'   B against A, intervals over seeds
   iblbench selftest                              which checks catch the catalogue of known bugs
+  iblbench check runs/a --json --junit check.xml JSON summary on stdout, JUnit XML for CI
+
+machine-readable output: --json on run, check, compare and stress prints one JSON document on
+  stdout (the tables then go to stderr); the schemas are in the README and in
+  iblbench.harness.machine_readable
+
+Python API (a notebook; returns the results table as a pandas DataFrame):
+  import iblbench
+  table = iblbench.run(scenes=["sphere-sun", {"name": "ball", "mesh": {"path": "ball.obj"},
+                               "environment": {"path": "sky.exr"},
+                               "camera": {"eye": [0, 0, 3], "target": [0, 0, 0]}}],
+                       estimators=["uniform", "balanced"], spp=[16, 64], seeds=2, out="runs/nb")
+  help(iblbench) for the arguments; iblbench.check and iblbench.report as the commands
 
 exit codes: 0 done; 1 a check or stress gate failed; 2 bad input (one line naming it);
   3 the disk is full (free space and rerun: a run resumes); 130 interrupted (Ctrl-C; a run saves
@@ -88,6 +101,24 @@ def _pixel(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected X,Y such as 64,40, got '{text}'")
     return x, y
+
+
+def _add_json(parser) -> None:
+    parser.add_argument("--json", action="store_true",
+                        help="print a machine-readable summary (one JSON document) on stdout; "
+                             "the human-readable output goes to stderr (schema: README, "
+                             "'Machine-readable output')")
+
+
+def _human_output(args):
+    """Where a command's tables go: stderr when stdout carries its --json document."""
+    return sys.stderr if getattr(args, "json", False) else sys.stdout
+
+
+def _print_json(document: dict) -> None:
+    from iblbench.harness.results import json_text
+
+    print(json_text(document))
 
 
 class _Parser(argparse.ArgumentParser):
@@ -183,6 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="also write inputs/<scene>/gbuffer.npz and env_f<frame>.npy")
     run.add_argument("--sanitize", action="store_true",
                      help="replace NaN/Inf/negative texels in environment maps instead of refusing")
+    _add_json(run)
 
     repro = commands.add_parser(
         "reproduce", help="re-run a paper's experiments and judge its claims (e.g. lu2013)",
@@ -233,6 +265,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="a run's output directory (holds results.parquet)")
     check.add_argument("--budgets", type=pathlib.Path, default=pathlib.Path("budgets.toml"),
                        metavar="FILE", help="budgets TOML file (default: budgets.toml)")
+    _add_json(check)
+    check.add_argument("--junit", type=pathlib.Path, metavar="FILE",
+                       help="also write JUnit XML to FILE for CI systems: one testcase per rule, "
+                            "a failure (with the failed checks) where any of its checks fails")
 
     make_budgets = commands.add_parser(
         "budgets", help="write a budgets file from a multi-seed run (>= 8 seeds)",
@@ -264,6 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     stress.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/stress"),
                         help="output directory for stress.csv/.parquet/.html "
                              "(default: results/stress)")
+    _add_json(stress)
     _add_perf(commands, device)
     _add_compare(commands)
     _add_selftest(commands)
@@ -291,8 +328,7 @@ def _add_compare(commands) -> None:
                          help="fail (exit 1) when a cell's METRIC changes significantly by "
                               "more than P%%: 'mean_delta_e76>5%%' (an increase), "
                               "'effective_ratio<-5%%' (a decrease); repeatable")
-    compare.add_argument("--json", action="store_true",
-                         help="print a machine-readable summary (JSON) instead of the table")
+    _add_json(compare)
 
 
 def _compare(args) -> int:
@@ -512,38 +548,40 @@ def _listing_line(name: str, text: str) -> str:
 
 
 def _run(args) -> None:
-    from iblbench.harness.runner import RunConfig, run
+    from iblbench import run_config
+    from iblbench.harness.machine_readable import run_summary
+    from iblbench.harness.results import read_manifest
+    from iblbench.harness.runner import Runner
     from iblbench.harness.sweep import frames_arg, load_sweep
 
     # "all" parses to None, which Sweep.replace would ignore: spell it as the full slice.
     frames = None if args.frames is None else (frames_arg(args.frames) or slice(None))
-    sweep = load_sweep(args.config or "default")
-    sweep = sweep.replace(
-        scenes=tuple(args.scene) if args.scene else None,
-        estimators=tuple(args.estimator) if args.estimator else None, spp=args.spp,
-        seeds=args.seeds, frames=frames, resolution=args.res, env_res=args.env_res,
-        time_budget_ms=args.time_budget_ms, sanitize=True if args.sanitize else None,
-        repeats=args.repeats and args.repeats[0], repeats_for=args.repeats and args.repeats[1],
-        metrics=tuple(m for m in sweep.metrics if m != "flip") if args.no_flip else args.metrics)
+    metrics = args.metrics
+    if args.no_flip:
+        metrics = tuple(m for m in load_sweep(args.config or "default").metrics if m != "flip")
     flags = [flag for flag, value in (
         ("--scene", args.scene), ("--estimator", args.estimator), ("--spp", args.spp),
         ("--seeds", args.seeds), ("--frames", args.frames), ("--res", args.res),
         ("--env-res", args.env_res), ("--time-budget-ms", args.time_budget_ms),
         ("--sanitize", args.sanitize), ("--repeats", args.repeats), ("--metrics", args.metrics),
         ("--no-flip", args.no_flip)) if value]
-    config = RunConfig(out=args.out, scenes=sweep.scenes, estimators=sweep.estimators,
-                       spp=sweep.spp, seeds=sweep.seeds, resolution=sweep.resolution,
-                       device=args.device, save_inputs=args.save_inputs, sanitize=sweep.sanitize,
-                       env_res=sweep.env_res, progress=False if args.no_progress else None,
-                       frames=sweep.frames, time_budget_ms=sweep.time_budget_ms, force=args.force,
-                       repeats=sweep.repeats, repeats_for=sweep.repeats_for, metrics=sweep.metrics,
-                       sweep={**sweep.to_manifest(), "overridden_by_flags": flags})
-    table = run(config)
+    runner = Runner(run_config(
+        args.out, config=args.config, scenes=args.scene, estimators=args.estimator,
+        spp=args.spp, seeds=args.seeds, frames=frames, resolution=args.res,
+        env_res=args.env_res, time_budget_ms=args.time_budget_ms,
+        sanitize=True if args.sanitize else None, repeats=args.repeats and args.repeats[0],
+        repeats_for=args.repeats and args.repeats[1], metrics=metrics, device=args.device,
+        save_inputs=args.save_inputs, force=args.force,
+        progress=False if args.no_progress else None, note={"overridden_by_flags": flags}))
+    table = runner.run()
+    human = _human_output(args)
     for title, summary in terminal_summaries(table):
         if title:
-            print(title)
-        print(summary.to_string(float_format=lambda v: f"{v:.4g}"))
-    print(f"wrote {len(table)} rows to {args.out}/results.parquet")
+            print(title, file=human)
+        print(summary.to_string(float_format=lambda v: f"{v:.4g}"), file=human)
+    print(f"wrote {len(table)} rows to {args.out}/results.parquet", file=human)
+    if args.json:
+        _print_json(run_summary(runner.sweep_rows(table), args.out, read_manifest(args.out)))
 
 
 def terminal_summaries(table):
@@ -594,11 +632,23 @@ def _check(args) -> int:
     import pandas as pd
 
     from iblbench.harness.budgets import check
+    from iblbench.harness.machine_readable import check_summary, junit_xml
+    from iblbench.scenes.atomic import atomic_path
 
     checks, verdict, status = check(args.dir, args.budgets)
+    human = _human_output(args)
     with pd.option_context("display.width", 250, "display.max_colwidth", 60):
-        print(checks.to_string(index=False))
-    print(verdict)
+        print(checks.to_string(index=False), file=human)
+    print(verdict, file=human)
+    if args.junit:
+        try:
+            with atomic_path(args.junit) as tmp:
+                tmp.write_text(junit_xml(checks, args.budgets), encoding="utf-8")
+        except FileNotFoundError:
+            raise InputError(args.junit, "--junit: no such folder") from None
+        print(f"wrote {args.junit}", file=human)
+    if args.json:
+        _print_json(check_summary(checks, verdict, status, args.dir, args.budgets))
     return status
 
 
@@ -619,6 +669,7 @@ def _report(args) -> None:
 
 
 def _stress(args) -> int:
+    import dataclasses
     import time
 
     import pandas as pd
@@ -626,6 +677,7 @@ def _stress(args) -> int:
     from iblbench.estimators.registry import estimator_names
     from iblbench.harness import stress
     from iblbench.harness.device import get_compute
+    from iblbench.harness.machine_readable import stress_summary
     from iblbench.harness.runner import prepare_out
     from iblbench.harness.sweep import parse_estimator
 
@@ -645,10 +697,18 @@ def _stress(args) -> int:
     paths = stress.write_outputs(args.out, table, scale, compute.device_name, seconds)
     shown = ["case", "estimator", "status", "nonfinite", "min", "max", "rel_rmse", "bias_pixels",
              "bias_z", "bias_p", "chi2_p", "recovery", "failures"]
+    human = _human_output(args)
     with pd.option_context("display.width", 250, "display.max_colwidth", 120):
-        print(table[shown].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
-    print(f"{stress.verdict(table)} in {seconds:.0f} s; wrote {', '.join(map(str, paths))}")
-    return 1 if stress.failed(table) else 0
+        print(table[shown].to_string(index=False, float_format=lambda v: f"{v:.3g}"), file=human)
+    print(f"{stress.verdict(table)} in {seconds:.0f} s; wrote {', '.join(map(str, paths))}",
+          file=human)
+    status = 1 if stress.failed(table) else 0
+    if args.json:
+        _print_json(stress_summary(
+            table, cases, estimators, status=status, verdict=stress.verdict(table), out=args.out,
+            files=paths, device=compute.device_name, seconds=seconds,
+            scale=dataclasses.asdict(scale)))
+    return status
 
 
 def main(argv=None) -> int:

@@ -39,14 +39,14 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import json
 import math
 import pathlib
 import re
+import sys
 
 import pandas as pd
 
-from iblbench.harness.results import KEY_COLUMNS, load_table, read_manifest, row_key
+from iblbench.harness.results import KEY_COLUMNS, json_text, load_table, read_manifest, row_key
 from iblbench.harness.stats import LEVEL, RATIO_METHOD, MeanCI, RatioCI, mean_ci, ratio_ci
 from iblbench.scenes.errors import InputError
 
@@ -270,7 +270,11 @@ def format_text(summary: dict) -> str:
 
 
 def run_command(dir_a, dir_b, fail_if=(), as_json: bool = False) -> int:
-    """``iblbench compare``: print the comparison; 1 if any threshold fails, else 0."""
+    """``iblbench compare``: print the comparison (with ``as_json``, the JSON on stdout and the
+    table on stderr); 1 if any threshold fails, else 0."""
     summary = compare(dir_a, dir_b, [parse_threshold(text) for text in fail_if])
-    print(json.dumps(summary, indent=2) if as_json else format_text(summary))
-    return 1 if summary["failures"] else 0
+    status = 1 if summary["failures"] else 0
+    print(format_text(summary), file=sys.stderr if as_json else sys.stdout)
+    if as_json:
+        print(json_text({"command": "compare", "exit": status, **summary}))
+    return status

@@ -253,7 +253,11 @@ def budgets_file() -> pathlib.Path | None:
 
 
 def copy_sources(folder: pathlib.Path) -> pathlib.Path:
-    """Copy the installed ``iblbench`` packages into ``folder/iblbench``; returns ``folder``."""
+    """Copy the installed ``iblbench`` packages into ``folder/iblbench``; returns ``folder``.
+    The top-level package (the Python API) comes too: on ``PYTHONPATH`` first, the copy must
+    be a regular package, or an installed one would shadow it."""
+    (folder / "iblbench").mkdir(parents=True)
+    shutil.copy(importlib.import_module("iblbench").__file__, folder / "iblbench")
     for package in PACKAGES:
         source = pathlib.Path(importlib.import_module(f"iblbench.{package}").__file__).parent
         shutil.copytree(source, folder / "iblbench" / package,

@@ -320,6 +320,12 @@ def _json_safe(value):
     return value
 
 
+def json_text(value) -> str:
+    """The one way iblbench writes JSON (manifests, ``--json`` summaries): indented, NumPy
+    scalars as Python numbers, NaN and infinities as null (strict JSON has no NaN)."""
+    return json.dumps(_json_safe(value), indent=2, default=str, allow_nan=False)
+
+
 def read_manifest(out_dir: pathlib.Path) -> dict:
     """The manifest of an earlier run in ``out_dir`` ({} if none or unreadable)."""
     try:
@@ -330,4 +336,4 @@ def read_manifest(out_dir: pathlib.Path) -> dict:
 
 def write_manifest(out_dir: pathlib.Path, manifest: dict) -> None:
     with atomic_path(out_dir / "manifest.json") as tmp:
-        tmp.write_text(json.dumps(_json_safe(manifest), indent=2, default=str))
+        tmp.write_text(json_text(manifest))

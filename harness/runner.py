@@ -345,7 +345,8 @@ class Runner:
                     or image_configuration(row) == configured[row["scene"]]]
         self.rows = {row_key(row): row for row in rows}
         self.previous_manifest = read_manifest(self.out)
-        self.todo, self.total, self.chosen = self._plan_cells()
+        self.todo, self.cells, self.chosen = self._plan_cells()
+        self.total = len(self.cells)
         self.unverified = {}   # (scene, label, budget) → its calibration, until its first cell
         self.resumed = self.total - len(self.todo)
         self.manifest = self._new_manifest()
@@ -388,16 +389,16 @@ class Runner:
                 and all(path.is_file() for path in cell_files(self.out, row)))
 
     def _plan_cells(self):
-        """The keys of the cells to run, how many cells the sweep has, and the spp earlier rows
-        chose for each (scene, estimator, budget)."""
-        todo, total, chosen = set(), 0, {}
+        """The keys of the cells to run, the keys of every cell of the sweep, and the spp earlier
+        rows chose for each (scene, estimator, budget)."""
+        todo, cells, chosen = set(), set(), {}
         for plan in self.plans:
             for spec in self.specs:
                 for spp, budget in self._variants():
                     for seed in range(self.config.seeds):
                         keys = [(plan.scene.name, spec.label, spp, frame, seed, budget)
                                 for frame in plan.frames]
-                        total += len(keys)
+                        cells.update(keys)
                         done = [not self.config.force and self._valid(self.rows.get(k), plan, spec)
                                 for k in keys]
                         if spec.cls.tags.temporal and not all(done):
@@ -409,7 +410,7 @@ class Runner:
                                 if d:
                                     chosen[(plan.scene.name, spec.label, budget)] = int(
                                         self.rows[key]["spp"])
-        return todo, total, chosen
+        return todo, cells, chosen
 
     def _new_manifest(self) -> dict:
         c = self.config
@@ -539,6 +540,11 @@ class Runner:
             self.manifest["status"] = "complete"
             write_manifest(self.out, self.manifest)
         return table
+
+    def sweep_rows(self, table):
+        """The rows of ``table`` (after :meth:`run`) that are cells of this sweep: ``out`` may
+        also hold other sweeps' cells."""
+        return table[[row_key(row) in self.cells for row in table.to_dict("records")]]
 
     def _check_budgets(self, table) -> list[dict]:
         """Each equal-time cell's time against its budget; prints those outside ±TOLERANCE."""

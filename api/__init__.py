@@ -1,0 +1,278 @@
+"""iblbench's Python API: run a benchmark sweep from a notebook and get the results table.
+
+::
+
+    import iblbench
+
+    ball = {"name": "ball",                                  # the keys of a scene TOML file
+            "mesh": {"path": "ball.obj"},
+            "environment": {"path": "park.exr", "res": 32},
+            "material": {"kd": 0.6, "ks": 0.2, "shininess": 80},
+            "camera": {"eye": [0, 0, 3], "target": [0, 0, 0]}}
+    table = iblbench.run(scenes=["sphere-sun", ball, "my/scene.toml"],
+                         estimators=["uniform", "balanced_mis{shared_sequence=false}"],
+                         spp=[16, 64], seeds=4, resolution="64x64", out="runs/nb")
+    table.groupby(["scene", "estimator", "spp"]).mean_delta_e76.mean()
+    iblbench.report("runs/nb")                              # runs/nb/report/index.html
+    checks, verdict, status = iblbench.check("runs/q", "budgets.toml")
+
+:func:`run` is ``iblbench run`` as a function: the same runner (:mod:`iblbench.harness.runner`),
+the same sweep configs and overrides (:mod:`iblbench.harness.sweep`), the same files in
+``out``, the same resumption.  It returns the rows of this sweep (the folder may also hold
+other sweeps' cells) as a pandas DataFrame: one row per (scene, estimator, spp, frame, seed),
+the columns of ``results.parquet`` (README, "Command line").  Bad input raises
+:class:`InputError`, whose one-line message names the file, argument or key.
+
+**Scenes** are built-in names (``iblbench list scenes``), paths of scene ``.toml`` files, or
+dicts with the keys of a scene TOML file (sections ``mesh``, ``environment``, ``material``,
+``camera``, ``render``; format in :mod:`iblbench.scenes.registry` and the README), plus an
+optional ``name`` (default: the mesh file's stem; it names the rows and image folders, so two
+scenes of one run need two names, and a built-in scene's name is refused).  Relative paths in a
+dict (``mesh.path``, ``environment.path``) are taken from the current working directory.  A
+dict is written as ``out/scenes/<name>.toml`` and run as that file, so the manifest and
+``iblbench report`` find it later; a dict whose name is already in ``out/scenes`` with other
+content is refused (its earlier rows would be resumed as if they were this scene's) unless
+``force``.  Errors in a dict name the dict and the key (``scene dict 'ball': unknown key 'kdd'
+in [material]; ...``); nothing is left in ``out`` by one.  (An error found only when the scene
+is traced, such as a camera that sees no geometry, may leave the scene file behind.)
+"""
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import re
+
+from iblbench.scenes.errors import InputError
+
+__all__ = ["run", "run_config", "check", "report", "InputError"]
+
+SCENE_FOLDER = "scenes"     # out/scenes/<name>.toml: the scenes given as dicts
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+_PATH_KEYS = (("mesh", "path"), ("environment", "path"))
+
+
+def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None, frames=None,
+        resolution=None, env_res=None, time_budget_ms=None, repeats=None, metrics=None,
+        sanitize=None, device=None, save_inputs=False, force=False, progress=None):
+    """Run a sweep and return its results table (a pandas DataFrame); see the module docstring.
+
+    Each argument left None takes its value from ``config``: a shipped sweep name (``quick``,
+    ``default``, ``full``, ``temporal``) or a sweep ``.toml`` file (default ``default``), as
+    the flags of ``iblbench run`` do.
+
+    - ``scenes``: a built-in name, a scene ``.toml`` path or a scene dict, or a list of them;
+    - ``estimators``: names, optionally with parameters (``"balanced{uniform_faces=true}"``);
+    - ``spp``: an int or a list; ``seeds``: how many (seeds 0..N-1);
+    - ``frames``: ``"START:STOP[:STEP]"``, ``"all"``, ``"A..B"`` or a list of frame indices;
+    - ``resolution``: ``"WxH"`` or ``(W, H)``; ``env_res``: the cube face size;
+    - ``time_budget_ms``: a number or a list (equal-time cells besides the spp list);
+    - ``repeats``: timed renders per cell, an int or ``{"default": 5, "bis": 3}``;
+    - ``metrics``: ``"de76,relmse"`` or a list (default: all; ΔE76 always);
+    - ``out``: the output folder (required); ``force``: recompute cells ``out`` already has;
+    - ``device``, ``sanitize``, ``save_inputs``: as the flags of ``iblbench run``;
+    - ``progress``: a progress bar (None: only on a terminal).
+    """
+    from iblbench.harness.metrics import parse_metrics
+    from iblbench.harness.runner import Runner
+    from iblbench.harness.sweep import check_env_res, parse_frames, parse_repeats, parse_resolution
+
+    given = {name: value for name, value in (
+        ("scenes", scenes), ("estimators", estimators), ("spp", spp), ("seeds", seeds),
+        ("frames", frames), ("resolution", resolution), ("env_res", env_res),
+        ("time_budget_ms", time_budget_ms), ("repeats", repeats), ("metrics", metrics),
+        ("sanitize", sanitize)) if value is not None}
+    try:
+        if frames is not None:   # "all" parses to None, which would keep the config's frames
+            frames = parse_frames(list(frames) if isinstance(frames, tuple) else frames) or slice(None)
+        if resolution is not None:
+            resolution = parse_resolution(list(resolution) if isinstance(resolution, tuple)
+                                          else resolution)
+        if env_res is not None:
+            env_res = check_env_res(env_res)
+        repeats, repeats_for = parse_repeats(repeats) if repeats is not None else (None, None)
+        if metrics is not None:
+            metrics = parse_metrics(metrics if isinstance(metrics, str) else ",".join(metrics))
+    except ValueError as error:
+        raise InputError(None, str(error)) from None
+    out = pathlib.Path(out)
+    entries, written, created = ((None, [], []) if scenes is None
+                                 else _scene_entries(_listed(scenes), out, force))
+    try:
+        runner = Runner(run_config(
+            out, config=config, scenes=entries, estimators=_listed(estimators),
+            spp=_listed(spp), seeds=seeds, frames=frames, resolution=resolution, env_res=env_res,
+            time_budget_ms=_listed(time_budget_ms), repeats=repeats, repeats_for=repeats_for,
+            metrics=metrics, sanitize=sanitize, device=device, save_inputs=save_inputs,
+            force=force, progress=progress,
+            note={"overridden_by_arguments": sorted(given), "via": "iblbench.run (Python API)"}))
+    except InputError as error:
+        _remove(created)
+        labels = {str(path): f"scene dict {path.stem!r}" for path in written}
+        if error.source in labels:
+            raise InputError(labels[error.source], error.problem) from None
+        raise
+    return runner.sweep_rows(runner.run()).reset_index(drop=True)
+
+
+def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seeds=None,
+               frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None,
+               repeats_for=None, metrics=None, sanitize=None, device=None, save_inputs=False,
+               force=False, progress=None, note=None):
+    """The :class:`~iblbench.harness.runner.RunConfig` of a sweep config (``config``, default
+    ``default``) whose fields given here (not None) are replaced, values already parsed
+    (``iblbench run`` and :func:`run` share it); ``note`` is added to the manifest's
+    ``sweep`` record."""
+    from iblbench.harness.runner import RunConfig
+    from iblbench.harness.sweep import load_sweep
+
+    sweep = load_sweep(config or "default").replace(
+        scenes=scenes and tuple(scenes), estimators=estimators and tuple(estimators),
+        spp=spp and tuple(int(n) for n in spp), seeds=seeds, frames=frames,
+        resolution=resolution, env_res=env_res,
+        time_budget_ms=time_budget_ms and tuple(float(t) for t in time_budget_ms),
+        sanitize=sanitize, repeats=repeats, repeats_for=repeats_for, metrics=metrics)
+    return RunConfig(out=pathlib.Path(out), scenes=sweep.scenes, estimators=sweep.estimators,
+                     spp=sweep.spp, seeds=sweep.seeds, resolution=sweep.resolution,
+                     device=device, save_inputs=save_inputs, sanitize=sweep.sanitize,
+                     env_res=sweep.env_res, progress=progress, frames=sweep.frames,
+                     time_budget_ms=sweep.time_budget_ms, force=force, repeats=sweep.repeats,
+                     repeats_for=sweep.repeats_for, metrics=sweep.metrics,
+                     sweep={**sweep.to_manifest(), **(note or {})})
+
+
+def check(out, budgets="budgets.toml"):
+    """``iblbench check``: (checks DataFrame, verdict line, exit status 0 or 1); InputError on
+    bad input (:func:`iblbench.harness.budgets.check`)."""
+    from iblbench.harness.budgets import check as check_budgets
+
+    return check_budgets(out, budgets)
+
+
+def report(out, **options) -> pathlib.Path:
+    """``iblbench report``: write ``out/report/index.html`` and return its path; ``options``
+    are those of :func:`iblbench.reports.report.write_report` (spp, seed, frame, pixel,
+    device)."""
+    from iblbench.reports.report import write_report
+
+    return pathlib.Path(write_report(out, **options)["path"])
+
+
+# ---- scene dicts ---------------------------------------------------------------------------------
+
+def _listed(value):
+    """A single value as a list of one; None stays None."""
+    if value is None or isinstance(value, (list, tuple)):
+        return value
+    return [value]
+
+
+def _scene_entries(scenes, out: pathlib.Path, force: bool):
+    """The runner's scene entries (names and .toml paths as given, each dict written as
+    ``out/scenes/<name>.toml``), the files written, and the files and folders created."""
+    entries, documents = [], {}
+    for scene in scenes:
+        if isinstance(scene, dict):
+            name = _scene_name(scene)
+            if name in documents:
+                raise InputError(f"scene dict {name!r}", "two scene dicts have this name; give "
+                                                         "each its own 'name'")
+            documents[name] = scene_toml(scene, name)
+            entries.append(os.fspath(out / SCENE_FOLDER / f"{name}.toml"))
+        elif isinstance(scene, (str, os.PathLike)):
+            entries.append(os.fspath(scene))
+        else:
+            raise InputError(None, f"a scene must be a built-in name, a .toml path or a dict, "
+                                   f"got {type(scene).__name__}")
+    written, created = [], []
+    for name, text in documents.items():
+        path = out / SCENE_FOLDER / f"{name}.toml"
+        if path.is_file() and path.read_text(encoding="utf-8") != text and not force:
+            _remove(created)
+            raise InputError(path, f"holds another scene named {name!r}; give this dict another "
+                                   "'name', use another out, or force=True to replace it")
+        created += [p for p in (out, path.parent, path) if not p.exists()]
+        _write_scene(path, text)
+        written.append(path)
+    return entries, written, created
+
+
+def _scene_name(scene: dict) -> str:
+    from iblbench.scenes.registry import scene_names
+
+    mesh = scene.get("mesh")
+    default = (pathlib.Path(os.fspath(mesh["path"])).stem
+               if isinstance(mesh, dict) and isinstance(mesh.get("path"), (str, os.PathLike))
+               else None)
+    name = scene.get("name", default)
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise InputError(f"scene dict {name!r}", "'name' must be letters, digits, '.', '_' or "
+                                                 "'-' (it names files), e.g. 'bunny-park'")
+    if name.lower() in scene_names():
+        raise InputError(f"scene dict {name!r}", "'name' is a built-in scene's; give it another")
+    return name
+
+
+def scene_toml(scene: dict, name: str) -> str:
+    """The TOML text of a scene dict, its relative ``mesh.path`` and ``environment.path`` made
+    absolute (from the working directory); an InputError naming a key whose value TOML cannot
+    hold."""
+    where = f"scene dict {name!r}"
+    top, tables = [], []
+    for key, value in scene.items():
+        if key == "name":
+            continue
+        if isinstance(value, dict):
+            value = {k: (os.path.abspath(os.path.expanduser(os.fspath(v)))
+                         if (key, k) in _PATH_KEYS and isinstance(v, (str, os.PathLike)) else v)
+                     for k, v in value.items()}
+            tables += ["", f"[{_toml_key(key, where)}]"] + [
+                f"{_toml_key(k, where)} = {_toml_value(v, f'{key}.{k}', where)}"
+                for k, v in value.items()]
+        else:   # the registry reports what this section should have been
+            top.append(f"{_toml_key(key, where)} = {_toml_value(value, key, where)}")
+    return "\n".join(top + tables).strip() + "\n"
+
+
+def _toml_key(key, where: str) -> str:
+    if not isinstance(key, str):
+        raise InputError(where, f"keys must be strings, got {key!r}")
+    return key if _BARE_KEY.fullmatch(key) else json.dumps(key)
+
+
+def _toml_value(value, key: str, where: str) -> str:
+    from iblbench.harness.sweep import toml_value
+
+    if hasattr(value, "tolist"):           # NumPy arrays and scalars
+        value = value.tolist()
+    if isinstance(value, os.PathLike):
+        value = os.fspath(value)
+    if isinstance(value, (bool, int, float, str)):
+        return toml_value(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v, key, where) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{_toml_key(k, where)} = {_toml_value(v, f'{key}.{k}', where)}"
+                                for k, v in value.items()) + " }"
+    raise InputError(where, f"{key} must be a number, string, boolean, list or table, got "
+                            f"{type(value).__name__}")
+
+
+def _write_scene(path: pathlib.Path, text: str) -> None:
+    from iblbench.scenes.atomic import atomic_path
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def _remove(created) -> None:
+    """Undo :func:`_scene_entries` on bad input: the files and folders it created, newest
+    first (a folder only when it is empty)."""
+    for path in reversed(created):
+        if path.is_dir():
+            if not any(path.iterdir()):
+                path.rmdir()
+        else:
+            path.unlink(missing_ok=True)
