@@ -644,8 +644,8 @@ def _check(args) -> int:
         try:
             with atomic_path(args.junit) as tmp:
                 tmp.write_text(junit_xml(checks, args.budgets), encoding="utf-8")
-        except FileNotFoundError:
-            raise InputError(args.junit, "--junit: no such folder") from None
+        except OSError as error:   # (a full disk is still told apart by its message)
+            raise InputError(args.junit, f"--junit: cannot write it ({error.strerror})") from None
         print(f"wrote {args.junit}", file=human)
     if args.json:
         _print_json(check_summary(checks, verdict, status, args.dir, args.budgets))
