@@ -127,12 +127,14 @@ def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seed
     from iblbench.harness.runner import RunConfig
     from iblbench.harness.sweep import load_sweep
 
+    def given(values, kind):
+        return None if values is None else tuple(map(kind, values))
+
     sweep = load_sweep(config or "default").replace(
-        scenes=scenes and tuple(scenes), estimators=estimators and tuple(estimators),
-        spp=spp and tuple(int(n) for n in spp), seeds=seeds, frames=frames,
-        resolution=resolution, env_res=env_res,
-        time_budget_ms=time_budget_ms and tuple(float(t) for t in time_budget_ms),
-        sanitize=sanitize, repeats=repeats, repeats_for=repeats_for, metrics=metrics)
+        scenes=given(scenes, str), estimators=given(estimators, str), spp=given(spp, int),
+        seeds=seeds, frames=frames, resolution=resolution, env_res=env_res,
+        time_budget_ms=given(time_budget_ms, float), sanitize=sanitize, repeats=repeats,
+        repeats_for=repeats_for, metrics=metrics)
     return RunConfig(out=pathlib.Path(out), scenes=sweep.scenes, estimators=sweep.estimators,
                      spp=sweep.spp, seeds=sweep.seeds, resolution=sweep.resolution,
                      device=device, save_inputs=save_inputs, sanitize=sweep.sanitize,

@@ -22,7 +22,7 @@ from iblbench.scenes.imageio import read_exr, write_exr, write_hdr
 TINY = ["--res", "16x16", "--env-res", "8", "--no-progress"]
 RUN_FLAGS = ("--scene", "--estimator", "--spp", "--seeds", "--res", "--env-res", "--out",
              "--device", "--save-inputs", "--sanitize", "--no-progress", "--repeats", "--metrics",
-             "--no-flip")
+             "--no-flip", "--json")
 RESULT_COLUMNS = {
     "scene", "estimator", "estimator_version", "spp", "frame", "seed", "mean_delta_e76",
     "mean_delta_e2000", "rel_mse", "flip", "flicker", "used_samples", "effective_samples", "effective_ratio",
@@ -100,6 +100,8 @@ def test_top_level_help_lists_every_subcommand(cli):
     result = cli("--help")
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("usage: iblbench")
+    assert "import iblbench" in result.stdout and "iblbench.run(" in result.stdout   # the API
+    assert "--json" in result.stdout and "--junit" in result.stdout
     for command in ("run", "list"):
         assert re.search(rf"^\s+{command}\s", result.stdout, re.M), result.stdout
 
@@ -301,6 +303,34 @@ def test_tiny_run_results_table(tiny_run):
     for column in ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "time_ms", "time_ms_host"):
         assert np.isfinite(table[column]).all() and (table[column] >= 0).all(), column
     assert (table["time_repeats"] == 5).all()
+
+
+def test_tiny_run_json_summary(tiny_run, cli):
+    """A rerun with --json (all cells resumed): stdout is one JSON document whose cells agree
+    with results.parquet (mean over seeds, t interval written out here); the table is on
+    stderr."""
+    from scipy import stats
+
+    _, out = tiny_run
+    result = cli("run", "--scene", "sphere-sun", "--estimator", "uniform", "--spp", "4,16",
+                 "--seeds", "2", "--out", out, "--json", *TINY)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert "wrote 4 rows" in result.stderr and "mean_delta_e76" in result.stderr
+    assert (summary["command"], summary["exit"], summary["status"]) == ("run", 0, "complete")
+    assert summary["out"] == str(out) and summary["rows"] == 4
+    assert (summary["resumed_cells"], summary["cells_run"]) == (4, 0)
+    table = pd.read_parquet(out / "results.parquet")
+    assert [(c["scene"], c["estimator"], c["spp"], c["seeds"]) for c in summary["cells"]] == [
+        ("sphere-sun", "uniform", 4, 2), ("sphere-sun", "uniform", 16, 2)]
+    for cell in summary["cells"]:
+        rows = table[table.spp == cell["spp"]].sort_values("seed")
+        for metric in ("mean_delta_e76", "rel_mse", "time_ms", "effective_samples"):
+            values = rows[metric].to_numpy()
+            half = stats.t.ppf(0.975, 1) * values.std(ddof=1) / np.sqrt(2)
+            figure = cell["metrics"][metric]
+            assert figure["mean"] == pytest.approx(values.mean()), metric
+            assert figure["half_width"] == pytest.approx(half), metric
 
 
 def test_tiny_run_manifest(tiny_run):

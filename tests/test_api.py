@@ -1,0 +1,151 @@
+"""The Python API (issue 11): ``iblbench.run`` runs a sweep from a notebook, with scenes as
+dicts, TOML paths or built-in names, and returns the sweep's rows of the results table; a bad
+dict is a one-line InputError naming the key, and leaves nothing behind.
+
+Tiny sizes (16×16 pixels, 4×4 cube faces, 1 timed render) keep each run to seconds.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+
+import iblbench
+from iblbench.harness.results import TABLE, read_manifest
+
+TINY = dict(resolution="16x16", env_res=4, repeats=1, metrics="de76,relmse", progress=False)
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    """A mesh and a cube map (a bright +Z face) for scene dicts."""
+    folder = tmp_path_factory.mktemp("api")
+    trimesh.creation.icosphere(subdivisions=1).export(folder / "ball.obj")
+    env = np.full((6, 4, 4, 3), 0.5, np.float32)
+    env[4] *= 4.0
+    np.save(folder / "sky.npy", env)
+    return folder
+
+
+def ball(folder: Path, **changes) -> dict:
+    return {"name": "ball", "mesh": {"path": str(folder / "ball.obj")},
+            "environment": {"path": str(folder / "sky.npy")},
+            "material": {"kd": 0.6, "ks": 0.2, "shininess": 40},
+            "camera": {"eye": [0.0, 0.0, 3.0], "target": [0, 0, 0]}} | changes
+
+
+@pytest.fixture(scope="module")
+def swept(folder, tmp_path_factory):
+    """A dict scene and a built-in scene × uniform × spp 4, 8 × 2 seeds."""
+    out = tmp_path_factory.mktemp("api-run") / "run"
+    table = iblbench.run(scenes=[ball(folder), "sphere-sun"], estimators="uniform", spp=[4, 8],
+                         seeds=2, out=out, **TINY)
+    return out, table
+
+
+def test_run_returns_the_rows_of_the_sweep(swept):
+    out, table = swept
+    assert isinstance(table, pd.DataFrame)
+    expected = {(scene, "uniform", spp, 0, seed) for scene in ("ball", "sphere-sun")
+                for spp in (4, 8) for seed in (0, 1)}
+    assert set(zip(table.scene, table.estimator, table.spp, table.frame, table.seed)) == expected
+    assert len(table) == len(expected)
+    assert (table.width == 16).all() and (table.env_res == 4).all()
+    assert table.mean_delta_e76.notna().all() and (table.mean_delta_e76 > 0).all()
+    written = pd.read_parquet(out / TABLE)
+    assert len(written) == len(expected)
+
+
+def test_a_dict_scene_is_recorded_as_a_file_in_out(swept, folder):
+    out, _ = swept
+    manifest = read_manifest(out)
+    scene_file = out / "scenes" / "ball.toml"
+    assert str(scene_file.resolve()) in manifest["config"]["scenes"]
+    assert "sphere-sun" in manifest["config"]["scenes"]
+    assert manifest["sweep"]["via"] == "iblbench.run (Python API)"
+    text = scene_file.read_text(encoding="utf-8")
+    assert f'path = "{folder / "ball.obj"}"' in text and "shininess = 40" in text
+
+
+def test_a_rerun_resumes_and_a_second_sweep_returns_only_its_rows(swept, folder, capsys):
+    out, first = swept
+    again = iblbench.run(scenes=[ball(folder), "sphere-sun"], estimators="uniform", spp=[4, 8],
+                         seeds=2, out=out, **TINY)
+    assert "resumed: 8 cells already done, 0 to run" in capsys.readouterr().err
+    key = ["scene", "spp", "seed"]
+    pd.testing.assert_frame_equal(again.sort_values(key).reset_index(drop=True),
+                                  first.sort_values(key).reset_index(drop=True))
+    other = iblbench.run(scenes="sphere-sun", estimators=["uniform"], spp=2, seeds=1, out=out, **TINY)
+    assert set(zip(other.scene, other.spp, other.seed)) == {("sphere-sun", 2, 0)}
+    assert len(pd.read_parquet(out / TABLE)) == 9
+
+
+def test_relative_paths_in_a_dict_are_taken_from_the_working_directory(folder, tmp_path,
+                                                                      monkeypatch):
+    monkeypatch.chdir(folder)
+    scene = ball(folder, mesh={"path": "ball.obj"}, environment={"path": "sky.npy"})
+    table = iblbench.run(scenes=[scene], estimators="uniform", spp=2, seeds=1,
+                         out=tmp_path / "rel", **TINY)
+    assert list(table.scene) == ["ball"]
+    assert f'"{folder / "sky.npy"}"' in (tmp_path / "rel" / "scenes" / "ball.toml").read_text()
+
+
+@pytest.mark.parametrize("change, needles", [
+    ({"material": {"kdd": 0.3}}, ["scene dict 'ball'", "unknown key 'kdd' in [material]"]),
+    ({"camera": {"eye": [0, 0], "target": [0, 0, 0]}}, ["scene dict 'ball'", "camera.eye"]),
+    ({"camera": {"eye": None, "target": [0, 0, 0]}}, ["scene dict 'ball'", "camera.eye", "NoneType"]),
+    ({"lights": {"sun": 1}}, ["scene dict 'ball'", "unknown section [lights]"]),
+    ({"environment": {"path": "no-such.exr"}}, ["no-such.exr", "not found"]),
+    ({"name": "sphere-sun"}, ["scene dict 'sphere-sun'", "built-in"]),
+    ({"name": "a b"}, ["'name' must be"]),
+])
+def test_a_bad_dict_is_one_line_naming_the_key_and_leaves_nothing(folder, tmp_path, change, needles):
+    out = tmp_path / "bad"
+    with pytest.raises(iblbench.InputError) as error:
+        iblbench.run(scenes=[ball(folder, **change)], estimators="uniform", spp=2, seeds=1,
+                     out=out, **TINY)
+    message = str(error.value)
+    assert "\n" not in message
+    for needle in needles:
+        assert needle in message, message
+    assert not out.exists()
+
+
+def test_two_dicts_of_one_name_and_a_changed_dict_are_refused(swept, folder):
+    out, _ = swept
+    with pytest.raises(iblbench.InputError, match="two scene dicts have this name"):
+        iblbench.run(scenes=[ball(folder), ball(folder)], estimators="uniform", spp=2, seeds=1,
+                     out=out, **TINY)
+    brighter = ball(folder, material={"kd": 0.8, "ks": 0.1})
+    before = (out / "scenes" / "ball.toml").read_text()
+    with pytest.raises(iblbench.InputError, match="holds another scene named 'ball'"):
+        iblbench.run(scenes=[brighter], estimators="uniform", spp=2, seeds=1, out=out, **TINY)
+    assert (out / "scenes" / "ball.toml").read_text() == before
+
+
+def test_bad_arguments_are_input_errors(tmp_path):
+    for arguments, needle in ((dict(resolution="16by16"), "resolution"),
+                              (dict(metrics=["de76", "psnr"]), "psnr"),
+                              (dict(spp=0), "spp"), (dict(estimators="unifrom"), "unifrom"),
+                              (dict(scenes=[3.5]), "a scene must be")):
+        with pytest.raises(iblbench.InputError, match=needle):
+            iblbench.run(**({"scenes": "sphere-sun", "estimators": "uniform", "spp": 2,
+                             "seeds": 1, "out": tmp_path / "x"} | arguments))
+        assert not (tmp_path / "x").exists()
+
+
+def test_import_is_light_and_documented():
+    """``import iblbench`` starts no OpenCL, pandas or trimesh; ``help(iblbench)`` shows run."""
+    code = ("import sys, iblbench; print(json.dumps([m for m in ('pyopencl', 'pandas', 'trimesh')"
+            " if m in sys.modules]))")
+    done = subprocess.run([sys.executable, "-c", "import json; " + code], capture_output=True,
+                          text=True, check=True)
+    assert json.loads(done.stdout) == []
+    assert "iblbench.run(" in iblbench.__doc__ and "scene dict" in iblbench.__doc__
+    assert set(iblbench.__all__) >= {"run", "check", "report", "InputError"}
