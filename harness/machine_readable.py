@@ -3,8 +3,8 @@
 
 **Where they go.**  With ``--json`` a command prints exactly one JSON document on stdout; its
 human-readable output (tables, verdict) goes to stderr instead, as do warnings and progress.
-``compare --json`` does the same.  On bad input (exit 2) nothing is printed on stdout: the
-one-line error is on stderr.  Every document is written by
+``compare --json`` does the same.  A command that stops on an error (exit 2 bad input, 3
+disk full, 130 interrupted) prints nothing on stdout: the one-line error is on stderr.  Every document is written by
 :func:`iblbench.harness.results.json_text` (strict JSON: NaN and infinities are ``null``) and
 carries ``"command"`` and ``"exit"`` (the command's exit status).  ``iblbench check --junit
 FILE`` writes the XML to FILE (atomically) besides whatever goes to stdout.

@@ -148,6 +148,15 @@ def test_check_json_on_a_passing_budget_and_a_missing_cell(run_dir, capsys):
         (64, "missing", "FAIL")}
 
 
+def test_check_json_on_bad_input_leaves_stdout_empty(run_dir, tmp_path, capsys):
+    junit = tmp_path / "check.xml"
+    status, out, err = _check(run_dir, CONFIGURATION.replace("width = 48", "width = 64")
+                              + rule("sphere-sun", "*", "nonfinite = 0"), capsys, "--json",
+                              "--junit", str(junit))
+    assert (status, out) == (2, "") and "another configuration" in err and err.count("\n") == 1
+    assert not junit.exists()
+
+
 def test_check_junit_counts_failures_per_rule(run_dir, tmp_path, capsys):
     junit = tmp_path / "reports" / "check.xml"
     junit.parent.mkdir()
