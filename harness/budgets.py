@@ -77,6 +77,7 @@ the file), and the measured mean, se and interval in each bound's comment.
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import difflib
 import fnmatch
 import glob
@@ -444,9 +445,11 @@ TIME_FACTOR = 3.0      # the time ratio's margin: a ratio swung ×2 under load (
 USED_SLACK = 0.01      # used samples in [spp − 1%, spp]: an analytic bound, not a measured one
 
 BUDGETS_HEADER = """\
-# Error budgets made by `iblbench budgets {dir} --margin {margin:g} --se-multiple {k:g}`
-# (harness/budgets.py; checked by `iblbench check DIR --budgets FILE`). Do not edit by hand:
-# rerun the command on a fresh multi-seed run of the [configuration] below.
+# Error budgets made on {date} (harness/budgets.py; checked by `iblbench check DIR --budgets
+# FILE`). Do not edit by hand: remake them with these two commands, the sweep into a fresh folder
+#   {run_command}
+#   iblbench budgets {dir} --margin {margin:g} --se-multiple {k:g} --output {output}
+# Why they were made: {why}
 #
 # Run: {seeds} seeds per cell, git revision {revision}, device {device}.
 # Each cell's value is the mean over seeds of each seed's mean over its frames; the measured
@@ -516,11 +519,26 @@ def _bound_lines(rows: pd.DataFrame, spp: int, margin: float, k: float) -> list[
                     f"max_used_samples = {spp}  # the budget, spp"]
 
 
+def run_command(out_dir: pathlib.Path, manifest: dict) -> str:
+    """The ``iblbench run`` that made ``out_dir``, from its manifest's sweep: exact for a sweep
+    config run as it is; otherwise it names the flags whose values the manifest holds."""
+    sweep = manifest.get("sweep") or {}
+    source = str(sweep.get("source", ""))
+    if not source or source.startswith("RunConfig"):
+        return f"(the Python API; its sweep is in {out_dir / 'manifest.json'})"
+    config = source.removeprefix("shipped:")
+    flags = sweep.get("overridden_by_flags") or []
+    return (f"iblbench run --config {config} --out {out_dir}"
+            + (f" with {', '.join(flags)} (values in its manifest.json)" if flags else ""))
+
+
 def derive_budgets(out_dir: str | pathlib.Path, margin: float,
-                   se_multiple: float = DEFAULT_SE_MULTIPLE) -> str:
+                   se_multiple: float = DEFAULT_SE_MULTIPLE, output: str | pathlib.Path =
+                   "budgets.toml", why: str = "") -> str:
     """The text of a budgets file for the equal-spp cells of ``out_dir``'s run (module doc,
-    :data:`BUDGETS_HEADER`); :class:`InputError` for fewer than :data:`MIN_SEEDS` seeds in a
-    cell, non-finite pixels, mixed configurations or a bad margin."""
+    :data:`BUDGETS_HEADER`: today's date, the commands that remake it and ``why``, one line);
+    :class:`InputError` for fewer than :data:`MIN_SEEDS` seeds in a cell, non-finite pixels,
+    mixed configurations or a bad margin."""
     if not (math.isfinite(margin) and margin >= 0 and math.isfinite(se_multiple)
             and se_multiple >= 0):
         raise InputError(None, f"--margin and --se-multiple must be finite and >= 0, got "
@@ -551,7 +569,10 @@ def derive_budgets(out_dir: str | pathlib.Path, margin: float,
     manifest = read_manifest(out_dir)
     device = manifest.get("device", {})
     text = [BUDGETS_HEADER.format(
-        dir=out_dir, margin=margin, k=se_multiple, seeds=configuration.seeds,
+        date=datetime.datetime.now(datetime.timezone.utc).date().isoformat(),
+        run_command=run_command(out_dir, manifest), dir=out_dir, output=output,
+        why=" ".join(why.split()) or "not stated", margin=margin, k=se_multiple,
+        seeds=configuration.seeds,
         revision=manifest.get("git_revision", "unknown"),
         device=device.get("name", "unknown") if isinstance(device, dict) else device,
         baseline=TIME_BASELINE, time_metric=TIME_METRIC, time_factor=TIME_FACTOR),
@@ -576,9 +597,9 @@ def derive_budgets(out_dir: str | pathlib.Path, margin: float,
 
 
 def write_budgets(out_dir: str | pathlib.Path, path: str | pathlib.Path, margin: float,
-                  se_multiple: float = DEFAULT_SE_MULTIPLE) -> int:
+                  se_multiple: float = DEFAULT_SE_MULTIPLE, why: str = "") -> int:
     """Write :func:`derive_budgets` to ``path`` in one rename; the number of rules written."""
-    text = derive_budgets(out_dir, margin, se_multiple)
+    text = derive_budgets(out_dir, margin, se_multiple, path, why)
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return text.count("[[rule]]")
