@@ -84,6 +84,7 @@ import glob
 import json
 import math
 import pathlib
+import textwrap
 
 import numpy as np
 import pandas as pd
@@ -449,7 +450,7 @@ BUDGETS_HEADER = """\
 # FILE`). Do not edit by hand: remake them with these two commands, the sweep into a fresh folder
 #   {run_command}
 #   iblbench budgets {dir} --margin {margin:g} --se-multiple {k:g} --output {output}
-# Why they were made: {why}
+{why}
 #
 # Run: {seeds} seeds per cell, git revision {revision}, device {device}.
 # Each cell's value is the mean over seeds of each seed's mean over its frames; the measured
@@ -571,7 +572,8 @@ def derive_budgets(out_dir: str | pathlib.Path, margin: float,
     text = [BUDGETS_HEADER.format(
         date=datetime.datetime.now(datetime.timezone.utc).date().isoformat(),
         run_command=run_command(out_dir, manifest), dir=out_dir, output=output,
-        why=" ".join(why.split()) or "not stated", margin=margin, k=se_multiple,
+        why=textwrap.fill(why or "not stated", 99, initial_indent="# Why they were made: ",
+                          subsequent_indent="#   "), margin=margin, k=se_multiple,
         seeds=configuration.seeds,
         revision=manifest.get("git_revision", "unknown"),
         device=device.get("name", "unknown") if isinstance(device, dict) else device,
