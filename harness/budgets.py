@@ -72,7 +72,9 @@ Deriving budgets. ``iblbench budgets DIR --margin M [--se-multiple K]`` (:func:`
 writes a budgets file, in one rename, from a run of at least :data:`MIN_SEEDS` seeds per cell:
 the run's ``[configuration]``, one rule per equal-spp cell, each bound the measured mean over
 seeds ± K standard errors ± M·mean on both sides (shapes in :data:`BUDGETS_HEADER`, which heads
-the file), and the measured mean, se and interval in each bound's comment.
+the file with the date, the run's and this command's lines that remake it, and ``--why``), and
+the measured mean, se and interval in each bound's comment.  The repository's budgets.toml is
+remade by ``make budgets``.
 """
 from __future__ import annotations
 
@@ -523,10 +525,12 @@ def _bound_lines(rows: pd.DataFrame, spp: int, margin: float, k: float) -> list[
 def run_command(out_dir: pathlib.Path, manifest: dict) -> str:
     """The ``iblbench run`` that made ``out_dir``, from its manifest's sweep: exact for a sweep
     config run as it is; otherwise it names the flags whose values the manifest holds."""
-    sweep = manifest.get("sweep") or {}
-    source = str(sweep.get("source", ""))
-    if not source or source.startswith("RunConfig"):
+    source = str((manifest.get("sweep") or {}).get("source", ""))
+    if not source:
+        return f"(not known: {out_dir} has no manifest.json with a sweep)"
+    if source.startswith("RunConfig"):
         return f"(the Python API; its sweep is in {out_dir / 'manifest.json'})"
+    sweep = manifest["sweep"]
     config = source.removeprefix("shipped:")
     flags = sweep.get("overridden_by_flags") or []
     return (f"iblbench run --config {config} --out {out_dir}"
