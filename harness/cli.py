@@ -529,7 +529,8 @@ def _run(args) -> None:
     sweep = sweep.replace(
         scenes=tuple(args.scene) if args.scene else None,
         estimators=tuple(args.estimator) if args.estimator else None, spp=args.spp,
-        seeds=args.seeds, first_seed=args.first_seed, frames=frames, resolution=args.res, env_res=args.env_res,
+        seeds=args.seeds, first_seed=args.first_seed, frames=frames, resolution=args.res,
+        env_res=args.env_res,
         time_budget_ms=args.time_budget_ms, sanitize=True if args.sanitize else None,
         repeats=args.repeats and args.repeats[0], repeats_for=args.repeats and args.repeats[1],
         metrics=tuple(m for m in sweep.metrics if m != "flip") if args.no_flip else args.metrics)
@@ -541,7 +542,8 @@ def _run(args) -> None:
         ("--sanitize", args.sanitize), ("--repeats", args.repeats), ("--metrics", args.metrics),
         ("--no-flip", args.no_flip)) if value]
     config = RunConfig(out=args.out, scenes=sweep.scenes, estimators=sweep.estimators,
-                       spp=sweep.spp, seeds=sweep.seeds, first_seed=sweep.first_seed, resolution=sweep.resolution,
+                       spp=sweep.spp, seeds=sweep.seeds, first_seed=sweep.first_seed,
+                       resolution=sweep.resolution,
                        device=args.device, save_inputs=args.save_inputs, sanitize=sweep.sanitize,
                        env_res=sweep.env_res, progress=False if args.no_progress else None,
                        frames=sweep.frames, time_budget_ms=sweep.time_budget_ms, force=args.force,

@@ -361,7 +361,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     if not _positive_int(seeds):
         fail(f"seeds must be a positive integer (seeds 0..N-1), got {seeds!r}")
     first_seed = document.get("first_seed", 0)
-    if not (_positive_int(first_seed) or (type(first_seed) is int and first_seed == 0)):
+    if type(first_seed) is not int or first_seed < 0:
         fail(f"first_seed must be a non-negative integer, got {first_seed!r}")
     try:
         frames = parse_frames(document.get("frames", "all"))
