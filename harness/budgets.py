@@ -444,7 +444,10 @@ DERIVED_METRICS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "fli
                    "effective_ratio", "evaluations")
 TIME_BASELINE = "uniform"
 TIME_METRIC = "time_ms_shade"
-TIME_FACTOR = 3.0      # the time ratio's margin: a ratio swung ×2 under load (budgets.toml)
+# The time ratio's margin.  Under load the ratio of one cell swings: sphere-sun balanced_mis at
+# 64 spp measured 3.0 and 7.5 in two quick runs of the same code (16 seeds of 5 renders, load
+# average 13 on 2 cores; uniform shades in about 0.25 ms).  ×5 still fails a gross slowdown.
+TIME_FACTOR = 5.0
 USED_SLACK = 0.01      # used samples in [spp − 1%, spp]: an analytic bound, not a measured one
 
 BUDGETS_HEADER = """\
