@@ -544,7 +544,7 @@ def derive_budgets(out_dir: str | pathlib.Path, margin: float,
                    se_multiple: float = DEFAULT_SE_MULTIPLE, output: str | pathlib.Path =
                    "budgets.toml", why: str = "") -> str:
     """The text of a budgets file for the equal-spp cells of ``out_dir``'s run (module doc,
-    :data:`BUDGETS_HEADER`: today's date, the commands that remake it and ``why``, one line);
+    :data:`BUDGETS_HEADER`: today's date, the commands that remake it and ``why``, wrapped);
     :class:`InputError` for fewer than :data:`MIN_SEEDS` seeds in a cell, non-finite pixels,
     mixed configurations or a bad margin."""
     if not (math.isfinite(margin) and margin >= 0 and math.isfinite(se_multiple)
