@@ -4,10 +4,11 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 BENCH_OUT ?= results/default
+BUDGETS_OUT ?= results/budgets-quick
 # Where the system OpenCL loader looks for drivers (it honours OCL_ICD_VENDORS too).
 OPENCL_VENDORS ?= $(or $(OCL_ICD_VENDORS),/etc/OpenCL/vendors)
 
-.PHONY: bench test venv clean
+.PHONY: bench budgets test venv clean
 
 venv: $(STAMP)
 
@@ -30,6 +31,15 @@ bench: $(STAMP)
 	$(VENV)/bin/iblbench run --config default --out $(BENCH_OUT)
 	$(VENV)/bin/iblbench report $(BENCH_OUT)
 	$(VENV)/bin/iblbench perf --out $(BENCH_OUT)/perf
+
+# budgets: remake budgets.toml from a fresh `quick` sweep (16 seeds; under a minute here), after
+# any change that moves a sample stream: `make budgets WHY="what changed"`.  The margin and
+# se multiple are the ones harness/configs/quick.toml was chosen for (issue 11).
+budgets: $(STAMP)
+	rm -rf $(BUDGETS_OUT)
+	$(VENV)/bin/iblbench run --config quick --no-progress --out $(BUDGETS_OUT)
+	$(VENV)/bin/iblbench budgets $(BUDGETS_OUT) --margin 0.05 --se-multiple 3 \
+		--output budgets.toml --why "$(WHY)"
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -53,8 +53,8 @@ _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 _PATH_KEYS = (("mesh", "path"), ("environment", "path"))
 
 
-def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None, frames=None,
-        resolution=None, env_res=None, time_budget_ms=None, repeats=None, metrics=None,
+def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None, first_seed=None,
+        frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None, metrics=None,
         sanitize=None, device=None, save_inputs=False, force=False, progress=None):
     """Run a sweep and return its results table (a pandas DataFrame); see the module docstring.
 
@@ -64,7 +64,7 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
 
     - ``scenes``: a built-in name, a scene ``.toml`` path or a scene dict, or a list of them;
     - ``estimators``: names, optionally with parameters (``"balanced{uniform_faces=true}"``);
-    - ``spp``: an int or a list; ``seeds``: how many (seeds 0..N-1);
+    - ``spp``: an int or a list; ``seeds``: how many (seeds 0..N-1, or from ``first_seed``);
     - ``frames``: ``"START:STOP[:STEP]"``, ``"all"``, ``"A..B"`` or a list of frame indices;
     - ``resolution``: ``"WxH"`` or ``(W, H)``; ``env_res``: the cube face size;
     - ``time_budget_ms``: a number or a list (equal-time cells besides the spp list);
@@ -80,6 +80,7 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
 
     given = {name: value for name, value in (
         ("scenes", scenes), ("estimators", estimators), ("spp", spp), ("seeds", seeds),
+        ("first_seed", first_seed),
         ("frames", frames), ("resolution", resolution), ("env_res", env_res),
         ("time_budget_ms", time_budget_ms), ("repeats", repeats), ("metrics", metrics),
         ("sanitize", sanitize)) if value is not None}
@@ -102,7 +103,8 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
     try:
         runner = Runner(run_config(
             out, config=config, scenes=entries, estimators=_listed(estimators),
-            spp=_listed(spp), seeds=seeds, frames=frames, resolution=resolution, env_res=env_res,
+            spp=_listed(spp), seeds=seeds, first_seed=first_seed, frames=frames,
+            resolution=resolution, env_res=env_res,
             time_budget_ms=_listed(time_budget_ms), repeats=repeats, repeats_for=repeats_for,
             metrics=metrics, sanitize=sanitize, device=device, save_inputs=save_inputs,
             force=force, progress=progress,
@@ -117,7 +119,7 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
 
 
 def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seeds=None,
-               frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None,
+               first_seed=None, frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None,
                repeats_for=None, metrics=None, sanitize=None, device=None, save_inputs=False,
                force=False, progress=None, note=None):
     """The :class:`~iblbench.harness.runner.RunConfig` of a sweep config (``config``, default
@@ -132,11 +134,12 @@ def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seed
 
     sweep = load_sweep(config or "default").replace(
         scenes=given(scenes, str), estimators=given(estimators, str), spp=given(spp, int),
-        seeds=seeds, frames=frames, resolution=resolution, env_res=env_res,
+        seeds=seeds, first_seed=first_seed, frames=frames, resolution=resolution, env_res=env_res,
         time_budget_ms=given(time_budget_ms, float), sanitize=sanitize, repeats=repeats,
         repeats_for=repeats_for, metrics=metrics)
     return RunConfig(out=pathlib.Path(out), scenes=sweep.scenes, estimators=sweep.estimators,
-                     spp=sweep.spp, seeds=sweep.seeds, resolution=sweep.resolution,
+                     spp=sweep.spp, seeds=sweep.seeds, first_seed=sweep.first_seed,
+                     resolution=sweep.resolution,
                      device=device, save_inputs=save_inputs, sanitize=sweep.sanitize,
                      env_res=sweep.env_res, progress=progress, frames=sweep.frames,
                      time_budget_ms=sweep.time_budget_ms, force=force, repeats=sweep.repeats,

@@ -95,6 +95,10 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _non_negative_int(text: str) -> int:
+    return 0 if text.strip() == "0" else _positive_int(text)
+
+
 def _pixel(text: str) -> tuple[int, int]:
     try:
         x, y = (int(part) for part in text.split(","))
@@ -180,6 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--spp", type=_spp_list, metavar="N,N,...",
                      help="samples per pixel, comma-separated")
     run.add_argument("--seeds", type=_positive_int, help="seeds per cell, 0..N-1")
+    run.add_argument("--first-seed", type=_non_negative_int, metavar="S",
+                     help="the first seed instead of 0: seeds S..S+N-1 (a seeds-only rerun)")
     run.add_argument("--frames", metavar="START:STOP[:STEP]",
                      help="frames of environment sequences, a Python slice of each sequence's "
                           "frames such as 0:67:6 or ::4 (default: all; also all, A..B inclusive "
@@ -285,6 +291,8 @@ def build_parser() -> argparse.ArgumentParser:
                               help="standard errors of the mean on each side (default: 3)")
     make_budgets.add_argument("--output", type=pathlib.Path, default=pathlib.Path("budgets.toml"),
                               metavar="FILE", help="file to write (default: budgets.toml)")
+    make_budgets.add_argument("--why", default="", metavar="TEXT",
+                              help="why the budgets are made anew, written into the file")
 
     stress = commands.add_parser(
         "stress", help="run the adversarial input battery: exit 0 when every estimator passes it, "
@@ -561,13 +569,15 @@ def _run(args) -> None:
         metrics = tuple(m for m in load_sweep(args.config or "default").metrics if m != "flip")
     flags = [flag for flag, value in (
         ("--scene", args.scene), ("--estimator", args.estimator), ("--spp", args.spp),
-        ("--seeds", args.seeds), ("--frames", args.frames), ("--res", args.res),
+        ("--seeds", args.seeds), ("--first-seed", args.first_seed is not None),
+        ("--frames", args.frames), ("--res", args.res),
         ("--env-res", args.env_res), ("--time-budget-ms", args.time_budget_ms),
         ("--sanitize", args.sanitize), ("--repeats", args.repeats), ("--metrics", args.metrics),
         ("--no-flip", args.no_flip)) if value]
     runner = Runner(run_config(
         args.out, config=args.config, scenes=args.scene, estimators=args.estimator,
-        spp=args.spp, seeds=args.seeds, frames=frames, resolution=args.res,
+        spp=args.spp, seeds=args.seeds, first_seed=args.first_seed, frames=frames,
+        resolution=args.res,
         env_res=args.env_res, time_budget_ms=args.time_budget_ms,
         sanitize=True if args.sanitize else None, repeats=args.repeats and args.repeats[0],
         repeats_for=args.repeats and args.repeats[1], metrics=metrics, device=args.device,
@@ -656,7 +666,7 @@ def _budgets(args) -> None:
     from iblbench.harness.budgets import write_budgets
 
     extra = {} if args.se_multiple is None else {"se_multiple": args.se_multiple}
-    rules = write_budgets(args.dir, args.output, args.margin, **extra)
+    rules = write_budgets(args.dir, args.output, args.margin, why=args.why, **extra)
     print(f"wrote {rules} rules to {args.output}")
 
 

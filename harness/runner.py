@@ -110,8 +110,8 @@ from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cel
                                       configuration_differences, image_configuration, image_stem,
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
-from iblbench.harness.equal_time import (CALIBRATION_REPEATS, CELL_CORRECTIONS, TOLERANCE,
-                                        Calibration, corrected_spp)
+from iblbench.harness.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED, CELL_CORRECTIONS,
+                                        TOLERANCE, Calibration, corrected_spp)
 from iblbench.harness.timing import (MEASURE, cell_times, device_ms, host_threads_capped,
                                      required_build_ms, time_columns, timed_renders)
 from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
@@ -131,6 +131,8 @@ DEFAULT_SEEDS = 2
 WARMUP_SEED = 0xFFFFFFFF   # a seed no benchmark cell uses
 WARMUP_PIXELS = 64
 TIMING_SEED = 0x80000000   # timing renders: TIMING_SEED + 256·seed + repeat (timing_seed)
+# The largest cell seed whose timing seeds stay below the calibration seeds.
+MAX_SEED = (CALIBRATION_SEED - TIMING_SEED) // 256 - 1
 LOCK = ".iblbench.lock"
 
 
@@ -141,6 +143,7 @@ class RunConfig:
     estimators: tuple[str, ...] = DEFAULT_ESTIMATORS   # labels: "name" or "name{param=value}"
     spp: tuple[int, ...] = DEFAULT_SPP
     seeds: int = DEFAULT_SEEDS
+    first_seed: int = 0        # cells use seeds first_seed .. first_seed + seeds - 1
     resolution: tuple[int, int] | None = None
     device: str | None = None
     save_inputs: bool = False
@@ -293,6 +296,9 @@ class Runner:
                 raise InputError(None, f"--spp values must be positive integers, got {spp}")
         if config.seeds < 1:
             raise InputError(None, f"--seeds must be at least 1, got {config.seeds}")
+        if not 0 <= config.first_seed <= MAX_SEED - config.seeds + 1:
+            raise InputError(None, f"--first-seed {config.first_seed} with --seeds {config.seeds}: "
+                                   f"the seeds must lie in 0..{MAX_SEED}")
         for name, repeats in (("default", config.repeats),) + tuple(config.repeats_for):
             if not 1 <= repeats <= MAX_REPEATS:
                 raise InputError(None, f"--repeats ({name}) must be in 1..{MAX_REPEATS}, "
@@ -303,6 +309,7 @@ class Runner:
         if not config.spp and not config.time_budget_ms:
             raise InputError(None, "no spp and no time budget: the sweep has no cells")
         self.config = config
+        self.seeds = range(config.first_seed, config.first_seed + config.seeds)
         self.specs = [parse_estimator(label) for label in config.estimators]
         labels = [spec.label for spec in self.specs]
         if len(set(labels)) != len(labels):
@@ -395,7 +402,7 @@ class Runner:
         for plan in self.plans:
             for spec in self.specs:
                 for spp, budget in self._variants():
-                    for seed in range(self.config.seeds):
+                    for seed in self.seeds:
                         keys = [(plan.scene.name, spec.label, spp, frame, seed, budget)
                                 for frame in plan.frames]
                         cells.update(keys)
@@ -419,7 +426,8 @@ class Runner:
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
             "config": {"scenes": [scene_entry(s) for s in c.scenes],
                        "estimators": [s.label for s in self.specs],
-                       "spp": list(c.spp), "seeds": c.seeds, "resolution": c.resolution,
+                       "spp": list(c.spp), "seeds": c.seeds, "first_seed": c.first_seed,
+                       "resolution": c.resolution,
                        "frames": frames_text(c.frames),
                        "time_budget_ms": list(c.time_budget_ms), "force": c.force,
                        "repeats": c.repeats, "repeats_for": dict(c.repeats_for),

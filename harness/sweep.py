@@ -15,6 +15,8 @@ Format (every key at the top level)::
     estimators = ["uniform", "balanced_mis{shared_sequence=false}"]   # required
     spp = [16, 64, 256]                 # required unless time_budget_ms is given
     seeds = 2                           # required: seeds 0..N-1
+    first_seed = 0                      # optional: seeds first_seed..first_seed+N-1 instead
+                                        # (a seeds-only rerun: --first-seed 8 after --seeds 8)
     frames = "0:67:6"                   # optional: "START:STOP[:STEP]", a Python slice of each
                                         # sequence's frames ("::6", "10:", "-5:" all work; the
                                         # default "all" is ":"); also a list [0, 5, 9] or "A..B"
@@ -64,8 +66,8 @@ SHIPPED = ("quick", "default", "full", "temporal")
 DEFAULT_REPEATS = 5   # timed renders per cell (harness/timing.py)
 MAX_REPEATS = 255     # the timing seeds hold the repeat in 8 bits (runner.timing_seed)
 CONFIG_PACKAGE = "iblbench.harness.configs"
-KEYS = {"protocol", "description", "scenes", "estimators", "spp", "seeds", "frames", "resolution",
-        "env_res", "time_budget_ms", "sanitize", "repeats", "metrics"}
+KEYS = {"protocol", "description", "scenes", "estimators", "spp", "seeds", "first_seed", "frames",
+        "resolution", "env_res", "time_budget_ms", "sanitize", "repeats", "metrics"}
 REQUIRED = ("protocol", "scenes", "estimators", "seeds")
 _NAME = re.compile(r"^\s*([A-Za-z0-9_.\-]+)\s*(?:\{(.*)\})?\s*$", re.S)
 
@@ -179,6 +181,7 @@ class Sweep:
     estimators: tuple[str, ...]              # canonical labels
     spp: tuple[int, ...]
     seeds: int
+    first_seed: int = 0
     frames: tuple[int, ...] | slice | None = None   # None: every frame; a slice: of each sequence
     resolution: tuple[int, int] | None = None
     env_res: int | None = None
@@ -202,7 +205,7 @@ class Sweep:
         return {"source": self.source, "description": self.description,
                 "protocol": self.protocol, "scenes": list(self.scenes),
                 "estimators": list(self.estimators), "spp": list(self.spp), "seeds": self.seeds,
-                "frames": frames_text(self.frames),
+                "first_seed": self.first_seed, "frames": frames_text(self.frames),
                 "resolution": None if self.resolution is None else list(self.resolution),
                 "env_res": self.env_res, "time_budget_ms": list(self.time_budget_ms),
                 "sanitize": self.sanitize, "repeats": self.repeats,
@@ -357,6 +360,9 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     seeds = document["seeds"]
     if not _positive_int(seeds):
         fail(f"seeds must be a positive integer (seeds 0..N-1), got {seeds!r}")
+    first_seed = document.get("first_seed", 0)
+    if type(first_seed) is not int or first_seed < 0:
+        fail(f"first_seed must be a non-negative integer, got {first_seed!r}")
     try:
         frames = parse_frames(document.get("frames", "all"))
         resolution = (parse_resolution(document["resolution"]) if "resolution" in document
@@ -393,7 +399,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     except ValueError as error:
         fail(f"metrics: {error}")
     return Sweep(scenes=scenes, estimators=tuple(labels), spp=tuple(sorted(set(spp))), seeds=seeds,
-                 frames=frames, resolution=resolution, env_res=env_res,
+                 first_seed=first_seed, frames=frames, resolution=resolution, env_res=env_res,
                  time_budget_ms=tuple(float(v) for v in budgets), sanitize=sanitize,
                  repeats=repeats, repeats_for=repeats_for, metrics=metrics,
                  protocol=protocol, description=description, source=source)

@@ -1,8 +1,10 @@
-"""CI error budgets (``iblbench check``): the repo's budgets.toml on a real quick sweep, and the
-rules' semantics on synthetic results tables.
+"""CI error budgets (``iblbench check``): the repo's budgets.toml on a real quick sweep (passed by
+the code, failed by the ``uniform_faces`` switch in place of ``balanced``), and the rules'
+semantics on synthetic results tables.
 
-The quick sweep runs once per module (a real ``iblbench`` subprocess, about 10 s with Debian's
-PoCL); the other tests call ``cli.main`` in-process on small hand-made tables.
+The quick sweep runs once per module (a real ``iblbench`` subprocess, 20-35 s with Debian's
+PoCL on 2 cores), its balanced cells once more with the switch; the other tests call
+``cli.main`` in-process on small hand-made tables.  budgets.toml is made by ``make budgets``.
 """
 from __future__ import annotations
 
@@ -17,14 +19,16 @@ import pandas as pd
 import pytest
 
 from iblbench.harness import cli
-from iblbench.harness.budgets import LIMIT_KEYS, evaluate, load_budgets
+from iblbench.harness.budgets import (LIMIT_KEYS, configuration_differences, evaluate,
+                                     load_budgets, read_budgets)
 from iblbench.harness.results import COLUMNS, write_results
+from iblbench.harness.sweep import load_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 BUDGETS = ROOT / "budgets.toml"
-QUICK_FLAGS = ["--scene", "sphere-sun", "--scene", "sphere-backlit", "--estimator", "uniform",
-               "--estimator", "balanced", "--estimator", "balanced_mis", "--spp", "16,64",
-               "--seeds", "2", "--res", "48x48", "--env-res", "32"]
+QUICK = load_sweep("quick")
+UNIFORM_FACES = "balanced{uniform_faces=true}"   # μ_f = 1/6: the same renders as uniform
+DELTA_E = ("mean_delta_e76", "mean_delta_e2000")
 
 
 def iblbench(*args, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -35,11 +39,9 @@ def iblbench(*args, timeout: float = 300) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory) -> Path:
-    """The ``quick`` sweep, run once: ``--config quick`` where the runner has it, else its flags."""
+    """The ``quick`` sweep, run once."""
     out = tmp_path_factory.mktemp("quick")
-    has_config = "--config" in iblbench("run", "--help").stdout
-    sweep = ["--config", "quick"] if has_config else QUICK_FLAGS
-    result = iblbench("run", *sweep, "--no-progress", "--out", out)
+    result = iblbench("run", "--config", "quick", "--no-progress", "--out", out)
     assert result.returncode == 0, result.stdout + result.stderr
     return out
 
@@ -61,10 +63,32 @@ def test_quick_sweep_is_within_the_repo_budgets(quick_run):
     for rule in load_budgets(BUDGETS):
         assert any(line.startswith(rule.name + " ") or f" {rule.name} " in line
                    for line in lines), rule.name
-    for scene in ("sphere-sun", "sphere-backlit"):
-        for estimator in ("uniform", "balanced", "balanced_mis"):
-            assert re.search(rf"{scene}\s+{estimator}\s+(16|64)\s", result.stdout), (scene,
-                                                                                     estimator)
+    for scene in QUICK.scenes:
+        for estimator in QUICK.estimators:
+            for spp in QUICK.spp:
+                assert re.search(rf"{scene}\s+{estimator}\s+{spp}\s", result.stdout), (
+                    scene, estimator, spp)
+
+
+def test_uniform_faces_switch_in_place_of_balanced_fails_the_delta_e_budgets(tmp_path):
+    """Issue 11: the ΔE rules tell Lu's per-normal face balancing from μ_f = 1/6.  The quick
+    sweep's balanced cells are rendered with ``uniform_faces=true``, labelled ``balanced`` as a
+    build that lost the balancing would label them, and judged by budgets.toml's balanced rules:
+    some ΔE76 bound fails, and every ΔE failure says the error is too high, not too low."""
+    out = tmp_path / "mutant"
+    result = iblbench("run", "--config", "quick", "--estimator", UNIFORM_FACES, "--repeats", 1,
+                      "--no-progress", "--out", out)
+    assert result.returncode == 0, result.stdout + result.stderr
+    table = pd.read_parquet(out / "results.parquet").assign(estimator="balanced")
+    configuration, rules = read_budgets(BUDGETS)
+    assert configuration_differences(configuration, table) == []
+    checks = evaluate([rule for rule in rules if rule.estimator == "balanced"], table,
+                      configuration.seeds)
+    delta_e = checks[checks.metric.isin(DELTA_E)]
+    assert len(delta_e) == 2 * 2 * len(QUICK.scenes) * len(QUICK.spp)   # every cell judged
+    failed = delta_e[delta_e.result == "FAIL"]
+    assert (failed.metric == "mean_delta_e76").any(), delta_e.to_string()
+    assert failed.budget.str.startswith("<=").all(), failed.to_string()
 
 
 def test_tightening_one_budget_fails_and_names_the_rule(quick_run, tmp_path):
@@ -73,8 +97,9 @@ def test_tightening_one_budget_fails_and_names_the_rule(quick_run, tmp_path):
                  & (table.spp == 64)]
     measured = cell["mean_delta_e76"].mean()
     text = BUDGETS.read_text(encoding="utf-8")
-    block = re.search(r'name = "sun-mis-64".*?(?=\[\[rule\]\]|\Z)', text, re.S)
-    assert block, "budgets.toml lost its sun-mis-64 rule"
+    name = "sphere-sun balanced_mis spp=64"
+    block = re.search(rf'name = "{name}".*?(?=\[\[rule\]\]|\Z)', text, re.S)
+    assert block, f"budgets.toml lost its {name} rule"
     tightened_block, count = re.subn(r"max_mean_delta_e76 = [0-9.eE+-]+",
                                      f"max_mean_delta_e76 = {measured * 0.9:.6g}", block.group(0))
     assert count == 1
@@ -86,10 +111,10 @@ def test_tightening_one_budget_fails_and_names_the_rule(quick_run, tmp_path):
     assert result.returncode == 1, check_output(result)
     failing = [line for line in result.stdout.splitlines() if line.rstrip().endswith("FAIL")]
     assert len(failing) == 1, check_output(result)
-    assert failing[0].split()[:5] == ["sun-mis-64", "sphere-sun", "balanced_mis", "64",
+    assert failing[0].split()[:7] == [*name.split(), "sphere-sun", "balanced_mis", "64",
                                       "mean_delta_e76"], failing[0]
     verdict = result.stdout.strip().splitlines()[-1]
-    assert verdict.startswith("check: FAIL") and "sun-mis-64" in verdict, verdict
+    assert verdict.startswith("check: FAIL") and name in verdict, verdict
 
 
 TWO_SIDED = ("mean_delta_e76", "rel_mse", "effective_ratio", "used_samples", "evaluations")
@@ -120,9 +145,10 @@ def test_a_count_or_score_bug_fails_the_repo_budgets(quick_run, tmp_path, bug, c
     write_results(broken, table.to_dict("records"))
     result = iblbench("check", broken, "--budgets", "budgets.toml")
     assert result.returncode == 1, check_output(result)
-    failing = [line.split() for line in result.stdout.splitlines() if line.rstrip().endswith("FAIL")]
-    quality_rules = [rule for rule in load_budgets(BUDGETS) if rule.bounds]
-    assert {line[0] for line in failing if line[4] == column} == {r.name for r in quality_rules}, bug
+    rules = load_budgets(BUDGETS)
+    checks = evaluate(rules, table)
+    failing = checks[(checks.result == "FAIL") & (checks.metric == column)]
+    assert set(failing.rule) == {rule.name for rule in rules if rule.bounds}, bug
 
 
 # --- semantics on synthetic tables ---------------------------------------------------------------

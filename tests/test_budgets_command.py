@@ -4,6 +4,7 @@ and passed by ``check`` on the run it was made from.
 """
 from __future__ import annotations
 
+import datetime
 import math
 import os
 import subprocess
@@ -15,7 +16,7 @@ import numpy as np
 import pytest
 
 from iblbench.harness import cli
-from iblbench.harness.results import write_results
+from iblbench.harness.results import write_manifest, write_results
 from test_budgets import row
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,12 +65,33 @@ def test_bounds_are_the_mean_plus_minus_k_standard_errors_and_the_margin(tmp_pat
         assert rule["max_effective_ratio"] == pytest.approx(0.8 * 1.1, rel=1e-3)
         assert (rule["min_used_samples"], rule["max_used_samples"]) == (15.84, 16)
         assert rule["nonfinite"] == 0
-    assert rules["balanced"]["max_time_ratio"]["max"] == pytest.approx(3.0)
+    assert rules["balanced"]["max_time_ratio"]["max"] == pytest.approx(5.0)   # 5 × 1 ms / 1 ms
     assert "max_time_ratio" not in rules["uniform"]
     assert "measured" in output.read_text(encoding="utf-8")
 
     assert cli.main(["check", str(run), "--budgets", str(output)]) == 0
     assert capsys.readouterr().out.strip().splitlines()[-1].startswith("check: PASS")
+
+
+def test_header_says_when_how_and_why_the_budgets_were_made(tmp_path, capsys):
+    """The header holds the date and both commands that remake the file (the sweep from the
+    run's manifest), so it is remade, not edited."""
+    run = seeded_run(tmp_path, 8)
+    write_manifest(run, {"sweep": {"source": "shipped:quick", "overridden_by_flags": []}})
+    output = tmp_path / "b.toml"
+    status, err = make(run, output, capsys, "--margin", 0.05, "--why", "the pool stream changed")
+    assert status == 0, err
+    header = output.read_text(encoding="utf-8").split("[configuration]")[0]
+    today = datetime.datetime.now(datetime.timezone.utc).date().isoformat()
+    assert f"made on {today}" in header
+    assert f"#   iblbench run --config quick --out {run}\n" in header
+    assert f"#   iblbench budgets {run} --margin 0.05 --se-multiple 3 --output {output}\n" in header
+    assert "# Why they were made: the pool stream changed\n" in header
+    write_manifest(run, {"sweep": {"source": "/x/my.toml", "overridden_by_flags": ["--seeds"]}})
+    make(run, output, capsys, "--margin", 0.05)
+    header = output.read_text(encoding="utf-8").split("[configuration]")[0]
+    assert (f"iblbench run --config /x/my.toml --out {run} with --seeds (values in its "
+            "manifest.json)") in header and "Why they were made: not stated" in header
 
 
 @pytest.mark.parametrize("seeds, change, needle", [

@@ -1,5 +1,5 @@
-"""``iblbench compare``: flags a deliberately worse estimator, not a rerun with other seeds;
-pairing, thresholds, differences and bad input on hand-made tables."""
+"""``iblbench compare``: flags a deliberately worse estimator, not a seeds-only rerun
+(``run --first-seed``); pairing, thresholds, differences and bad input on hand-made tables."""
 import json
 
 import numpy as np
@@ -9,7 +9,7 @@ import pytest
 from iblbench.harness.cli import main
 from iblbench.harness.compare import pair_estimators, parse_threshold
 from iblbench.harness.results import TABLE, read_manifest, write_manifest
-from iblbench.harness.runner import RunConfig, run
+from iblbench.harness.runner import MAX_SEED, RunConfig, run
 from iblbench.scenes.errors import InputError
 
 MUTANT = "balanced{uniform_faces=true}"
@@ -18,26 +18,36 @@ SEEDS = 8   # per side; at 32x32 the mutant's +17% in ΔE76 needs about 8 seeds 
 SPP = (64, 256)
 
 
-def _subset(source, dest, seeds):
-    """A copy of run folder ``source`` with only ``seeds``: a rerun with other seeds."""
-    dest.mkdir()
-    table = pd.read_parquet(source / TABLE)
-    table[table.seed.isin(seeds)].to_parquet(dest / TABLE, index=False)
-    write_manifest(dest, read_manifest(source))
-    return dest
-
-
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """balanced over 2·SEEDS seeds, split into two seed sets, and the uniform_faces mutant."""
+    """balanced on seeds 0..SEEDS-1 (a), its seeds-only rerun on the next SEEDS seeds through
+    ``iblbench run --first-seed`` (b), and the uniform_faces mutant on a's seeds."""
     root = tmp_path_factory.mktemp("compare")
     common = dict(scenes=SCENES, spp=SPP, resolution=(32, 32), env_res=16, repeats=1,
-                  metrics=("de76", "relmse"), progress=False)
-    run(RunConfig(out=root / "both", estimators=("balanced",), seeds=2 * SEEDS, **common))
-    run(RunConfig(out=root / "mutant", estimators=(MUTANT,), seeds=SEEDS, **common))
-    return {"a": _subset(root / "both", root / "a", range(SEEDS)),
-            "b": _subset(root / "both", root / "b", range(SEEDS, 2 * SEEDS)),
-            "mutant": root / "mutant"}
+                  metrics=("de76", "relmse"), progress=False, seeds=SEEDS)
+    run(RunConfig(out=root / "a", estimators=("balanced",), **common))
+    run(RunConfig(out=root / "mutant", estimators=(MUTANT,), **common))
+    assert main(["run", "--scene", *SCENES, "--estimator", "balanced",
+                 "--spp", ",".join(map(str, SPP)), "--seeds", str(SEEDS),
+                 "--first-seed", str(SEEDS), "--res", "32x32", "--env-res", "16", "--repeats", "1",
+                 "--metrics", "de76,relmse", "--no-progress", "--out", str(root / "b")]) == 0
+    return {"a": root / "a", "b": root / "b", "mutant": root / "mutant"}
+
+
+def test_first_seed_offsets_the_seeds_and_is_recorded(runs):
+    seeds = {side: sorted(pd.read_parquet(runs[side] / TABLE).seed.unique()) for side in "ab"}
+    assert seeds == {"a": list(range(SEEDS)), "b": list(range(SEEDS, 2 * SEEDS))}
+    manifest = read_manifest(runs["b"])
+    assert manifest["config"]["first_seed"] == manifest["sweep"]["first_seed"] == SEEDS
+    assert "--first-seed" in manifest["sweep"]["overridden_by_flags"]
+
+
+@pytest.mark.parametrize("first_seed, seeds", [(-1, 1), (MAX_SEED, 2)])
+def test_seeds_beyond_the_cell_seed_range_are_refused(tmp_path, first_seed, seeds):
+    """Cell seeds stay below the timing and calibration seeds (runner.timing_seed)."""
+    with pytest.raises(InputError, match=f"the seeds must lie in 0..{MAX_SEED}"):
+        run(RunConfig(out=tmp_path / "run", seeds=seeds, first_seed=first_seed))
+    assert not (tmp_path / "run").exists()
 
 
 def _compare(capsys, *args):

@@ -67,7 +67,8 @@ def test_quick_is_the_documented_sweep():
     quick = load_sweep("quick")
     assert quick.scenes == ("sphere-sun", "sphere-backlit")
     assert quick.estimators == ("uniform", "balanced", "balanced_mis")
-    assert quick.spp == (16, 64) and quick.seeds == 2
+    assert quick.spp == (64, 256) and quick.seeds == 16 and quick.first_seed == 0
+    assert "flip" not in quick.metrics   # the mutation suite's budgets layer runs --no-flip
     assert quick.resolution == (48, 48) and quick.env_res == 32
     assert quick.frames is None and quick.time_budget_ms == () and not quick.sanitize
     assert quick.protocol == "lab-reinhard-v1" and quick.source == "shipped:quick"
