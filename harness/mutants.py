@@ -189,10 +189,10 @@ CATALOGUE: tuple[Mutant, ...] = (
     # The specular integral clips each row of points at the horizon and clamps c_n (reference.cl);
     # without both it integrates the lobe's part below the horizon with negative cosines.
     _m("reference-specular-without-cos-clamp", "harness/reference.cl",
-       ("        float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_lo;\n"
-        "        float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_hi;\n",
+       ("    float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : s_lo;\n"
+        "    float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : s_hi;\n",
         "* max(c_n, 0.0f)\n"),
-       ("        float16 row_lo = s_lo + 0.0f * edge, row_hi = s_hi;\n", "* c_n\n"),
+       ("    float16 row_lo = s_lo + 0.0f * edge, row_hi = s_hi;\n", "* c_n\n"),
        ["bis"], ["grazing"]),
     _m("reference-cache-key-without-material", "harness/reference.py",
        "for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],\n"
