@@ -171,8 +171,8 @@ CATALOGUE: tuple[Mutant, ...] = (
        "pdf += GATHER(lanes_t, q->faces, face) * light;", ["smc"], ["constant"]),
     # ---- the frame cache --------------------------------------------------------------------
     _m("framecache-luminance-weights-swapped", "harness/framecache.cl",
-       "return (0.2126f * red + 0.7152f * green + 0.0722f * blue) * vload8(0, run->omega_row + i);",
-       "return (0.7152f * red + 0.2126f * green + 0.0722f * blue) * vload8(0, run->omega_row + i);",
+       "return 0.2126f * texels.s000044448888cccc + 0.7152f * texels.s111155559999dddd",
+       "return 0.7152f * texels.s000044448888cccc + 0.2126f * texels.s111155559999dddd",
        ["uniform"], ["sun-1e6"]),
     _m("framecache-cdf-without-solid-angle", "harness/framecache.cl",
        "float wk = run->env_row ? luminance(run->env_row[j].xyz) * run->omega_row[j] : run->weight[j];",
