@@ -171,8 +171,8 @@ CATALOGUE: tuple[Mutant, ...] = (
        "pdf += GATHER(lanes_t, q->faces, face) * light;", ["smc"], ["constant"]),
     # ---- the frame cache --------------------------------------------------------------------
     _m("framecache-luminance-weights-swapped", "harness/framecache.cl",
-       "return (0.2126f * red + 0.7152f * green + 0.0722f * blue) * vload8(0, run->omega_row + i);",
-       "return (0.7152f * red + 0.2126f * green + 0.0722f * blue) * vload8(0, run->omega_row + i);",
+       "return 0.2126f * texels.s000044448888cccc + 0.7152f * texels.s111155559999dddd",
+       "return 0.7152f * texels.s000044448888cccc + 0.2126f * texels.s111155559999dddd",
        ["uniform"], ["sun-1e6"]),
     _m("framecache-cdf-without-solid-angle", "harness/framecache.cl",
        "float wk = run->env_row ? luminance(run->env_row[j].xyz) * run->omega_row[j] : run->weight[j];",
@@ -189,10 +189,10 @@ CATALOGUE: tuple[Mutant, ...] = (
     # The specular integral clips each row of points at the horizon and clamps c_n (reference.cl);
     # without both it integrates the lobe's part below the horizon with negative cosines.
     _m("reference-specular-without-cos-clamp", "harness/reference.cl",
-       ("        float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_lo;\n"
-        "        float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_hi;\n",
+       ("    float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : s_lo;\n"
+        "    float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : s_hi;\n",
         "* max(c_n, 0.0f)\n"),
-       ("        float16 row_lo = s_lo + 0.0f * edge, row_hi = s_hi;\n", "* c_n\n"),
+       ("    float16 row_lo = s_lo + 0.0f * edge, row_hi = s_hi;\n", "* c_n\n"),
        ["bis"], ["grazing"]),
     _m("reference-cache-key-without-material", "harness/reference.py",
        "for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],\n"

@@ -10,7 +10,9 @@ device stage (OpenCL profiling events, DESIGN §3 "Timing"):
   where required, the CDFs), from ``FrameCache.timings_ms``; every repeat builds a fresh cache,
   as a new frame would (reusing the dead cache's device buffers, as a renderer keeps them
   resident).  ``cdf_ms`` is the CDF build alone and ``cdf_bound_ms`` its copy-bandwidth bound:
-  the bytes it must move (:func:`cdf_build_bytes`) over the measured copy bandwidth;
+  the bytes it must move (:func:`cdf_build_bytes`) over the copy bandwidth measured by a copy
+  launch straight before each timed build (:class:`CopyProbe`), so that on a shared machine a
+  build and its bound see the same load;
 - ``sample`` and ``shade``: ``Estimate.timings_ms`` (the pool estimators' ``sample`` is the
   draw of the light-sample pool and its layout as planes, with ``balanced_mis``'s shared BRDF
   numbers; ``havran``'s is the device time of its map's CDFs, its K lights and their filter);
@@ -195,7 +197,8 @@ COLUMNS = {
     "build_ms_iqr": "its interquartile range",
     "cdf_ms": "device ms of the CDF build alone (part of build_ms; NaN: not required), median",
     "cdf_bound_ms": "the CDF build's copy-bandwidth bound: 6·(R²·(16 + 8) + R·8) B (float4 "
-                    "texels read once, conditional and marginal CDF words written once) / peak_gbps",
+                    "texels read once, conditional and marginal CDF words written once) / the "
+                    "median copy bandwidth of a copy launched straight before each timed build",
     "sample_ms": "device ms of the sample stage (pool draw; havran: map build, light placement "
                  "and filter; 0: none), median",
     "sample_ms_min": "its minimum",
@@ -321,6 +324,24 @@ def measure_roofline(compute, repeats: int) -> Roofline:
                     fma_flops=flops, copy_bytes=moved)
 
 
+class CopyProbe:
+    """One timed ``copy_bandwidth`` launch on resident buffers of ``copy_size`` bytes each: the
+    copy bandwidth now (GB/s, read + written), measured beside each timed CDF build."""
+
+    def __init__(self, compute):
+        self.compute = compute
+        self.items = copy_size(compute) // 16
+        self.buffers = (compute.empty(16 * self.items), compute.empty(16 * self.items))
+        self.kernel = _perf_kernel(compute, "copy_bandwidth")
+        compute.run(self.kernel, self.items, *self.buffers)   # first touch of the pages
+
+    def gbps(self) -> float:
+        from iblbench.harness.device import event_ms
+
+        ms = event_ms(self.compute.run(self.kernel, self.items, *self.buffers))
+        return 32 * self.items / (ms * 1e6)
+
+
 # ---- the NumPy floor ---------------------------------------------------------------------------
 
 @dataclasses.dataclass(frozen=True)
@@ -432,6 +453,7 @@ class _Cell:
     spp: int
     build: list = dataclasses.field(default_factory=list)
     cdf: list = dataclasses.field(default_factory=list)
+    copy_gbps: list = dataclasses.field(default_factory=list)   # CopyProbe beside each CDF build
     sample: list = dataclasses.field(default_factory=list)
     shade: list = dataclasses.field(default_factory=list)
     host: list = dataclasses.field(default_factory=list)
@@ -493,7 +515,7 @@ def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
     render_ms = spread([s + h for s, h in zip(cell.sample, cell.shade)])[0]
     samples = pixels * cell.spp
     cdf_ms = spread(cell.cdf)[0]
-    cdf_bound_ms = (cdf_build_bytes(env_res) / (roofline.gbps * 1e6)
+    cdf_bound_ms = (cdf_build_bytes(env_res) / (spread(cell.copy_gbps)[0] * 1e6)
                     if math.isfinite(cdf_ms) else math.nan)
     row = {"scene": scene, "estimator": cell.label,
            "estimator_version": type(cell.estimator).version(), "spp": cell.spp,
@@ -562,6 +584,7 @@ def run_perf(config: PerfConfig, log=print):
     log(f"device: {compute.device_name}")
     roofline = measure_roofline(compute, config.repeats or DEFAULT_REPEATS)
     log(f"roofline: {roofline.gflops:.4g} GFLOP/s (FMA), {roofline.gbps:.4g} GB/s (copy)")
+    probe = CopyProbe(compute)
     for scene in scenes:
         gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, *config.resolution)
         if gbuffer.covered == 0:
@@ -588,6 +611,8 @@ def run_perf(config: PerfConfig, log=print):
         for round_ in range(max([floor_repeats] + [repeats for _, repeats in cells])):
             for cell, repeats in cells:
                 if round_ < repeats:
+                    if {"cdf", "pool"} & set(type(cell.estimator).requires):   # builds CDFs
+                        cell.copy_gbps.append(probe.gbps())
                     cell.render(compute, device_gbuffer, env, round_)
             if round_ < floor_repeats:
                 start = time.perf_counter()

@@ -21,7 +21,8 @@
  * a face's texels go LANES at a time through explicit vectors (SoA tables): the horizon and
  * lobe tests, and the exact n·Φ_t of texels wholly above the horizon.  Black texels contribute nothing and are skipped.  The texels the horizon cuts or
  * the lobe reaches (a few hundred of 6R²) go one by one, each vectorised inside: the clipped
- * polygon's edges, and the lobe's sub-cells, are vector lanes.  The lobe's power is exact exp2
+ * polygon's edges, and the lobe's sub-cells, are vector lanes; lobe texels of one sub-cell (most
+ * of them on fine maps) go four to a vector step (flush_single_cells).  The lobe's power is exact exp2
  * of an accurate table-free log2 (log2_lanes), not a fast polynomial power.  Sums are plain, in
  * double lanes where the device has it (float otherwise): a few thousand positive terms each. */
 #include "common.cl"
@@ -187,19 +188,22 @@ inline face_forms_t face_forms(float3 n, float3 r, float2 cut, int face)
     return forms;
 }
 
-/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by a composite Gauss–Legendre rule (2 × 2 points per
- * sub-cell) on the texel's face square, cut down to the lobe's box (face_forms).  The
- * horizon is integrated exactly, not as a kink inside cells: the inner coordinate s is the face
- * axis along which n·ω changes faster, and each row (fixed outer coordinate t) has its sub-cells
- * over only the part of the row above the horizon (the row integral stays C¹ in t: the
- * integrand vanishes where the horizon leaves the row).  Points per side follow
- * points_per_radian over the side's angular length (face-plane length / √q at its point nearest
- * the face centre bounds it), and none wider than KINK_CELL_RADIANS where the lobe's own plane
- * r·ω = 0 cuts the texel for m < 2 (the lobe's slope jumps there; up to MAX_CELLS sub-cells a
- * side).  With the face forms, cos_r^m = exp2(m/2 · log2((r·d)²/q)) (exact exp2 and log2_lanes,
- * not a fast power: the reference needs ~1e-6) and dω = dA/q^{3/2}.  SUBCELL_LANES points per step. */
-inline acc_t specular_integral(face_forms_t forms, float m, float density, int row, int col,
-                               int res, int cut_by_lobe_plane)
+/* A texel's square on its face, cut down to the lobe's box (face_forms), in the coordinates of
+ * the rule: s inner, t outer, (u, v) or (v, u), s the face axis along which n·ω changes faster.
+ * Sub-cells per side follow points_per_radian over the side's angular length (face-plane
+ * length / √q at its point nearest the face centre bounds it), and none wider than
+ * KINK_CELL_RADIANS where the lobe's own plane r·ω = 0 cuts the texel for m < 2 (the lobe's
+ * slope jumps there; up to MAX_CELLS sub-cells a side). */
+typedef struct {
+    float s_lo, s_hi, t_lo, step_t;
+    int cells_s, cells_t;
+} lobe_cells_t;
+
+inline int s_is_v(face_forms_t forms) { return fabs(forms.n.z) > fabs(forms.n.y); }
+
+/* The texel's cells; 0 where its square misses the lobe's box. */
+inline int lobe_cells(face_forms_t forms, float density, int row, int col, int res, int cut_by_lobe_plane,
+                      lobe_cells_t *cells)
 {
     float side = 2.0f / res, half_box = forms.half_box, centre_u = forms.centre_u, centre_v = forms.centre_v;
     float u_lo = -1.0f + side * col, v_lo = -1.0f + side * row, u_hi = u_lo + side, v_hi = v_lo + side;
@@ -215,55 +219,116 @@ inline acc_t specular_integral(face_forms_t forms, float m, float density, int r
     if (cut_by_lobe_plane) per_length = max(per_length, 1.0f / KINK_CELL_RADIANS);
     int cells_u = clamp((int)ceil((u_hi - u_lo) * per_length / 2.0f), 1, MAX_CELLS);
     int cells_v = clamp((int)ceil((v_hi - v_lo) * per_length / 2.0f), 1, MAX_CELLS);
-    /* s inner, t outer: (u, v) or (v, u); n·ω·√q = a + b_s·s + b_t·t. */
-    int swap = fabs(forms.n.z) > fabs(forms.n.y);
-    float s_lo = swap ? v_lo : u_lo, s_hi = swap ? v_hi : u_hi, t_lo = swap ? u_lo : v_lo;
+    int swap = s_is_v(forms);
+    cells->s_lo = swap ? v_lo : u_lo;
+    cells->s_hi = swap ? v_hi : u_hi;
+    cells->t_lo = swap ? u_lo : v_lo;
+    cells->cells_s = swap ? cells_v : cells_u;
+    cells->cells_t = swap ? cells_u : cells_v;
+    cells->step_t = ((swap ? u_hi : v_hi) - cells->t_lo) / cells->cells_t;
+    return 1;
+}
+
+#define GAUSS_OFFSET 0.577350269189625765f   /* Gauss–Legendre nodes 1/2 ± 1/(2√3) of a cell */
+
+/* The rule's terms at SUBCELL_LANES points, each on row t of its texel (rows span [s_lo, s_hi]
+ * in `cells_s` sub-cells), at the fraction `position` of its sub-cell along the row, weighed
+ * for 2 × 2 nodes per sub-cell (times the row step, which the caller applies).  The horizon is
+ * integrated exactly, not as a kink inside cells: each row has its sub-cells over only its part
+ * above the horizon (the row integral stays C¹ in t: the integrand vanishes where the horizon
+ * leaves the row).  With the face forms, cos_r^m = exp2(m/2 · log2((r·d)²/q)) (exact exp2 and
+ * log2_lanes, not a fast power: the reference needs ~1e-6) and dω = dA/q^{3/2}. */
+inline float16 lobe_terms(face_forms_t forms, float m, float16 t, float16 s_lo, float16 s_hi, float16 position,
+                          float per_cell_s)
+{
+    int swap = s_is_v(forms);
     float b_s = swap ? forms.n.z : forms.n.y, b_t = swap ? forms.n.y : forms.n.z, inverse_b_s = 1.0f / b_s;
-    int cells_s = swap ? cells_v : cells_u, points_s = 2 * cells_s;
-    float step_t = ((swap ? u_hi : v_hi) - t_lo) / (swap ? cells_u : cells_v);
-    float per_point_s = 1.0f / points_s, per_cell_s = 1.0f / cells_s;
+    /* The row's part above the horizon: s ≥ or ≤ −(a + b_t·t)/b_s, with n·ω·√q = a + b_s·s + b_t·t. */
+    float16 edge = -(forms.n.x + b_t * t) * inverse_b_s;
+    float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : s_lo;
+    float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : s_hi;
+    float16 step_s = (row_hi - row_lo) * per_cell_s;
+    float16 s = row_lo + position * step_s;
+    float16 weight = 0.25f * step_s;   /* both nodes weigh 1/2 */
+    float16 u = swap ? t : s, v = swap ? s : t;
+    float16 inverse_q = 1.0f / (1.0f + u * u + v * v);
+    float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z;   /* times √q */
+    float16 c_n = forms.n.x + u * forms.n.y + v * forms.n.z;
+    /* sin²(r, ω) from the offset δ to the lobe's centre g: (|δ|² + (g × δ)²)/(|g|² + 1)/q,
+     * a sum of squares, where 1 − cos² would cancel to ~1/m of its float precision; 1 − cos²
+     * where g is far off, on faces that only lobes with m ≲ 150 reach from beyond 84°. */
+    float16 sin2;
+    if (forms.centred) {
+        float16 du = u - forms.centre_u, dv = v - forms.centre_v, twist = forms.centre_u * dv - forms.centre_v * du;
+        sin2 = (du * du + dv * dv + twist * twist) * inverse_q * forms.inverse_centre_q;
+    } else {
+        sin2 = max(0.0f, 1.0f - c_r * c_r * inverse_q * forms.inverse_r2);
+    }
+    float16 term = exp2(0.5f * m * log2_one_minus(sin2)) * max(c_n, 0.0f)
+                 * inverse_q * inverse_q * weight;
+    return select((float16)0.0f, term, c_r > 0.0f && step_s > 0.0f);
+}
+
+/* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by a composite Gauss–Legendre rule (2 × 2 points per
+ * sub-cell) on the texel's cells (lobe_cells), SUBCELL_LANES points per step (lobe_terms). */
+inline acc_t specular_integral(face_forms_t forms, float m, lobe_cells_t cells)
+{
+    int points_s = 2 * cells.cells_s, count = points_s * 2 * cells.cells_t;
+    float per_point_s = 1.0f / points_s, per_cell_s = 1.0f / cells.cells_s;
     const float16 lane = (float16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-    const float offset = 0.577350269189625765f;   /* Gauss–Legendre nodes 1/2 ± 1/(2√3) */
     acc8_t sum = 0;      /* positive terms */
-    int count = points_s * 2 * (swap ? cells_u : cells_v);
     for (int k = 0; k < count; k += SUBCELL_LANES) {
         float16 index = (float)k + lane;
         /* Point (i, j), in sub-cell (i / 2, j / 2) at node (i % 2, j % 2): truncation is floor. */
         float16 i = convert_float16(convert_int16((index + 0.5f) * per_point_s)), j = index - i * points_s;
         float16 cell_i = convert_float16(convert_int16((i + 0.5f) * 0.5f)), node_i = i - 2.0f * cell_i;
         float16 cell_j = convert_float16(convert_int16((j + 0.5f) * 0.5f)), node_j = j - 2.0f * cell_j;
-        float16 t = t_lo + (cell_i + 0.5f + (node_i - 0.5f) * offset) * step_t;
-        /* The row's part above the horizon: s ≥ or ≤ −(a + b_t·t)/b_s. */
-        float16 edge = -(forms.n.x + b_t * t) * inverse_b_s;
-        float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_lo;
-        float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : (float16)s_hi;
-        float16 step_s = (row_hi - row_lo) * per_cell_s;
-        float16 s = row_lo + (cell_j + 0.5f + (node_j - 0.5f) * offset) * step_s;
-        float16 weight = 0.25f * step_s;   /* both nodes weigh 1/2 */
-        float16 u = swap ? t : s, v = swap ? s : t;
-        float16 inverse_q = 1.0f / (1.0f + u * u + v * v);
-        float16 c_r = forms.r.x + u * forms.r.y + v * forms.r.z;   /* times √q */
-        float16 c_n = forms.n.x + u * forms.n.y + v * forms.n.z;
-        /* sin²(r, ω) from the offset δ to the lobe's centre g: (|δ|² + (g × δ)²)/(|g|² + 1)/q,
-         * a sum of squares, where 1 − cos² would cancel to ~1/m of its float precision; 1 − cos²
-         * where g is far off, on faces that only lobes with m ≲ 150 reach from beyond 84°. */
-        float16 sin2;
-        if (forms.centred) {
-            float16 du = u - centre_u, dv = v - centre_v, twist = centre_u * dv - centre_v * du;
-            sin2 = (du * du + dv * dv + twist * twist) * inverse_q * forms.inverse_centre_q;
-        } else {
-            sin2 = max(0.0f, 1.0f - c_r * c_r * inverse_q * forms.inverse_r2);
-        }
-        float16 term = exp2(0.5f * m * log2_one_minus(sin2)) * max(c_n, 0.0f)
-                     * inverse_q * inverse_q * weight;
-        term = select((float16)0.0f, term, c_r > 0.0f && step_s > 0.0f && index < count);
+        float16 t = cells.t_lo + (cell_i + 0.5f + (node_i - 0.5f) * GAUSS_OFFSET) * cells.step_t;
+        float16 term = lobe_terms(forms, m, t, (float16)cells.s_lo, (float16)cells.s_hi,
+                                  cell_j + 0.5f + (node_j - 0.5f) * GAUSS_OFFSET, per_cell_s);
+        term = select((float16)0.0f, term, index < count);
         sum += convert_acc8(term.lo) + convert_acc8(term.hi);
     }
-    return sum_acc8(sum) * step_t;
+    return sum_acc8(sum) * cells.step_t;
+}
+
+/* Texels of one sub-cell (4 points each, most lobe texels of fine maps) wait in a batch of
+ * SINGLE_CELL_BATCH, so that a step of SUBCELL_LANES lanes evaluates the points of four texels,
+ * not one texel's four points in sixteen lanes: lane l is node (l/2 % 2, l % 2) of texel l/4. */
+#define SINGLE_CELL_BATCH (SUBCELL_LANES / 4)
+typedef struct {
+    float s_lo[SINGLE_CELL_BATCH], s_hi[SINGLE_CELL_BATCH], t_lo[SINGLE_CELL_BATCH],
+          step_t[SINGLE_CELL_BATCH], red[SINGLE_CELL_BATCH], green[SINGLE_CELL_BATCH], blue[SINGLE_CELL_BATCH];
+    int count;
+} single_cells_t;
+
+/* Each texel's lane value: its ∫ lobe·cos⁺ from its four points, in float16 lanes. */
+inline float16 per_texel(const float *batch_values)
+{
+    return shuffle(vload4(0, batch_values), (uint16)(0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3));
+}
+
+/* Adds Σ L_t ∫_t lobe·cos⁺ dω of the batch's texels to `glossy` (red, green, blue) and empties it. */
+inline void flush_single_cells(face_forms_t forms, float m, single_cells_t *batch, acc8_t *glossy)
+{
+    if (!batch->count) return;
+    const float16 lane = (float16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    float16 node_i = (float16)(0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1, 1, 0, 0, 1, 1), node_j = (float16)(0, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 1);
+    float16 step_t = per_texel(batch->step_t);
+    float16 t = per_texel(batch->t_lo) + (0.5f + (node_i - 0.5f) * GAUSS_OFFSET) * step_t;
+    float16 term = lobe_terms(forms, m, t, per_texel(batch->s_lo), per_texel(batch->s_hi),
+                              0.5f + (node_j - 0.5f) * GAUSS_OFFSET, 1.0f) * step_t;
+    term = select((float16)0.0f, term, lane < 4.0f * batch->count);
+    acc8_t term_lo = convert_acc8(term.lo), term_hi = convert_acc8(term.hi);
+    float16 red = per_texel(batch->red), green = per_texel(batch->green), blue = per_texel(batch->blue);
+    glossy[0] += term_lo * convert_acc8(red.lo) + term_hi * convert_acc8(red.hi);
+    glossy[1] += term_lo * convert_acc8(green.lo) + term_hi * convert_acc8(green.hi);
+    glossy[2] += term_lo * convert_acc8(blue.lo) + term_hi * convert_acc8(blue.hi);
+    batch->count = 0;
 }
 
 /* Texel tables as structures of arrays: plane k of `table` holds, for every texel t (stride
- * `texels`, the 6R² texels plus LANES of padding), k = 0-2 its centre, 3 sin α, 4-6 Φ_t, 7 α
+ * `texels`, the 6R² texels plus LANES of padding), k = 0-2 its centre, 3 sin α, 4-6 Φ_t
  * (reference.py's texel_tables); `env_planes` holds the map's red, green and blue. */
 #define PLANE(table, k, t, texels) ((table)[(k) * (texels) + (t)])
 #define PLANE_LANES(table, k, t, texels) vload8(0, (table) + (k) * (texels) + (t))
@@ -279,15 +344,26 @@ inline acc_t specular_integral(face_forms_t forms, float m, float density, int r
     in_lobe = cr > (cut).x * sqrt(1.0f - (sin_a) * (sin_a)) - (cut).y * (sin_a);
 
 /* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω of texel t, whose cap reaches the lobe and the upper
- * hemisphere (cr = r·centre); `forms` are those of its face. */
+ * hemisphere (cr = r·centre); `forms` are those of its face.  With a `batch` (the reference
+ * kernel), a texel of one sub-cell joins it with its radiance instead, and counts 0 here. */
 inline acc_t texel_lobe(float3 n, float3 r, float m, face_forms_t forms, int t, int res, float sin_a,
-                        float cr)
+                        float cr, single_cells_t *batch, float3 radiance)
 {
     int face = t / (res * res), row = (t / res) % res, col = t % res;
-    int cut_by_lobe_plane = m < 2.0f && fabs(cr) < sin_a;
-    return m == 0.0f ? half_space_cosine(n, r, face, row, col, res)
-                     : specular_integral(forms, m, points_per_radian(m), row, col, res,
-                                         cut_by_lobe_plane);
+    if (m == 0.0f) return half_space_cosine(n, r, face, row, col, res);
+    lobe_cells_t cells;
+    if (!lobe_cells(forms, points_per_radian(m), row, col, res, m < 2.0f && fabs(cr) < sin_a, &cells))
+        return 0;
+    if (!batch || cells.cells_s > 1 || cells.cells_t > 1) return specular_integral(forms, m, cells);
+    int k = batch->count++;
+    batch->s_lo[k] = cells.s_lo;
+    batch->s_hi[k] = cells.s_hi;
+    batch->t_lo[k] = cells.t_lo;
+    batch->step_t[k] = cells.step_t;
+    batch->red[k] = radiance.x;
+    batch->green[k] = radiance.y;
+    batch->blue[k] = radiance.z;
+    return 0;
 }
 
 /* ∫_texel cos⁺(n·ω) dω (x) and ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω (y, 0 without a lobe or where
@@ -308,7 +384,7 @@ inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cu
     if (cut_by_horizon)
         *cosine = clipped_cosine(n, t / (res * res), (t / res) % res, t % res, res);
     if (specular && in_lobe && (above || cut_by_horizon))
-        *lobe = texel_lobe(n, r, m, face_forms(n, r, cut, t / (res * res)), t, res, sin_a, cr);
+        *lobe = texel_lobe(n, r, m, face_forms(n, r, cut, t / (res * res)), t, res, sin_a, cr, 0, 0.0f);
 }
 
 inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }
@@ -344,6 +420,8 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
     const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
     acc8_t whole_red = 0, whole_green = 0, whole_blue = 0;   /* Σ L·n·Φ_t, whole visible texels */
     acc_t diffuse[3] = {0, 0, 0}, glossy[3] = {0, 0, 0};   /* the texels taken one by one */
+    acc8_t batched_glossy[3] = {0, 0, 0};                    /* the texels of one sub-cell */
+    single_cells_t batch = {.count = 0};
     for (int face = 0; face < 6; ++face) {
         if (face_below(n, face)) continue;
         face_forms_t forms = face_forms(n, r, cut, face);
@@ -376,14 +454,17 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
                 }
                 if (specular && ((int *)&in_lobe)[k]) {
                     acc_t lobe = texel_lobe(n, r, m, forms, texel, res, ((float *)&sin_a)[k],
-                                            ((float *)&cr)[k]);
+                                            ((float *)&cr)[k], &batch, radiance);
                     glossy[0] += lobe * radiance.x;
                     glossy[1] += lobe * radiance.y;
                     glossy[2] += lobe * radiance.z;
+                    if (batch.count == SINGLE_CELL_BATCH) flush_single_cells(forms, m, &batch, batched_glossy);
                 }
             }
         }
+        flush_single_cells(forms, m, &batch, batched_glossy);   /* the next face has other forms */
     }
+    for (int c = 0; c < 3; ++c) glossy[c] += sum_acc8(batched_glossy[c]);
     float3 d = (float3)((float)(sum_acc8(whole_red) + diffuse[0]), (float)(sum_acc8(whole_green) + diffuse[1]),
                         (float)(sum_acc8(whole_blue) + diffuse[2]));
     float3 s = (float3)((float)glossy[0], (float)glossy[1], (float)glossy[2]);

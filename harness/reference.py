@@ -36,7 +36,7 @@ def arc_vectors(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _face_tables(res: int) -> tuple[np.ndarray, ...]:
     """One face's texels in its own frame, where the face-plane point (u, v) is (u, v, 1): unit
-    centres, sin α, Φ and α, each ``[R, R, ...]`` float64.
+    centres, sin α and Φ, each ``[R, R, ...]`` float64.
 
     Φ sums the arc vectors of the texel's four edges, each edge computed once for the two texels
     that share it (in opposite directions), so the cost is O(R²) arcs, not 4R²."""
@@ -54,8 +54,7 @@ def _face_tables(res: int) -> tuple[np.ndarray, ...]:
     corner /= np.linalg.norm(corner, axis=-1, keepdims=True)
     nearest_corner = np.min([np.sum(centre * corner[i:res + i, j:res + j], axis=-1)
                              for i in (0, 1) for j in (0, 1)], axis=0)
-    alpha = np.arccos(np.clip(nearest_corner, -1.0, 1.0))
-    return centre, np.sin(alpha), phi, alpha
+    return centre, np.sin(np.arccos(np.clip(nearest_corner, -1.0, 1.0))), phi
 
 
 def planes(values: np.ndarray) -> np.ndarray:
@@ -68,28 +67,27 @@ def planes(values: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def texel_table(res: int) -> np.ndarray:
-    """``texel_tables`` as the planes of reference.cl: centre, sin α, Φ_t, α ``[8, 6·R·R + LANES]``."""
+    """``texel_tables`` as the planes of reference.cl: centre, sin α, Φ_t ``[7, 6·R·R + LANES]``."""
     return planes(np.concatenate(texel_tables(res), axis=1))
 
 
 @functools.lru_cache(maxsize=8)
 def texel_tables(res: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per texel: (centre direction, sin α) and (Φ_t, α), float32 ``[6·R·R, 4]`` each.
+    """Per texel: (centre direction, sin α) float32 ``[6·R·R, 4]`` and Φ_t ``[6·R·R, 3]``.
 
     α is the largest angle between the texel's centre and its corners (its bounding cap), Φ_t
     its vector irradiance (``arc_vectors``), oriented toward its centre.  Every face is one face
     turned by its basis (a signed permutation, which keeps angles and that orientation), so the
     float64 work and memory are one face's."""
-    centre, sin_alpha, phi, alpha = _face_tables(res)
+    centre, sin_alpha, phi = _face_tables(res)
     centres = np.empty((6, res, res, 4), np.float32)
-    vectors = np.empty((6, res, res, 4), np.float32)
+    vectors = np.empty((6, res, res, 3), np.float32)
     for face in range(6):
         basis = cubemap.face_basis(face)
         centres[face, ..., :3] = centre @ basis
-        vectors[face, ..., :3] = phi @ basis
+        vectors[face] = phi @ basis
     centres[..., 3] = sin_alpha
-    vectors[..., 3] = alpha
-    return centres.reshape(-1, 4), vectors.reshape(-1, 4)
+    return centres.reshape(-1, 4), vectors.reshape(-1, 3)
 
 
 def _wait(queue, event) -> None:

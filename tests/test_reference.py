@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from iblbench.harness.conformance import fibonacci_directions
+from iblbench.harness.conformance import face_pattern_map, fibonacci_directions
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import FrameCache
 from iblbench.harness.reference import Reference
@@ -170,3 +170,21 @@ def test_lobe_tail_texels_are_not_skipped(compute, shininess):
     # Skipping would give 0.  In the far tail the lobe changes by e^3 across a texel, so the
     # reference's few sub-cells there are only good to ~1%: 1e-8 of the peak, far below MC noise.
     assert image[0, 0, 0] == pytest.approx(expected, rel=3e-2)
+
+
+@pytest.mark.parametrize("shininess", [20.0, 150.0, 1e3])
+def test_batched_single_cell_texels_match_the_per_texel_table(compute, shininess):
+    """At R = 64 most lobe texels are one sub-cell, which the reference kernel evaluates four
+    texels to a vector step (flush_single_cells); the per-texel table (texel_integral_table)
+    takes them one by one.  The image is Σ L_t (kd/π·cos + ks·(m+2)/(2π)·lobe) of the table."""
+    res = 64
+    normal = fibonacci_directions(6)
+    side = np.cross(normal, [0.3, 0.5, 0.81])
+    side /= np.linalg.norm(side, axis=-1, keepdims=True)
+    view = np.cos(1.2) * normal + np.sin(1.2) * side
+    gbuffer = GBuffer.from_pixels(normal.reshape(2, 3, 3), view.reshape(2, 3, 3), 0.0, 1.0, shininess)
+    env = face_pattern_map(res)
+    image = _reference(compute, gbuffer, env)
+    expected = [(shininess + 2) / (2 * np.pi) * np.einsum("frc,frck->k", table[..., 1], env)
+                for table in Reference(compute).texel_integrals(DeviceGBuffer(compute, gbuffer), res)]
+    assert np.allclose(image.reshape(-1, 3), expected, rtol=1e-5, atol=0)
