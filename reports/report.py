@@ -262,7 +262,7 @@ def image_grid(run_dir, report, table, cells, scene, frame, seed, spp) -> dict:
     rows = table[(table.scene == scene) & (table.frame == frame) & (table.seed == seed)]
     cell = cells[cells.scene == scene].set_index(["estimator", "spp"])
     reference = copy("reference.png")
-    tiles = [{"title": "reference", "subtitle": "exact quadrature", "src": reference,
+    tiles = [{"title": "reference", "subtitle": ["exact quadrature"], "src": reference,
               "heat": None}]
     choices = [{"label": "reference (exact quadrature)", "src": reference}] if reference else []
     shown, stale = {}, []
@@ -277,11 +277,10 @@ def image_grid(run_dir, report, table, cells, scene, frame, seed, spp) -> dict:
             if n != chosen[name]:
                 continue
             over_seeds = cell.loc[(name, n)]
-            tiles.append({"title": name, "src": src, "heat": heat, "subtitle":
-                          f"{n} spp; mean ΔE76 {row['mean_delta_e76']:.3g} (seed {seed}), "
-                          + interval_text(over_seeds.mean_delta_e76,
-                                          over_seeds.mean_delta_e76_half, over_seeds.seeds)
-                          + f" (cell, {over_seeds.seeds} seeds)"})
+            tiles.append({"title": name, "src": src, "heat": heat, "subtitle": [
+                f"{n} spp, mean ΔE76", f"seed {seed}: {row['mean_delta_e76']:.3g}",
+                f"{over_seeds.seeds} seeds: " + interval_text(
+                    over_seeds.mean_delta_e76, over_seeds.mean_delta_e76_half, over_seeds.seeds)]})
             if src:
                 shown[name] = src
     pair = list(shown.values())[:2]
@@ -445,7 +444,7 @@ def _manifest_context(manifest: dict | None) -> dict | None:
         "config": _dict_table(manifest.get("config") or {}),
         "timing": _dict_table(manifest["timing"]) if manifest.get("timing") else None,
         "stages": _table_html(stages, "summary") if len(stages) else None,
-        "skipped": _table_html(skipped, "summary") if len(skipped) else None,
+        "skipped": _table_html(skipped, "summary wraps") if len(skipped) else None,
         "status": manifest.get("status"),
         "protocol": manifest.get("protocol"),
         "git_revision": manifest.get("git_revision"),
