@@ -2,17 +2,22 @@
 
 ``DIR/report/index.html`` opens from disk with no server: every image it shows (plots, the
 colour bar, the sample pictures and copies of the run's PNG previews) lies inside ``DIR/report``
-and is referenced by a relative path; the page loads no script, stylesheet or font.
+and is referenced by a relative path; the page loads no script, stylesheet or font (its one
+script, the compare viewer's, and its stylesheet are inline).
 
-Contents, per scene: a summary table (estimator × spp), error against time with the Pareto front,
-convergence against spp, effective samples against spp, error per frame (sequences only), an
-image grid (reference, each estimator at one spp, ΔE76 heat maps with one shared colour bar) and
-Lu 2013 Fig. 1/2's sample picture (:mod:`.sample_picture`); then the run's manifest.
+Contents, per scene: the summary (estimator × spp) in two tables, errors and samples/time, error
+against time with the Pareto front, convergence against spp, effective samples against spp,
+error per frame (sequences only), an image grid (reference, each estimator at one spp, ΔE76 heat
+maps on the shared log scale of :mod:`.previews` with its colour bar), a compare viewer (any two
+of the frame's images, A left and B right of a divider moved by a slider; a toggle that shows the
+reference on both sides; a click zooms on the crop around the point) and Lu 2013 Fig. 1/2's
+sample picture (:mod:`.sample_picture`); then the run's manifest.
 
 Aggregation: a cell is (scene, estimator, spp).  Each seed's metrics are first averaged over the
 frames, then the cell's value is the mean over seeds with its 95% Student-t interval
 (:func:`iblbench.harness.stats.cell_intervals`, the one aggregation ``iblbench run`` prints too),
-shown as ``mean ± half-width`` in every table and as error bars in the plots.  ms/frame is the
+shown as ``mean ± half-width`` in every table (and the image grid's captions) and as error bars
+in the plots; the manifest's stage timings are the mean over builds with its interval.  ms/frame is the
 cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`), aggregated
 the same way; efficiency = 1 / (relMSE · s per frame) is computed per seed and then aggregated.
 The Pareto fronts call a cell dominated only where the intervals of time and of error both
@@ -202,7 +207,7 @@ _NUMERIC = re.compile(r"[-+]?[\d.]+(e[-+]?\d+)?( ± \S+| \(n=\d+, no interval\))
 def _table_html(frame: pd.DataFrame, classes: str, header: bool = True) -> markupsafe.Markup:
     """``frame`` as an escaped HTML table, cells by :func:`_number`; a column of numbers or
     intervals gets class "num" (right-aligned), text stays left."""
-    text = frame.map(_number)
+    text = frame.apply(lambda column: column.map(_number))   # DataFrame.map needs pandas 2.1
     numeric = [text[c].map(lambda v: _NUMERIC.fullmatch(v) is not None).all() for c in text]
     cell = "<td{}>{}</td>".format
     rows = ["<tr>" + "".join(cell(' class="num"' if n else "", markupsafe.escape(v))
