@@ -437,6 +437,7 @@ def test_viewer_toggles_the_reference_slides_and_zooms(browser):
     toggle.click()
     assert toggle.get_attribute("aria-pressed") == "true"
     assert image_a.get_attribute("src") == image_b.get_attribute("src") == f"{where}reference.png"
+    assert viewer.locator('[data-role="tag-a"]').inner_text() == "reference"
     page.wait_for_function("Array.from(document.images).every(i => i.complete)")
     assert np.abs(_pixels(stage) - estimates).max() > 16          # another picture is shown
     toggle.click()
