@@ -266,6 +266,7 @@ def write_colour_bar(path: pathlib.Path) -> None:
                                  for t in ticks])
     bar.ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.axvline(previews.JND_DE76, color="white", lw=1.5)
-    bar.set_label(f"ΔE76 per pixel (CIELAB units, log scale; ≤ {previews.HEAT_MIN:g} and "
-                  f"uncovered pixels black, ≥ {previews.HEAT_MAX:g} shown as {previews.HEAT_MAX:g})")
+    low, high = previews.HEAT_MIN, previews.HEAT_MAX
+    bar.set_label(f"ΔE76 per pixel (CIELAB units, log scale; ≤ {low:g} and uncovered pixels "
+                  f"black, ≥ {high:g} shown as {high:g})")
     _save(fig, path)

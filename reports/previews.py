@@ -67,6 +67,10 @@ def write_heat_map(path, delta_e: np.ndarray) -> None:
 
 
 def heat_scale(path) -> str | None:
-    """The scale a heat map PNG was drawn on (HEAT_SCALE today); None for an untagged one."""
-    with Image.open(path) as image:
-        return image.text.get(HEAT_TAG)
+    """The scale a heat map PNG was drawn on (HEAT_SCALE today); None for an untagged or an
+    unreadable one."""
+    try:
+        with Image.open(path) as image:
+            return image.text.get(HEAT_TAG)
+    except OSError:   # PIL's UnidentifiedImageError too
+        return None

@@ -17,9 +17,10 @@ Aggregation: a cell is (scene, estimator, spp).  Each seed's metrics are first a
 frames, then the cell's value is the mean over seeds with its 95% Student-t interval
 (:func:`iblbench.harness.stats.cell_intervals`, the one aggregation ``iblbench run`` prints too),
 shown as ``mean ± half-width`` in every table (and the image grid's captions) and as error bars
-in the plots; the manifest's stage timings are the mean over builds with its interval.  ms/frame is the
-cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`), aggregated
-the same way; efficiency = 1 / (relMSE · s per frame) is computed per seed and then aggregated.
+in the plots; the manifest's stage timings are the mean over builds with its interval.  ms/frame
+is the cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`),
+aggregated the same way; efficiency = 1 / (relMSE · s per frame) is computed per seed and then
+aggregated.
 The Pareto fronts call a cell dominated only where the intervals of time and of error both
 separate (:func:`iblbench.reports.plots.pareto_calls`); otherwise it is "not resolved at N
 seeds".  Host wall time is shown beside device time and never ranks anything.  Equal-time cells

@@ -52,3 +52,5 @@ def test_heat_maps_carry_their_scale(tmp_path):
     assert heat_scale(tmp_path / "h.png") == HEAT_SCALE
     write_preview(tmp_path / "p.png", np.zeros((2, 2, 3)), 1.0)      # an untagged PNG
     assert heat_scale(tmp_path / "p.png") is None
+    (tmp_path / "broken.png").write_bytes(b"not a PNG")
+    assert heat_scale(tmp_path / "broken.png") is None

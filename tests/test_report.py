@@ -498,7 +498,7 @@ def test_heat_maps_of_another_scale_are_flagged(reported, tmp_path):
     Image.new("RGB", (24, 24)).save(old)                          # untagged, as before
     grid = write_report(copy)["scenes"][0]["grid"]
     assert grid["stale_heat"] == ["images/sphere-sun/f0/uniform_spp16_s0_de76.png"]
-    assert "drawn by an older" in (copy / "report" / "index.html").read_text(encoding="utf-8")
+    assert "drawn by an older iblbench" in (copy / "report" / "index.html").read_text(encoding="utf-8")
 
 
 # --- the report shows what the run has, from any working directory -------------------------------
