@@ -126,7 +126,9 @@ def equal_time_cells(rows: pd.DataFrame) -> pd.DataFrame:
     time per frame (means over seeds of the means over frames, with their intervals, as in
     :func:`summarize`) and whether the achieved time is within ±TOLERANCE of the budget."""
     keys = ["time_budget_ms", "estimator", "spp"]
-    columns = ["mean_delta_e76", "mean_delta_e2000", "rel_mse", "effective_ratio", TIME]
+    columns = [c for c in ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip",
+                           "effective_samples", "effective_ratio", TIME)
+               if c in rows and (c != "flip" or rows[c].notna().any())]   # FLIP where computed
     cells = cell_intervals(rows, keys, columns).reset_index()
     cells["within"] = (cells[TIME] - cells.time_budget_ms).abs() <= TOLERANCE * cells.time_budget_ms
     return cells.sort_values(["time_budget_ms", "rel_mse"])
@@ -139,8 +141,9 @@ def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
         "spp run": cells.spp, "seeds": cells.seeds,
         **{header: _intervals(cells, column) for column, header in (
             ("mean_delta_e76", "mean ΔE76"), ("mean_delta_e2000", "mean ΔE2000"),
-            ("rel_mse", "relMSE"), ("effective_ratio", "effective ratio"),
-            (TIME, "achieved ms/frame (device)"))},
+            ("rel_mse", "relMSE"), ("flip", "FLIP"), ("effective_samples", "effective spp"),
+            ("effective_ratio", "effective ratio"), (TIME, "achieved ms/frame (device)"))
+           if column in cells},
         f"within ±{TOLERANCE:.0%}": cells.within.map({True: "yes", False: "NO"})})
     return _table_html(shown, "summary equal-time")
 

@@ -383,6 +383,9 @@ def test_report_renders_in_headless_chromium(browser):
     assert len(tables) - len(checked) >= 5 and len(checked) == 5
     over_seeds = [rows for _, rows in checked if "seeds" in rows[0]]
     assert len(over_seeds) == 3
+    equal_time = next(rows[0] for rows in over_seeds if "spp run" in rows[0])
+    for header in ("mean ΔE76", "relMSE", "effective spp", "achieved ms/frame (device)"):
+        assert header in equal_time, header
     for header, *rows in [rows for _, rows in checked]:
         figures = [i for i, name in enumerate(header) if name not in NOT_AGGREGATED]
         assert len(figures) >= (3 if "seeds" in header else 0), header
