@@ -224,8 +224,7 @@ def _table_html(frame: pd.DataFrame, classes: str, header: bool = True) -> marku
 
 
 def _frame_html(frame: pd.DataFrame) -> markupsafe.Markup:
-    return markupsafe.Markup(frame.to_html(index=False, border=0, classes="summary", escape=True,
-                                           formatters={c: _number for c in frame.columns}))
+    return _table_html(frame, "summary")
 
 
 # ---- images -----------------------------------------------------------------------------------
