@@ -253,10 +253,20 @@ def plot_per_frame(path: pathlib.Path, per_frame, scene: str, spp: int) -> None:
 
 
 def write_colour_bar(path: pathlib.Path) -> None:
-    """The one colour bar of every ΔE76 heat map: 0..HEAT_MAX in the heat maps' colormap."""
-    fig, ax = plt.subplots(figsize=(6, 0.9))
-    norm = matplotlib.colors.Normalize(vmin=0.0, vmax=HEAT_MAX)
-    bar = fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=HEAT_CMAP), cax=ax,
-                       orientation="horizontal")
-    bar.set_label(f"ΔE76 per pixel (CIELAB units; ≥ {HEAT_MAX:g} shown as {HEAT_MAX:g})")
+    """The one colour bar of every ΔE76 heat map: the heat maps' log scale and colormap
+    (:mod:`.previews`), labelled in plain numbers, the just-noticeable difference marked."""
+    from iblbench.reports import previews
+
+    fig, ax = plt.subplots(figsize=(6, 1.0))
+    bar = fig.colorbar(matplotlib.cm.ScalarMappable(norm=previews.heat_norm(), cmap=HEAT_CMAP),
+                       cax=ax, orientation="horizontal")
+    ticks = [t for t in (0.1, 0.3, 1, previews.JND_DE76, 10, 30, 100)
+             if previews.HEAT_MIN <= t <= previews.HEAT_MAX]
+    bar.set_ticks(ticks, labels=[f"{t:g}" + (" (JND)" if t == previews.JND_DE76 else "")
+                                 for t in ticks])
+    bar.ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax.axvline(previews.JND_DE76, color="white", lw=1.5)
+    low, high = previews.HEAT_MIN, previews.HEAT_MAX
+    bar.set_label(f"ΔE76 per pixel (CIELAB units, log scale; ≤ {low:g} and uncovered pixels "
+                  f"black, ≥ {high:g} shown as {high:g})")
     _save(fig, path)

@@ -2,19 +2,25 @@
 
 ``DIR/report/index.html`` opens from disk with no server: every image it shows (plots, the
 colour bar, the sample pictures and copies of the run's PNG previews) lies inside ``DIR/report``
-and is referenced by a relative path; the page loads no script, stylesheet or font.
+and is referenced by a relative path; the page loads no script, stylesheet or font (its one
+script, the compare viewer's, and its stylesheet are inline).
 
-Contents, per scene: a summary table (estimator × spp), error against time with the Pareto front,
-convergence against spp, effective samples against spp, error per frame (sequences only), an
-image grid (reference, each estimator at one spp, ΔE76 heat maps with one shared colour bar) and
-Lu 2013 Fig. 1/2's sample picture (:mod:`.sample_picture`); then the run's manifest.
+Contents, per scene: the summary (estimator × spp) in two tables, errors and samples/time, error
+against time with the Pareto front, convergence against spp, effective samples against spp,
+error per frame (sequences only), an image grid (reference, each estimator at one spp, ΔE76 heat
+maps on the shared log scale of :mod:`.previews` with its colour bar), a compare viewer (any two
+of the frame's images, A left and B right of a divider moved by a slider; a toggle that shows the
+reference on both sides; a click zooms on the crop around the point) and Lu 2013 Fig. 1/2's
+sample picture (:mod:`.sample_picture`); then the run's manifest.
 
 Aggregation: a cell is (scene, estimator, spp).  Each seed's metrics are first averaged over the
 frames, then the cell's value is the mean over seeds with its 95% Student-t interval
 (:func:`iblbench.harness.stats.cell_intervals`, the one aggregation ``iblbench run`` prints too),
-shown as ``mean ± half-width`` in every table and as error bars in the plots.  ms/frame is the
-cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`), aggregated
-the same way; efficiency = 1 / (relMSE · s per frame) is computed per seed and then aggregated.
+shown as ``mean ± half-width`` in every table (and the image grid's captions) and as error bars
+in the plots; the manifest's stage timings are the mean over builds with its interval.  ms/frame
+is the cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`),
+aggregated the same way; efficiency = 1 / (relMSE · s per frame) is computed per seed and then
+aggregated.
 The Pareto fronts call a cell dominated only where the intervals of time and of error both
 separate (:func:`iblbench.reports.plots.pareto_calls`); otherwise it is "not resolved at N
 seeds".  Host wall time is shown beside device time and never ranks anything.  Equal-time cells
@@ -26,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
+import re
 import shutil
 
 import jinja2
@@ -35,9 +42,10 @@ import pandas as pd
 
 from iblbench.harness.equal_time import TOLERANCE
 from iblbench.harness.results import load_table
-from iblbench.harness.stats import cell_intervals, interval_text
+from iblbench.harness.stats import cell_intervals, interval_text, mean_ci
 from iblbench.harness.timing import TIME
 from iblbench.reports import plots
+from iblbench.reports.previews import HEAT_SCALE, heat_scale
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
@@ -118,7 +126,9 @@ def equal_time_cells(rows: pd.DataFrame) -> pd.DataFrame:
     time per frame (means over seeds of the means over frames, with their intervals, as in
     :func:`summarize`) and whether the achieved time is within ±TOLERANCE of the budget."""
     keys = ["time_budget_ms", "estimator", "spp"]
-    columns = ["mean_delta_e76", "mean_delta_e2000", "rel_mse", "effective_ratio", TIME]
+    columns = [c for c in ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip",
+                           "effective_samples", "effective_ratio", TIME)
+               if c in rows and (c != "flip" or rows[c].notna().any())]   # FLIP where computed
     cells = cell_intervals(rows, keys, columns).reset_index()
     cells["within"] = (cells[TIME] - cells.time_budget_ms).abs() <= TOLERANCE * cells.time_budget_ms
     return cells.sort_values(["time_budget_ms", "rel_mse"])
@@ -131,10 +141,11 @@ def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
         "spp run": cells.spp, "seeds": cells.seeds,
         **{header: _intervals(cells, column) for column, header in (
             ("mean_delta_e76", "mean ΔE76"), ("mean_delta_e2000", "mean ΔE2000"),
-            ("rel_mse", "relMSE"), ("effective_ratio", "effective ratio"),
-            (TIME, "achieved ms/frame (device)"))},
+            ("rel_mse", "relMSE"), ("flip", "FLIP"), ("effective_samples", "effective spp"),
+            ("effective_ratio", "effective ratio"), (TIME, "achieved ms/frame (device)"))
+           if column in cells},
         f"within ±{TOLERANCE:.0%}": cells.within.map({True: "yes", False: "NO"})})
-    return _frame_html(shown)
+    return _table_html(shown, "summary equal-time")
 
 
 def _intervals(cells: pd.DataFrame, column: str) -> list[str]:
@@ -163,28 +174,57 @@ def _number(value) -> str:
     return str(value)
 
 
-def summary_html(cells: pd.DataFrame) -> markupsafe.Markup:
-    """The summary table of one scene (pandas → escaped HTML); every aggregated figure as
-    ``mean ± half-width``."""
-    frame = pd.DataFrame({header: _intervals(cells, column) if column in INTERVAL_COLUMNS
-                          else cells[column] for column, header in _TABLE_COLUMNS.items()
-                          if column in cells})
-    text = frame.to_html(index=False, border=0, classes="summary", escape=True,
-                         formatters={c: _number for c in frame.columns})
-    return markupsafe.Markup(text)
+# The summary of a scene in two tables, so that neither runs off a page 1280 px wide: the
+# errors, then samples and cost (where a column not named here goes too).
+ERROR_COLUMNS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "nonfinite",
+                 "pareto_rel_mse", "pareto_delta_e76")
+KEY_COLUMNS = ("estimator", "spp", "seeds")
+
+
+def summary_html(cells: pd.DataFrame, columns=None) -> markupsafe.Markup:
+    """The summary table of one scene's ``columns`` (default: every one of _TABLE_COLUMNS the
+    cells have); every aggregated figure as ``mean ± half-width``."""
+    columns = [c for c in (columns or _TABLE_COLUMNS) if c in cells]
+    frame = pd.DataFrame({_TABLE_COLUMNS[c]: _intervals(cells, c) if c in INTERVAL_COLUMNS
+                          else cells[c] for c in columns})
+    return _table_html(frame, "summary")
+
+
+def summary_tables(cells: pd.DataFrame) -> dict[str, markupsafe.Markup]:
+    """Title → table: the scene's errors, then its samples and cost (ERROR_COLUMNS)."""
+    rest = [c for c in _TABLE_COLUMNS if c not in ERROR_COLUMNS and c not in KEY_COLUMNS]
+    return {"Errors": summary_html(cells, KEY_COLUMNS + ERROR_COLUMNS),
+            "Samples and time": summary_html(cells, list(KEY_COLUMNS) + rest)}
 
 
 def _dict_table(mapping: dict) -> markupsafe.Markup:
     frame = pd.DataFrame({"key": list(mapping), "value": [
-        json.dumps(v) if isinstance(v, (list, dict)) else ("–" if v is None else str(v))
+        json.dumps(v) if isinstance(v, (list, dict)) else ("–" if v is None else _number(v))
         for v in mapping.values()]})
-    return markupsafe.Markup(frame.to_html(index=False, header=False, border=0, classes="kv",
-                                           escape=True))
+    return _table_html(frame, "kv", header=False)
+
+
+# A number, an interval (``stats.interval_text``) or "–": such a column is right-aligned.
+_NUMERIC = re.compile(r"[-+]?[\d.]+(e[-+]?\d+)?( ± \S+| \(n=\d+, no interval\))?|–")
+
+
+def _table_html(frame: pd.DataFrame, classes: str, header: bool = True) -> markupsafe.Markup:
+    """``frame`` as an escaped HTML table, cells by :func:`_number`; a column of numbers or
+    intervals gets class "num" (right-aligned), text stays left."""
+    text = frame.apply(lambda column: column.map(_number))   # DataFrame.map needs pandas 2.1
+    numeric = [text[c].map(lambda v: _NUMERIC.fullmatch(v) is not None).all() for c in text]
+    cell = "<td{}>{}</td>".format
+    rows = ["<tr>" + "".join(cell(' class="num"' if n else "", markupsafe.escape(v))
+                             for v, n in zip(values, numeric)) + "</tr>"
+            for values in text.itertuples(index=False)]
+    head = ("<thead><tr>" + "".join(f"<th>{markupsafe.escape(c)}</th>" for c in frame.columns)
+            + "</tr></thead>") if header else ""
+    return markupsafe.Markup(f'<table class="{classes}">{head}<tbody>{"".join(rows)}'
+                             "</tbody></table>")
 
 
 def _frame_html(frame: pd.DataFrame) -> markupsafe.Markup:
-    return markupsafe.Markup(frame.to_html(index=False, border=0, classes="summary", escape=True,
-                                           formatters={c: _number for c in frame.columns}))
+    return _table_html(frame, "summary")
 
 
 # ---- images -----------------------------------------------------------------------------------
@@ -213,23 +253,48 @@ def _copy(source: pathlib.Path, report: pathlib.Path, relative: str) -> str | No
     return relative
 
 
-def image_grid(run_dir, report, table, scene, frame, seed, spp) -> dict:
+def image_grid(run_dir, report, table, cells, scene, frame, seed, spp) -> dict:
+    """The images of one scene at (``frame``, ``seed``), copied into the report: ``tiles``, the
+    grid (the reference, each estimator at its :func:`choose_spp` spp and its ΔE76 heat map,
+    captioned with the cell's mean ΔE76 over seeds and its interval), and ``viewer``, the
+    compare viewer's ``choices`` (every estimate and heat map of the frame and seed, each spp)
+    with the two estimators it opens on (``a``, ``b``) and the ``reference``.  ``stale_heat``
+    lists heat maps drawn on another scale than the colour bar's (an older version's)."""
     images = pathlib.Path(run_dir) / "images" / scene / f"f{frame}"
     where = f"images/{scene}/f{frame}"
+
+    def copy(name):
+        return _copy(images / name, report, f"{where}/{name}")
+
     chosen = choose_spp(table, scene, frame, seed, spp)
     rows = table[(table.scene == scene) & (table.frame == frame) & (table.seed == seed)]
-    tiles = [{"title": "reference", "subtitle": "exact quadrature",
-              "src": _copy(images / "reference.png", report, f"{where}/reference.png"),
+    cell = cells[cells.scene == scene].set_index(["estimator", "spp"])
+    reference = copy("reference.png")
+    tiles = [{"title": "reference", "subtitle": ["exact quadrature"], "src": reference,
               "heat": None}]
-    for name, n in chosen.items():
-        row = rows[(rows.estimator == name) & (rows.spp == n)]
-        stem = _image_stem(row.iloc[0].to_dict() if len(row) else
-                           {"estimator": name, "spp": n, "seed": seed})
-        error = row.mean_delta_e76.iloc[0] if len(row) else float("nan")
-        tiles.append({"title": name, "subtitle": f"{n} spp, seed {seed}, mean ΔE76 {error:.3g}",
-                      "src": _copy(images / f"{stem}.png", report, f"{where}/{stem}.png"),
-                      "heat": _copy(images / f"{stem}_de76.png", report, f"{where}/{stem}_de76.png")})
-    return {"frame": frame, "seed": seed, "tiles": tiles,
+    choices = [{"label": "reference (exact quadrature)", "src": reference}] if reference else []
+    shown, stale = {}, []
+    for name, runs in rows.groupby("estimator", sort=False):
+        for row in runs.sort_values("spp").to_dict("records"):
+            n, stem = int(row["spp"]), _image_stem(row)
+            src, heat = copy(f"{stem}.png"), copy(f"{stem}_de76.png")
+            choices += [{"label": label, "src": image} for label, image in (
+                (f"{name} @ {n} spp", src), (f"{name} @ {n} spp: ΔE76 heat map", heat)) if image]
+            if heat and heat_scale(report / heat) != HEAT_SCALE:
+                stale.append(heat)
+            if n != chosen[name]:
+                continue
+            over_seeds = cell.loc[(name, n)]
+            tiles.append({"title": name, "src": src, "heat": heat, "subtitle": [
+                f"{n} spp, mean ΔE76", f"seed {seed}: {row['mean_delta_e76']:.3g}",
+                f"{over_seeds.seeds} seeds: " + interval_text(
+                    over_seeds.mean_delta_e76, over_seeds.mean_delta_e76_half, over_seeds.seeds)]})
+            if src:
+                shown[name] = src
+    pair = list(shown.values())[:2]
+    pair = pair if len(pair) == 2 else [reference, *pair]   # one estimator: against the reference
+    viewer = {"choices": choices, "reference": reference, "a": pair[0], "b": pair[-1]}
+    return {"frame": frame, "seed": seed, "tiles": tiles, "viewer": viewer, "stale_heat": stale,
             "spp": sorted(set(chosen.values()))}
 
 
@@ -369,8 +434,8 @@ def _manifest_context(manifest: dict | None) -> dict | None:
     stages = pd.DataFrame(manifest.get("stages") or [], columns=["scene", "frame", "stage", "ms"])
     if len(stages):
         stages = stages.groupby(["scene", "stage"], sort=False).ms.agg(
-            frames="count", total_ms="sum", median_ms="median").reset_index()
-        stages.columns = ["scene", "stage", "times built", "total ms", "median ms"]
+            frames="count", total_ms="sum", mean_ms=lambda ms: mean_ci(ms).text()).reset_index()
+        stages.columns = ["scene", "stage", "times built", "total ms", "mean ms per build"]
     skipped = pd.DataFrame(manifest.get("skipped") or [])
     if len(skipped):
         for column in ("scene", "stage", "why"):
@@ -386,8 +451,8 @@ def _manifest_context(manifest: dict | None) -> dict | None:
         "estimator_versions": _dict_table(manifest.get("estimator_versions") or {}),
         "config": _dict_table(manifest.get("config") or {}),
         "timing": _dict_table(manifest["timing"]) if manifest.get("timing") else None,
-        "stages": _frame_html(stages) if len(stages) else None,
-        "skipped": _frame_html(skipped) if len(skipped) else None,
+        "stages": _table_html(stages, "summary") if len(stages) else None,
+        "skipped": _table_html(skipped, "summary wraps") if len(skipped) else None,
         "status": manifest.get("status"),
         "protocol": manifest.get("protocol"),
         "git_revision": manifest.get("git_revision"),
@@ -439,7 +504,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         if frame is not None and len(frames) > 1:
             _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
         scene_frame = frame if frame in frames else frames[0]
-        grid = image_grid(run_dir, report, table, scene, scene_frame, seed, spp)
+        grid = image_grid(run_dir, report, table, cells, scene, scene_frame, seed, spp)
         per_frame = None
         if len(frames) > 1:
             shown = max(grid["spp"]) if grid["spp"] else int(rows.spp.max())
@@ -455,7 +520,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
                 raise
             picture = {"error": str(error)}
         timed = equal_time[equal_time.scene == scene]
-        scenes.append({"name": scene, "slug": slug, "table": summary_html(scene_cells),
+        scenes.append({"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
                        "equal_time": equal_time_html(timed) if len(timed) else None,
                        "figures": figures, "per_frame": per_frame, "frames": len(frames),
                        "grid": grid, "picture": picture,
@@ -469,7 +534,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         "manifest": _manifest_context(manifest),
         "rows": len(table),
         "colour_bar": "colour_bar.png",
-        "heat_max": plots.HEAT_MAX,
+        "heat_scale": HEAT_SCALE,
     }
     text = _TEMPLATES.get_template("report.html.j2").render(**context)
     with atomic_path(report / "index.html") as tmp:

@@ -7,6 +7,7 @@ headless Chromium when it is installed.
 from __future__ import annotations
 
 import html.parser
+import io
 import math
 import pathlib
 import re
@@ -15,6 +16,7 @@ import shutil
 import numpy as np
 import pandas as pd
 import pytest
+from PIL import Image
 
 from iblbench.estimators.light_pool import TICKS_PER_SAMPLE
 from iblbench.harness import cli
@@ -37,6 +39,8 @@ class _Page(html.parser.HTMLParser):
     def __init__(self):
         super().__init__()
         self.images: list[str] = []
+        self.options: list[str] = []
+        self.scripts: list[dict] = []
         self.tags: list[str] = []
         self.tables: list[dict] = []
         self.h3: list[str] = []
@@ -48,6 +52,10 @@ class _Page(html.parser.HTMLParser):
         self.tags.append(tag)
         if tag == "img":
             self.images.append(attrs.get("src"))
+        elif tag == "option":
+            self.options.append(attrs.get("value"))
+        elif tag == "script":
+            self.scripts.append(attrs)
         elif tag == "table":
             self.tables.append({"class": attrs.get("class", ""), "rows": []})
         elif tag == "tr" and self.tables:
@@ -91,10 +99,14 @@ def test_page_is_self_contained(reported):
     index = out / "report" / "index.html"
     assert context["path"] == index and index.is_file()
     page = _parse(index)
-    assert "script" not in page.tags and "link" not in page.tags   # nothing external to load
+    assert "link" not in page.tags and page.scripts == [{}]        # one inline script, no src
     assert len(page.images) >= 10                                   # 3 plots + grid + bar + picture
     report = (out / "report").resolve()
-    for src in page.images:
+    # The viewer's A and B each offer the reference and, per estimator and spp, the estimate and
+    # its heat map.
+    choices = [value for value in page.options if value.endswith(".png")]
+    assert len(choices) == 2 * len(set(choices)) == 2 * (1 + 2 * len(ESTIMATORS) * len(SPP))
+    for src in page.images + choices:
         assert src and "://" not in src and not src.startswith("/"), src
         target = (report / src).resolve()
         assert target.is_relative_to(report), src
@@ -109,8 +121,11 @@ def test_page_is_self_contained(reported):
 def test_summary_table_lists_every_cell(reported):
     out, _ = reported
     page = _parse(out / "report" / "index.html")
-    summary = next(t for t in page.tables if "summary" in t["class"])
-    header, *rows = summary["rows"]
+    errors, cost = page.tables[:2]                     # the summary: errors, samples and time
+    assert len(errors["rows"]) == len(cost["rows"])
+    header = errors["rows"][0] + cost["rows"][0]
+    rows = [a + b for a, b in zip(errors["rows"][1:], cost["rows"][1:])]
+    assert all(a[:2] == b[:2] for a, b in zip(errors["rows"], cost["rows"]))   # same cells
     for column in ("estimator", "spp", "mean ΔE76", "mean ΔE2000", "relMSE", "effective ratio",
                    "ms/frame (device)", "IQR ms", "ms/frame (host wall)",
                    "efficiency 1/(relMSE·s)"):
@@ -270,10 +285,28 @@ def test_cli_writes_the_report(reported, capsys):
 CHROMIUM = shutil.which("chromium")
 
 
+def _plot_series(fig) -> list[dict]:
+    """Per axis of a figure: the labels of its error-bar series, each with whether it has a
+    y-interval drawn at every point (finite ends: none is drawn with one seed), and the labels
+    of its plain lines."""
+    from matplotlib.container import ErrorbarContainer
+
+    axes = []
+    for ax in fig.axes:
+        bars = [c for c in ax.containers if isinstance(c, ErrorbarContainer)]
+        in_bars = {id(line) for c in bars for line in c.get_children()}
+        axes.append({
+            "errorbars": {c.get_label(): c.has_yerr and np.isfinite(
+                np.asarray(c.lines[2][-1].get_segments())).all() for c in bars},
+            "lines": [line.get_label() for line in ax.lines if id(line) not in in_bars]})
+    return axes
+
+
 @pytest.fixture(scope="module")
 def two_seeds(reported, tmp_path_factory):
     """The tiny run with a second seed (errors × 1.5, times × 1.2) and an equal-time copy of
-    every row: a report whose every aggregated table has an interval to show."""
+    every row: a report whose every aggregated table has an interval to show.  Its plots'
+    series are recorded as :func:`_plot_series` gives them, by file name."""
     out, _ = reported
     copy = tmp_path_factory.mktemp("two-seeds") / "run"
     shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
@@ -284,49 +317,191 @@ def two_seeds(reported, tmp_path_factory):
     both = pd.concat([table, second])
     timed = both.assign(time_budget_ms=both.groupby("estimator").time_ms.transform("max"))
     pd.concat([both, timed]).to_parquet(copy / "results.parquet", index=False)
-    return copy, write_report(copy)
+    series, save = {}, plots._save
+
+    def recording_save(fig, path):
+        series[pathlib.Path(path).name] = _plot_series(fig)
+        save(fig, path)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(plots, "_save", recording_save)
+        context = write_report(copy)
+    return copy, context, series
+
+
+@pytest.fixture(scope="module")
+def browser(two_seeds):
+    """Headless Chromium (Debian's) on the two-seed report: a function that opens the page
+    fresh and returns it with the list its console errors and script errors go to."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    if CHROMIUM is None:
+        pytest.skip("no Chromium installed (Debian package 'chromium')")
+    out, _, _ = two_seeds
+    with sync_api.sync_playwright() as playwright:
+        chromium = playwright.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        page = chromium.new_page(viewport={"width": 1280, "height": 900})
+        errors: list[str] = []
+        page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+        page.on("pageerror", lambda e: errors.append(str(e)))
+
+        def open_page():
+            page.goto((out / "report" / "index.html").resolve().as_uri())
+            page.wait_for_load_state("load")
+            return page, errors
+
+        yield open_page
+        chromium.close()
 
 
 # Headers of the aggregated tables that are not figures over seeds.
 NOT_AGGREGATED = {"estimator", "spp", "seeds", "non-finite px", "Pareto (relMSE)", "Pareto (ΔE76)",
-                  "budget (ms/frame)", "spp run", "within ±10%"}
+                  "budget (ms/frame)", "spp run", "within ±10%", "scene", "stage", "why",
+                  "times", "times built", "total ms"}
+INTERVAL = r"\S+ ± \S+"
+NUMBER = re.compile(r"[-+]?[\d.]+(e[-+]?\d+)?")
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium installed (Debian package 'chromium')")
-def test_report_renders_in_headless_chromium(two_seeds):
-    """Every image loads, no script error, and every table of figures over seeds (the summary
-    and the equal-time table) shows each figure as mean ± half-width."""
-    sync_api = pytest.importorskip("playwright.sync_api")
-    out, _ = two_seeds
-    errors: list[str] = []
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        try:
-            page = browser.new_page()
-            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto((out / "report" / "index.html").resolve().as_uri())
-            page.wait_for_load_state("load")
-            images = page.evaluate("Array.from(document.images).map(i => "
-                                   "[i.getAttribute('src'), i.complete, i.naturalWidth])")
-            tables = page.evaluate("Array.from(document.querySelectorAll('table')).map(t => "
-                                   "Array.from(t.rows).map(r => Array.from(r.cells).map("
-                                   "c => c.innerText.trim())))")
-        finally:
-            browser.close()
+def test_report_renders_in_headless_chromium(browser):
+    """Every image loads, no script error, and every table shows each figure aggregated over
+    seeds (the summary's two tables and the equal-time table) as mean ± half-width; the stage
+    timings as an interval over builds (one build: "n=1, no interval").  Exempt: the manifest's
+    key/value tables and the sample picture's counts (one pixel of seed 0, nothing averaged)."""
+    page, errors = browser()
+    images = page.evaluate("Array.from(document.images).map(i => "
+                           "[i.getAttribute('src'), i.complete, i.naturalWidth])")
+    tables = page.evaluate("Array.from(document.querySelectorAll('table')).map(t => [t.className,"
+                           " Array.from(t.rows).map(r => Array.from(r.cells).map("
+                           "c => c.innerText.trim()))])")
+    captions = page.evaluate("Array.from(document.querySelectorAll('figure.tile figcaption'))"
+                             ".map(c => c.innerText)")
     assert len(images) >= 10
     broken = [src for src, complete, width in images if not complete or width == 0]
     assert not broken, broken
     assert not errors, errors
-    over_seeds = [t for t in tables if t and "seeds" in t[0]]
-    assert len(over_seeds) == 2                               # the summary and the equal time
-    for header, *rows in over_seeds:
+    checked = [(c, rows) for c, rows in tables if "kv" not in c and "counts" not in c]
+    # 2 of the summary, equal time, stage timings, skipped stages
+    assert len(tables) - len(checked) >= 5 and len(checked) == 5
+    over_seeds = [rows for _, rows in checked if "seeds" in rows[0]]
+    assert len(over_seeds) == 3
+    equal_time = next(rows[0] for rows in over_seeds if "spp run" in rows[0])
+    for header in ("mean ΔE76", "relMSE", "effective spp", "achieved ms/frame (device)"):
+        assert header in equal_time, header
+    for header, *rows in [rows for _, rows in checked]:
         figures = [i for i, name in enumerate(header) if name not in NOT_AGGREGATED]
-        assert len(figures) >= 5, header
+        assert len(figures) >= (3 if "seeds" in header else 0), header
         for row in rows:
-            assert row[header.index("seeds")] == "2"
             for i in figures:
-                assert re.fullmatch(r"\S+ ± \S+", row[i]), (header[i], row[i])
+                shown = INTERVAL if "seeds" in header else rf"{INTERVAL}|\S+ \(n=1, no interval\)"
+                assert re.fullmatch(shown, row[i]), (header[i], row[i])
+            # Every number outside those columns is one of the non-aggregated kinds.
+            numbers = [header[i] for i, cell in enumerate(row) if NUMBER.fullmatch(cell)]
+            assert set(numbers) <= NOT_AGGREGATED, numbers
+    # The image grid's estimator captions give the cell's mean ΔE76 over the seeds too.
+    estimates = [c for c in captions if "spp" in c]
+    assert len(estimates) == len(ESTIMATORS) and all(" ± " in c for c in estimates), captions
+
+
+def test_every_plot_draws_each_estimator_with_an_interval(two_seeds, browser):
+    """Each plot the page shows: every estimator of the run is an error-bar series with its
+    y-interval at every point (two seeds), and no plain line carries an estimator's name."""
+    _, _, series = two_seeds
+    page, _ = browser()
+    shown = page.evaluate("Array.from(document.querySelectorAll('img.plot')).map("
+                          "i => i.getAttribute('src'))")
+    assert len(shown) >= 3
+    for src in shown:
+        axes = [ax for ax in series[src] if ax["errorbars"]]
+        assert axes, src
+        for ax in axes:
+            labels = " ".join(ax["errorbars"])
+            assert all(name in labels for name in ESTIMATORS), (src, ax)
+            assert all(ax["errorbars"].values()), (src, ax)
+            assert not [label for label in ax["lines"]
+                        if label.split(":")[0] in ESTIMATORS], (src, ax)
+
+
+def _pixels(locator) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(locator.screenshot())).convert("RGB")).astype(int)
+
+
+def test_viewer_toggles_the_reference_slides_and_zooms(browser):
+    page, errors = browser()
+    viewer = page.locator("#viewer-sphere-sun")
+    stage, split = viewer.locator('[data-role="stage"]'), viewer.locator('[data-role="split"]')
+    image_a, image_b = viewer.locator('[data-role="img-a"]'), viewer.locator('[data-role="img-b"]')
+    where = "images/sphere-sun/f0/"
+    # It opens on the two estimators at the grid's spp, A left of the divider, B right.
+    assert image_a.get_attribute("src") == f"{where}uniform_spp16_s0.png"
+    assert image_b.get_attribute("src") == f"{where}balanced_spp16_s0.png"
+    estimates = _pixels(stage)
+
+    # The toggle shows the reference on both sides, and the estimates again.
+    toggle = viewer.locator('[data-role="toggle"]')
+    toggle.click()
+    assert toggle.get_attribute("aria-pressed") == "true"
+    assert image_a.get_attribute("src") == image_b.get_attribute("src") == f"{where}reference.png"
+    assert viewer.locator('[data-role="tag-a"]').inner_text() == "reference"
+    page.wait_for_function("Array.from(document.images).every(i => i.complete)")
+    assert np.abs(_pixels(stage) - estimates).max() > 16          # another picture is shown
+    toggle.click()
+    assert image_a.get_attribute("src") == f"{where}uniform_spp16_s0.png"
+    np.testing.assert_array_equal(_pixels(stage), estimates)
+
+    # The slider moves the divider: at 100 all of the stage is A, at 0 all B; at 50 the left
+    # half is A's and the right half B's (but for the divider's few columns).
+    shots = {}
+    for value in ("100", "0", "50"):
+        split.fill(value)
+        shots[value] = _pixels(stage)
+    middle = shots["50"].shape[1] // 2
+    left, right = slice(0, middle - 4), slice(middle + 4, None)
+    np.testing.assert_array_equal(shots["50"][:, left], shots["100"][:, left])
+    np.testing.assert_array_equal(shots["50"][:, right], shots["0"][:, right])
+    assert np.abs(shots["100"] - shots["0"]).max() > 16          # A and B differ
+
+    # A click zooms 4× on the crop around the clicked point: that point moves to the centre.
+    stage.scroll_into_view_if_needed()
+    box = viewer.locator(".viewer-layer").first.bounding_box()     # the unzoomed image
+    # Whole pixels: Chromium reports a click's clientX/Y rounded.
+    x, y = round(box["x"] + 0.3 * box["width"]), round(box["y"] + 0.35 * box["height"])
+    page.mouse.click(x, y)
+    assert viewer.locator('[data-role="zoom"]').input_value() == "4"
+    shown = image_a.bounding_box()
+    assert shown["width"] == pytest.approx(4 * box["width"], rel=1e-3)
+    # The clicked point of the image, now:
+    clicked_x = shown["x"] + (x - box["x"]) / box["width"] * shown["width"]
+    clicked_y = shown["y"] + (y - box["y"]) / box["height"] * shown["height"]
+    assert clicked_x == pytest.approx(box["x"] + box["width"] / 2, abs=1)
+    assert clicked_y == pytest.approx(box["y"] + box["height"] / 2, abs=1)
+    assert "4× crop" in viewer.locator('[data-role="caption"]').inner_text()
+    assert not errors, errors
+
+
+def test_clicking_a_grid_image_puts_it_into_the_viewer(browser):
+    page, errors = browser()
+    viewer = page.locator("#viewer-sphere-sun")
+    heat = "images/sphere-sun/f0/uniform_spp16_s0_de76.png"
+    page.locator(f'img[data-compare][src="{heat}"]').click()
+    # The clicked image becomes B, the previous B becomes A.
+    assert viewer.locator('[data-role="pick-b"]').input_value() == heat
+    assert viewer.locator('[data-role="img-b"]').get_attribute("src") == heat
+    assert viewer.locator('[data-role="img-a"]').get_attribute("src") == \
+        "images/sphere-sun/f0/balanced_spp16_s0.png"
+    assert "ΔE76 heat map" in viewer.locator('[data-role="caption"]').inner_text()
+    assert not errors, errors
+
+
+def test_heat_maps_of_another_scale_are_flagged(reported, tmp_path):
+    """A run whose heat maps an older version drew (no scale tag) gets a warning: the colour
+    bar does not describe them."""
+    out, _ = reported
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    old = copy / "images" / "sphere-sun" / "f0" / "uniform_spp16_s0_de76.png"
+    Image.new("RGB", (24, 24)).save(old)                          # untagged, as before
+    grid = write_report(copy)["scenes"][0]["grid"]
+    assert grid["stale_heat"] == ["images/sphere-sun/f0/uniform_spp16_s0_de76.png"]
+    assert "drawn by an older iblbench" in (copy / "report" / "index.html").read_text(encoding="utf-8")
 
 
 # --- the report shows what the run has, from any working directory -------------------------------
