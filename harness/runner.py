@@ -103,8 +103,7 @@ from iblbench.estimators.registry import get_estimator_class
 from iblbench.harness.device import cache_dir, get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
-from iblbench.harness.metrics import (METRICS, PROTOCOL, Scorer, colour_science, delta_e_images,
-                                      flicker)
+from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.harness.reference import Reference
 from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
                                       configuration_differences, image_configuration, image_stem,
@@ -112,8 +111,9 @@ from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cel
                                       write_results)
 from iblbench.harness.equal_time import (CALIBRATION_REPEATS, CELL_CORRECTIONS, TOLERANCE,
                                         Calibration, corrected_spp)
-from iblbench.harness.timing import (MEASURE, cell_times, device_ms, host_threads_capped,
-                                     required_build_ms, time_columns, timed_renders)
+from iblbench.harness.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times, device_ms,
+                                     host_threads_capped, required_build_ms, time_columns,
+                                     timed_renders, too_wide)
 from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
                                     select_frames)
 from iblbench.reports.previews import write_heat_map, write_preview
@@ -453,7 +453,12 @@ class Runner:
                                "device time, timed renders, warm-ups, calibrations, builds and "
                                "references",
                        "temporal": "timing renders on repeats - 1 twin instances per "
-                                   "sequence; the scored render is the real state's"},
+                                   "sequence; the scored render is the real state's",
+                       "spread": {"rule": f"a frame-by-frame estimator's cell whose renders' "
+                                          f"IQR/median is above {SPREAD_LIMIT:.0%} gets one "
+                                          f"more timed render at a time, up to {EXTENSION}x "
+                                          "its repeats; its columns cover every render",
+                                  "cells": 0, "extended_cells": 0, "wide_cells": 0}},
             "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": MEASURE,
                              "model": "time = a_ms + b_ms_per_spp * spp, least squares on "
                                       "relative error over the median of "
@@ -500,8 +505,6 @@ class Runner:
             for plan in self.plans:
                 if plan.scene.name not in gbuffers and self._scene_todo(plan.scene.name):
                     gbuffers[plan.scene.name] = self._trace(plan)
-            if self.todo:
-                colour_science()   # start-up, like every other import: not in wall_s
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
                       file=sys.stderr)
@@ -534,11 +537,20 @@ class Runner:
                 self.manifest["timing"].update(
                     wall_s=wall_s, device_s=self.device_ms_total / 1e3,
                     wall_per_device=wall_s / max(self.device_ms_total / 1e3, 1e-9))
+            self._report_spread()
             if self.config.time_budget_ms:
                 self.manifest["time_budget"]["achieved"] = self._check_budgets(table)
             self.manifest["status"] = "complete"
             write_manifest(self.out, self.manifest)
         return table
+
+    def _report_spread(self) -> None:
+        """Says how many cells needed more timed renders, and how many stayed too wide."""
+        counts = self.manifest["timing"]["spread"]
+        if counts["extended_cells"] or counts["wide_cells"]:
+            print(f"iblbench: timing: {counts['extended_cells']} of {counts['cells']} cells got "
+                  f"more timed renders (IQR/median above {SPREAD_LIMIT:.0%}, up to {EXTENSION}x "
+                  f"the repeats); {counts['wide_cells']} stayed above it", file=sys.stderr)
 
     def _check_budgets(self, table) -> list[dict]:
         """Each equal-time cell's time against its budget; prints those outside ±TOLERANCE."""
@@ -715,13 +727,12 @@ class Runner:
                     renderers = sequences[sequence_key]
                 else:
                     renderers = [estimator] * repeats
-                # Render 0 is the scored one; all of them back to back before scoring.
-                seeds = [seed] + [timing_seed(seed, r) for r in range(1, repeats)]
-                timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+                timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
                 if budget_key in self.unverified:
-                    spp, timed = self._correct_budget_cell(budget_key, renderers, gbuffer,
-                                                           cache, spp, seeds, build_ms, timed)
+                    spp, timed = self._correct_budget_cell(budget_key, spec, renderers, gbuffer,
+                                                           cache, spp, seed, build_ms, timed)
                 estimate, renders = timed[0][0], [render for _, render in timed]
+                self._count_spread(renders, repeats)
                 metrics, delta_e = scorer.score(estimate)
                 row = {
                     "scene": scene_name, "estimator": label, "spp": int(spp), "frame": frame,
@@ -752,8 +763,30 @@ class Runner:
                     self._fold()
                     self._last_fold = time.monotonic()
 
-    def _correct_budget_cell(self, budget_key: tuple, renderers, gbuffer, cache, spp: int,
-                             seeds, build_ms: float, timed: list) -> tuple[int, list]:
+    def _cell_renders(self, spec, renderers, gbuffer, cache, spp: int, seed: int,
+                      build_ms: float) -> list[tuple]:
+        """(estimate, TimedRender) of a cell's renders, back to back before scoring: render 0
+        the scored one (seed ``seed``), one timing render per other renderer, then, for a
+        frame-by-frame estimator whose renders spread wider than ``SPREAD_LIMIT``, one more at
+        a time until they do not or there are ``EXTENSION`` × repeats (module docstring)."""
+        seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
+        timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+        limit = (len(renderers) if spec.cls.tags.temporal
+                 else min(MAX_REPEATS, EXTENSION * len(renderers)))
+        while len(timed) < limit and too_wide([render for _, render in timed]):
+            timed += self._timed_renders(renderers[:1], gbuffer, cache, spp,
+                                         [timing_seed(seed, len(timed))], build_ms)
+        return timed
+
+    def _count_spread(self, renders, repeats: int) -> None:
+        """The run's count of cells that got more renders, and of those still too wide."""
+        counts = self.manifest["timing"]["spread"]
+        counts["cells"] += 1
+        counts["extended_cells"] += len(renders) > repeats
+        counts["wide_cells"] += too_wide(renders)
+
+    def _correct_budget_cell(self, budget_key: tuple, spec, renderers, gbuffer, cache, spp: int,
+                             seed: int, build_ms: float, timed: list) -> tuple[int, list]:
         """The first cell of a budget this run calibrated, timed at the calibrated spp
         (``timed``), corrected on its own time: up to ``CELL_CORRECTIONS`` steps of
         :func:`corrected_spp`, each rendering the cell again from ``reset()`` (it is the first
@@ -770,7 +803,7 @@ class Runner:
             for renderer in set(renderers):
                 renderer.reset()
             spp = step
-            timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+            timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
         fit["chosen_spp"] = self.chosen[budget_key] = spp
         return spp, timed
 

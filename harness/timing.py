@@ -71,6 +71,8 @@ STAGES = ("build", "sample", "shade")
 TIME = "time_ms"
 COLUMNS = ("time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build", "time_ms_sample",
            "time_ms_shade", "time_ms_host", "time_repeats")
+SPREAD_LIMIT = 0.15   # IQR/median a cell's timed renders should stay within
+EXTENSION = 3         # a cell with a wider spread gets renders up to EXTENSION × its repeats
 MEASURE = ("device time per frame of the stages the estimator needs: build + sample + shade "
            "(OpenCL profiling events), ms")
 
@@ -124,6 +126,12 @@ def spread(values) -> tuple[float, float, float]:
         return math.nan, math.nan, math.nan
     q25, q75 = np.percentile(values, [25, 75])
     return float(np.median(values)), float(values.min()), float(q75 - q25)
+
+
+def too_wide(renders: list[TimedRender]) -> bool:
+    """Whether the device times of ``renders`` spread wider than ``SPREAD_LIMIT``: IQR/median."""
+    median, _, iqr = spread(device_ms(r.stages) for r in renders)
+    return iqr > SPREAD_LIMIT * median
 
 
 def device_ms(stages: dict[str, float]) -> float:
