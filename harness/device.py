@@ -64,9 +64,6 @@ class DeviceInfo:
 
 
 def all_devices() -> list[DeviceInfo]:
-    # PoCL's CPU worker threads pinned one per core, unless the user chose otherwise: the
-    # timing module's "Context" (read when the platforms are first listed).
-    os.environ.setdefault("POCL_AFFINITY", "1")
     try:
         platforms = cl.get_platforms()
     except cl.Error:

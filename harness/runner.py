@@ -57,6 +57,9 @@ it), and its time columns summarise those renders:
   each), so each twin takes the same path as the scored instance (initialisation on the first
   frame, carried state later, re-initialisation where the map jumps) while the scored state is
   never touched by a timing render.
+- More renders: a frame-by-frame estimator's cell whose renders spread wider than the timing
+  module's limit gets renders R, R+1, ... (seeds :func:`timing_seed`) one at a time, up to
+  ``EXTENSION`` × R (:meth:`Runner._cell_renders`); the run says how many cells got more.
 - Build: a frame builds its cache once (DESIGN §2), so the device time of that one build of the
   products the estimator requires counts in each of its timed renders (``time_ms_build`` is
   that one measurement); a frame that reused an identical frame's cache built nothing, and its
@@ -446,6 +449,7 @@ class Runner:
                        "context": "BLAS and OpenMP pools at one host thread for the whole run "
                                   "(threadpoolctl); a cell's repeats (or a calibration spp's "
                                   "renders) back to back before scoring",
+                       "pocl_affinity": os.environ.get("POCL_AFFINITY"),
                        "warm_up": f"1 spp on {WARMUP_PIXELS} pixels per frame and estimator",
                        "wall": "wall_s: host wall time from the first frame's set-up to the "
                                "last cell's write; start-up (imports, colour-science included, "
@@ -462,7 +466,8 @@ class Runner:
             "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": MEASURE,
                              "model": "time = a_ms + b_ms_per_spp * spp, least squares on "
                                       "relative error over the median of "
-                                      f"{CALIBRATION_REPEATS} renders per spp, then refined on "
+                                      f"{CALIBRATION_REPEATS} renders per spp (more while "
+                                      "they spread too wide), then refined on "
                                       "renders at the chosen spp and on the budget's first "
                                       "cell (cell_runs)",
                              "chosen": f"a measured spp within ±{TOLERANCE:.0%} of the budget, "
