@@ -452,7 +452,7 @@ class Runner:
                        "pocl_affinity": os.environ.get("POCL_AFFINITY"),
                        "warm_up": f"1 spp on {WARMUP_PIXELS} pixels per frame and estimator",
                        "wall": "wall_s: host wall time from the first frame's set-up to the "
-                               "last cell's write; start-up (imports, colour-science included, "
+                               "last cell's write; start-up (imports, "
                                "scenes, G-buffers, the device) before it; device_s: the run's "
                                "device time, timed renders, warm-ups, calibrations, builds and "
                                "references",

@@ -55,8 +55,8 @@ back in :func:`timed_renders`, with no pause before it.  PoCL's worker threads a
 render fell from 5.5-8.5 to 3.8-4.1 ms (sphere-sun, balanced, 256 spp) and from 4.3-5.3 to
 2.9-3.4 ms (blob-sun, uniform, 256 spp) at load 6 (3 interleaved pairs of processes, 60
 renders each), but at load 16-19 one warm default run pinned had 33% of its cells within 15%
-against 65% for one unpinned: a pinned thread cannot leave a busy core.  Measured on 2 cores shared with other
-jobs (load 8-12), interleaved in rounds, one process:
+against 65% for one unpinned: a pinned thread cannot leave a busy core.  Measured on 2 cores
+shared with other jobs (load 8-12), interleaved in rounds, one process:
 
 - the first render after a 200k×3 NumPy product (blob-sun, uniform, 256 spp, 20 rounds): 20.3 ms
   median with BLAS's two threads, 5.2 ms with one, 6.7 ms with no product before it;
