@@ -5,21 +5,22 @@ The measure is the cell time of :mod:`iblbench.harness.timing`: device time per 
 the calibration adds the frame's build time (``build_ms``) to every timed render.  A
 budget below the build alone cannot be met by any spp.
 
-For one (scene, estimator) the runner times renders on the scene's first frame to run, just
-before its first equal-time cell (``CALIBRATION_REPEATS`` per spp, on seeds no cell uses,
-through the same :func:`~iblbench.harness.timing.timed_renders` as a cell's repeats) at
-``CALIBRATION_SPP``, then at larger spp until the calibrated range brackets the choice. Each
-spp's median is fitted as ``a + b·spp`` by least squares on relative error, and the first
-choice is the largest spp whose predicted time is within the budget. A line fitted from 1 to
-hundreds of spp misses by more than 10% where the cost is not quite linear, so the choice is
-then refined on measurements: the spp chosen is timed, the per-spp slope is re-estimated
-through that point (keeping the intercept), and the largest spp predicted to fit is timed
-again, up to ``REFINE_STEPS`` times, until the measured time lies within half of ``TOLERANCE``
-of the budget (so that the cells' own noise keeps them within it) (:func:`corrected_spp`). The
-spp run is then chosen among the measured ones (:func:`best_measured`).  The runner takes up to
-``CELL_CORRECTIONS`` more such steps on the time of the budget's first cell, in the cells' own
-context (:mod:`iblbench.harness.runner`, "Equal time").  Whether the cells then landed within
-``TOLERANCE`` is checked on the cells themselves (the runner's ``time_budget.achieved``).
+For one (scene, estimator) the runner times renders on the scene's first frame to run, just before
+its first equal-time cell (``CALIBRATION_REPEATS`` per spp, on seeds no cell uses, through the
+same :func:`~iblbench.harness.timing.timed_renders` as a cell's repeats) at ``CALIBRATION_SPP``,
+then at larger spp until the calibrated range brackets the choice. Each spp's median (over more
+renders where they spread too wide, as a cell's) is fitted as ``a + b·spp`` by least squares on
+relative error, and the first choice is the largest spp whose predicted time is within the budget.
+A line fitted from 1 to hundreds of spp misses by more than 10% where the cost is not quite
+linear, so the choice is then refined on measurements: the spp chosen is timed, the per-spp slope
+is re-estimated through that point (keeping the intercept), and the largest spp predicted to fit
+is timed again, up to ``REFINE_STEPS`` times, until the measured time lies within half of
+``TOLERANCE`` of the budget (so that the cells' own noise keeps them within it)
+(:func:`corrected_spp`). The spp run is then chosen among the measured ones
+(:func:`best_measured`). The runner takes up to ``CELL_CORRECTIONS`` more such steps on the time
+of the budget's first cell, in the cells' own context (:mod:`iblbench.harness.runner`, "Equal
+time"). Whether the cells then landed within ``TOLERANCE`` is checked on the cells themselves (the
+runner's ``time_budget.achieved``).
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ import math
 
 import numpy as np
 
-from iblbench.harness.timing import device_ms, timed_renders
+from iblbench.harness.timing import EXTENSION, device_ms, timed_renders, too_wide
 
 CALIBRATION_SEED = 0xFFFFFF00   # + repeat index: seeds no benchmark cell uses
 CALIBRATION_SPP = (1, 4, 16, 64)
@@ -69,16 +70,22 @@ class Calibration:
 
     def measure(self, spp: int) -> float:
         """Time ``CALIBRATION_REPEATS`` renders at ``spp`` (once per spp) the way a cell's
-        repeats are timed (:func:`~iblbench.harness.timing.timed_renders`); their median."""
+        renders are timed (:func:`~iblbench.harness.timing.timed_renders`, then one more at a
+        time while they spread too wide, up to ``EXTENSION`` times as many); their median."""
         if spp not in self.runs:
-            seeds = [CALIBRATION_SEED + repeat for repeat in range(CALIBRATION_REPEATS)]
-            renders = [render for _, render in timed_renders(
-                [self.estimator] * CALIBRATION_REPEATS, self.gbuffer, self.cache, spp, seeds,
-                self.build_ms)]
+            renders = self._timed(spp, range(CALIBRATION_REPEATS))
+            while len(renders) < EXTENSION * CALIBRATION_REPEATS and too_wide(renders):
+                renders += self._timed(spp, [len(renders)])
             self.renders += renders
             self.runs[spp] = [device_ms(r.stages) for r in renders]
             self.host[spp] = [r.host_ms for r in renders]
         return float(np.median(self.runs[spp]))
+
+    def _timed(self, spp: int, repeats) -> list:
+        """TimedRenders at ``spp`` on the calibration seeds of ``repeats``, back to back."""
+        seeds = [CALIBRATION_SEED + repeat for repeat in repeats]
+        return [render for _, render in timed_renders(
+            [self.estimator] * len(seeds), self.gbuffer, self.cache, spp, seeds, self.build_ms)]
 
     def choose(self, budget_ms: float) -> dict:
         for spp in CALIBRATION_SPP:

@@ -17,7 +17,8 @@ Columns, in order (``COLUMNS``):
 - times (:mod:`iblbench.harness.timing`, the one definition): ``time_ms`` (the cell's device
   time per frame, build + sample + shade, median of ``time_repeats`` timed renders),
   ``time_ms_min``, ``time_ms_iqr``, the per-stage medians ``time_ms_build``, ``time_ms_sample``,
-  ``time_ms_shade``, the host wall time ``time_ms_host`` and ``time_repeats``;
+  ``time_ms_shade``, the host wall time ``time_ms_host`` and ``time_repeats`` (at least the
+  repeats asked for; more where the renders spread too wide);
 - ``device``, ``protocol``;
 - then any *extra* columns: estimator-specific per-frame scalars from ``Estimate.extras``
   (e.g. ``smc``'s ``ess``, ``reinits``, ``resample_steps``), sorted by name, NaN in the rows of
@@ -64,8 +65,8 @@ METRIC_COLUMNS = [
 ]
 COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "protocol"]
 # Columns that are the same on every rerun of a cell on one device (renders are deterministic
-# per seed): everything but the measured times.
-DETERMINISTIC_COLUMNS = [c for c in COLUMNS if not c.startswith("time_ms")]
+# per seed): everything but the measured times and how many renders they took (timing module).
+DETERMINISTIC_COLUMNS = [c for c in COLUMNS if not c.startswith("time_")]
 TABLE = "results.parquet"
 CSV = "results.csv"
 JOURNAL = "results.journal.jsonl"
@@ -183,11 +184,13 @@ def journal_row_is_sound(row) -> bool:
 def read_journal(out_dir: pathlib.Path) -> list[dict]:
     """Rows appended by a run that has not folded them yet; a torn last line is dropped, and a
     line that is JSON but not a sound row (:func:`journal_row_is_sound`) is skipped and counted
-    in a warning on stderr (its cell is run again)."""
+    in a warning on stderr (its cell is run again).  A reader outside the run's lock may find the
+    journal gone between a look and a read (a fold dropped it): that is no journal."""
     path = out_dir / JOURNAL
-    if not path.exists():
+    try:
+        lines = path.read_bytes().split(b"\n")
+    except FileNotFoundError:
         return []
-    lines = path.read_bytes().split(b"\n")
     rows, unsound = [], 0
     for number, line in enumerate(lines):
         if not line.strip():

@@ -57,6 +57,9 @@ it), and its time columns summarise those renders:
   each), so each twin takes the same path as the scored instance (initialisation on the first
   frame, carried state later, re-initialisation where the map jumps) while the scored state is
   never touched by a timing render.
+- More renders: a frame-by-frame estimator's cell whose renders spread wider than the timing
+  module's limit gets renders R, R+1, ... (seeds :func:`timing_seed`) one at a time, up to
+  ``EXTENSION`` × R (:meth:`Runner._cell_renders`); the run says how many cells got more.
 - Build: a frame builds its cache once (DESIGN §2), so the device time of that one build of the
   products the estimator requires counts in each of its timed renders (``time_ms_build`` is
   that one measurement); a frame that reused an identical frame's cache built nothing, and its
@@ -103,17 +106,18 @@ from iblbench.estimators.registry import get_estimator_class
 from iblbench.harness.device import cache_dir, get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
-from iblbench.harness.metrics import (METRICS, PROTOCOL, Scorer, colour_science, delta_e_images,
-                                      flicker)
+from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.harness.reference import Reference
 from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
                                       configuration_differences, image_configuration, image_stem,
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
-from iblbench.harness.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED, CELL_CORRECTIONS,
-                                        TOLERANCE, Calibration, corrected_spp)
-from iblbench.harness.timing import (MEASURE, cell_times, device_ms, host_threads_capped,
-                                     required_build_ms, time_columns, timed_renders)
+from iblbench.harness.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
+                                         CELL_CORRECTIONS, TOLERANCE, Calibration,
+                                         corrected_spp)
+from iblbench.harness.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times, device_ms,
+                                     host_threads_capped, required_build_ms, time_columns,
+                                     timed_renders, too_wide)
 from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
                                     select_frames)
 from iblbench.reports.previews import write_heat_map, write_preview
@@ -455,18 +459,25 @@ class Runner:
                        "context": "BLAS and OpenMP pools at one host thread for the whole run "
                                   "(threadpoolctl); a cell's repeats (or a calibration spp's "
                                   "renders) back to back before scoring",
+                       "pocl_affinity": os.environ.get("POCL_AFFINITY"),
                        "warm_up": f"1 spp on {WARMUP_PIXELS} pixels per frame and estimator",
                        "wall": "wall_s: host wall time from the first frame's set-up to the "
-                               "last cell's write; start-up (imports, colour-science included, "
+                               "last cell's write; start-up (imports, "
                                "scenes, G-buffers, the device) before it; device_s: the run's "
                                "device time, timed renders, warm-ups, calibrations, builds and "
                                "references",
                        "temporal": "timing renders on repeats - 1 twin instances per "
-                                   "sequence; the scored render is the real state's"},
+                                   "sequence; the scored render is the real state's",
+                       "spread": {"rule": f"a frame-by-frame estimator's cell whose renders' "
+                                          f"IQR/median is above {SPREAD_LIMIT:.0%} gets one "
+                                          f"more timed render at a time, up to {EXTENSION}x "
+                                          "its repeats; its columns cover every render",
+                                  "cells": 0, "extended_cells": 0, "wide_cells": 0}},
             "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": MEASURE,
                              "model": "time = a_ms + b_ms_per_spp * spp, least squares on "
                                       "relative error over the median of "
-                                      f"{CALIBRATION_REPEATS} renders per spp, then refined on "
+                                      f"{CALIBRATION_REPEATS} renders per spp (more while "
+                                      "they spread too wide), then refined on "
                                       "renders at the chosen spp and on the budget's first "
                                       "cell (cell_runs)",
                              "chosen": f"a measured spp within ±{TOLERANCE:.0%} of the budget, "
@@ -509,8 +520,6 @@ class Runner:
             for plan in self.plans:
                 if plan.scene.name not in gbuffers and self._scene_todo(plan.scene.name):
                     gbuffers[plan.scene.name] = self._trace(plan)
-            if self.todo:
-                colour_science()   # start-up, like every other import: not in wall_s
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
                       file=sys.stderr)
@@ -543,6 +552,7 @@ class Runner:
                 self.manifest["timing"].update(
                     wall_s=wall_s, device_s=self.device_ms_total / 1e3,
                     wall_per_device=wall_s / max(self.device_ms_total / 1e3, 1e-9))
+            self._report_spread()
             if self.config.time_budget_ms:
                 self.manifest["time_budget"]["achieved"] = self._check_budgets(table)
             self.manifest["status"] = "complete"
@@ -553,6 +563,14 @@ class Runner:
         """The rows of ``table`` (after :meth:`run`) that are cells of this sweep: ``out`` may
         also hold other sweeps' cells."""
         return table[[row_key(row) in self.cells for row in table.to_dict("records")]]
+
+    def _report_spread(self) -> None:
+        """Says how many cells needed more timed renders, and how many stayed too wide."""
+        counts = self.manifest["timing"]["spread"]
+        if counts["extended_cells"] or counts["wide_cells"]:
+            print(f"iblbench: timing: {counts['extended_cells']} of {counts['cells']} cells got "
+                  f"more timed renders (IQR/median above {SPREAD_LIMIT:.0%}, up to {EXTENSION}x "
+                  f"the repeats); {counts['wide_cells']} stayed above it", file=sys.stderr)
 
     def _check_budgets(self, table) -> list[dict]:
         """Each equal-time cell's time against its budget; prints those outside ±TOLERANCE."""
@@ -729,13 +747,12 @@ class Runner:
                     renderers = sequences[sequence_key]
                 else:
                     renderers = [estimator] * repeats
-                # Render 0 is the scored one; all of them back to back before scoring.
-                seeds = [seed] + [timing_seed(seed, r) for r in range(1, repeats)]
-                timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+                timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
                 if budget_key in self.unverified:
-                    spp, timed = self._correct_budget_cell(budget_key, renderers, gbuffer,
-                                                           cache, spp, seeds, build_ms, timed)
+                    spp, timed = self._correct_budget_cell(budget_key, spec, renderers, gbuffer,
+                                                           cache, spp, seed, build_ms, timed)
                 estimate, renders = timed[0][0], [render for _, render in timed]
+                self._count_spread(renders, repeats)
                 metrics, delta_e = scorer.score(estimate)
                 row = {
                     "scene": scene_name, "estimator": label, "spp": int(spp), "frame": frame,
@@ -766,8 +783,30 @@ class Runner:
                     self._fold()
                     self._last_fold = time.monotonic()
 
-    def _correct_budget_cell(self, budget_key: tuple, renderers, gbuffer, cache, spp: int,
-                             seeds, build_ms: float, timed: list) -> tuple[int, list]:
+    def _cell_renders(self, spec, renderers, gbuffer, cache, spp: int, seed: int,
+                      build_ms: float) -> list[tuple]:
+        """(estimate, TimedRender) of a cell's renders, back to back before scoring: render 0
+        the scored one (seed ``seed``), one timing render per other renderer, then, for a
+        frame-by-frame estimator whose renders spread wider than ``SPREAD_LIMIT``, one more at
+        a time until they do not or there are ``EXTENSION`` × repeats (module docstring)."""
+        seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
+        timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+        limit = (len(renderers) if spec.cls.tags.temporal
+                 else min(MAX_REPEATS, EXTENSION * len(renderers)))
+        while len(timed) < limit and too_wide([render for _, render in timed]):
+            timed += self._timed_renders(renderers[:1], gbuffer, cache, spp,
+                                         [timing_seed(seed, len(timed))], build_ms)
+        return timed
+
+    def _count_spread(self, renders, repeats: int) -> None:
+        """The run's count of cells that got more renders, and of those still too wide."""
+        counts = self.manifest["timing"]["spread"]
+        counts["cells"] += 1
+        counts["extended_cells"] += len(renders) > repeats
+        counts["wide_cells"] += too_wide(renders)
+
+    def _correct_budget_cell(self, budget_key: tuple, spec, renderers, gbuffer, cache, spp: int,
+                             seed: int, build_ms: float, timed: list) -> tuple[int, list]:
         """The first cell of a budget this run calibrated, timed at the calibrated spp
         (``timed``), corrected on its own time: up to ``CELL_CORRECTIONS`` steps of
         :func:`corrected_spp`, each rendering the cell again from ``reset()`` (it is the first
@@ -784,7 +823,7 @@ class Runner:
             for renderer in set(renderers):
                 renderer.reset()
             spp = step
-            timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+            timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
         fit["chosen_spp"] = self.chosen[budget_key] = spp
         return spp, timed
 

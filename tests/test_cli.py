@@ -302,7 +302,7 @@ def test_tiny_run_results_table(tiny_run):
     assert (table["effective_samples"] >= 0).all()
     for column in ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "time_ms", "time_ms_host"):
         assert np.isfinite(table[column]).all() and (table[column] >= 0).all(), column
-    assert (table["time_repeats"] == 5).all()
+    assert (table["time_repeats"] >= 5).all()   # more where the renders spread too wide
 
 
 def test_tiny_run_json_summary(tiny_run, cli):

@@ -111,6 +111,53 @@ def test_delta_e2000_matches_sharma_test_data(lab_a, lab_b, expected):
 
 
 
+def colour_science():
+    """colour-science, an independent implementation of the protocol's colour formulas."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")   # colour warns about optional packages at import
+        import colour
+    return colour
+
+
+def random_lab_pairs(n, seed):
+    """L*a*b* pairs: random colours, close ones, greys, one zero chroma, and hues 180° ± 0.5° apart
+    (where the mean hue switches branch)."""
+    rng = np.random.default_rng(seed)
+    lab = np.stack([rng.uniform(0, 100, n), rng.normal(0, 40, n), rng.normal(0, 40, n)], -1)
+    close = lab + rng.normal(0, 3, (n, 3)) * rng.random((n, 1)) ** 2
+    grey = lab * [1, 0, 0]
+    angle = np.radians(180 + rng.uniform(-0.5, 0.5, n))
+    cos, sin = np.cos(angle), np.sin(angle)
+    opposite = np.stack([lab[:, 0] + 1, 0.9 * (lab[:, 1] * cos - lab[:, 2] * sin),
+                         0.9 * (lab[:, 1] * sin + lab[:, 2] * cos)], -1)
+    first = np.concatenate([lab, lab, lab, grey, lab, grey])
+    second = np.concatenate([rng.permutation(lab), close, opposite, lab, grey, grey[::-1]])
+    return first, second
+
+
+def test_delta_e_agrees_with_colour_science():
+    colour = colour_science()
+    first, second = random_lab_pairs(100_000, 7)
+    de76, de2000 = metrics.lab_differences(first, second)
+    for mine, method in ((de76, "CIE 1976"), (de2000, "CIE 2000")):
+        theirs = colour.delta_E(first, second, method=method)
+        assert np.abs(mine - theirs).max() < 1e-5, method
+        assert np.abs(mine - theirs).max() <= 1e-9 * theirs.max() + 1e-5
+    # ΔE2000 is symmetric, as its formula is.
+    assert np.allclose(metrics.lab_differences(second, first)[1], de2000, atol=1e-9)
+
+
+def test_lab_agrees_with_colour_science():
+    colour = colour_science()
+    rgb = np.random.default_rng(8).random((10_000, 3)) ** 3   # dark colours: the linear segment too
+    d65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+    xyz = colour.RGB_to_XYZ(rgb, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_decoding=False)
+    assert np.abs(metrics.to_lab(rgb) - colour.XYZ_to_Lab(xyz, d65)).max() < 1e-10
+    # sRGB white is D65 white, within the rounding of the printed matrix
+    assert np.abs(metrics.to_lab(np.ones(3)) - [100, 0, 0]).max() < 1e-2
+
+
 class CountingFlip:
     """A stand-in for flip_evaluator that counts its evaluations (and scores the mean absolute
     difference, so the scores still mean something)."""

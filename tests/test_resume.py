@@ -251,7 +251,8 @@ def test_equal_time_gives_the_slower_estimator_fewer_samples(tmp_path, capsys):
         assert fit["b_ms_per_spp"] > 0 and fit["a_ms"] >= 0
         assert fit["measured_ms"] <= 2.2 or fit["chosen_spp"] == 1
         assert {1, 4, 16, 64} <= {run["spp"] for run in fit["runs"]}
-        assert all(len(run["device_ms"]) == 3 for run in fit["runs"])
+        # three renders per spp, more while they spread too wide (up to 3 × 3; harness/timing.py)
+        assert all(3 <= len(run["device_ms"]) <= 9 for run in fit["runs"])
     assert fits["balanced_mis"]["b_ms_per_spp"] > fits["uniform"]["b_ms_per_spp"]
     # Resuming keeps the chosen spp and the recorded calibration.
     again = run(config).set_index("estimator")

@@ -76,11 +76,12 @@ def test_metrics_and_repeats_flags_and_what_a_rerun_keeps(tmp_path, capsys):
     assert main(flags + ["--no-flip", "--repeats", "2"]) == 0
     table = pd.read_parquet(tmp_path / "results.parquet")
     assert table.flip.isna().all() and (table.metrics == "de76,de2000,relmse").all()
-    assert (table.time_repeats == 2).all() and table.mean_delta_e2000.notna().all()
+    assert (table.time_repeats >= 2).all() and table.mean_delta_e2000.notna().all()
     capsys.readouterr()
-    # Fewer repeats and fewer metrics than the row has: resumed.  More of either: recomputed.
+    # Fewer repeats and fewer metrics than the row has: resumed.  More of either: recomputed
+    # (7 renders are more than the 2 asked for can become: at most 3 × 2, timing module).
     assert main(flags + ["--metrics", "de76", "--repeats", "1"]) == 0
     assert "resumed: 1 cells already done, 0 to run" in capsys.readouterr().err
-    assert main(flags + ["--no-flip"]) == 0
+    assert main(flags + ["--no-flip", "--repeats", "7"]) == 0
     assert "resumed" not in capsys.readouterr().err
-    assert (pd.read_parquet(tmp_path / "results.parquet").time_repeats == 5).all()
+    assert (pd.read_parquet(tmp_path / "results.parquet").time_repeats >= 7).all()

@@ -156,22 +156,61 @@ def tiny(out, estimators, **overrides) -> RunConfig:
     return RunConfig(**(config | overrides))
 
 
-def test_time_columns_are_median_min_and_iqr_of_the_stage_events(tmp_path, fakes, known_builds):
+def test_time_columns_are_median_min_and_iqr_of_the_stage_events(tmp_path, fakes, known_builds,
+                                                                  capsys):
     row = run(tiny(tmp_path, ("scripted_timing_test",))).iloc[0]
-    # Render k: the frame's build (0.5) + sample + shade → 12.5, 31.5, 24.5, 53.5, 45.5 ms.
-    assert row.time_ms == pytest.approx(31.5)                  # the middle of five
+    # Render k: the frame's build (0.5) + sample + shade → 12.5, 31.5, 24.5, 53.5, 45.5 ms, over
+    # and over: IQR/median 21/31.5 is above 15% at every count, so the cell gets renders up to
+    # 3 × 5, three of each.
+    assert row.time_repeats == 15 and row.time_ms_host > 0
+    assert row.time_ms == pytest.approx(31.5)                  # the middle of fifteen
     assert row.time_ms_min == pytest.approx(12.5)
-    assert row.time_ms_iqr == pytest.approx(45.5 - 24.5)       # linear quartiles of five: 2nd, 4th
+    assert row.time_ms_iqr == pytest.approx(45.5 - 24.5)       # linear quartiles: 4th, 11th
     assert row.time_ms_build == pytest.approx(BUILD)           # median of each stage on its own
     assert row.time_ms_sample == pytest.approx(3.0)
     assert row.time_ms_shade == pytest.approx(30.0)
-    assert row.time_repeats == 5 and row.time_ms_host > 0
     assert math.isnan(row.flip) and math.isnan(row.mean_delta_e2000) and row.metrics == "de76"
-    # The warm-up rendered 1 spp on a few pixels, never the whole frame; then five full renders.
+    # The warm-up rendered 1 spp on a few pixels, never the whole frame; then the full renders.
     warm_up = [entry for entry in Scripted.log if entry[0] == WARMUP_SEED]
     pixels = Scripted.log[-1][2]
     assert warm_up == [(WARMUP_SEED, 1, WARMUP_PIXELS)] and pixels > WARMUP_PIXELS
-    assert [entry[1:] for entry in Scripted.log if entry[0] != WARMUP_SEED] == [(4, pixels)] * 5
+    assert [entry[1:] for entry in Scripted.log if entry[0] != WARMUP_SEED] == [(4, pixels)] * 15
+    assert "1 of 1 cells got more timed renders" in capsys.readouterr().err
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    assert manifest["timing"]["spread"] | {"rule": ""} == {"rule": "", "cells": 1,
+                                                          "extended_cells": 1, "wide_cells": 1}
+
+
+class Settling(Estimator):
+    """Shade times 10, 10, 14, 14, then 10 ms from then on (warm-up aside)."""
+
+    name = "settling_timing_test"
+    tags = Tags(unbiased=False)
+
+    def __init__(self, params=None, **overrides):
+        super().__init__(params, **overrides)
+        self.renders = 0
+
+    def render(self, gbuffer, cache, spp, seed):
+        self.renders += 1
+        shade = 14.0 if self.renders in (3, 4) else 10.0
+        return fake_estimate(gbuffer, spp, 0.5, {"shade": shade})
+
+
+def test_a_cell_gets_more_renders_only_while_they_spread_too_wide(tmp_path, known_builds, capsys):
+    register(Settling)
+    try:
+        row = run(tiny(tmp_path, ("settling_timing_test",))).iloc[0]
+    finally:
+        _registry.pop(Settling.name)
+    # Device times 10.5 and 14.5 (the build's 0.5 added); sorted, with linear quartiles at
+    # positions 0.25·(n−1) and 0.75·(n−1), the IQR over the median 10.5 is: n=5 4 (38%), n=6 3
+    # (29%), n=7 2 (19%), n=8 1 (9.5%): the cell stops at 8 renders.
+    assert row.time_repeats == 8
+    assert row.time_ms == pytest.approx(10.5) and row.time_ms_iqr == pytest.approx(1.0)
+    assert "1 of 1 cells got more timed renders" in capsys.readouterr().err
+    spread = json.loads((tmp_path / "manifest.json").read_text())["timing"]["spread"]
+    assert spread["extended_cells"] == 1 and spread["wide_cells"] == 0
 
 
 def test_stages_an_estimator_lacks_are_nan_and_count_zero():
@@ -305,18 +344,18 @@ def test_terminal_check_and_report_show_one_time_per_cell(tmp_path):
 
 
 def test_a_slow_estimator_may_get_fewer_repeats_if_the_run_says_so(tmp_path, fakes, capsys):
-    table = run(tiny(tmp_path, ("scripted_timing_test", "linear_timing_test"), repeats=4,
-                     repeats_for=(("Scripted_Timing_Test", 2),)))
-    assert dict(zip(table.estimator, table.time_repeats)) == {"scripted_timing_test": 2,
+    # Steady times (Linear's), so neither cell gets more renders than it is given.
+    table = run(tiny(tmp_path, ("blas_probe_timing_test", "linear_timing_test"), repeats=4,
+                     repeats_for=(("Blas_Probe_Timing_Test", 2),)))
+    assert dict(zip(table.estimator, table.time_repeats)) == {"blas_probe_timing_test": 2,
                                                              "linear_timing_test": 4}
-    assert ("fewer timed renders per cell for scripted_timing_test (2) than for the others (4)"
+    assert ("fewer timed renders per cell for blas_probe_timing_test (2) than for the others (4)"
             in capsys.readouterr().err)
     timing = json.loads((tmp_path / "manifest.json").read_text())["timing"]
-    assert timing["repeats"] == {"scripted_timing_test": 2, "linear_timing_test": 4}
-    # Render 0 and 1 of Scripted: (0.5 + 2 + 10, 0.5 + 1 + 30) without the known build: the
-    # median of two is their mean.
-    scripted = table.set_index("estimator").loc["scripted_timing_test"]
-    assert scripted.time_ms == pytest.approx((12.0 + 31.0) / 2 + scripted.time_ms_build)
+    assert timing["repeats"] == {"blas_probe_timing_test": 2, "linear_timing_test": 4}
+    assert len(BlasProbe.log) == 1 + 2   # the warm-up and two timed renders
+    probe = table.set_index("estimator").loc["blas_probe_timing_test"]
+    assert probe.time_ms == pytest.approx(0.7 + 0.013 * 4 + probe.time_ms_build)
 
 
 def test_the_warm_up_pixels_keep_a_specular_pixel_of_a_mostly_diffuse_scene():
