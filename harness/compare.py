@@ -27,7 +27,9 @@ folder or table, no common cell, a bad threshold, a threshold on a metric no com
 
 **Differences.**  compare says when the folders differ in code (the manifest's git revision,
 each paired estimator's ``estimator_version``), device (the rows' ``device``), protocol
-(``protocol``, ``schema_version``, ``metrics``, ``time_repeats``) or configuration (``width``,
+(``protocol``, ``schema_version``, ``metrics``, the manifest's timing ``measure`` and
+``repeats``: a row's ``time_repeats`` varies with the timing spread, so it is no protocol) or
+configuration (``width``,
 ``height``, ``env_res``).  It compares them anyway: the user decides what a difference means;
 times are only meaningful on one device.
 
@@ -56,7 +58,7 @@ REQUIRED_COLUMNS = KEY_COLUMNS + ["estimator_version", "device", "protocol"]
 # (what differs, row column): values compared between the two folders.
 DIFFERENCE_COLUMNS = (("device", "device"), ("protocol", "protocol"),
                       ("protocol", "schema_version"), ("protocol", "metrics"),
-                      ("protocol", "time_repeats"), ("configuration", "width"),
+                      ("configuration", "width"),
                       ("configuration", "height"), ("configuration", "env_res"))
 _THRESHOLD = re.compile(r"^\s*(\w+)\s*([<>])\s*([+-]?\d+(?:\.\d*)?)\s*%\s*$")
 
@@ -150,6 +152,11 @@ def _differences(table_a, table_b, manifest_a, manifest_b, pairs) -> list[str]:
             found.append(f"estimator: {label_a} (A) paired with {label_b} (B) by base name")
         if versions_a != versions_b:
             found.append(f"code: {label_b} estimator_version {versions_a} (A) vs {versions_b} (B)")
+    for key in ("measure", "repeats"):
+        timing_a = manifest_a.get("timing", {}).get(key)
+        timing_b = manifest_b.get("timing", {}).get(key)
+        if timing_a != timing_b:
+            found.append(f"protocol: timing {key} {timing_a} (A) vs {timing_b} (B)")
     for what, column in DIFFERENCE_COLUMNS:
         value_a, value_b = _values(table_a, column), _values(table_b, column)
         if value_a != value_b:
