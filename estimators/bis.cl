@@ -13,7 +13,7 @@ __kernel void render_bis(__global const float4 *normal, __global const float4 *v
      * the last pixel in their own scratch slot and store nothing. */
     int item = get_global_id(0), p = offset + min(item, count - 1);
     vec3_t sum;
-    float z = bis_pixel(normal, view, kd, ks_m, p, 0, 0, 0, 0, 0.0f,   /* Burke: BRDF candidates */
+    float z = bis_pixel(normal, view, kd, ks_m, p, 0, 0, 0, 0.0f,   /* Burke: BRDF candidates */
                         env, res, M, N, seed, frame, (uint)p, GROUP_SCRATCH(weights, M),
                         GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 6), get_local_id(0),
                         get_local_size(0), &sum, 0, 0, 0, 0);
@@ -32,7 +32,7 @@ __kernel void bis_candidates(__global const float4 *normal, __global const float
 {
     int i = get_global_id(0);
     shading_t s = load_shading(normal, view, kd, ks_m, 0);
-    sir_proposal_t q = make_proposal(0, 0, 0, 0, 0.0f);
+    sir_proposal_t q = make_proposal(0, 0, 0, 0.0f);
     vec3_t w, radiance;
     float gamma, power;
     float weight = sir_candidate(&s, &q, env, res, seed, frame, 0u, i, (int)get_global_size(0), &w,
