@@ -105,7 +105,7 @@ inline ulong alias_base_mass(__global const cdf_word_t *cdf, int run, const acc_
 {
     ulong width = cdf[i] - (i % run > 0 ? cdf[i - 1] : 0);
     ulong weight = share ? (ulong)((acc_t)width * share[i / run]) : width;
-    ulong mass = mul_hi(weight, (ulong)n << 41);   /* weight·n·ALIAS_ONE/2^63 for weights of total 2^63 */
+    ulong mass = mul_hi(weight, (ulong)n << 41);   /* weight·n·ALIAS_ONE/2^63: weights total 2^63 */
     return mass > 0 || weight == 0 ? mass : 1;
 }
 
@@ -116,7 +116,8 @@ inline ulong alias_base_mass(__global const cdf_word_t *cdf, int run, const acc_
  * heavy: the bin whose mass fills it, until what it has left is ≤ ALIAS_ONE and it fills its own
  * slot with that, the next heavy bin the rest): each slot is written once, in O(n). */
 inline void build_alias_table(__global const cdf_word_t *cdf, int run, const acc_t *share, int n,
-                              __global ulong *table, __global float *probability, int stride, float scale)
+                              __global ulong *table, __global float *probability, int stride,
+                              float scale)
 {
     ulong total = 0, largest = 0;
     int argmax = 0;
@@ -126,7 +127,7 @@ inline void build_alias_table(__global const cdf_word_t *cdf, int run, const acc
         argmax = mass > largest ? i : argmax;
         largest = max(largest, mass);
     }
-    ulong correction = (ulong)n * ALIAS_ONE - total;   /* modulo 2^64: a negative correction wraps back */
+    ulong correction = (ulong)n * ALIAS_ONE - total;   /* modulo 2^64: a negative one wraps back */
 #define ALIAS_MASS(i) (alias_base_mass(cdf, run, share, n, (i)) + ((i) == argmax ? correction : 0))
     for (int i = 0; i < n; ++i)
         probability[i * stride] = (float)ALIAS_MASS(i) * (scale / (float)n * 0x1p-40f);
@@ -411,7 +412,7 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
                        const int count, const int N, const int M, const float init_env_pick,
                        const int have_state, const uint seed, const uint frame,
                        __global const int *pixels, __global const int *listed_total, const int offset,
-                       __global float *weights, __global acc_t *bounds, __global acc_t *sums,
+                       __global int *chosen, __global acc_t *bounds, __global acc_t *sums,
                        __global float *all_particles, __global float *all_gammas,
                        __global float4 *state, __global float4 *carried_estimate,
                        __global float4 *radiance, __global float2 *counts, __global float4 *stats)
@@ -424,8 +425,8 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
     __global float *particles = all_particles + p, *gammas = all_gammas + p;
     vec3_t sum, candidate_ratio;
     float z = bis_pixel(normal, view, kd, ks_m, p, alias, texels, map_power, init_env_pick,
-                        texels, ENV_RES, M, N, seed, frame, (uint)p, GROUP_SCRATCH(weights, M),
-                        GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 6), get_local_id(0),
+                        texels, ENV_RES, M, N, seed, frame, (uint)p, GROUP_SCRATCH(chosen, N),
+                        GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 3), get_local_id(0),
                         get_local_size(0), &sum,
                         particles, gammas, count, &candidate_ratio);
     if (item >= listed) return;

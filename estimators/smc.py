@@ -197,7 +197,8 @@ class SMC(Estimator):
         defines = {**self.defines(gbuffer), "ENV_RES": cache.res}
         # The map proposal's alias tables (sir.cl) and the map's power, built on the device.
         res = cache.res
-        alias, texels = buffer("alias", (6 * res + 6 * res * res) * 8), buffer("texels", 6 * res * res * 16)
+        alias = buffer("alias", (6 * res + 6 * res * res) * 8)
+        texels = buffer("texels", 6 * res * res * 16)
         pair_probability, map_power = buffer("pair_probability", 6 * res * 4), buffer("map_power", 8)
         table_events = [
             compute.run(compute.kernel(self.kernel_package(), "smc.cl", "map_alias_pairs", defines), 1,
@@ -210,7 +211,8 @@ class SMC(Estimator):
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_advance", defines), count,
                 gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer,
-                self._prev_env, alias, texels, map_power, np.int32(count), np.int32(N), np.int32(p.intermediates + 1), np.float32(p.nu),
+                self._prev_env, alias, texels, map_power, np.int32(count), np.int32(N),
+                np.int32(p.intermediates + 1), np.float32(p.nu),
                 np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
                 np.int32(static_frame), np.uint32(seed), np.uint32(cache.frame), particles, gammas,
                 scratch_p, scratch_g, state, carried_estimate, radiance, counts, stats, flags))
@@ -226,7 +228,8 @@ class SMC(Estimator):
         for offset, pixels, *scratch in bis_chunks(compute, init, count, M, N, buffer):
             events.append(run_lockstep(
                 compute, init, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-                texels, alias, map_power, np.int32(count), np.int32(N), np.int32(M), np.float32(p.init_env_pick),
+                texels, alias, map_power, np.int32(count), np.int32(N), np.int32(M),
+                np.float32(p.init_env_pick),
                 np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), listed, listed_total,
                 np.int32(offset), *scratch, particles, gammas, state, carried_estimate, radiance,
                 counts, stats))
