@@ -185,6 +185,16 @@ __kernel void map_alias_columns(__global const float4 *env, __global const cdf_w
                       pair_probability[pair] * (float)(res * res) / 4.0f);
 }
 
+/* Debug twin for the tests: map draw i of the tables (map_sample on pixel i's words of
+ * STREAM_SMC_MAP_POINT) as the texel that holds its direction. */
+__kernel void map_draws(__global const ulong *alias, const uint seed, __global int *texel)
+{
+    int i = get_global_id(0);
+    sir_proposal_t q = {alias, 0, 1.0f};
+    texel[i] = lane_texel(map_sample(&q, ENV_RES, lane_words2(seed, 0u, STREAM_SMC_MAP_POINT, (uint)i, 0u, 0u)),
+                          ENV_RES);
+}
+
 /* One frame of every pixel that carries state (smc.py steps 2-6).  A pixel that needs a BIS
  * re-init gets reinit[p] = 1 and stats[p] = (smallest ESS, ·, evaluations so far, resamplings);
  * smc_init finishes it.  Every other pixel's outputs are final. */
