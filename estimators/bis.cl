@@ -6,16 +6,16 @@ __kernel void render_bis(__global const float4 *normal, __global const float4 *v
                          __global const float4 *kd, __global const float4 *ks_m,
                          __global const float4 *env, const int res, const int M, const int N,
                          const uint seed, const uint frame, const int offset, const int count,
-                         __global float *weights, __global acc_t *bounds, __global acc_t *sums,
+                         __global int *chosen, __global acc_t *bounds, __global acc_t *sums,
                          __global float4 *radiance, __global float2 *counts)
 {
     /* Pixels offset … offset + count − 1, in whole groups (LOCKSTEP): items past `count` redo
      * the last pixel in their own scratch slot and store nothing. */
     int item = get_global_id(0), p = offset + min(item, count - 1);
     vec3_t sum;
-    float z = bis_pixel(normal, view, kd, ks_m, p, 0, 0, 0, 0, 0.0f,   /* Burke: BRDF candidates */
-                        env, res, M, N, seed, frame, (uint)p, GROUP_SCRATCH(weights, M),
-                        GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 6), get_local_id(0),
+    float z = bis_pixel(normal, view, kd, ks_m, p, 0, 0, 0, 0.0f,   /* Burke: BRDF candidates */
+                        env, res, M, N, seed, frame, (uint)p, GROUP_SCRATCH(chosen, N),
+                        GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 3), get_local_id(0),
                         get_local_size(0), &sum, 0, 0, 0, 0);
     if (item >= count) return;
     radiance[p] = (float4)(z / (float)N * sum.x, z / (float)N * sum.y, z / (float)N * sum.z, 0.0f);
@@ -32,7 +32,7 @@ __kernel void bis_candidates(__global const float4 *normal, __global const float
 {
     int i = get_global_id(0);
     shading_t s = load_shading(normal, view, kd, ks_m, 0);
-    sir_proposal_t q = make_proposal(0, 0, 0, 0, 0.0f);
+    sir_proposal_t q = make_proposal(0, 0, 0, 0.0f);
     vec3_t w, radiance;
     float gamma, power;
     float weight = sir_candidate(&s, &q, env, res, seed, frame, 0u, i, (int)get_global_size(0), &w,

@@ -15,8 +15,9 @@ visibility included in a ray tracer, is evaluated: ``used``); the candidates are
 M = round(spp · M_param / N_param), so the default params (M = 400, N = 20, Kronander's) give
 M = 20·spp and spp = 20 is exactly Kronander's set-up.  ``evaluations`` = M + N per pixel: M
 evaluations of γ at the candidates and N of f at the resampled samples, which is also what
-the kernel computes: it stores the M weights and their cumulative bounds (scratch of 4M + 8M bytes per
-pixel, in launches of at most ``SCRATCH_BYTES``) and regenerates only the N resampled candidates for f.
+the kernel computes: it stores the M weights' cumulative bounds and the N candidates chosen
+(scratch of 8M + 4N bytes per pixel, in launches of at most ``SCRATCH_BYTES``) and regenerates
+only the N resampled candidates for f.
 ``used`` = ``effective`` = N (every resampled sample has γ > 0, so a positive cosine), 0 where
 every candidate weight is 0 (black map above the horizon).
 """
@@ -63,7 +64,8 @@ def systematic_resample(weights, u: float, n: int | None = None) -> np.ndarray:
 
 
 LOCKSTEP_GROUP = 64   # work items per group of a LOCKSTEP kernel (sir.cl): 4 AVX-512 vectors, 2 warps
-SCRATCH_BYTES = 64 << 20   # BIS scratch per launch (M weights, M bounds, 6 sums a pixel); more pixels, more launches
+SCRATCH_BYTES = 64 << 20   # BIS scratch per launch (N chosen, M bounds, 3 sums a pixel); more pixels,
+#                             more launches
 
 
 def lockstep_group(compute, kernel) -> int:
@@ -86,15 +88,15 @@ def run_lockstep(compute, kernel, count: int, *args) -> cl.Event:
 
 def bis_chunks(compute, kernel, count: int, M: int, N: int, empty=None):
     """Split ``count`` pixels into launches whose BIS scratch fits SCRATCH_BYTES: yields
-    (offset, pixels, weights, bounds, sums) with scratch buffers (sir.cl, SIR_SCRATCH_ARGS) sized
+    (offset, pixels, chosen, bounds, sums) with scratch buffers (sir.cl, SIR_SCRATCH_ARGS) sized
     for the padded launch, from ``empty(name, nbytes)`` if given (a caller's reused buffers),
     else newly allocated."""
     group = lockstep_group(compute, kernel)
-    per_launch = max(group, SCRATCH_BYTES // (4 * M + 8 * M + 6 * 8) // group * group)
+    per_launch = max(group, SCRATCH_BYTES // (4 * N + 8 * M + 3 * 8) // group * group)
     size = min(per_launch, max(-(-int(count) // group), 1) * group)
     empty = empty or (lambda name, nbytes: compute.empty(nbytes))
-    scratch = (empty("weights", 4 * M * size), empty("bounds", 8 * M * size),
-               empty("sums", 6 * 8 * size))
+    scratch = (empty("chosen", 4 * N * size), empty("bounds", 8 * M * size),
+               empty("sums", 3 * 8 * size))
     for offset in range(0, int(count), per_launch):
         yield offset, min(per_launch, int(count) - offset), *scratch
 

@@ -8,8 +8,9 @@
  * Kernels per frame: smc_advance (every pixel that carries state: reweight, resample, MH
  * moves, the re-init test, Eq. 7), smc_list_reinit (the list of the pixels it flagged) and
  * smc_init, the BIS (re-)initialisation of the listed pixels (all of them on a first frame), in
- * lockstep groups over their list.  ENV_RES, the map's
- * face size, is a compile-time constant (smc.py defines it), so the CDF searches unroll.
+ * lockstep groups over their list; before them, map_alias_pairs and map_alias_columns build the
+ * map proposal's alias tables of the frame (sir.cl).  ENV_RES, the map's face size, is a
+ * compile-time constant (smc.py defines it).
  * smc_advance still runs one work item per pixel without LOCKSTEP (its loops exit early per
  * pixel), so PoCL does not vectorise it. */
 #include "sir.cl"
@@ -95,15 +96,113 @@ inline void resample_particles(__global float *particles, __global float *gammas
     }
 }
 
+/* ---- the map proposal's alias tables (sir.cl), built each frame --------------------------------- */
+
+/* The integer mass of bin i of a table of n slots (ALIAS_ONE each): its CDF width (the CDF
+ * restarts every `run` bins) times its run's share (null: 1), scaled to n·ALIAS_ONE over the
+ * table and rounded down, and at least 1 where the weight is positive. */
+inline ulong alias_base_mass(__global const cdf_word_t *cdf, int run, const acc_t *share, int n, int i)
+{
+    ulong width = cdf[i] - (i % run > 0 ? cdf[i - 1] : 0);
+    ulong weight = share ? (ulong)((acc_t)width * share[i / run]) : width;
+    ulong mass = mul_hi(weight, (ulong)n << 41);   /* weight·n·ALIAS_ONE/2^63: weights total 2^63 */
+    return mass > 0 || weight == 0 ? mass : 1;
+}
+
+/* The table of n slots of the bins of alias_base_mass, whose masses the largest bin's correction
+ * makes total exactly n·ALIAS_ONE (the correction is the rounding: under n units either way),
+ * and each bin's probability, mass/(n·ALIAS_ONE), times `scale`, in probability[i·stride].
+ * One work item, by a sweep of two cursors (light: the next bin of mass < ALIAS_ONE to fill;
+ * heavy: the bin whose mass fills it, until what it has left is ≤ ALIAS_ONE and it fills its own
+ * slot with that, the next heavy bin the rest): each slot is written once, in O(n). */
+inline void build_alias_table(__global const cdf_word_t *cdf, int run, const acc_t *share, int n,
+                              __global ulong *table, __global float *probability, int stride,
+                              float scale)
+{
+    ulong total = 0, largest = 0;
+    int argmax = 0;
+    for (int i = 0; i < n; ++i) {
+        ulong mass = alias_base_mass(cdf, run, share, n, i);
+        total += mass;
+        argmax = mass > largest ? i : argmax;
+        largest = max(largest, mass);
+    }
+    ulong correction = (ulong)n * ALIAS_ONE - total;   /* modulo 2^64: a negative one wraps back */
+#define ALIAS_MASS(i) (alias_base_mass(cdf, run, share, n, (i)) + ((i) == argmax ? correction : 0))
+    for (int i = 0; i < n; ++i)
+        probability[i * stride] = (float)ALIAS_MASS(i) * (scale / (float)n * 0x1p-40f);
+    int light = 0, heavy = 0;
+    while (light < n && ALIAS_MASS(light) >= ALIAS_ONE) ++light;
+    while (heavy < n && ALIAS_MASS(heavy) < ALIAS_ONE) ++heavy;
+    ulong left = heavy < n ? ALIAS_MASS(heavy) : 0;   /* the heavy bin's mass not given out yet */
+    while (heavy < n) {
+        if (left > ALIAS_ONE && light < n) {
+            ulong mass = ALIAS_MASS(light);
+            table[light] = mass << ALIAS_INDEX_BITS | (ulong)heavy;
+            left -= ALIAS_ONE - mass;
+            do ++light; while (light < n && ALIAS_MASS(light) >= ALIAS_ONE);
+        } else {
+            int next = heavy + 1;
+            while (next < n && ALIAS_MASS(next) < ALIAS_ONE) ++next;
+            /* Exact masses leave the last heavy bin exactly ALIAS_ONE: a full slot. */
+            int full = left >= ALIAS_ONE || next >= n;
+            table[heavy] = full ? (ALIAS_ONE - 1) << ALIAS_INDEX_BITS | (ulong)heavy
+                                : left << ALIAS_INDEX_BITS | (ulong)next;
+            left = next < n ? ALIAS_MASS(next) - (full ? 0 : ALIAS_ONE - left) : 0;
+            heavy = next;
+        }
+    }
+#undef ALIAS_MASS
+}
+
+/* One work item: the pairs' table (face·R + row, P ∝ max(I_f, 0)·P(row|f), the marginal CDFs'
+ * widths) into alias[0 … 6R − 1], the pairs' probabilities, and map_power = (Σ_f max(I_f, 0),
+ * last frame's). */
+__kernel void map_alias_pairs(__global const cdf_word_t *marginal, __global const float *face_integrals,
+                              __global ulong *alias, __global float *pair_probability,
+                              __global float *map_power)
+{
+    acc_t share[6], total = 0;
+    for (int f = 0; f < 6; ++f) total += (acc_t)max(face_integrals[f], 0.0f);
+    for (int f = 0; f < 6; ++f) share[f] = total > 0 ? (acc_t)max(face_integrals[f], 0.0f) / total : 0;
+    build_alias_table(marginal, ENV_RES, share, 6 * ENV_RES, alias, pair_probability, 1, 1.0f);
+    map_power[1] = map_power[0];
+    map_power[0] = (float)total;
+}
+
+/* One work item per pair: its columns' table (P(col|f, row), the conditional CDF's widths) into
+ * alias[6R + pair·R …], and its texels: the map's radiance, and in .w P(pair)·P(col|pair)·R²/4
+ * (map_pdf), so that a candidate's radiance and map density share their cache lines. */
+__kernel void map_alias_columns(__global const float4 *env, __global const cdf_word_t *conditional,
+                                __global const float *pair_probability, __global ulong *alias,
+                                __global float4 *texels)
+{
+    const int res = ENV_RES, pair = get_global_id(0);
+    for (int col = 0; col < res; ++col)
+        texels[pair * res + col] = (float4)(env[pair * res + col].xyz, 0.0f);
+    build_alias_table(conditional + pair * res, res, 0, res, alias + 6 * res + pair * res,
+                      (__global float *)(texels + pair * res) + 3, 4,
+                      pair_probability[pair] * (float)(res * res) / 4.0f);
+}
+
+/* Debug twin for the tests: map draw i of the tables (map_sample on pixel i's words of
+ * STREAM_SMC_MAP_POINT) as the texel that holds its direction. */
+__kernel void map_draws(__global const ulong *alias, const uint seed, __global int *texel)
+{
+    int i = get_global_id(0);
+    sir_proposal_t q = {alias, 0, 1.0f};
+    texel[i] = lane_texel(map_sample(&q, ENV_RES, lane_words2(seed, 0u, STREAM_SMC_MAP_POINT, (uint)i, 0u, 0u)),
+                          ENV_RES);
+}
+
 /* One frame of every pixel that carries state (smc.py steps 2-6).  A pixel that needs a BIS
  * re-init gets reinit[p] = 1 and stats[p] = (smallest ESS, ·, evaluations so far, resamplings);
  * smc_init finishes it.  Every other pixel's outputs are final. */
 __kernel void smc_advance(__global const float4 *normal, __global const float4 *view,
                           __global const float4 *kd, __global const float4 *ks_m,
                           __global const float4 *env, __global const float4 *prev_env,
-                          __global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                          __global const float *faces, const int has_light,
-                          const int count, const int N,
+                          __global const ulong *alias, __global const float4 *texels,
+                          __global const float *map_power, const int count, const int N,
                           const int steps, const float nu, const float cos_delta,
                           const float threshold, const int static_frame, const uint seed,
                           const uint frame, __global float *all_particles, __global float *all_gammas,
@@ -119,12 +218,17 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
     __global float *scratch_p = all_scratch_p + p, *scratch_g = all_scratch_g + p;
 
     /* MH's independent proposals: the map and the BRDF. */
-    sir_proposal_t q_map = make_proposal(marginal, conditional, faces, has_light, 1.0f);
-    sir_proposal_t q_brdf = make_proposal(0, 0, 0, 0, 0.0f);
+    sir_proposal_t q_map = make_proposal(alias, texels, map_power, 1.0f);
+    sir_proposal_t q_brdf = make_proposal(0, 0, 0, 0.0f);
 
     float4 carried = state[p];
     float z_prev = carried.x, z = z_prev, z_count = carried.y;
-    int reinit = !(z_prev > 0.0f && isfinite(z_prev));
+    /* The map-level test (smc.py step 5): the map's power left [1/threshold, threshold]× last
+     * frame's, or turned on or off. */
+    float power = map_power[0], previous = map_power[1];
+    int map_jumped = power > 0.0f && previous > 0.0f
+        ? !(power / previous <= threshold && power / previous >= 1.0f / threshold) : power != previous;
+    int reinit = map_jumped || !(z_prev > 0.0f && isfinite(z_prev));
     float evaluations = 0.0f, ess_min = -1.0f, resampled = 0.0f;
     /* A static frame's independent MH proposals, n_map from the map and n_brdf from the BRDF
      * (fixed by the schedule), give a fresh estimate of Z_t, Σ γ_t(ω)/(n_map p_map(ω) +
@@ -313,13 +417,12 @@ __kernel void smc_list_reinit(__global const int *reinit_flag, const int count, 
  * them); its re-init then counts in stats.y. */
 __kernel void smc_init(__global const float4 *normal, __global const float4 *view,
                        __global const float4 *kd, __global const float4 *ks_m,
-                       __global const float4 *env, __global const cdf_word_t *marginal,
-                       __global const cdf_word_t *conditional, __global const float *faces,
-                       const int has_light,
+                       __global const float4 *texels, __global const ulong *alias,
+                       __global const float *map_power,
                        const int count, const int N, const int M, const float init_env_pick,
                        const int have_state, const uint seed, const uint frame,
                        __global const int *pixels, __global const int *listed_total, const int offset,
-                       __global float *weights, __global acc_t *bounds, __global acc_t *sums,
+                       __global int *chosen, __global acc_t *bounds, __global acc_t *sums,
                        __global float *all_particles, __global float *all_gammas,
                        __global float4 *state, __global float4 *carried_estimate,
                        __global float4 *radiance, __global float2 *counts, __global float4 *stats)
@@ -331,9 +434,9 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
     int item = get_global_id(0), p = pixels[offset + min(item, listed - 1)];
     __global float *particles = all_particles + p, *gammas = all_gammas + p;
     vec3_t sum, candidate_ratio;
-    float z = bis_pixel(normal, view, kd, ks_m, p, marginal, conditional, faces, has_light, init_env_pick,
-                        env, ENV_RES, M, N, seed, frame, (uint)p, GROUP_SCRATCH(weights, M),
-                        GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 6), get_local_id(0),
+    float z = bis_pixel(normal, view, kd, ks_m, p, alias, texels, map_power, init_env_pick,
+                        texels, ENV_RES, M, N, seed, frame, (uint)p, GROUP_SCRATCH(chosen, N),
+                        GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 3), get_local_id(0),
                         get_local_size(0), &sum,
                         particles, gammas, count, &candidate_ratio);
     if (item >= listed) return;

@@ -24,7 +24,9 @@ Per pixel, N weighted particles {ω_i, W_i} (W normalised) approximate the targe
    π_k-reversible MH kernels: a *local* move, ω' uniform in the cone of half-angle
    δ = ``local_degrees`` about ω (symmetric: q(ω→ω') = q(ω'→ω)), accepted with
    a = min(1, π_k(ω')/π_k(ω)); or an *independent* move from the map (face f with probability
-   μ_f = I_f/Σ I, then ``sample_face``: density μ_{f(ω)}·pdf_L(ω|f(ω)) of frame t's CDFs; the
+   μ_f = I_f/Σ I, then a texel by frame t's CDFs and a point uniform in it: density
+   μ_{f(ω)}·pdf_L(ω|f(ω)) of DESIGN §3, drawn by two alias tables built from those CDFs each
+   frame (``sir.cl``; an exact, O(1) draw of the same distribution, not the CDFs' inversion); the
    BRDF on an all-black map) or from the BRDF (p_B, the Phong mixture), accepted with
    a = min(1, π_k(ω')·q(ω) / (π_k(ω)·q(ω'))).  (Kronander's Eq. 6 prints q(ω→ω') in both
    numerator and denominator; the reverse density belongs in the numerator, as here.)
@@ -38,7 +40,8 @@ Per pixel, N weighted particles {ω_i, W_i} (W normalised) approximate the targe
    light went out), or a weighted particle has γ_{t−1} = 0 (guard), or Z_{t−1} = 0 (the pixel
    saw black last frame), the pixel is re-initialised by BIS on frame t (step 1).
    Added to Kronander's per-pixel rule: when the map's total luminance power Σ_f I_f jumps by
-   more than the same threshold between frames, every pixel is re-initialised.  A small light
+   more than the same threshold between frames, every pixel is re-initialised (tested on the
+   device).  A small light
    switching on changes Z by less than ×4 (or not at all) at pixels none of whose particles
    sees it, and Eq. 5 alone never notices it there; the map-level test catches the switch.
 6. **Estimate** (Eq. 7) on a frame whose map changed: L̂ = Z_t Σ_i W_i f(ω_i)/γ_t(ω_i).
@@ -72,11 +75,14 @@ flags those that need a BIS re-init; ``smc_list_reinit`` lists them on the devic
 to the host within a frame); ``smc_init`` runs step 1 for the listed pixels (all of them on a
 first frame) in padded groups, launched over every pixel, its groups past the list returning at
 once: each work item runs its candidates in explicit vectors of 16 lanes, and its other loops
-are vectorised by PoCL across pixels (``sir.cl``, ``lanes.cl``).  The frame's ``shade`` time is
-the sum of the kernels' device time and the copy of the map kept for γ_{t−1}.  Device buffers
-(particles, BIS scratch, outputs) are kept across frames and :meth:`reset`, so a frame allocates
-and first-touches none.  The map proposal's face probabilities and running sums come from the
-host (:func:`face_choice`), in float32, summed as a kernel would.
+are vectorised by PoCL across pixels (``sir.cl``, ``lanes.cl``).  Before them,
+``map_alias_pairs`` and ``map_alias_columns`` build the map proposal's alias tables and the map's
+texels with their density (``sir.cl``) from the frame cache's CDFs and face integrals, and the
+map's power Σ_f max(I_f, 0) beside last frame's, which ``smc_advance`` tests (step 5): nothing of
+the frame is read back before the outputs.  The frame's ``sample`` time is the tables' build, its
+``shade`` time the other kernels' device time and the copy of the map kept for γ_{t−1}.  Device
+buffers (particles, BIS scratch, tables, outputs) are kept across frames and :meth:`reset`, so a
+frame allocates and first-touches none.
 
 Not unbiased (``Tags.unbiased = False``).  An init frame is unbiased, and so is a static
 stretch after it; a continuing frame on a changing map
@@ -103,23 +109,6 @@ import pyopencl as cl
 from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
 from iblbench.estimators.bis import bis_chunks, run_lockstep
 from iblbench.harness.device import event_ms
-
-
-def face_choice(face_integrals) -> tuple[np.ndarray, bool]:
-    """The map proposal's face probabilities μ_f = max(I_f, 0)/Σ max(I, 0) and then their running
-    sums, float32 and added from f = 0 to 5 as a kernel would (sir.cl, make_proposal), and
-    whether the map has any light (Σ > 0)."""
-    weights = np.maximum(np.asarray(face_integrals, np.float32), np.float32(0.0))
-    total = np.float32(0.0)
-    for value in weights:
-        total = np.float32(total + value)
-    mu = weights / total if total > 0 else np.zeros(6, np.float32)
-    running = np.float32(0.0)
-    sums = []
-    for value in mu:
-        running = np.float32(running + value)
-        sums.append(running)
-    return np.concatenate([mu, sums]).astype(np.float32), bool(total > 0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -174,17 +163,7 @@ class SMC(Estimator):
         self._key = None
         self._buffers = None
         self._prev_env = None
-        self._prev_power = None
         self._prev_host_env = None
-
-    def _map_jumped(self, power: float) -> bool:
-        """Did the map's total power leave [1/threshold, threshold]× last frame's?"""
-        previous, threshold = self._prev_power, self.params.reinit_threshold
-        if previous is None:
-            return False
-        if previous <= 0.0 or power <= 0.0:
-            return previous != power
-        return not 1.0 / threshold <= power / previous <= threshold
 
     def defines(self, gbuffer=None) -> dict:
         return specular_lobe_defines(gbuffer)
@@ -199,12 +178,10 @@ class SMC(Estimator):
         N = self.particles(spp)
         M = p.init_candidates * N
         key = (id(gbuffer), gbuffer.count, N, cache.res, int(seed))
-        power = float(np.sum(cache.face_integrals, dtype=np.float64))
-        map_jump = key == self._key and self._map_jumped(power)
-        have_state = key == self._key and not map_jump
+        have_state = key == self._key
         static_frame = have_state and (cache.env is self._prev_host_env
                                        or np.array_equal(cache.env, self._prev_host_env))
-        self._prev_power, self._prev_host_env = power, cache.env
+        self._prev_host_env = cache.env
         count = gbuffer.count
         buffer = functools.partial(self._buffer, compute)
         if not have_state:
@@ -217,18 +194,25 @@ class SMC(Estimator):
         radiance = buffer("radiance", count * 16)
         counts = buffer("counts", count * 8)
         stats = buffer("stats", count * 16)
-        defines = {**self.defines(gbuffer), "ENV_RES": cache.res,
-                   "CDF_STEPS": max(int(cache.res) - 1, 0).bit_length()}   # ⌈log2 R⌉ (lanes.cl)
-        mu_and_sums, has_light = face_choice(cache.face_integrals)
-        faces = compute.to_device(mu_and_sums)
+        defines = {**self.defines(gbuffer), "ENV_RES": cache.res}
+        # The map proposal's alias tables (sir.cl) and the map's power, built on the device.
+        res = cache.res
+        alias = buffer("alias", (6 * res + 6 * res * res) * 8)
+        texels = buffer("texels", 6 * res * res * 16)
+        pair_probability, map_power = buffer("pair_probability", 6 * res * 4), buffer("map_power", 8)
+        table_events = [
+            compute.run(compute.kernel(self.kernel_package(), "smc.cl", "map_alias_pairs", defines), 1,
+                        cache.marginal, cache.face_integral_buffer, alias, pair_probability, map_power),
+            compute.run(compute.kernel(self.kernel_package(), "smc.cl", "map_alias_columns", defines),
+                        6 * res, cache.env_buffer, cache.conditional, pair_probability, alias, texels)]
         events = []
         if have_state:
             flags = buffer("flags", count * 4)
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_advance", defines), count,
                 gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer,
-                self._prev_env, cache.marginal, cache.conditional, faces, np.int32(has_light),
-                np.int32(count), np.int32(N), np.int32(p.intermediates + 1), np.float32(p.nu),
+                self._prev_env, alias, texels, map_power, np.int32(count), np.int32(N),
+                np.int32(p.intermediates + 1), np.float32(p.nu),
                 np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
                 np.int32(static_frame), np.uint32(seed), np.uint32(cache.frame), particles, gammas,
                 scratch_p, scratch_g, state, carried_estimate, radiance, counts, stats, flags))
@@ -244,8 +228,8 @@ class SMC(Estimator):
         for offset, pixels, *scratch in bis_chunks(compute, init, count, M, N, buffer):
             events.append(run_lockstep(
                 compute, init, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-                cache.env_buffer, cache.marginal, cache.conditional, faces, np.int32(has_light),
-                np.int32(count), np.int32(N), np.int32(M), np.float32(p.init_env_pick),
+                texels, alias, map_power, np.int32(count), np.int32(N), np.int32(M),
+                np.float32(p.init_env_pick),
                 np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), listed, listed_total,
                 np.int32(offset), *scratch, particles, gammas, state, carried_estimate, radiance,
                 counts, stats))
@@ -255,10 +239,11 @@ class SMC(Estimator):
         st = compute.to_host(stats, (gbuffer.count, 4), np.float32)
         carried = st[:, 0] >= 0
         estimate = read_estimate(compute, gbuffer, radiance, counts, float(st[:, 2].mean()),
-                                 {"shade": sum(event_ms(e) for e in events)})
+                                 {"sample": sum(map(event_ms, table_events)),
+                                  "shade": sum(map(event_ms, events))})
         estimate.extras = {
             "ess": float(st[carried, 0].mean()) if carried.any() else float("nan"),
-            "reinits": float(gbuffer.count if map_jump else st[:, 1].sum()),
+            "reinits": float(st[:, 1].sum()),
             "resample_steps": float(st[:, 3].mean()),
         }
         return estimate

@@ -167,8 +167,9 @@ CATALOGUE: tuple[Mutant, ...] = (
     _m("smc-estimate-without-normaliser", "estimators/smc.cl",
        "estimate = z * ratio;", "estimate = ratio;", ["smc"], ["smooth-rotation"]),
     _m("smc-init-proposal-pdf-without-map-share", "estimators/sir.cl",
-       "pdf += q->env_pick * GATHER(lanes_t, q->faces, face) * light;",
-       "pdf += GATHER(lanes_t, q->faces, face) * light;", ["smc"], ["constant"]),
+       "pdf += q->env_pick * GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;",
+       "pdf += GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;", ["smc"],
+       ["constant"]),
     # ---- the frame cache --------------------------------------------------------------------
     _m("framecache-luminance-weights-swapped", "harness/framecache.cl",
        "return 0.2126f * texels.s000044448888cccc + 0.7152f * texels.s111155559999dddd",
