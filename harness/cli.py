@@ -544,6 +544,9 @@ def _run(args) -> None:
             print(title)
         print(summary.to_string(float_format=lambda v: f"{v:.4g}"))
     print(f"wrote {len(table)} rows to {args.out}/results.parquet")
+    from iblbench.harness.convergence import flatter_than_tags
+    for flag in flatter_than_tags(table):   # issue 11: convergence flatter than the tags allow
+        print(f"warning: convergence: {flag.text()}", file=sys.stderr)
 
 
 def terminal_summaries(table):

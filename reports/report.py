@@ -5,7 +5,9 @@ colour bar, the sample pictures and copies of the run's PNG previews) lies insid
 and is referenced by a relative path; the page loads no script, stylesheet or font.
 
 Contents, per scene: a summary table (estimator × spp), error against time with the Pareto front,
-convergence against spp, effective samples against spp, error per frame (sequences only), an
+convergence against spp (with a warning where it is flatter than the estimator's tags allow,
+:mod:`iblbench.harness.convergence`), effective samples against spp, FLIP, flicker and smc's
+ess/reinits where the run has them, error per frame at every spp (sequences only), an
 image grid (reference, each estimator at one spp, ΔE76 heat maps with one shared colour bar) and
 Lu 2013 Fig. 1/2's sample picture (:mod:`.sample_picture`); then the run's manifest.
 
@@ -33,11 +35,13 @@ import markupsafe
 import numpy as np
 import pandas as pd
 
+from iblbench.harness.convergence import flatter_than_tags
 from iblbench.harness.equal_time import TOLERANCE
 from iblbench.harness.results import load_table
 from iblbench.harness.stats import cell_intervals, interval_text
 from iblbench.harness.timing import TIME
 from iblbench.reports import plots
+from iblbench.reports.frames import shown_frame
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
@@ -400,7 +404,8 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
                  device: str | None = None) -> dict:
     """Write ``run_dir/report/index.html`` and its images; returns the template context
     (``path`` is the page).  ``spp``/``seed``/``frame`` pick the images shown (default: the
-    largest spp every estimator ran, the run's first seed, each scene's first frame; one the run
+    largest spp every estimator ran, the run's first seed, each sequence's median-luminance frame
+    (:mod:`.frames`); one the run
     lacks is an InputError) and ``pixel`` (x, y) the sample picture's pixel (default: the covered
     pixel nearest the centre)."""
     run_dir = pathlib.Path(run_dir)
@@ -416,6 +421,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
     except OSError as error:
         raise InputError(report, f"cannot create the report directory ({error.strerror})") from None
     cells = summarize(table)
+    convergence = flatter_than_tags(table)
     plots.write_colour_bar(report / "colour_bar.png")
     compute_holder: dict = {}
 
@@ -438,15 +444,17 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         frames = sorted(set(rows.frame))
         if frame is not None and len(frames) > 1:
             _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
-        scene_frame = frame if frame in frames else frames[0]
+        scene_frame, frame_rule = shown_frame(run_dir, scene, frames,
+                                              frame if frame in frames else None)
         grid = image_grid(run_dir, report, table, scene, scene_frame, seed, spp)
         per_frame = None
         if len(frames) > 1:
-            shown = max(grid["spp"]) if grid["spp"] else int(rows.spp.max())
-            data = cell_intervals(rows[rows.spp == shown], ["estimator", "frame"],
+            data = cell_intervals(rows, ["estimator", "spp", "frame"],
                                   ["mean_delta_e76", "rel_mse"]).reset_index()
             per_frame = f"per_frame_{slug}.png"
-            plots.plot_per_frame(report / per_frame, data, scene, shown)
+            plots.plot_per_frame(report / per_frame, data, scene, scene_frame)
+        extras = f"extras_{slug}.png"
+        extra_columns = plots.plot_extras(report / extras, rows, scene)
         try:
             picture = sample_picture(run_dir, report, manifest, table, scene, scene_frame, spp,
                                      pixel, compute)
@@ -458,7 +466,9 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         scenes.append({"name": scene, "slug": slug, "table": summary_html(scene_cells),
                        "equal_time": equal_time_html(timed) if len(timed) else None,
                        "figures": figures, "per_frame": per_frame, "frames": len(frames),
-                       "grid": grid, "picture": picture,
+                       "grid": grid, "picture": picture, "frame_rule": frame_rule,
+                       "extras": extras if extra_columns else None, "extra_columns": extra_columns,
+                       "convergence": [f.text() for f in convergence if f.scene == scene],
                        "estimators": list(dict.fromkeys(rows.estimator)),
                        "spp": sorted(set(int(v) for v in rows.spp))})
     context = {
