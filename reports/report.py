@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
+import re
 import shutil
 
 import jinja2
@@ -497,16 +498,43 @@ def _require_in_run(rows: pd.DataFrame, flag: str, value: int | None, column: st
                                f"{', '.join(map(str, have))})")
 
 
+# Where a browser may break a word: after a hyphen, a dash or a slash.
+_BREAKS_INSIDE = re.compile(r"[-/\u2010-\u2014]")
+
+
+def unbroken_words(text) -> markupsafe.Markup:
+    """``text`` escaped, each word with a hyphen, dash or slash in a ``white-space: nowrap``
+    span, so that lines break only between words (``view-89.94deg-specular-m2-R2`` stays
+    whole); a Jinja filter of the stress page."""
+    parts = re.split(r"(\s+)", "" if text is None else str(text))
+    return markupsafe.Markup("".join(
+        f'<span class="nowrap">{markupsafe.escape(part)}</span>'
+        if _BREAKS_INSIDE.search(part) else str(markupsafe.escape(part)) for part in parts))
+
+
+_TEMPLATES.filters["unbroken"] = unbroken_words
+STRESS_STATUS_CLASSES = {"pass": "pass", "FAIL": "fail", "xfail": "xfail", "XPASS": "xpass",
+                         "n/a": "na"}
+STRESS_NOTES = ("failures", "notes")   # the text columns of a stress row, kept on screen
+
+
 def stress_html(table: pd.DataFrame, cases: list[dict], context: dict) -> str:
-    """The page of ``iblbench stress``: a case × estimator status matrix, every row, the cases
-    (``cases``: dicts of name, guards, variants, z_pixels, notes) and ``context``'s text, in the
-    report's table style."""
-    matrix = table.pivot(index="case", columns="estimator", values="status")
-    matrix = matrix.reindex(index=list(dict.fromkeys(table.case)),
-                            columns=list(dict.fromkeys(table.estimator))).reset_index()
-    matrix.columns.name = None
+    """The page of ``iblbench stress``: a case × estimator status matrix (each cell coloured by
+    its status, "n/a" where the case does not apply to the estimator), every row (its failures
+    and notes in a last column that stays on screen while the figures scroll), the cases
+    (``cases``: dicts of name, guards, variants, z_pixels, notes) and ``context``'s text."""
+    estimators = list(dict.fromkeys(table.estimator))
+    status = dict(zip(zip(table.case, table.estimator), table.status))
+    matrix = [(case, [status.get((case, name), "n/a") for name in estimators])
+              for case in dict.fromkeys(table.case)]
+    figures = [c for c in table.columns if c not in (*STRESS_NOTES, "case", "estimator")]
+    rows = [{"name": f"{row['case']} · {row['estimator']}",
+             "cells": [_number(row[c]) for c in figures], "status": row["status"],
+             **{c: row[c] if isinstance(row.get(c), str) else "" for c in STRESS_NOTES}}
+            for _, row in table.iterrows()]
     return _TEMPLATES.get_template("stress.html.j2").render(
-        matrix=_frame_html(matrix.fillna("")), table=_frame_html(table), cases=cases, **context)
+        estimators=estimators, matrix=matrix, header=figures, rows=rows,
+        status_class=STRESS_STATUS_CLASSES, cases=cases, **context)
 
 
 __all__ = ["load_run", "summarize", "write_report", "choose_spp", "scene_inputs", "default_pixel",
