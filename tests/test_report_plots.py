@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import pathlib
+import shutil
 
 import numpy as np
 import pandas as pd
@@ -141,3 +142,25 @@ def test_the_report_of_a_sequence_plots_the_extras_and_every_spp_per_frame(smc_s
     assert means[scene["grid"]["frame"]] == sorted(means.values())[1]
     assert scene["grid"]["frame"] != 9                     # the light is off in the first frame
     assert f"Frame {scene['grid']['frame']} (the frame whose reference has the median" in page
+
+
+def test_the_report_warns_where_convergence_is_flatter_than_the_tags_allow(smc_sequence, tmp_path):
+    # uniform (unbiased) with a relMSE that does not fall from 4 to 16 spp (seeds 0.1 and 0.1001
+    # at both): flagged on the page, under the convergence plot.
+    out, _ = smc_sequence
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    table = pd.read_parquet(copy / "results.parquet")
+    flat = table.estimator == "uniform"
+    table.loc[flat, "rel_mse"] = 0.1 + 1e-4 * table.loc[flat, "seed"]
+    table.to_parquet(copy / "results.parquet", index=False)
+    context = write_report(copy)
+    (scene,) = context["scenes"]
+    assert len(scene["convergence"]) == 1
+    assert scene["convergence"][0].startswith("uniform on sphere-switch: relMSE 0.1 → 0.1 from 4 "
+                                              "to 16 spp")
+    page = context["path"].read_text(encoding="utf-8")
+    convergence = page.index("<h3>Convergence</h3>")
+    warning = page.index("<p class=\"warn\">Convergence flatter than the estimator's tags allow: "
+                         "uniform on sphere-switch")
+    assert convergence < warning < page.index("<h3>Effective samples</h3>")
