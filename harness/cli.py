@@ -590,6 +590,9 @@ def _run(args) -> None:
             print(title, file=human)
         print(summary.to_string(float_format=lambda v: f"{v:.4g}"), file=human)
     print(f"wrote {len(table)} rows to {args.out}/results.parquet", file=human)
+    from iblbench.harness.convergence import flatter_than_tags
+    for flag in flatter_than_tags(table):   # issue 11: convergence flatter than the tags allow
+        print(f"warning: convergence: {flag.text()}", file=sys.stderr)
     if args.json:
         _print_json(run_summary(runner.sweep_rows(table), args.out, read_manifest(args.out)))
 

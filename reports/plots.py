@@ -1,5 +1,6 @@
 """Plots of the benchmark report (matplotlib, Agg): error against time with the Pareto front,
-convergence against spp, effective samples, error per frame, and the ΔE colour bar.
+convergence against spp, effective samples, error per frame at every spp, FLIP, flicker and
+smc's ess and reinits where a run has them, and the ΔE colour bar.
 
 Every plot takes the per-cell summary of one scene (``summary`` from :mod:`.report`: one row per
 (estimator, spp) with ``time_ms`` (the cell's device time per frame), ``rel_mse``, ``mean_delta_e76``, ``used_samples``,
@@ -18,7 +19,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
-from iblbench.harness.stats import MeanCI, separated  # noqa: E402
+from iblbench.harness.stats import MeanCI, cell_intervals, separated  # noqa: E402
+from iblbench.harness.timing import TIME  # noqa: E402
 from iblbench.reports.previews import HEAT_CMAP, HEAT_MAX  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
 
@@ -232,24 +234,102 @@ def plot_effective(path: pathlib.Path, summary, scene: str) -> None:
     _save(fig, path)
 
 
-def plot_per_frame(path: pathlib.Path, per_frame, scene: str, spp: int) -> None:
-    """Mean ΔE76 and relMSE per frame of a sequence (mean over seeds, with its interval) at
-    ``spp``."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+def plot_per_frame(path: pathlib.Path, per_frame, scene: str, shown: int) -> None:
+    """Mean ΔE76 and relMSE per frame of a sequence (mean over seeds, with its interval), a row
+    of panels per spp (``per_frame``: one row per estimator, spp and frame), the frame ``shown``
+    in the report's images marked."""
+    levels = sorted({int(v) for v in per_frame.spp})
     colours = _colours(per_frame)
-    for ax, (column, label) in zip(axes, ERRORS):
-        for name in _estimators(per_frame):
-            rows = per_frame[per_frame.estimator == name].sort_values("frame")
-            _errorbar(ax, rows, "frame", column, ".-", colours[name], name)
-        ax.set_yscale("log")
-        _plain_log_axes(ax, "y")
+    fig, axes = plt.subplots(len(levels), 2, figsize=(11, 1.2 + 2.8 * len(levels)), sharex=True,
+                             squeeze=False, layout="constrained")
+    for spp, row in zip(levels, axes):
+        cells = per_frame[per_frame.spp == spp]
+        for ax, (column, label) in zip(row, ERRORS):
+            for name in _estimators(per_frame):
+                rows = cells[cells.estimator == name].sort_values("frame")
+                if len(rows):
+                    _errorbar(ax, rows, "frame", column, ".-", colours[name], name)
+            ax.axvline(shown, color="grey", lw=1, ls="--",
+                       label=f"frame {shown}, shown in the images")
+            ax.set_yscale("log")
+            _plain_log_axes(ax, "y")
+            ax.set_title(f"{spp} spp", fontsize=9, loc="left")
+            ax.set_ylabel(label, fontsize=8)
+            ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+            ax.grid(True, which="both", alpha=0.3)
+    for ax in axes[-1]:
         ax.set_xlabel("frame (index in the sequence)")
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=2,
+                  frameon=False)
+    fig.suptitle(f"{scene}: error per frame at every spp")
+    _save(fig, path)
+
+
+# Per-frame scalars a run may hold beside the errors (column → name, axis label, log axis):
+# each is plotted where any row has it, against spp, and FLIP, an error, against time too.
+EXTRAS = {
+    "flip": ("FLIP", "HDR-FLIP (mean over covered pixels, 0–1)", True),
+    "flicker": ("flicker", "flicker: mean |change of ΔE76| between\nconsecutive frames "
+                           "(CIELAB units)", True),
+    "ess": ("smc's ESS", "smc: smallest ESS before resampling\n(particles, mean over carried "
+                         "pixels)", True),
+    "reinits": ("smc's re-inits", "smc: pixels re-initialised per frame", False),
+}
+
+
+def extra_cells(rows, column: str):
+    """Per (estimator, spp) of one scene's ``rows`` the mean over seeds of ``column`` and of
+    ``time_ms`` with their intervals, each seed's value the mean over the frames where the
+    column is defined (flicker is NaN on a first frame, smc's ess on an init frame); None when
+    no row has it."""
+    if column not in rows or rows[column].isna().all():
+        return None
+    defined = rows[rows[column].notna()]
+    return cell_intervals(defined, ["estimator", "spp"], [column, TIME]).reset_index()
+
+
+def plot_extras(path: pathlib.Path, rows, scene: str) -> list[str]:
+    """FLIP, flicker, ess and reinits (``EXTRAS``, those ``rows`` have) against spp with their
+    intervals, FLIP also against device time; nothing is written when ``rows`` have none.
+    Returns the names (``EXTRAS``) of those plotted."""
+    cells = {column: extra_cells(rows, column) for column in EXTRAS}
+    cells = {column: c for column, c in cells.items() if c is not None}
+    panels = [(column, "spp") for column in cells]
+    if "flip" in cells:
+        panels.insert(1, ("flip", TIME))
+    if not panels:
+        return []
+    colours = _colours(rows)
+    columns = min(len(panels), 2)
+    count = -(-len(panels) // columns)
+    fig, axes = plt.subplots(count, columns, figsize=(11, 0.4 + 4.2 * count), squeeze=False,
+                             layout="constrained")
+    for ax, (column, x) in zip(axes.flat, panels):
+        _, label, log = EXTRAS[column]
+        data = cells[column]
+        for name in _estimators(data):
+            shown = data[data.estimator == name].sort_values("spp")
+            _errorbar(ax, shown, x, column, "o-", colours[name], name, x_interval=x == TIME,
+                      log=log)
+        ax.set_xscale("log")
+        if log:
+            ax.set_yscale("log")
+            _plain_log_axes(ax, "y")
+        if x == TIME:
+            _plain_log_axes(ax, "x")
+            ax.set_xlabel("device time per frame (ms: build + sample + shade)")
+        else:
+            _spp_ticks(ax, data.spp)
+            ax.set_xlabel("samples per pixel (spp)")
         ax.set_ylabel(label)
-        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
         ax.grid(True, which="both", alpha=0.3)
         _legend(ax)
-    fig.suptitle(f"{scene}: error per frame at {spp} spp")
+    for ax in axes.flat[len(panels):]:
+        ax.remove()
+    names = [EXTRAS[column][0] for column in cells]
+    fig.suptitle(f"{scene}: {', '.join(names)} (mean over seeds, 95% intervals)")
     _save(fig, path)
+    return names
 
 
 def write_colour_bar(path: pathlib.Path) -> None:

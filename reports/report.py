@@ -6,10 +6,12 @@ and is referenced by a relative path; the page loads no script, stylesheet or fo
 script, the compare viewer's, and its stylesheet are inline).
 
 Contents, per scene: the summary (estimator × spp) in two tables, errors and samples/time, error
-against time with the Pareto front, convergence against spp, effective samples against spp,
-error per frame (sequences only), an image grid (reference, each estimator at one spp, ΔE76 heat
-maps on the shared log scale of :mod:`.previews` with its colour bar), a compare viewer (any two
-of the frame's images, A left and B right of a divider moved by a slider; a toggle that shows the
+against time with the Pareto front, convergence against spp (with a warning where it is flatter
+than the estimator's tags allow, :mod:`iblbench.harness.convergence`), effective samples against
+spp, FLIP, flicker and smc's ess/reinits where the run has them, error per frame at every spp
+(sequences only), an image grid (reference, each estimator at one spp, ΔE76 heat maps on the
+shared log scale of :mod:`.previews` with its colour bar), a compare viewer (any two of the
+frame's images, A left and B right of a divider moved by a slider; a toggle that shows the
 reference on both sides; a click zooms on the crop around the point) and Lu 2013 Fig. 1/2's
 sample picture (:mod:`.sample_picture`); then the run's manifest.
 
@@ -40,12 +42,14 @@ import markupsafe
 import numpy as np
 import pandas as pd
 
+from iblbench.harness.convergence import flatter_than_tags
 from iblbench.harness.equal_time import TOLERANCE
 from iblbench.harness.results import load_table
 from iblbench.harness.stats import cell_intervals, interval_text, mean_ci
 from iblbench.harness.timing import TIME
 from iblbench.reports import plots
 from iblbench.reports.previews import HEAT_SCALE, heat_scale
+from iblbench.reports.frames import shown_frame
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
@@ -465,7 +469,8 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
                  device: str | None = None) -> dict:
     """Write ``run_dir/report/index.html`` and its images; returns the template context
     (``path`` is the page).  ``spp``/``seed``/``frame`` pick the images shown (default: the
-    largest spp every estimator ran, the run's first seed, each scene's first frame; one the run
+    largest spp every estimator ran, the run's first seed, each sequence's median-luminance frame
+    (:mod:`.frames`); one the run
     lacks is an InputError) and ``pixel`` (x, y) the sample picture's pixel (default: the covered
     pixel nearest the centre)."""
     run_dir = pathlib.Path(run_dir)
@@ -481,6 +486,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
     except OSError as error:
         raise InputError(report, f"cannot create the report directory ({error.strerror})") from None
     cells = summarize(table)
+    convergence = flatter_than_tags(table)
     plots.write_colour_bar(report / "colour_bar.png")
     compute_holder: dict = {}
 
@@ -503,15 +509,17 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         frames = sorted(set(rows.frame))
         if frame is not None and len(frames) > 1:
             _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
-        scene_frame = frame if frame in frames else frames[0]
+        scene_frame, frame_rule = shown_frame(run_dir, scene, frames,
+                                              frame if frame in frames else None)
         grid = image_grid(run_dir, report, table, cells, scene, scene_frame, seed, spp)
         per_frame = None
         if len(frames) > 1:
-            shown = max(grid["spp"]) if grid["spp"] else int(rows.spp.max())
-            data = cell_intervals(rows[rows.spp == shown], ["estimator", "frame"],
+            data = cell_intervals(rows, ["estimator", "spp", "frame"],
                                   ["mean_delta_e76", "rel_mse"]).reset_index()
             per_frame = f"per_frame_{slug}.png"
-            plots.plot_per_frame(report / per_frame, data, scene, shown)
+            plots.plot_per_frame(report / per_frame, data, scene, scene_frame)
+        extras = f"extras_{slug}.png"
+        extra_columns = plots.plot_extras(report / extras, rows, scene)
         try:
             picture = sample_picture(run_dir, report, manifest, table, scene, scene_frame, spp,
                                      pixel, compute)
@@ -523,7 +531,9 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         scenes.append({"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
                        "equal_time": equal_time_html(timed) if len(timed) else None,
                        "figures": figures, "per_frame": per_frame, "frames": len(frames),
-                       "grid": grid, "picture": picture,
+                       "grid": grid, "picture": picture, "frame_rule": frame_rule,
+                       "extras": extras if extra_columns else None, "extra_columns": extra_columns,
+                       "convergence": [f.text() for f in convergence if f.scene == scene],
                        "estimators": list(dict.fromkeys(rows.estimator)),
                        "spp": sorted(set(int(v) for v in rows.spp))})
     context = {
@@ -552,16 +562,43 @@ def _require_in_run(rows: pd.DataFrame, flag: str, value: int | None, column: st
                                f"{', '.join(map(str, have))})")
 
 
+# Where a browser may break a word: after a hyphen, a dash or a slash.
+_BREAKS_INSIDE = re.compile(r"[-/\u2010-\u2014]")
+
+
+def unbroken_words(text) -> markupsafe.Markup:
+    """``text`` escaped, each word with a hyphen, dash or slash in a ``white-space: nowrap``
+    span, so that lines break only between words (``view-89.94deg-specular-m2-R2`` stays
+    whole); a Jinja filter of the stress page."""
+    parts = re.split(r"(\s+)", "" if text is None else str(text))
+    return markupsafe.Markup("".join(
+        f'<span class="nowrap">{markupsafe.escape(part)}</span>'
+        if _BREAKS_INSIDE.search(part) else str(markupsafe.escape(part)) for part in parts))
+
+
+_TEMPLATES.filters["unbroken"] = unbroken_words
+STRESS_STATUS_CLASSES = {"pass": "pass", "FAIL": "fail", "xfail": "xfail", "XPASS": "xpass",
+                         "n/a": "na"}
+STRESS_NOTES = ("failures", "notes")   # the text columns of a stress row, kept on screen
+
+
 def stress_html(table: pd.DataFrame, cases: list[dict], context: dict) -> str:
-    """The page of ``iblbench stress``: a case × estimator status matrix, every row, the cases
-    (``cases``: dicts of name, guards, variants, z_pixels, notes) and ``context``'s text, in the
-    report's table style."""
-    matrix = table.pivot(index="case", columns="estimator", values="status")
-    matrix = matrix.reindex(index=list(dict.fromkeys(table.case)),
-                            columns=list(dict.fromkeys(table.estimator))).reset_index()
-    matrix.columns.name = None
+    """The page of ``iblbench stress``: a case × estimator status matrix (each cell coloured by
+    its status, "n/a" where the case does not apply to the estimator), every row (its failures
+    and notes in a last column that stays on screen while the figures scroll), the cases
+    (``cases``: dicts of name, guards, variants, z_pixels, notes) and ``context``'s text."""
+    estimators = list(dict.fromkeys(table.estimator))
+    status = dict(zip(zip(table.case, table.estimator), table.status))
+    matrix = [(case, [status.get((case, name), "n/a") for name in estimators])
+              for case in dict.fromkeys(table.case)]
+    figures = [c for c in table.columns if c not in (*STRESS_NOTES, "case", "estimator")]
+    rows = [{"name": f"{row['case']} · {row['estimator']}",
+             "cells": [_number(row[c]) for c in figures], "status": row["status"],
+             **{c: row[c] if isinstance(row.get(c), str) else "" for c in STRESS_NOTES}}
+            for _, row in table.iterrows()]
     return _TEMPLATES.get_template("stress.html.j2").render(
-        matrix=_frame_html(matrix.fillna("")), table=_frame_html(table), cases=cases, **context)
+        estimators=estimators, matrix=matrix, header=figures, rows=rows,
+        status_class=STRESS_STATUS_CLASSES, cases=cases, **context)
 
 
 __all__ = ["load_run", "summarize", "write_report", "choose_spp", "scene_inputs", "default_pixel",
