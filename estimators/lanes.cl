@@ -183,6 +183,19 @@ ALWAYS_INLINE lanes_t lanes_cdf_bin_position(__global const cdf_word_t *cdf, lan
     return clamp(convert_lanes(u - lower) / convert_lanes(upper - lower), 0.0f, 0x1.fffffep-1f);
 }
 
+/* The unit direction through face-plane point (x, y) of each lane's face: lane_face_dir,
+ * normalised. */
+ALWAYS_INLINE lanes3_t lanes_face_direction(lane_ints_t face, lanes_t x, lanes_t y)
+{
+    lanes_t sign = select((lanes_t)1.0f, (lanes_t)-1.0f, (face & 1) != 0);
+    lane_ints_t x_major = face < 2, y_major = (face == 2) | (face == 3);
+    lanes_t dx = select(select(sign * x, x, y_major), sign, x_major);
+    lanes_t dy = select(-y, sign, y_major);
+    lanes_t dz = select(select(sign, sign * y, y_major), -sign * x, x_major);
+    lanes_t k = 1.0f / sqrt(dx * dx + dy * dy + dz * dz);   /* vec3_normalize */
+    return make_lanes3(dx * k, dy * k, dz * k);
+}
+
 /* lane_sample_face's direction for the lanes' faces and 63-bit points (ux, uy); *texel gets the
  * texel drawn and *p_texel its probability, lanes_light_pdf's product of the two bins, so a
  * caller whose direction falls back into that texel needs no second look-up of the CDFs. */
@@ -200,14 +213,7 @@ ALWAYS_INLINE lanes3_t lanes_sample_face(__global const cdf_word_t *marginal,
     lanes_t y = -1.0f + 2.0f * (convert_lanes(row) + lanes_cdf_bin_position(marginal, rows, row, ux, &row_bin)) / (float)res;
     *texel = cols + col;
     *p_texel = row_bin * col_bin;
-    /* lane_face_dir */
-    lanes_t sign = select((lanes_t)1.0f, (lanes_t)-1.0f, (face & 1) != 0);
-    lane_ints_t x_major = face < 2, y_major = (face == 2) | (face == 3);
-    lanes_t dx = select(select(sign * x, x, y_major), sign, x_major);
-    lanes_t dy = select(-y, sign, y_major);
-    lanes_t dz = select(select(sign, sign * y, y_major), -sign * x, x_major);
-    lanes_t k = 1.0f / sqrt(dx * dx + dy * dy + dz * dz);   /* vec3_normalize */
-    return make_lanes3(dx * k, dy * k, dz * k);
+    return lanes_face_direction(face, x, y);
 }
 
 #endif
