@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
-from iblbench.estimators.light_pool import HOOK_SPP, MAX_SPP, TICKS_PER_SAMPLE
+from iblbench.estimators.light_pool import HOOK_SPP, MAX_SPP, TICKS_PER_SAMPLE, hook_surface
 from iblbench.harness.device import event_ms
 
 POOL_LANES = 16   # directions per work item of the χ² hooks (light_pool.cl)
@@ -73,22 +73,19 @@ class MapSampler(Estimator):
 
     # ---- χ² hooks ----------------------------------------------------------------------------
 
-    def _surface(self, cache, normal, view, kd=0.5, ks=0.3, shininess=20.0):
-        surface = np.zeros((4, 4), np.float32)
-        surface[0, :3] = normal / np.linalg.norm(normal)
-        surface[1, :3] = view / np.linalg.norm(view)
-        surface[2, :3], surface[3, :3], surface[3, 3] = kd, ks, shininess
-        return cache.compute.to_device(surface)
-
     def sample_directions(self, cache, normal, view, n, seed):
         """``n`` directions ``[n, 3]`` distributed as all the samples the estimator draws for one
         pixel at ``HOOK_SPP`` pooled ((t_L p_L + t_B p_B)/(t_L + t_B)), and that density.  The
-        material is the conformance suite's glossy one (kd 0.5, ks 0.3, m 20)."""
+        material is the conformance suite's glossy one (kd 0.5, ks 0.3, m 20).  None on an
+        all-black map, as the pool estimators' hooks: every sample there weighs 0."""
         compute = cache.compute
+        cache.require(("cdf",))
+        if not np.any(cache.face_integrals > 0):
+            return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
         groups = -(-n // POOL_LANES)
         marginal, conditional, _ = self._light_cdfs(cache)
         out = compute.empty(4 * groups * POOL_LANES * 4)
-        compute.run(self._kernel(compute, "map_directions"), groups, self._surface(cache, normal, view),
+        compute.run(self._kernel(compute, "map_directions"), groups, hook_surface(cache, normal, view),
                     marginal, conditional, np.int32(cache.res), np.int32(HOOK_SPP), np.uint32(seed), out)
         planes = compute.to_host(out, (4, groups * POOL_LANES), np.float32)[:, :n]
         return np.ascontiguousarray(planes[:3].T), planes[3].copy()
@@ -102,7 +99,7 @@ class MapSampler(Estimator):
         planes[2, n:] = 1.0   # padding: any unit direction
         marginal, conditional, _ = self._light_cdfs(cache)
         out = compute.empty(groups * POOL_LANES * 4)
-        compute.run(self._kernel(compute, "map_direction_pdf"), groups, self._surface(cache, normal, view),
+        compute.run(self._kernel(compute, "map_direction_pdf"), groups, hook_surface(cache, normal, view),
                     marginal, conditional, np.int32(cache.res), np.int32(HOOK_SPP),
                     compute.to_device(planes), out)
         return compute.to_host(out, (groups * POOL_LANES,), np.float32)[:n]

@@ -27,6 +27,16 @@ MAX_SPP = 2 ** 31 // TICKS_PER_SAMPLE - 1
 HOOK_SPP = 64              # budget whose split the χ² hooks sample
 
 
+def hook_surface(cache, normal, view, kd=0.5, ks=0.3, shininess=20.0):
+    """The χ² hooks' one pixel on the device: rows normal, view, kd, (ks, m) of float4, the
+    material the conformance suite's glossy one."""
+    surface = np.zeros((4, 4), np.float32)
+    surface[0, :3] = normal / np.linalg.norm(normal)
+    surface[1, :3] = view / np.linalg.norm(view)
+    surface[2, :3], surface[3, :3], surface[3, 3] = kd, ks, shininess
+    return cache.compute.to_device(surface)
+
+
 @dataclasses.dataclass(frozen=True)
 class PoolParams:
     """Parameters of the pool estimators.
@@ -111,13 +121,6 @@ class PoolEstimator(Estimator):
 
     # ---- χ² hooks and the per-normal split ---------------------------------------------------
 
-    def _surface(self, cache, normal, view, kd=0.5, ks=0.3, shininess=20.0):
-        surface = np.zeros((4, 4), np.float32)
-        surface[0, :3] = normal / np.linalg.norm(normal)
-        surface[1, :3] = view / np.linalg.norm(view)
-        surface[2, :3], surface[3, :3], surface[3, 3] = kd, ks, shininess
-        return cache.compute.to_device(surface)
-
     def sample_directions(self, cache, normal, view, n, seed):
         """``n`` directions ``[n, 3]`` distributed as all the samples the estimator draws for
         one pixel pooled (Σ_k N_k p_k / Σ_k N_k over its strategies), and that density.
@@ -128,7 +131,7 @@ class PoolEstimator(Estimator):
         if not np.any(cache.face_integrals > 0):   # an all-black map has nothing to sample
             return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
         out = compute.empty(n * 16)
-        compute.run(self._kernel(compute, "pooled_directions"), n, self._surface(cache, normal, view),
+        compute.run(self._kernel(compute, "pooled_directions"), n, hook_surface(cache, normal, view),
                     cdfs.marginal, cdfs.conditional, cdfs.face_integral, np.int32(cache.res),
                     np.int32(HOOK_SPP), np.uint32(seed), out)
         samples = compute.to_host(out, (n, 4), np.float32)
@@ -141,7 +144,7 @@ class PoolEstimator(Estimator):
         padded[:, :3] = dirs
         out = compute.empty(n * 4)
         cdfs = self.light_cdfs(cache)
-        compute.run(self._kernel(compute, "pooled_direction_pdf"), n, self._surface(cache, normal, view),
+        compute.run(self._kernel(compute, "pooled_direction_pdf"), n, hook_surface(cache, normal, view),
                     cdfs.marginal, cdfs.conditional, cdfs.face_integral, np.int32(cache.res),
                     np.int32(HOOK_SPP), compute.to_device(padded), out)
         return compute.to_host(out, (n,), np.float32)
