@@ -133,7 +133,7 @@ class EnvmapParams:
         if self.mis_compensation and self.mis == "none":
             raise ValueError("mis_compensation needs MIS with BRDF samples (mis = \"brdf\"): "
                              "compensation without MIS only moves light samples to where "
-                             "nothing else samples (Karlík et al. 2019 Sec. 4; Mitsuba 3 PR #484)")
+                             "nothing else samples (Karlík et al. 2019; Mitsuba 3 PR #484)")
 
 
 class Envmap(MapSampler):
