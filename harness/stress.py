@@ -511,6 +511,17 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {
 }
 
 
+# (case, estimator) cells whose z-test the reach model leaves without a pixel at the quick size,
+# with the reason (tests/test_stress.py asks every other unbiased cell for a z-tested pixel).
+NO_Z_PIXELS: dict[tuple[str, str], str] = {
+    ("one-sample", "envmap"): "its one light draw per pixel spreads over the whole map, where the "
+                              "pool estimators draw one per lit face (6 draws at β = 1/6): every "
+                              "texel is rare over 200 seeds; conformance z-tests it at 8 spp",
+    ("huge-faces", "envmap"): "8 light draws over 6·1024² texels, where the pool estimators draw "
+                              "2 per face: every texel block is rare over 200 seeds",
+}
+
+
 # ---- one variant, prepared once for every estimator ------------------------------------------
 
 def gbuffer_invalid(gbuffer: GBuffer) -> int:
