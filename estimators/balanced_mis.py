@@ -1,8 +1,28 @@
 """``balanced_mis``: Lu 2013's balanced light sampling combined with BRDF sampling (Eq. 6)."""
 from __future__ import annotations
 
+import dataclasses
+
 from iblbench.estimators.base import specular_lobe_defines
-from iblbench.estimators.light_pool import PoolEstimator
+from iblbench.estimators.light_pool import PoolEstimator, PoolParams
+
+
+@dataclasses.dataclass(frozen=True)
+class BalancedMISParams(PoolParams):
+    """``shared_sequence``: see :class:`~iblbench.estimators.light_pool.PoolParams`.
+
+    ``mis_compensation`` (default False, the paper's estimator): MIS compensation (Karlík et al.
+    2019, "MIS compensation: optimizing sampling techniques in multiple importance sampling",
+    SIGGRAPH Asia 2019).  The light side, per-face CDFs and the face integrals I_f of Eq. 3 alike,
+    is built from the weights max(Y − Ȳ, min(Ȳ/1000, Y))·Ω instead of Y·Ω (pbrt-v4's
+    ``ImageInfiniteLight`` form; ``FrameCache.light_cdfs`` says why not Mitsuba 3's
+    max(Y − Ȳ, 0)), so μ_f(n) follows the compensated integrals and the pool is drawn from the
+    compensated CDFs; the denominators of Eq. 6 use the same compensated pdf_L, so the estimator
+    is the balance heuristic over the compensated strategies and stays unbiased (every lit texel
+    keeps a positive light pdf, and BRDF samples cover every direction the BRDF reaches).
+    """
+
+    mis_compensation: bool = False
 
 
 class BalancedMIS(PoolEstimator):
@@ -30,11 +50,18 @@ class BalancedMIS(PoolEstimator):
     estimators, see ``PoolEstimator.pool_size``).
 
     All-diffuse G-buffers build the kernel with the specular-lobe sampling branch compiled out.
+    With ``mis_compensation`` (see :class:`BalancedMISParams`) the light CDFs, integrals and
+    pool are the compensated ones; their build counts in the ``sample`` stage.
     """
 
     name = "balanced_mis"
+    Params = BalancedMISParams
     kernel_files = ("balanced_mis.cl",)
     brdf_samples = True
+
+    @property
+    def mis_compensated(self) -> bool:
+        return self.params.mis_compensation
 
     def defines(self, gbuffer=None) -> dict:
         return specular_lobe_defines(gbuffer)

@@ -27,6 +27,16 @@ MAX_SPP = 2 ** 31 // TICKS_PER_SAMPLE - 1
 HOOK_SPP = 64              # budget whose split the χ² hooks sample
 
 
+def hook_surface(cache, normal, view, kd=0.5, ks=0.3, shininess=20.0):
+    """The χ² hooks' one pixel on the device: rows normal, view, kd, (ks, m) of float4, the
+    material the conformance suite's glossy one."""
+    surface = np.zeros((4, 4), np.float32)
+    surface[0, :3] = normal / np.linalg.norm(normal)
+    surface[1, :3] = view / np.linalg.norm(view)
+    surface[2, :3], surface[3, :3], surface[3, 3] = kd, ks, shininess
+    return cache.compute.to_device(surface)
+
+
 @dataclasses.dataclass(frozen=True)
 class PoolParams:
     """Parameters of the pool estimators.
@@ -73,11 +83,18 @@ class PoolEstimator(Estimator):
     def _kernel(self, compute, name: str, gbuffer=None):
         return compute.kernel(self.kernel_package(), self.kernel_files[0], name, self.defines(gbuffer))
 
+    mis_compensated = False   # True where the light CDFs are MIS-compensated (balanced_mis)
+
+    def light_cdfs(self, cache):
+        """The light CDFs the kernels read (FrameCache.light_cdfs)."""
+        return cache.light_cdfs(self.mis_compensated)
+
     def render(self, gbuffer, cache, spp, seed):
         if not 1 <= spp <= MAX_SPP:
             raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
         compute = cache.compute
-        pool = cache.light_pool(self.pool_size(spp), seed)
+        cdfs = self.light_cdfs(cache)
+        pool = cache.light_pool(self.pool_size(spp), seed, self.mis_compensated)
         plane = 12 * pool.per_face + 16   # POOL_PLANE_STRIDE (light_pool.cl)
         planes = compute.empty(7 * plane * 4)
         events = [compute.run(self._kernel(compute, "pool_planes"), plane, pool.dir_pdf, pool.radiance,
@@ -94,22 +111,15 @@ class PoolEstimator(Estimator):
         evaluations = compute.empty(gbuffer.count * 4)
         event = compute.run(
             kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-            cache.env_buffer, cache.marginal, cache.conditional, cache.face_integral_buffer,
+            cache.env_buffer, cdfs.marginal, cdfs.conditional, cdfs.face_integral,
             planes, np.int32(cache.res), np.int32(pool.per_face),
             np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),
             np.uint32(cache.frame), numbers, radiance, counts, evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean()
         return read_estimate(compute, gbuffer, radiance, counts, mean_evaluations,
-                             {"sample": pool.build_ms + sum(map(event_ms, events)), "shade": event_ms(event)}, planar=True)
+                             {"sample": cdfs.build_ms + pool.build_ms + sum(map(event_ms, events)), "shade": event_ms(event)}, planar=True)
 
     # ---- χ² hooks and the per-normal split ---------------------------------------------------
-
-    def _surface(self, cache, normal, view, kd=0.5, ks=0.3, shininess=20.0):
-        surface = np.zeros((4, 4), np.float32)
-        surface[0, :3] = normal / np.linalg.norm(normal)
-        surface[1, :3] = view / np.linalg.norm(view)
-        surface[2, :3], surface[3, :3], surface[3, 3] = kd, ks, shininess
-        return cache.compute.to_device(surface)
 
     def sample_directions(self, cache, normal, view, n, seed):
         """``n`` directions ``[n, 3]`` distributed as all the samples the estimator draws for
@@ -117,12 +127,12 @@ class PoolEstimator(Estimator):
 
         The material is the conformance suite's glossy one (kd 0.5, ks 0.3, m 20).
         """
-        compute = cache.compute
+        compute, cdfs = cache.compute, self.light_cdfs(cache)
         if not np.any(cache.face_integrals > 0):   # an all-black map has nothing to sample
             return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
         out = compute.empty(n * 16)
-        compute.run(self._kernel(compute, "pooled_directions"), n, self._surface(cache, normal, view),
-                    cache.marginal, cache.conditional, cache.face_integral_buffer, np.int32(cache.res),
+        compute.run(self._kernel(compute, "pooled_directions"), n, hook_surface(cache, normal, view),
+                    cdfs.marginal, cdfs.conditional, cdfs.face_integral, np.int32(cache.res),
                     np.int32(HOOK_SPP), np.uint32(seed), out)
         samples = compute.to_host(out, (n, 4), np.float32)
         return samples[:, :3], samples[:, 3]
@@ -133,8 +143,9 @@ class PoolEstimator(Estimator):
         padded = np.zeros((n, 4), np.float32)
         padded[:, :3] = dirs
         out = compute.empty(n * 4)
-        compute.run(self._kernel(compute, "pooled_direction_pdf"), n, self._surface(cache, normal, view),
-                    cache.marginal, cache.conditional, cache.face_integral_buffer, np.int32(cache.res),
+        cdfs = self.light_cdfs(cache)
+        compute.run(self._kernel(compute, "pooled_direction_pdf"), n, hook_surface(cache, normal, view),
+                    cdfs.marginal, cdfs.conditional, cdfs.face_integral, np.int32(cache.res),
                     np.int32(HOOK_SPP), compute.to_device(padded), out)
         return compute.to_host(out, (n,), np.float32)
 
@@ -146,5 +157,5 @@ class PoolEstimator(Estimator):
         padded[:, :3] = normals
         out = compute.empty(n * 7 * 4)
         compute.run(self._kernel(compute, "split_strategies"), n, compute.to_device(padded),
-                    cache.face_integral_buffer, np.int32(spp), out)
+                    self.light_cdfs(cache).face_integral, np.int32(spp), out)
         return compute.to_host(out, (n, 7), np.int32)

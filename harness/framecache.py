@@ -11,7 +11,15 @@ Products:
   drawn from that face's CDFs, each storing direction, pdf_L(ω|f) and radiance.  Its size
   depends on the estimator's budget and its random rotation on the render seed, so
   ``require("pool")`` builds only its input (``cdf``) and :meth:`FrameCache.light_pool` draws a
-  pool per (size, seed) on first use; its device time is ``timings_ms["pool"]``.
+  pool per (size, seed) on first use; its device time is ``timings_ms["pool"]``;
+- ``light_cdfs``: the light samplers' CDFs beyond ``cdf`` (estimators/envmap.py, and
+  ``balanced_mis`` with MIS compensation), drawn on first use like the pool, since what they
+  hold depends on the estimator's parameters: :meth:`FrameCache.map_marginal`, one CDF over all
+  6·R rows of the map (the global 2-D distribution of pbrt-v4's ImageInfiniteLight), and
+  :meth:`FrameCache.light_cdfs` with ``compensated``, every CDF rebuilt from MIS-compensated
+  weights.  ``require("light_cdfs")`` builds their input (``cdf``); their device times are
+  ``timings_ms["map_cdf"]``, ``["compensated_cdf"]`` and ``["compensated_map_cdf"]``, and each
+  render that reads them counts them in its ``sample`` stage, as the pool's.
 
 Each build is timed by OpenCL profiling events (``timings_ms``); ``built`` lists what was built,
 so the runner can record which stages were skipped.  :func:`build_fixed_point_cdfs` is the same
@@ -28,7 +36,7 @@ import weakref
 from iblbench.harness.device import Compute, event_ms
 from iblbench.scenes import cubemap
 
-PRODUCTS = ("env", "cdf", "pool")
+PRODUCTS = ("env", "cdf", "pool", "light_cdfs")
 CDF_ONE = 2 ** 63   # the fixed-point CDFs' total (kernels/common.cl)
 POOLS_KEPT = 4   # pools of recent (size, seed) kept resident
 SPARE_BUFFERS_KEPT = 2   # buffers of one size kept for the next frame's cache
@@ -95,6 +103,19 @@ class LightPool:
     build_ms: float
 
 
+@dataclasses.dataclass(frozen=True)
+class LightCdfs:
+    """The fixed-point CDFs of a light sampler (layout of the ``cdf`` product): ``marginal``
+    ``[6, R]`` (rows | face), ``conditional`` ``[6·R, R]`` (columns | row), ``face_integral``
+    float ``[6]`` (each face's total weight: I_f for Y·Ω weights); ``build_ms`` is the device time
+    that built them beyond the ``cdf`` product (0 for the ``cdf`` product itself)."""
+
+    marginal: cl.Buffer
+    conditional: cl.Buffer
+    face_integral: cl.Buffer
+    build_ms: float
+
+
 class FrameCache:
     def __init__(self, compute: Compute, env: np.ndarray, frame: int = 0):
         env = np.asarray(env, dtype=np.float32)
@@ -110,7 +131,9 @@ class FrameCache:
         self._env_buffer = self._upload_env()
         self._cdf: tuple | None = None
         self._face_integrals: np.ndarray | None = None
-        self._pools: dict[tuple[int, int], LightPool] = {}
+        self._pools: dict[tuple[int, int, bool], LightPool] = {}
+        self._compensated: tuple[LightCdfs, cl.Buffer] | None = None
+        self._map_marginals: dict[bool, tuple[cl.Buffer, float]] = {}
 
     def retarget(self, frame: int) -> None:
         """Serve frame ``frame``, whose environment is this cache's own (the same array): the
@@ -122,14 +145,15 @@ class FrameCache:
     @property
     def built(self) -> list[str]:
         return (["env"] + (["cdf"] if self._cdf is not None else [])
-                + (["pool"] if self._pools else []))
+                + (["pool"] if self._pools else [])
+                + (["light_cdfs"] if self._compensated or self._map_marginals else []))
 
     def require(self, products) -> None:
         """Build every named product that is not built yet."""
         for name in products:
             if name not in PRODUCTS:
                 raise KeyError(f"unknown frame-cache product '{name}'; valid: {', '.join(PRODUCTS)}")
-            if name in ("cdf", "pool"):
+            if name in ("cdf", "pool", "light_cdfs"):
                 self._build_cdf()
 
     @property
@@ -183,15 +207,76 @@ class FrameCache:
             self._cdf = (marginal, conditional, integral)
         return self._cdf
 
-    def light_pool(self, per_face: int, seed: int) -> LightPool:
-        """The pool of ``per_face`` samples per face for render seed ``seed`` (drawn on first use).
+    def _sampling_weights(self, compensate: bool) -> tuple[cl.Buffer, cl.Buffer, float]:
+        """framecache.cl's ``sampling_weights``: (texel weights ``[6·R·R]``, written only with
+        ``compensate``; row totals ``[6·R]``; device ms)."""
+        c, res = self.compute, self.res
+        texels = self._buffer(6 * res * res * 4) if compensate else c.empty(4)
+        rows = self._buffer(6 * res * 4)
+        event = c.run(c.kernel("iblbench.harness", "framecache.cl", "sampling_weights"), 6 * res,
+                      self._env_buffer, _texel_solid_angles(c, res), self.face_integral_buffer,
+                      np.int32(res), np.int32(compensate), texels, rows)
+        return texels, rows, event_ms(event)
+
+    def light_cdfs(self, compensated: bool = False) -> LightCdfs:
+        """The ``cdf`` product's CDFs, or with ``compensated`` the same CDFs of the MIS-compensated
+        weights (built on first use).
+
+        MIS compensation (Karlík et al. 2019) weights a texel by max(Y − Ȳ, min(Ȳ/1000, Y))·Ω,
+        Ȳ = Σ_f I_f / 4π the map's mean luminance over the sphere: pbrt-v4's
+        ``ImageInfiniteLight`` compensated distribution (src/pbrt/lights.cpp), chosen over
+        Mitsuba 3's max(Y − Ȳ, 0) (emitters/envmap.cpp) because it keeps every lit texel's
+        probability positive (at least a thousandth of its share in the uncompensated
+        distribution of a mean texel): a compensated light sampler still reaches every texel
+        of positive radiance, so its estimate stays unbiased even where BRDF sampling cannot
+        reach (a specular lobe's zero tail), its χ² covers the whole support, and neither an
+        all-black map (all weights 0: the CDF builder's uniform runs, Mitsuba 3 #1271's 0/0)
+        nor a constant one (every Y − Ȳ = 0: weights Ȳ/1000·Ω, the uncompensated distribution)
+        needs a case of its own.  Ȳ is the mean over solid angle (pbrt-v4's equal-area map
+        averages over pixels of equal solid angle; Mitsuba 3 averages a lat-long map's pixels).
+        """
+        if not compensated:
+            return LightCdfs(*self._build_cdf(), 0.0)
+        if self._compensated is None:
+            c, res = self.compute, self.res
+            texels, rows, weights_ms = self._sampling_weights(True)
+            conditional, row_totals, rows_ms = build_fixed_point_cdfs(c, texels, 6 * res, res)
+            marginal, integral, faces_ms = build_fixed_point_cdfs(c, row_totals, 6, res)
+            self.timings_ms["compensated_cdf"] = weights_ms + rows_ms + faces_ms
+            self._compensated = (LightCdfs(marginal, conditional, integral,
+                                           self.timings_ms["compensated_cdf"]), rows)
+        return self._compensated[0]
+
+    def map_marginal(self, compensated: bool = False) -> tuple[cl.Buffer, float]:
+        """(uint64 ``[6·R]``, device ms): one fixed-point CDF over the 6·R rows of the map,
+        face-major, by their total weight (Y·Ω, or compensated as in :meth:`light_cdfs`):
+        with ``light_cdfs(compensated).conditional`` it is one 2-D distribution over the whole
+        map, a marginal over faces and rows and a conditional over columns (built on first use;
+        with ``compensated`` the ms include the compensated CDFs' build, which a sampler of this
+        marginal reads too)."""
+        if compensated not in self._map_marginals:
+            if compensated:
+                cdfs = self.light_cdfs(True)
+                rows, weights_ms = self._compensated[1], cdfs.build_ms
+            else:
+                _, rows, weights_ms = self._sampling_weights(False)
+            marginal, _, scan_ms = build_fixed_point_cdfs(self.compute, rows, 1, 6 * self.res)
+            self.timings_ms["compensated_map_cdf" if compensated else "map_cdf"] = scan_ms + (
+                0.0 if compensated else weights_ms)
+            self._map_marginals[compensated] = (marginal, weights_ms + scan_ms)
+        return self._map_marginals[compensated]
+
+    def light_pool(self, per_face: int, seed: int, compensated: bool = False) -> LightPool:
+        """The pool of ``per_face`` samples per face for render seed ``seed`` (drawn on first use)
+        from the CDFs of :meth:`light_cdfs` (``compensated``).
 
         The seed and frame pick the random rotation of the pool's fixed 2-D sequence, so each
         render seed sees an independent, unbiased pool.
         """
-        key = (int(per_face), int(seed))
+        key = (int(per_face), int(seed), bool(compensated))
         if key not in self._pools:
-            marginal, conditional, integral = self._build_cdf()
+            cdfs = self.light_cdfs(compensated)
+            marginal, conditional, integral = cdfs.marginal, cdfs.conditional, cdfs.face_integral
             c, count = self.compute, 6 * key[0]
             dir_pdf, radiance = c.empty(count * 16), c.empty(count * 16)
             event = c.run(c.kernel("iblbench.harness", "framecache.cl", "build_light_pool"), count,

@@ -105,6 +105,13 @@ CATALOGUE: tuple[Mutant, ...] = (
     _m("mis-brdf-lobe-axis-normal", POOL,
        "lanes3_pick(specular, b_r, b_n)", "lanes3_pick(specular, b_n, b_n)",
        ["balanced_mis"], ["shininess"]),
+    # ---- the production baselines: envmap, brdf ----------------------------------------------------
+    _m("envmap-row-bin-per-face", POOL,
+       "map_rows ? lanes_cdf_bin(marginal, (lane_ints_t)0, map_row)",
+       "map_rows ? lanes_cdf_bin(marginal, f * res, row)", ["envmap"], ["face-pattern"]),
+    _m("envmap-light-jacobian-inverted", "estimators/envmap.cl",
+       "*pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;",
+       "*pdf = row_bin * col_bin / (q * sqrt(q)) * (float)(res * res) / 4.0f;", ["envmap"], ["sun-1e6"]),
     # ---- shared conventions (common.cl) -----------------------------------------------------------
     _m("light-pdf-jacobian-inverted", COMMON,
        "cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area",

@@ -98,6 +98,16 @@ evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``byt
         w·f/γ 19; a resampled one 255; per sample the effective count 1 and the particle (ω, W)
         and gammas written, 24 B; per pixel bis's factors + the estimate 60; bytes: 64 in,
         state, carried estimate, radiance, counts and stats out
+    brdf           174     0 / 0     103 / 88
+        a BRDF sample drawn per pixel (estimators/envmap.cl without light samples), 174:
+        uniforms 3, sincos_turn 24, √ξ 1, log2 ξ 16 and the exp2 half 19 of ξ^{1/(m+1)},
+        the direction 31 in the per-pixel bases, lobe power 41, n·ω 5, mixture pdf 5, texel
+        lookup 10, D 1, add_samples 18; per pixel shading 24, the bases about n and r 26,
+        hoisted factors 6, the 16-lane sums out 47; bytes as uniform's
+    envmap         115     0 / 0      76 / 88
+        the default, light samples only: a light sample of the map's 2-D distribution, 115: its
+        point and pdf 38 (as sample_face's), the face direction normalised 12, lobe power 41,
+        n·ω 5, D 1, add_samples 18; per pixel shading 24, hoisted factors 5, sums out 47
 
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
@@ -181,6 +191,8 @@ KERNEL_COSTS = {
     "havran": KernelCost(57, 5, 0, 17, 92),
     "bis": KernelCost(197, 0, 0, 56, 88),
     "smc": KernelCost(274, 1, 24, 60, 136),
+    "brdf": KernelCost(174, 0, 0, 103, 88),
+    "envmap": KernelCost(115, 0, 0, 76, 88),
 }
 
 # Every column of perf.csv, in order, with what it means (the --help epilog and perf.html).

@@ -35,7 +35,8 @@ def test_case_passes_on_every_builtin(battery, case):
     failed = rows[rows.status == "FAIL"]
     assert failed.empty, failed[["estimator", "failures"]].to_string()
     assert (rows.nonfinite == 0).all() and (rows.negative == 0).all() and (rows.dark_nonzero == 0).all()
-    unbiased = rows[[BUILTINS[e].tags.unbiased for e in rows.estimator]]
+    unbiased = rows[[BUILTINS[e].tags.unbiased and (case, e) not in stress.NO_Z_PIXELS
+                     for e in rows.estimator]]
     sampled = rows[[BUILTINS[e].tags.has_pdf for e in rows.estimator]]
     if case == "black-map":
         assert (rows["min"] == 0).all() and (rows["max"] == 0).all() and (rows.reference_error == 0).all()

@@ -38,7 +38,7 @@ def test_override_label_is_canonical_and_builds_the_parameter():
     spec = parse_estimator("Balanced_MIS{ shared_sequence = false }")
     assert spec.label == "balanced_mis{shared_sequence=false}"
     assert spec.make().params.shared_sequence is False
-    assert json.loads(spec.params_json()) == {"shared_sequence": False}
+    assert json.loads(spec.params_json()) == {"shared_sequence": False, "mis_compensation": False}
     plain = parse_estimator("balanced_mis")
     assert plain.label == "balanced_mis" and plain.make().params.shared_sequence is True
     assert parse_estimator("uniform{}").label == "uniform"
@@ -46,7 +46,7 @@ def test_override_label_is_canonical_and_builds_the_parameter():
 
 @pytest.mark.parametrize("text, needles", [
     ("balanced_mis{shared_seq=false}", ("'balanced_mis' has no parameter 'shared_seq'",
-                                        "valid parameters: shared_sequence")),
+                                        "valid parameters: mis_compensation, shared_sequence")),
     ("balanced_mis{shared_sequence=3}", ("shared_sequence", "must be bool", "got 3")),
     ("balanced_mis{shared_sequence=}", ("cannot read the parameters",)),
     ("balanced_mis{shared_sequence=[true]}", ("must be a TOML scalar",)),
@@ -76,7 +76,8 @@ def test_quick_is_the_documented_sweep():
 
 def test_default_and_full_parse():
     default = load_sweep("default")
-    assert set(default.estimators) == {"uniform", "balanced", "balanced_mis"}
+    assert set(default.estimators) == {"uniform", "balanced", "balanced_mis", "brdf", "envmap",
+                                       'envmap{mis="brdf"}'}
     assert default.spp == (16, 64, 256) and default.seeds == 2
     full = load_sweep("full")
     assert "balanced_mis{shared_sequence=false}" in full.estimators

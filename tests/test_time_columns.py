@@ -110,9 +110,9 @@ def event_log(monkeypatch):
             super().require(products)
             log.phase = previous
 
-        def light_pool(self, per_face, seed):
-            key, first = (id(self), per_face, seed), len(log.events)
-            pool = super().light_pool(per_face, seed)
+        def light_pool(self, per_face, seed, compensated=False):
+            key, first = (id(self), per_face, seed, compensated), len(log.events)
+            pool = super().light_pool(per_face, seed, compensated)
             drawn = [logged.ms for logged in log.events[first:] if logged.name == POOL_KERNEL]
             if drawn:
                 log.pool_draws[key] = sum(drawn)

@@ -317,18 +317,30 @@ ALWAYS_INLINE lanes_t lanes_texel_of(int res, lanes3_t w, lane_ints_t *face, lan
     return q * sqrt(q);   /* area_per_solid_angle */
 }
 
-/* light_pdf_on_face of common.cl for the lanes' directions, the same arithmetic; *face and
- * *texel get the face and the texel of each. */
+/* light_pdf_on_face of common.cl for the lanes' directions, the same arithmetic, with the rows'
+ * probabilities from one CDF per face (`map_rows` = 0) or from one CDF over the map's 6·R rows,
+ * face-major (`map_rows` = 1: the global distribution of estimators/envmap.cl); *face and *texel
+ * get the face and the texel of each. */
+ALWAYS_INLINE lanes_t lanes_light_pdf_rows(__global const cdf_word_t *marginal,
+                                           __global const cdf_word_t *conditional, int res, lanes3_t w,
+                                           int map_rows, lane_ints_t *face, lane_ints_t *texel)
+{
+    lane_ints_t f, row, col;
+    lanes_t area = lanes_texel_of(res, w, &f, &row, &col);
+    lane_ints_t map_row = f * res + row;
+    lanes_t p_row = map_rows ? lanes_cdf_bin(marginal, (lane_ints_t)0, map_row) : lanes_cdf_bin(marginal, f * res, row);
+    lanes_t p_texel = p_row * lanes_cdf_bin(conditional, map_row * res, col);
+    *face = f;
+    *texel = map_row * res + col;
+    return p_texel * area * (float)(res * res) / 4.0f;
+}
+
+/* lanes_light_pdf_rows with one marginal CDF per face (DESIGN §3's light pdf). */
 ALWAYS_INLINE lanes_t lanes_light_pdf(__global const cdf_word_t *marginal,
                                       __global const cdf_word_t *conditional, int res, lanes3_t w,
                                       lane_ints_t *face, lane_ints_t *texel)
 {
-    lane_ints_t f, row, col;
-    lanes_t area = lanes_texel_of(res, w, &f, &row, &col);
-    lanes_t p_texel = lanes_cdf_bin(marginal, f * res, row) * lanes_cdf_bin(conditional, (f * res + row) * res, col);
-    *face = f;
-    *texel = (f * res + row) * res + col;
-    return p_texel * area * (float)(res * res) / 4.0f;
+    return lanes_light_pdf_rows(marginal, conditional, res, w, 0, face, texel);
 }
 
 /* The BRDF draws' numbers where every pixel draws the same ones (the shared sequence), as planes
@@ -355,6 +367,34 @@ ALWAYS_INLINE lanes3_t lanes3_pick(lane_ints_t pick, vec3_t a, vec3_t b)
                        select((lanes_t)b.z, (lanes_t)a.z, pick));
 }
 
+/* The lanes' BRDF directions, sample_phong_direction's arithmetic from a draw's numbers: ξ_cos
+ * (with √ξ_cos and log2 ξ_cos), ξ_lobe and the azimuth's sine and cosine; (t_n, b_n) and (t_r,
+ * b_r) are the bases about n and r (direction_about_axis_basis), computed once per pixel. */
+ALWAYS_INLINE lanes3_t lanes_phong_direction(const shading_t *s, vec3_t t_n, vec3_t b_n, vec3_t t_r, vec3_t b_r,
+                                             lanes_t xi_cos, lanes_t sqrt_xi_cos, lanes_t log2_xi_cos,
+                                             lanes_t xi_lobe, lanes_t azimuth_sin, lanes_t azimuth_cos)
+{
+#if SPECULAR_LOBE
+    lane_ints_t specular = xi_lobe < s->p_spec;
+    lanes_t cos_theta = select(sqrt_xi_cos, phong_power_of_log2_lanes(xi_cos, log2_xi_cos,
+                                                                      (lanes_t)(1.0f / (s->m + 1.0f))),
+                               specular);
+#else
+    lane_ints_t specular = 0;
+    lanes_t cos_theta = sqrt_xi_cos;
+#endif
+    return direction_in_lanes(lanes3_pick(specular, s->r, s->n), lanes3_pick(specular, t_r, t_n),
+                              lanes3_pick(specular, b_r, b_n), cos_theta, azimuth_sin, azimuth_cos);
+}
+
+/* The radiance of the lanes' texels (nearest lookup). */
+ALWAYS_INLINE lanes3_t lanes_texel_radiance(__global const float4 *env, lane_ints_t texel)
+{
+    __global const float *texels = (__global const float *)env;
+    lane_ints_t at = 4 * texel;
+    return make_lanes3(GATHER(lanes_t, texels, at), GATHER(lanes_t, texels, at + 1), GATHER(lanes_t, texels, at + 2));
+}
+
 /* BRDF samples of Eq. 6 (f_i): the denominator holds the full light mixture, which is the one
  * face term t_{f(ω)}·pdf_L(ω|f(ω)) because pdf_L(ω|f) = 0 off face f.  Every pixel draws
  * draws_for(t_6) samples (t_6 depends on the budget alone); draw i's numbers are draw_numbers
@@ -367,7 +407,6 @@ ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ti
                               __global const float *shared_numbers, int numbers_stride)
 {
     int draws = draws_for(ticks[6]);
-    __global const float *texels = (__global const float *)env;
     vec3_t t_n, b_n, t_r, b_r;
     direction_about_axis_basis(s->n, &t_n, &b_n);
     direction_about_axis_basis(s->r, &t_r, &b_r);
@@ -387,17 +426,8 @@ ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ti
             sqrt_xi_cos = sqrt(xi_cos);
             log2_xi_cos = phong_power_log2_lanes(xi_cos);
         }
-#if SPECULAR_LOBE
-        lane_ints_t specular = xi_lobe < s->p_spec;
-        lanes_t cos_theta = select(sqrt_xi_cos, phong_power_of_log2_lanes(xi_cos, log2_xi_cos,
-                                                                          (lanes_t)(1.0f / (s->m + 1.0f))),
-                                   specular);
-#else
-        lane_ints_t specular = 0;
-        lanes_t cos_theta = sqrt_xi_cos;
-#endif
-        lanes3_t w = direction_in_lanes(lanes3_pick(specular, s->r, s->n), lanes3_pick(specular, t_r, t_n),
-                                        lanes3_pick(specular, b_r, b_n), cos_theta, azimuth_sin, azimuth_cos);
+        lanes3_t w = lanes_phong_direction(s, t_n, b_n, t_r, b_r, xi_cos, sqrt_xi_cos, log2_xi_cos, xi_lobe,
+                                           azimuth_sin, azimuth_cos);
         lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
         lanes_t cosine = lanes_dot(s->n, w);
         lanes_t pdf_brdf = phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
@@ -407,10 +437,8 @@ ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ti
         #pragma unroll
         for (int k = 1; k < 6; ++k) face_ticks = select(face_ticks, (lane_ints_t)ticks[k], face == k);
         lanes_t denominator = convert_lanes(face_ticks) * pdf_light + (float)ticks[6] * pdf_brdf;
-        lane_ints_t at = 4 * texel;
-        lanes3_t radiance = make_lanes3(GATHER(lanes_t, texels, at), GATHER(lanes_t, texels, at + 1),
-                                        GATHER(lanes_t, texels, at + 2));
-        add_samples(acc, s, draw < draws, lanes_beta(ticks[6], i), cosine, power, radiance, denominator);
+        add_samples(acc, s, draw < draws, lanes_beta(ticks[6], i), cosine, power, lanes_texel_radiance(env, texel),
+                    denominator);
     }
 }
 

@@ -1,0 +1,28 @@
+"""``brdf``: Phong BRDF sampling only, the classic baseline for glossy surfaces under smooth maps."""
+from __future__ import annotations
+
+from iblbench.estimators.envmap import MapSampler
+
+
+class Brdf(MapSampler):
+    """Importance sampling of the energy-conserving Phong BRDF alone (DESIGN §3; Lafortune and
+    Willems 1994; pbrt-v4's BSDF sampling in a path tracer without light sampling).
+
+    The lobe is chosen by luminance weight, p_s = Y(ks)/(Y(kd) + Y(ks)); the diffuse lobe is
+    sampled cosine-weighted (cos θ = √ξ about n), the specular lobe ∝ cos^m about the mirror
+    direction r (cos θ = ξ^{1/(m+1)}).  The density is the mixture
+    p_B(ω) = (1 − p_s)·cos⁺(n,ω)/π + p_s·(m+1)/(2π)·cos⁺(r,ω)^m, which counts the specular
+    lobe's mass below the surface: those samples are drawn, evaluate to zero, and count as used
+    but not effective.  The estimate is Σ_i β_i L(ω_i) ρ(ω_i) cos⁺(n,ω_i) / (N_s p_B(ω_i)), the
+    last of ⌈N_s⌉ draws weighted by β (Lu 2013 Eq. 5, here always 1: N_s is an integer).  It is
+    unbiased because p_B > 0 wherever ρ·cos⁺ > 0 (the diffuse lobe where kd > 0, the specular
+    lobe wherever its own term is positive).  It never reads the map's CDFs: its only per-frame
+    product is the uploaded map.
+
+    Deviations: none from DESIGN §3; it shares ``envmap``'s kernel (``envmap.cl`` without light
+    samples), so its BRDF draws are ``envmap``'s with MIS.
+    """
+
+    name = "brdf"
+    kernel_files = ("brdf.cl", "envmap.cl", "lanes.cl")
+    light_samples = False

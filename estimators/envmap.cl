@@ -1,0 +1,210 @@
+/* `envmap` (and, with LIGHT_SAMPLES = 0, `brdf`): the production samplers.  Light samples come from
+ * one 2-D distribution over the whole cube map, a marginal over its 6·R rows (faces and rows,
+ * face-major) and a conditional over columns, both fixed-point CDFs (FrameCache.map_marginal and
+ * light_cdfs), as pbrt-v4's ImageInfiniteLight samples its one image; BRDF samples are DESIGN §3's
+ * Phong sampling; the two combine by MIS.  Configured by the estimator's defines:
+ *   LIGHT_SAMPLES  1: light samples (0: none, the `brdf` estimator)
+ *   BRDF_SAMPLES   1: BRDF samples (half the budget when LIGHT_SAMPLES is 1)
+ *   MIS_POWER      0: the balance heuristic; 1: the power heuristic with exponent 2
+ * Budgets are light_pool.cl's fixed-point ticks: N_s samples are Q·N_s ticks, t_L = Q·N_s/2 for
+ * light and t_B = Q·N_s − t_L for BRDF samples with MIS, and each strategy draws draws_for(t)
+ * samples, the last weighted by β = frac(t/Q) (Lu 2013 Eq. 5), so every N_s ≥ 1 is unbiased.
+ * `render_map` shades one pixel per work item, its samples POOL_LANES at a time in explicit
+ * vectors (light_pool.cl: lanes masked past a strategy's draws, no data-dependent trip count, the
+ * polynomial Phong power, Philox per lane); `map_directions`/`map_direction_pdf` are the χ² hooks. */
+#include "lanes.cl"
+
+#ifndef LIGHT_SAMPLES
+#define LIGHT_SAMPLES 1
+#endif
+#ifndef BRDF_SAMPLES
+#define BRDF_SAMPLES 1
+#endif
+#ifndef MIS_POWER
+#define MIS_POWER 0
+#endif
+
+#define STREAM_MAP_LIGHT 8u
+
+/* The denominator D of a sample in add_samples' β·s(ω)/D, from its own strategy's density
+ * `own` = t_own·p_own(ω) and the other's `other` (ticks × solid-angle pdf).  Balance heuristic:
+ * D = own + other, Veach's one-sample-per-strategy form with counts.  Power heuristic (β = 2):
+ * the weight own²/(own² + other²) divided by own, D = own + other²/own (the ratio first: no
+ * overflow of the squares; own = 0 never happens for a drawn sample, and add_samples drops
+ * any D that is not positive). */
+ALWAYS_INLINE lanes_t mis_denominator(lanes_t own, lanes_t other)
+{
+#if MIS_POWER
+    return own + other * (other / own);
+#else
+    return own + other;
+#endif
+}
+
+/* The lanes' light directions from the blocks xi (63-bit points (v0:v1, v2:v3) >> 1): the map
+ * row by the marginal over all 6·R rows, the column by that row's conditional, the point in the
+ * texel by the variates' position inside their bins (lanes_sample_face's arithmetic).  *texel
+ * gets the texel and *pdf the density in solid angle, P(row)·P(col | row)·(1+x²+y²)^{3/2}/a_texel
+ * (DESIGN §3 with the map's rows for μ_f·P(row | f)). */
+ALWAYS_INLINE lanes3_t lanes_sample_map(__global const cdf_word_t *marginal,
+                                        __global const cdf_word_t *conditional, int res,
+                                        lane_block_t xi, lane_ints_t *texel, lanes_t *pdf)
+{
+    lane_words_t ux = upsample(xi.v[0], xi.v[1]) >> 1, uy = upsample(xi.v[2], xi.v[3]) >> 1;
+    lane_ints_t map_row = lanes_cdf_search(marginal, (lane_ints_t)0, 6 * res, ux);
+    lane_ints_t cols = map_row * res;
+    lane_ints_t col = lanes_cdf_search(conditional, cols, res, uy);
+    lane_ints_t face = map_row / res;
+    lanes_t row_bin, col_bin;
+    lanes_t x = -1.0f + 2.0f * (convert_lanes(col) + lanes_cdf_bin_position(conditional, cols, col, uy, &col_bin)) / (float)res;
+    lanes_t y = -1.0f + 2.0f * (convert_lanes(map_row - face * res)
+                                + lanes_cdf_bin_position(marginal, (lane_ints_t)0, map_row, ux, &row_bin)) / (float)res;
+    lanes_t q = 1.0f + x * x + y * y;   /* area_per_solid_angle */
+    *texel = cols + col;
+    *pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;
+    return lanes_face_direction(face, x, y);
+}
+
+/* The lanes' BRDF directions of draws `draw` for pixel stream `stream_pixel` (draw_numbers). */
+ALWAYS_INLINE lanes3_t lanes_brdf_draw(const shading_t *s, vec3_t t_n, vec3_t b_n, vec3_t t_r, vec3_t b_r,
+                                       uint seed, uint frame, uint stream_pixel, lane_ints_t draw)
+{
+    lanes_t xi_cos, xi_lobe, azimuth_sin, azimuth_cos;
+    draw_numbers(seed, frame, stream_pixel, draw, &xi_cos, &xi_lobe, &azimuth_sin, &azimuth_cos);
+    return lanes_phong_direction(s, t_n, b_n, t_r, b_r, xi_cos, sqrt(xi_cos), phong_power_log2_lanes(xi_cos),
+                                 xi_lobe, azimuth_sin, azimuth_cos);
+}
+
+/* The light density at the lanes' directions (0 without light samples); *texel gets the texel. */
+ALWAYS_INLINE lanes_t lanes_map_pdf(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
+                                    int res, lanes3_t w, lane_ints_t *texel)
+{
+    lane_ints_t face;
+#if LIGHT_SAMPLES
+    return lanes_light_pdf_rows(marginal, conditional, res, w, 1, &face, texel);
+#else
+    lane_ints_t row, col;
+    lanes_texel_of(res, w, &face, &row, &col);
+    *texel = (face * res + row) * res + col;
+    return (lanes_t)0.0f;
+#endif
+}
+
+/* Ticks of the light and the BRDF samples of a budget of spp samples. */
+ALWAYS_INLINE void strategy_split(int spp, int *light, int *brdf)
+{
+    *light = LIGHT_SAMPLES ? light_ticks(spp, BRDF_SAMPLES) : 0;
+    *brdf = spp * TICKS_PER_SAMPLE - *light;
+}
+
+/* Outputs in planes of n = get_global_size(0) floats: radiance R, G, B; counts used, effective
+ * (in samples); evaluations per pixel.  `marginal` and `conditional` are unread without light
+ * samples. */
+__kernel void render_map(__global const float4 *normal, __global const float4 *view,
+                         __global const float4 *kd, __global const float4 *ks_m,
+                         __global const float4 *env, __global const cdf_word_t *marginal,
+                         __global const cdf_word_t *conditional, const int res, const int spp,
+                         const uint seed, const uint frame, __global float *radiance,
+                         __global float *counts, __global int *evaluations)
+{
+    int p = get_global_id(0), n = get_global_size(0);
+    shading_t s = load_shading(normal, view, kd, ks_m, p);
+    int light, brdf;
+    strategy_split(spp, &light, &brdf);
+    int light_draws = draws_for(light), brdf_draws = draws_for(brdf);
+    lanes_sum_t acc = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lane_ints_t)0};
+#if LIGHT_SAMPLES
+    for (int i = 0; i < light_draws; i += POOL_LANES) {
+        lane_ints_t draw = i + LANE_NUMBERS, texel;
+        lanes_t pdf_light;
+        lane_block_t xi = rng_block_lanes(seed, frame, STREAM_MAP_LIGHT, (uint)p, convert_lane_uints(draw), 0u);
+        lanes3_t w = lanes_sample_map(marginal, conditional, res, xi, &texel, &pdf_light);
+        lanes_t cosine = lanes_dot(s.n, w);
+        lanes_t power = phong_power_lanes(max(lanes_dot(s.r, w), 0.0f), (lanes_t)s.m);
+        lanes_t other = BRDF_SAMPLES ? (float)brdf * phong_mixture_pdf_lanes(s.p_spec, s.m, cosine, power) : 0.0f;
+        add_samples(&acc, &s, draw < light_draws, lanes_beta(light, i), cosine, power,
+                    lanes_texel_radiance(env, texel), mis_denominator((float)light * pdf_light, other));
+    }
+#endif
+#if BRDF_SAMPLES
+    vec3_t t_n, b_n, t_r, b_r;
+    direction_about_axis_basis(s.n, &t_n, &b_n);
+    direction_about_axis_basis(s.r, &t_r, &b_r);
+    for (int i = 0; i < brdf_draws; i += POOL_LANES) {
+        lane_ints_t draw = i + LANE_NUMBERS, texel;
+        lanes3_t w = lanes_brdf_draw(&s, t_n, b_n, t_r, b_r, seed, frame, (uint)p, draw);
+        lanes_t cosine = lanes_dot(s.n, w);
+        lanes_t power = phong_power_lanes(max(lanes_dot(s.r, w), 0.0f), (lanes_t)s.m);
+        lanes_t other = (float)light * lanes_map_pdf(marginal, conditional, res, w, &texel);
+        lanes_t own = (float)brdf * phong_mixture_pdf_lanes(s.p_spec, s.m, cosine, power);
+        add_samples(&acc, &s, draw < brdf_draws, lanes_beta(brdf, i), cosine, power,
+                    lanes_texel_radiance(env, texel), mis_denominator(own, other));
+    }
+#endif
+    radiance[p] = sum_of8(to8(acc.r));
+    radiance[n + p] = sum_of8(to8(acc.g));
+    radiance[2 * n + p] = sum_of8(to8(acc.b));
+    counts[p] = (float)(light + brdf) * (1.0f / TICKS_PER_SAMPLE);
+    counts[n + p] = (float)int_sum_of8(to8(acc.effective)) * (1.0f / TICKS_PER_SAMPLE);
+    evaluations[p] = light_draws + brdf_draws;
+}
+
+/* The density of all of a pixel's samples pooled, (t_L·p_L + t_B·p_B)/(t_L + t_B), at the lanes'
+ * directions w, given p_L there (what the χ² hooks check). */
+ALWAYS_INLINE lanes_t pooled_map_density(const shading_t *s, int spp, lanes3_t w, lanes_t pdf_light)
+{
+    int light, brdf;
+    strategy_split(spp, &light, &brdf);
+    lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
+    lanes_t pdf_brdf = BRDF_SAMPLES ? phong_mixture_pdf_lanes(s->p_spec, s->m, lanes_dot(s->n, w), power) : 0.0f;
+    return ((float)light * pdf_light + (float)brdf * pdf_brdf) / (float)(light + brdf);
+}
+
+/* surface[0..3] = normal, view, kd, (ks, m) of one pixel; work item i draws the directions
+ * i·POOL_LANES + k as the estimator draws them, a strategy with probability ∝ its ticks, and
+ * writes them with their pooled density as planes x, y, z, density of n floats (n = global size
+ * × POOL_LANES).  A light sample's p_L is the one lanes_sample_map returns (render's), not a
+ * lookup: the χ² check compares it with map_direction_pdf's. */
+__kernel void map_directions(__global const float4 *surface, __global const cdf_word_t *marginal,
+                             __global const cdf_word_t *conditional, const int res, const int spp,
+                             const uint seed, __global float *out)
+{
+    int i = get_global_id(0), n = get_global_size(0) * POOL_LANES;
+    shading_t s = load_shading(surface, surface + 1, surface + 2, surface + 3, 0);
+    int light, brdf;
+    strategy_split(spp, &light, &brdf);
+    lane_ints_t draw = i * POOL_LANES + LANE_NUMBERS;
+    vec3_t t_n, b_n, t_r, b_r;
+    direction_about_axis_basis(s.n, &t_n, &b_n);
+    direction_about_axis_basis(s.r, &t_r, &b_r);
+    lanes3_t w = lanes_brdf_draw(&s, t_n, b_n, t_r, b_r, seed, 0u, 0u, draw);
+    lane_ints_t texel;
+    lanes_t pdf_light = lanes_map_pdf(marginal, conditional, res, w, &texel);
+#if LIGHT_SAMPLES
+    lane_block_t choice = rng_block_lanes(seed, 0u, STREAM_HOOK, 0u, convert_lane_uints(draw), 0u);
+    lane_ints_t is_light = lanes_unit(choice.v[0]) * (float)(light + brdf) < (float)light;
+    lanes_t pdf_sampled;
+    lane_block_t xi = rng_block_lanes(seed, 0u, STREAM_MAP_LIGHT, 0u, convert_lane_uints(draw), 0u);
+    lanes3_t w_light = lanes_sample_map(marginal, conditional, res, xi, &texel, &pdf_sampled);
+    w = select_lanes3(w, w_light, is_light);
+    pdf_light = select(pdf_light, pdf_sampled, is_light);
+#endif
+    int at = i * POOL_LANES;
+    vstore_lanes(w.x, 0, out + at);
+    vstore_lanes(w.y, 0, out + n + at);
+    vstore_lanes(w.z, 0, out + 2 * n + at);
+    vstore_lanes(pooled_map_density(&s, spp, w, pdf_light), 0, out + 3 * n + at);
+}
+
+/* The pooled density of map_directions at directions given as planes x, y, z of n floats
+ * (n = global size × POOL_LANES). */
+__kernel void map_direction_pdf(__global const float4 *surface, __global const cdf_word_t *marginal,
+                                __global const cdf_word_t *conditional, const int res, const int spp,
+                                __global const float *dirs, __global float *out)
+{
+    int i = get_global_id(0), n = get_global_size(0) * POOL_LANES, at = i * POOL_LANES;
+    shading_t s = load_shading(surface, surface + 1, surface + 2, surface + 3, 0);
+    lanes3_t w = make_lanes3(vload_lanes(0, dirs + at), vload_lanes(0, dirs + n + at), vload_lanes(0, dirs + 2 * n + at));
+    lane_ints_t texel;
+    vstore_lanes(pooled_map_density(&s, spp, w, lanes_map_pdf(marginal, conditional, res, w, &texel)), 0, out + at);
+}
