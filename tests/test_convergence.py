@@ -105,7 +105,14 @@ def test_equal_time_cells_and_unregistered_estimators_are_not_judged():
 def test_run_prints_a_warning_for_each_flag(monkeypatch, tmp_path, capsys):
     from iblbench.harness import cli, runner
 
-    monkeypatch.setattr(runner, "run", lambda config: _table("uniform", flat, seeds=8, noise=0.05))
+    class FlatRunner:   # the sweep's table, without rendering it
+        def __init__(self, config):
+            pass
+
+        def run(self):
+            return _table("uniform", flat, seeds=8, noise=0.05)
+
+    monkeypatch.setattr(runner, "Runner", FlatRunner)
     monkeypatch.setattr(cli, "terminal_summaries", lambda table: [])
     assert cli.main(["run", "--scene", "sphere-sun", "--out", str(tmp_path)]) == 0
     warnings = [line for line in capsys.readouterr().err.splitlines()
