@@ -15,13 +15,16 @@ device stage (OpenCL profiling events, DESIGN §3 "Timing"):
   build and its bound see the same load;
 - ``sample`` and ``shade``: ``Estimate.timings_ms`` (the pool estimators' ``sample`` is the
   draw of the light-sample pool and its layout as planes, with ``balanced_mis``'s shared BRDF
-  numbers; ``havran``'s is the device time of its map's CDFs, its K lights and their filter);
+  numbers; ``havran``'s is the device time of its map's CDFs, its K lights and their filter;
+  ``smc``'s the build of its map proposal's alias tables, ``map_alias_pairs`` and
+  ``map_alias_columns``);
 - the rates divide by the render's device time, sample + shade (build does not scale with spp
   and is reported beside them).
 
 Temporal estimators (``havran``, ``smc``) are ``reset()`` before every render, so each timed
 render is the first frame of a sequence, what an ``iblbench run`` cell of a static scene
-renders (``smc``: its BIS initialisation, M + N evaluations per pixel).
+renders (``smc``: its alias tables' build, then its BIS initialisation, M + N evaluations per
+pixel).
 
 The roofline.  ``fma_throughput`` (``perf.cl``: independent FMA chains, two FLOPs each) gives
 the device's FLOP rate and ``copy_bandwidth`` (one float4 read and one written per work item,
@@ -46,7 +49,8 @@ simplifications:
   hot path): ``phong_power`` c^m = 35 (its log2 half, the atanh series, 16; its exp2 half, a
   Taylor polynomial to r⁷ over the float's bits, 19), ``sincos_turn`` 24, a direction about an
   axis 68 (its basis 13, sincos_turn, the rest 31), ``phong_mixture_pdf`` 5, a cube-map texel
-  lookup 10, ``light_pdf_on_face`` 26, ``sample_face``'s point and pdf 38;
+  lookup 10, ``light_pdf_on_face`` 26, a map draw by the alias tables (``sir.cl``) 28 (two
+  alias draws 6, the face-plane point 10, its unit direction 12);
 - a factor that is the same for every sample of a pixel (kd/π, (m+2)/2π, 1/(m+1), Y(kd), the
   bases about n and r) counts once per pixel, as the compiler hoists it; a common subexpression
   once; products by constant ±1, 0 or 1 (a corner of Eq. 3, a proposal with env_pick = 0)
@@ -57,11 +61,15 @@ draws), and bis/smc pad their pixels to whole groups; the masked lanes are not c
 fraction is one of useful work.
 Bytes: the roofline's DRAM traffic, i.e. what each pixel must move (its four G-buffer float4s in,
 64 B, its outputs out, and smc's particles), with the map, CDFs, face integrals, light pool,
-shared BRDF numbers and light set taken as cache-resident: they are shared by every pixel, and at
-the default env 64 they fit in the last-level cache (6·64²·(16 + 8) B ≈ 0.6 MB); so are bis's
-and smc's per-group scratch blocks (64 pixels × (M + N) words, 86 KB at spp 16), reused within
-the group's launch.  At large faces the random texel and CDF reads of balanced_mis, bis and smc
-also reach DRAM and the byte counts are lower bounds.  Per sample, at spp samples and E
+shared BRDF numbers, light set and smc's alias tables and texels taken as cache-resident: they
+are shared by every pixel, and at the default env 64 they fit in the last-level cache
+(6·64²·(16 + 8) B ≈ 0.6 MB, the CDFs' words or the alias tables' beside the texels); so are
+bis's and smc's per-group scratch blocks (64 pixels × (M cumulative bounds in acc_t, N chosen
+candidate ints, 3 acc_t sums), 8M + 4N + 24 B a pixel: 169 KB at spp 16, 211 KB at spp 20),
+written and read back within the group's run.  (Each group has a block of its own, so the
+blocks' write-backs do reach DRAM on a CPU; not counted.)  At large faces the
+random texel reads of balanced_mis, bis and smc, balanced_mis's CDF reads and smc's alias-table
+reads also reach DRAM and the byte counts are lower bounds.  Per sample, at spp samples and E
 evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``bytes_per_sample``
 = B_s + B_p/spp.  The rows, F_e per evaluation, F_s / B_s per sample, F_p / B_p per pixel:
 
@@ -84,20 +92,30 @@ evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``byt
         a light above the horizon: lobe power 41, phong_value 7, ×W, ×cos 6, sum 3; per light
         n·ω 5, culled or not; per pixel the reflection 12 and hoisted factors 5; bytes: 64 in,
         radiance float4, counts float2 and evaluations out
-    bis            197     0 / 0      56 / 88
-        a candidate of the BRDF mixture, 197: uniforms 3, sample_phong_direction 104 (both
-        polar cosines, ξ^{1/(m+1)} 35 and √ξ, the direction 68), lobe power 41, q 10, γ = L_Y ρ_Y
-        cos 20 (texel lookup 10, Y(L) 5, ρ_Y 3, products 2), γ/q 1, and the Kahan sums and
-        systematic positions of the two passes over the stored weights 17; a resampled one,
-        regenerated, 195: the same 179 + f/γ 13 + its sums 3; per pixel shading 24, hoisted
-        factors 22, stratified pick, resampling and output 10
-    smc            274     1 / 24     60 / 136
-        the first frame's smc_init (BIS with M = 20 N, half the candidates from the map): a
-        candidate 275 = bis's 197 + the map proposal's sample_face 38 and stratum 2, q's
-        light_pdf term 30 (its texel lookup shared with γ's, −10) and the candidate ratio
-        w·f/γ 19; a resampled one 255; per sample the effective count 1 and the particle (ω, W)
-        and gammas written, 24 B; per pixel bis's factors + the estimate 60; bytes: 64 in,
-        state, carried estimate, radiance, counts and stats out
+    bis            183     3 / 0      50 / 88
+        F_e is a candidate, 183: uniforms 3, stratum 2, sample_phong_direction 104 (both polar
+        cosines, ξ^{1/(m+1)} 35 and √ξ, the direction 68), lobe power 41, q 10 (n·ω 5, mixture
+        pdf 5), γ = L_Y ρ_Y cos 20 (texel lookup 10, Y(L) 5, ρ_Y 3, products 2), γ/q 1, and as it
+        leaves its lane the total (fp64) and the bound 2 (its f/γ is dead: no candidate ratio);
+        F_s is a resampled one's excess: regenerated in 16-lane vectors, 181 (the candidate's
+        181 before its lane's sums, less q 10, γ/q 1 and ×cos 1, which nothing reads there, +
+        f/γ 12), its systematic position 2 and f/γ sums 3: 186 = 183 + 3; per pixel shading 24,
+        hoisted factors 19 (11 before the candidates, the 8 that f/γ needs again before the
+        regeneration), the resampling uniform, Σw/N and Ẑ 3, output 4
+    smc            176    45 / 24     58 / 140
+        the first frame's smc_init (BIS with M = 20 N, the first half of the candidates from
+        the map); F_e is a candidate, 176: a 16-lane block takes one strategy, the BRDF's
+        draw 107 (uniforms 3, both cosines 36, direction 68) or a map draw 28, half each
+        67.5, stratum 2, the texel of ω and its area_per_solid_angle 20, lobe power 41, n·ω 5,
+        q 9 (mixture pdf 5 × (1 − env_pick), + env_pick × the texel's .w × area 3), γ's other
+        10, γ/q 1, f/γ 12, as it leaves its lane the total and bound 2 and the w·f/γ sums 6
+        (175.5); F_s is a resampled one's excess, 45: regenerated in blocks that mix both
+        strategies, so both draws 135, stratum 2, texel 10, lobe power 41, n·ω 5, γ 10, f/γ 12
+        (215: q is dead there), its position 2 and sums 3, the effective count 1: 221 = 176 +
+        45; per sample the particle (ω, W) and gammas written, 24 B; per pixel shading 24,
+        hoisted factors 20 (bis's + 1 − env_pick), the stratified pick 3, the resampling 3, the
+        candidate ratio Σw·f/γ / Σw 3, 1/N 1, the estimate 3, stats 1; bytes: 64 in, its list
+        entry 4, state, carried estimate, radiance, counts and stats out (72)
     brdf           174     0 / 0     103 / 88
         a BRDF sample drawn per pixel (estimators/envmap.cl without light samples), 174:
         uniforms 3, sincos_turn 24, √ξ 1, log2 ξ 16 and the exp2 half 19 of ξ^{1/(m+1)},
@@ -189,8 +207,8 @@ KERNEL_COSTS = {
     "balanced": KernelCost(65, 0, 0, 214, 88),
     "balanced_mis": KernelCost(110, 0, 0, 246, 88),
     "havran": KernelCost(57, 5, 0, 17, 92),
-    "bis": KernelCost(197, 0, 0, 56, 88),
-    "smc": KernelCost(274, 1, 24, 60, 136),
+    "bis": KernelCost(183, 3, 0, 50, 88),
+    "smc": KernelCost(176, 45, 24, 58, 140),
     "brdf": KernelCost(174, 0, 0, 103, 88),
     "envmap": KernelCost(115, 0, 0, 76, 88),
 }
