@@ -213,10 +213,10 @@ def read_journal(out_dir: pathlib.Path) -> list[dict]:
 
 
 def cell_files(out_dir: pathlib.Path, row: dict) -> list[pathlib.Path]:
-    """The image files a finished cell leaves under ``images/<scene>/f<frame>/``."""
+    """The image files a finished cell leaves under ``images/<scene>/f<frame>/`` (its EXR; the
+    PNG previews are ``iblbench report``'s)."""
     folder = out_dir / "images" / str(row["scene"]) / f"f{int(row['frame'])}"
-    stem = image_stem(row)
-    return [folder / f"{stem}.exr", folder / f"{stem}.png", folder / f"{stem}_de76.png"]
+    return [folder / f"{image_stem(row)}.exr"]
 
 
 def image_configuration(row: dict) -> tuple[int, int, int] | None:

@@ -120,7 +120,6 @@ from iblbench.harness.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_time
                                      timed_renders, too_wide)
 from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
                                     select_frames)
-from iblbench.reports.previews import write_heat_map, write_preview
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.framing import warn_about_framing
@@ -719,7 +718,6 @@ class Runner:
         mask = gbuffer.gbuffer.mask
         scorer = Scorer(reference, mask, self.config.metrics)
         write_exr(images / "reference.exr", reference)
-        write_preview(images / "reference.png", reference, scorer.k)
         todo = self._scene_todo(scene_name, cache.frame)
         for spec in self.specs:
             cells = [key for key in todo if key[1] == spec.label]
@@ -773,8 +771,6 @@ class Runner:
                     plan, sequence_key, previous_frame, stem, mask), mask)
                 self._previous_delta_e[sequence_key] = (frame, delta_e.astype(np.float32))
                 write_exr(images / f"{stem}.exr", estimate.radiance)
-                write_preview(images / f"{stem}.png", estimate.radiance, scorer.k)
-                write_heat_map(images / f"{stem}_de76.png", delta_e)
                 # The row goes to the journal after its images: a journaled cell is complete.
                 self.journal.append(row)
                 self.rows[row_key(row)] = row

@@ -1,8 +1,8 @@
 """``iblbench report DIR``: a self-contained static HTML report of one run → ``DIR/report/``.
 
 ``DIR/report/index.html`` opens from disk with no server: every image it shows (plots, the
-colour bar, the sample pictures and copies of the run's PNG previews) lies inside ``DIR/report``
-and is referenced by a relative path; the page loads no script, stylesheet or font (its one
+colour bar, the sample pictures, the previews and heat maps it draws from the run's EXRs) lies
+inside ``DIR/report`` and is referenced by a relative path; the page loads no script, stylesheet or font (its one
 script, the compare viewer's, and its stylesheet are inline).
 
 Contents, per scene: the summary (estimator × spp) in two tables, errors and samples/time, error
@@ -35,7 +35,6 @@ import dataclasses
 import json
 import pathlib
 import re
-import shutil
 
 import jinja2
 import markupsafe
@@ -44,14 +43,16 @@ import pandas as pd
 
 from iblbench.harness.convergence import flatter_than_tags
 from iblbench.harness.equal_time import TOLERANCE
+from iblbench.harness.metrics import Scorer
 from iblbench.harness.results import load_table
 from iblbench.harness.stats import cell_intervals, interval_text, mean_ci
 from iblbench.harness.timing import TIME
 from iblbench.reports import plots
-from iblbench.reports.previews import HEAT_SCALE, heat_scale
 from iblbench.reports.frames import shown_frame
+from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
+from iblbench.scenes.imageio import read_exr
 
 REQUIRED_COLUMNS = ("scene", "estimator", "spp", "frame", "seed", "mean_delta_e76",
                     "mean_delta_e2000", "rel_mse", "used_samples", "effective_samples",
@@ -246,46 +247,95 @@ def choose_spp(table: pd.DataFrame, scene: str, frame: int, seed: int, spp: int 
     return {name: (spp if spp in have else max(have)) for name, have in by_estimator.items()}
 
 
-def _copy(source: pathlib.Path, report: pathlib.Path, relative: str) -> str | None:
-    """Copy a run image into the report; its relative path there, or None if it is missing."""
-    if not source.is_file():
-        return None
-    target = report / relative
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(target) as tmp:
-        shutil.copyfile(source, tmp)
-    return relative
+class FramePreviews:
+    """The PNG previews and ΔE76 heat maps of one (scene, frame), drawn into the report from the
+    run's EXRs (the run writes no PNG: they cost it ~5 ms of host time per cell, and a report
+    shows one frame and seed).  A PNG no older than its EXRs (and, for a heat map, drawn on
+    today's HEAT_SCALE) is kept, so a second report draws nothing.  The reference and the
+    G-buffer's mask (``mask``, called at most once) are read only when something must be drawn:
+    the exposure and the heat maps are the run's scorer's (:class:`~iblbench.harness.metrics.
+    Scorer`), non-finite estimate values black as in its scoring.  Where the mask cannot be had
+    (the scene left the registry, another resolution) the reference's non-black pixels stand in
+    for it: the reference is black outside the mask, so only black covered pixels differ."""
+
+    def __init__(self, run_images: pathlib.Path, report: pathlib.Path, where: str, mask):
+        self.run_images, self.report, self.where, self._mask = run_images, report, where, mask
+        self._scorer = None
+
+    def _scorer_of_frame(self) -> Scorer:
+        if self._scorer is None:
+            reference = read_exr(self.run_images / "reference.exr")
+            try:
+                mask = self._mask()
+            except InputError:
+                mask = None
+            if mask is None or mask.shape != reference.shape[:2]:
+                mask = (reference != 0.0).any(axis=-1)
+            self._scorer = Scorer(reference, mask, ("de76",))
+        return self._scorer
+
+    def _target(self, name: str, sources: list[pathlib.Path], scale: str | None = None):
+        """(the PNG's path relative to the report or None when a source EXR is missing, whether
+        it must be drawn)."""
+        try:
+            newest = max(source.stat().st_mtime_ns for source in sources)
+        except FileNotFoundError:
+            return None, False
+        relative = f"{self.where}/{name}"
+        target = self.report / relative
+        try:
+            stale = target.stat().st_mtime_ns < newest
+        except FileNotFoundError:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            return relative, True
+        return relative, stale or (scale is not None and heat_scale(target) != scale)
+
+    def reference(self) -> str | None:
+        relative, draw = self._target("reference.png", [self.run_images / "reference.exr"])
+        if draw:
+            scorer = self._scorer_of_frame()
+            write_preview(self.report / relative, scorer.reference, scorer.k)
+        return relative
+
+    def estimate(self, stem: str) -> tuple[str | None, str | None]:
+        """The preview and the heat map of the estimate ``stem``."""
+        sources = [self.run_images / f"{stem}.exr", self.run_images / "reference.exr"]
+        preview, draw_preview = self._target(f"{stem}.png", sources[:1])
+        heat, draw_heat = self._target(f"{stem}_de76.png", sources, HEAT_SCALE)
+        if draw_preview or draw_heat:
+            scorer = self._scorer_of_frame()
+            radiance = read_exr(sources[0])
+            if draw_preview:
+                write_preview(self.report / preview, radiance, scorer.k)
+            if draw_heat:
+                radiance = np.where(np.isfinite(radiance), radiance, 0.0)
+                write_heat_map(self.report / heat, scorer.delta_e_images(radiance)[0])
+        return preview, heat
 
 
-def image_grid(run_dir, report, table, cells, scene, frame, seed, spp) -> dict:
-    """The images of one scene at (``frame``, ``seed``), copied into the report: ``tiles``, the
-    grid (the reference, each estimator at its :func:`choose_spp` spp and its ΔE76 heat map,
+def image_grid(run_dir, report, table, cells, scene, frame, seed, spp, mask) -> dict:
+    """The images of one scene at (``frame``, ``seed``), drawn into the report by
+    :class:`FramePreviews` (``mask``: a callable giving the scene's G-buffer mask): ``tiles``,
+    the grid (the reference, each estimator at its :func:`choose_spp` spp and its ΔE76 heat map,
     captioned with the cell's mean ΔE76 over seeds and its interval), and ``viewer``, the
     compare viewer's ``choices`` (every estimate and heat map of the frame and seed, each spp)
-    with the two estimators it opens on (``a``, ``b``) and the ``reference``.  ``stale_heat``
-    lists heat maps drawn on another scale than the colour bar's (an older version's)."""
-    images = pathlib.Path(run_dir) / "images" / scene / f"f{frame}"
-    where = f"images/{scene}/f{frame}"
-
-    def copy(name):
-        return _copy(images / name, report, f"{where}/{name}")
-
+    with the two estimators it opens on (``a``, ``b``) and the ``reference``."""
+    previews = FramePreviews(pathlib.Path(run_dir) / "images" / scene / f"f{frame}",
+                             pathlib.Path(report), f"images/{scene}/f{frame}", mask)
     chosen = choose_spp(table, scene, frame, seed, spp)
     rows = table[(table.scene == scene) & (table.frame == frame) & (table.seed == seed)]
     cell = cells[cells.scene == scene].set_index(["estimator", "spp"])
-    reference = copy("reference.png")
+    reference = previews.reference()
     tiles = [{"title": "reference", "subtitle": ["exact quadrature"], "src": reference,
               "heat": None}]
     choices = [{"label": "reference (exact quadrature)", "src": reference}] if reference else []
-    shown, stale = {}, []
+    shown = {}
     for name, runs in rows.groupby("estimator", sort=False):
         for row in runs.sort_values("spp").to_dict("records"):
-            n, stem = int(row["spp"]), _image_stem(row)
-            src, heat = copy(f"{stem}.png"), copy(f"{stem}_de76.png")
+            n = int(row["spp"])
+            src, heat = previews.estimate(_image_stem(row))
             choices += [{"label": label, "src": image} for label, image in (
                 (f"{name} @ {n} spp", src), (f"{name} @ {n} spp: ΔE76 heat map", heat)) if image]
-            if heat and heat_scale(report / heat) != HEAT_SCALE:
-                stale.append(heat)
             if n != chosen[name]:
                 continue
             over_seeds = cell.loc[(name, n)]
@@ -298,7 +348,7 @@ def image_grid(run_dir, report, table, cells, scene, frame, seed, spp) -> dict:
     pair = list(shown.values())[:2]
     pair = pair if len(pair) == 2 else [reference, *pair]   # one estimator: against the reference
     viewer = {"choices": choices, "reference": reference, "a": pair[0], "b": pair[-1]}
-    return {"frame": frame, "seed": seed, "tiles": tiles, "viewer": viewer, "stale_heat": stale,
+    return {"frame": frame, "seed": seed, "tiles": tiles, "viewer": viewer,
             "spp": sorted(set(chosen.values()))}
 
 
@@ -511,7 +561,8 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
             _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
         scene_frame, frame_rule = shown_frame(run_dir, scene, frames,
                                               frame if frame in frames else None)
-        grid = image_grid(run_dir, report, table, cells, scene, scene_frame, seed, spp)
+        grid = image_grid(run_dir, report, table, cells, scene, scene_frame, seed, spp,
+                          lambda: scene_inputs(run_dir, manifest, scene, scene_frame).mask)
         per_frame = None
         if len(frames) > 1:
             data = cell_intervals(rows, ["estimator", "spp", "frame"],

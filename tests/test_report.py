@@ -9,6 +9,7 @@ from __future__ import annotations
 import html.parser
 import io
 import math
+import os
 import pathlib
 import re
 import shutil
@@ -20,14 +21,17 @@ from PIL import Image
 
 from iblbench.estimators.light_pool import TICKS_PER_SAMPLE
 from iblbench.harness import cli
+from iblbench.harness.metrics import delta_e_images, exposure
 from iblbench.harness.runner import RunConfig, run
 from iblbench.reports import plots
 from iblbench.reports.plots import pareto_front
+from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
 from iblbench.reports.report import (default_pixel, load_run, scene_inputs, summarize, summary_html,
                                      write_report)
 from iblbench.scenes import cubemap
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.gbuffer import GBuffer
+from iblbench.scenes.imageio import read_exr
 
 SPP = (4, 16)
 ESTIMATORS = ("uniform", "balanced")
@@ -491,17 +495,43 @@ def test_clicking_a_grid_image_puts_it_into_the_viewer(browser):
     assert not errors, errors
 
 
-def test_heat_maps_of_another_scale_are_flagged(reported, tmp_path):
-    """A run whose heat maps an older version drew (no scale tag) gets a warning: the colour
-    bar does not describe them."""
+def test_the_report_draws_the_previews_from_the_run_s_exrs_once(reported, tmp_path):
+    """The run writes EXRs only; the report draws each preview and heat map it shows, with the
+    run's exposure and G-buffer mask, and a second report redraws only what is missing, older
+    than its EXRs or on another heat scale."""
     out, _ = reported
+    assert not list((out / "images").rglob("*.png"))
     copy = tmp_path / "run"
     shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
-    old = copy / "images" / "sphere-sun" / "f0" / "uniform_spp16_s0_de76.png"
-    Image.new("RGB", (24, 24)).save(old)                          # untagged, as before
-    grid = write_report(copy)["scenes"][0]["grid"]
-    assert grid["stale_heat"] == ["images/sphere-sun/f0/uniform_spp16_s0_de76.png"]
-    assert "drawn by an older iblbench" in (copy / "report" / "index.html").read_text(encoding="utf-8")
+    write_report(copy)
+    run_images, drawn = copy / "images" / "sphere-sun" / "f0", copy / "report" / "images" / "sphere-sun" / "f0"
+    reference = read_exr(run_images / "reference.exr")
+    mask = GBuffer.load_npz(copy / "inputs" / "sphere-sun" / "gbuffer.npz").mask
+    assert 0 < mask.sum() < mask.size and ((reference != 0).any(axis=-1) == mask).all()
+    estimate = read_exr(run_images / "uniform_spp4_s0.exr")
+    expected = tmp_path / "expected"
+    expected.mkdir()
+    write_preview(expected / "reference.png", reference, exposure(reference, mask))
+    write_preview(expected / "estimate.png", estimate, exposure(reference, mask))
+    write_heat_map(expected / "heat.png", delta_e_images(estimate, reference, mask)[0])
+    for mine, theirs in (("reference.png", "reference.png"), ("uniform_spp4_s0.png", "estimate.png"),
+                         ("uniform_spp4_s0_de76.png", "heat.png")):
+        assert (np.asarray(Image.open(drawn / mine)) == np.asarray(Image.open(expected / theirs))).all()
+
+    def stamps():
+        return {path.name: path.stat().st_mtime_ns for path in drawn.iterdir()}
+
+    first = stamps()
+    assert len(first) == 1 + 2 * len(ESTIMATORS) * len(SPP)
+    write_report(copy)
+    assert stamps() == first                                        # nothing redrawn
+    Image.new("RGB", (24, 24)).save(drawn / "uniform_spp16_s0_de76.png")   # untagged, as before
+    newer = first["uniform_spp4_s0.png"] + 10**9
+    os.utime(run_images / "uniform_spp4_s0.exr", ns=(newer, newer))
+    write_report(copy)
+    redrawn = {name for name, stamp in stamps().items() if stamp != first[name]}
+    assert redrawn == {"uniform_spp16_s0_de76.png", "uniform_spp4_s0.png", "uniform_spp4_s0_de76.png"}
+    assert heat_scale(drawn / "uniform_spp16_s0_de76.png") == HEAT_SCALE
 
 
 # --- the report shows what the run has, from any working directory -------------------------------

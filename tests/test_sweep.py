@@ -195,7 +195,7 @@ def test_flags_override_config_fields(tmp_path, capsys):
     assert manifest["estimator_params"] == {"uniform{shared_sequence=false}":
                                             '{"shared_sequence": false}'}
     images = out / "images" / "sphere-sun" / "f0"
-    assert (images / "uniform-shared_sequence=false_spp8_s1.png").is_file()
+    assert (images / "uniform-shared_sequence=false_spp8_s1.exr").is_file()
 
 
 def test_both_variants_share_one_table(tmp_path, capsys):
