@@ -531,9 +531,12 @@ def run_command(out_dir: pathlib.Path, manifest: dict) -> str:
     source = str((manifest.get("sweep") or {}).get("source", ""))
     if not source:
         return f"(not known: {out_dir} has no manifest.json with a sweep)"
-    if source.startswith("RunConfig"):
-        return f"(the Python API; its sweep is in {out_dir / 'manifest.json'})"
     sweep = manifest["sweep"]
+    if source.startswith("RunConfig") or "overridden_by_arguments" in sweep:
+        # a RunConfig built in Python, or iblbench.run(): no command line made it
+        given = sweep.get("overridden_by_arguments") or []
+        return (f"(Python: iblbench.run{'(' + ', '.join(given) + ')' if given else ''}; "
+                f"its sweep is in {out_dir / 'manifest.json'})")
     config = source.removeprefix("shipped:")
     flags = sweep.get("overridden_by_flags") or []
     return (f"iblbench run --config {config} --out {out_dir}"

@@ -585,16 +585,18 @@ def _run(args) -> None:
         progress=False if args.no_progress else None, note={"overridden_by_flags": flags}))
     table = runner.run()
     human = _human_output(args)
-    for title, summary in terminal_summaries(table):
+    rows = runner.sweep_rows(table)   # --out may also hold other sweeps' cells
+    for title, summary in terminal_summaries(rows):
         if title:
             print(title, file=human)
         print(summary.to_string(float_format=lambda v: f"{v:.4g}"), file=human)
-    print(f"wrote {len(table)} rows to {args.out}/results.parquet", file=human)
+    print(f"wrote {len(rows)} rows to {args.out}/results.parquet"
+          + (f" ({len(table)} in all)" if len(table) != len(rows) else ""), file=human)
     from iblbench.harness.convergence import flatter_than_tags
-    for flag in flatter_than_tags(table):   # issue 11: convergence flatter than the tags allow
+    for flag in flatter_than_tags(rows):   # issue 11: convergence flatter than the tags allow
         print(f"warning: convergence: {flag.text()}", file=sys.stderr)
     if args.json:
-        _print_json(run_summary(runner.sweep_rows(table), args.out, read_manifest(args.out)))
+        _print_json(run_summary(rows, args.out, read_manifest(args.out)))
 
 
 def terminal_summaries(table):

@@ -27,8 +27,8 @@ folder or table, no common cell, a bad threshold, a threshold on a metric no com
 
 **Differences.**  compare says when the folders differ in code (the manifest's git revision,
 each paired estimator's ``estimator_version``), device (the rows' ``device``), protocol
-(``protocol``, ``schema_version``, ``metrics``, the manifest's timing ``measure`` and
-``repeats``: a row's ``time_repeats`` varies with the timing spread, so it is no protocol) or
+(``protocol``, ``schema_version``, ``metrics``, the manifest's timing ``measure`` and each
+paired estimator's ``repeats``: a row's ``time_repeats`` varies with the timing spread, so it is no protocol) or
 configuration (``width``,
 ``height``, ``env_res``).  It compares them anyway: the user decides what a difference means;
 times are only meaningful on one device.
@@ -152,11 +152,15 @@ def _differences(table_a, table_b, manifest_a, manifest_b, pairs) -> list[str]:
             found.append(f"estimator: {label_a} (A) paired with {label_b} (B) by base name")
         if versions_a != versions_b:
             found.append(f"code: {label_b} estimator_version {versions_a} (A) vs {versions_b} (B)")
-    for key in ("measure", "repeats"):
-        timing_a = manifest_a.get("timing", {}).get(key)
-        timing_b = manifest_b.get("timing", {}).get(key)
-        if timing_a != timing_b:
-            found.append(f"protocol: timing {key} {timing_a} (A) vs {timing_b} (B)")
+    timing_a, timing_b = manifest_a.get("timing", {}), manifest_b.get("timing", {})
+    if timing_a.get("measure") != timing_b.get("measure"):
+        found.append(f"protocol: timing measure {timing_a.get('measure')} (A) vs "
+                     f"{timing_b.get('measure')} (B)")
+    for label_a, label_b in pairs:   # repeats are per estimator label: only the paired ones
+        repeats_a = timing_a.get("repeats", {}).get(label_a)
+        repeats_b = timing_b.get("repeats", {}).get(label_b)
+        if repeats_a != repeats_b:
+            found.append(f"protocol: {label_b} timing repeats {repeats_a} (A) vs {repeats_b} (B)")
     for what, column in DIFFERENCE_COLUMNS:
         value_a, value_b = _values(table_a, column), _values(table_b, column)
         if value_a != value_b:

@@ -453,8 +453,9 @@ class Runner:
             "stages": self.stages,
             "skipped": self.skipped,
             "timing": {"measure": MEASURE, "repeats": dict(self.repeats),
-                       "cell": "median of the estimator's repeats of timed renders after "
-                               "warm-up; min and IQR beside it (harness/timing.py)",
+                       "cell": "median of the cell's timed renders after warm-up: the "
+                               "estimator's repeats, more where they spread (timing.spread); "
+                               "min and IQR beside it (harness/timing.py)",
                        "context": "BLAS and OpenMP pools at one host thread for the whole run "
                                   "(threadpoolctl); a cell's repeats (or a calibration spp's "
                                   "renders) back to back before scoring",

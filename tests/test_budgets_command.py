@@ -128,3 +128,15 @@ def test_budgets_from_a_real_run_pass_check_on_it(tmp_path):
     result = iblbench("check", run, "--budgets", output)
     assert result.returncode == 0, result.stdout + result.stderr
     assert result.stdout.strip().splitlines()[-1].startswith("check: PASS")
+
+
+def test_run_command_names_the_python_api_for_an_api_run(tmp_path):
+    """A run made by iblbench.run has no command line: the header must not claim one."""
+    from iblbench.harness.budgets import run_command
+
+    api_run = {"sweep": {"source": "shipped:default", "via": "iblbench.run (Python API)",
+                         "overridden_by_arguments": ["scenes", "spp"]}}
+    assert run_command(tmp_path, api_run).startswith("(Python: iblbench.run(scenes, spp)")
+    cli_run = {"sweep": {"source": "shipped:quick", "overridden_by_flags": ["--seeds"]}}
+    expected = f"iblbench run --config quick --out {tmp_path} with --seeds"
+    assert run_command(tmp_path, cli_run).startswith(expected)

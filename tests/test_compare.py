@@ -124,12 +124,12 @@ def test_says_what_differs(tmp_path, capsys):
     a = _table(tmp_path / "a", "uniform", [1.0, 1.1])
     b = _table(tmp_path / "b", "uniform", [1.0, 1.1], estimator_version="v2", device="other",
                protocol="lab-other")
-    write_manifest(a, {"git_revision": "aaa", "timing": {"repeats": {"default": 5}}})
-    write_manifest(b, {"git_revision": "bbb", "timing": {"repeats": {"default": 3}}})
+    write_manifest(a, {"git_revision": "aaa", "timing": {"repeats": {"uniform": 5, "havran": 3}}})
+    write_manifest(b, {"git_revision": "bbb", "timing": {"repeats": {"uniform": 3}}})
     _, out = _compare(capsys, a, b)
     for text in ("code: git revision aaa (A) vs bbb (B)", "estimator_version v1 (A) vs v2 (B)",
                  "device: device dev (A) vs other (B)", "protocol: protocol lab-reinhard-v1",
-                 "protocol: timing repeats {'default': 5} (A) vs {'default': 3} (B)"):
+                 "protocol: uniform timing repeats 5 (A) vs 3 (B)"):
         assert text in out.out
 
 

@@ -112,6 +112,9 @@ def test_run_prints_a_warning_for_each_flag(monkeypatch, tmp_path, capsys):
         def run(self):
             return _table("uniform", flat, seeds=8, noise=0.05)
 
+        def sweep_rows(self, table):
+            return table
+
     monkeypatch.setattr(runner, "Runner", FlatRunner)
     monkeypatch.setattr(cli, "terminal_summaries", lambda table: [])
     assert cli.main(["run", "--scene", "sphere-sun", "--out", str(tmp_path)]) == 0
