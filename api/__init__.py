@@ -98,7 +98,7 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
     except ValueError as error:
         raise InputError(None, str(error)) from None
     out = pathlib.Path(out)
-    entries, written, created = ((None, [], []) if scenes is None
+    entries, written, created = ((None, [], {}) if scenes is None
                                  else _scene_entries(_listed(scenes), out, force))
     try:
         runner = Runner(run_config(
@@ -190,14 +190,16 @@ def _scene_entries(scenes, out: pathlib.Path, force: bool):
         else:
             raise InputError(None, f"a scene must be a built-in name, a .toml path or a dict, "
                                    f"got {type(scene).__name__}")
-    written, created = [], []
+    written, created = [], {}   # created: path -> the text it held before (None: it was new)
     for name, text in documents.items():
         path = out / SCENE_FOLDER / f"{name}.toml"
-        if path.is_file() and path.read_text(encoding="utf-8") != text and not force:
+        before = path.read_text(encoding="utf-8") if path.is_file() else None
+        if before not in (None, text) and not force:
             _remove(created)
             raise InputError(path, f"holds another scene named {name!r}; give this dict another "
                                    "'name', use another out, or force=True to replace it")
-        created += [p for p in (out, path.parent, path) if not p.exists()]
+        created |= {p: None for p in (out, path.parent) if not p.exists()}
+        created[path] = before
         _write_scene(path, text)
         written.append(path)
     return entries, written, created
@@ -272,11 +274,13 @@ def _write_scene(path: pathlib.Path, text: str) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
-def _remove(created) -> None:
-    """Undo :func:`_scene_entries` on bad input: the files and folders it created, newest
-    first (a folder only when it is empty)."""
-    for path in reversed(created):
-        if path.is_dir():
+def _remove(created: dict) -> None:
+    """Undo :func:`_scene_entries` on bad input, newest first: a replaced scene file gets its
+    previous text back; the files and folders it created go (a folder only when empty)."""
+    for path, before in reversed(created.items()):
+        if before is not None:
+            _write_scene(path, before)
+        elif path.is_dir():
             if not any(path.iterdir()):
                 path.rmdir()
         else:

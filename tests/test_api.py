@@ -127,6 +127,11 @@ def test_two_dicts_of_one_name_and_a_changed_dict_are_refused(swept, folder):
     with pytest.raises(iblbench.InputError, match="holds another scene named 'ball'"):
         iblbench.run(scenes=[brighter], estimators="uniform", spp=2, seeds=1, out=out, **TINY)
     assert (out / "scenes" / "ball.toml").read_text() == before
+    # force=True replaces the file, but bad input elsewhere puts the old scene back
+    with pytest.raises(iblbench.InputError, match="unifrom"):
+        iblbench.run(scenes=[brighter], estimators="unifrom", spp=2, seeds=1, out=out,
+                     force=True, **TINY)
+    assert (out / "scenes" / "ball.toml").read_text() == before
 
 
 def test_bad_arguments_are_input_errors(tmp_path):
