@@ -32,6 +32,7 @@ budget.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import pathlib
 import re
@@ -403,9 +404,9 @@ def default_pixel(mask: np.ndarray) -> tuple[int, int]:
     return int(xs[i]), int(ys[i])
 
 
-def sample_picture(run_dir, report, manifest, table, scene, frame, spp, pixel, compute) -> dict:
+def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, compute) -> dict:
     """Compute and draw the sample picture of ``scene``; a dict for the template (``error``
-    says why there is none)."""
+    says why there is none); ``scene_frame_inputs`` gives the frame's :class:`SceneInputs`."""
     from iblbench.estimators.light_pool import PoolEstimator
     from iblbench.harness.framecache import FrameCache
     from iblbench.reports.sample_picture import (cross_frames, cross_image, plot_sample_picture,
@@ -431,7 +432,7 @@ def sample_picture(run_dir, report, manifest, table, scene, frame, spp, pixel, c
                          + (f" ({'; '.join(notes)})" if notes else "")}
     chosen = choose_spp(table, scene, frame, 0, spp)
     n = spp or max(chosen.get(name, 0) for name in estimators) or int(table.spp.max())
-    inputs = scene_inputs(run_dir, manifest, scene, frame)
+    inputs = scene_frame_inputs()
     if pixel is None:
         pixel = default_pixel(inputs.mask)
     x, y = pixel
@@ -561,8 +562,11 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
             _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
         scene_frame, frame_rule = shown_frame(run_dir, scene, frames,
                                               frame if frame in frames else None)
+        # the heat maps' mask and the sample picture share one read (or G-buffer trace)
+        inputs = functools.cache(functools.partial(scene_inputs, run_dir, manifest, scene,
+                                                   scene_frame))
         grid = image_grid(run_dir, report, table, cells, scene, scene_frame, seed, spp,
-                          lambda: scene_inputs(run_dir, manifest, scene, scene_frame).mask)
+                          lambda: inputs().mask)
         per_frame = None
         if len(frames) > 1:
             data = cell_intervals(rows, ["estimator", "spp", "frame"],
@@ -572,8 +576,8 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         extras = f"extras_{slug}.png"
         extra_columns = plots.plot_extras(report / extras, rows, scene)
         try:
-            picture = sample_picture(run_dir, report, manifest, table, scene, scene_frame, spp,
-                                     pixel, compute)
+            picture = sample_picture(report, inputs, table, scene, scene_frame, spp, pixel,
+                                     compute)
         except InputError as error:
             if pixel is not None:
                 raise
