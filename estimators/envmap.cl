@@ -11,7 +11,12 @@
  * samples, the last weighted by β = frac(t/Q) (Lu 2013 Eq. 5), so every N_s ≥ 1 is unbiased.
  * `render_map` shades one pixel per work item, its samples POOL_LANES at a time in explicit
  * vectors (light_pool.cl: lanes masked past a strategy's draws, no data-dependent trip count, the
- * polynomial Phong power, Philox per lane); `map_directions`/`map_direction_pdf` are the χ² hooks. */
+ * polynomial Phong power, Philox per lane); `map_directions`/`map_direction_pdf` are the χ² hooks.
+ *
+ * The light sampler is a compile-time choice: a file that defines LIGHT_PARAMS (the kernels'
+ * parameters that hold its distribution), LIGHT_ARGS (their names), lanes_sample_light and
+ * lanes_light_density (their signatures below) before it includes this one replaces the map's
+ * CDFs with its own sampler (estimators/hierarchical.cl); the budget, MIS and hooks stay these. */
 #include "lanes.cl"
 
 #ifndef LIGHT_SAMPLES
@@ -41,6 +46,11 @@ ALWAYS_INLINE lanes_t mis_denominator(lanes_t own, lanes_t other)
 #endif
 }
 
+/* The map's CDFs, the light sampler unless the including file brought its own (header). */
+#ifndef LIGHT_PARAMS
+#define LIGHT_PARAMS __global const cdf_word_t *marginal, __global const cdf_word_t *conditional
+#define LIGHT_ARGS marginal, conditional
+
 /* The lanes' light directions from the blocks xi (63-bit points (v0:v1, v2:v3) >> 1): the map
  * row by the marginal over all 6·R rows, the column by that row's conditional, the point in the
  * texel by the variates' position inside their bins (lanes_sample_face's arithmetic).  *texel
@@ -65,6 +75,23 @@ ALWAYS_INLINE lanes3_t lanes_sample_map(__global const cdf_word_t *marginal,
     return lanes_face_direction(face, x, y);
 }
 
+/* The light directions of draws `draw` of pixel stream `pixel` (their random numbers keyed by
+ * seed and frame); *texel gets each one's texel and *pdf its density in solid angle. */
+ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, int res, uint seed, uint frame, uint pixel,
+                                          lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
+{
+    lane_block_t xi = rng_block_lanes(seed, frame, STREAM_MAP_LIGHT, pixel, convert_lane_uints(draw), 0u);
+    return lanes_sample_map(marginal, conditional, res, xi, texel, pdf);
+}
+
+/* The light density at the lanes' directions w; *texel gets the texel of each. */
+ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, int res, lanes3_t w, lane_ints_t *texel)
+{
+    lane_ints_t face;
+    return lanes_light_pdf_rows(marginal, conditional, res, w, 1, &face, texel);
+}
+#endif
+
 /* The lanes' BRDF directions of draws `draw` for pixel stream `stream_pixel` (draw_numbers). */
 ALWAYS_INLINE lanes3_t lanes_brdf_draw(const shading_t *s, vec3_t t_n, vec3_t b_n, vec3_t t_r, vec3_t b_r,
                                        uint seed, uint frame, uint stream_pixel, lane_ints_t draw)
@@ -76,14 +103,12 @@ ALWAYS_INLINE lanes3_t lanes_brdf_draw(const shading_t *s, vec3_t t_n, vec3_t b_
 }
 
 /* The light density at the lanes' directions (0 without light samples); *texel gets the texel. */
-ALWAYS_INLINE lanes_t lanes_map_pdf(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                                    int res, lanes3_t w, lane_ints_t *texel)
+ALWAYS_INLINE lanes_t lanes_map_pdf(LIGHT_PARAMS, int res, lanes3_t w, lane_ints_t *texel)
 {
-    lane_ints_t face;
 #if LIGHT_SAMPLES
-    return lanes_light_pdf_rows(marginal, conditional, res, w, 1, &face, texel);
+    return lanes_light_density(LIGHT_ARGS, res, w, texel);
 #else
-    lane_ints_t row, col;
+    lane_ints_t face, row, col;
     lanes_texel_of(res, w, &face, &row, &col);
     *texel = (face * res + row) * res + col;
     return (lanes_t)0.0f;
@@ -98,12 +123,11 @@ ALWAYS_INLINE void strategy_split(int spp, int *light, int *brdf)
 }
 
 /* Outputs in planes of n = get_global_size(0) floats: radiance R, G, B; counts used, effective
- * (in samples); evaluations per pixel.  `marginal` and `conditional` are unread without light
+ * (in samples); evaluations per pixel.  The light sampler's buffers are unread without light
  * samples. */
 __kernel void render_map(__global const float4 *normal, __global const float4 *view,
                          __global const float4 *kd, __global const float4 *ks_m,
-                         __global const float4 *env, __global const cdf_word_t *marginal,
-                         __global const cdf_word_t *conditional, const int res, const int spp,
+                         __global const float4 *env, LIGHT_PARAMS, const int res, const int spp,
                          const uint seed, const uint frame, __global float *radiance,
                          __global float *counts, __global int *evaluations)
 {
@@ -117,8 +141,7 @@ __kernel void render_map(__global const float4 *normal, __global const float4 *v
     for (int i = 0; i < light_draws; i += POOL_LANES) {
         lane_ints_t draw = i + LANE_NUMBERS, texel;
         lanes_t pdf_light;
-        lane_block_t xi = rng_block_lanes(seed, frame, STREAM_MAP_LIGHT, (uint)p, convert_lane_uints(draw), 0u);
-        lanes3_t w = lanes_sample_map(marginal, conditional, res, xi, &texel, &pdf_light);
+        lanes3_t w = lanes_sample_light(LIGHT_ARGS, res, seed, frame, (uint)p, draw, &texel, &pdf_light);
         lanes_t cosine = lanes_dot(s.n, w);
         lanes_t power = phong_power_lanes(max(lanes_dot(s.r, w), 0.0f), (lanes_t)s.m);
         lanes_t other = BRDF_SAMPLES ? (float)brdf * phong_mixture_pdf_lanes(s.p_spec, s.m, cosine, power) : 0.0f;
@@ -135,7 +158,7 @@ __kernel void render_map(__global const float4 *normal, __global const float4 *v
         lanes3_t w = lanes_brdf_draw(&s, t_n, b_n, t_r, b_r, seed, frame, (uint)p, draw);
         lanes_t cosine = lanes_dot(s.n, w);
         lanes_t power = phong_power_lanes(max(lanes_dot(s.r, w), 0.0f), (lanes_t)s.m);
-        lanes_t other = (float)light * lanes_map_pdf(marginal, conditional, res, w, &texel);
+        lanes_t other = (float)light * lanes_map_pdf(LIGHT_ARGS, res, w, &texel);
         lanes_t own = (float)brdf * phong_mixture_pdf_lanes(s.p_spec, s.m, cosine, power);
         add_samples(&acc, &s, draw < brdf_draws, lanes_beta(brdf, i), cosine, power,
                     lanes_texel_radiance(env, texel), mis_denominator(own, other));
@@ -165,8 +188,7 @@ ALWAYS_INLINE lanes_t pooled_map_density(const shading_t *s, int spp, lanes3_t w
  * writes them with their pooled density as planes x, y, z, density of n floats (n = global size
  * × POOL_LANES).  A light sample's p_L is the one lanes_sample_map returns (render's), not a
  * lookup: the χ² check compares it with map_direction_pdf's. */
-__kernel void map_directions(__global const float4 *surface, __global const cdf_word_t *marginal,
-                             __global const cdf_word_t *conditional, const int res, const int spp,
+__kernel void map_directions(__global const float4 *surface, LIGHT_PARAMS, const int res, const int spp,
                              const uint seed, __global float *out)
 {
     int i = get_global_id(0), n = get_global_size(0) * POOL_LANES;
@@ -179,13 +201,12 @@ __kernel void map_directions(__global const float4 *surface, __global const cdf_
     direction_about_axis_basis(s.r, &t_r, &b_r);
     lanes3_t w = lanes_brdf_draw(&s, t_n, b_n, t_r, b_r, seed, 0u, 0u, draw);
     lane_ints_t texel;
-    lanes_t pdf_light = lanes_map_pdf(marginal, conditional, res, w, &texel);
+    lanes_t pdf_light = lanes_map_pdf(LIGHT_ARGS, res, w, &texel);
 #if LIGHT_SAMPLES
     lane_block_t choice = rng_block_lanes(seed, 0u, STREAM_HOOK, 0u, convert_lane_uints(draw), 0u);
     lane_ints_t is_light = lanes_unit(choice.v[0]) * (float)(light + brdf) < (float)light;
     lanes_t pdf_sampled;
-    lane_block_t xi = rng_block_lanes(seed, 0u, STREAM_MAP_LIGHT, 0u, convert_lane_uints(draw), 0u);
-    lanes3_t w_light = lanes_sample_map(marginal, conditional, res, xi, &texel, &pdf_sampled);
+    lanes3_t w_light = lanes_sample_light(LIGHT_ARGS, res, seed, 0u, 0u, draw, &texel, &pdf_sampled);
     w = select_lanes3(w, w_light, is_light);
     pdf_light = select(pdf_light, pdf_sampled, is_light);
 #endif
@@ -198,13 +219,12 @@ __kernel void map_directions(__global const float4 *surface, __global const cdf_
 
 /* The pooled density of map_directions at directions given as planes x, y, z of n floats
  * (n = global size × POOL_LANES). */
-__kernel void map_direction_pdf(__global const float4 *surface, __global const cdf_word_t *marginal,
-                                __global const cdf_word_t *conditional, const int res, const int spp,
+__kernel void map_direction_pdf(__global const float4 *surface, LIGHT_PARAMS, const int res, const int spp,
                                 __global const float *dirs, __global float *out)
 {
     int i = get_global_id(0), n = get_global_size(0) * POOL_LANES, at = i * POOL_LANES;
     shading_t s = load_shading(surface, surface + 1, surface + 2, surface + 3, 0);
     lanes3_t w = make_lanes3(vload_lanes(0, dirs + at), vload_lanes(0, dirs + n + at), vload_lanes(0, dirs + 2 * n + at));
     lane_ints_t texel;
-    vstore_lanes(pooled_map_density(&s, spp, w, lanes_map_pdf(marginal, conditional, res, w, &texel)), 0, out + at);
+    vstore_lanes(pooled_map_density(&s, spp, w, lanes_map_pdf(LIGHT_ARGS, res, w, &texel)), 0, out + at);
 }

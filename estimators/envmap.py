@@ -46,25 +46,31 @@ class MapSampler(Estimator):
     def _kernel(self, compute, name: str, gbuffer=None):
         return compute.kernel(self.kernel_package(), self.kernel_files[0], name, self.defines(gbuffer))
 
-    def _light_cdfs(self, cache):
-        """(map marginal, conditional, device ms that built them for this render)."""
+    def _light_buffers(self, cache) -> tuple[tuple, float]:
+        """(the kernels' light-sampler buffers, ``LIGHT_PARAMS`` of envmap.cl: the map marginal
+        and the conditional; device ms that built them for this render)."""
         if not self.light_samples:
             unread = cache.compute.empty(8)
-            return unread, unread, 0.0
+            return (unread, unread), 0.0
         marginal, build_ms = cache.map_marginal(self.compensated)
-        return marginal, cache.light_cdfs(self.compensated).conditional, build_ms
+        return (marginal, cache.light_cdfs(self.compensated).conditional), build_ms
+
+    def _map_is_black(self, cache) -> bool:
+        """Whether every texel weighs 0 (from the ``cdf`` product's face integrals)."""
+        cache.require(("cdf",))
+        return not np.any(cache.face_integrals > 0)
 
     def render(self, gbuffer, cache, spp, seed):
         if not 1 <= spp <= MAX_SPP:
             raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
         compute = cache.compute
-        marginal, conditional, build_ms = self._light_cdfs(cache)
+        light_buffers, build_ms = self._light_buffers(cache)
         radiance = compute.empty(gbuffer.count * 12)   # planes R, G, B (envmap.cl)
         counts = compute.empty(gbuffer.count * 8)      # planes used, effective
         evaluations = compute.empty(gbuffer.count * 4)
         event = compute.run(
             self._kernel(compute, "render_map", gbuffer), gbuffer.count, gbuffer.normal,
-            gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer, marginal, conditional,
+            gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer, *light_buffers,
             np.int32(cache.res), np.int32(spp), np.uint32(seed), np.uint32(cache.frame),
             radiance, counts, evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean()
@@ -79,14 +85,13 @@ class MapSampler(Estimator):
         material is the conformance suite's glossy one (kd 0.5, ks 0.3, m 20).  None on an
         all-black map, as the pool estimators' hooks: every sample there weighs 0."""
         compute = cache.compute
-        cache.require(("cdf",))
-        if not np.any(cache.face_integrals > 0):
+        if self._map_is_black(cache):
             return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
         groups = -(-n // POOL_LANES)
-        marginal, conditional, _ = self._light_cdfs(cache)
+        light_buffers, _ = self._light_buffers(cache)
         out = compute.empty(4 * groups * POOL_LANES * 4)
         compute.run(self._kernel(compute, "map_directions"), groups, hook_surface(cache, normal, view),
-                    marginal, conditional, np.int32(cache.res), np.int32(HOOK_SPP), np.uint32(seed), out)
+                    *light_buffers, np.int32(cache.res), np.int32(HOOK_SPP), np.uint32(seed), out)
         planes = compute.to_host(out, (4, groups * POOL_LANES), np.float32)[:, :n]
         return np.ascontiguousarray(planes[:3].T), planes[3].copy()
 
@@ -97,10 +102,10 @@ class MapSampler(Estimator):
         planes = np.zeros((3, groups * POOL_LANES), np.float32)
         planes[:, :n] = np.asarray(dirs, np.float32).T
         planes[2, n:] = 1.0   # padding: any unit direction
-        marginal, conditional, _ = self._light_cdfs(cache)
+        light_buffers, _ = self._light_buffers(cache)
         out = compute.empty(groups * POOL_LANES * 4)
         compute.run(self._kernel(compute, "map_direction_pdf"), groups, hook_surface(cache, normal, view),
-                    marginal, conditional, np.int32(cache.res), np.int32(HOOK_SPP),
+                    *light_buffers, np.int32(cache.res), np.int32(HOOK_SPP),
                     compute.to_device(planes), out)
         return compute.to_host(out, (groups * POOL_LANES,), np.float32)[:n]
 
@@ -114,7 +119,8 @@ class EnvmapParams:
     ``"balance"`` or ``"power"`` (exponent 2); unused without MIS.
 
     ``mis_compensation`` (default False): the light distribution is built from compensated
-    weights (``FrameCache.light_cdfs``, pbrt-v4's form).  Only with MIS, as pbrt-v4 does (its
+    weights (pbrt-v4's form: ``FrameCache.light_cdfs``; ``weight_pyramid`` for
+    ``hierarchical``).  Only with MIS, as pbrt-v4 does (its
     ``SampleLi`` uses the compensated distribution only when the caller allows an incomplete
     pdf, i.e. combines it with BSDF samples): without BRDF samples it would still be unbiased
     here (every lit texel keeps a positive pdf) but it takes samples from the dim sky that no

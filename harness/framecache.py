@@ -318,23 +318,23 @@ class FrameCache:
         texels' weights): Y·Ω, or with ``compensated`` the MIS-compensated weights of
         :meth:`light_cdfs`, whose mean Ȳ comes from the plain pyramid's face totals (its
         coarsest level), so neither needs the ``cdf`` product.  Built on first use; a
-        compensated pyramid's ``build_ms`` includes the plain one's."""
+        compensated pyramid's ``build_ms`` is its own (the plain one it reads has its own)."""
         if compensated not in self._weight_pyramids:
             c, res = self.compute, self.res
             offsets = mips.level_offsets(res, 1)
             buffer = self._buffer(offsets[-1] * 4)
-            face_totals, plain_ms = None, 0.0
+            face_totals, copy_ms = None, 0.0
             if compensated:
                 plain = self.weight_pyramid(False)
                 face_totals = c.empty(6 * 4)
                 copy = cl.enqueue_copy(c.queue, face_totals, plain.buffer, byte_count=6 * 4,
                                        src_offset=plain.offsets[-1] * 4)
                 copy.wait()
-                plain_ms = plain.build_ms + event_ms(copy)
+                copy_ms = event_ms(copy)
             _, _, weights_ms = self._sampling_weights(compensated, buffer, face_totals)
-            own_ms = weights_ms + mips.reduce_levels(c, buffer, res, 1, average=False)
-            self.timings_ms["compensated_weight_pyramid" if compensated else "weight_pyramid"] = own_ms
-            self._weight_pyramids[compensated] = mips.chain(buffer, res, 1, plain_ms + own_ms)
+            build_ms = copy_ms + weights_ms + mips.reduce_levels(c, buffer, res, 1, average=False)
+            self.timings_ms["compensated_weight_pyramid" if compensated else "weight_pyramid"] = build_ms
+            self._weight_pyramids[compensated] = mips.chain(buffer, res, 1, build_ms)
         return self._weight_pyramids[compensated]
 
     def radiance_mips(self) -> mips.MipChain:

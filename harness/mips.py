@@ -49,7 +49,7 @@ def level_offsets(res: int, channels: int) -> tuple[int, ...]:
 class MipChain:
     """A chain in the layout of the module docstring: ``buffer`` float32, level l's texels from
     float offset ``offsets[l]``, of face size ``sizes[l]``; ``build_ms`` the device time that
-    built it (for the compensated weight pyramid: with the plain pyramid it derives Ȳ from)."""
+    built it (the compensated weight pyramid's without that of the plain one it reads)."""
 
     buffer: cl.Buffer
     sizes: tuple[int, ...]

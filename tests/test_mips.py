@@ -73,9 +73,7 @@ def test_compensated_pyramid_matches_numpy(compute, res):
     weights = np.maximum(y - mean, np.minimum(mean / 1000, y)) * omega
     for level, (g, e) in enumerate(zip(pyramid.host_levels(compute), numpy_chain(weights[..., None], False))):
         assert np.allclose(g, e, rtol=1e-5, atol=0), f"level {level}"
-    plain = cache.weight_pyramid(False)
-    assert pyramid.build_ms >= plain.build_ms
-    assert cache.timings_ms["compensated_weight_pyramid"] > 0
+    assert cache.timings_ms["compensated_weight_pyramid"] == pyramid.build_ms > 0
 
 
 @pytest.mark.parametrize("res", [1, 5, 8, 12])

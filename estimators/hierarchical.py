@@ -1,0 +1,77 @@
+"""``hierarchical``: light sampling by descent through a mip pyramid of each face's sampling
+weights (Falcor's EnvMapSampler, Mitsuba 3's Hierarchical2D), with optional MIS with Phong BRDF
+samples and MIS compensation, as ``envmap``."""
+from __future__ import annotations
+
+import numpy as np
+
+from iblbench.estimators.envmap import EnvmapParams, MapSampler
+
+
+class Hierarchical(MapSampler):
+    """Light sampling by sample-by-descent through each face's pyramid of Y·Ω sums (Falcor
+    ``EnvMapSampler``, Source/Falcor/Rendering/Lights/EnvMapSampler.slang and its setup pass;
+    Mitsuba 3 ``Hierarchical2D``, include/mitsuba/core/distr_2d.h), optionally with Phong BRDF
+    samples under MIS (``envmap``'s budget, heuristics and compensation).
+
+    Distribution.  The frame cache's ``weight_pyramid`` (harness/mips.py): level 0 holds each
+    texel's weight Y·Ω (Y its luminance, Ω its exact solid angle, so p(ω) ∝ Y(ω) as ``envmap``'s),
+    each coarser level the sums of 2×2 children, the 1×1 level each face's total I_f.  A sample
+    picks a face with probability ∝ I_f, then at every level one of the four children of the
+    texel picked so far in proportion to their sums, down to a texel, and a point uniform in the
+    texel's face square; its density is P(texel)·(1+x²+y²)^{3/2}/a_texel (DESIGN §3), P(texel)
+    the product of the choices' probabilities, which the density lookup (MIS weights, χ² hook)
+    recomputes from the same pyramid, so it is exactly the density sampled.  Per frame the
+    sampler needs only the pyramid: one pass of weights and log2 R reductions, no prefix scan
+    (it does not require the ``cdf`` product).
+
+    Exactness beside a 1e6:1 sun (hierarchical.cl's header).  Each choice is made in 32-bit fixed
+    point: child k gets an integer width q_k = max(1, ⌊2^32·w_k/Σw⌋) for w_k > 0 (0 for w_k = 0),
+    the remainder to the largest child, and a fresh 32-bit Philox word per level picks the bin
+    that holds it.  A child's probability is exactly q_k/2^32, and a child of positive weight
+    has at least 2^-32 ≈ 2.3e-10 per level, so every lit texel is reachable; floating-point
+    thresholds on one reused uniform (Falcor's and Mitsuba's rescaled sample) would have 24 bits.
+
+    Budget, MIS and compensation: ``envmap``'s (its docstring; the kernels are envmap.cl's with
+    this light sampler compiled in).  ``mis_compensation`` builds the pyramid from pbrt-v4's
+    max(Y − Ȳ, min(Ȳ/1000, Y))·Ω, with Ȳ from the plain pyramid's face totals
+    (``FrameCache.weight_pyramid``), only with MIS.
+
+    Deviations.  From Falcor: the pyramid is built per cube face over the map's own texels (no
+    resampling into an octahedral importance map of fixed size, so its texels and the map's
+    coincide and the density is exact per texel rather than the importance map's value at a
+    point); the six faces are chosen first by their totals; each choice among the four children
+    is one 4-way choice with a fresh 32-bit random word (Falcor picks a column and then a row
+    with one 2-D sample rescaled at every level; Mitsuba 3 a row then a column, likewise).  From
+    Mitsuba 3: piecewise-constant texels (DESIGN §3's nearest lookup) instead of its bilinear
+    patches.  A face size that is not a power of two has levels of ⌈n/2⌉, whose last parents
+    have fewer children (the missing ones weigh 0, as Mitsuba's zero padding).  The density is a
+    float product of up to ⌈log2 R⌉ + 1 factors: a texel whose probability is below float's
+    smallest normal (≈ 1e-38 of the map's total weight) would get density 0 and weight 0.
+    """
+
+    name = "hierarchical"
+    Params = EnvmapParams
+    requires = ("weight_pyramid",)
+    kernel_files = ("hierarchical.cl", "envmap.cl", "lanes.cl")
+
+    @property
+    def brdf_samples(self) -> bool:
+        return self.params.mis == "brdf"
+
+    @property
+    def compensated(self) -> bool:
+        return self.params.mis_compensation
+
+    def _light_buffers(self, cache) -> tuple[tuple, float]:
+        """((the weight pyramid,), the device ms of this render's ``sample`` stage: the
+        compensated pyramid's build, drawn on first use; the plain one is the ``build`` stage's
+        required product)."""
+        pyramid = cache.weight_pyramid(self.compensated)
+        return (pyramid.buffer,), pyramid.build_ms if self.compensated else 0.0
+
+    def _map_is_black(self, cache) -> bool:
+        """Whether every face total (the pyramid's 1×1 level) is 0."""
+        pyramid = cache.weight_pyramid(False)
+        totals = pyramid.host_levels(cache.compute)[-1]
+        return not np.any(totals > 0)

@@ -1,0 +1,167 @@
+"""``hierarchical``: light sampling by descent through the weight pyramid (issue 12, item 3).
+
+The default estimator passes the conformance suite in test_estimators.py; here its texel
+probabilities match the ideal w/W of an independent NumPy pyramid within the fixed-point bound
+of each choice (plain and compensated, odd face sizes too), sum to 1, are positive on every lit
+texel of a 1e6:1 sun (and of a sibling 1e-13 of a sun's weight), the χ² accepts the sampler
+there, the MIS variants pass the conformance suite, and it never builds the ``cdf`` product."""
+import numpy as np
+import pytest
+
+from iblbench.estimators import registry
+from iblbench.estimators.hierarchical import Hierarchical
+from iblbench.harness import conformance
+from iblbench.harness.conformance import ALPHA_CHI2, check_estimator, chi2_sampling
+from iblbench.harness.device_gbuffer import DeviceGBuffer
+from iblbench.harness.framecache import FrameCache
+from iblbench.harness.sweep import parse_estimator
+from iblbench.scenes import cubemap
+from iblbench.scenes.errors import InputError
+
+from test_brdf_envmap import SUN_RES, numpy_weights
+from test_mips import numpy_chain
+
+ONE = 2.0 ** 32   # a descent choice's widths total (hierarchical.cl)
+
+
+def texel_probabilities(compute, cache, compensated: bool) -> np.ndarray:
+    """P(texel) ``[6, R, R]`` of the light sampler (plain or compensated, without BRDF samples,
+    so the pooled density is the light density), from its density at the texel centres:
+    pdf · a_texel / (1+x²+y²)^{3/2}."""
+    light_only = type("LightOnly", (Hierarchical,), {"compensated": compensated})   # past the MIS check
+    res = cache.res
+    dirs = cubemap.texel_directions(res).reshape(-1, 3).astype(np.float32)
+    pdf = light_only().pdf(cache, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.6, 0.8]), dirs).astype(np.float64)
+    centres = (np.arange(res) + 0.5) / res * 2 - 1
+    y, x = np.meshgrid(centres, centres, indexing="ij")
+    jacobian = (1 + x * x + y * y) ** 1.5
+    return (pdf.reshape(6, res, res) * (4.0 / res ** 2) / jacobian[None])
+
+
+def ideal_and_bound(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(w/W per texel, the relative bound of the fixed-point descent on it): each choice of
+    ideal probability p is off by at most n/2^32 (the floor of up to n − 1 siblings' widths, all
+    landing on the largest child) plus float rounding, so P/P_ideal − 1 is within
+    Σ_choices 6/(2^32·p) + 1e-5."""
+    levels = numpy_chain(weights[..., None], average=False)
+    totals = levels[-1].reshape(6)
+    res = weights.shape[1]
+    face_p = totals / totals.sum()
+    bound = np.broadcast_to(6.0 / (ONE * np.maximum(face_p, 1e-300))[:, None, None], weights.shape).copy()
+    rows, cols = np.meshgrid(np.arange(res), np.arange(res), indexing="ij")
+    for l in range(len(levels) - 1):
+        child = levels[l][..., 0][:, rows >> l, cols >> l]
+        parent = levels[l + 1][..., 0][:, rows >> (l + 1), cols >> (l + 1)]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound += 6.0 / (ONE * (child / parent))
+    return weights / weights.sum(), bound + 1e-5
+
+
+@pytest.mark.parametrize("compensated", [False, True])
+@pytest.mark.parametrize("env", [conformance.face_pattern_map(8), conformance.sun_map(SUN_RES, 1e6),
+                                 conformance.sun_map(12, 1e6)], ids=["face-pattern", "sun-1e6", "sun-1e6-res12"])
+def test_texel_probabilities_are_the_weights_shares(compute, env, compensated):
+    """Every texel's probability is its weight over the map's total within the fixed-point
+    bound, positive for every lit texel (the 1e6:1 sun's dim sky included), 0 for the unlit,
+    and they sum to 1."""
+    cache = FrameCache(compute, env)
+    p = texel_probabilities(compute, cache, compensated)
+    weights = numpy_weights(env, compensated)
+    expected, bound = ideal_and_bound(weights)
+    if compensated:   # the device's float Y − Ȳ: a few ulps of Y + Ȳ, relative to the difference
+        plain = numpy_weights(env, False)
+        mean = plain.sum() / (4 * np.pi)
+        omega = cubemap.texel_solid_angles(env.shape[1])[None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound += 1e-6 * (plain + mean * omega) / weights
+    lit = weights > 0
+    assert np.all(p[lit] > 0), f"{np.count_nonzero(p[lit] <= 0)} lit texels are never drawn"
+    assert np.all(p[~lit] == 0)
+    relative = np.abs(p[lit] / expected[lit] - 1)
+    assert np.all(relative <= bound[lit]), f"worst {relative.max():.3g} against bound {bound[lit][relative.argmax()]:.3g}"
+    assert abs(p.sum() - 1) < 1e-5
+    assert "cdf" not in cache.built
+
+
+def test_a_sibling_below_float_resolution_stays_reachable(compute):
+    """A texel 1e-13 of its 2×2 sibling sun (below 2^-32 and far below a float threshold's
+    2^-24) keeps the smallest width, 1/2^32, at its own choice: P ≥ 2^-32 · P(its parent)."""
+    res = 8
+    env = np.full((6, res, res, 3), 1e-3, np.float32)
+    env[2, 4, 4] = 1e10
+    env[2, 4, 5] = 1e-3
+    cache = FrameCache(compute, env)
+    p = texel_probabilities(compute, cache, compensated=False)
+    weights = numpy_weights(env, False)
+    parent = weights[2, 4:6, 4:6].sum() / weights.sum()
+    assert p[2, 4, 5] >= 0.99 * parent / ONE
+    assert p[2, 4, 5] <= 6.0 * parent / ONE
+
+
+@pytest.mark.parametrize("params", [{}, {"mis": "brdf"}, {"mis": "brdf", "mis_compensation": True}],
+                         ids=["light-only", "mis", "mis-compensated"])
+def test_chi2_passes_on_a_sun_map(compute, params):
+    """On a map whose sun is 1e6× its brightest sky texel the sampler's directions follow its
+    pdf (χ², pooled low-count cells) at two surfaces."""
+    estimator = registry.make_estimator("hierarchical", **params)
+    cache = FrameCache(compute, conformance.sun_map(SUN_RES, 1e6))
+    cache.require(type(estimator).requires)
+    gb = conformance.glossy_gbuffer(2)
+    for case, (i, j) in enumerate(((0, 0), (1, 1))):
+        result = chi2_sampling(estimator, cache, gb.normal[i, j], gb.view[i, j], seed=11 + case)
+        assert not result.problems, result.problems
+        assert result.p_value >= ALPHA_CHI2 / 2, f"χ² p = {result.p_value:.3g}"
+
+
+@pytest.mark.parametrize("label", ['hierarchical{mis="brdf",heuristic="balance"}',
+                                   'hierarchical{mis="brdf",mis_compensation=true}'])
+def test_mis_variants_pass_the_conformance_suite(compute, label):
+    outcome = check_estimator(parse_estimator(label).make(), compute=compute)
+    assert outcome["check_unbiased"] == "passed" and outcome["check_chi2_sampling"] == "passed"
+
+
+def test_render_builds_only_the_pyramid(compute):
+    """The per-frame product is the plain pyramid (the build stage); the compensated pyramid is
+    drawn on first use and timed in the render's sample stage."""
+    gbuffer = DeviceGBuffer(compute, conformance.glossy_gbuffer(4))
+    cache = FrameCache(compute, conformance.smooth_map(8))
+    cache.require(registry.get_estimator_class("hierarchical").requires)
+    assert cache.built == ["env", "weight_pyramid"]
+    plain = registry.make_estimator("hierarchical").render(gbuffer, cache, 4, 1)
+    assert plain.timings_ms["sample"] == 0.0
+    compensated = parse_estimator('hierarchical{mis="brdf",mis_compensation=true}').make()
+    estimate = compensated.render(gbuffer, cache, 4, 1)
+    assert estimate.timings_ms["sample"] == cache.timings_ms["compensated_weight_pyramid"] > 0
+    assert "cdf" not in cache.built and np.all(np.isfinite(estimate.radiance))
+
+
+def test_compensation_on_black_and_constant_maps(compute):
+    """Mitsuba 3 #1271: a black map with compensation gives exactly 0, a constant one finite
+    values around its value."""
+    estimator = parse_estimator('hierarchical{mis="brdf",mis_compensation=true}').make()
+    gbuffer = DeviceGBuffer(compute, conformance.white_lambertian(4))
+    for value in (0.0, 0.7):
+        cache = FrameCache(compute, conformance.constant_map(value, 8))
+        images = np.stack([estimator.render(gbuffer, cache, 4, seed).radiance for seed in range(50)])
+        assert np.all(np.isfinite(images))
+        if value == 0.0:
+            assert np.all(images == 0.0)
+        else:
+            assert abs(images.mean() - value) < 0.02 * value
+
+
+def test_black_map_hooks(compute):
+    """On an all-black map the hook draws nothing (every sample weighs 0), as envmap's."""
+    estimator = registry.make_estimator("hierarchical")
+    cache = FrameCache(compute, conformance.constant_map(0.0, 4))
+    dirs, pdf = estimator.sample_directions(cache, np.array([0, 0, 1.0]), np.array([0, 0, 1.0]), 64, 1)
+    assert dirs.shape == (0, 3) and pdf.shape == (0,)
+
+
+def test_parameters_and_version():
+    with pytest.raises(InputError, match="mis_compensation needs MIS"):
+        parse_estimator("hierarchical{mis_compensation=true}")
+    hierarchical, envmap = (registry.get_estimator_class(name) for name in ("hierarchical", "envmap"))
+    assert {"hierarchical.cl", "envmap.cl"} <= set(hierarchical.kernel_files)
+    assert hierarchical.version() != envmap.version()
+    assert "cdf" not in hierarchical.requires
