@@ -519,6 +519,8 @@ NO_Z_PIXELS: dict[tuple[str, str], str] = {
                               "texel is rare over 200 seeds; conformance z-tests it at 8 spp",
     ("huge-faces", "envmap"): "8 light draws over 6·1024² texels, where the pool estimators draw "
                               "2 per face: every texel block is rare over 200 seeds",
+    ("one-sample", "hierarchical"): "one light draw per pixel over the whole map, as envmap's",
+    ("huge-faces", "hierarchical"): "8 light draws over 6·1024² texels, as envmap's",
 }
 
 
