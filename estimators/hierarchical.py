@@ -5,14 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from iblbench.estimators.envmap import EnvmapParams, MapSampler
+from iblbench.estimators.envmap import Envmap
 
 
-class Hierarchical(MapSampler):
+class Hierarchical(Envmap):
     """Light sampling by sample-by-descent through each face's pyramid of Y·Ω sums (Falcor
     ``EnvMapSampler``, Source/Falcor/Rendering/Lights/EnvMapSampler.slang and its setup pass;
     Mitsuba 3 ``Hierarchical2D``, include/mitsuba/core/distr_2d.h), optionally with Phong BRDF
-    samples under MIS (``envmap``'s budget, heuristics and compensation).
+    samples under MIS (``envmap``'s budget, heuristics and compensation: its parameters and
+    kernels, with this light sampler).
 
     Distribution.  The frame cache's ``weight_pyramid`` (harness/mips.py): level 0 holds each
     texel's weight Y·Ω (Y its luminance, Ω its exact solid angle, so p(ω) ∝ Y(ω) as ``envmap``'s),
@@ -51,17 +52,8 @@ class Hierarchical(MapSampler):
     """
 
     name = "hierarchical"
-    Params = EnvmapParams
     requires = ("weight_pyramid",)
     kernel_files = ("hierarchical.cl", "envmap.cl", "lanes.cl")
-
-    @property
-    def brdf_samples(self) -> bool:
-        return self.params.mis == "brdf"
-
-    @property
-    def compensated(self) -> bool:
-        return self.params.mis_compensation
 
     def _light_buffers(self, cache) -> tuple[tuple, float]:
         """((the weight pyramid,), the device ms of this render's ``sample`` stage: the

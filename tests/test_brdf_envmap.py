@@ -92,10 +92,11 @@ def test_compensated_per_face_cdfs_match_their_weights(compute):
 
 @pytest.mark.parametrize("params", [{}, {"mis": "brdf"}, {"mis": "brdf", "mis_compensation": True}],
                          ids=["light-only", "mis", "mis-compensated"])
-def test_envmap_chi2_passes_on_a_sun_map(compute, params):
+@pytest.mark.parametrize("name", ["envmap", "hierarchical"])
+def test_envmap_chi2_passes_on_a_sun_map(compute, name, params):
     """On a map whose sun is 1e6× its brightest sky texel, the sampler's directions follow its
     pdf (χ², pooled low-count cells) at two surfaces."""
-    estimator = registry.make_estimator("envmap", **params)
+    estimator = registry.make_estimator(name, **params)
     cache = FrameCache(compute, conformance.sun_map(SUN_RES, 1e6))
     cache.require(type(estimator).requires)
     gb = conformance.glossy_gbuffer(2)
@@ -107,7 +108,9 @@ def test_envmap_chi2_passes_on_a_sun_map(compute, params):
 
 @pytest.mark.parametrize("label", ['envmap{mis="brdf",heuristic="balance"}',
                                    'envmap{mis="brdf",mis_compensation=true}',
-                                   "balanced_mis{mis_compensation=true}"])
+                                   "balanced_mis{mis_compensation=true}",
+                                   'hierarchical{mis="brdf",heuristic="balance"}',
+                                   'hierarchical{mis="brdf",mis_compensation=true}'])
 def test_mis_variants_pass_the_conformance_suite(compute, label):
     """The z-test against the reference, χ², convergence, stress maps and counts hold with MIS,
     with either heuristic, and with compensation."""
@@ -140,7 +143,8 @@ def test_brdf_white_furnace_is_exact(compute):
 
 
 @pytest.mark.parametrize("label", ['envmap{mis="brdf",mis_compensation=true}',
-                                   "balanced_mis{mis_compensation=true}"])
+                                   "balanced_mis{mis_compensation=true}",
+                                   'hierarchical{mis="brdf",mis_compensation=true}'])
 def test_compensation_on_black_and_constant_maps(compute, label):
     """Mitsuba 3 #1271: a black map with compensation must give exactly 0, a constant one finite
     values around its value, never NaN."""
