@@ -7,13 +7,14 @@
  * A light sample picks a face by the faces' totals, then at each level one of the (up to) four
  * children of the texel picked so far by their sums, down to a texel, and a point uniform in the
  * texel's face square.  Each choice among n children (6 faces, or 4 children) is exact in fixed
- * point (descent_widths##N): child k gets an integer width q_k out of 2^32,
- *     q_k = max(1, ⌊2^32 · w_k / Σ w⌋) for w_k > 0,  q_k = 0 for w_k = 0,
- * the remainder 2^32 − Σ q going to the largest child (the first of equal ones), and a fresh
- * 32-bit word u of Philox picks the child whose bin [Σ_{j<k} q_j, Σ_{j≤k} q_j) holds it: the
- * child's probability is exactly q_k/2^32.  So every child of positive weight has a probability
- * of at least 2^-32 ≈ 2.3e-10 at each level, whatever its siblings weigh (a 1e6:1 sun leaves
- * every lit texel reachable), and a texel's probability P is the product of its choices' q/2^32,
+ * point (descent_widths##N): child k gets an integer width q_k out of 2^31,
+ *     q_k = max(1, ⌊2^31 · w_k / Σ w⌋) for w_k > 0,  q_k = 0 for w_k = 0,
+ * the remainder 2^31 − Σ q going to the largest child (the first of equal ones), and the top 31
+ * bits u of a fresh 32-bit Philox word pick the child whose bin [Σ_{j<k} q_j, Σ_{j≤k} q_j) holds
+ * u: the child's probability is exactly q_k/2^31.  So every child of positive weight has a
+ * probability of at least 2^-31 ≈ 4.7e-10 at each level, whatever its siblings weigh (a 1e6:1
+ * sun leaves every lit texel reachable), and a texel's probability P is the product of its
+ * choices' q/2^31,
  * which the density lookup recomputes from the same pyramid words in the same order.  The
  * density in solid angle is P·(1+x²+y²)^{3/2}/a_texel, a_texel = (2/R)² (DESIGN §3).  Children
  * of zero total (an all-black map, or past an odd size's edge) fall back to equal widths over the
@@ -22,76 +23,70 @@
 
 #define STREAM_DESCENT 9u
 #define UNROLL __attribute__((opencl_unroll_hint))   /* loops over a choice's children: no private arrays left */
-#define DESCENT_ONE 0x1p32f   /* a choice's widths total 2^32 */
-#if POOL_LANES == 16
-#define convert_lane_words convert_ulong16
-#define convert_lane_words_sat convert_ulong16_sat
-#else
-#define convert_lane_words convert_ulong8
-#define convert_lane_words_sat convert_ulong8_sat
-#endif
+#define DESCENT_BITS 31
+#define DESCENT_ONE 0x1p31f   /* a choice's widths total 2^31: uint lanes, where 2^32 would need ulong */
 
 /* A choice among N children (N = 6 faces or 4 children: one copy per N, so that the loops over
  * the children unroll and their arrays stay in registers):
  *   descent_widths##N: the integer widths q of children of weights w (≥ 0) as in the header;
  *     `exists` marks the children that exist (the fallback's support when Σ w is 0 or its
- *     inverse overflows); the widths' prefix sums never pass 2^32;
- *   descent_probability##N: q_child/2^32 of the lanes' children `child`;
- *   descent_pick##N: the child whose bin of widths q holds the 32-bit words u, and its
- *     probability. */
+ *     inverse overflows); the widths' prefix sums never pass 2^31;
+ *   descent_probability##N: q_child/2^31 of the lanes' children `child`;
+ *   descent_pick##N: the child whose bin of widths q holds the top 31 bits of the words u, and
+ *     its probability. */
 #define DEFINE_DESCENT_CHOICE(N) \
-ALWAYS_INLINE void descent_widths##N(const lanes_t w[N], const lane_ints_t exists[N], lane_words_t q[N])                   \
-{                                                                                                                          \
-    lanes_t total = 0.0f;                                                                                                  \
-    UNROLL                                                                                                                 \
-    for (int k = 0; k < N; ++k) total += w[k];                                                                             \
-    lanes_t scale = DESCENT_ONE / total;                                                                                   \
-    lane_ints_t fallback = !(total > 0.0f) | isinf(scale);                                                                 \
-    lanes_t largest_weight = -1.0f;                                                                                        \
-    lane_ints_t largest = 0;                                                                                               \
-    lane_words_t others = 0;                                                                                               \
-    UNROLL                                                                                                                 \
-    for (int k = 0; k < N; ++k) {                                                                                          \
-        lanes_t weight = select(w[k], select((lanes_t)0.0f, (lanes_t)1.0f, exists[k]), fallback);                          \
-        lanes_t share = weight * select(scale, (lanes_t)(DESCENT_ONE / N), fallback);                                      \
-        q[k] = select((lane_words_t)0, max((lane_words_t)1, convert_lane_words_sat(min(share, DESCENT_ONE))),              \
-                      convert_lane_longs(weight > 0.0f));                                                                  \
-        lane_ints_t larger = weight > largest_weight;                                                                      \
-        largest_weight = select(largest_weight, weight, larger);                                                           \
-        largest = select(largest, (lane_ints_t)k, larger);                                                                 \
-    }                                                                                                                      \
-    UNROLL                                                                                                                 \
-    for (int k = 0; k < N; ++k) others += select(q[k], (lane_words_t)0, convert_lane_longs(largest == k));                 \
-    UNROLL                                                                                                                 \
-    for (int k = 0; k < N; ++k) q[k] = select(q[k], (lane_words_t)(1ul << 32) - others, convert_lane_longs(largest == k)); \
-}                                                                                                                          \
-                                                                                                                           \
-ALWAYS_INLINE lanes_t descent_probability##N(const lane_words_t q[N], lane_ints_t child)                                   \
-{                                                                                                                          \
-    lane_words_t width = 0;                                                                                                \
-    UNROLL                                                                                                                 \
-    for (int k = 0; k < N; ++k) width = select(width, q[k], convert_lane_longs(child == k));                               \
-    return convert_lanes(width) * (1.0f / DESCENT_ONE);                                                                    \
-}                                                                                                                          \
-                                                                                                                           \
-ALWAYS_INLINE lane_ints_t descent_pick##N(const lane_words_t q[N], lane_uints_t u, lanes_t *probability)                   \
-{                                                                                                                          \
-    lane_words_t bound = 0, word = convert_lane_words(u);                                                                  \
-    lane_ints_t child = 0;                                                                                                 \
-    UNROLL                                                                                                                 \
-    for (int k = 0; k < N - 1; ++k) {                                                                                      \
-        bound += q[k];                                                                                                     \
-        child += convert_lane_ints(bound <= word) & 1;                                                                     \
-    }                                                                                                                      \
-    *probability = descent_probability##N(q, child);                                                                       \
-    return child;                                                                                                          \
+ALWAYS_INLINE void descent_widths##N(const lanes_t w[N], const lane_ints_t exists[N], lane_uints_t q[N])        \
+{                                                                                                               \
+    lanes_t total = 0.0f;                                                                                       \
+    UNROLL                                                                                                      \
+    for (int k = 0; k < N; ++k) total += w[k];                                                                  \
+    lanes_t scale = DESCENT_ONE / total;                                                                        \
+    lane_ints_t fallback = !(total > 0.0f) | isinf(scale);                                                      \
+    lanes_t largest_weight = -1.0f;                                                                             \
+    lane_ints_t largest = 0;                                                                                    \
+    lane_uints_t others = 0;                                                                                    \
+    UNROLL                                                                                                      \
+    for (int k = 0; k < N; ++k) {                                                                               \
+        lanes_t weight = select(w[k], select((lanes_t)0.0f, (lanes_t)1.0f, exists[k]), fallback);               \
+        lanes_t share = weight * select(scale, (lanes_t)(DESCENT_ONE / N), fallback);                           \
+        q[k] = select((lane_uints_t)0, max((lane_uints_t)1, convert_lane_uints(min(share, DESCENT_ONE))),       \
+                      weight > 0.0f);                                                                           \
+        lane_ints_t larger = weight > largest_weight;                                                           \
+        largest_weight = select(largest_weight, weight, larger);                                                \
+        largest = select(largest, (lane_ints_t)k, larger);                                                      \
+    }                                                                                                           \
+    UNROLL                                                                                                      \
+    for (int k = 0; k < N; ++k) others += select(q[k], (lane_uints_t)0, largest == k);                          \
+    UNROLL                                                                                                      \
+    for (int k = 0; k < N; ++k) q[k] = select(q[k], (lane_uints_t)(1u << DESCENT_BITS) - others, largest == k); \
+}                                                                                                               \
+                                                                                                                \
+ALWAYS_INLINE lanes_t descent_probability##N(const lane_uints_t q[N], lane_ints_t child)                        \
+{                                                                                                               \
+    lane_uints_t width = 0;                                                                                     \
+    UNROLL                                                                                                      \
+    for (int k = 0; k < N; ++k) width = select(width, q[k], child == k);                                        \
+    return convert_lanes(width) * (1.0f / DESCENT_ONE);                                                         \
+}                                                                                                               \
+                                                                                                                \
+ALWAYS_INLINE lane_ints_t descent_pick##N(const lane_uints_t q[N], lane_uints_t u, lanes_t *probability)        \
+{                                                                                                               \
+    lane_uints_t bound = 0, word = u >> (32 - DESCENT_BITS);                                                    \
+    lane_ints_t child = 0;                                                                                      \
+    UNROLL                                                                                                      \
+    for (int k = 0; k < N - 1; ++k) {                                                                           \
+        bound += q[k];                                                                                          \
+        child += convert_lane_ints(bound <= word) & 1;                                                          \
+    }                                                                                                           \
+    *probability = descent_probability##N(q, child);                                                            \
+    return child;                                                                                               \
 }
 
 DEFINE_DESCENT_CHOICE(4)
 DEFINE_DESCENT_CHOICE(6)
 
 /* The widths of the faces by their totals (the pyramid's 1×1 level at `top`). */
-ALWAYS_INLINE void face_widths(__global const float *pyramid, int top, lane_words_t q[6])
+ALWAYS_INLINE void face_widths(__global const float *pyramid, int top, lane_uints_t q[6])
 {
     lanes_t w[6];
     lane_ints_t exists[6];
@@ -106,7 +101,7 @@ ALWAYS_INLINE void face_widths(__global const float *pyramid, int top, lane_word
 /* The widths of the four children (2·row + a, 2·col + b) of each lane's parent (row, col) of
  * face `face` at the level of size n from float offset `level` (a row-major quad: k = 2a + b). */
 ALWAYS_INLINE void child_widths(__global const float *pyramid, int level, int n, lane_ints_t face,
-                                lane_ints_t row, lane_ints_t col, lane_words_t q[4])
+                                lane_ints_t row, lane_ints_t col, lane_uints_t q[4])
 {
     lanes_t w[4];
     lane_ints_t exists[4];
@@ -120,21 +115,21 @@ ALWAYS_INLINE void child_widths(__global const float *pyramid, int level, int n,
     descent_widths4(w, exists, q);
 }
 
-/* The levels of a pyramid over faces of `res`: sizes ⌈res/2^l⌉ down to 1. */
-ALWAYS_INLINE int descent_levels(int res)
+/* The pyramid over faces of `res` (harness/mips.py): level l has size ⌈res/2^l⌉; returns the
+ * number of levels and sets *top to the float offset of the last, 1×1 one.  A descent walks
+ * down from there, level l's offset that of level l + 1 less 6·size(l)². */
+ALWAYS_INLINE int descent_levels(int res, int *top)
 {
     int levels = 1;
-    for (int n = res; n > 1; n = (n + 1) / 2) ++levels;
+    *top = 0;
+    for (int n = res; n > 1; n = (n + 1) / 2) {
+        ++levels;
+        *top += 6 * n * n;
+    }
     return levels;
 }
 
-/* The float offset of level l of a pyramid over faces of `res` (harness/mips.py). */
-ALWAYS_INLINE int level_offset(int res, int l)
-{
-    int offset = 0;
-    for (int k = 0, n = res; k < l; ++k, n = (n + 1) / 2) offset += 6 * n * n;
-    return offset;
-}
+ALWAYS_INLINE int level_size(int res, int l) { return (res + (1 << l) - 1) >> l; }
 
 /* Word k (0 …) of a lane's random stream, four to a Philox block: *block holds block k/4 once k
  * is a multiple of 4 (the caller draws words in order). */
@@ -150,28 +145,35 @@ ALWAYS_INLINE lane_uints_t descent_word(uint seed, uint frame, uint pixel, lane_
 #define LIGHT_PARAMS __global const float *pyramid
 #define LIGHT_ARGS pyramid
 
-/* envmap.cl's light sampler: the descent of the header, words 0 (face), 1 … L − 1 (levels from
- * the coarsest), L and L + 1 (the point in the texel) of the draw's stream. */
+/* envmap.cl's light sampler: the descent of the header with words 0 (the face) and 1 … L − 1
+ * (the levels from the coarsest) of the draw's stream, and the point in the texel from word L,
+ * 16 bits per coordinate: the centre of a cell of a 2^16 × 2^16 grid over the texel, not a
+ * continuous point (the radiance is constant over the texel and the density is evaluated at the
+ * point drawn; it saves a Philox block in three at the default face size of 64). */
 ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, int res, uint seed, uint frame, uint pixel,
                                           lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
 {
-    int levels = descent_levels(res), word = 0;
+    int offset, word = 0;
+    int levels = descent_levels(res, &offset);
     lane_block_t block;
-    lane_words_t faces[6];
-    face_widths(pyramid, level_offset(res, levels - 1), faces);
+    lane_uints_t faces[6];
+    face_widths(pyramid, offset, faces);
     lanes_t probability, p;
     lane_ints_t face = descent_pick6(faces, descent_word(seed, frame, pixel, draw, word++, &block), &probability);
     lane_ints_t row = 0, col = 0;
     for (int l = levels - 2; l >= 0; --l) {
-        lane_words_t q[4];
-        child_widths(pyramid, level_offset(res, l), (res + (1 << l) - 1) >> l, face, row, col, q);
+        int n = level_size(res, l);
+        offset -= 6 * n * n;
+        lane_uints_t q[4];
+        child_widths(pyramid, offset, n, face, row, col, q);
         lane_ints_t child = descent_pick4(q, descent_word(seed, frame, pixel, draw, word++, &block), &p);
         probability *= p;
         row = 2 * row + (child >> 1);
         col = 2 * col + (child & 1);
     }
-    lanes_t x = -1.0f + 2.0f * (convert_lanes(col) + lanes_unit(descent_word(seed, frame, pixel, draw, word++, &block))) / (float)res;
-    lanes_t y = -1.0f + 2.0f * (convert_lanes(row) + lanes_unit(descent_word(seed, frame, pixel, draw, word++, &block))) / (float)res;
+    lane_uints_t point = descent_word(seed, frame, pixel, draw, word, &block);
+    lanes_t x = -1.0f + 2.0f * (convert_lanes(col) + (convert_lanes(point & 0xffffu) + 0.5f) * 0x1p-16f) / (float)res;
+    lanes_t y = -1.0f + 2.0f * (convert_lanes(row) + (convert_lanes(point >> 16) + 0.5f) * 0x1p-16f) / (float)res;
     lanes_t area = 1.0f + x * x + y * y;   /* area_per_solid_angle */
     *texel = (face * res + row) * res + col;
     *pdf = probability * area * sqrt(area) * (float)(res * res) / 4.0f;
@@ -184,15 +186,17 @@ ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, int res, lanes3_t w, lan
 {
     lane_ints_t face, row, col;
     lanes_t area = lanes_texel_of(res, w, &face, &row, &col);
-    int levels = descent_levels(res);
-    lane_words_t faces[6];
-    face_widths(pyramid, level_offset(res, levels - 1), faces);
+    int offset;
+    int levels = descent_levels(res, &offset);
+    lane_uints_t faces[6];
+    face_widths(pyramid, offset, faces);
     lanes_t probability = descent_probability6(faces, face);
     for (int l = levels - 2; l >= 0; --l) {
-        lane_words_t q[4];
+        int n = level_size(res, l);
+        offset -= 6 * n * n;
+        lane_uints_t q[4];
         lane_ints_t child_row = row >> l, child_col = col >> l;
-        child_widths(pyramid, level_offset(res, l), (res + (1 << l) - 1) >> l, face, child_row >> 1,
-                     child_col >> 1, q);
+        child_widths(pyramid, offset, n, face, child_row >> 1, child_col >> 1, q);
         probability *= descent_probability4(q, 2 * (child_row & 1) + (child_col & 1));
     }
     *texel = (face * res + row) * res + col;

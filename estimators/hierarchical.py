@@ -26,12 +26,13 @@ class Hierarchical(Envmap):
     sampler needs only the pyramid: one pass of weights and log2 R reductions, no prefix scan
     (it does not require the ``cdf`` product).
 
-    Exactness beside a 1e6:1 sun (hierarchical.cl's header).  Each choice is made in 32-bit fixed
-    point: child k gets an integer width q_k = max(1, ⌊2^32·w_k/Σw⌋) for w_k > 0 (0 for w_k = 0),
-    the remainder to the largest child, and a fresh 32-bit Philox word per level picks the bin
-    that holds it.  A child's probability is exactly q_k/2^32, and a child of positive weight
-    has at least 2^-32 ≈ 2.3e-10 per level, so every lit texel is reachable; floating-point
-    thresholds on one reused uniform (Falcor's and Mitsuba's rescaled sample) would have 24 bits.
+    Exactness beside a 1e6:1 sun (hierarchical.cl's header).  Each choice is made in 31-bit fixed
+    point: child k gets an integer width q_k = max(1, ⌊2^31·w_k/Σw⌋) for w_k > 0 (0 for w_k = 0),
+    the remainder to the largest child, and a fresh Philox word per level (its top 31 bits)
+    picks the bin that holds it.  A child's probability is exactly q_k/2^31, and a child of
+    positive weight has at least 2^-31 ≈ 4.7e-10 per choice, so every lit texel is reachable;
+    floating-point thresholds on one reused uniform (Falcor's and Mitsuba's rescaled sample)
+    resolve 2^-24 at best.
 
     Budget, MIS and compensation: ``envmap``'s (its docstring; the kernels are envmap.cl's with
     this light sampler compiled in).  ``mis_compensation`` builds the pyramid from pbrt-v4's
@@ -42,13 +43,17 @@ class Hierarchical(Envmap):
     resampling into an octahedral importance map of fixed size, so its texels and the map's
     coincide and the density is exact per texel rather than the importance map's value at a
     point); the six faces are chosen first by their totals; each choice among the four children
-    is one 4-way choice with a fresh 32-bit random word (Falcor picks a column and then a row
+    is one 4-way choice with a fresh random word (Falcor picks a column and then a row
     with one 2-D sample rescaled at every level; Mitsuba 3 a row then a column, likewise).  From
     Mitsuba 3: piecewise-constant texels (DESIGN §3's nearest lookup) instead of its bilinear
-    patches.  A face size that is not a power of two has levels of ⌈n/2⌉, whose last parents
-    have fewer children (the missing ones weigh 0, as Mitsuba's zero padding).  The density is a
-    float product of up to ⌈log2 R⌉ + 1 factors: a texel whose probability is below float's
-    smallest normal (≈ 1e-38 of the map's total weight) would get density 0 and weight 0.
+    patches.  The point in the texel is the centre of a cell of a 2^16 × 2^16 grid over it (one
+    32-bit word for both coordinates; ``envmap`` has 63-bit variates): the cosine and the BRDF
+    are integrated over the texel by that grid's midpoint rule instead of exactly, an error of
+    order 2^-32 of the texel's variation.  A face size that is not a power of two has levels of
+    ⌈n/2⌉, whose last parents have fewer children (the missing ones weigh 0, as Mitsuba's zero
+    padding).  The density is a float product of up to ⌈log2 R⌉ + 1 factors: a texel whose
+    probability is below float's smallest normal (≈ 1e-38 of the map's total weight) would get
+    density 0 and weight 0.
     """
 
     name = "hierarchical"

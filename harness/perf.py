@@ -129,11 +129,11 @@ evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``byt
     hierarchical   180     0 / 0      95 / 88
         the default, light samples only: a light sample by descent through the weight pyramid,
         at the default env 64 (six levels below the faces; 14 more or fewer per level): per
-        level the children's total 3, 2^32/total 1, four shares and their clamps 8, the
+        level the children's total 3, 2^31/total 1, four shares and their clamps 8, the
         probability and its product 2 (the integer widths and the pick are not counted), 84;
         the face's probability 1, the point in the texel 10, its pdf 8, the face direction
         normalised 12, lobe power 41, n·ω 5, D 1, add_samples 18; per pixel envmap's 76 and the
-        faces' widths 19 (their total 5, 2^32/total 1, six shares and clamps 12, hoisted: the
+        faces' widths 19 (their total 5, 2^31/total 1, six shares and clamps 12, hoisted: the
         same for every sample)
 
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and

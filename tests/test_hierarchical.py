@@ -21,7 +21,7 @@ from iblbench.scenes.errors import InputError
 from test_brdf_envmap import SUN_RES, numpy_weights
 from test_mips import numpy_chain
 
-ONE = 2.0 ** 32   # a descent choice's widths total (hierarchical.cl)
+ONE = 2.0 ** 31   # a descent choice's widths total (hierarchical.cl)
 
 
 def texel_probabilities(compute, cache, compensated: bool) -> np.ndarray:
@@ -40,9 +40,9 @@ def texel_probabilities(compute, cache, compensated: bool) -> np.ndarray:
 
 def ideal_and_bound(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(w/W per texel, the relative bound of the fixed-point descent on it): each choice of
-    ideal probability p is off by at most n/2^32 (the floor of up to n − 1 siblings' widths, all
+    ideal probability p is off by at most n/2^31 (the floor of up to n − 1 siblings' widths, all
     landing on the largest child) plus float rounding, so P/P_ideal − 1 is within
-    Σ_choices 6/(2^32·p) + 1e-5."""
+    Σ_choices 6/(2^31·p) + 1e-5."""
     levels = numpy_chain(weights[..., None], average=False)
     totals = levels[-1].reshape(6)
     res = weights.shape[1]
@@ -84,8 +84,8 @@ def test_texel_probabilities_are_the_weights_shares(compute, env, compensated):
 
 
 def test_a_sibling_below_float_resolution_stays_reachable(compute):
-    """A texel 1e-13 of its 2×2 sibling sun (below 2^-32 and far below a float threshold's
-    2^-24) keeps the smallest width, 1/2^32, at its own choice: P ≥ 2^-32 · P(its parent)."""
+    """A texel 1e-13 of its 2×2 sibling sun (below 2^-31 and far below a float threshold's
+    2^-24) keeps the smallest width, 1/2^31, at its own choice: P ≥ 2^-31 · P(its parent)."""
     res = 8
     env = np.full((6, res, res, 3), 1e-3, np.float32)
     env[2, 4, 4] = 1e10
