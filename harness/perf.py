@@ -126,15 +126,15 @@ evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``byt
         the default, light samples only: a light sample of the map's 2-D distribution, 115: its
         point and pdf 38 (as sample_face's), the face direction normalised 12, lobe power 41,
         n·ω 5, D 1, add_samples 18; per pixel shading 24, hoisted factors 5, sums out 47
-    hierarchical   180     0 / 0      95 / 88
+    hierarchical   182     0 / 0      95 / 88
         the default, light samples only: a light sample by descent through the weight pyramid,
         at the default env 64 (six levels below the faces; 14 more or fewer per level): per
         level the children's total 3, 2^31/total 1, four shares and their clamps 8, the
         probability and its product 2 (the integer widths and the pick are not counted), 84;
-        the face's probability 1, the point in the texel 10, its pdf 8, the face direction
-        normalised 12, lobe power 41, n·ω 5, D 1, add_samples 18; per pixel envmap's 76 and the
-        faces' widths 19 (their total 5, 2^31/total 1, six shares and clamps 12, hoisted: the
-        same for every sample)
+        the face's probability 1, the point in the texel 12 (a grid cell's centre, 6 per
+        coordinate), its pdf 8, the face direction normalised 12, lobe power 41, n·ω 5, D 1,
+        add_samples 18; per pixel envmap's 76 and the faces' widths 19 (their total 5,
+        2^31/total 1, six shares and clamps 12, hoisted: the same for every sample)
 
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
@@ -220,7 +220,7 @@ KERNEL_COSTS = {
     "smc": KernelCost(176, 45, 24, 58, 140),
     "brdf": KernelCost(174, 0, 0, 103, 88),
     "envmap": KernelCost(115, 0, 0, 76, 88),
-    "hierarchical": KernelCost(180, 0, 0, 95, 88),
+    "hierarchical": KernelCost(182, 0, 0, 95, 88),
 }
 
 # Every column of perf.csv, in order, with what it means (the --help epilog and perf.html).
