@@ -112,6 +112,13 @@ CATALOGUE: tuple[Mutant, ...] = (
     _m("envmap-light-jacobian-inverted", "estimators/envmap.cl",
        "*pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;",
        "*pdf = row_bin * col_bin / (q * sqrt(q)) * (float)(res * res) / 4.0f;", ["envmap"], ["sun-1e6"]),
+    _m("hierarchical-light-jacobian-inverted", "estimators/hierarchical.cl",
+       "*pdf = probability * area * sqrt(area) * (float)(res * res) / 4.0f;",
+       "*pdf = probability / (area * sqrt(area)) * (float)(res * res) / 4.0f;", ["hierarchical"], ["sun-1e6"]),
+    _m("hierarchical-density-quad-transposed", "estimators/hierarchical.cl",
+       "descent_probability4(q, 2 * (child_row & 1) + (child_col & 1))",
+       "descent_probability4(q, (child_row & 1) + 2 * (child_col & 1))",
+       ['hierarchical{mis="brdf"}'], ["face-pattern"]),
     # ---- shared conventions (common.cl) -----------------------------------------------------------
     _m("light-pdf-jacobian-inverted", COMMON,
        "cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area",
