@@ -22,7 +22,8 @@ ENTRY_POINT_GROUP = "iblbench.estimators"
 # Built-in estimators: module of iblbench.estimators -> class. They are imported on first use
 # (NumPy and OpenCL with them), so that listing them, from their source, answers at once.
 _BUILTINS = {"uniform": "Uniform", "balanced": "Balanced", "balanced_mis": "BalancedMIS",
-             "havran": "Havran", "bis": "BIS", "smc": "SMC", "brdf": "Brdf", "envmap": "Envmap"}
+             "havran": "Havran", "bis": "BIS", "smc": "SMC", "brdf": "Brdf", "envmap": "Envmap",
+             "fis": "Fis"}
 _registry: dict[str, type[Estimator]] = {}
 
 
