@@ -90,6 +90,7 @@ def estimator_version(cls: type) -> str:
     """Hash of everything an estimator's output depends on: its Python source (and its bases'),
     its kernels, every shared kernel include, and the frame-cache code when it requires products."""
     import iblbench.harness.framecache as framecache
+    import iblbench.harness.mips as mips
     from iblbench.harness.device import kernel_path
 
     digest = hashlib.sha256()
@@ -103,6 +104,8 @@ def estimator_version(cls: type) -> str:
     if cls.requires:
         digest.update(inspect.getsource(framecache).encode())
         digest.update(kernel_path("iblbench.harness", "framecache.cl").read_bytes())
+        digest.update(inspect.getsource(mips).encode())
+        digest.update(kernel_path("iblbench.harness", "mips.cl").read_bytes())
     return digest.hexdigest()[:12]
 
 

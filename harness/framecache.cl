@@ -209,17 +209,18 @@ __kernel void build_light_pool(__global const float4 *env, __global const cdf_wo
 
 /* Sampling weights of the production light samplers (estimators/envmap.py, and `balanced_mis` with
  * MIS compensation), one work item per (face, row) of the map: the row's total weight, and with
- * `compensate` each texel's weight in `texels` (without it the texels' weights are row_cdfs'
- * Y·Ω, whose conditional CDFs the cache already holds).  A texel's weight is Y·Ω, or with MIS
+ * `store_texels` each texel's weight in `texels` (the uncompensated CDFs need only the rows':
+ * their conditionals are row_cdfs'; the weight pyramids of harness/mips.py need every texel's).
+ * `face_integral` is read only with `compensate`.  A texel's weight is Y·Ω, or with MIS
  * compensation max(Y − Ȳ, min(Ȳ/1000, Y))·Ω (pbrt-v4's ImageInfiniteLight, see
  * FrameCache.light_cdfs), where Ȳ = Σ_f I_f / 4π is the map's mean luminance over the sphere. */
 __kernel void sampling_weights(__global const float4 *env, __global const float *omega,
                                __global const float *face_integral, const int res, const int compensate,
-                               __global float *texels, __global float *row_weight)
+                               const int store_texels, __global float *texels, __global float *row_weight)
 {
     int face_row = get_global_id(0), row = face_row % res;
     acc_t integral = 0;
-    for (int f = 0; f < 6; ++f) integral += face_integral[f];
+    for (int f = 0; compensate && f < 6; ++f) integral += face_integral[f];
     float mean = (float)integral / (4.0f * IBL_PI);
     float least = 0.001f * mean;
     acc_t sum = 0;
@@ -227,7 +228,7 @@ __kernel void sampling_weights(__global const float4 *env, __global const float 
         int texel = face_row * res + col;
         float y = vec3_luminance(vec3_load(env, texel));
         float weight = (compensate ? max(y - mean, min(least, y)) : y) * omega[row * res + col];
-        if (compensate) texels[texel] = weight;
+        if (store_texels) texels[texel] = weight;
         sum += weight;
     }
     row_weight[face_row] = (float)sum;

@@ -19,7 +19,14 @@ Products:
   :meth:`FrameCache.light_cdfs` with ``compensated``, every CDF rebuilt from MIS-compensated
   weights.  ``require("light_cdfs")`` builds their input (``cdf``); their device times are
   ``timings_ms["map_cdf"]``, ``["compensated_cdf"]`` and ``["compensated_map_cdf"]``, and each
-  render that reads them counts them in its ``sample`` stage, as the pool's.
+  render that reads them counts them in its ``sample`` stage, as the pool's;
+- ``weight_pyramid``: each face's pyramid of sampling-weight sums (harness/mips.py) over the
+  texels' Y·Ω, :meth:`FrameCache.weight_pyramid` (``timings_ms["weight_pyramid"]``), and with
+  ``compensated`` over the MIS-compensated weights of :meth:`FrameCache.light_cdfs`, drawn on
+  first use (``["compensated_weight_pyramid"]``, counted in the reading render's ``sample``
+  stage).  Its coarsest level is each face's total, so it needs no ``cdf`` product;
+- ``radiance_mips``: the map's radiance mip chain, 2×2 box averages down to 1×1 per face
+  (harness/mips.py), :meth:`FrameCache.radiance_mips` (``timings_ms["radiance_mips"]``).
 
 Each build is timed by OpenCL profiling events (``timings_ms``); ``built`` lists what was built,
 so the runner can record which stages were skipped.  :func:`build_fixed_point_cdfs` is the same
@@ -33,10 +40,11 @@ import pyopencl as cl
 import dataclasses
 import weakref
 
+from iblbench.harness import mips
 from iblbench.harness.device import Compute, event_ms
 from iblbench.scenes import cubemap
 
-PRODUCTS = ("env", "cdf", "pool", "light_cdfs")
+PRODUCTS = ("env", "cdf", "pool", "light_cdfs", "weight_pyramid", "radiance_mips")
 CDF_ONE = 2 ** 63   # the fixed-point CDFs' total (kernels/common.cl)
 POOLS_KEPT = 4   # pools of recent (size, seed) kept resident
 SPARE_BUFFERS_KEPT = 2   # buffers of one size kept for the next frame's cache
@@ -134,6 +142,8 @@ class FrameCache:
         self._pools: dict[tuple[int, int, bool], LightPool] = {}
         self._compensated: tuple[LightCdfs, cl.Buffer] | None = None
         self._map_marginals: dict[bool, tuple[cl.Buffer, float]] = {}
+        self._weight_pyramids: dict[bool, mips.MipChain] = {}
+        self._radiance_mips: mips.MipChain | None = None
 
     def retarget(self, frame: int) -> None:
         """Serve frame ``frame``, whose environment is this cache's own (the same array): the
@@ -146,7 +156,9 @@ class FrameCache:
     def built(self) -> list[str]:
         return (["env"] + (["cdf"] if self._cdf is not None else [])
                 + (["pool"] if self._pools else [])
-                + (["light_cdfs"] if self._compensated or self._map_marginals else []))
+                + (["light_cdfs"] if self._compensated or self._map_marginals else [])
+                + (["weight_pyramid"] if self._weight_pyramids else [])
+                + (["radiance_mips"] if self._radiance_mips is not None else []))
 
     def require(self, products) -> None:
         """Build every named product that is not built yet."""
@@ -155,6 +167,10 @@ class FrameCache:
                 raise KeyError(f"unknown frame-cache product '{name}'; valid: {', '.join(PRODUCTS)}")
             if name in ("cdf", "pool", "light_cdfs"):
                 self._build_cdf()
+            elif name == "weight_pyramid":
+                self.weight_pyramid(False)
+            elif name == "radiance_mips":
+                self.radiance_mips()
 
     @property
     def env_buffer(self) -> cl.Buffer:
@@ -207,15 +223,22 @@ class FrameCache:
             self._cdf = (marginal, conditional, integral)
         return self._cdf
 
-    def _sampling_weights(self, compensate: bool) -> tuple[cl.Buffer, cl.Buffer, float]:
-        """framecache.cl's ``sampling_weights``: (texel weights ``[6·R·R]``, written only with
-        ``compensate``; row totals ``[6·R]``; device ms)."""
+    def _sampling_weights(self, compensate: bool, texels: cl.Buffer | None = None,
+                          face_integral: cl.Buffer | None = None) -> tuple[cl.Buffer, cl.Buffer, float]:
+        """framecache.cl's ``sampling_weights``: (texel weights ``[6·R·R]``, written into
+        ``texels`` where given, else into a new buffer with ``compensate`` and not at all
+        without; row totals ``[6·R]``; device ms).  Compensation's Ȳ is from ``face_integral``
+        (float ``[6]``; the ``cdf`` product's I_f where None)."""
         c, res = self.compute, self.res
-        texels = self._buffer(6 * res * res * 4) if compensate else c.empty(4)
+        store = texels is not None or compensate
+        if texels is None:
+            texels = self._buffer(6 * res * res * 4) if compensate else c.empty(4)
+        if face_integral is None:
+            face_integral = self.face_integral_buffer if compensate else c.empty(4)
         rows = self._buffer(6 * res * 4)
         event = c.run(c.kernel("iblbench.harness", "framecache.cl", "sampling_weights"), 6 * res,
-                      self._env_buffer, _texel_solid_angles(c, res), self.face_integral_buffer,
-                      np.int32(res), np.int32(compensate), texels, rows)
+                      self._env_buffer, _texel_solid_angles(c, res), face_integral,
+                      np.int32(res), np.int32(compensate), np.int32(store), texels, rows)
         return texels, rows, event_ms(event)
 
     def light_cdfs(self, compensated: bool = False) -> LightCdfs:
@@ -287,6 +310,46 @@ class FrameCache:
                 del self._pools[next(iter(self._pools))]
             self._pools[key] = LightPool(dir_pdf, radiance, key[0], key[1], self.timings_ms["pool"])
         return self._pools[key]
+
+    # ---- mip products (harness/mips.py) ------------------------------------------------------
+
+    def weight_pyramid(self, compensated: bool = False) -> mips.MipChain:
+        """Each face's pyramid of sampling-weight sums (harness/mips.py's layout, level 0 the
+        texels' weights): Y·Ω, or with ``compensated`` the MIS-compensated weights of
+        :meth:`light_cdfs`, whose mean Ȳ comes from the plain pyramid's face totals (its
+        coarsest level), so neither needs the ``cdf`` product.  Built on first use; a
+        compensated pyramid's ``build_ms`` includes the plain one's."""
+        if compensated not in self._weight_pyramids:
+            c, res = self.compute, self.res
+            offsets = mips.level_offsets(res, 1)
+            buffer = self._buffer(offsets[-1] * 4)
+            face_totals, plain_ms = None, 0.0
+            if compensated:
+                plain = self.weight_pyramid(False)
+                face_totals = c.empty(6 * 4)
+                copy = cl.enqueue_copy(c.queue, face_totals, plain.buffer, byte_count=6 * 4,
+                                       src_offset=plain.offsets[-1] * 4)
+                copy.wait()
+                plain_ms = plain.build_ms + event_ms(copy)
+            _, _, weights_ms = self._sampling_weights(compensated, buffer, face_totals)
+            own_ms = weights_ms + mips.reduce_levels(c, buffer, res, 1, average=False)
+            self.timings_ms["compensated_weight_pyramid" if compensated else "weight_pyramid"] = own_ms
+            self._weight_pyramids[compensated] = mips.chain(buffer, res, 1, plain_ms + own_ms)
+        return self._weight_pyramids[compensated]
+
+    def radiance_mips(self) -> mips.MipChain:
+        """The map's radiance mip chain (harness/mips.py's layout, float4 texels, level 0 a copy
+        of the map, box averages down to 1×1 per face), built on first use."""
+        if self._radiance_mips is None:
+            c, res = self.compute, self.res
+            offsets = mips.level_offsets(res, 4)
+            buffer = self._buffer(offsets[-1] * 4)
+            copy = cl.enqueue_copy(c.queue, buffer, self._env_buffer, byte_count=offsets[1] * 4)
+            copy.wait()
+            build_ms = event_ms(copy) + mips.reduce_levels(c, buffer, res, 4, average=True)
+            self.timings_ms["radiance_mips"] = build_ms
+            self._radiance_mips = mips.chain(buffer, res, 4, build_ms)
+        return self._radiance_mips
 
     def host_cdfs(self) -> tuple[np.ndarray, np.ndarray]:
         """(marginal ``[6, R]``, conditional ``[6, R, R]``) copied back, for tests and checks:
