@@ -113,16 +113,20 @@ class Fis(Brdf):
             np.int32(len(mips.sizes)), np.int32(cache.res), np.int32(spp),
             np.float32(self.params.lod_bias), np.uint32(seed), np.uint32(cache.frame), radiance,
             counts, evaluations)
+        # The chain is a required product: the runner times its build as the build stage.
         return read_estimate(compute, gbuffer, radiance, counts, float(spp),
-                             {"sample": mips.build_ms, "shade": event_ms(event)}, planar=True)
+                             {"sample": 0.0, "shade": event_ms(event)}, planar=True)
 
     def sample_directions(self, cache, normal, view, n, seed):
         """The ``n`` directions ``[n, 3]`` that a render at spp = ``n`` draws for pixel 0 of
         frame 0 (one rotated Hammersley set), and their mixture density; the material is the
         conformance suite's glossy one.  A low-discrepancy set is spread more evenly than the
         independent draws a χ² test assumes, so the test is conservative here: it still sees
-        a wrong mapping or pdf, not a too-even spread."""
+        a wrong mapping or pdf, not a too-even spread.  None on an all-black map, as the other
+        samplers' hooks: every sample there weighs 0."""
         compute = cache.compute
+        if not np.any(cache.env):
+            return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
         groups = -(-n // POOL_LANES)
         out = compute.empty(4 * groups * POOL_LANES * 4)
         compute.run(self._kernel(compute, "fis_directions"), groups, hook_surface(cache, normal, view),

@@ -1,6 +1,9 @@
 """``fis`` (filtered importance sampling) against an independent NumPy twin of the chapter's
 filtered integral, its stated limit, and the conformance check that holds it to that limit."""
+import re
+
 import numpy as np
+import pandas as pd
 import pytest
 
 from iblbench.estimators.fis import Fis, FisParams
@@ -198,3 +201,38 @@ def test_pixels_get_their_own_rotation(compute):
 def test_lod_bias_must_be_finite_and_non_negative(bad):
     with pytest.raises(ValueError, match="lod_bias"):
         FisParams(lod_bias=bad)
+
+
+def test_report_states_the_bias_at_the_highest_spp(tmp_path):
+    """bias_table: a biased estimator's 8 seeds at its highest spp read 1.1 × the reference ±
+    ε·reference (alternating signs, so the mean is exactly 1.1 × reference): the image-mean bias
+    is 10% and the relMSE of the bias mean((0.01 − ε²/7)·r²/(r² + 0.01)), the variance of the
+    mean (8ε²r²/7)/8 taken out (left in, the figure is 3.7% too large); its lower
+    spp and an unbiased estimator are not listed."""
+    from iblbench.reports.report import bias_table
+    from iblbench.scenes.imageio import write_exr
+
+    rng = np.random.default_rng(3)
+    reference = rng.uniform(0.05, 2.0, (6, 5, 3)).astype(np.float32)
+    folder = tmp_path / "images" / "s" / "f0"
+    folder.mkdir(parents=True)
+    write_exr(folder / "reference.exr", reference)
+    epsilon, seeds, rows = 0.05, 8, []
+    for label, spp in (("fis", 4), ("fis", 16), ("uniform", 16)):
+        for seed in range(seeds):
+            row = {"scene": "s", "estimator": label, "spp": spp, "frame": 0, "seed": seed}
+            write_exr(folder / f"{label}_spp{spp}_s{seed}.exr",
+                      reference * np.float32(1.1 + epsilon * (-1) ** seed))
+            rows.append(row)
+    table = pd.DataFrame(rows)
+    cells = pd.DataFrame({"scene": ["s"], "estimator": ["fis"], "spp": [16], "seeds": [seeds],
+                          "rel_mse": [0.5], "rel_mse_half": [0.1]})
+    html = str(bias_table(tmp_path, table, cells, "s", 0, lambda: np.ones((6, 5), bool)))
+    shown = [re.sub(r"<[^>]+>", "", cell) for cell in re.findall(r"<td[^>]*>.*?</td>", html)]
+    assert len(shown) == 6 and shown[:3] == ["fis", "16", "8"], shown
+    r = reference.astype(np.float64)
+    expected = np.mean((0.01 - epsilon ** 2 / 7) * r ** 2 / (r ** 2 + 0.01))
+    assert float(shown[3].split(" ± ")[0]) == pytest.approx(10.0, abs=1e-3)
+    mean, half = map(float, shown[4].split(" ± "))      # shown to the half-width's 2nd digit
+    assert abs(mean - expected) <= 1e-4 and 0 < half < expected, (shown[4], expected)
+    assert shown[5] == "0.50 ± 0.10"
