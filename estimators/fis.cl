@@ -54,14 +54,15 @@ ALWAYS_INLINE lanes3_t lanes_hammersley_direction(const shading_t *s, vec3_t t_n
 }
 
 /* The radiance of mip level `level` (nearest texel) at the level-0 texel (face, row, col): level l
- * of face size ⌈R/2^l⌉ starts at texel level_offsets[l] of `mips` (harness/mips.cl's layout),
- * and its texel (row >> l, col >> l) averages the level-0 texels below it. */
-ALWAYS_INLINE lanes3_t lanes_level_radiance(__global const float4 *mips, __global const int *level_offsets,
-                                            int res, lane_ints_t level, lane_ints_t face, lane_ints_t row,
+ * of face size ⌈R/2^l⌉ starts at texel level_offsets.s[l] of `mips` (harness/mips.py's layout;
+ * a kernel argument, so no buffer per render), and its texel (row >> l, col >> l) averages the
+ * level-0 texels below it. */
+ALWAYS_INLINE lanes3_t lanes_level_radiance(__global const float4 *mips, int16 level_offsets, int res,
+                                            lane_ints_t level, lane_ints_t face, lane_ints_t row,
                                             lane_ints_t col)
 {
     lane_ints_t level_res = (((lane_ints_t)(res - 1)) >> level) + 1;
-    lane_ints_t texel = GATHER(lane_ints_t, level_offsets, level)
+    lane_ints_t texel = shuffle(level_offsets, convert_lane_uints(level))
                       + (face * level_res + (row >> level)) * level_res + (col >> level);
     return lanes_texel_radiance(mips, texel);
 }
@@ -74,7 +75,7 @@ ALWAYS_INLINE lanes3_t lanes_level_radiance(__global const float4 *mips, __globa
  * lod is clamped to the coarsest level `top`, and the level-lod radiance is the linear blend of
  * levels ⌊lod⌋ and ⌊lod⌋ + 1 (each at its nearest texel).  A density of 0 (a sample that adds
  * nothing) reads the coarsest level; min() also maps a NaN lod there. */
-ALWAYS_INLINE lanes3_t lanes_filtered_radiance(__global const float4 *mips, __global const int *level_offsets,
+ALWAYS_INLINE lanes3_t lanes_filtered_radiance(__global const float4 *mips, int16 level_offsets,
                                                int res, int top, float lod_shift, float lod_bias,
                                                lanes3_t w, lanes_t pdf)
 {
@@ -97,10 +98,11 @@ inline float lod_shift_of(int res, int spp)
 }
 
 /* Outputs as envmap.cl's render_map: planes of n = get_global_size(0) floats, radiance R, G, B;
- * counts used, effective (in samples); evaluations per pixel.  `levels` mip levels, the last 1×1. */
+ * counts used, effective (in samples); evaluations per pixel.  `levels` (≤ 16) mip levels, the
+ * last 1×1. */
 __kernel void render_fis(__global const float4 *normal, __global const float4 *view,
                          __global const float4 *kd, __global const float4 *ks_m,
-                         __global const float4 *mips, __global const int *level_offsets,
+                         __global const float4 *mips, const int16 level_offsets,
                          const int levels, const int res, const int spp, const float lod_bias,
                          const uint seed, const uint frame, __global float *radiance,
                          __global float *counts, __global int *evaluations)

@@ -6,12 +6,15 @@ import dataclasses
 import math
 
 import numpy as np
+import pyopencl.cltypes as cltypes
 
 from iblbench.estimators.base import Tags, read_estimate
 from iblbench.estimators.brdf import Brdf
 from iblbench.estimators.envmap import POOL_LANES
 from iblbench.estimators.light_pool import MAX_SPP, hook_surface
 from iblbench.harness.device import event_ms
+
+MAX_LEVELS = 16   # mip levels render_fis takes (its int16 of level offsets)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,10 +109,14 @@ class Fis(Brdf):
         radiance = compute.empty(gbuffer.count * 12)   # planes R, G, B (as envmap.cl)
         counts = compute.empty(gbuffer.count * 8)      # planes used, effective
         evaluations = compute.empty(gbuffer.count * 4)
-        texel_offsets = compute.to_device(np.asarray(mips.offsets, np.int32) // mips.channels)
+        if len(mips.sizes) > MAX_LEVELS or mips.offsets[-1] // mips.channels >= 2 ** 31:
+            raise ValueError(f"fis reads at most {MAX_LEVELS} mip levels of under 2^31 texels "
+                             f"(faces up to 8192²), got faces of {cache.res}²")
+        level_offsets = cltypes.make_int16(*(np.array(mips.offsets + (0,) * MAX_LEVELS)[:MAX_LEVELS]
+                                             // mips.channels))
         event = compute.run(
             self._kernel(compute, "render_fis", gbuffer), gbuffer.count, gbuffer.normal,
-            gbuffer.view, gbuffer.kd, gbuffer.ks, mips.buffer, texel_offsets,
+            gbuffer.view, gbuffer.kd, gbuffer.ks, mips.buffer, level_offsets,
             np.int32(len(mips.sizes)), np.int32(cache.res), np.int32(spp),
             np.float32(self.params.lod_bias), np.uint32(seed), np.uint32(cache.frame), radiance,
             counts, evaluations)
