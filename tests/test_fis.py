@@ -6,6 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from iblbench.estimators.base import Tags
 from iblbench.estimators.fis import Fis, FisParams
 from iblbench.harness import conformance
 from iblbench.harness.device_gbuffer import DeviceGBuffer
@@ -236,3 +237,13 @@ def test_report_states_the_bias_at_the_highest_spp(tmp_path):
     mean, half = map(float, shown[4].split(" ± "))      # shown to the half-width's 2nd digit
     assert abs(mean - expected) <= 1e-4 and 0 < half < expected, (shown[4], expected)
     assert shown[5] == "0.50 ± 0.10"
+
+
+def test_run_warnings_let_fis_level_off_at_its_bias():
+    """harness/convergence.py: an estimator with a stated limit may level off (slope 0) on a
+    static scene too; the others keep their allowance."""
+    from iblbench.harness.convergence import allowance
+
+    for sequence in (False, True):
+        assert allowance(Fis.tags, "rel_mse", sequence).slope == 0
+    assert allowance(Tags(unbiased=False), "rel_mse", False).slope < 0
