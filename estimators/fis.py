@@ -61,13 +61,15 @@ class Fis(Brdf):
     of DESIGN §3 (they differ by O(1/R²)); the chapter's d(u) (Eq. 14) is its dual-paraboloid
     map's.  The +1: the chapter adds 1 "to the calculated mipmap level defined by Equation 13",
     whose max(…, 0) clamp comes first; read so, every sample reads level 1 or coarser, and the
-    bias does not vanish as N grows (others put the +1 inside the clamp, e.g. Filament's cmgen,
-    log4(K) with K = 4, which then vanishes where Ω_s ≪ Ω_p).  The level is clamped to the
+    bias does not vanish as N grows (others put the +1 inside the clamp, e.g. Filament's
+    ``CubemapIBL::roughnessFilter``, libs/ibl: + log4(K) with K = 4, which then vanishes where
+    Ω_s ≪ Ω_p).  The level is clamped to the
     coarsest (1×1 per face); log2 is common.cl's polynomial (phong_power's first half).
 
     Lookup: linear between the two levels around lod (⌊lod⌋ and ⌊lod⌋ + 1) and the nearest
-    texel within each (OpenGL's GL_NEAREST_MIPMAP_LINEAR; the chapter's tex2Dlod leaves the
-    filter to the sampler state, trilinear in its demo).  Nearest within a level keeps DESIGN
+    texel within each (OpenGL's GL_NEAREST_MIPMAP_LINEAR; the chapter's tex2Dlod takes its
+    filter from a sampler state it does not give; a GPU's mipmapped sampler is usually
+    trilinear).  Nearest within a level keeps DESIGN
     §3's piecewise-constant map: at lod 0 a sample reads exactly what the reference integrates,
     and every level is constant over blocks of 2^l × 2^l level-0 texels.
 
