@@ -63,15 +63,15 @@ class Fis(Brdf):
     whose max(…, 0) clamp comes first; read so, every sample reads level 1 or coarser, and the
     bias does not vanish as N grows (others put the +1 inside the clamp, e.g. Filament's
     ``CubemapIBL::roughnessFilter``, libs/ibl: + log4(K) with K = 4, which then vanishes where
-    Ω_s ≪ Ω_p).  The level is clamped to the
-    coarsest (1×1 per face); log2 is common.cl's polynomial (phong_power's first half).
+    Ω_s ≪ Ω_p).  The level is clamped to the coarsest (1×1 per face); log2 is common.cl's
+    polynomial (phong_power's first half).
 
     Lookup: linear between the two levels around lod (⌊lod⌋ and ⌊lod⌋ + 1) and the nearest
     texel within each (OpenGL's GL_NEAREST_MIPMAP_LINEAR; the chapter's tex2Dlod takes its
     filter from a sampler state it does not give; a GPU's mipmapped sampler is usually
-    trilinear).  Nearest within a level keeps DESIGN
-    §3's piecewise-constant map: at lod 0 a sample reads exactly what the reference integrates,
-    and every level is constant over blocks of 2^l × 2^l level-0 texels.
+    trilinear).  Nearest within a level keeps DESIGN §3's piecewise-constant map: at lod 0 a
+    sample reads exactly what the reference integrates, and every level is constant over blocks
+    of 2^l × 2^l level-0 texels.
 
     Mips and cube edges: ``FrameCache.radiance_mips`` (harness/mips.py), per face 2×2 box means
     ("each pixel of level l is the average of the four corresponding pixels of level l − 1",
