@@ -23,6 +23,7 @@ class Tags:
     temporal: bool = False         # keeps state across frames; reset() clears it
     has_pdf: bool = False          # sample_directions/pdf hooks exist (χ² test)
     deterministic: bool = True     # same seed, same device → same image
+    has_limit: bool = False        # biased but consistent: limit_map hook, its exact integral
 
 
 @dataclasses.dataclass

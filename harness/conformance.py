@@ -359,17 +359,22 @@ def check_unbiased(estimator, h: Harness) -> None:
 MIN_ERROR_FALL_8_TO_128 = 2.5
 
 
+def _rms_errors(estimator, h: Harness, gbuffer, cache, targets, spps) -> np.ndarray:
+    """RMS error ``[targets, spps]`` of the same 6 seeds' renders against each of ``targets``,
+    per spp of ``spps``."""
+    errors = np.zeros((len(targets), len(spps)))
+    for column, spp in enumerate(spps):
+        images = np.array([h.render(estimator, gbuffer, cache, spp, s).radiance for s in range(6)])
+        errors[:, column] = [np.sqrt(np.mean(np.square(images - target))) for target in targets]
+    return errors
+
+
 def _error_ratio_8_to_128(estimator, h: Harness) -> float:
     """RMS error over 6 seeds at 8 spp divided by that at 128 spp (16× the samples), on
     ``face_pattern_map`` (a face error leaves a bias floor there)."""
     gbuffer, cache = h.inputs(glossy_gbuffer(), face_pattern_map())
-    reference = h.reference(gbuffer, cache)
-
-    def rms(spp):
-        errors = [h.render(estimator, gbuffer, cache, spp, s).radiance - reference for s in range(6)]
-        return float(np.sqrt(np.mean(np.square(errors))))
-
-    return rms(8) / rms(128)
+    low, high = _rms_errors(estimator, h, gbuffer, cache, [h.reference(gbuffer, cache)], (8, 128))[0]
+    return float(low / high)
 
 
 def check_convergence(estimator, h: Harness) -> None:
@@ -386,6 +391,33 @@ def check_error_falls(estimator, h: Harness) -> None:
     check's lower bound), on a static map where the error must go to zero with the budget."""
     ratio = _error_ratio_8_to_128(estimator, h)
     assert ratio >= MIN_ERROR_FALL_8_TO_128, f"error ratio 8→128 spp is {ratio:.2f}, expected the error to fall ≥ 2.5×"
+
+
+LIMIT_SPP = (8, 128, 2048)   # each 16× the last
+
+
+def check_consistent_limit(estimator, h: Harness) -> None:
+    """For biased estimators that state their limit (``tags.has_limit``, e.g. ``fis``): as spp
+    grows they converge to the exact integral of the map their ``limit_map(cache)`` hook
+    returns (a filtered map), not to the map's.  On ``face_pattern_map`` (glossy pixels), the
+    RMS error over 6 seeds against that limit's exact reference must fall at least 2.5× for
+    each 16× the samples, 8 → 128 → 2048 spp (the unbiased checks' least fall; an error that
+    levels off anywhere fails, as does a stated limit the estimator does not reach).  The error
+    against the exact reference then falls from low spp and flattens at the stated bias
+    B = RMS(limit − exact) (it stays within the limit error of B, by the triangle inequality);
+    the message gives B and both errors at the highest spp."""
+    gbuffer, cache = h.inputs(glossy_gbuffer(), face_pattern_map())
+    cache.require(type(estimator).requires)
+    exact = h.reference(gbuffer, cache)
+    limit = h.reference(gbuffer, FrameCache(h.compute, estimator.limit_map(cache)))
+    to_limit, to_exact = _rms_errors(estimator, h, gbuffer, cache, [limit, exact], LIMIT_SPP)
+    falls = to_limit[:-1] / np.maximum(to_limit[1:], 1e-30)
+    bias = float(np.sqrt(np.mean(np.square(limit - exact))))
+    assert min(falls) >= MIN_ERROR_FALL_8_TO_128, (
+        f"RMS error against the stated limit {', '.join(f'{e:.3g}' for e in to_limit)} at "
+        f"{LIMIT_SPP} spp: falls ×{', ×'.join(f'{f:.2f}' for f in falls)}, expected ≥ "
+        f"{MIN_ERROR_FALL_8_TO_128} per 16× (stated bias {bias:.3g}, error against the exact "
+        f"reference {to_exact[-1]:.3g} at {LIMIT_SPP[-1]} spp)")
 
 
 CHI2_MAX_BINS = 16        # χ² bins per cube face side at most
@@ -596,6 +628,8 @@ def yield_checks(estimator) -> Iterator[Callable]:
     if tags.unbiased:
         yield check_unbiased
         yield check_convergence
+    elif tags.has_limit:        # biased toward a stated limit: it must reach that limit
+        yield check_consistent_limit
     else:                       # no z-test, and no 1/√spp law: only that the error falls
         yield check_error_falls
     if tags.has_pdf:

@@ -135,6 +135,14 @@ evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``byt
         coordinate), its pdf 8, the face direction normalised 12, lobe power 41, n·ω 5, D 1,
         add_samples 18; per pixel envmap's 76 and the faces' widths 19 (their total 5,
         2^31/total 1, six shares and clamps 12, hoisted: the same for every sample)
+    fis            223     0 / 0     123 / 88
+        a filtered BRDF sample, 223: its Hammersley point 2 and lobe rescale 5, brdf's draw
+        after the uniforms 91 (sincos_turn 24, √ξ 1, ξ^{1/(m+1)} 35, direction 31), lobe power
+        41, n·ω 5, mixture pdf 5, the texel of ω and its area_per_solid_angle 20, the lod of
+        Eq. 13 26 (log2 16, the clamps, bias, floor and share 10), the blend of two levels 9,
+        D 1, add_samples 18; per pixel brdf's 103 and the lod shift ½·log2(R²/4N) 20 (its
+        library log2 counted as the polynomial's 16); bytes as brdf's (the mip chain, 4/3 of
+        the map, taken as cache-resident like the map)
 
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
@@ -221,6 +229,7 @@ KERNEL_COSTS = {
     "brdf": KernelCost(174, 0, 0, 103, 88),
     "envmap": KernelCost(115, 0, 0, 76, 88),
     "hierarchical": KernelCost(182, 0, 0, 95, 88),
+    "fis": KernelCost(223, 0, 0, 123, 88),
 }
 
 # Every column of perf.csv, in order, with what it means (the --help epilog and perf.html).

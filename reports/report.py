@@ -46,11 +46,12 @@ from iblbench.harness.convergence import flatter_than_tags
 from iblbench.harness.equal_time import TOLERANCE
 from iblbench.harness.metrics import Scorer
 from iblbench.harness.results import load_table
-from iblbench.harness.stats import cell_intervals, interval_text, mean_ci
+from iblbench.harness.stats import LEVEL, cell_intervals, interval_text, mean_ci, t_quantile
 from iblbench.harness.timing import TIME
 from iblbench.reports import plots
 from iblbench.reports.frames import shown_frame
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
+from iblbench.scenes import cubemap
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.imageio import read_exr
@@ -353,6 +354,50 @@ def image_grid(run_dir, report, table, cells, scene, frame, seed, spp, mask) -> 
             "spp": sorted(set(chosen.values()))}
 
 
+def bias_table(run_dir, table, cells, scene, frame, mask) -> markupsafe.Markup | None:
+    """The bias left at the highest spp by each estimator of the scene tagged biased
+    (``tags.unbiased = False``: fis, havran, smc), from the frame's estimate EXRs of every seed
+    at that spp against the reference EXR, over covered pixels (``mask()``): the image-mean
+    bias Σ Y(x)/Σ Y(r) − 1 in luminance, mean over seeds with its 95% interval, and the relMSE
+    of the bias, mean(((m − r)² − s²/n)/(r² + 0.01)) with m and s a pixel's mean and standard
+    deviation over the n seeds (the squared bias with the variance of the mean taken out, so
+    it estimates the floor the cell's relMSE, shown beside it, levels off at), its 95% interval
+    by the jackknife over seeds (n ≥ 3).  An estimator whose EXRs are gone is left out; None
+    when none is left."""
+    folder = pathlib.Path(run_dir) / "images" / scene / f"f{frame}"
+    rows = table[(table.scene == scene) & (table.frame == frame)]
+    shown = []
+    for label, runs in rows.groupby("estimator", sort=False):
+        spp = int(runs.spp.max())
+        paths = [folder / f"{_image_stem(row)}.exr" for row in runs[runs.spp == spp].to_dict("records")]
+        try:
+            biased = not type(_estimator(label)).tags.unbiased
+        except InputError:      # an estimator this installation lacks
+            biased = False
+        if not biased or not all(p.exists() for p in [folder / "reference.exr", *paths]):
+            continue
+        covered, n = mask(), len(paths)
+        reference = read_exr(folder / "reference.exr")[covered].astype(np.float64)
+        estimates = np.array([read_exr(path)[covered] for path in paths], np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            image_mean = mean_ci(cubemap.luminance(estimates).sum(1) / cubemap.luminance(reference).sum() - 1)
+
+        def bias_rel_mse(seeds):
+            squared_bias = (seeds.mean(0) - reference) ** 2 - seeds.var(0, ddof=1) / len(seeds)
+            return float(np.mean(squared_bias / (reference ** 2 + 0.01)))
+
+        bias = bias_rel_mse(estimates) if n > 1 else np.nan
+        left_out = np.array([bias_rel_mse(np.delete(estimates, i, 0)) for i in range(n)]) if n > 2 else np.nan
+        bias_half = t_quantile(n - 1, LEVEL) * np.sqrt((n - 1) * np.mean((left_out - left_out.mean()) ** 2)) \
+            if n > 2 else np.nan
+        cell = cells[(cells.scene == scene) & (cells.estimator == label) & (cells.spp == spp)]
+        shown.append({"estimator": label, "spp": spp, "seeds": n, "image-mean bias (%)": interval_text(
+                          100 * image_mean.mean, 100 * (image_mean.high - image_mean.mean), n),
+                      "relMSE of the bias": interval_text(bias, bias_half, n),
+                      "relMSE": _intervals(cell, "rel_mse")[0]})
+    return _table_html(pd.DataFrame(shown), "summary") if shown else None
+
+
 # ---- the sample picture -----------------------------------------------------------------------
 
 @dataclasses.dataclass
@@ -584,6 +629,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
             picture = {"error": str(error)}
         timed = equal_time[equal_time.scene == scene]
         scenes.append({"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
+                       "bias": bias_table(run_dir, table, cells, scene, scene_frame, lambda: inputs().mask),
                        "equal_time": equal_time_html(timed) if len(timed) else None,
                        "figures": figures, "per_frame": per_frame, "frames": len(frames),
                        "grid": grid, "picture": picture, "frame_rule": frame_rule,
