@@ -179,8 +179,8 @@ CATALOGUE: tuple[Mutant, ...] = (
        ["constant"]),
     # ---- the frame cache --------------------------------------------------------------------
     _m("framecache-luminance-weights-swapped", "harness/framecache.cl",
-       "return 0.2126f * texels.s000044448888cccc + 0.7152f * texels.s111155559999dddd",
-       "return 0.7152f * texels.s000044448888cccc + 0.2126f * texels.s111155559999dddd",
+       "return 0.2126f * x + 0.7152f * y + 0.0722f * z;",
+       "return 0.7152f * x + 0.2126f * y + 0.0722f * z;",
        ["uniform"], ["sun-1e6"]),
     _m("framecache-cdf-without-solid-angle", "harness/framecache.cl",
        "float wk = run->env_row ? luminance(run->env_row[j].xyz) * run->omega_row[j] : run->weight[j];",
