@@ -19,15 +19,16 @@
  * One work item builds one run in explicit vectors (so the steps vectorise whatever PoCL does
  * with the work-item loop), in three passes; only the first reads the map, the others work on
  * the run's words, which stay in cache:
- * (1) each weight (sixteen per step) and its bits, stored in its cdf word; the first largest bin;
+ * (1) each weight (sixteen per step), kept as a float in the run's words (run_weights_kept);
+ *     the first largest bin;
  *     W as a plain sum, exact when n · max w ≤ 2^(p−24) · min w>0 (p = acc_t's precision: every
  *     weight is a multiple of the least one's ulp, so every partial sum then fits p bits:
  *     2^29 in double, a 5e8 : 1 span of a row of 1024).  Otherwise (a sun in the run) W is
- *     summed again from the stored bits as LANES partial sums compensated by two-sums (their
+ *     summed again from the kept weights as LANES partial sums compensated by two-sums (their
  *     errors summed aside) and joined by two-sums: the exactly rounded sum unless that lies
  *     within ~n·2^-106 of a rounding midpoint (n·2^-48 in float).  Both give the exact sum
  *     wherever it is representable, so the fast path changes no word;
- * (2) the widths from those bits, their inclusive prefix sums (a log-step scan in each block
+ * (2) the widths from those weights, their inclusive prefix sums (a log-step scan in each block
  *     of LANES, chained by the block totals), stored in place;
  * (3) the remainder 2^63 − Σ q joins every entry from the largest bin on.
  * Integer words are exact in any order, so the CDF is bit for bit that of the serial
@@ -74,14 +75,13 @@ typedef struct {
     for (; block_ + (size) <= (n); block_ += (size)) { const int i = block_, full = 1; body } \
     if (block_ < (n)) { const int i = block_, full = 0; body } }
 
-/* The luminance of sixteen float4 texels, bit for bit luminance()'s sum, with every lane of the
- * arithmetic a texel: the texels' (x, y) and (z, w) pairs are gathered as 64-bit lanes, then
- * split into channel planes.  Shuffling whole pairs keeps the loads whole: a float shuffle that
- * drops w lets LLVM narrow each load to 8-byte pieces (32 loads and lane inserts per block). */
-__attribute__((always_inline)) inline float16 luminance_of_sixteen(__global const float4 *texels)
+/* The luminance of sixteen float4 texels given as their (x, y) and (z, w) pairs, bit for bit
+ * luminance()'s sum, with every lane of the arithmetic a texel: the pairs are gathered as 64-bit
+ * lanes, then split into channel planes.  Shuffling whole pairs keeps the loads whole: a float
+ * shuffle that drops w lets LLVM narrow each load to 8-byte pieces (32 loads and lane inserts
+ * per block). */
+__attribute__((always_inline)) inline float16 luminance_of_sixteen(ulong8 a, ulong8 b, ulong8 c, ulong8 d)
 {
-    __global const ulong *pairs = (__global const ulong *)texels;
-    ulong8 a = vload8(0, pairs), b = vload8(1, pairs), c = vload8(2, pairs), d = vload8(3, pairs);
     float16 xy_ab = as_float16(__builtin_shufflevector(a, b, 0, 2, 4, 6, 8, 10, 12, 14));
     float16 xy_cd = as_float16(__builtin_shufflevector(c, d, 0, 2, 4, 6, 8, 10, 12, 14));
     float16 zw_ab = as_float16(__builtin_shufflevector(a, b, 1, 3, 5, 7, 9, 11, 13, 15));
@@ -92,20 +92,37 @@ __attribute__((always_inline)) inline float16 luminance_of_sixteen(__global cons
     return 0.2126f * x + 0.7152f * y + 0.0722f * z;
 }
 
-/* Weights of bins i … i + WIDE_LANES − 1 of the run; 0 past its end. */
+/* Weights of bins i … i + WIDE_LANES − 1 of the run; 0 past its end.  A last, partial block
+ * copies its bins, zeros past the end, and takes the same arithmetic as whole blocks. */
 __attribute__((always_inline)) inline float16 run_weights(const run_t *run, int i, int full)
 {
+    if (!run->env_row) {
+        if (full) return vload16(0, run->weight + i);
+        float w[WIDE_LANES];
+        for (int k = 0; k < WIDE_LANES; ++k)   /* j: inside the run; read and dropped past its end */
+            w[k] = i + k < run->count ? run->weight[min(i + k, run->count - 1)] : 0.0f;
+        return vload16(0, w);
+    }
+    __global const ulong *pairs = (__global const ulong *)(run->env_row + i);
+    ulong8 a, b, c, d;
+    float16 omega;
     if (full) {
-        if (!run->env_row) return vload16(0, run->weight + i);
-        return luminance_of_sixteen(run->env_row + i) * vload16(0, run->omega_row + i);
+        a = vload8(0, pairs), b = vload8(1, pairs), c = vload8(2, pairs), d = vload8(3, pairs);
+        omega = vload16(0, run->omega_row + i);
+    } else {
+        ulong texel_pairs[2 * WIDE_LANES];
+        float omega_copy[WIDE_LANES];
+        for (int k = 0; k < WIDE_LANES; ++k) {
+            int j = min(k, run->count - i - 1), inside = i + k < run->count;
+            texel_pairs[2 * k] = inside ? pairs[2 * j] : 0;
+            texel_pairs[2 * k + 1] = inside ? pairs[2 * j + 1] : 0;
+            omega_copy[k] = inside ? run->omega_row[i + j] : 0.0f;
+        }
+        a = vload8(0, texel_pairs), b = vload8(1, texel_pairs), c = vload8(2, texel_pairs),
+        d = vload8(3, texel_pairs);
+        omega = vload16(0, omega_copy);
     }
-    float w[WIDE_LANES];
-    for (int k = 0; k < WIDE_LANES; ++k) {
-        int j = min(i + k, run->count - 1);
-        float wk = run->env_row ? luminance(run->env_row[j].xyz) * run->omega_row[j] : run->weight[j];
-        w[k] = i + k < run->count ? wk : 0.0f;
-    }
-    return vload16(0, w);
+    return luminance_of_sixteen(a, b, c, d) * omega;
 }
 
 /* cdf[i … i + LANES) = v, as far as the run's n bins go. */
@@ -126,11 +143,29 @@ __attribute__((always_inline)) inline cdf_word8_t load_words(__global const cdf_
     return vload8(0, v);
 }
 
-/* The weights whose bits pass (1) stored in cdf[i … i + LANES). */
-__attribute__((always_inline)) inline float8 stored_weights(__global const cdf_word_t *cdf, int i, int n,
-                                                            int full)
+/* Pass (1) keeps a run's weights as floats in the upper half of its words' bytes, from byte 4n:
+ * writing entry j (bytes 8j … 8j + 7) overwrites the weights of bins 2j − n and 2j + 1 − n,
+ * which pass (2), going up a block at a time, has read by then (a whole block i … i + 7 reads
+ * before it writes, and 2i + 15 − n < i + 8 while i + 8 ≤ n). */
+__attribute__((always_inline)) inline __global float *run_weights_kept(__global cdf_word_t *cdf, int n)
 {
-    return as_float8(convert_uint8(load_words(cdf, i, n, full)));
+    return (__global float *)cdf + n;
+}
+
+/* kept[i … i + WIDE_LANES) = w, as far as the run's n bins go. */
+__attribute__((always_inline)) inline void keep_weights(__global float *kept, int i, int n, int full, float16 w)
+{
+    if (full) vstore16(w, 0, kept + i);
+    else for (int k = 0; i + k < n; ++k) kept[i + k] = ((float *)&w)[k];
+}
+
+/* kept[i … i + LANES), 0 past the run's n bins. */
+__attribute__((always_inline)) inline float8 kept_weights(__global const float *kept, int i, int n, int full)
+{
+    if (full) return vload8(0, kept + i);
+    float v[LANES];
+    for (int k = 0; k < LANES; ++k) v[k] = i + k < n ? kept[i + k] : 0.0f;
+    return vload8(0, v);
 }
 
 /* Inclusive prefix sums of the lanes: three adds of the lanes shifted up by 1, 2 and 4, zeros
@@ -144,13 +179,13 @@ __attribute__((always_inline)) inline cdf_word8_t inclusive_scan(cdf_word8_t v)
     return v + __builtin_shufflevector(zero, v, 4, 5, 6, 7, 8, 9, 10, 11);
 }
 
-/* Σ w of the weights stored in cdf[0 … n), compensated: LANES partial sums by two-sums, their
+/* Σ w of the n kept weights, compensated: LANES partial sums by two-sums, their
  * errors summed aside, joined by two-sums. */
-__attribute__((always_inline)) inline acc_t compensated_sum(__global const cdf_word_t *cdf, int n)
+__attribute__((always_inline)) inline acc_t compensated_sum(__global const float *kept, int n)
 {
     acc8_t sum = 0, error = 0;
     FOR_EACH_BLOCK(0, n, LANES, {
-        error += two_sum8(sum, convert_acc8(stored_weights(cdf, i, n, full)), &sum);
+        error += two_sum8(sum, convert_acc8(kept_weights(kept, i, n, full)), &sum);
     })
     acc_t total = 0, total_error = 0;
     for (int k = 0; k < LANES; ++k)
@@ -162,6 +197,7 @@ __attribute__((always_inline)) inline acc_t compensated_sum(__global const cdf_w
 __attribute__((always_inline)) inline acc_t write_cdf(__global cdf_word_t *cdf, const run_t *run)
 {
     int n = run->count;
+    __global float *kept = run_weights_kept(cdf, n);
     const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
     const int16 wide_lane = (int16)(lane, lane + LANES);
     acc8_t sum_lo = 0, sum_hi = 0;
@@ -170,8 +206,7 @@ __attribute__((always_inline)) inline acc_t write_cdf(__global cdf_word_t *cdf, 
     uint16 least_bits = UINT_MAX;   /* the least positive weight's bits − 1: zeros wrap to the top */
     FOR_EACH_BLOCK(0, n, WIDE_LANES, {
         float16 w = run_weights(run, i, full);
-        store_words(cdf, i, n, full, convert_ulong8(as_uint8(w.lo)));   /* the weights' bits */
-        if (full || i + LANES < n) store_words(cdf, i + LANES, n, full, convert_ulong8(as_uint8(w.hi)));
+        keep_weights(kept, i, n, full, w);
         sum_lo += convert_acc8(w.lo);
         sum_hi += convert_acc8(w.hi);
         int16 larger = w > largest_weight;
@@ -191,14 +226,14 @@ __attribute__((always_inline)) inline acc_t write_cdf(__global cdf_word_t *cdf, 
     }
     acc_t total = sum_acc8(sum_lo + sum_hi);
     if (!(isfinite(total) && (acc_t)n * top <= EXACT_SUM_SPAN * (acc_t)as_float(least + 1u)))
-        total = compensated_sum(cdf, n);
+        total = compensated_sum(kept, n);
     acc_t inverse = (acc_t)1 / total;   /* a product per bin, not a division */
     int uniform = !(total > 0) || isinf(inverse);
     if (uniform) inverse = (acc_t)1 / n;
     cdf_word8_t running = 0;   /* the entries so far: Σ q, in every lane */
     FOR_EACH_BLOCK(0, n, LANES, {
         float8 w = uniform ? select((float8)0.0f, (float8)1.0f, i + lane < n)
-                           : stored_weights(cdf, i, n, full);
+                           : kept_weights(kept, i, n, full);
         acc8_t scaled = convert_acc8(w) * inverse * (acc_t)0x1p63;
         /* min: w ≤ W up to rounding, so only the largest bin can exceed 2^63, and its width
          * cancels out of the CDF (entry i ≥ largest is 2^63 − Σ_{j>i} q_j). */
