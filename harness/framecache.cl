@@ -58,13 +58,26 @@ __attribute__((always_inline)) inline acc_t two_sum(acc_t a, acc_t b, acc_t *sum
     return (a - (s - b_part)) + (b - b_part);
 }
 
-/* A run's weights: Y·Ω of `count` texels (env_row and omega_row), or stored weights. */
+/* A run's weights: Y·Ω of `count` texels (env_row and omega_row), or stored weights.  A run of
+ * texels names the texels and solid angles of the run its work item builds next (next_env_row,
+ * next_omega_row), which pass (2) prefetches. */
 typedef struct {
     __global const float4 *env_row;
     __global const float *omega_row;
     __global const float *weight;
     int count;
+    __global const float4 *next_env_row;
+    __global const float *next_omega_row;
 } run_t;
+
+/* A hint that memory is about to be read (for_write = 0) or written (1): a prefetch instruction on
+ * a CPU, where PoCL's prefetch() is a no-op and a run's passes (2) and (3), in cache, would
+ * otherwise leave the memory idle; nothing on other devices. */
+#if defined(__x86_64__) || defined(__aarch64__)
+#define PREFETCH(address, for_write) __builtin_prefetch((address), (for_write))
+#else
+#define PREFETCH(address, for_write)
+#endif
 
 /* Loops over the blocks of `size` bins of a run of n bins from bin `first` (a block start, or
  * n): `body` sees the block's start i and full = 1 for whole blocks, full = 0 for a last,
@@ -232,6 +245,12 @@ __attribute__((always_inline)) inline acc_t write_cdf(__global cdf_word_t *cdf, 
     if (uniform) inverse = (acc_t)1 / n;
     cdf_word8_t running = 0;   /* the entries so far: Σ q, in every lane */
     FOR_EACH_BLOCK(0, n, LANES, {
+        if (run->next_env_row) {   /* the next run's texels (two lines), solid angles and words */
+            PREFETCH(run->next_env_row + i, 0);
+            PREFETCH(run->next_env_row + i + LANES / 2, 0);
+            if (i % (2 * LANES) == 0) PREFETCH(run->next_omega_row + i, 0);
+            PREFETCH(cdf + n + i, 1);
+        }
         float8 w = uniform ? select((float8)0.0f, (float8)1.0f, i + lane < n)
                            : kept_weights(kept, i, n, full);
         acc8_t scaled = convert_acc8(w) * inverse * (acc_t)0x1p63;
@@ -239,9 +258,10 @@ __attribute__((always_inline)) inline acc_t write_cdf(__global cdf_word_t *cdf, 
          * cancels out of the CDF (entry i ≥ largest is 2^63 − Σ_{j>i} q_j). */
         cdf_word8_t width = select(max((cdf_word8_t)1, convert_ulong8(min(scaled, (acc8_t)0x1p63))),
                                    (cdf_word8_t)0, convert_long8(w > 0.0f) == 0);
-        cdf_word8_t entries = inclusive_scan(width) + running;
-        store_words(cdf, i, n, full, entries);
-        running = __builtin_shufflevector(entries, entries, 7, 7, 7, 7, 7, 7, 7, 7);
+        cdf_word8_t sums = inclusive_scan(width);
+        store_words(cdf, i, n, full, sums + running);
+        /* The block's total, spread from its own sums: one add per block on the chain. */
+        running += __builtin_shufflevector(sums, sums, 7, 7, 7, 7, 7, 7, 7, 7);
     })
     /* The remainder joins the largest bin's width, so the entries end at CDF_ONE. */
     cdf_word_t remainder = CDF_ONE - running.s0;
@@ -258,7 +278,8 @@ __kernel void row_cdfs(__global const float4 *env, __global const float *omega, 
                        __global cdf_word_t *conditional, __global float *row_weight)
 {
     int face_row = get_global_id(0), row = face_row % res;
-    run_t run = {env + (size_t)face_row * res, omega + (size_t)row * res, 0, res};
+    __global const float4 *env_row = env + (size_t)face_row * res;
+    run_t run = {env_row, omega + (size_t)row * res, 0, res, env_row + res, omega + (size_t)(row + 1) % res * res};
     row_weight[face_row] = (float)write_cdf(conditional + (size_t)face_row * res, &run);
 }
 
@@ -268,7 +289,7 @@ __kernel void weight_cdfs(__global const float *weight, const int n, __global cd
                           __global float *totals)
 {
     int r = get_global_id(0);
-    run_t run = {0, 0, weight + (size_t)r * n, n};
+    run_t run = {0, 0, weight + (size_t)r * n, n, 0, 0};
     totals[r] = (float)write_cdf(cdfs + (size_t)r * n, &run);
 }
 
