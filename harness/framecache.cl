@@ -1,8 +1,8 @@
 /* Per-face luminance CDFs (Lu 2013 Algorithm 1, lines 6-9) and the light-sample pool (line 10)
  * on the device.
  * Weights are Y·Ω per texel so that pdf_L(ω|f) ≈ Y(ω)/I_f; I_f = Σ Y·Ω is the face's luminance
- * integral of Lu Eq. 3.  Rows are scanned in parallel, one work item per (face, row), each
- * eight bins per vector step. */
+ * integral of Lu Eq. 3.  Rows are scanned in parallel, one work item per (face, row), each in
+ * vector steps of sixteen weights and eight CDF words. */
 #include "light_pool.cl"
 
 /* The fixed-point CDFs of common.cl.  A run of n weights w_i ≥ 0 (a row's Y·Ω, or a face's row
@@ -20,16 +20,17 @@
  * with the work-item loop), in three passes; only the first reads the map, the others work on
  * the run's words, which stay in cache:
  * (1) each weight (sixteen per step), kept as a float in the run's words (run_weights_kept);
- *     the first largest bin;
- *     W as a plain sum, exact when n · max w ≤ 2^(p−24) · min w>0 (p = acc_t's precision: every
- *     weight is a multiple of the least one's ulp, so every partial sum then fits p bits:
- *     2^29 in double, a 5e8 : 1 span of a row of 1024).  Otherwise (a sun in the run) W is
- *     summed again from the kept weights as LANES partial sums compensated by two-sums (their
- *     errors summed aside) and joined by two-sums: the exactly rounded sum unless that lies
- *     within ~n·2^-106 of a rounding midpoint (n·2^-48 in float).  Both give the exact sum
- *     wherever it is representable, so the fast path changes no word;
+ *     the first largest bin; W as a plain sum, exact when n · max w ≤ 2^(p−24) · min w>0
+ *     (p = acc_t's precision: every weight is a multiple of the least one's ulp, so every
+ *     partial sum, in any order, then fits p bits; 2^29 in double, a span up to 5e5 : 1 in a
+ *     row of 1024).  Otherwise (a sun in the run) W is summed again from the kept weights as
+ *     LANES partial sums compensated by two-sums (their errors summed aside) and joined by
+ *     two-sums: the exactly rounded sum unless that lies within ~n·2^-106 of a rounding
+ *     midpoint (n·2^-48 in float).  Both give the exact sum wherever it is representable, so
+ *     the fast path changes no word;
  * (2) the widths from those weights, their inclusive prefix sums (a log-step scan in each block
- *     of LANES, chained by the block totals), stored in place;
+ *     of LANES, chained by the block totals), stored in place; on a CPU it prefetches the
+ *     next run's texels, solid angles and words meanwhile, so the memory never idles;
  * (3) the remainder 2^63 − Σ q joins every entry from the largest bin on.
  * Integer words are exact in any order, so the CDF is bit for bit that of the serial
  * construction (widths, remainder at the largest bin, running sum). */

@@ -46,7 +46,7 @@ def build_fixed_point_cdfs(compute: Compute, weights: cl.Buffer, runs: int,
                            n: int) -> tuple[cl.Buffer, cl.Buffer, float]:
     """Fixed-point CDFs of ``runs`` runs of ``n`` float32 weights ≥ 0 (a device buffer
     ``[runs, n]``, run-major), built on the device by ``weight_cdfs`` of framecache.cl: one
-    work item per run, eight bins per vector step.
+    work item per run, in vector steps of sixteen weights and eight CDF words.
 
     Returns (cdfs, totals, device ms): ``cdfs`` uint64 ``[runs, n]``, each run's inclusive
     prefix sums of integer widths ending at exactly ``CDF_ONE`` = 2^63, where every positive
