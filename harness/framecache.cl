@@ -30,7 +30,8 @@
  *     the fast path changes no word;
  * (2) the widths from those weights, their inclusive prefix sums (a log-step scan in each block
  *     of LANES, chained by the block totals), stored in place; on a CPU it prefetches the
- *     next run's texels, solid angles and words meanwhile, so the memory never idles;
+ *     next run's texels, solid angles and words meanwhile, so the memory works while the
+ *     cached passes compute;
  * (3) the remainder 2^63 − Σ q joins every entry from the largest bin on.
  * Integer words are exact in any order, so the CDF is bit for bit that of the serial
  * construction (widths, remainder at the largest bin, running sum). */
