@@ -94,7 +94,7 @@ typedef struct {
  * luminance()'s sum, with every lane of the arithmetic a texel: the pairs are gathered as 64-bit
  * lanes, then split into channel planes.  Shuffling whole pairs keeps the loads whole: a float
  * shuffle that drops w lets LLVM narrow each load to 8-byte pieces (32 loads and lane inserts
- * per block). */
+ * per block), and OpenCL's .even/.odd swizzles split each load in two. */
 __attribute__((always_inline)) inline float16 luminance_of_sixteen(ulong8 a, ulong8 b, ulong8 c, ulong8 d)
 {
     float16 xy_ab = as_float16(__builtin_shufflevector(a, b, 0, 2, 4, 6, 8, 10, 12, 14));
@@ -184,8 +184,9 @@ __attribute__((always_inline)) inline float8 kept_weights(__global const float *
 }
 
 /* Inclusive prefix sums of the lanes: three adds of the lanes shifted up by 1, 2 and 4, zeros
- * shifted in (written as alignments of (zero, v), which compile to one valignq each; a shift
- * with zero's lane 0 spread over the gap compiled to slower lane expansions). */
+ * shifted in, written as alignments of (zero, v) with clang's __builtin_shufflevector: one
+ * valignq each on PoCL's AVX-512 target, where a shift with zero's lane 0 (or OpenCL's vector
+ * literals of a 0 and swizzles) compiled to slower lane expansions (vpexpandq). */
 __attribute__((always_inline)) inline cdf_word8_t inclusive_scan(cdf_word8_t v)
 {
     const cdf_word8_t zero = 0;
