@@ -180,10 +180,12 @@ class Compute:
             self._kernels[key] = cl.Kernel(self.program(package, filename, defines), name)
         return self._kernels[key]
 
-    def run(self, kernel: cl.Kernel, size: int, *args) -> cl.Event:
-        """Launch a 1-D kernel over ``size`` work items and wait; returns the profiled event."""
+    def run(self, kernel: cl.Kernel, size: int, *args, group: int | None = None) -> cl.Event:
+        """Launch a 1-D kernel over ``size`` work items (in work groups of ``group``, a divisor
+        of ``size``; default: the device's choice) and wait; returns the profiled event."""
         kernel.set_args(*args)
-        event = cl.enqueue_nd_range_kernel(self.queue, kernel, (int(size),), None)
+        event = cl.enqueue_nd_range_kernel(self.queue, kernel, (int(size),),
+                                           None if group is None else (int(group),))
         event.wait()
         return event
 

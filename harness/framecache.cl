@@ -1,8 +1,8 @@
 /* Per-face luminance CDFs (Lu 2013 Algorithm 1, lines 6-9) and the light-sample pool (line 10)
  * on the device.
  * Weights are Y·Ω per texel so that pdf_L(ω|f) ≈ Y(ω)/I_f; I_f = Σ Y·Ω is the face's luminance
- * integral of Lu Eq. 3.  Rows are scanned in parallel, one work item per (face, row), each
- * eight bins per vector step. */
+ * integral of Lu Eq. 3.  Rows are scanned in parallel, one work item per (face, row), each in
+ * vector steps of sixteen weights and eight CDF words. */
 #include "light_pool.cl"
 
 /* The fixed-point CDFs of common.cl.  A run of n weights w_i ≥ 0 (a row's Y·Ω, or a face's row
@@ -16,20 +16,34 @@
  * 0), and so does a run whose 1/W overflows (a denormal W in float): still exactly the pdf it
  * samples.
  *
- * One work item builds one run, LANES bins per step in explicit vectors (so the steps vectorise
- * whatever PoCL does with the work-item loop), in three passes over the run, which stays in cache:
- * (1) W, as LANES partial sums compensated by two-sums (their errors summed aside) and joined by
- *     two-sums: the exactly rounded sum unless that lies within ~n·2^-106 of a rounding midpoint
- *     (n·2^-48 in float; the serial Kahan sum before could be an ulp off; wherever the double
- *     sum is exact the two agree bit for bit); the first largest bin; each weight's bits stored
- *     in its cdf word;
- * (2) the widths from those bits, stored in place, and Σ q;
- * (3) the remainder joins the largest bin's width, and a running sum turns the widths into the
- *     CDF in place: a scalar chain of one add per bin (a log-step scan inside the vector
- *     compiled to slow lane expansions on PoCL's AVX-512 target). */
-#define LANES 8
+ * One work item builds one run in explicit vectors (so the steps vectorise whatever PoCL does
+ * with the work-item loop), in three passes; only the first reads the map, the others work on
+ * the run's words, which stay in cache:
+ * (1) each weight (sixteen per step), kept as a float in the run's words (run_weights_kept);
+ *     the first largest bin; W as a plain sum, exact when n · max w ≤ 2^(p−24) · min w>0
+ *     (p = acc_t's precision: every weight is a multiple of the least one's ulp, so every
+ *     partial sum, in any order, then fits p bits; 2^29 in double, a span up to 5e5 : 1 in a
+ *     row of 1024).  Otherwise (a sun in the run) W is summed again from the kept weights as
+ *     LANES partial sums compensated by two-sums (their errors summed aside) and joined by
+ *     two-sums: the exactly rounded sum unless that lies within ~n·2^-106 of a rounding
+ *     midpoint (n·2^-48 in float).  Both give the exact sum wherever it is representable, so
+ *     the fast path changes no word;
+ * (2) the widths from those weights, their inclusive prefix sums (a log-step scan in each block
+ *     of LANES, chained by the block totals), stored in place; on a CPU it prefetches the
+ *     next run's texels, solid angles and words meanwhile, so the memory works while the
+ *     cached passes compute;
+ * (3) the remainder 2^63 − Σ q joins every entry from the largest bin on.
+ * Integer words are exact in any order, so the CDF is bit for bit that of the serial
+ * construction (widths, remainder at the largest bin, running sum). */
+#define LANES 8        /* words per step: a ulong8 (one AVX-512 register) */
+#define WIDE_LANES 16  /* weights per step of pass (1) */
 typedef ulong8 cdf_word8_t;
-typedef ulong4 cdf_word4_t;
+
+#ifdef HAVE_FP64
+#define EXACT_SUM_SPAN 0x1p29   /* 2^(53 − 24): double sums of floats within this span are exact */
+#else
+#define EXACT_SUM_SPAN 1.0f
+#endif
 
 /* a + b = *sum + error exactly (Knuth's two-sum); returns the error.  Lane-wise and scalar. */
 __attribute__((always_inline)) inline acc8_t two_sum8(acc8_t a, acc8_t b, acc8_t *sum)
@@ -46,48 +60,84 @@ __attribute__((always_inline)) inline acc_t two_sum(acc_t a, acc_t b, acc_t *sum
     return (a - (s - b_part)) + (b - b_part);
 }
 
-/* A run's weights: Y·Ω of `count` texels (env_row and omega_row), or stored weights. */
+/* A run's weights: Y·Ω of `count` texels (env_row and omega_row), or stored weights.  A run of
+ * texels names the texels and solid angles of the run its work item builds next (next_env_row,
+ * next_omega_row), which pass (2) prefetches. */
 typedef struct {
     __global const float4 *env_row;
     __global const float *omega_row;
     __global const float *weight;
     int count;
+    __global const float4 *next_env_row;
+    __global const float *next_omega_row;
 } run_t;
 
-/* Loops over the blocks of LANES bins of a run of n bins from bin `first` (a block start):
- * `body` sees the block's start i and full = 1 for whole blocks, full = 0 for a last, partial
- * one, a constant in each copy so that whole blocks compile to plain vector loads and stores. */
-#define FOR_EACH_BLOCK(first, n, body) \
-    for (int i = (first); i + LANES <= (n); i += LANES) { const int full = 1; body } \
-    if ((n) % LANES) { const int i = (n) - (n) % LANES, full = 0; body }
+/* A hint that memory is about to be read (for_write = 0) or written (1): a prefetch instruction on
+ * a CPU, where PoCL's prefetch() is a no-op and a run's passes (2) and (3), in cache, would
+ * otherwise leave the memory idle; nothing on other devices. */
+#if defined(__x86_64__) || defined(__aarch64__)
+#define PREFETCH(address, for_write) __builtin_prefetch((address), (for_write))
+#else
+#define PREFETCH(address, for_write)
+#endif
 
-/* The luminance of four float4 texels, each texel's in its four lanes: the channels spread by
- * in-lane shuffles, bit for bit the same sum (a gather of channel planes across two vectors
- * compiled to sixteen 8-byte loads and lane inserts on PoCL's AVX-512 target: 60 instructions
- * per block of the first pass against 47). */
-__attribute__((always_inline)) inline float16 luminance_of_four(float16 texels)
+/* Loops over the blocks of `size` bins of a run of n bins from bin `first` (a block start, or
+ * n): `body` sees the block's start i and full = 1 for whole blocks, full = 0 for a last,
+ * partial one, a constant in each copy so that whole blocks compile to plain vector loads and
+ * stores. */
+#define FOR_EACH_BLOCK(first, n, size, body) { \
+    int block_ = (first); \
+    for (; block_ + (size) <= (n); block_ += (size)) { const int i = block_, full = 1; body } \
+    if (block_ < (n)) { const int i = block_, full = 0; body } }
+
+/* The luminance of sixteen float4 texels given as their (x, y) and (z, w) pairs, bit for bit
+ * luminance()'s sum, with every lane of the arithmetic a texel: the pairs are gathered as 64-bit
+ * lanes, then split into channel planes.  Shuffling whole pairs keeps the loads whole: a float
+ * shuffle that drops w lets LLVM narrow each load to 8-byte pieces (32 loads and lane inserts
+ * per block), and OpenCL's .even/.odd swizzles split each load in two. */
+__attribute__((always_inline)) inline float16 luminance_of_sixteen(ulong8 a, ulong8 b, ulong8 c, ulong8 d)
 {
-    return 0.2126f * texels.s000044448888cccc + 0.7152f * texels.s111155559999dddd
-         + 0.0722f * texels.s22226666aaaaeeee;
+    float16 xy_ab = as_float16(__builtin_shufflevector(a, b, 0, 2, 4, 6, 8, 10, 12, 14));
+    float16 xy_cd = as_float16(__builtin_shufflevector(c, d, 0, 2, 4, 6, 8, 10, 12, 14));
+    float16 zw_ab = as_float16(__builtin_shufflevector(a, b, 1, 3, 5, 7, 9, 11, 13, 15));
+    float16 zw_cd = as_float16(__builtin_shufflevector(c, d, 1, 3, 5, 7, 9, 11, 13, 15));
+    float16 x = __builtin_shufflevector(xy_ab, xy_cd, 0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+    float16 y = __builtin_shufflevector(xy_ab, xy_cd, 1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
+    float16 z = __builtin_shufflevector(zw_ab, zw_cd, 0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+    return 0.2126f * x + 0.7152f * y + 0.0722f * z;
 }
 
-/* Weights of bins i … i + LANES − 1 of the run; 0 past its end. */
-__attribute__((always_inline)) inline float8 run_weights(const run_t *run, int i, int full)
+/* Weights of bins i … i + WIDE_LANES − 1 of the run; 0 past its end.  A last, partial block
+ * copies its bins, zeros past the end, and takes the same arithmetic as whole blocks. */
+__attribute__((always_inline)) inline float16 run_weights(const run_t *run, int i, int full)
 {
+    if (!run->env_row) {
+        if (full) return vload16(0, run->weight + i);
+        float w[WIDE_LANES];
+        for (int k = 0; k < WIDE_LANES; ++k)   /* j: inside the run; read and dropped past its end */
+            w[k] = i + k < run->count ? run->weight[min(i + k, run->count - 1)] : 0.0f;
+        return vload16(0, w);
+    }
+    __global const ulong *pairs = (__global const ulong *)(run->env_row + i);
+    ulong8 a, b, c, d;
+    float16 omega;
     if (full) {
-        if (!run->env_row) return vload8(0, run->weight + i);
-        /* Eight float4 texels as two float16; one lane of each texel's luminance. */
-        float16 first = luminance_of_four(vload16(0, (__global const float *)(run->env_row + i)));
-        float16 second = luminance_of_four(vload16(0, (__global const float *)(run->env_row + i + 4)));
-        return (float8)(first.s048c, second.s048c) * vload8(0, run->omega_row + i);
+        a = vload8(0, pairs), b = vload8(1, pairs), c = vload8(2, pairs), d = vload8(3, pairs);
+        omega = vload16(0, run->omega_row + i);
+    } else {
+        ulong texel_pairs[2 * WIDE_LANES];
+        float omega_copy[WIDE_LANES];
+        for (int k = 0; k < WIDE_LANES; ++k) {
+            int j = min(k, run->count - i - 1), inside = i + k < run->count;
+            texel_pairs[2 * k] = inside ? pairs[2 * j] : 0;
+            texel_pairs[2 * k + 1] = inside ? pairs[2 * j + 1] : 0;
+            omega_copy[k] = inside ? run->omega_row[i + j] : 0.0f;
+        }
+        a = vload8(0, texel_pairs), b = vload8(1, texel_pairs), c = vload8(2, texel_pairs),
+        d = vload8(3, texel_pairs);
+        omega = vload16(0, omega_copy);
     }
-    float w[LANES];
-    for (int k = 0; k < LANES; ++k) {
-        int j = min(i + k, run->count - 1);
-        float wk = run->env_row ? luminance(run->env_row[j].xyz) * run->omega_row[j] : run->weight[j];
-        w[k] = i + k < run->count ? wk : 0.0f;
-    }
-    return vload8(0, w);
+    return luminance_of_sixteen(a, b, c, d) * omega;
 }
 
 /* cdf[i … i + LANES) = v, as far as the run's n bins go. */
@@ -108,61 +158,121 @@ __attribute__((always_inline)) inline cdf_word8_t load_words(__global const cdf_
     return vload8(0, v);
 }
 
-__attribute__((always_inline)) inline cdf_word_t sum_lanes(cdf_word8_t v)
+/* Pass (1) keeps a run's weights as floats in the upper half of its words' bytes, from byte 4n:
+ * writing entry j (bytes 8j … 8j + 7) overwrites the weights of bins 2j − n and 2j + 1 − n,
+ * which pass (2), going up a block at a time, has read by then (a whole block i … i + 7 reads
+ * before it writes, and 2i + 15 − n < i + 8 while i + 8 ≤ n). */
+__attribute__((always_inline)) inline __global float *run_weights_kept(__global cdf_word_t *cdf, int n)
 {
-    cdf_word4_t quarter = v.lo + v.hi;
-    return quarter.x + quarter.y + quarter.z + quarter.w;
+    return (__global float *)cdf + n;
+}
+
+/* kept[i … i + WIDE_LANES) = w, as far as the run's n bins go. */
+__attribute__((always_inline)) inline void keep_weights(__global float *kept, int i, int n, int full, float16 w)
+{
+    if (full) vstore16(w, 0, kept + i);
+    else for (int k = 0; i + k < n; ++k) kept[i + k] = ((float *)&w)[k];
+}
+
+/* kept[i … i + LANES), 0 past the run's n bins. */
+__attribute__((always_inline)) inline float8 kept_weights(__global const float *kept, int i, int n, int full)
+{
+    if (full) return vload8(0, kept + i);
+    float v[LANES];
+    for (int k = 0; k < LANES; ++k) v[k] = i + k < n ? kept[i + k] : 0.0f;
+    return vload8(0, v);
+}
+
+/* Inclusive prefix sums of the lanes: three adds of the lanes shifted up by 1, 2 and 4, zeros
+ * shifted in, written as alignments of (zero, v) with clang's __builtin_shufflevector: one
+ * valignq each on PoCL's AVX-512 target, where a shift with zero's lane 0 (or OpenCL's vector
+ * literals of a 0 and swizzles) compiled to slower lane expansions (vpexpandq). */
+__attribute__((always_inline)) inline cdf_word8_t inclusive_scan(cdf_word8_t v)
+{
+    const cdf_word8_t zero = 0;
+    v += __builtin_shufflevector(zero, v, 7, 8, 9, 10, 11, 12, 13, 14);
+    v += __builtin_shufflevector(zero, v, 6, 7, 8, 9, 10, 11, 12, 13);
+    return v + __builtin_shufflevector(zero, v, 4, 5, 6, 7, 8, 9, 10, 11);
+}
+
+/* Σ w of the n kept weights, compensated: LANES partial sums by two-sums, their
+ * errors summed aside, joined by two-sums. */
+__attribute__((always_inline)) inline acc_t compensated_sum(__global const float *kept, int n)
+{
+    acc8_t sum = 0, error = 0;
+    FOR_EACH_BLOCK(0, n, LANES, {
+        error += two_sum8(sum, convert_acc8(kept_weights(kept, i, n, full)), &sum);
+    })
+    acc_t total = 0, total_error = 0;
+    for (int k = 0; k < LANES; ++k)
+        total_error += two_sum(total, ((acc_t *)&sum)[k], &total) + ((acc_t *)&error)[k];
+    return total + total_error;
 }
 
 /* The fixed-point CDF of `run` into cdf[0 … count); returns W. */
 __attribute__((always_inline)) inline acc_t write_cdf(__global cdf_word_t *cdf, const run_t *run)
 {
     int n = run->count;
+    __global float *kept = run_weights_kept(cdf, n);
     const int8 lane = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    acc8_t sum = 0, error = 0;
-    float8 largest_weight = 0.0f;
-    int8 largest = 0;
-    FOR_EACH_BLOCK(0, n, {
-        float8 w = run_weights(run, i, full);
-        store_words(cdf, i, n, full, convert_ulong8(as_uint8(w)));   /* the weights' bits, for pass 2 */
-        error += two_sum8(sum, convert_acc8(w), &sum);
-        int8 larger = w > largest_weight;
+    const int16 wide_lane = (int16)(lane, lane + LANES);
+    acc8_t sum_lo = 0, sum_hi = 0;
+    float16 largest_weight = 0.0f;
+    int16 largest = 0;
+    uint16 least_bits = UINT_MAX;   /* the least positive weight's bits − 1: zeros wrap to the top */
+    FOR_EACH_BLOCK(0, n, WIDE_LANES, {
+        float16 w = run_weights(run, i, full);
+        keep_weights(kept, i, n, full, w);
+        sum_lo += convert_acc8(w.lo);
+        sum_hi += convert_acc8(w.hi);
+        int16 larger = w > largest_weight;
         largest_weight = select(largest_weight, w, larger);
-        largest = select(largest, i + lane, larger);
+        largest = select(largest, i + wide_lane, larger);
+        least_bits = min(least_bits, as_uint16(w) - 1u);
     })
-    /* Join the lanes: W, and the first bin of the largest weight. */
-    acc_t total = 0, total_error = 0;
+    /* Join the lanes: the first bin of the largest weight, and the least positive weight. */
     float top = 0.0f;
     int top_bin = 0;
-    for (int k = 0; k < LANES; ++k) {
-        total_error += two_sum(total, ((acc_t *)&sum)[k], &total) + ((acc_t *)&error)[k];
+    uint least = UINT_MAX;
+    for (int k = 0; k < WIDE_LANES; ++k) {
         float w = ((float *)&largest_weight)[k];
         int bin = ((int *)&largest)[k];
         if (w > top || (w == top && bin < top_bin)) { top = w; top_bin = bin; }
+        least = min(least, ((uint *)&least_bits)[k]);
     }
-    total += total_error;
+    acc_t total = sum_acc8(sum_lo + sum_hi);
+    if (!(isfinite(total) && (acc_t)n * top <= EXACT_SUM_SPAN * (acc_t)as_float(least + 1u)))
+        total = compensated_sum(kept, n);
     acc_t inverse = (acc_t)1 / total;   /* a product per bin, not a division */
     int uniform = !(total > 0) || isinf(inverse);
     if (uniform) inverse = (acc_t)1 / n;
-    cdf_word8_t width_sum = 0;
-    FOR_EACH_BLOCK(0, n, {
+    cdf_word8_t running = 0;   /* the entries so far: Σ q, in every lane */
+    FOR_EACH_BLOCK(0, n, LANES, {
+        if (run->next_env_row) {   /* the next run's texels (two lines), solid angles and words */
+            PREFETCH(run->next_env_row + i, 0);
+            PREFETCH(run->next_env_row + i + LANES / 2, 0);
+            if (i % (2 * LANES) == 0) PREFETCH(run->next_omega_row + i, 0);
+            PREFETCH(cdf + n + i, 1);
+        }
         float8 w = uniform ? select((float8)0.0f, (float8)1.0f, i + lane < n)
-                           : as_float8(convert_uint8(load_words(cdf, i, n, full)));
+                           : kept_weights(kept, i, n, full);
         acc8_t scaled = convert_acc8(w) * inverse * (acc_t)0x1p63;
         /* min: w ≤ W up to rounding, so only the largest bin can exceed 2^63, and its width
          * cancels out of the CDF (entry i ≥ largest is 2^63 − Σ_{j>i} q_j). */
         cdf_word8_t width = select(max((cdf_word8_t)1, convert_ulong8(min(scaled, (acc8_t)0x1p63))),
                                    (cdf_word8_t)0, convert_long8(w > 0.0f) == 0);
-        store_words(cdf, i, n, full, width);
-        width_sum += width;
+        cdf_word8_t sums = inclusive_scan(width);
+        store_words(cdf, i, n, full, sums + running);
+        /* The block's total, spread from its own sums: one add per block on the chain. */
+        running += __builtin_shufflevector(sums, sums, 7, 7, 7, 7, 7, 7, 7, 7);
     })
-    /* The remainder joins the largest bin's width, so the prefix sums end at CDF_ONE. */
-    cdf[top_bin] += CDF_ONE - sum_lanes(width_sum);
-    cdf_word_t running = 0;
-    for (int i = 0; i < n; ++i) {
-        running += cdf[i];
-        cdf[i] = running;
-    }
+    /* The remainder joins the largest bin's width, so the entries end at CDF_ONE. */
+    cdf_word_t remainder = CDF_ONE - running.s0;
+    int first = top_bin;
+    for (; first < n && first % LANES; ++first) cdf[first] += remainder;
+    FOR_EACH_BLOCK(first, n, LANES, {
+        store_words(cdf, i, n, full, load_words(cdf, i, n, full) + remainder);
+    })
     return total;
 }
 
@@ -171,7 +281,8 @@ __kernel void row_cdfs(__global const float4 *env, __global const float *omega, 
                        __global cdf_word_t *conditional, __global float *row_weight)
 {
     int face_row = get_global_id(0), row = face_row % res;
-    run_t run = {env + (size_t)face_row * res, omega + (size_t)row * res, 0, res};
+    __global const float4 *env_row = env + (size_t)face_row * res;
+    run_t run = {env_row, omega + (size_t)row * res, 0, res, env_row + res, omega + (size_t)(row + 1) % res * res};
     row_weight[face_row] = (float)write_cdf(conditional + (size_t)face_row * res, &run);
 }
 
@@ -181,7 +292,7 @@ __kernel void weight_cdfs(__global const float *weight, const int n, __global cd
                           __global float *totals)
 {
     int r = get_global_id(0);
-    run_t run = {0, 0, weight + (size_t)r * n, n};
+    run_t run = {0, 0, weight + (size_t)r * n, n, 0, 0};
     totals[r] = (float)write_cdf(cdfs + (size_t)r * n, &run);
 }
 

@@ -48,13 +48,14 @@ PRODUCTS = ("env", "cdf", "pool", "light_cdfs", "weight_pyramid", "radiance_mips
 CDF_ONE = 2 ** 63   # the fixed-point CDFs' total (kernels/common.cl)
 POOLS_KEPT = 4   # pools of recent (size, seed) kept resident
 SPARE_BUFFERS_KEPT = 2   # buffers of one size kept for the next frame's cache
+ROWS_PER_GROUP = 64   # at most, per work group of the row CDFs' build (_row_groups)
 
 
 def build_fixed_point_cdfs(compute: Compute, weights: cl.Buffer, runs: int,
                            n: int) -> tuple[cl.Buffer, cl.Buffer, float]:
     """Fixed-point CDFs of ``runs`` runs of ``n`` float32 weights ≥ 0 (a device buffer
     ``[runs, n]``, run-major), built on the device by ``weight_cdfs`` of framecache.cl: one
-    work item per run, eight bins per vector step.
+    work item per run, in vector steps of sixteen weights and eight CDF words.
 
     Returns (cdfs, totals, device ms): ``cdfs`` uint64 ``[runs, n]``, each run's inclusive
     prefix sums of integer widths ending at exactly ``CDF_ONE`` = 2^63, where every positive
@@ -65,6 +66,16 @@ def build_fixed_point_cdfs(compute: Compute, weights: cl.Buffer, runs: int,
     event = compute.run(compute.kernel("iblbench.harness", "framecache.cl", "weight_cdfs"), runs,
                         weights, np.int32(n), cdfs, totals)
     return cdfs, totals, event_ms(event)
+
+
+def _row_groups(rows: int) -> int:
+    """Work items per group of a build of ``rows`` row CDFs: the largest divisor of ``rows`` up
+    to ROWS_PER_GROUP.  PoCL's own choice at 6·1024 rows is two groups of 3072, one per core,
+    so a core that the machine takes away for a while leaves its half undone while the other
+    idles; 96 groups of 64 go to whichever core is free (at load 8 on 2 cores the median of 41
+    alternated 1024² builds fell by 11%; idle, groups of 8 or 64 measured within noise of
+    PoCL's choice at the last stop)."""
+    return max(d for d in range(1, min(rows, ROWS_PER_GROUP) + 1) if rows % d == 0)
 
 
 _solid_angles: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
@@ -217,7 +228,7 @@ class FrameCache:
             row_weight = self._buffer(6 * res * 4)
             rows = c.run(c.kernel("iblbench.harness", "framecache.cl", "row_cdfs"), 6 * res,
                          self._env_buffer, _texel_solid_angles(c, res), np.int32(res), conditional,
-                         row_weight)
+                         row_weight, group=_row_groups(6 * res))
             marginal, integral, faces_ms = build_fixed_point_cdfs(c, row_weight, 6, res)
             self.timings_ms["cdf"] = event_ms(rows) + faces_ms
             self._cdf = (marginal, conditional, integral)

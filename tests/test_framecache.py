@@ -127,3 +127,31 @@ def test_reference_without_fp64_matches(compute, monkeypatch):
     flat = Reference(single, use_cache=False).image(DeviceGBuffer(single, furnace),
                                                     FrameCache(single, np.full((6, 8, 8, 3), 0.7, np.float32)))
     assert np.abs(flat - 0.7).max() < 1e-4
+
+
+def spans_around_the_plain_sum_limit(rng, n):
+    """Runs of n > 16 weights: most are the largest, a power of two; a share are in (1/2, 1) with
+    odd mantissas (their last bit is the exact sum's last bit); three bins are zero.  Two runs
+    lie at the span within which any plain double sum of floats is exact, n · max ≤ 2^29 · min
+    (framecache.cl's fast path for W), eight runs 2^4 and 2^5 times past it, where the exact sum
+    needs more than 53 bits and a plain sum rounds it at several joins: about a third of such
+    runs then lose their last bit (simulated in the device's order; the limit is sufficient,
+    not tight, so a run just past it still sums exactly).  The compensated sum rounds once."""
+    runs = []
+    for past, share in [(0, 1 / 8), (0, 1 / 2)] + [(p, s) for p in (4, 5) for s in (1 / 8, 1 / 4, 1 / 2, 3 / 4)]:
+        run = np.full(n, 2.0 ** (np.floor(np.log2(2.0 ** 29 / n)) - 1 + past), np.float32)
+        odd = rng.choice(n, size=int(n * share), replace=False)
+        run[odd] = (2 * rng.integers(2 ** 22, 2 ** 23, odd.size) + 1) * 2.0 ** -24
+        run[rng.choice(n, size=3, replace=False)] = 0.0
+        runs.append(run)
+    return np.array(runs, np.float32)
+
+
+@pytest.mark.parametrize("n", [1000, 1024])
+def test_weight_cdfs_are_exact_around_the_plain_sum_limit(compute, n):
+    weights = spans_around_the_plain_sum_limit(np.random.default_rng(n), n)
+    runs = len(weights)
+    cdfs, totals, _ = build_fixed_point_cdfs(compute, compute.to_device(weights), runs, n)
+    expected, expected_totals = numpy_fixed_point_cdfs(weights)
+    np.testing.assert_array_equal(compute.to_host(cdfs, (runs, n), np.uint64), expected)
+    np.testing.assert_array_equal(compute.to_host(totals, (runs,), np.float32), expected_totals)
