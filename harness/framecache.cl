@@ -90,6 +90,16 @@ typedef struct {
     for (; block_ + (size) <= (n); block_ += (size)) { const int i = block_, full = 1; body } \
     if (block_ < (n)) { const int i = block_, full = 0; body } }
 
+/* Lanes of two vectors picked by constant indices into their concatenation: clang's
+ * __builtin_shufflevector where the compiler is clang (PoCL: one instruction), OpenCL's shuffle2
+ * elsewhere, with the same lanes (a GPU compiler need not be clang; OPENCL_SHUFFLES forces this
+ * path, which tests/test_framecache.py checks bit for bit against the other). */
+#if defined(__clang__) && !defined(OPENCL_SHUFFLES)
+#define PICK(a, b, mask_t, ...) __builtin_shufflevector((a), (b), __VA_ARGS__)
+#else
+#define PICK(a, b, mask_t, ...) shuffle2((a), (b), (mask_t)(__VA_ARGS__))
+#endif
+
 /* The luminance of sixteen float4 texels given as their (x, y) and (z, w) pairs, bit for bit
  * luminance()'s sum, with every lane of the arithmetic a texel: the pairs are gathered as 64-bit
  * lanes, then split into channel planes.  Shuffling whole pairs keeps the loads whole: a float
@@ -97,13 +107,13 @@ typedef struct {
  * per block), and OpenCL's .even/.odd swizzles split each load in two. */
 __attribute__((always_inline)) inline float16 luminance_of_sixteen(ulong8 a, ulong8 b, ulong8 c, ulong8 d)
 {
-    float16 xy_ab = as_float16(__builtin_shufflevector(a, b, 0, 2, 4, 6, 8, 10, 12, 14));
-    float16 xy_cd = as_float16(__builtin_shufflevector(c, d, 0, 2, 4, 6, 8, 10, 12, 14));
-    float16 zw_ab = as_float16(__builtin_shufflevector(a, b, 1, 3, 5, 7, 9, 11, 13, 15));
-    float16 zw_cd = as_float16(__builtin_shufflevector(c, d, 1, 3, 5, 7, 9, 11, 13, 15));
-    float16 x = __builtin_shufflevector(xy_ab, xy_cd, 0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
-    float16 y = __builtin_shufflevector(xy_ab, xy_cd, 1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
-    float16 z = __builtin_shufflevector(zw_ab, zw_cd, 0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+    float16 xy_ab = as_float16(PICK(a, b, ulong8, 0, 2, 4, 6, 8, 10, 12, 14));
+    float16 xy_cd = as_float16(PICK(c, d, ulong8, 0, 2, 4, 6, 8, 10, 12, 14));
+    float16 zw_ab = as_float16(PICK(a, b, ulong8, 1, 3, 5, 7, 9, 11, 13, 15));
+    float16 zw_cd = as_float16(PICK(c, d, ulong8, 1, 3, 5, 7, 9, 11, 13, 15));
+    float16 x = PICK(xy_ab, xy_cd, uint16, 0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+    float16 y = PICK(xy_ab, xy_cd, uint16, 1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23, 25, 27, 29, 31);
+    float16 z = PICK(zw_ab, zw_cd, uint16, 0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
     return 0.2126f * x + 0.7152f * y + 0.0722f * z;
 }
 
@@ -184,15 +194,15 @@ __attribute__((always_inline)) inline float8 kept_weights(__global const float *
 }
 
 /* Inclusive prefix sums of the lanes: three adds of the lanes shifted up by 1, 2 and 4, zeros
- * shifted in, written as alignments of (zero, v) with clang's __builtin_shufflevector: one
+ * shifted in, written as alignments of (zero, v) with PICK (clang's __builtin_shufflevector): one
  * valignq each on PoCL's AVX-512 target, where a shift with zero's lane 0 (or OpenCL's vector
  * literals of a 0 and swizzles) compiled to slower lane expansions (vpexpandq). */
 __attribute__((always_inline)) inline cdf_word8_t inclusive_scan(cdf_word8_t v)
 {
     const cdf_word8_t zero = 0;
-    v += __builtin_shufflevector(zero, v, 7, 8, 9, 10, 11, 12, 13, 14);
-    v += __builtin_shufflevector(zero, v, 6, 7, 8, 9, 10, 11, 12, 13);
-    return v + __builtin_shufflevector(zero, v, 4, 5, 6, 7, 8, 9, 10, 11);
+    v += PICK(zero, v, ulong8, 7, 8, 9, 10, 11, 12, 13, 14);
+    v += PICK(zero, v, ulong8, 6, 7, 8, 9, 10, 11, 12, 13);
+    return v + PICK(zero, v, ulong8, 4, 5, 6, 7, 8, 9, 10, 11);
 }
 
 /* Σ w of the n kept weights, compensated: LANES partial sums by two-sums, their
@@ -264,7 +274,7 @@ __attribute__((always_inline)) inline acc_t write_cdf(__global cdf_word_t *cdf, 
         cdf_word8_t sums = inclusive_scan(width);
         store_words(cdf, i, n, full, sums + running);
         /* The block's total, spread from its own sums: one add per block on the chain. */
-        running += __builtin_shufflevector(sums, sums, 7, 7, 7, 7, 7, 7, 7, 7);
+        running += PICK(sums, sums, ulong8, 7, 7, 7, 7, 7, 7, 7, 7);
     })
     /* The remainder joins the largest bin's width, so the entries end at CDF_ONE. */
     cdf_word_t remainder = CDF_ONE - running.s0;

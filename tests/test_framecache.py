@@ -155,3 +155,24 @@ def test_weight_cdfs_are_exact_around_the_plain_sum_limit(compute, n):
     expected, expected_totals = numpy_fixed_point_cdfs(weights)
     np.testing.assert_array_equal(compute.to_host(cdfs, (runs, n), np.uint64), expected)
     np.testing.assert_array_equal(compute.to_host(totals, (runs,), np.float32), expected_totals)
+
+
+def test_opencl_shuffles_build_the_same_cdfs(compute, monkeypatch):
+    """framecache.cl picks vector lanes with clang's __builtin_shufflevector, or with OpenCL's
+    shuffle2 on a compiler that is not clang (a GPU's): forced here, both give the same words."""
+    rng = np.random.default_rng(11)
+    env = (rng.random((6, 37, 37, 3)) ** 3).astype(np.float32)
+    env[1, 5, 7] = 1e6                               # a sun: the compensated sum's path
+    env[3] = 0.0
+    expected = FrameCache(compute, env).host_cdfs()
+    plain_kernel = Compute.kernel
+
+    def with_opencl_shuffles(self, package, filename, name, defines=None):
+        if filename == "framecache.cl":
+            defines = {**(defines or {}), "OPENCL_SHUFFLES": 1}
+        return plain_kernel(self, package, filename, name, defines)
+
+    monkeypatch.setattr(Compute, "kernel", with_opencl_shuffles)
+    forced = FrameCache(Compute(compute.info), env).host_cdfs()
+    for got, want in zip(forced, expected):
+        np.testing.assert_array_equal(got, want)
