@@ -73,17 +73,19 @@ def pareto_calls(cells, column: str) -> list[str]:
     return calls
 
 
-def _errorbar(ax, summary, x: str, y: str, fmt: str, colour, label: str,
-              x_interval: bool = False, log: bool = True):
+def _errorbar(ax, summary, x: str, y: str, style: dict, label: str,
+              x_interval: bool = False, log: bool = True, **line):
     """``y`` against ``x`` of ``summary`` with the 95% interval of ``y`` (and of ``x`` when
-    ``x_interval``) as error bars; ``log``: ``y`` is drawn on a log axis (values ≤ 0 left out)."""
+    ``x_interval``) as error bars, in the estimator's ``style`` (:func:`_styles`), joined by a
+    solid line unless ``line`` says otherwise; ``log``: ``y`` is drawn on a log axis (values
+    ≤ 0 left out)."""
     def bars(name):
         mean = np.asarray(summary[name], float)
         return np.vstack([mean - summary[f"{name}_low"], summary[f"{name}_high"] - mean])
 
     return ax.errorbar(summary[x], _positive(summary[y]) if log else summary[y], yerr=bars(y),
-                       xerr=bars(x) if x_interval else None, fmt=fmt, color=colour,
-                       label=label, capsize=2, elinewidth=0.8)
+                       xerr=bars(x) if x_interval else None, label=label, capsize=2,
+                       elinewidth=0.8, **{"linestyle": "-", **style, **line})
 
 
 def _save(fig, path: pathlib.Path) -> None:
@@ -96,9 +98,19 @@ def _estimators(summary) -> list[str]:
     return list(dict.fromkeys(summary.estimator))
 
 
-def _colours(summary) -> dict[str, tuple]:
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    return {name: cycle[i % len(cycle)] for i, name in enumerate(_estimators(summary))}
+# A colour and a marker per estimator: the default sweep plots a dozen estimators on one plane,
+# more than matplotlib's ten cycle colours.  Tableau 10, then four dark colours unlike them.
+PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+           "#7f7f7f", "#bcbd22", "#17becf", "#000000", "#01665e", "#4b0082", "#b8860b")
+MARKERS = ("o", "s", "^", "v", "D", "P", "X", "*", "h", "<", ">", "p", "d", "8")
+
+
+def _styles(summary) -> dict[str, dict]:
+    """Each estimator's colour and marker, in order of appearance: the first 14 differ in both,
+    and no two of the first 14² share both."""
+    return {name: {"color": PALETTE[i % len(PALETTE)],
+                   "marker": MARKERS[(i + i // len(PALETTE)) % len(MARKERS)]}
+            for i, name in enumerate(_estimators(summary))}
 
 
 def _spp_ticks(ax, spp) -> None:
@@ -131,6 +143,17 @@ def _legend(ax) -> None:
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.17), ncol=2, frameon=False)
 
 
+def _figure_legend(fig) -> None:
+    """One legend under all the panels of a figure whose panels plot the same series: every
+    label of any panel once, in order (a dozen estimators fit in four columns)."""
+    entries = {}
+    for ax in fig.axes:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(label, handle)
+    fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncol=4, fontsize=8,
+               frameon=False)
+
+
 def _positive(values) -> np.ndarray:
     values = np.asarray(values, float)
     return np.where(values > 0, values, np.nan)   # log axes: zero/negative cannot be drawn
@@ -140,15 +163,15 @@ def plot_error_vs_time(path: pathlib.Path, summary, scene: str) -> None:
     """relMSE and mean ΔE76 against ms/frame, log-log, a curve per estimator (points labelled
     with their spp, error bars in time and error), the Pareto front of the means over all cells
     ringed and joined, cells behind it by their means only, not resolved, ringed in grey."""
-    colours = _colours(summary)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+    styles = _styles(summary)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 6.0), layout="constrained")
     for ax, (column, label) in zip(axes, ERRORS):
         for name in _estimators(summary):
             rows = summary[summary.estimator == name].sort_values("spp")
-            _errorbar(ax, rows, "time_ms", column, "o-", colours[name], name, x_interval=True)
+            _errorbar(ax, rows, "time_ms", column, styles[name], name, x_interval=True)
             for r in rows.itertuples():
                 ax.annotate(str(r.spp), (r.time_ms, getattr(r, column)), textcoords="offset points",
-                            xytext=(4, 4), fontsize=7, color=colours[name])
+                            xytext=(4, 4), fontsize=6, color=styles[name]["color"])
         calls = np.array(pareto_calls(summary, column))
         cells = summary[calls == "◆"].sort_values("time_ms")
         ax.step(cells.time_ms, cells[column], where="post", color="black", lw=1, ls=":",
@@ -165,7 +188,7 @@ def plot_error_vs_time(path: pathlib.Path, summary, scene: str) -> None:
         ax.set_xlabel("device time per frame (ms: build + sample + shade)")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
-        _legend(ax)
+    _figure_legend(fig)
     fig.suptitle(f"{scene}: error against time (labels: spp)")
     _save(fig, path)
 
@@ -179,15 +202,15 @@ def _guide(ax, spp, anchor: float, slope: float, label: str) -> None:
 def plot_convergence(path: pathlib.Path, summary, scene: str) -> None:
     """Error against spp, log-log.  Mean ΔE76 (an absolute, RMSE-like error) with a slope −½
     guide; relMSE (a squared error) with a slope −1 guide, which is the −½ of √relMSE."""
-    colours = _colours(summary)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
+    styles = _styles(summary)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5.6), layout="constrained")
     guides = {"mean_delta_e76": (-0.5, r"slope −½ (ideal Monte Carlo: error $\propto$ spp$^{-1/2}$)"),
               "rel_mse": (-1.0, r"slope −1 (ideal: relMSE $\propto$ spp$^{-1}$, "
                                 r"i.e. $\sqrt{\mathrm{relMSE}} \propto$ spp$^{-1/2}$)")}
     for ax, (column, label) in zip(axes, ERRORS):
         for name in _estimators(summary):
             rows = summary[summary.estimator == name].sort_values("spp")
-            _errorbar(ax, rows, "spp", column, "o-", colours[name], name)
+            _errorbar(ax, rows, "spp", column, styles[name], name)
         first = summary[summary.spp == summary.spp.min()]
         slope, text = guides[column]
         _guide(ax, summary.spp, np.nanmax(_positive(first[column])), slope, text)
@@ -198,7 +221,7 @@ def plot_convergence(path: pathlib.Path, summary, scene: str) -> None:
         ax.set_xlabel("samples per pixel (spp)")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
-        _legend(ax)
+    _figure_legend(fig)
     fig.suptitle(f"{scene}: convergence")
     _save(fig, path)
 
@@ -206,15 +229,16 @@ def plot_convergence(path: pathlib.Path, summary, scene: str) -> None:
 def plot_effective(path: pathlib.Path, summary, scene: str) -> None:
     """Used and effective (cos > 0) samples per pixel against spp (log-log, with the budget
     line used = spp), and the effective ratio against spp."""
-    colours = _colours(summary)
+    styles = _styles(summary)
     fig, (ax, ratio) = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
     spp = np.array(sorted(set(summary.spp)), float)
     ax.plot(spp, spp, color="grey", lw=1, ls="--", label="budget (= spp)")
     for name in _estimators(summary):
         rows = summary[summary.estimator == name].sort_values("spp")
-        _errorbar(ax, rows, "spp", "effective_samples", "o-", colours[name], f"{name}: effective")
-        _errorbar(ax, rows, "spp", "used_samples", "x:", colours[name], f"{name}: used")
-        _errorbar(ratio, rows, "spp", "effective_ratio", "o-", colours[name], name, log=False)
+        _errorbar(ax, rows, "spp", "effective_samples", styles[name], f"{name}: effective")
+        _errorbar(ax, rows, "spp", "used_samples", styles[name], f"{name}: used", marker="x",
+                  linestyle=":")
+        _errorbar(ratio, rows, "spp", "effective_ratio", styles[name], name, log=False)
     ax.set_xscale("log")
     ax.set_yscale("log")
     _plain_log_axes(ax, "y")
@@ -239,7 +263,7 @@ def plot_per_frame(path: pathlib.Path, per_frame, scene: str, shown: int) -> Non
     of panels per spp (``per_frame``: one row per estimator, spp and frame), the frame ``shown``
     in the report's images marked."""
     levels = sorted({int(v) for v in per_frame.spp})
-    colours = _colours(per_frame)
+    styles = _styles(per_frame)
     fig, axes = plt.subplots(len(levels), 2, figsize=(11, 1.2 + 2.8 * len(levels)), sharex=True,
                              squeeze=False, layout="constrained")
     for spp, row in zip(levels, axes):
@@ -248,7 +272,7 @@ def plot_per_frame(path: pathlib.Path, per_frame, scene: str, shown: int) -> Non
             for name in _estimators(per_frame):
                 rows = cells[cells.estimator == name].sort_values("frame")
                 if len(rows):
-                    _errorbar(ax, rows, "frame", column, ".-", colours[name], name)
+                    _errorbar(ax, rows, "frame", column, styles[name], name, markersize=4)
             ax.axvline(shown, color="grey", lw=1, ls="--",
                        label=f"frame {shown}, shown in the images")
             ax.set_yscale("log")
@@ -259,8 +283,7 @@ def plot_per_frame(path: pathlib.Path, per_frame, scene: str, shown: int) -> Non
             ax.grid(True, which="both", alpha=0.3)
     for ax in axes[-1]:
         ax.set_xlabel("frame (index in the sequence)")
-        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=2,
-                  frameon=False)
+    _figure_legend(fig)
     fig.suptitle(f"{scene}: error per frame at every spp")
     _save(fig, path)
 
@@ -299,7 +322,7 @@ def plot_extras(path: pathlib.Path, rows, scene: str) -> list[str]:
         panels.insert(1, ("flip", TIME))
     if not panels:
         return []
-    colours = _colours(rows)
+    styles = _styles(rows)
     columns = min(len(panels), 2)
     count = -(-len(panels) // columns)
     fig, axes = plt.subplots(count, columns, figsize=(11, 0.4 + 4.2 * count), squeeze=False,
@@ -309,8 +332,7 @@ def plot_extras(path: pathlib.Path, rows, scene: str) -> list[str]:
         data = cells[column]
         for name in _estimators(data):
             shown = data[data.estimator == name].sort_values("spp")
-            _errorbar(ax, shown, x, column, "o-", colours[name], name, x_interval=x == TIME,
-                      log=log)
+            _errorbar(ax, shown, x, column, styles[name], name, x_interval=x == TIME, log=log)
         ax.set_xscale("log")
         if log:
             ax.set_yscale("log")

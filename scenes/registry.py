@@ -11,6 +11,15 @@ Built-in scenes (static Preetham sun + sky, kd = 0.5, ks = 0.3, shininess = 150,
   scale and normal variety.
 - ``torus-sun``: a torus seen from above; inner faces point down and back at the tube.
 
+Built-in scenes lit by real HDR photographs (CC0, shipped in ``scenes/data/``, whose README gives
+their origin and terms), same material and 128 × 128:
+
+- ``sphere-park``: the sphere under Poly Haven's *Rooitou Park* (a low sun, 10° up, carrying
+  most of the map's power, over a sky, trees and grass), seen from where the sun stands as
+  sphere-sun's does: 60° to the right of the view.
+- ``sphere-studio``: the sphere under *Studio Small 03* (small bright softboxes over a dark
+  room), the brightest softbox placed the same way.
+
 Built-in scenes lit by environment sequences (:mod:`iblbench.scenes.sequences`):
 
 - ``blob-day``: the blob-sun blob (327,680 triangles, Phong m = 150) under ``day``, 67 frames of
@@ -19,6 +28,10 @@ Built-in scenes lit by environment sequences (:mod:`iblbench.scenes.sequences`):
 - ``torus-moving``: the torus-sun torus and camera under ``moving-lights`` (4 lights, 48 frames).
 - ``sphere-switch``: the sphere-sun sphere and camera under ``switch`` (30 frames, a strong light
   on in frames 10..19).
+- ``park-turn``: the sphere-park sphere and camera under a ``turntable`` of the park map (6
+  frames, 1.41° of turn a frame), at 48 × 48 pixels with 32² cube faces by default: the short
+  real-photograph sequence of the default sweep, where bis, smc and havran carry state across
+  frames.
 
 User scene format (paths are relative to the TOML file's folder)::
 
@@ -60,8 +73,11 @@ naming the TOML file, or the referenced file when that file is the problem.
 """
 from __future__ import annotations
 
+import functools
 import glob
+import math
 import os
+from importlib.resources import files
 from pathlib import Path
 from typing import Any, Callable
 
@@ -100,6 +116,15 @@ def _sun_sky_scene(name: str, mesh, camera: Camera, env_res: int | None, **sun) 
         resolution=(128, 128),
         source=f"builtin:{name}",
     )
+
+
+def _camera_facing_light(light_azimuth_deg: float) -> Camera:
+    """sphere-sun's camera (3 from the origin, level, 45° fov) turned about +Y so that a light at
+    ``light_azimuth_deg`` (sky azimuth: 0° → +Z, 90° → +X) stands where sphere-sun's sun does,
+    ``sky.DEFAULT_SUN_AZIMUTH_DEG`` to the right of the view."""
+    azimuth = math.radians(light_azimuth_deg - sky.DEFAULT_SUN_AZIMUTH_DEG)
+    return Camera(eye=(3.0 * math.sin(azimuth), 0.0, 3.0 * math.cos(azimuth)),
+                  target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
 
 
 def _sphere_sun(env_res: int | None) -> Scene:
@@ -148,16 +173,80 @@ def _torus_sun(env_res: int | None) -> Scene:
     return _sun_sky_scene("torus-sun", meshes.torus(), camera, env_res)
 
 
-# The environment sequence of each built-in sequence scene; every other built-in scene is static.
-_SEQUENCES: dict[str, Callable[[int], EnvSequence]] = {
-    "blob-day": sequences.day, "torus-moving": sequences.moving_lights,
-    "sphere-switch": sequences.switch}
+# --- real photographs ---------------------------------------------------------------------------
+
+PARK_MAP = "rooitou_park_1k.hdr"
+STUDIO_MAP = "studio_small_03_1k.hdr"
+# Sky azimuths (0° → +Z, 90° → +X) of each map's brightest pixel, read off the files: the park's
+# sun at row 226, column 614 of 512 × 1024 (10.4° up); the studio's softbox at row 133, column
+# 235 (43° up).  tests/test_photo_scenes.py checks them against the loaded cube maps.
+PARK_SUN_AZIMUTH_DEG = 144.0
+STUDIO_LIGHT_AZIMUTH_DEG = -82.8
+# park-turn: few frames at low resolution keep the default sweep's temporal cells cheap (bis and
+# smc at 256 spp cost seconds a frame at 128²); 32² faces also cut each frame's host resample to
+# a quarter of a 64² one (0.7 against 2.6 s: the sub-sample count per texel is capped, so 64²
+# costs 4× the samples).
+PARK_TURN_RESOLUTION = (48, 48)
+PARK_TURN_ENV_RES = 32
 
 
-def _sequence_scene(name: str, mesh, camera: Camera, env_res: int | None) -> Scene:
-    return Scene(name=name, mesh=mesh, material=_MATERIAL, camera=camera,
-                 environment=_SEQUENCES[name](env_res or DEFAULT_ENV_RES),
+def shipped_map(file_name: str) -> str:
+    """The path of a map shipped in ``scenes/data`` (package data, see its README)."""
+    return os.fspath(files("iblbench.scenes") / "data" / file_name)
+
+
+@functools.lru_cache(maxsize=8)
+def _shipped_environment(file_name: str, res: int) -> np.ndarray:
+    """A shipped lat-long map as a read-only cube map, resampled once per process (seconds at 64²)."""
+    env, _report = load_environment(shipped_map(file_name), layout="latlong", res=res)
+    env.flags.writeable = False
+    return env
+
+
+def _photo_scene(name: str, file_name: str, light_azimuth_deg: float, env_res: int | None) -> Scene:
+    # 64² faces by default, as the sky scenes: the park's sun (0.5° across) stays within about one
+    # 1.4° texel, 14,700× the map's mean luminance (4,100× at 32², where it would be easier to
+    # find), while the reference (4 s at 128², loaded) and the per-frame builds stay small.
+    env = _shipped_environment(file_name, env_res or DEFAULT_ENV_RES)
+    return Scene(name=name, mesh=meshes.sphere(), material=_MATERIAL,
+                 camera=_camera_facing_light(light_azimuth_deg),
+                 environment=EnvSequence.static(env, source=f"shipped:{file_name}"),
                  resolution=(128, 128), source=f"builtin:{name}")
+
+
+def _sphere_park(env_res: int | None) -> Scene:
+    """The sphere under Poly Haven's Rooitou Park (CC0), the low sun 60° right of the view.
+
+    A real outdoor map: the sun's few texels carry most of the power (the brightest 0.1% of the
+    lat-long's pixels, 69% of Σ Y·Ω), the rest is a bright sky over trees and grass, so both light
+    and BRDF sampling have something to find.
+    """
+    return _photo_scene("sphere-park", PARK_MAP, PARK_SUN_AZIMUTH_DEG, env_res)
+
+
+def _sphere_studio(env_res: int | None) -> Scene:
+    """The sphere under Poly Haven's Studio Small 03 (CC0): small bright softboxes, dark room.
+
+    The brightest 1% of the lat-long's pixels carry 89% of Σ Y·Ω, spread over several boxes.
+    """
+    return _photo_scene("sphere-studio", STUDIO_MAP, STUDIO_LIGHT_AZIMUTH_DEG, env_res)
+
+
+# The environment sequence of each built-in sequence scene, and its default cube face size; every
+# other built-in scene is static.
+_SEQUENCES: dict[str, tuple[Callable[[int], EnvSequence], int]] = {
+    "blob-day": (sequences.day, DEFAULT_ENV_RES),
+    "torus-moving": (sequences.moving_lights, DEFAULT_ENV_RES),
+    "sphere-switch": (sequences.switch, DEFAULT_ENV_RES),
+    "park-turn": (lambda res: sequences.turntable(shipped_map(PARK_MAP), res), PARK_TURN_ENV_RES)}
+
+
+def _sequence_scene(name: str, mesh, camera: Camera, env_res: int | None,
+                    resolution: tuple[int, int] = (128, 128)) -> Scene:
+    sequence, default_res = _SEQUENCES[name]
+    return Scene(name=name, mesh=mesh, material=_MATERIAL, camera=camera,
+                 environment=sequence(env_res or default_res),
+                 resolution=resolution, source=f"builtin:{name}")
 
 
 def _blob_day(env_res: int | None) -> Scene:
@@ -178,9 +267,15 @@ def _sphere_switch(env_res: int | None) -> Scene:
     return _sequence_scene("sphere-switch", meshes.sphere(), camera, env_res)
 
 
-# Every built-in scene: kd = 0.5, ks = 0.3, shininess = 150, 128 × 128; the *-sun ones static
-# Preetham sun + sky; kd = 0.5, ks = 0.3, shininess = 150, 128 × 128,
-# cube faces DEFAULT_ENV_RES² unless env_res says otherwise.
+def _park_turn(env_res: int | None) -> Scene:
+    """The sphere-park sphere and camera under a 6-frame turntable of the park map, 48 × 48."""
+    return _sequence_scene("park-turn", meshes.sphere(), _camera_facing_light(PARK_SUN_AZIMUTH_DEG),
+                           env_res, PARK_TURN_RESOLUTION)
+
+
+# Every built-in scene: kd = 0.5, ks = 0.3, shininess = 150; 128 × 128 but park-turn (48 × 48);
+# the *-sun ones static Preetham sun + sky, the *-park and *-studio ones shipped photographs;
+# cube faces DEFAULT_ENV_RES² (park-turn: PARK_TURN_ENV_RES²) unless env_res says otherwise.
 BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {
     "sphere-sun": _sphere_sun,
     "sphere-backlit": _sphere_backlit,
@@ -189,6 +284,9 @@ BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {
     "blob-day": _blob_day,
     "torus-moving": _torus_moving,
     "sphere-switch": _sphere_switch,
+    "sphere-park": _sphere_park,
+    "sphere-studio": _sphere_studio,
+    "park-turn": _park_turn,
 }
 
 
@@ -198,8 +296,8 @@ def scene_names() -> list[str]:
 
 def builtin_frames(name: str) -> int:
     """A built-in scene's frame count, without building its mesh or environment."""
-    sequence = _SEQUENCES.get(name.lower())
-    return sequence(DEFAULT_ENV_RES).num_frames if sequence else 1
+    entry = _SEQUENCES.get(name.lower())
+    return entry[0](entry[1]).num_frames if entry else 1
 
 
 def builtin_scene(name: str, env_res: int | None = None) -> Scene:

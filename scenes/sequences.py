@@ -1,5 +1,5 @@
-"""Built-in environment sequences (DESIGN §5): ``day``, ``moving-lights``, ``switch`` and
-``rotating-sun``.
+"""Built-in environment sequences (DESIGN §5): ``day``, ``moving-lights``, ``switch``,
+``rotating-sun`` and ``turntable``.
 
 Every sequence is an :class:`EnvSequence` whose frames are made on demand by ``make_frame(index)``
 and cached per (parameters, index), so a long sequence is never held whole and a frame asked for
@@ -62,6 +62,15 @@ Y up, azimuth 0 → +Z, 90° → +X).
     Frames listed in ``ROTATING_HOLDS`` repeat the previous frame (the same array object), so one
     run passes both smc's continuing-frame path (Kronander Eq. 5/7/8) and its static-stretch
     path, right after the init (frame 1) and in mid-run.  ``ROTATING_FRAMES`` = 24.
+
+``turntable`` — a real photograph turning: a lat-long HDR image about the vertical axis
+    ``TURNTABLE_FRAMES`` = 6 frames; frame t is the image rolled by t·``TURNTABLE_STEP_COLUMNS``
+    = 4 columns toward larger u, then resampled to the cube (:func:`envmap.resample_latlong`).
+    A whole-column roll turns the panorama about +Y by exactly 360°·4/W (1.41° for the
+    1024-wide shipped maps, 7° over the sequence; a light's sky azimuth falls by that much a
+    frame) with no resampling of the source, so every frame holds the same pixels, only
+    turned.  A small sun moves by about half a 32² cube texel a frame: the map changes
+    smoothly, as under a camera panning beneath a fixed sky.
 """
 from __future__ import annotations
 
@@ -70,6 +79,8 @@ import functools
 import numpy as np
 
 from . import cubemap, sky
+from .envmap import resample_latlong
+from .imageio import read_image
 from .scene import EnvSequence
 
 # ---- day --------------------------------------------------------------------------------------
@@ -300,6 +311,34 @@ def rotating_sun(res: int = 64) -> EnvSequence:
     return EnvSequence(ROTATING_FRAMES, lambda index: rotating_sun_frame(int(index), int(res)),
                        source=f"builtin:rotating-sun ({ROTATING_STEP_DEG:g}° a frame, "
                               f"held at {sorted(ROTATING_HOLDS)})")
+
+
+# ---- turntable ---------------------------------------------------------------------------------
+
+TURNTABLE_FRAMES = 6
+TURNTABLE_STEP_COLUMNS = 4
+
+
+@functools.lru_cache(maxsize=2)
+def _latlong_image(path: str) -> np.ndarray:
+    return read_image(path)
+
+
+@functools.lru_cache(maxsize=64)
+def turntable_frame(path: str, index: int, res: int) -> np.ndarray:
+    """Frame ``index`` of the turntable of the lat-long image at ``path`` (module docstring)."""
+    if not 0 <= index < TURNTABLE_FRAMES:
+        raise IndexError(f"turntable has {TURNTABLE_FRAMES} frames, asked for {index}")
+    image = np.roll(_latlong_image(path), index * TURNTABLE_STEP_COLUMNS, axis=1)
+    env = resample_latlong(image, res)
+    env.flags.writeable = False
+    return env
+
+
+def turntable(path: str, res: int = 32) -> EnvSequence:
+    """The image is read on the first frame asked for, so a frame count costs nothing."""
+    return EnvSequence(TURNTABLE_FRAMES, lambda index: turntable_frame(str(path), int(index), int(res)),
+                       source=f"turntable of {path} ({TURNTABLE_STEP_COLUMNS} columns a frame)")
 
 
 SEQUENCES = {"day": day, "moving-lights": moving_lights, "switch": switch,

@@ -647,6 +647,27 @@ def test_plots_draw_each_cells_interval_as_an_error_bar(monkeypatch):
     assert time_bars and time_bars[0].has_xerr and time_bars[0].has_yerr
 
 
+def test_a_dozen_estimators_each_get_their_own_colour_and_marker_and_one_legend_entry(monkeypatch):
+    """The default sweep puts every estimator (a dozen) on one error-time plane: no two may share
+    a colour and a marker, and the figure lists each once in a legend under both panels."""
+    names = [f"e{i}" for i in range(14)]
+    styles = plots._styles(pd.DataFrame({"estimator": names}))
+    assert len({s["color"] for s in styles.values()}) == 14
+    assert len({s["marker"] for s in styles.values()}) == 14
+    many = plots._styles(pd.DataFrame({"estimator": [f"e{i}" for i in range(60)]}))
+    assert len({(s["color"], s["marker"]) for s in many.values()}) == 60
+    table = pd.DataFrame([row for i, name in enumerate(names[:12])
+                          for row in _seed_rows(name, 16, KNOWN, ms=1.0 + i)])
+    figures = _captured_figures(monkeypatch)
+    plots.plot_error_vs_time(pathlib.Path("unused.png"), summarize(table), "s")
+    (figure,) = figures
+    assert all(ax.get_legend() is None for ax in figure.axes) and len(figure.legends) == 1
+    labels = [text.get_text() for text in figure.legends[0].get_texts()]
+    assert [label for label in labels if label in names] == names[:12]
+    drawn = {(c.lines[0].get_color(), c.lines[0].get_marker()) for c in figure.axes[0].containers}
+    assert len(drawn) == 12
+
+
 def test_a_pareto_ordering_is_called_only_where_intervals_separate():
     steady = [(3.0, 3.0)] * 3
     rows = (_seed_rows("a", 16, KNOWN, ms=1.0, time_ms=1.0)       # 1 ms, ΔE 3 ± 6.6

@@ -245,8 +245,11 @@ def test_builtin_sphere_sun_scene_is_case_insensitive():
     assert scene.environment.is_static and scene.environment.frame(0).shape == (6, 16, 16, 3)
 
 
-EXPECTED_SCENES = ("blob-sun", "sphere-backlit", "sphere-sun", "torus-sun",
-                   "blob-day", "torus-moving", "sphere-switch")
+EXPECTED_SCENES = ("blob-sun", "sphere-backlit", "sphere-sun", "torus-sun", "sphere-park",
+                   "sphere-studio", "blob-day", "torus-moving", "sphere-switch", "park-turn")
+SEQUENCE_SCENES = ("blob-day", "torus-moving", "sphere-switch", "park-turn")
+# park-turn, the default sweep's short sequence, is small by default (scenes/registry.py).
+OWN_SIZE = {"park-turn": ((48, 48), 32)}
 
 
 def test_scene_names_lists_every_builtin_scene():
@@ -257,12 +260,14 @@ def test_scene_names_lists_every_builtin_scene():
 @pytest.mark.parametrize("name", EXPECTED_SCENES)
 def test_every_builtin_scene_loads_by_name(name):
     scene = registry.load_scene(name.upper(), env_res=8)
-    assert scene.name == name and scene.source == f"builtin:{name}" and scene.resolution == (128, 128)
+    resolution, env_res = OWN_SIZE.get(name, ((128, 128), registry.DEFAULT_ENV_RES))
+    assert scene.name == name and scene.source == f"builtin:{name}" and scene.resolution == resolution
     assert scene.material == Material(kd=(0.5,) * 3, ks=(0.3,) * 3, shininess=150.0)
-    # The *-sun scenes are static; the others are lit by sequences (tests/test_sequences.py).
-    assert scene.environment.is_static == (name not in ("blob-day", "torus-moving", "sphere-switch"))
+    # The *-sun, *-park and *-studio scenes are static; the others are lit by sequences
+    # (tests/test_sequences.py, tests/test_photo_scenes.py).
+    assert scene.environment.is_static == (name not in SEQUENCE_SCENES)
     assert scene.environment.frame(0).shape == (6, 8, 8, 3)
-    assert registry.load_scene(name).environment.frame(0).shape == (6, 64, 64, 3)  # DEFAULT_ENV_RES
+    assert registry.load_scene(name).environment.frame(0).shape == (6, env_res, env_res, 3)
     normals = np.asarray(scene.mesh.vertex_normals)
     assert normals.shape == scene.mesh.vertices.shape
     assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)

@@ -76,8 +76,13 @@ def test_quick_is_the_documented_sweep():
 
 def test_default_and_full_parse():
     default = load_sweep("default")
-    assert set(default.estimators) == {"uniform", "balanced", "balanced_mis", "brdf", "envmap",
-                                       'envmap{mis="brdf"}'}
+    # Every estimator, a real photograph and a short sequence (issue 12).
+    from iblbench.estimators.registry import estimator_names
+    names = {label.split("{")[0] for label in default.estimators}
+    assert names == set(estimator_names())
+    assert 'envmap{mis="brdf",mis_compensation=true}' in default.estimators
+    assert {"sphere-park", "park-turn"} <= set(default.scenes)
+    assert default.repeats_for == (("bis", 3), ("smc", 3))
     assert default.spp == (16, 64, 256) and default.seeds == 2
     full = load_sweep("full")
     assert "balanced_mis{shared_sequence=false}" in full.estimators
