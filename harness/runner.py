@@ -482,9 +482,11 @@ class Runner:
                                       f"{CALIBRATION_REPEATS} renders per spp (more while "
                                       "they spread too wide), then refined on "
                                       "renders at the chosen spp and on the budget's first "
-                                      "cell (cell_runs)",
+                                      "cell (cell_runs), each step by the median slope "
+                                      "through the points measured so far",
                              "chosen": f"a measured spp within ±{TOLERANCE:.0%} of the budget, "
-                                       "the largest within it first (harness/equal_time.py)",
+                                       "the largest within it first, in the calibration and "
+                                       "again on the first cell (harness/equal_time.py)",
                              "calibrations": self._resumed_calibrations()}
                             if c.time_budget_ms else None),
         }
