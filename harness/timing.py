@@ -55,9 +55,10 @@ IQR/median ≤ 15%, by renders per repeat 1/2/4/8/16: sphere-sun ``uniform`` 16 
 61/48/47/48/52%, sphere-backlit ``envmap`` 64 spp (18 ms) 89/87/82/76/67%.  In the runner
 (``iblbench run --config default``, 108 cells, single renders against repeats of ≥ 20 ms
 batches, alternated processes, 4 pairs at load 4-8): 87/57/59/54% of the cells had their first
-5 repeats within 15% with single renders, 50/54/50/51% with batches, at 1.8x the device time
-(17.3 against 9.6 s in the first pair).  So a cell's repeats stay single renders, back to back
-and as close in time as they can be.
+5 repeats within 15% with single renders, 50/54/50/51% with batches; the batches took 1.8x the
+device time in the least loaded pair (17.3 against 9.6 s), about as much as single renders with
+their extension in the others.  So a cell's repeats stay single renders, back to back and as
+close in time as they can be.
 
 **Context.**  The device is the CPU (PoCL) shared with the host, so a render's device time
 depends on what host threads do while it runs.  The host's own work (scoring, image writes)
