@@ -13,14 +13,24 @@ renders where they spread too wide, as a cell's) is fitted as ``a + b·spp`` by 
 relative error, and the first choice is the largest spp whose predicted time is within the budget.
 A line fitted from 1 to hundreds of spp misses by more than 10% where the cost is not quite
 linear, so the choice is then refined on measurements: the spp chosen is timed, the per-spp slope
-is re-estimated through that point (keeping the intercept), and the largest spp predicted to fit
-is timed again, up to ``REFINE_STEPS`` times, until the measured time lies within half of
-``TOLERANCE`` of the budget (so that the cells' own noise keeps them within it)
-(:func:`corrected_spp`). The spp run is then chosen among the measured ones
-(:func:`best_measured`). The runner takes up to ``CELL_CORRECTIONS`` more such steps on the time
-of the budget's first cell, in the cells' own context (:mod:`iblbench.harness.runner`, "Equal
-time"). Whether the cells then landed within ``TOLERANCE`` is checked on the cells themselves (the
-runner's ``time_budget.achieved``).
+is re-estimated as the median slope through the points the refinement has timed (keeping the
+intercept), and the largest spp predicted to fit is timed again, up to ``REFINE_STEPS`` times,
+until the measured time lies within half of ``TOLERANCE`` of the budget (so that the cells' own
+noise keeps them within it) (:func:`corrected_spp`). The spp run is then chosen among the
+measured ones (:func:`best_measured`). The runner takes up to ``CELL_CORRECTIONS`` more such
+steps on the time of the budget's first cell, in the cells' own context, and again ends on the
+best of the cell's measured spp (:mod:`iblbench.harness.runner`, "Equal time"). Whether the
+cells then landed within ``TOLERANCE`` is checked on the cells themselves (the runner's
+``time_budget.achieved``).
+
+Why the median slope and the best measured point, not the last step: the device switches
+between slow and fast spells lasting tens to hundreds of renders (:mod:`iblbench.harness.timing`,
+up to 1.5x apart under load), so a step through one point measured in a slow spell undershoots
+in the next fast one.  Seen in a warm idle run (budget 5 ms): blob-sun ``balanced`` measured
+7.6 ms at 479 spp (4.7 ms in calibration), stepped to 281 spp (5.8 ms, still slow), then to 231
+spp, which ran at 2.6 ms (-48%); sphere-backlit ``uniform`` went from 4.7 ms at 460 spp (-6%,
+within the tolerance but not half of it) through 5.6 ms at 502 to 6.6 ms at 431 (+32%), and the
+last step was the cell.
 """
 from __future__ import annotations
 
@@ -99,9 +109,10 @@ class Calibration:
             self.measure(min(chosen, 4 * top, BUDGET_MAX_SPP))
             a, b = fit_linear(self.runs)
             chosen = choose_spp(a, b, budget_ms)
-        fitted = chosen
+        fitted, refined = chosen, {}
         for _ in range(REFINE_STEPS):
-            step = corrected_spp(a, chosen, self.measure(chosen), budget_ms)
+            refined[chosen] = self.measure(chosen)
+            step = corrected_spp(a, refined, chosen, budget_ms)
             if step is None or step in self.runs:
                 break
             chosen = step
@@ -114,14 +125,17 @@ class Calibration:
                           "median_device_ms": medians[s]} for s in sorted(self.runs)]}
 
 
-def corrected_spp(a: float, spp: int, measured_ms: float, budget_ms: float) -> int | None:
-    """One refinement step from a time measured at ``spp``: the per-spp slope re-estimated
-    through that point, keeping the fitted intercept ``a``, and the largest spp it predicts
-    within the budget; None when the measurement is already within half of ``TOLERANCE`` of
-    the budget (so that noise keeps the cells within it) or at most the intercept."""
-    if abs(measured_ms - budget_ms) <= TOLERANCE / 2 * budget_ms or measured_ms <= a:
+def corrected_spp(a: float, measured: dict[int, float], spp: int, budget_ms: float) -> int | None:
+    """One refinement step after the median time ``measured[spp]``: None when it is already
+    within half of ``TOLERANCE`` of the budget (so that noise keeps the cells within it) or at
+    most the intercept ``a``; else the largest spp predicted within the budget by ``a`` and a
+    per-spp slope that is the median of (time − a)/spp over every point of this refinement
+    (``measured``: spp → median ms), so that one measurement in a slow or fast spell of the
+    device (module docstring) is not chased on its own."""
+    if abs(measured[spp] - budget_ms) <= TOLERANCE / 2 * budget_ms or measured[spp] <= a:
         return None
-    return choose_spp(a, (measured_ms - a) / spp, budget_ms)
+    slopes = [(ms - a) / s for s, ms in measured.items() if ms > a]
+    return choose_spp(a, float(np.median(slopes)), budget_ms)
 
 
 def best_measured(medians: dict[int, float], budget_ms: float) -> int:

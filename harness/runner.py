@@ -70,9 +70,12 @@ calibrates the estimator's cell time (build + sample + shade) against spp
 (:mod:`iblbench.harness.equal_time`), just before the first of those cells, and runs the spp it
 chose.  The first cell of each budget is then corrected on its own time, in its own context
 (after scoring and image writes, on its own seeds): while its median lies outside half of ±10%
-of T, up to ``CELL_CORRECTIONS`` times, the per-spp slope is re-estimated through it (keeping
-the calibration's intercept) and the cell is rendered again, from ``reset()``, at the spp that
-predicts T; the last rendering is the cell, and its spp is every other cell's of that budget.
+of T, up to ``CELL_CORRECTIONS`` times, the per-spp slope is re-estimated as the median slope
+through the cell's measured points (keeping the calibration's intercept) and the cell is
+rendered again, from ``reset()``, at the spp that predicts T.  The spp kept is the best of
+those measured (:func:`~iblbench.harness.equal_time.best_measured`), rendered once more if it
+was not the last; the last rendering is the cell, and its spp is every other cell's of that
+budget.
 Those rows carry ``time_budget_ms = T`` and the chosen ``spp``; the calibration runs, fits and
 the cell's corrections (``cell_runs``) are in the manifest under ``time_budget``.  A resumed run
 reuses the spp its earlier rows chose.  At the end, each equal-time cell's time is compared
@@ -114,7 +117,7 @@ from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cel
                                       write_results)
 from iblbench.harness.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
                                          CELL_CORRECTIONS, TOLERANCE, Calibration,
-                                         corrected_spp)
+                                         best_measured, corrected_spp)
 from iblbench.harness.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times, device_ms,
                                      host_threads_capped, required_build_ms, time_columns,
                                      timed_renders, too_wide)
@@ -479,9 +482,11 @@ class Runner:
                                       f"{CALIBRATION_REPEATS} renders per spp (more while "
                                       "they spread too wide), then refined on "
                                       "renders at the chosen spp and on the budget's first "
-                                      "cell (cell_runs)",
+                                      "cell (cell_runs), each step by the median slope "
+                                      "through the points measured so far",
                              "chosen": f"a measured spp within ±{TOLERANCE:.0%} of the budget, "
-                                       "the largest within it first (harness/equal_time.py)",
+                                       "the largest within it first, in the calibration and "
+                                       "again on the first cell (harness/equal_time.py)",
                              "calibrations": self._resumed_calibrations()}
                             if c.time_budget_ms else None),
         }
@@ -806,17 +811,22 @@ class Runner:
                              seed: int, build_ms: float, timed: list) -> tuple[int, list]:
         """The first cell of a budget this run calibrated, timed at the calibrated spp
         (``timed``), corrected on its own time: up to ``CELL_CORRECTIONS`` steps of
-        :func:`corrected_spp`, each rendering the cell again from ``reset()`` (it is the first
-        frame the renderers see); the last one is the cell, and its spp the budget's for every
-        other cell (module docstring, "Equal time")."""
+        :func:`corrected_spp` over the cell's measured spp, each rendering the cell again from
+        ``reset()`` (it is the first frame the renderers see); then the best of those spp
+        (:func:`best_measured`), rendered once more where it was not the last; the last
+        rendering is the cell, and its spp the budget's for every other cell (module docstring,
+        "Equal time")."""
         fit = self.unverified.pop(budget_key)
-        for correction in range(CELL_CORRECTIONS + 1):
-            measured = float(np.median([device_ms(render.stages) for _, render in timed]))
-            fit["cell_runs"].append({"spp": spp, "median_device_ms": measured})
-            step = (corrected_spp(fit["a_ms"], spp, measured, fit["budget_ms"])
+        measured = {}   # spp → the cell's median device ms there
+        for correction in range(CELL_CORRECTIONS + 2):
+            measured[spp] = float(np.median([device_ms(render.stages) for _, render in timed]))
+            fit["cell_runs"].append({"spp": spp, "median_device_ms": measured[spp]})
+            step = (corrected_spp(fit["a_ms"], measured, spp, fit["budget_ms"])
                     if correction < CELL_CORRECTIONS else None)
-            if step is None or step == spp:
-                break
+            if step is None or step in measured:
+                step = best_measured(measured, fit["budget_ms"])
+                if step == spp or correction > CELL_CORRECTIONS:
+                    break
             for renderer in set(renderers):
                 renderer.reset()
             spp = step

@@ -42,6 +42,24 @@ the run says which cells it extended.  A temporal estimator's cell keeps its rep
 timing renders run on twins that followed the sequence, and a further twin would have to
 render every earlier frame first.
 
+**Why a repeat is one render, not a batch.**  timeit's and asv's "autorange" (a repeat is a
+batch of back-to-back renders lasting at least some 10-25 ms, its value the batch's time per
+render) would average over the device's fast and slow spells if those were shorter than a batch.
+On this VM they are not: in 400-600 renders back to back in one process (load 0.6-1.3) the
+device time sits at one level for tens to hundreds of renders (sphere-sun ``balanced`` 256 spp,
+128²: 5.7 ms for 40 renders, then 3.9-4.0 ms for 40, 4.6 ms for over 100, with 3.3 ms spells
+between; the same with one seed over and over, so it is not the light pools' allocation), so
+a batch only stretches the five repeats over more of them.  Groups of 5 consecutive repeats with
+IQR/median ≤ 15%, by renders per repeat 1/2/4/8/16: sphere-sun ``uniform`` 16 spp (1.5 ms)
+98/97/95/89/90%, ``balanced`` 256 spp 84/82/70/67/76%, blob-sun ``balanced_mis`` 64 spp
+61/48/47/48/52%, sphere-backlit ``envmap`` 64 spp (18 ms) 89/87/82/76/67%.  In the runner
+(``iblbench run --config default``, 108 cells, single renders against repeats of ≥ 20 ms
+batches, alternated processes, 4 pairs at load 4-8): 87/57/59/54% of the cells had their first
+5 repeats within 15% with single renders, 50/54/50/51% with batches; the batches took 1.8x the
+device time in the least loaded pair (17.3 against 9.6 s), about as much as single renders with
+their extension in the others.  So a cell's repeats stay single renders, back to back and as
+close in time as they can be.
+
 **Context.**  The device is the CPU (PoCL) shared with the host, so a render's device time
 depends on what host threads do while it runs.  The host's own work (scoring, image writes)
 runs on the calling thread between renders, never beside them (it waits on the events without

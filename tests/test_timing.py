@@ -369,3 +369,45 @@ def test_the_warm_up_pixels_keep_a_specular_pixel_of_a_mostly_diffuse_scene():
     subset = runner.warm_up_gbuffer(gbuffer)
     assert subset.covered == WARMUP_PIXELS and not subset.is_diffuse and subset.mask[-1, -1]
     assert runner.warm_up_gbuffer(dataclasses.replace(gbuffer, ks=ks * 0)).is_diffuse
+
+
+class Spells(Linear):
+    """Linear's cost in calibration; on the seeds of cells the shade stage runs ``FACTORS[k]``
+    times slower in the cell's k-th rendering (its repeats alike): a device that switches
+    between slow and fast spells from one rendering of the cell to the next."""
+
+    name = "spells_timing_test"
+    FACTORS = (1.08, 0.8, 1.3, 1.0)
+    cell_renders = 0
+
+    def render(self, gbuffer, cache, spp, seed):
+        estimate = super().render(gbuffer, cache, spp, seed)
+        if seed < CALIBRATION_SEED:
+            spell = self.FACTORS[type(self).cell_renders // runner.DEFAULT_REPEATS]
+            estimate.timings_ms["shade"] *= spell
+            type(self).cell_renders += 1
+        return estimate
+
+
+def test_a_budgets_first_cell_ends_on_its_best_measured_spp(tmp_path, known_builds, monkeypatch):
+    """Worked out by hand: calibration fits 1.2 + 0.013·spp exactly (build 0.5, shade 0.7 +
+    0.013·spp) and chooses 1446 spp (20.0 ms).  The cell there runs 1.08x slow: 21.56 ms (+8%,
+    outside half the tolerance), so a step through that point gives 1335 spp, which runs 0.8x:
+    14.94 ms.  A step through that point alone would give 1826 spp (slope 0.01029); the median
+    of both points' slopes (0.01408, 0.01029) gives 1542, which runs 1.3x: 27.47 ms.  The last
+    step is no better than the first point, the only one within ±10%: the cell is rendered again
+    at 1446 spp (1.0x, 20.0 ms) and that is the cell.  The old rule kept 1826 spp at 32.3 ms."""
+    register(Spells)
+    monkeypatch.setattr(Spells, "cell_renders", 0)
+    try:
+        table = run(tiny(tmp_path, ("spells_timing_test",), spp=(), time_budget_ms=(20.0,)))
+    finally:
+        _registry.pop(Spells.name)
+    fit, = json.loads((tmp_path / "manifest.json").read_text())["time_budget"]["calibrations"]
+    assert fit["calibrated_spp"] == 1446
+    assert [run["spp"] for run in fit["cell_runs"]] == [1446, 1335, 1542, 1446]
+    assert [run["median_device_ms"] for run in fit["cell_runs"]] == pytest.approx(
+        [21.558, 14.944, 27.470, 19.998], abs=2e-3)
+    row = table.iloc[0]
+    assert row.spp == fit["chosen_spp"] == 1446 and row.used_samples == 1446
+    assert abs(row.time_ms - 20.0) <= TOLERANCE * 20.0
