@@ -115,8 +115,9 @@ def test_summary_has_verdict_table_and_plots(tmp_path):
 
 
 def test_lu2013_end_to_end_on_tiny_images(tmp_path):
+    scenes = ("sphere-sun", "sphere-backlit")   # blob-sun's 327k triangles take longest to build
     summary = reproduce.reproduce("lu2013", tmp_path, seeds=1, progress=False,
-                                  resolution=(10, 10), env_res=8)
+                                  resolution=(10, 10), env_res=8, scenes=scenes)
     text = summary.read_text()
     verdicts = [line for line in text.splitlines() if line.startswith("| ") and "**" in line]
     assert len(verdicts) == 5 and "not compared" in verdicts[4]
@@ -126,7 +127,7 @@ def test_lu2013_end_to_end_on_tiny_images(tmp_path):
     table = pd.read_parquet(tmp_path / "results.parquet")
     lu, baselines = {"uniform", "balanced", "balanced_mis"}, {"brdf", "envmap", 'envmap{mis="brdf"}'}
     assert set(table.estimator) == lu | baselines
-    assert set(table.scene) == set(reproduce.LU2013_SCENES)
+    assert set(table.scene) == set(scenes)
     at_spp = table[table.time_budget_ms.isna()]
     assert set(at_spp[at_spp.estimator.isin(baselines)].spp) == {60}
     # One budget, balanced's time at 60 spp; every estimator ran at it in every scene.
@@ -134,7 +135,7 @@ def test_lu2013_end_to_end_on_tiny_images(tmp_path):
     balanced_60 = at_spp[(at_spp.estimator == "balanced") & (at_spp.spp == 60)].time_ms.mean()
     assert len(budget) == 1 and budget[0] == pytest.approx(balanced_60, rel=0.05)
     timed = table[table.time_budget_ms.notna()]
-    assert len(timed.groupby(["scene", "estimator"])) == 6 * len(reproduce.LU2013_SCENES)
+    assert len(timed.groupby(["scene", "estimator"])) == 6 * len(scenes)
     assert f"at {budget[0]:g} ms per frame" in text
     assert (table.nonfinite == 0).all() and (tmp_path / "summary.html").exists()
     assert (tmp_path / "equal_time_ratios.png").stat().st_size > 1000
@@ -193,6 +194,19 @@ def test_seed_values_average_frames_per_seed_and_budget_is_a_mean_time():
     assert reproduce.equal_time_budget(cells, ["a"], 64) == 1.6
     with pytest.raises(InputError, match="no time of a at 16 spp"):
         reproduce.equal_time_budget(cells, ["a"], 16)
+
+
+def test_errors_are_scaled_to_the_budget_by_each_rows_time():
+    """A seed at twice the 10 ms budget had twice the samples: its MSE doubles and its ΔE grows
+    by √2 at the budget; one at half the budget the reverse."""
+    rows = pd.DataFrame({"scene": "s", "estimator": "e", "seed": [0, 1], "frame": 0,
+                         "time_ms": [20.0, 5.0], "rel_mse": [0.1, 0.4],
+                         "mean_delta_e76": [2.0, 4.0]})
+    np.testing.assert_allclose(reproduce.budget_scaled_values(rows, "rel_mse", 10.0)["s", "e"],
+                               [0.2, 0.2])
+    np.testing.assert_allclose(
+        reproduce.budget_scaled_values(rows, "mean_delta_e76", 10.0)["s", "e"],
+        [2.0 * 2 ** 0.5, 4.0 * 0.5 ** 0.5])
 
 
 PAIRS = reproduce.MISC_PAIRS
