@@ -82,15 +82,15 @@ def plot_effective_samples(path: pathlib.Path, table) -> None:
 
 
 def plot_ratios(path: pathlib.Path, table, lines: dict[str, float]) -> None:
-    """One bar per compared pair (``label``) at its ratio, with its 95% interval (``low``,
+    """One point per compared pair (``label``) at its ratio, with its 95% interval (``low``,
     ``high``; none where the ratio has no interval) as an asymmetric error bar, on a log axis,
-    and a dashed line at each of ``lines`` (labelled values)."""
+    and a line at each of ``lines`` (labelled values)."""
     fig, ax = plt.subplots(figsize=(max(6, 0.8 * len(table)), 4.5))
     x = np.arange(len(table))
     ratio = table.ratio.to_numpy(float)
     below, above = ratio - table.low.to_numpy(float), table.high.to_numpy(float) - ratio
-    ax.bar(x, np.nan_to_num(ratio), 0.6, color="#8fb3d9")
-    ax.errorbar(x, ratio, yerr=np.nan_to_num([below, above]), fmt="none", ecolor="k", capsize=3)
+    ax.errorbar(x, ratio, yerr=np.nan_to_num([below, above]), fmt="o", color="#1f5fa8",
+                capsize=3, label="ratio, 95% interval")
     for (label, value), style in zip(lines.items(), ("k--", "r:", "g-.")):
         ax.axhline(value, color=style[0], linestyle=style[1:], label=label)
     ax.set_yscale("log")
