@@ -26,6 +26,7 @@ examples:
   iblbench run --scene sphere-sun --estimator uniform --spp 16,256 --seeds 2 --out runs/a
   iblbench run --scene my/scene.toml --sanitize  a user scene (see README for the TOML format)
   iblbench reproduce lu2013 --out runs/lu2013    Lu 2013's figures and claims, with verdicts
+  iblbench reproduce mis-compensation            Karlík et al. 2019's equal-time claim
   iblbench report runs/a                         runs/a/report/index.html (open it from disk)
   iblbench list devices                          OpenCL platforms/devices and which is chosen
   iblbench check runs/a --budgets budgets.toml   CI gate: exit 1 if any error budget fails
@@ -223,12 +224,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_json(run)
 
     repro = commands.add_parser(
-        "reproduce", help="re-run a paper's experiments and judge its claims (e.g. lu2013)",
+        "reproduce", help="re-run a paper's experiments and judge its claims (lu2013, "
+                          "mis-compensation)",
         description="Run a paper's experiments on built-in scenes through the ordinary runner, "
                     "then write summary.md and summary.html (tables, plots, and one verdict per "
-                    "claim: holds / partly holds / does not hold) beside results.parquet.",
+                    "claim: holds / partly holds / does not hold / not resolved, with 95% "
+                    "intervals) beside results.parquet. lu2013: Lu, Pacanowski & Granier 2013's "
+                    "Fig. 2 and 3 and claims, with the production baselines (brdf, envmap) and "
+                    "an equal-time comparison beside them. mis-compensation: Karlík et al. "
+                    "2019's MIS compensation against plain MIS at equal time (envmap and "
+                    "balanced_mis). Equal-time cells run at one budget taken from the "
+                    "reproduction's own spp cells (see the summary).",
         parents=[rendering])
-    repro.add_argument("paper", metavar="PAPER", help="which reproduction: lu2013")
+    repro.add_argument("paper", metavar="PAPER",
+                       help="which reproduction: lu2013 or mis-compensation")
     repro.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/reproduce"),
                        help="output directory (default: results/reproduce)")
     repro.add_argument("--seeds", type=_positive_int, default=3,
@@ -636,10 +645,11 @@ def terminal_summaries(table):
 
 def _reproduce(args) -> None:
     from iblbench.harness.reproduce import reproduce
+    from iblbench.reports.reproduction import summary_head
 
     summary = reproduce(args.paper, args.out, seeds=args.seeds, device=args.device,
                         progress=False if args.no_progress else None)
-    print(summary.read_text(encoding="utf-8").split("## Fig. 2")[0].strip())
+    print(summary_head(summary.read_text(encoding="utf-8")))
     print(f"wrote {summary} and {summary.with_suffix('.html')}")
 
 

@@ -81,19 +81,52 @@ def plot_effective_samples(path: pathlib.Path, table) -> None:
     plt.close(fig)
 
 
+def plot_ratios(path: pathlib.Path, table, lines: dict[str, float]) -> None:
+    """One point per compared pair (``label``) at its ratio, with its 95% interval (``low``,
+    ``high``; none where the ratio has no interval) as an asymmetric error bar, on a log axis,
+    and a line at each of ``lines`` (labelled values)."""
+    fig, ax = plt.subplots(figsize=(max(6, 0.8 * len(table)), 4.5))
+    x = np.arange(len(table))
+    ratio = table.ratio.to_numpy(float)
+    below, above = ratio - table.low.to_numpy(float), table.high.to_numpy(float) - ratio
+    ax.errorbar(x, ratio, yerr=np.nan_to_num([below, above]), fmt="o", color="#1f5fa8",
+                capsize=3, label="ratio, 95% interval")
+    for (label, value), style in zip(lines.items(), ("k--", "r:", "g-.")):
+        ax.axhline(value, color=style[0], linestyle=style[1:], label=label)
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+    ax.set_xticks(x, table.label, fontsize=7, rotation=45, ha="right")
+    ax.set_ylabel("error ratio (95% interval)")
+    ax.legend()
+    ax.grid(True, axis="y", which="both", alpha=0.3)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100, bbox_inches="tight")
+    plt.close(fig)
+
+
+# Plot.kind → its drawing: (path, the plot) → None
+PLOTS = {"error_vs_spp": lambda path, plot: plot_error_vs_spp(path, plot.data),
+         "samples": lambda path, plot: plot_effective_samples(path, plot.data),
+         "ratios": lambda path, plot: plot_ratios(path, plot.data, plot.lines)}
+
+
+def summary_head(markdown: str) -> str:
+    """A summary's title and verdicts, the part `iblbench reproduce` prints: everything before
+    its second ``## `` heading (the first is the verdicts')."""
+    return "\n## ".join(markdown.split("\n## ")[:2]).strip()
+
+
 def write_summary(out: pathlib.Path, result) -> pathlib.Path:
     """Write ``summary.md`` and ``summary.html`` (plots beside them); returns the Markdown path."""
-    plots = {"fig3": "fig3_error_vs_spp.png", "fig2": "fig2_samples.png"}
-    plot_error_vs_spp(out / plots["fig3"], result.tables["fig3"])
-    plot_effective_samples(out / plots["fig2"], result.tables["fig2"])
-    context = {
-        "title": result.title,
-        "differences": result.setup_differences,
-        "verdicts": result.verdicts,
-        "tables": {name: dict(zip(("columns", "rows"), _shown(t)))
-                   for name, t in result.tables.items()},
-        "plots": plots,
-    }
+    sections = []
+    for section in result.sections:
+        if section.plot is not None:
+            PLOTS[section.plot.kind](out / section.plot.file, section.plot)
+        columns, rows = _shown(section.table)
+        sections.append({"title": section.title, "columns": columns, "rows": rows,
+                         "plot": section.plot})
+    context = {"title": result.title, "differences": result.setup_differences,
+               "verdicts": result.verdicts, "sections": sections}
     for name in ("summary.md", "summary.html"):
         text = _TEMPLATES.get_template(f"reproduction.{name.split('.')[1]}.j2").render(**context)
         with atomic_path(out / name) as tmp:
