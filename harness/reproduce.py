@@ -434,13 +434,15 @@ def _of_sweep(table: pd.DataFrame, scenes, estimators) -> pd.DataFrame:
 # ---- Karlík, Šik, Vévoda, Skřivan & Křivánek 2019 -------------------------------------------
 
 # The scenes of `reproduce mis-compensation`: the static built-ins (one line per scene added).
-MISC_SCENES = ("sphere-sun", "blob-sun", "sphere-backlit", "torus-sun")
+MISC_SCENES = ("sphere-sun", "blob-sun", "sphere-backlit", "torus-sun",
+               "sphere-park")   # the shipped CC0 photograph: a captured map, as the paper's
 # (uncompensated, compensated) MIS estimators: one line per estimator with ``mis_compensation``.
 MISC_PAIRS = (
     ('envmap{mis="brdf"}', 'envmap{mis="brdf",mis_compensation=true}'),   # power heuristic
     ('envmap{heuristic="balance",mis="brdf"}',                             # the paper's heuristic
      'envmap{heuristic="balance",mis="brdf",mis_compensation=true}'),
     ("balanced_mis", "balanced_mis{mis_compensation=true}"),
+    ('hierarchical{mis="brdf"}', 'hierarchical{mis="brdf",mis_compensation=true}'),
 )
 MISC_SPP = 64              # the equal-spp cells, and the equal-time budget's
 MISC_PAPER_RATIO = 2.75    # Fig. 1: basic MIS's NMSE / compensated MIS's at equal time (5 s)
@@ -451,7 +453,8 @@ MISC_SETUP_DIFFERENCES = [
     "https://cgg.mff.cuni.cz/~jaroslav/papers/2019-mis-compensation/): one scene under a "
     "captured HDR map, 5 s equal-time renders, basic MIS of BSDF and environment-map sampling "
     "under the balance heuristic against its normal-independent compensation, 2.75× lower NMSE. "
-    "Ours: procedural scenes under an analytic Preetham sun+sky at 64² per face, Phong BRDF "
+    "Ours: procedural scenes under an analytic Preetham sun+sky and one under the shipped CC0 "
+    "Rooitou Park photograph (sphere-park), at 64² per face, Phong BRDF "
     "(kd 0.5, ks 0.3, m 150), direct lighting without visibility, and several estimators.",
     "Error measure: the claims use relMSE, the mean over covered pixels of (x−r)²/(r²+0.01) "
     "in linear HDR against an exact reference: a squared error, as the paper's NMSE is, but "
@@ -462,7 +465,8 @@ MISC_SETUP_DIFFERENCES = [
     "where the paper's normal-independent form subtracts the mean and clamps at 0; the floor "
     "keeps every lit texel reachable by light samples.",
     "Estimators: envmap with BRDF MIS under the power heuristic (the production renderers' "
-    "default) and under the balance heuristic (the paper's), and Lu 2013's balanced_mis, whose "
+    "default) and under the balance heuristic (the paper's), hierarchical (mip descent) with "
+    "BRDF MIS, and Lu 2013's balanced_mis, whose "
     "light distribution is balanced per normal (not in the paper). Each pixel's budget is "
     "split N/2 light + N/2 BRDF samples, where a path tracer takes one of each per vertex.",
     "Equal time: device time per frame (build + sample + shade, the median of a cell's timed "
