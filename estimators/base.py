@@ -70,6 +70,12 @@ class Estimator:
     def reset(self) -> None:
         """Forget state carried across frames (temporal estimators)."""
 
+    def limit_map(self, cache):
+        """The map whose exact integral a ``has_limit`` estimator converges to (``fis``: its
+        filtered map); the conformance suite's limit check needs it."""
+        raise NotImplementedError(f"{self.name or type(self).__name__} is tagged has_limit but "
+                                  f"defines no limit_map(cache) hook")
+
     @classmethod
     def version(cls) -> str:
         return estimator_version(cls)

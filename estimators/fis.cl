@@ -74,7 +74,7 @@ ALWAYS_INLINE lanes3_t lanes_level_radiance(__global const float4 *mips, int16 l
  * so ½·log2(Ω_s/Ω_p) = ½·log2((1+u²+v²)^{3/2}/p) + lod_shift, lod_shift = ½·log2(R²/(4N)); the
  * lod is clamped to the coarsest level `top`, and the level-lod radiance is the linear blend of
  * levels ⌊lod⌋ and ⌊lod⌋ + 1 (each at its nearest texel).  A density of 0 (a sample that adds
- * nothing) reads the coarsest level; min() also maps a NaN lod there. */
+ * nothing) reads the coarsest level. */
 ALWAYS_INLINE lanes3_t lanes_filtered_radiance(__global const float4 *mips, int16 level_offsets,
                                                int res, int top, float lod_shift, float lod_bias,
                                                lanes3_t w, lanes_t pdf)

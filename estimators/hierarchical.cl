@@ -11,14 +11,17 @@
  *     q_k = max(1, ⌊2^31 · w_k / Σ w⌋) for w_k > 0,  q_k = 0 for w_k = 0,
  * the remainder 2^31 − Σ q going to the largest child (the first of equal ones), and the top 31
  * bits u of a fresh 32-bit Philox word pick the child whose bin [Σ_{j<k} q_j, Σ_{j≤k} q_j) holds
- * u: the child's probability is exactly q_k/2^31.  So every child of positive weight has a
+ * u: the child's probability is exactly q_k/2^31 (the density reports it in float: to float
+ * rounding, ~1e-6 relative over a descent's factors).  So every child of positive weight has a
  * probability of at least 2^-31 ≈ 4.7e-10 at each level, whatever its siblings weigh (a 1e6:1
  * sun leaves every lit texel reachable), and a texel's probability P is the product of its
  * choices' q/2^31,
  * which the density lookup recomputes from the same pyramid words in the same order.  The
  * density in solid angle is P·(1+x²+y²)^{3/2}/a_texel, a_texel = (2/R)² (DESIGN §3).  Children
- * of zero total (an all-black map, or past an odd size's edge) fall back to equal widths over the
- * children that exist, so a black map still samples a valid texel with its exact density. */
+ * of zero total (an all-black map, or past an odd size's edge) fall back to widths 2^31/N for each
+ * child that exists, the remainder to the first of them (so 1/2, 1/4, 1/4 for three of four: not
+ * equal, but the lookup recomputes the same widths), so a black map still samples a valid texel
+ * with the density it is drawn from. */
 #include "lanes.cl"
 
 #define STREAM_DESCENT 9u
@@ -30,7 +33,8 @@
  * the children unroll and their arrays stay in registers):
  *   descent_widths##N: the integer widths q of children of weights w (≥ 0) as in the header;
  *     `exists` marks the children that exist (the fallback's support when Σ w is 0 or its
- *     inverse overflows); the widths' prefix sums never pass 2^31;
+ *     inverse overflows: 2^31/N each, the remainder to the first); the widths' prefix sums never
+ *     pass 2^31;
  *   descent_probability##N: q_child/2^31 of the lanes' children `child`;
  *   descent_pick##N: the child whose bin of widths q holds the top 31 bits of the words u, and
  *     its probability. */

@@ -22,7 +22,8 @@ class Hierarchical(Envmap):
     texel picked so far in proportion to their sums, down to a texel, and a point uniform in the
     texel's face square; its density is P(texel)·(1+x²+y²)^{3/2}/a_texel (DESIGN §3), P(texel)
     the product of the choices' probabilities, which the density lookup (MIS weights, χ² hook)
-    recomputes from the same pyramid, so it is exactly the density sampled.  Per frame the
+    recomputes from the same pyramid, so it is the density sampled (to float rounding: the
+    product of the choices' q/2^31 is formed in float, ~1e-6 relative).  Per frame the
     sampler needs only the pyramid: one pass of weights and log2 R reductions, no prefix scan
     (it does not require the ``cdf`` product).
 
@@ -69,6 +70,4 @@ class Hierarchical(Envmap):
 
     def _map_is_black(self, cache) -> bool:
         """Whether every face total (the pyramid's 1×1 level) is 0."""
-        pyramid = cache.weight_pyramid(False)
-        totals = pyramid.host_levels(cache.compute)[-1]
-        return not np.any(totals > 0)
+        return not np.any(cache.weight_pyramid(False).face_totals(cache.compute) > 0)

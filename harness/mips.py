@@ -42,6 +42,9 @@ def level_offsets(res: int, channels: int) -> tuple[int, ...]:
     offsets = [0]
     for n in level_sizes(res):
         offsets.append(offsets[-1] + 6 * n * n * channels)
+    if offsets[-1] > 2 ** 31 - 1:   # the kernels index the chain with int offsets
+        raise ValueError(f"a mip chain of {res}² faces with {channels} channels holds {offsets[-1]} "
+                         f"floats, past the 2^31 − 1 an int offset reaches (faces up to 8192² hold fewer)")
     return tuple(offsets)
 
 
@@ -62,6 +65,13 @@ class MipChain:
         flat = compute.to_host(self.buffer, (level_offsets(self.sizes[0], self.channels)[-1],), np.float32)
         return [flat[at:at + 6 * n * n * self.channels].reshape(6, n, n, self.channels)
                 for at, n in zip(self.offsets, self.sizes)]
+
+
+    def face_totals(self, compute: Compute) -> np.ndarray:
+        """The 1×1 level alone, float32 ``[6, channels]``: six texels read back, not the chain."""
+        out = np.empty((6, self.channels), np.float32)
+        cl.enqueue_copy(compute.queue, out, self.buffer, src_offset=4 * self.offsets[-1]).wait()
+        return out
 
 
 def reduce_levels(compute: Compute, buffer: cl.Buffer, res: int, channels: int, average: bool) -> float:

@@ -1,5 +1,6 @@
-"""Built-in environment sequences (DESIGN §5): ``day``, ``moving-lights``, ``switch``,
-``rotating-sun`` and ``turntable``.
+"""Built-in environment sequences (DESIGN §5): ``day``, ``moving-lights``, ``switch`` and
+``rotating-sun``, and ``turntable`` of a lat-long image given by its path (the built-in scene
+``park-turn`` turns the shipped photograph; scenes/registry.py names every sequence a scene uses).
 
 Every sequence is an :class:`EnvSequence` whose frames are made on demand by ``make_frame(index)``
 and cached per (parameters, index), so a long sequence is never held whole and a frame asked for
@@ -340,6 +341,3 @@ def turntable(path: str, res: int = 32) -> EnvSequence:
     return EnvSequence(TURNTABLE_FRAMES, lambda index: turntable_frame(str(path), int(index), int(res)),
                        source=f"turntable of {path} ({TURNTABLE_STEP_COLUMNS} columns a frame)")
 
-
-SEQUENCES = {"day": day, "moving-lights": moving_lights, "switch": switch,
-             "rotating-sun": rotating_sun}

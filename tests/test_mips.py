@@ -57,6 +57,8 @@ def test_weight_pyramid_matches_numpy(compute, res):
     assert np.allclose(got[-1].ravel(), cubemap.face_luminance_integrals(env), rtol=1e-5)
     assert got[-1][1].item() == 0.0 and np.all(got[-1][[0, 2, 3, 4, 5]] > 0)
     assert cache.timings_ms["weight_pyramid"] > 0
+    # face_totals reads the 1×1 level alone: the faces' integrals, in face order
+    assert np.allclose(pyramid.face_totals(compute).ravel(), cubemap.face_luminance_integrals(env), rtol=1e-5)
 
 
 @pytest.mark.parametrize("res", [5, 16])
