@@ -496,7 +496,9 @@ def stress_cases() -> dict[str, str]:
 def _stress_description() -> str:
     import textwrap
 
-    cases = "\n".join(textwrap.fill(guards, 88, initial_indent=f"  {name:18s}", subsequent_indent=" " * 20)
+    column = max(18, 1 + max(map(len, stress_cases())))   # the longest name, then a space
+    cases = "\n".join(textwrap.fill(guards, 88, initial_indent=f"  {name:{column}s}",
+                                     subsequent_indent=" " * (column + 2))
                       for name, guards in stress_cases().items())
     return textwrap.fill("Run every estimator (or the chosen ones) over a battery of adversarial inputs, one "
             "row per (case, estimator): non-finite and negative values, range, error against "
