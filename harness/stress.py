@@ -565,81 +565,106 @@ class Prepared:
         """``[..., H, W, 3]`` → ``[..., covered, 3]``."""
         return images[..., self.variant.gbuffer.mask, :]
 
-    def shares(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per frame and covered pixel, each texel block's share of the pixel's luminance
-        integral ``[frames, n, 6, B, B]``; per pixel a lower bound of the probability that one
-        BRDF sample lands in it ``[n, 6, B, B]``; per frame the light pdf's probability of it
-        given its face, Y·Ω/I_f ``[frames, 6, B, B]`` (float64 from the float32 map)."""
+    def shares(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per frame, covered pixel and colour channel, each texel block's share of the pixel's
+        integral of that channel ``[frames, n, 3, 6, B, B]``; per frame and pixel its share of
+        bis's target γ = L_Y·ρ_Y·cos⁺ (Kronander Eq. 3) ``[frames, n, 6, B, B]``; per pixel a
+        lower bound of the probability that one BRDF sample lands in it ``[n, 6, B, B]``; per
+        frame the light pdf's probability of it given its face, Y·Ω/I_f ``[frames, 6, B, B]``
+        (float64 from the float32 map)."""
         if self._shares is None:
             g = self.variant.gbuffer
-            kd, ks = cubemap.luminance(g.kd[g.mask]), cubemap.luminance(g.ks[g.mask])
+            kd, ks = g.kd[g.mask].astype(np.float64), g.ks[g.mask].astype(np.float64)
+            kd_y, ks_y = cubemap.luminance(kd), cubemap.luminance(ks)
             m = g.shininess[g.mask].astype(np.float64)
-            p_spec = np.divide(ks, kd + ks, out=np.zeros_like(ks), where=kd + ks > 0)
+            p_spec = np.divide(ks_y, kd_y + ks_y, out=np.zeros_like(ks_y), where=kd_y + ks_y > 0)
             res = self.caches[0].res
-            luminance = [cubemap.luminance(env) for env in self.variant.frames]
-            shares, brdf = [], []
+            frames = [env.astype(np.float64) for env in self.variant.frames]
+            channel_shares, target_shares, brdf = [], [], []
             for i, table in enumerate(self.reference.texel_integrals(self.gbuffer, res)):
                 cosine, lobe = table[..., 0].astype(np.float64), table[..., 1].astype(np.float64)
-                weight = kd[i] / np.pi * cosine + ks[i] * (m[i] + 2) / (2 * np.pi) * lobe
-                contribution = np.stack([_blocks(y * weight) for y in luminance])
-                total = contribution.sum(axis=(1, 2, 3), keepdims=True)
-                shares.append(np.divide(contribution, total, out=np.zeros_like(contribution),
-                                        where=total > 0))
+                diffuse, specular = cosine / np.pi, (m[i] + 2) / (2 * np.pi) * lobe
+                channels = np.stack([[_blocks(env[..., c] * (kd[i, c] * diffuse + ks[i, c] * specular))
+                                      for c in range(3)] for env in frames])
+                target = np.stack([_blocks(cubemap.luminance(env) * (kd_y[i] * diffuse + ks_y[i] * specular))
+                                   for env in frames])
+                channel_shares.append(_normalised(channels))
+                target_shares.append(_normalised(target))
                 # ∫ cos_r^m ≥ ∫ cos_r^m cos_n over a texel: a lower bound of the lobe's share.
                 brdf.append(_blocks((1 - p_spec[i]) / np.pi * cosine
                                     + p_spec[i] * (m[i] + 1) / (2 * np.pi) * lobe))
             omega = cubemap.texel_solid_angles(res)
-            light = []
-            for y in luminance:
-                weight = y * omega
-                face = weight.sum(axis=(1, 2), keepdims=True)
-                light.append(_blocks(np.divide(weight, face, out=np.zeros_like(weight), where=face > 0)))
-            self._shares = (np.stack(shares, axis=1), np.stack(brdf), np.stack(light))
+            light = [_normalised(_blocks(cubemap.luminance(env) * omega)[:, None])[:, 0]  # per face
+                     for env in frames]
+            self._shares = (np.stack(channel_shares, axis=1), np.stack(target_shares, axis=1),
+                            np.stack(brdf), np.stack(light))
         return self._shares
+
+
+def _normalised(blocks: np.ndarray) -> np.ndarray:
+    """``[..., 6, B, B]`` over its sum across the last three axes (0 where that is 0)."""
+    total = blocks.sum(axis=(-3, -2, -1), keepdims=True)
+    return np.divide(blocks, total, out=np.zeros_like(blocks), where=total > 0)
 
 
 # ---- the reach model ------------------------------------------------------------------------
 
-def sample_budget(estimator, cache: FrameCache, normals: np.ndarray, spp: int
-                  ) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Per normal, the estimator's draws per render from each face's light CDF ``[n, 6]`` and from
-    the Phong BRDF ``[n]``, and whether both count (True) or only the smaller does (an
-    estimator whose split is unknown: its reach is taken as the weaker of the two)."""
+@dataclasses.dataclass(frozen=True)
+class SampleBudget:
+    """An estimator's draws per render, per normal: from each face's light CDF ``light [n, 6]``,
+    from the Phong BRDF ``brdf [n]``, and from the pixel's target γ ``target [n]`` (bis's
+    resampled samples); ``additive``: whether they all count (True) or only the smaller of
+    light and BRDF (an estimator whose split is unknown: its reach is the weaker of the two)."""
+
+    light: np.ndarray
+    brdf: np.ndarray
+    target: np.ndarray
+    additive: bool = True
+
+
+def sample_budget(estimator, cache: FrameCache, normals: np.ndarray, spp: int) -> SampleBudget:
+    """The draws per render of ``estimator`` at ``spp`` (``SampleBudget``)."""
     n = len(normals)
+    none = np.zeros(n)
     if isinstance(estimator, PoolEstimator):
         draws = np.ceil(estimator.strategy_ticks(cache, normals, spp) / TICKS_PER_SAMPLE)
-        return draws[:, :6], draws[:, 6], True
+        return SampleBudget(draws[:, :6], draws[:, 6], none)
     if isinstance(estimator, BIS):
-        return np.zeros((n, 6)), np.full(n, float(estimator.budget(spp)[0])), True
+        # Only the N resampled candidates carry their colour into the image (L̂ = Ẑ/N·Σ f/γ);
+        # the M candidates enter through Ẑ, in luminance alone.  The resampled ones approximate
+        # the target γ (Kronander §5), so they are counted as N draws from it.
+        return SampleBudget(np.zeros((n, 6)), none, np.full(n, float(estimator.budget(spp)[1])))
     cache.require(("cdf",))        # the face integrals (an estimator that needs no CDFs)
     if isinstance(estimator, Havran):   # K = spp lights from the map's pdf, (1 − δ) ∝ luminance
         integrals = cache.face_integrals.astype(np.float64)   # 1e-300 underflows in float32
         share = integrals / max(float(integrals.sum()), 1e-300)
-        return np.tile((1.0 - HAVRAN_DEFENSIVE) * spp * share, (n, 1)), np.zeros(n), True
+        return SampleBudget(np.tile((1.0 - HAVRAN_DEFENSIVE) * spp * share, (n, 1)), none, none)
     if isinstance(estimator, MapSampler) and not estimator.compensated:
         # One distribution over the whole map: face f holds the share I_f / Σ I of its draws.
         light, brdf = estimator.strategy_samples(spp)
         integrals = cache.face_integrals.astype(np.float64)
         share = integrals / max(float(integrals.sum()), 1e-300)
-        return np.tile(np.ceil(light) * share, (n, 1)), np.full(n, np.ceil(brdf)), True
+        return SampleBudget(np.tile(np.ceil(light) * share, (n, 1)), np.full(n, np.ceil(brdf)), none)
     lit = (cache.face_integrals > 0).astype(np.float64)
-    return np.tile(lit, (n, 1)), np.full(n, spp / 2), False
+    return SampleBudget(np.tile(lit, (n, 1)), np.full(n, spp / 2), none, additive=False)
 
 
 def tested_pixels(estimator, prepared: Prepared, frame: int, spp: int, seeds: int) -> np.ndarray:
-    """Covered pixels (bool ``[n]``) whose z-test is valid for this estimator on this frame: a
-    non-zero reference, and at most RARE_SHARE of the integral on rare texels (module
-    docstring)."""
-    shares, brdf, light = prepared.shares()
+    """Covered pixels and colour channels (bool ``[n, 3]``) whose z-test is valid for this
+    estimator on this frame: a non-zero reference, and at most RARE_SHARE of the channel's
+    integral on texels rare in that channel (module docstring)."""
+    channel_shares, target_shares, brdf, light = prepared.shares()
     normals = prepared.variant.gbuffer.normal[prepared.variant.gbuffer.mask]
-    light_draws, brdf_draws, additive = sample_budget(estimator, prepared.caches[frame], normals, spp)
-    light_hits = light_draws[:, :, None, None] * light[frame]
-    brdf_hits = brdf_draws[:, None, None, None] * brdf
-    hits = seeds * (light_hits + brdf_hits if additive else np.minimum(light_hits, brdf_hits))
-    share = shares[frame]
-    rare = share * REACH_HITS > hits
-    lit = share.sum(axis=(1, 2, 3)) > 0
-    return lit & (np.where(rare, share, 0.0).sum(axis=(1, 2, 3)) <= RARE_SHARE)
+    budget = sample_budget(estimator, prepared.caches[frame], normals, spp)
+    light_hits = budget.light[:, :, None, None] * light[frame]
+    brdf_hits = budget.brdf[:, None, None, None] * brdf
+    target_hits = budget.target[:, None, None, None] * target_shares[frame]
+    hits = seeds * (target_hits + (light_hits + brdf_hits if budget.additive
+                                   else np.minimum(light_hits, brdf_hits)))
+    share = channel_shares[frame]                                   # [n, 3, 6, B, B]
+    rare = share * REACH_HITS > hits[:, None]
+    lit = share.sum(axis=(2, 3, 4)) > 0
+    return lit & (np.where(rare, share, 0.0).sum(axis=(2, 3, 4)) <= RARE_SHARE)
 
 
 # ---- one row ----------------------------------------------------------------------------------
@@ -715,21 +740,24 @@ def _scan(row: _Row, prepared: Prepared, images: np.ndarray, tags) -> None:
 
 
 def _bias(row: _Row, estimator, prepared: Prepared, images: np.ndarray, spp: int) -> None:
+    """z-tests of each colour channel over its tested pixels (``tested_pixels``)."""
     values = prepared.covered(images)
     references = prepared.covered(prepared.references)
     for frame in range(len(prepared.caches)):
         tested = tested_pixels(estimator, prepared, frame, spp, len(images))
-        if not tested.any():
-            continue
-        test = conformance.bias_test(values[:, frame][:, tested], references[frame][tested])
-        row.bias_pixels += int(tested.sum())
-        row.bias_tests += test.tests
-        if not test.max_abs_z <= np.nan_to_num(row.bias_z, nan=-1.0):
-            pixel, channel = np.unravel_index(np.argmax(np.abs(test.pixel_z)), test.pixel_z.shape)
-            pooled = np.abs(test.pooled_z).max() >= np.abs(test.pixel_z).max()
-            where = (f"pooled image mean, z = {np.round(test.pooled_z, 2).tolist()}" if pooled else
-                     f"pixel {pixel} channel {channel}: mean {test.mean[pixel, channel]:.5g} vs "
-                     f"reference {test.reference[pixel, channel]:.5g}")
+        row.bias_pixels += int(tested.any(axis=1).sum())
+        for channel in np.flatnonzero(tested.any(axis=0)):
+            pixels = np.flatnonzero(tested[:, channel])
+            test = conformance.bias_test(values[:, frame][:, pixels, channel, None],
+                                         references[frame][pixels, channel, None])
+            row.bias_tests += test.tests
+            if test.max_abs_z <= np.nan_to_num(row.bias_z, nan=-1.0):
+                continue
+            worst = int(np.argmax(np.abs(test.pixel_z[:, 0])))
+            where = (f"channel {channel}'s pooled image mean, z = {test.pooled_z[0]:.2f}"
+                     if np.abs(test.pooled_z[0]) >= np.abs(test.pixel_z[worst, 0]) else
+                     f"pixel {pixels[worst]} channel {channel}: mean {test.mean[worst, 0]:.5g} "
+                     f"vs reference {test.reference[worst, 0]:.5g}")
             row.bias_z = test.max_abs_z
             row.bias_where = f"{prepared.variant.name}, frame {frame}, {where}"
 
