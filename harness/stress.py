@@ -18,7 +18,7 @@ One row per (case, estimator), over the case's variants (placements, sizes, fram
 - ``gbuffer_invalid``: covered pixels whose normal or view is not a finite unit vector or whose
   n·view < ``MIN_COS_VIEW`` (the G-buffer contract of ``scenes.gbuffer``);
 - ``bias_pixels``, ``bias_z``, ``bias_p`` (unbiased estimators): how many (pixel, frame) pairs
-  the z-test used, the largest |z| and its Šidák-corrected p-value over the row's tests;
+  the z-test used in at least one colour channel, the largest |z| and its Šidák-corrected p-value over the row's tests;
 - ``chi2_tests``, ``chi2_p`` (estimators with a pdf): χ² tests of the sampler on the case's
   maps and their Šidák-corrected smallest p-value;
 - ``recovery`` (temporal estimators): RMS error of the last frame over that of the first, which
@@ -66,18 +66,21 @@ estimator's samples reach what the pixel integrates.  An estimator that is unbia
 expectation fails it where part of the integral hides in a region the samples hit a few times
 over all seeds (a light sampler on the dim sky beside a 1e9 sun: that sky is missing from almost
 every render, so the mean is off by its share however unbiased the estimator), and it passes
-vacuously where nothing is reached.  So each (pixel, frame) is tested only where the estimator
-reaches its integrand, by this model (``tested_pixels``): the pixel's integral splits exactly
-into texel shares (``Reference.texel_integrals``, in luminance); a texel's expected hits over
-all seeds are seeds × (light draws of its face × Y·Ω/I_f + BRDF draws × the texel's BRDF
-probability), with the draws per render of the estimator's own budget split
-(``sample_budget``: the pool estimators' per-normal face split, ``bis``'s candidates,
-``havran``'s K lights split by the faces' luminance, and for
-any other estimator the smaller of one light draw per lit face and spp/2 BRDF draws).  A texel
-is rare when one hit there carries more than 1/``REACH_HITS`` of the pixel's value; a pixel
-is tested when its rare texels hold at most ``RARE_SHARE`` of its integral (and its reference
-is not 0: those pixels are checked for exactness instead).  Each case says which pixels
-this leaves.  The light CDFs' own precision (float32 bins used to collapse to 0 next to a
+vacuously where nothing is reached.  So each (pixel, channel, frame) is tested only where the
+estimator reaches its integrand, by this model (``tested_pixels``): each colour channel of the
+pixel's integral splits exactly into texel shares (``Reference.texel_integrals``; per channel,
+since the samplers follow luminance and a channel may hide where the luminance is small: the
+red sliver of one-sample's colour-split map); a texel's expected hits over all seeds are
+seeds × (light draws of its face × Y·Ω/I_f + BRDF draws × the texel's BRDF probability), with
+the draws per render of the estimator's own budget split (``sample_budget``: the pool
+estimators' per-normal face split, ``havran``'s K lights split by the faces' luminance, and
+for any other estimator the smaller of one light draw per lit face and spp/2 BRDF draws).
+``bis``'s image carries the colour of its N resampled draws only, which follow its target γ
+(Kronander §5) where its M BRDF candidates reach it: its hits are the fewer of M candidate
+draws and N draws × the texel's share of γ.  A texel is rare in a channel when one hit there
+carries more than 1/``REACH_HITS`` of the pixel's value in it; a pixel's channel is tested
+when its rare texels hold at most ``RARE_SHARE`` of its integral (and its reference is not 0:
+those values are checked for exactness instead).  Each case says which pixels this leaves.  The light CDFs' own precision (float32 bins used to collapse to 0 next to a
 bright sun) is audited analytically in ``harness/cdf_precision``, not by sampling.
 """
 from __future__ import annotations
@@ -611,42 +614,45 @@ def _normalised(blocks: np.ndarray) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class SampleBudget:
-    """An estimator's draws per render, per normal: from each face's light CDF ``light [n, 6]``,
-    from the Phong BRDF ``brdf [n]``, and from the pixel's target γ ``target [n]`` (bis's
-    resampled samples); ``additive``: whether they all count (True) or only the smaller of
-    light and BRDF (an estimator whose split is unknown: its reach is the weaker of the two)."""
+    """An estimator's draws per render, per normal: from each face's light CDF ``light [n, 6]``
+    and from the Phong BRDF ``brdf [n]``; ``additive``: whether both count (True) or only the
+    smaller (an estimator whose split is unknown: its reach is the weaker of the two).  A
+    resampling estimator's image carries only its ``resampled [n]`` draws, which follow the
+    target γ where the draws above (its candidates) reach it: a texel's hits are then the
+    fewer of its candidate hits and its resampled draws from γ."""
 
     light: np.ndarray
     brdf: np.ndarray
-    target: np.ndarray
     additive: bool = True
+    resampled: np.ndarray | None = None
 
 
 def sample_budget(estimator, cache: FrameCache, normals: np.ndarray, spp: int) -> SampleBudget:
     """The draws per render of ``estimator`` at ``spp`` (``SampleBudget``)."""
     n = len(normals)
-    none = np.zeros(n)
     if isinstance(estimator, PoolEstimator):
         draws = np.ceil(estimator.strategy_ticks(cache, normals, spp) / TICKS_PER_SAMPLE)
-        return SampleBudget(draws[:, :6], draws[:, 6], none)
+        return SampleBudget(draws[:, :6], draws[:, 6])
     if isinstance(estimator, BIS):
-        # Only the N resampled candidates carry their colour into the image (L̂ = Ẑ/N·Σ f/γ);
-        # the M candidates enter through Ẑ, in luminance alone.  The resampled ones approximate
-        # the target γ (Kronander §5), so they are counted as N draws from it.
-        return SampleBudget(np.zeros((n, 6)), none, np.full(n, float(estimator.budget(spp)[1])))
+        # M BRDF candidates, of which only the N resampled carry their colour into the image
+        # (L̂ = Ẑ/N·Σ f/γ; the others enter through Ẑ, in luminance alone); the resampled
+        # approximate the target γ (Kronander §5).
+        candidates, resampled = estimator.budget(spp)
+        return SampleBudget(np.zeros((n, 6)), np.full(n, float(candidates)),
+                            resampled=np.full(n, float(resampled)))
     cache.require(("cdf",))        # the face integrals (an estimator that needs no CDFs)
     if isinstance(estimator, Havran):   # K = spp lights from the map's pdf, (1 − δ) ∝ luminance
         integrals = cache.face_integrals.astype(np.float64)   # 1e-300 underflows in float32
         share = integrals / max(float(integrals.sum()), 1e-300)
-        return SampleBudget(np.tile((1.0 - HAVRAN_DEFENSIVE) * spp * share, (n, 1)), none, none)
+        return SampleBudget(np.tile((1.0 - HAVRAN_DEFENSIVE) * spp * share, (n, 1)), np.zeros(n))
     if isinstance(estimator, MapSampler) and not estimator.compensated:
         # One distribution over the whole map: face f holds the share I_f / Σ I of its draws.
         light, brdf = estimator.strategy_samples(spp)
         integrals = cache.face_integrals.astype(np.float64)
         share = integrals / max(float(integrals.sum()), 1e-300)
-        return SampleBudget(np.tile(np.ceil(light) * share, (n, 1)), np.full(n, np.ceil(brdf)), none)
+        return SampleBudget(np.tile(np.ceil(light) * share, (n, 1)), np.full(n, np.ceil(brdf)))
     lit = (cache.face_integrals > 0).astype(np.float64)
-    return SampleBudget(np.tile(lit, (n, 1)), np.full(n, spp / 2), none, additive=False)
+    return SampleBudget(np.tile(lit, (n, 1)), np.full(n, spp / 2), additive=False)
 
 
 def tested_pixels(estimator, prepared: Prepared, frame: int, spp: int, seeds: int) -> np.ndarray:
@@ -658,9 +664,10 @@ def tested_pixels(estimator, prepared: Prepared, frame: int, spp: int, seeds: in
     budget = sample_budget(estimator, prepared.caches[frame], normals, spp)
     light_hits = budget.light[:, :, None, None] * light[frame]
     brdf_hits = budget.brdf[:, None, None, None] * brdf
-    target_hits = budget.target[:, None, None, None] * target_shares[frame]
-    hits = seeds * (target_hits + (light_hits + brdf_hits if budget.additive
-                                   else np.minimum(light_hits, brdf_hits)))
+    hits = light_hits + brdf_hits if budget.additive else np.minimum(light_hits, brdf_hits)
+    if budget.resampled is not None:
+        hits = np.minimum(hits, budget.resampled[:, None, None, None] * target_shares[frame])
+    hits = seeds * hits
     share = channel_shares[frame]                                   # [n, 3, 6, B, B]
     rare = share * REACH_HITS > hits[:, None]
     lit = share.sum(axis=(2, 3, 4)) > 0

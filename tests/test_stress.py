@@ -10,6 +10,7 @@ from iblbench.estimators.uniform import Uniform
 from iblbench.harness import cli, conformance, stress
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import FrameCache
+from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 
 BUILTINS = {name: registry.make_estimator(name) for name in registry.estimator_names()}
@@ -79,8 +80,27 @@ def test_reach_model_keeps_only_pixels_whose_integrand_is_sampled(compute):
                              [conformance.sun_map(8, 1e9)])
     prepared = stress.Prepared.of(variant, compute)
     prepared.caches[0].require(("cdf",))
-    assert stress.tested_pixels(BUILTINS["uniform"], prepared, 0, 8, 200).tolist() == [True, False]
-    assert stress.tested_pixels(BUILTINS["bis"], prepared, 0, 8, 200)[1]
+    assert stress.tested_pixels(BUILTINS["uniform"], prepared, 0, 8, 200).tolist() == [[True] * 3, [False] * 3]
+    assert stress.tested_pixels(BUILTINS["bis"], prepared, 0, 8, 200)[1].all()
+
+
+def test_reach_model_skips_a_channel_that_few_resampled_draws_carry(compute):
+    """bis at one sample per pixel carries only its resampled draw's colour, and that draw
+    follows the target γ = L_Y·ρ_Y·cos⁺.  On one-sample's colour-split map (red only where
+    x > 0) a diffuse normal 8° off −x sees the red as a sliver holding ~1% of γ (a NumPy
+    quadrature here): a handful of red draws over 500 seeds, so its red is not z-tested
+    (a mean of 0 over 500 seeds failed the full-size stress at |z| = 1e4), its blue is."""
+    seeds, tilt = stress.LARGE.seeds, np.radians(8.0)
+    normal = np.array([[[-np.cos(tilt), 0.0, np.sin(tilt)]]])
+    env = stress.CASES["one-sample"].build(stress.LARGE)[0].frames[0]
+    directions = cubemap.texel_directions(env.shape[1])
+    gamma = cubemap.luminance(env) * cubemap.texel_solid_angles(env.shape[1]) \
+        * np.maximum(directions @ normal[0, 0], 0.0)
+    red_draws = seeds * gamma[directions[..., 0] > 0].sum() / gamma.sum()
+    assert 1 < red_draws < stress.REACH_HITS
+    variant = stress.Variant("sliver", GBuffer.from_pixels(normal, normal, 0.8, 0.0, 20.0), [env])
+    tested = stress.tested_pixels(BUILTINS["bis"], stress.Prepared.of(variant, compute), 0, 1, seeds)
+    assert not tested[0, 0] and tested[0, 2]
 
 
 # ---- broken estimators must fail ------------------------------------------------------------------
