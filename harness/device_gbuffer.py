@@ -12,7 +12,7 @@ from iblbench.scenes.gbuffer import GBuffer
 # thread runs two of them), 5 of 1867 (blob), 1 of 1304 (park-turn at 48²: one core), and
 # groups of 1 at a prime count.  Groups of 64 spread any count over the cores: at load ~1, 200
 # renders each, interleaved, the median shade time fell to 0.70-0.89x at 9216 pixels (balanced
-# 256 spp, uniform 16, envmap{mis="brdf"} 64) and to 0.54-0.56x (envmap) at 1280 against 1304;
+# 256 spp, uniform 16, envmap{mis="brdf"} 64) and to 0.55-0.56x (envmap) at 1280 against 1304;
 # images bit-identical.  It does not make renders more repeatable: groups of 5 within 15%
 # IQR/median were as often or less often so (45-72% against 55-90%).  And the runner's
 # 64-pixel warm-up now compiles the local size the timed renders use.
