@@ -125,11 +125,11 @@ def read_estimate(compute, gbuffer, radiance, counts, evaluations: float,
                   timings_ms: dict[str, float], planar: bool = False) -> Estimate:
     """Copy a kernel's per-pixel outputs (float4 radiance, float2 used/effective) into an Estimate.
 
-    ``planar``: the kernel wrote planes of ``gbuffer.count`` floats instead (R, G, B; used,
-    effective)."""
+    ``planar``: the kernel wrote planes of ``gbuffer.launch_size`` floats instead (R, G, B; used,
+    effective), of which the first ``gbuffer.count`` are the image's."""
     if planar:
-        rgb = compute.to_host(radiance, (3, gbuffer.count), np.float32).T
-        used_effective = compute.to_host(counts, (2, gbuffer.count), np.float32).T
+        rgb = compute.to_host(radiance, (3, gbuffer.launch_size), np.float32)[:, :gbuffer.count].T
+        used_effective = compute.to_host(counts, (2, gbuffer.launch_size), np.float32)[:, :gbuffer.count].T
     else:
         rgb = compute.to_host(radiance, (gbuffer.count, 4), np.float32)[:, :3]
         used_effective = compute.to_host(counts, (gbuffer.count, 2), np.float32)

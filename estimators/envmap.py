@@ -65,11 +65,11 @@ class MapSampler(Estimator):
             raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
         compute = cache.compute
         light_buffers, build_ms = self._light_buffers(cache)
-        radiance = compute.empty(gbuffer.count * 12)   # planes R, G, B (envmap.cl)
-        counts = compute.empty(gbuffer.count * 8)      # planes used, effective
-        evaluations = compute.empty(gbuffer.count * 4)
-        event = compute.run(
-            self._kernel(compute, "render_map", gbuffer), gbuffer.count, gbuffer.normal,
+        radiance = compute.empty(gbuffer.launch_size * 12)   # planes R, G, B (envmap.cl)
+        counts = compute.empty(gbuffer.launch_size * 8)      # planes used, effective
+        evaluations = compute.empty(gbuffer.launch_size * 4)
+        event = gbuffer.run(
+            compute, self._kernel(compute, "render_map", gbuffer), gbuffer.normal,
             gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer, *light_buffers,
             np.int32(cache.res), np.int32(spp), np.uint32(seed), np.uint32(cache.frame),
             radiance, counts, evaluations)

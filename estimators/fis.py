@@ -109,13 +109,13 @@ class Fis(Brdf):
             raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
         compute = cache.compute
         mips = cache.radiance_mips()
-        radiance = compute.empty(gbuffer.count * 12)   # planes R, G, B (as envmap.cl)
-        counts = compute.empty(gbuffer.count * 8)      # planes used, effective
-        evaluations = compute.empty(gbuffer.count * 4)
+        radiance = compute.empty(gbuffer.launch_size * 12)   # planes R, G, B (as envmap.cl)
+        counts = compute.empty(gbuffer.launch_size * 8)      # planes used, effective
+        evaluations = compute.empty(gbuffer.launch_size * 4)
         level_offsets = cltypes.make_int16(*(np.array(mips.offsets + (0,) * MAX_LEVELS)[:MAX_LEVELS]
                                              // mips.channels))
-        event = compute.run(
-            self._kernel(compute, "render_fis", gbuffer), gbuffer.count, gbuffer.normal,
+        event = gbuffer.run(
+            compute, self._kernel(compute, "render_fis", gbuffer), gbuffer.normal,
             gbuffer.view, gbuffer.kd, gbuffer.ks, mips.buffer, level_offsets,
             np.int32(len(mips.sizes)), np.int32(cache.res), np.int32(spp),
             np.float32(self.params.lod_bias), np.uint32(seed), np.uint32(cache.frame), radiance,

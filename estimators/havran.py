@@ -517,10 +517,10 @@ class Havran(Estimator):
         # stage, though it is built once per frame and reused.
         light_dir, light_weight, _, _, sample_ms = self._filtered(cache, int(spp), seed)
         kernel = compute.kernel(self.kernel_package(), self.kernel_files[0], "render_havran")
-        radiance = compute.empty(gbuffer.count * 16)
-        counts = compute.empty(gbuffer.count * 8)
-        evaluations = compute.empty(gbuffer.count * 4)
-        event = compute.run(kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd,
+        radiance = compute.empty(gbuffer.launch_size * 16)
+        counts = compute.empty(gbuffer.launch_size * 8)
+        evaluations = compute.empty(gbuffer.launch_size * 4)
+        event = gbuffer.run(compute, kernel, gbuffer.normal, gbuffer.view, gbuffer.kd,
                             gbuffer.ks, light_dir, light_weight, np.int32(spp), radiance, counts,
                             evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean() \

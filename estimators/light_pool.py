@@ -106,11 +106,11 @@ class PoolEstimator(Estimator):
             events.append(compute.run(self._kernel(compute, "brdf_numbers"), numbers_stride, np.uint32(seed),
                                       np.uint32(cache.frame), np.int32(spp), numbers))
         kernel = self._kernel(compute, "render_light_pool", gbuffer)
-        radiance = compute.empty(gbuffer.count * 12)   # planes R, G, B (light_pool_kernels.cl)
-        counts = compute.empty(gbuffer.count * 8)      # planes used, effective
-        evaluations = compute.empty(gbuffer.count * 4)
-        event = compute.run(
-            kernel, gbuffer.count, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
+        radiance = compute.empty(gbuffer.launch_size * 12)   # planes R, G, B (light_pool_kernels.cl)
+        counts = compute.empty(gbuffer.launch_size * 8)      # planes used, effective
+        evaluations = compute.empty(gbuffer.launch_size * 4)
+        event = gbuffer.run(
+            compute, kernel, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
             cache.env_buffer, cdfs.marginal, cdfs.conditional, cdfs.face_integral,
             planes, np.int32(cache.res), np.int32(pool.per_face),
             np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),

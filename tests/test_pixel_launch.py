@@ -1,0 +1,39 @@
+"""Pixel kernels run over a G-buffer padded to whole work groups (DeviceGBuffer): the padding
+must neither reach the image nor change a real pixel's value."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from iblbench.harness import conformance
+from iblbench.harness.device_gbuffer import PIXEL_GROUP, DeviceGBuffer
+from iblbench.harness.framecache import FrameCache
+from iblbench.harness.sweep import parse_estimator
+
+
+def test_buffers_hold_whole_groups_padded_with_the_last_pixel(compute):
+    gbuffer = conformance.glossy_gbuffer(9)   # 81 pixels
+    device = DeviceGBuffer(compute, gbuffer)
+    assert device.count == 81 and device.launch_size == 2 * PIXEL_GROUP
+    normals = compute.to_host(device.normal, (device.launch_size, 4), np.float32)
+    np.testing.assert_array_equal(normals[:81, :3], gbuffer.normal.reshape(-1, 3))
+    np.testing.assert_array_equal(normals[81:], np.repeat(normals[80:81], device.launch_size - 81, 0))
+
+
+@pytest.mark.parametrize("label", ["uniform", "balanced_mis{shared_sequence=false}",
+                                   'envmap{mis="brdf"}', "fis", "havran"])
+def test_a_pixel_does_not_depend_on_the_launch(compute, label):
+    """The first 64 pixels rendered alone (one whole group, no padding) and within 169 pixels
+    (three groups, the last padded): the same values, bit for bit, and nothing outside the mask."""
+    gbuffer = conformance.glossy_gbuffer(13)
+    alone = dataclasses.replace(gbuffer, mask=np.arange(169).reshape(13, 13) < PIXEL_GROUP)
+    estimator = parse_estimator(label).make()
+    cache = FrameCache(compute, conformance.sun_map(16, 50.0))
+    cache.require(type(estimator).requires)
+    whole = estimator.render(DeviceGBuffer(compute, gbuffer), cache, 8, 3)
+    part = estimator.render(DeviceGBuffer(compute, alone), cache, 8, 3)
+    for field in ("radiance", "used", "effective"):
+        first = getattr(part, field)[alone.mask]
+        np.testing.assert_array_equal(getattr(whole, field)[alone.mask], first)
+        assert np.all(getattr(part, field)[~alone.mask] == 0)
+    assert np.all(whole.radiance[gbuffer.mask] > 0)
