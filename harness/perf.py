@@ -160,6 +160,7 @@ floor must match the ``uniform`` kernel on the same pool (``floor_max_rel_diff``
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import pathlib
 import textwrap
@@ -167,7 +168,7 @@ import time
 
 import numpy as np
 
-from iblbench.harness.timing import required_build_ms, spread
+from iblbench.harness.timing import SPREAD_LIMIT, groups_within, required_build_ms, spread
 from iblbench.scenes.errors import InputError
 
 DEFAULT_SCENES = ("sphere-sun", "blob-sun")
@@ -191,6 +192,8 @@ FMA_LANES = 8
 FMA_ITEMS = 1 << 17
 COPY_MIN_BYTES = 64 << 20      # each copy buffer: at least this, and 8× the device's cache
 ROOF_MIN_MS = 20.0             # each roofline launch is sized to take at least this
+FLOOR_MS = 3.0                 # the timing floor's launches: about a render's device time
+FLOOR_LAUNCHES = 40            # back to back: 8 groups of 5
 
 
 def cdf_build_bytes(res: int) -> int:
@@ -358,19 +361,55 @@ def copy_size(compute) -> int:
     return int(min(wanted, device.max_mem_alloc_size // 2, 1 << 30)) // 16 * 16
 
 
+def _fma_iterations(compute, items: int, min_ms: float) -> int:
+    """Iterations (a power of two) for an ``fma_throughput`` launch of ``items`` to take ≥
+    ``min_ms``."""
+    iterations = 16
+    while True:
+        ms = run_fma(compute, items, iterations)[1][0]
+        if ms >= min_ms or iterations >= 1 << 16:
+            return iterations
+        iterations *= 2 if ms > 0 else 16
+
+
 def measure_roofline(compute, repeats: int) -> Roofline:
     """The device's FMA throughput and copy bandwidth: the median of ``repeats`` launches each,
     the FMA launch sized to take ≥ ROOF_MIN_MS."""
-    iterations = 16
-    while True:
-        ms = run_fma(compute, FMA_ITEMS, iterations)[1][0]
-        if ms >= ROOF_MIN_MS or iterations >= 1 << 16:
-            break
-        iterations *= 2 if ms > 0 else 16
+    iterations = _fma_iterations(compute, FMA_ITEMS, ROOF_MIN_MS)
     _, fma_ms, flops = run_fma(compute, FMA_ITEMS, iterations, repeats)
     _, copy_ms, moved = run_copy(compute, np.ones(copy_size(compute) // 4, np.float32), repeats)
     return Roofline(gflops=flops / spread(fma_ms)[0] / 1e6, gbps=moved / spread(copy_ms)[0] / 1e6,
                     fma_flops=flops, copy_bytes=moved)
+
+
+@dataclasses.dataclass(frozen=True)
+class TimingFloor:
+    """How repeatable the device's own timings are now (timing.py, "The device's own floor")."""
+
+    launches: int           # timed launches, back to back
+    median_ms: float        # their median device ms
+    groups_within: float    # share of consecutive groups of 5 with IQR/median ≤ SPREAD_LIMIT
+    p90_over_p10: float     # the spread of all launches
+
+    def text(self) -> str:
+        return (f"{self.groups_within:.0%} of groups of 5 within {SPREAD_LIMIT:.0%} "
+                f"(p90/p10 {self.p90_over_p10:.2f})")
+
+
+@functools.lru_cache(maxsize=None)
+def _floor_iterations(compute) -> int:
+    """The floor kernel's size on ``compute``, found once per process (a run measures twice)."""
+    return _fma_iterations(compute, FMA_ITEMS // 8, FLOOR_MS)
+
+
+def measure_timing_floor(compute, launches: int = FLOOR_LAUNCHES) -> TimingFloor:
+    """``launches`` back-to-back launches of ``fma_throughput`` sized to take ≥ FLOOR_MS: a
+    kernel with no memory traffic and even work in many groups, so their spread is the
+    device's (and the machine's), not a kernel's."""
+    times = run_fma(compute, FMA_ITEMS // 8, _floor_iterations(compute), launches)[1]
+    p10, p90 = np.percentile(times, [10, 90])
+    return TimingFloor(launches=launches, median_ms=float(np.median(times)),
+                       groups_within=groups_within(times), p90_over_p10=float(p90 / p10))
 
 
 class CopyProbe:
@@ -732,14 +771,22 @@ def run_command(config: PerfConfig) -> list[pathlib.Path]:
         raise InputError(out, "--out exists and is not a directory")
     from iblbench.harness.timing import host_threads_capped
 
+    from iblbench.harness.device import get_compute
+
     start = time.perf_counter()
     with host_threads_capped():   # the NumPy floor runs between timed kernels: no spinning BLAS
+        floors = [measure_timing_floor(get_compute(config.device))]
         table, roofline = run_perf(config)
+        floors.append(measure_timing_floor(get_compute(config.device)))
     seconds = time.perf_counter() - start
+    timing_floor = " at the start, ".join(f.text() for f in floors) + " at the end"
     prepare_out(out)
     paths = write_outputs(out, table, roofline, {"device": table.device.iloc[0],
                                                  "command": command_line(config),
-                                                 "seconds": f"{seconds:.0f}"})
+                                                 "seconds": f"{seconds:.0f}",
+                                                 "timing_floor": timing_floor,
+                                                 "floor_ms": f"{floors[0].median_ms:.2g}"})
     print(format_table(table))
+    print(f"timing floor (a fixed kernel launched back to back): {timing_floor}")
     print(f"wrote {', '.join(map(str, paths))}")
     return paths

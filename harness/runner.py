@@ -110,6 +110,7 @@ from iblbench.harness.device import cache_dir, get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
 from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
+from iblbench.harness.perf import measure_timing_floor
 from iblbench.harness.reference import Reference
 from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
                                       configuration_differences, image_configuration, image_stem,
@@ -539,6 +540,7 @@ class Runner:
             self._last_fold = time.monotonic()
             self.manifest["status"] = "running"   # a killed run leaves this, not a missing manifest
             write_manifest(self.out, self.manifest)
+            floors = [measure_timing_floor(self.compute)] if self.todo else []
             self.device_ms_total, start = 0.0, time.perf_counter()
             try:
                 with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
@@ -557,7 +559,14 @@ class Runner:
                 self.manifest["timing"].update(
                     wall_s=wall_s, device_s=self.device_ms_total / 1e3,
                     wall_per_device=wall_s / max(self.device_ms_total / 1e3, 1e-9))
-            self._report_spread()
+                floors.append(measure_timing_floor(self.compute))
+                self.manifest["timing"]["floor"] = {
+                    "kernel": f"fma_throughput, {floors[0].median_ms:.2g} ms, "
+                              f"{floors[0].launches} launches back to back, at the run's start "
+                              "and end (harness/timing.py, \"The device's own floor\")",
+                    "groups_within": [f.groups_within for f in floors],
+                    "p90_over_p10": [f.p90_over_p10 for f in floors]}
+            self._report_spread(floors)
             if self.config.time_budget_ms:
                 self.manifest["time_budget"]["achieved"] = self._check_budgets(table)
             self.manifest["status"] = "complete"
@@ -569,13 +578,17 @@ class Runner:
         also hold other sweeps' cells."""
         return table[[row_key(row) in self.cells for row in table.to_dict("records")]]
 
-    def _report_spread(self) -> None:
-        """Says how many cells needed more timed renders, and how many stayed too wide."""
+    def _report_spread(self, floors) -> None:
+        """Says how many cells needed more timed renders, how many stayed too wide, and how
+        repeatable the device itself was (``floors``: TimingFloor at the start and end)."""
         counts = self.manifest["timing"]["spread"]
         if counts["extended_cells"] or counts["wide_cells"]:
             print(f"iblbench: timing: {counts['extended_cells']} of {counts['cells']} cells got "
                   f"more timed renders (IQR/median above {SPREAD_LIMIT:.0%}, up to {EXTENSION}x "
-                  f"the repeats); {counts['wide_cells']} stayed above it", file=sys.stderr)
+                  f"the repeats); {counts['wide_cells']} stayed above it; the device's own "
+                  "floor, a fixed kernel launched back to back: "
+                  + " at the start, ".join(f.text() for f in floors) + " at the end",
+                  file=sys.stderr)
 
     def _check_budgets(self, table) -> list[dict]:
         """Each equal-time cell's time against its budget; prints those outside ±TOLERANCE."""

@@ -19,7 +19,7 @@ import trimesh
 
 from iblbench.estimators.base import Estimate, Estimator, Tags
 from iblbench.estimators.registry import _registry, register
-from iblbench.harness import budgets, cli, runner
+from iblbench.harness import budgets, cli, runner, timing
 from iblbench.harness.equal_time import CALIBRATION_SEED, TOLERANCE, Calibration
 from iblbench.harness.framecache import FrameCache
 from iblbench.harness.runner import TIMING_SEED, WARMUP_PIXELS, WARMUP_SEED, RunConfig, run
@@ -208,9 +208,34 @@ def test_a_cell_gets_more_renders_only_while_they_spread_too_wide(tmp_path, know
     # (29%), n=7 2 (19%), n=8 1 (9.5%): the cell stops at 8 renders.
     assert row.time_repeats == 8
     assert row.time_ms == pytest.approx(10.5) and row.time_ms_iqr == pytest.approx(1.0)
-    assert "1 of 1 cells got more timed renders" in capsys.readouterr().err
-    spread = json.loads((tmp_path / "manifest.json").read_text())["timing"]["spread"]
-    assert spread["extended_cells"] == 1 and spread["wide_cells"] == 0
+    err = capsys.readouterr().err
+    assert "1 of 1 cells got more timed renders" in err
+    # ... said beside the device's own floor, measured at the run's start and end.
+    assert "the device's own floor" in err and err.count("groups of 5 within 15%") == 2
+    record = json.loads((tmp_path / "manifest.json").read_text())["timing"]
+    assert record["spread"]["extended_cells"] == 1 and record["spread"]["wide_cells"] == 0
+    assert len(record["floor"]["groups_within"]) == 2
+    assert all(0 <= share <= 1 for share in record["floor"]["groups_within"])
+    assert all(ratio >= 1 for ratio in record["floor"]["p90_over_p10"])
+
+
+def test_groups_within_counts_consecutive_groups_of_five_by_iqr_over_median():
+    steady = [10.0] * 5                  # IQR 0
+    edge = [10.0, 10.0, 10.0, 11.5, 11.5]   # quartiles 10 and 11.5: IQR 1.5 = 15% of 10, within
+    split = [10.0, 10.0, 20.0, 20.0, 20.0]  # quartiles 10 and 20 over the median 20: 50%
+    assert timing.groups_within(steady + edge + split + [99.0]) == pytest.approx(2 / 3)
+    assert timing.groups_within(split + steady, size=5) == pytest.approx(1 / 2)
+    assert math.isnan(timing.groups_within([1.0, 2.0, 3.0]))
+
+
+def test_the_timing_floor_times_fixed_launches_of_the_fma_kernel():
+    from iblbench.harness import perf
+    from iblbench.harness.device import get_compute
+
+    floor = perf.measure_timing_floor(get_compute(), launches=10)
+    assert floor.launches == 10 and floor.median_ms >= 0.5 * perf.FLOOR_MS
+    assert floor.groups_within in (0.0, 0.5, 1.0)   # two groups of five
+    assert floor.p90_over_p10 >= 1.0
 
 
 def test_stages_an_estimator_lacks_are_nan_and_count_zero():
