@@ -95,9 +95,9 @@ repeatable the device is.  So a run measures that floor at its start and end
 with the spread): a fixed kernel of multiply-adds (no memory traffic, even work in many groups)
 of about a render's length, launched back to back, and the share of its groups of 5 launches
 with IQR/median ≤ 15% (:func:`groups_within`).  A cell cannot be expected to beat it.  On this
-2-vCPU VM (Firecracker, idle guest, 2026-12-02) it moved between 62% and 93% from one minute to
-the next, while the warm default run kept 75-87% of its cells' first 5 renders within 15%.  The
-cause is the machine, not PoCL: two host threads of fixed NumPy work, started and joined per
+2-vCPU VM (Firecracker, idle guest, 2026-12-02) it moved between 12% and 100% from one minute
+to the next (p90/p10 1.03-2.4), while warm default runs kept 75-87% of their cells' first 5
+renders within 15%.  The cause is the machine, not PoCL: two host threads of fixed NumPy work, started and joined per
 repeat, gave 51-75% of groups within 15% (p90/p10 1.6-2.0), one thread doing the same 97-100%.
 Pinning PoCL's threads (``POCL_AFFINITY=1``) moved a warm default run within the same range
 (75-87% against 80-83%), as did 20 ms of multiply-adds on both cores before each cell.
