@@ -564,8 +564,8 @@ class Runner:
                     "kernel": f"fma_throughput, {floors[0].median_ms:.2g} ms, "
                               f"{floors[0].launches} launches back to back, at the run's start "
                               "and end (harness/timing.py, \"The device's own floor\")",
-                    "groups_within": [f.groups_within for f in floors],
-                    "p90_over_p10": [f.p90_over_p10 for f in floors]}
+                    "groups_within": [round(f.groups_within, 3) for f in floors],
+                    "p90_over_p10": [round(f.p90_over_p10, 3) for f in floors]}
             self._report_spread(floors)
             if self.config.time_budget_ms:
                 self.manifest["time_budget"]["achieved"] = self._check_budgets(table)
