@@ -223,9 +223,9 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
                           __global const float *map_power, const int count, const int N,
                           const int steps, const float nu, const float cos_delta,
                           const float threshold, const float map_ess, const int static_frame,
-                          const uint seed,
-                          const uint frame, __global float *all_particles, __global float *all_gammas,
-                          __global float *all_scratch_p, __global float *all_scratch_g,
+                          const uint seed, const uint frame, __global float *all_particles,
+                          __global float *all_gammas, __global float *all_scratch_p,
+                          __global float *all_scratch_g,
                           __global float4 *state, __global float4 *carried_estimate,
                           __global float4 *radiance, __global float2 *counts, __global float4 *stats,
                           __global int *reinit_flag)
