@@ -200,7 +200,7 @@ __kernel void map_change(__global const float4 *texels, __global const float4 *p
         acc_t now = texels[i].w, before = prev_texels[i].w;
         if (now > 0) sum += before > 0 ? now * now / before : (acc_t)INFINITY;
     }
-    map_power[2] = (float)(sum * (4.0 / ((acc_t)ENV_RES * (acc_t)ENV_RES)));
+    map_power[2] = (float)(sum * (acc_t)(4.0f / (float)(ENV_RES * ENV_RES)));
 }
 
 /* Debug twin for the tests: map draw i of the tables (map_sample on pixel i's words of

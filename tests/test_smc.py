@@ -348,9 +348,10 @@ def test_smc_follows_a_turning_sun_at_the_error_of_an_init(compute):
 def test_smc_map_change_is_the_chi_square_of_the_map_distributions(compute, change):
     """map_change's 1 + χ²(P_t ‖ P_{t−1}) = Σ P_t²/P_{t−1} (smc.py step 5) against NumPy's from
     the maps' Y·Ω (DESIGN §3's light distribution), within 1e-4 relative (the tables' texel
-    probabilities are within 1e-5 of it): on a smooth map turned by 10° (nearest texel), under
-    the re-init bound; a sun stepping one texel (_turning_sun_frames), far over it; and +∞ where
-    a texel black last frame is lit now."""
+    probabilities are within 1e-5 of it): on face_pattern_map turned by 10° (nearest texel;
+    χ² 0.02), under the re-init bound 1/reinit_map_ess; a sun stepping one texel
+    (_turning_sun_frames; χ² 2.1e3), far over it; and +∞ where a texel black last frame is lit
+    now."""
     from iblbench.harness.stress import rotated_map
 
     res = 8
