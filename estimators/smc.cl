@@ -9,7 +9,9 @@
  * moves, the re-init test, Eq. 7), smc_list_reinit (the list of the pixels it flagged) and
  * smc_init, the BIS (re-)initialisation of the listed pixels (all of them on a first frame), in
  * lockstep groups over their list; before them, map_alias_pairs and map_alias_columns build the
- * map proposal's alias tables of the frame (sir.cl).  ENV_RES, the map's face size, is a
+ * map proposal's alias tables of the frame (sir.cl), and map_change compares the frame's map
+ * distribution with last frame's (smc.py step 5).  Last frame's texels (radiance and map
+ * probability) are kept: they are γ_{t−1}'s map.  ENV_RES, the map's face size, is a
  * compile-time constant (smc.py defines it).
  * smc_advance still runs one work item per pixel without LOCKSTEP (its loops exit early per
  * pixel), so PoCL does not vectorise it. */
@@ -185,6 +187,22 @@ __kernel void map_alias_columns(__global const float4 *env, __global const cdf_w
                       pair_probability[pair] * (float)(res * res) / 4.0f);
 }
 
+/* One work item (on a changed frame that carries state): map_power[2] = 1 + χ²(P_t ‖ P_{t−1}) =
+ * Σ_x P_t(x)²/P_{t−1}(x) over the texels' map probabilities P (their .w is P·R²/4), this frame's
+ * against last frame's: +∞ where a texel black last frame is lit now (smc.py step 5).  A serial
+ * sum over the 6R² texels. */
+__kernel void map_change(__global const float4 *texels, __global const float4 *prev_texels,
+                         __global float *map_power)
+{
+    const int n = 6 * ENV_RES * ENV_RES;
+    acc_t sum = 0;
+    for (int i = 0; i < n; ++i) {
+        acc_t now = texels[i].w, before = prev_texels[i].w;
+        if (now > 0) sum += before > 0 ? now * now / before : (acc_t)INFINITY;
+    }
+    map_power[2] = (float)(sum * (acc_t)(4.0f / (float)(ENV_RES * ENV_RES)));
+}
+
 /* Debug twin for the tests: map draw i of the tables (map_sample on pixel i's words of
  * STREAM_SMC_MAP_POINT) as the texel that holds its direction. */
 __kernel void map_draws(__global const ulong *alias, const uint seed, __global int *texel)
@@ -200,13 +218,14 @@ __kernel void map_draws(__global const ulong *alias, const uint seed, __global i
  * smc_init finishes it.  Every other pixel's outputs are final. */
 __kernel void smc_advance(__global const float4 *normal, __global const float4 *view,
                           __global const float4 *kd, __global const float4 *ks_m,
-                          __global const float4 *env, __global const float4 *prev_env,
+                          __global const float4 *env, __global const float4 *prev_texels,
                           __global const ulong *alias, __global const float4 *texels,
                           __global const float *map_power, const int count, const int N,
                           const int steps, const float nu, const float cos_delta,
-                          const float threshold, const int static_frame, const uint seed,
-                          const uint frame, __global float *all_particles, __global float *all_gammas,
-                          __global float *all_scratch_p, __global float *all_scratch_g,
+                          const float threshold, const float map_ess, const int static_frame,
+                          const uint seed, const uint frame, __global float *all_particles,
+                          __global float *all_gammas, __global float *all_scratch_p,
+                          __global float *all_scratch_g,
                           __global float4 *state, __global float4 *carried_estimate,
                           __global float4 *radiance, __global float2 *counts, __global float4 *stats,
                           __global int *reinit_flag)
@@ -223,12 +242,14 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
 
     float4 carried = state[p];
     float z_prev = carried.x, z = z_prev, z_count = carried.y;
-    /* The map-level test (smc.py step 5): the map's power left [1/threshold, threshold]× last
-     * frame's, or turned on or off. */
+    /* The map-level tests (smc.py step 5): the map's power left [1/threshold, threshold]× last
+     * frame's, or turned on or off; or its distribution changed so much that particles drawn
+     * from last frame's would keep an ESS N/(1 + χ²) under map_ess·N (NaN too; map_ess = 0: off). */
     float power = map_power[0], previous = map_power[1];
     int map_jumped = power > 0.0f && previous > 0.0f
         ? !(power / previous <= threshold && power / previous >= 1.0f / threshold) : power != previous;
-    int reinit = map_jumped || !(z_prev > 0.0f && isfinite(z_prev));
+    int map_moved = !static_frame && map_ess > 0.0f && !(map_ess * map_power[2] <= 1.0f);
+    int reinit = map_jumped || map_moved || !(z_prev > 0.0f && isfinite(z_prev));
     float evaluations = 0.0f, ess_min = -1.0f, resampled = 0.0f;
     /* A static frame's independent MH proposals, n_map from the map and n_brdf from the BRDF
      * (fixed by the schedule), give a fresh estimate of Z_t, Σ γ_t(ω)/(n_map p_map(ω) +
@@ -314,7 +335,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
                 float g0_new = static_frame ? g1_new : 0.0f;
                 evaluations += 1.0f;
                 if (alpha < 1.0f) {
-                    g0_new = sir_target(&s, prev_env, res, w_new, power_new, &L_prev);
+                    g0_new = sir_target(&s, prev_texels, res, w_new, power_new, &L_prev);
                     evaluations += 1.0f;
                 }
                 if (static_frame && kind != 0 && g1_new > 0.0f) {

@@ -39,11 +39,30 @@ Per pixel, N weighted particles {ω_i, W_i} (W normalised) approximate the targe
    jumped), or a reweighting sum is 0/non-finite (every particle lost its target, e.g. the
    light went out), or a weighted particle has γ_{t−1} = 0 (guard), or Z_{t−1} = 0 (the pixel
    saw black last frame), the pixel is re-initialised by BIS on frame t (step 1).
-   Added to Kronander's per-pixel rule: when the map's total luminance power Σ_f I_f jumps by
-   more than the same threshold between frames, every pixel is re-initialised (tested on the
-   device).  A small light
-   switching on changes Z by less than ×4 (or not at all) at pixels none of whose particles
-   sees it, and Eq. 5 alone never notices it there; the map-level test catches the switch.
+   Added to Kronander's per-pixel rule (§6.3, which monitors Z_t/Z_{t−1} only), two map-level
+   tests, on the device; either re-initialises every pixel:
+   - *power*: the map's total luminance power Σ_f I_f jumps by more than the same threshold
+     between frames.  A small light switching on changes Z by less than ×4 (or not at all) at
+     pixels none of whose particles sees it, and Eq. 5 alone never notices it there.
+   - *shape*: the map's light distribution P (texel probabilities ∝ Y·Ω, DESIGN §3) changed so
+     much that 1 + χ²(P_t ‖ P_{t−1}) = Σ_x P_t(x)²/P_{t−1}(x) > 1/``reinit_map_ess`` (+∞ where a
+     black texel lit up).  Why: §6.3 assumes γ_t ≈ γ_{t−1}.  Light that moves to where γ_{t−1}
+     was dim reaches Eq. 8 only through rare, huge weights, so Z_t mostly misses it, while
+     neither the power nor Z_t/Z_{t−1} need leave ×4, and Z_t, a product over frames, keeps
+     that error.  On ``park-turn`` (the photograph's sun moves half a 32² texel a frame at
+     constant power) the median pixel's Z_t fell to 0.82 of the exact one on frame 1 and to 0.77
+     by frame 4: ΔE76 0.44 on frame 0, 9.8-11.3 on frames 1-5 at 64 spp (2 seeds), with 0-25 of
+     1304 pixels re-initialised a frame.  Threshold: particles drawn from P_{t−1} and weighted to P_t keep
+     Kong's effective sample size N/(1 + χ²); the default 2/3 is §6.1's resampling threshold,
+     below which Kronander calls the weights degenerate (resampling then repairs the weights,
+     but not Z_t: §6.3).  χ² measured between consecutive frames: rotating-sun (a soft sun, 1°
+     a frame) ≤ 0.008, where the sampler carries its particles; ``park-turn`` 0.8-59;
+     moving-lights 1.3e3-1.5e3; day (64² faces) ≤ 0.012 at night, 0.27 and 0.52 at sunrise and
+     sunset, 25-6.4e3 while the sun is up (a 0.5° disc moving 4° a frame).  Where it fires a frame costs an init, M + N evaluations (21N with the
+     defaults) against 9N, yet a third of a continuing frame's device time on PoCL
+     (``park-turn`` at 64 spp: smc_advance's serial MH moves are slower than the vectorised
+     BIS).  The test is on the map, not on a pixel's γ: a pixel that cannot see the change is
+     re-initialised too.  ``reinit_map_ess = 0`` turns it off (Kronander's rule alone).
 6. **Estimate** (Eq. 7) on a frame whose map changed: L̂ = Z_t Σ_i W_i f(ω_i)/γ_t(ω_i).
    Deviation, on a **static frame** (the map equals the previous frame's): Eq. 5 and 8 have
    nothing to do (every increment is 1), and Kronander's sampler would keep Z_t, hence its
@@ -78,11 +97,13 @@ once: each work item runs its candidates in explicit vectors of 16 lanes, and it
 are vectorised by PoCL across pixels (``sir.cl``, ``lanes.cl``).  Before them,
 ``map_alias_pairs`` and ``map_alias_columns`` build the map proposal's alias tables and the map's
 texels with their density (``sir.cl``) from the frame cache's CDFs and face integrals, and the
-map's power Σ_f max(I_f, 0) beside last frame's, which ``smc_advance`` tests (step 5): nothing of
-the frame is read back before the outputs.  The frame's ``sample`` time is the tables' build, its
-``shade`` time the other kernels' device time and the copy of the map kept for γ_{t−1}.  Device
-buffers (particles, BIS scratch, tables, outputs) are kept across frames and :meth:`reset`, so a
-frame allocates and first-touches none.
+map's power Σ_f max(I_f, 0) beside last frame's; on a changed frame that carries state,
+``map_change`` adds 1 + χ² of the texels' densities against last frame's.  ``smc_advance``
+tests both (step 5): nothing of the frame is read back before the outputs.  The texels
+alternate between two buffers, so last frame's are γ_{t−1}'s map (no copy).  The frame's
+``sample`` time is the tables' build and ``map_change``, its ``shade`` time the other kernels'
+device time.  Device buffers (particles, BIS scratch, tables, outputs) are kept across frames
+and :meth:`reset`, so a frame allocates and first-touches none.
 
 Not unbiased (``Tags.unbiased = False``).  An init frame is unbiased, and so is a static
 stretch after it; a continuing frame on a changing map
@@ -95,7 +116,8 @@ The conformance suite therefore skips the z-test and runs the temporal checks.
 Defaults: ν = 0.5 (Ghosh's mixture; local moves refine narrow lobes, independent moves escape
 them), δ = 3°, 3 intermediate distributions (Kronander), re-init threshold 4 (a ×4 or ÷4 jump of
 Z in one frame is far beyond the frame-to-frame change of a smooth sequence but well inside a
-light switching), ``init_candidates`` = 20 (Kronander's BIS M/N = 400/20).
+light switching), ``reinit_map_ess`` = 2/3 (step 5), ``init_candidates`` = 20 (Kronander's
+BIS M/N = 400/20).
 """
 from __future__ import annotations
 
@@ -117,6 +139,8 @@ class SMCParams:
     ``local_degrees``: half-angle of the local move's cone; ``intermediates``: tempered
     distributions between frames (one MH move each, plus one at γ_t); ``reinit_threshold``:
     re-initialise by BIS when Z_t/Z_{t−1} leaves [1/threshold, threshold];
+    ``reinit_map_ess``: re-initialise every pixel when the map's change would leave particles drawn
+    from last frame's map an effective sample size under this share of N (0: never);
     ``init_candidates``: BIS candidates per particle at (re-)init; ``init_env_pick``: the share
     of (re-)init candidates drawn from the map instead of the BRDF (0: Burke's BRDF-only
     candidates, as Kronander; default 0.5, as the MH independent moves: an init that misses a
@@ -127,6 +151,7 @@ class SMCParams:
     local_degrees: float = 3.0
     intermediates: int = 3
     reinit_threshold: float = 4.0
+    reinit_map_ess: float = 2.0 / 3.0
     init_candidates: int = 20
     init_env_pick: float = 0.5
 
@@ -145,6 +170,7 @@ class SMC(Estimator):
         p = self.params
         if p.N < 0 or not 0.0 <= p.nu <= 1.0 or not 0.0 < p.local_degrees <= 180.0 \
                 or p.intermediates < 0 or not p.reinit_threshold > 1.0 or p.init_candidates < 1 \
+                or not 0.0 <= p.reinit_map_ess <= 1.0 \
                 or not 0.0 <= p.init_env_pick <= 1.0:
             raise ValueError(f"invalid smc parameters {p}")
         self._spare = {}
@@ -162,8 +188,8 @@ class SMC(Estimator):
     def reset(self) -> None:
         self._key = None
         self._buffers = None
-        self._prev_env = None
         self._prev_host_env = None
+        self._texel_parity = 0
 
     def defines(self, gbuffer=None) -> dict:
         return specular_lobe_defines(gbuffer)
@@ -188,34 +214,41 @@ class SMC(Estimator):
             self._buffers = [buffer("particles", count * N * 16), buffer("gammas", count * N * 8),
                              buffer("scratch_p", count * N * 16), buffer("scratch_g", count * N * 8),
                              buffer("state", count * 16), buffer("carried_estimate", count * 16)]
-            self._prev_env = buffer("prev_env", 6 * cache.res * cache.res * 16)
             self._key = key
         particles, gammas, scratch_p, scratch_g, state, carried_estimate = self._buffers
         radiance = buffer("radiance", count * 16)
         counts = buffer("counts", count * 8)
         stats = buffer("stats", count * 16)
         defines = {**self.defines(gbuffer), "ENV_RES": cache.res}
-        # The map proposal's alias tables (sir.cl) and the map's power, built on the device.
+        # The map proposal's alias tables (sir.cl), the map's power and its change, built on the
+        # device.  The texels alternate between two buffers: last frame's are γ_{t−1}'s map.
         res = cache.res
         alias = buffer("alias", (6 * res + 6 * res * res) * 8)
-        texels = buffer("texels", 6 * res * res * 16)
-        pair_probability, map_power = buffer("pair_probability", 6 * res * 4), buffer("map_power", 8)
+        parity, self._texel_parity = self._texel_parity, 1 - self._texel_parity
+        texels = buffer(f"texels{parity}", 6 * res * res * 16)
+        prev_texels = buffer(f"texels{1 - parity}", 6 * res * res * 16)
+        pair_probability, map_power = buffer("pair_probability", 6 * res * 4), buffer("map_power", 12)
         table_events = [
             compute.run(compute.kernel(self.kernel_package(), "smc.cl", "map_alias_pairs", defines), 1,
                         cache.marginal, cache.face_integral_buffer, alias, pair_probability, map_power),
             compute.run(compute.kernel(self.kernel_package(), "smc.cl", "map_alias_columns", defines),
                         6 * res, cache.env_buffer, cache.conditional, pair_probability, alias, texels)]
+        if have_state and not static_frame:
+            table_events.append(compute.run(
+                compute.kernel(self.kernel_package(), "smc.cl", "map_change", defines), 1,
+                texels, prev_texels, map_power))
         events = []
         if have_state:
             flags = buffer("flags", count * 4)
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_advance", defines), count,
                 gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer,
-                self._prev_env, alias, texels, map_power, np.int32(count), np.int32(N),
+                prev_texels, alias, texels, map_power, np.int32(count), np.int32(N),
                 np.int32(p.intermediates + 1), np.float32(p.nu),
                 np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
-                np.int32(static_frame), np.uint32(seed), np.uint32(cache.frame), particles, gammas,
-                scratch_p, scratch_g, state, carried_estimate, radiance, counts, stats, flags))
+                np.float32(p.reinit_map_ess), np.int32(static_frame), np.uint32(seed),
+                np.uint32(cache.frame), particles, gammas, scratch_p, scratch_g, state,
+                carried_estimate, radiance, counts, stats, flags))
             listed, listed_total = buffer("listed", count * 4), buffer("listed_total", 4)
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_list_reinit", defines), 1,
@@ -233,9 +266,6 @@ class SMC(Estimator):
                 np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), listed, listed_total,
                 np.int32(offset), *scratch, particles, gammas, state, carried_estimate, radiance,
                 counts, stats))
-        copy = cl.enqueue_copy(compute.queue, self._prev_env, cache.env_buffer)
-        copy.wait()
-        events.append(copy)
         st = compute.to_host(stats, (gbuffer.count, 4), np.float32)
         carried = st[:, 0] >= 0
         estimate = read_estimate(compute, gbuffer, radiance, counts, float(st[:, 2].mean()),

@@ -38,10 +38,9 @@ BUILD_KERNELS = {"cdf": {"row_cdfs", "weight_cdfs"}}
 POOL_KERNEL = "build_light_pool"      # counted per use of its pool (module docstring)
 STAGE_OF_KERNEL = {
     "pool_planes": "sample", "brdf_numbers": "sample", "map_alias_pairs": "sample",
-    "map_alias_columns": "sample",
+    "map_alias_columns": "sample", "map_change": "sample",
     "render_light_pool": "shade", "render_bis": "shade", "smc_advance": "shade",
     "smc_init": "shade",
-    "copy:device-to-device": "shade",     # smc keeps the frame's map for the next frame
 }
 NOT_A_STAGE = {"copy:device-to-host", "copy:host-to-device"}
 
