@@ -25,7 +25,10 @@ Per frame t with target γ_t(ω) = L_Y,t(ω) ρ_Y(ω) cos⁺(n, ω) (Eq. 3):
   - resample (systematic) when ESS = 1/Σ W² < 2N/3 (§6.1);
   - one MH move per particle with a π_k-invariant kernel (Eq. 6, corrected below).
   Then the re-init test (Z_t/Z_{t−1} outside [1/4, 4]: re-init by BIS, smc's two-sided form of
-  Kronander's rule) and Eq. 7, L̂ = Z_t Σ W_i f(ω_i)/γ_t(ω_i).
+  Kronander's rule) and Eq. 7, L̂ = Z_t Σ W_i f(ω_i)/γ_t(ω_i).  Not modelled: smc's map-level
+  tests (a jump of the map's power, and its shape test 1 + χ² of the texel densities above
+  1/reinit_map_ess), which re-initialise every pixel; the twin's sequences stay below both
+  (rotating-sun: 1 + χ² ≤ 1.008 against 1.5).
 * a static frame (the map equals the previous one), smc's documented deviation: S MH moves at
   γ_t, no reweighting; the n_map + n_brdf independent proposals give fresh balance-heuristic
   estimates Σ γ/(n_map p_map + n_brdf p_B) of Z and Σ f/(…) of the integral, averaged with the
