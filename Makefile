@@ -44,8 +44,13 @@ budgets: $(STAMP)
 	$(VENV)/bin/iblbench budgets $(BUDGETS_OUT) --margin 0.05 --se-multiple 3 \
 		--output budgets.toml --why "$(WHY)"
 
+# test: two pytest workers (pytest-xdist), each taking whole test files, so module fixtures and
+# the fuzz summary stay in one process; the files marked slow go first (tests/conftest.py), so
+# that the mutation catalogue runs beside the rest instead of at the end.  TEST_WORKERS=0 runs
+# them all in this process.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -27,11 +27,13 @@ test suite expects it to survive until then (``xfail``, not strict).
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import dataclasses
 import importlib
 import json
 import os
 import pathlib
+import queue
 import shutil
 import subprocess
 import sys
@@ -281,14 +283,25 @@ def copy_sources(folder: pathlib.Path) -> pathlib.Path:
 
 
 def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout: float = 600.0,
-               cache: pathlib.Path | None = None) -> Outcome:
+               cache: pathlib.Path | None = None, workspace: pathlib.Path | None = None) -> Outcome:
     """Apply ``mutant`` to a temporary copy and run ``layers`` on it in a fresh interpreter.
 
     ``cache``: the reference cache it uses (default: its own, fresh).  Mutants may share one:
     a reference's key hashes its kernel, its host code and its inputs, so a mutant of those
-    never reads a clean entry (and the cache-key mutant only mixes up its own entries)."""
+    never reads a clean entry (and the cache-key mutant only mixes up its own entries).
+
+    ``workspace``: the folder the copy goes into, emptied first (default: a fresh temporary
+    one).  PoCL keys its kernel cache by the preprocessed source, whose line markers name each
+    file's path, so mutants that run one after another in one workspace rebuild only the
+    programs that their bug changes instead of every kernel they use."""
     start = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix=f"iblbench-mutant-{mutant.name}-") as tmp:
+    with contextlib.ExitStack() as stack:
+        if workspace is None:
+            tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix=f"iblbench-mutant-{mutant.name}-"))
+        else:
+            shutil.rmtree(workspace, ignore_errors=True)
+            workspace.mkdir(parents=True)
+            tmp = str(workspace)
         root = copy_sources(pathlib.Path(tmp))
         mutant.apply(root)
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
@@ -311,11 +324,23 @@ def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout:
 def run_catalogue(mutants, layers=LAYERS, all_layers: bool = False, jobs: int = 2,
                   progress=None) -> list[Outcome]:
     """:func:`run_mutant` over ``mutants``, ``jobs`` at a time (kernel builds and imports are
-    single-threaded; two overlap well on two cores); ``progress(outcome)`` after each."""
+    single-threaded; two overlap well on two cores); ``progress(outcome)`` after each.  Each of
+    the ``jobs`` workers keeps one workspace, so the kernel cache serves its unmutated programs."""
     with tempfile.TemporaryDirectory(prefix="iblbench-mutants-cache-") as cache, \
             concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        futures = [pool.submit(run_mutant, m, layers, all_layers, cache=pathlib.Path(cache))
-                   for m in mutants]
+        workspaces = queue.SimpleQueue()
+        for slot in range(max(1, jobs)):
+            workspaces.put(pathlib.Path(cache) / f"workspace-{slot}")
+
+        def run_in_a_free_workspace(mutant):
+            workspace = workspaces.get()
+            try:
+                return run_mutant(mutant, layers, all_layers, cache=pathlib.Path(cache) / "references",
+                                  workspace=workspace)
+            finally:
+                workspaces.put(workspace)
+
+        futures = [pool.submit(run_in_a_free_workspace, m) for m in mutants]
         outcomes = []
         for future in futures:
             outcomes.append(future.result())

@@ -4,6 +4,13 @@ import pytest
 from iblbench.harness.device import get_compute
 
 
+def pytest_collection_modifyitems(items):
+    """Slow modules first: under ``pytest -n 2 --dist loadfile`` (``make test``) the mutation
+    catalogue then runs beside the rest instead of alone at the end.  The sort is stable, so
+    the order within a module is kept."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def private_cache(tmp_path_factory):
     """Keep the tests' cached references and device measurements out of the user's cache."""

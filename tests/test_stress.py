@@ -13,6 +13,7 @@ from iblbench.harness.framecache import FrameCache
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 
+pytestmark = pytest.mark.slow   # about 2 minutes: conftest schedules it first
 BUILTINS = {name: registry.make_estimator(name) for name in registry.estimator_names()}
 
 
