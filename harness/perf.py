@@ -396,6 +396,11 @@ class TimingFloor:
                 f"(p90/p10 {self.p90_over_p10:.2f})")
 
 
+def timing_floor_text(floors: list[TimingFloor]) -> str:
+    """The floor measured at a run's start and end, as the terminal and perf.html say it."""
+    return " at the start, ".join(f.text() for f in floors) + " at the end"
+
+
 @functools.lru_cache(maxsize=None)
 def _floor_iterations(compute) -> int:
     """The floor kernel's size on ``compute``, found once per process (a run measures twice)."""
@@ -779,13 +784,13 @@ def run_command(config: PerfConfig) -> list[pathlib.Path]:
         table, roofline = run_perf(config)
         floors.append(measure_timing_floor(get_compute(config.device)))
     seconds = time.perf_counter() - start
-    timing_floor = " at the start, ".join(f.text() for f in floors) + " at the end"
+    timing_floor = timing_floor_text(floors)
     prepare_out(out)
     paths = write_outputs(out, table, roofline, {"device": table.device.iloc[0],
                                                  "command": command_line(config),
                                                  "seconds": f"{seconds:.0f}",
                                                  "timing_floor": timing_floor,
-                                                 "floor_ms": f"{floors[0].median_ms:.2g}"})
+                                                 "timing_floor_ms": f"{floors[0].median_ms:.2g}"})
     print(format_table(table))
     print(f"timing floor (a fixed kernel launched back to back): {timing_floor}")
     print(f"wrote {', '.join(map(str, paths))}")

@@ -110,7 +110,7 @@ from iblbench.harness.device import cache_dir, get_compute
 from iblbench.harness.device_gbuffer import DeviceGBuffer
 from iblbench.harness.framecache import PRODUCTS, FrameCache
 from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
-from iblbench.harness.perf import measure_timing_floor
+from iblbench.harness.perf import measure_timing_floor, timing_floor_text
 from iblbench.harness.reference import Reference
 from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
                                       configuration_differences, image_configuration, image_stem,
@@ -585,10 +585,10 @@ class Runner:
         if counts["extended_cells"] or counts["wide_cells"]:
             print(f"iblbench: timing: {counts['extended_cells']} of {counts['cells']} cells got "
                   f"more timed renders (IQR/median above {SPREAD_LIMIT:.0%}, up to {EXTENSION}x "
-                  f"the repeats); {counts['wide_cells']} stayed above it; the device's own "
-                  "floor, a fixed kernel launched back to back: "
-                  + " at the start, ".join(f.text() for f in floors) + " at the end",
-                  file=sys.stderr)
+                  f"the repeats); {counts['wide_cells']} stayed above it", file=sys.stderr)
+        if floors:
+            print("iblbench: timing: how repeatable the device itself was, a fixed kernel "
+                  f"launched back to back: {timing_floor_text(floors)}", file=sys.stderr)
 
     def _check_budgets(self, table) -> list[dict]:
         """Each equal-time cell's time against its budget; prints those outside ±TOLERANCE."""

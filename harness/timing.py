@@ -89,18 +89,21 @@ to back in one process with no host work between them are bimodal (balanced, 256
 2.9 and 4.1 ms in runs of ~8 renders), and 57-80% of a warm default run's 54 cells have
 IQR/median ≤ 15% (5 runs; an ``os.sync()`` before each group changed nothing: 63% against 65%).
 
-**The device's own floor.**  How repeatable a cell's renders can be is bounded by how
-repeatable the device is.  So a run measures that floor at its start and end
+**The device's own floor.**  How repeatable a cell's renders can be depends on how repeatable
+the device is.  So a run measures the device at its start and end
 (:func:`iblbench.harness.perf.measure_timing_floor`; the manifest's ``timing.floor``, printed
-with the spread): a fixed kernel of multiply-adds (no memory traffic, even work in many groups)
-of about a render's length, launched back to back, and the share of its groups of 5 launches
-with IQR/median ≤ 15% (:func:`groups_within`).  A cell cannot be expected to beat it.  On this
-2-vCPU VM (Firecracker, idle guest, 2026-12-02) it moved between 12% and 100% from one minute
-to the next (p90/p10 1.03-2.4), while warm default runs kept 75-87% of their cells' first 5
-renders within 15%.  The cause is the machine, not PoCL: two host threads of fixed NumPy work, started and joined per
-repeat, gave 51-75% of groups within 15% (p90/p10 1.6-2.0), one thread doing the same 97-100%.
-Pinning PoCL's threads (``POCL_AFFINITY=1``) moved a warm default run within the same range
-(75-87% against 80-83%), as did 20 ms of multiply-adds on both cores before each cell.
+at the end of the run): a fixed kernel of multiply-adds (no memory traffic, even work in many
+groups) of about a render's length, launched back to back, and the share of its groups of 5
+launches with IQR/median ≤ 15% (:func:`groups_within`).  It is a snapshot of a fraction of a
+second at either end, so it tells a steady device from a disturbed one rather than bounding
+each cell.  On this 2-vCPU VM (Firecracker, idle guest, 2026-12-02) it moved between 0% and
+100% from one minute to the next (p90/p10 1.02-2.5), while warm default runs kept 75-87% of
+their cells' first 5 renders within 15%.  The cause is the machine, not PoCL: two host threads
+of fixed NumPy work, started and joined per repeat, gave 51-75% of groups within 15% (p90/p10
+1.6-2.0); one thread doing the same gave 97-100%, pinned to either vCPU 100% (p90/p10
+1.13-1.16).  Pinning PoCL's threads (``POCL_AFFINITY=1``) moved a warm default run within the
+same range (75-87% against 80-83%), as did 20 ms of multiply-adds on both cores before each
+cell.
 
 **Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
 time is aggregated as every other figure is (:func:`iblbench.harness.stats.cell_intervals`):
