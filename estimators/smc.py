@@ -39,8 +39,9 @@ Per pixel, N weighted particles {ω_i, W_i} (W normalised) approximate the targe
    jumped), or a reweighting sum is 0/non-finite (every particle lost its target, e.g. the
    light went out), or a weighted particle has γ_{t−1} = 0 (guard), or Z_{t−1} = 0 (the pixel
    saw black last frame), the pixel is re-initialised by BIS on frame t (step 1).
-   Added to Kronander's per-pixel rule (§6.3, which monitors Z_t/Z_{t−1} only), two map-level
-   tests, on the device; either re-initialises every pixel:
+   Deviation: Kronander §6.3 re-initialises on a large increase of Z_t/Z_{t−1}; here a fall
+   past 1/``reinit_threshold`` counts too (a light that dims leaves the particles on it), and
+   two map-level tests are added, on the device; either re-initialises every pixel:
    - *power*: the map's total luminance power Σ_f I_f jumps by more than the same threshold
      between frames.  A small light switching on changes Z by less than ×4 (or not at all) at
      pixels none of whose particles sees it, and Eq. 5 alone never notices it there.
@@ -63,6 +64,10 @@ Per pixel, N weighted particles {ω_i, W_i} (W normalised) approximate the targe
      (``park-turn`` at 64 spp: smc_advance's serial MH moves are slower than the vectorised
      BIS).  The test is on the map, not on a pixel's γ: a pixel that cannot see the change is
      re-initialised too.  ``reinit_map_ess = 0`` turns it off (Kronander's rule alone).
+     Consequence: on ``park-turn``, ``torus-moving`` and the daytime frames of ``day`` the test
+     fires on every changed frame, so there smc re-initialises every pixel every frame and its
+     figures are those of its BIS init (½ map + ½ BRDF candidates, step 1), not of particles
+     carried by SMC; it carries them where the map changes smoothly (rotating-sun).
 6. **Estimate** (Eq. 7) on a frame whose map changed: L̂ = Z_t Σ_i W_i f(ω_i)/γ_t(ω_i).
    Deviation, on a **static frame** (the map equals the previous frame's): Eq. 5 and 8 have
    nothing to do (every increment is 1), and Kronander's sampler would keep Z_t, hence its
