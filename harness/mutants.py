@@ -299,7 +299,8 @@ def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout:
         if workspace is None:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix=f"iblbench-mutant-{mutant.name}-"))
         else:
-            shutil.rmtree(workspace, ignore_errors=True)
+            if workspace.exists():   # last mutant's copy: a failure to remove it must show
+                shutil.rmtree(workspace)
             workspace.mkdir(parents=True)
             tmp = str(workspace)
         root = copy_sources(pathlib.Path(tmp))
