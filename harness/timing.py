@@ -187,18 +187,20 @@ def groups_within(values, size: int = 5) -> float:
     """The share of consecutive groups of ``size`` timings (a trailing part left out) whose
     IQR/median is within ``SPREAD_LIMIT``: how often ``size`` repeats in a row would pass it.
     NaN for fewer than ``size`` values."""
-    values = np.asarray(values, np.float64)
-    groups = values[:len(values) // size * size].reshape(-1, size)
-    if not len(groups):
-        return math.nan
-    q25, median, q75 = np.percentile(groups, [25, 50, 75], axis=1)
-    return float(np.mean(q75 - q25 <= SPREAD_LIMIT * median))
+    values = list(values)
+    groups = [values[i:i + size] for i in range(0, len(values) - size + 1, size)]
+    return float(np.mean([not _spread_too_wide(g) for g in groups])) if groups else math.nan
+
+
+def _spread_too_wide(values) -> bool:
+    """Whether timings spread wider than ``SPREAD_LIMIT``: IQR/median (:func:`spread`)."""
+    median, _, iqr = spread(values)
+    return iqr > SPREAD_LIMIT * median
 
 
 def too_wide(renders: list[TimedRender]) -> bool:
     """Whether the device times of ``renders`` spread wider than ``SPREAD_LIMIT``: IQR/median."""
-    median, _, iqr = spread(device_ms(r.stages) for r in renders)
-    return iqr > SPREAD_LIMIT * median
+    return _spread_too_wide(device_ms(r.stages) for r in renders)
 
 
 def device_ms(stages: dict[str, float]) -> float:
