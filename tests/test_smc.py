@@ -324,7 +324,7 @@ def test_smc_follows_a_turning_sun_at_the_error_of_an_init(compute):
     sun's old texel, where Eq. 8 sees little of the light that moved (the power test does not
     fire): 6.4, 8.0 and 9.1× the init's error on frames 1-3 at 469548a.  The ratio is of RMS
     relative errors of the luminance over 64 pixels × 6 seeds.  Here the sun's step is far over
-    the map test's bound (1 + χ² = 2.1e3 against 1.5), so every pixel is re-initialised on every
+    the map test's bound (χ² 8e3-1e4 at R = 16, against 1 + χ² ≤ 1.5), so every pixel is re-initialised on every
     later frame (checked) and repeats the init's candidates exactly: the test guards that a
     turning sun is caught, not how carried particles follow one (tests of carried frames:
     rotating-sun in the stress battery and the twin's tracking test)."""
