@@ -514,15 +514,17 @@ def _stress_description() -> str:
 
 def _list(args) -> None:
     if args.what == "devices":
-        from iblbench.harness.device import all_devices, choose_device, measured_gflops
+        from iblbench.harness.device import (all_devices, build_failure, choose_device,
+                                             measured_gflops)
 
         chosen = choose_device(args.device)
         for info in all_devices():
             mark = "*" if info.key == chosen.key else " "
-            kind = "GPU" if info.is_gpu else "CPU"
-            speed = "" if info.is_gpu else f"  {measured_gflops(info):.1f} GFLOP/s"
-            print(f"{mark} [{kind}] {info.label}{speed}")
-        print("(* = chosen; override with --device or IBLBENCH_DEVICE)")
+            failure = build_failure(info)
+            note = (f"  cannot build a kernel: {failure}" if failure
+                    else "" if info.is_gpu else f"  {measured_gflops(info):.1f} GFLOP/s")
+            print(f"{mark} [{info.kind}] {info.label}{note}")
+        print("(* = chosen; override with --device or IBLBENCH_DEVICE; a simulator only by name)")
     elif args.what == "estimators":
         from iblbench.estimators.registry import estimator_docstrings
 

@@ -1,9 +1,14 @@
 """OpenCL device selection and the per-context program cache.
 
-Preference (DESIGN §7): a GPU first, then the fastest CPU platform.  Two CPU platforms are common
+Preference (DESIGN §7): a GPU first, then the fastest CPU platform, among the devices that can
+build a kernel, and never a simulator unless asked for by name.  Two CPU platforms are common
 here — Debian's PoCL (LLVM host-CPU target) and the pip ``pocl-binary-distribution`` (generic
 target) — and both report the same platform name, so CPU platforms are ranked by a short
-measured FLOP rate, cached on disk per (platform version, device, driver).
+measured FLOP rate, cached on disk per (platform version, device, driver).  A driver whose
+compiler fails on this machine (the pip PoCL 3.0's LLVM 14 names CPUs newer than it "generic",
+which it then cannot target) is passed over with its reason.  Oclgrind, the specification's
+simulator, registers as a GPU but runs kernels thousands of times slower: it serves the
+portability test and ``iblbench doctor``.
 ``IBLBENCH_DEVICE`` or ``--device`` picks by a case-insensitive substring of
 "platform name / platform version / device name".
 """
@@ -16,6 +21,7 @@ import json
 import os
 import pathlib
 import time
+import warnings
 
 import numpy as np
 import pyopencl as cl
@@ -24,6 +30,7 @@ from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
 ENV_DEVICE = "IBLBENCH_DEVICE"
+SIMULATORS = ("oclgrind",)   # platform or device names of simulators, lower case
 
 
 def cache_dir() -> pathlib.Path:
@@ -61,6 +68,14 @@ class DeviceInfo:
     @property
     def has_fp64(self) -> bool:
         return "cl_khr_fp64" in self.device.extensions
+
+    @property
+    def is_simulator(self) -> bool:
+        return any(name in self.label.lower() for name in SIMULATORS)
+
+    @property
+    def kind(self) -> str:
+        return "simulator" if self.is_simulator else "GPU" if self.is_gpu else "CPU"
 
 
 def all_devices() -> list[DeviceInfo]:
@@ -121,9 +136,27 @@ def measured_gflops(info: DeviceInfo) -> float:
     return float(table[info.key])
 
 
+_PROBE_KERNEL = "__kernel void probe(__global float *out) { out[get_global_id(0)] = 1.0f; }"
+
+
+@functools.lru_cache(maxsize=None)
+def build_failure(info: DeviceInfo) -> str | None:
+    """None if the device builds a trivial kernel, else the first line of its compiler's error."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", cl.CompilerWarning)
+            cl.Program(cl.Context([info.device]), _PROBE_KERNEL).build()
+    except cl.Error as error:
+        lines = [line.strip() for line in str(error).splitlines()]
+        reasons = [line for line in lines if line.startswith("error")] or [lines[0]]
+        return reasons[0]
+    return None
+
+
 def choose_device(spec: str | None = None) -> DeviceInfo:
     """The device to run on: among those matching ``spec`` (or ``IBLBENCH_DEVICE``) as a substring,
-    if given, a GPU, else the fastest CPU."""
+    if given, else among those that are not simulators, the devices that can build a kernel; of
+    them a GPU, else the fastest CPU."""
     devices = all_devices()
     if not devices:
         raise InputError(None, "no OpenCL platform found; install pocl-opencl-icd "
@@ -134,6 +167,14 @@ def choose_device(spec: str | None = None) -> DeviceInfo:
         if not devices:
             valid = "; ".join(d.label for d in all_devices())
             raise InputError(None, f"no OpenCL device matches '{spec}'; devices: {valid}")
+    else:
+        devices = [d for d in devices if not d.is_simulator] or devices
+    failures = {d.label: build_failure(d) for d in devices}
+    if all(failures.values()):
+        reasons = "; ".join(f"{label}: {reason}" for label, reason in failures.items())
+        raise InputError(None, f"no OpenCL device here can build a kernel ({reasons}); on Debian "
+                               "'apt-get install pocl-opencl-icd' gives a PoCL for this CPU")
+    devices = [d for d in devices if not failures[d.label]]
     gpus = [d for d in devices if d.is_gpu]
     if gpus:
         return gpus[0]
@@ -149,8 +190,12 @@ class Compute:
     directories (``estimators/kernels`` and pyopencl's Random123 headers) and ``-D`` options.
     """
 
-    def __init__(self, info: DeviceInfo):
+    def __init__(self, info: DeviceInfo, fp64: bool = True):
+        """``fp64=False`` builds the float path of the kernels that accumulate in double where the
+        device has it (the reference, the CDF scans), as on a device without cl_khr_fp64."""
         self.info = info
+        self.fp64 = fp64
+        self.build_logs: dict[str, str] = {}
         self.context = cl.Context([info.device])
         self.queue = cl.CommandQueue(
             self.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
@@ -168,9 +213,16 @@ class Compute:
             # The kernel's own folder first, so a plugin's .cl files can include their siblings.
             options = [f"-I{kernel_path(package, filename).parent}"] + [f"-I{d}" for d in include_dirs()]
             options += [f"-D{name}={value}" for name, value in sorted((defines or {}).items())]
-            if self.info.has_fp64:
+            if self.info.has_fp64 and self.fp64:
                 options.append("-DHAVE_FP64=1")
-            self._programs[key] = cl.Program(self.context, source).build(options=options)
+            # The compiler's warnings (PoCL prints hundreds for vector-typed helpers) are kept, not
+            # shown: `iblbench doctor --verbose` prints them.
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", cl.CompilerWarning)
+                program = cl.Program(self.context, source).build(options=options)
+            self._programs[key] = program
+            self.build_logs[f"{package}/{filename}"] = program.get_build_info(
+                self.info.device, cl.program_build_info.LOG).strip()
         return self._programs[key]
 
     def kernel(self, package: str, filename: str, name: str, defines: dict | None = None) -> cl.Kernel:

@@ -332,6 +332,7 @@ class Runner:
         self.plans = [self._plan_scene(scene) for scene in self.scenes]
         self.compute = get_compute(config.device)
         self.device_name = self.compute.device_name
+        print(f"iblbench: device: {self.compute.info.label}", file=sys.stderr)
         self.reference = Reference(self.compute)
         self.out = pathlib.Path(config.out)
         if self.out.exists() and not self.out.is_dir():
