@@ -29,6 +29,7 @@ examples:
   iblbench reproduce mis-compensation            Karlík et al. 2019's equal-time claim
   iblbench report runs/a                         runs/a/report/index.html (open it from disk)
   iblbench list devices                          OpenCL platforms/devices and which is chosen
+  iblbench doctor                                is every OpenCL device here right? (run it first)
   iblbench check runs/a --budgets budgets.toml   CI gate: exit 1 if any error budget fails
   iblbench budgets runs/q8 --margin 0.1          budgets.toml from a run of >= 8 seeds
   iblbench stress --out runs/stress              adversarial inputs; exit 1 if an estimator fails
@@ -319,6 +320,14 @@ def build_parser() -> argparse.ArgumentParser:
                              "(default: results/stress)")
     _add_json(stress)
     _add_perf(commands, device)
+    doctor = commands.add_parser(
+        "doctor", help="check every OpenCL device: build and run each kernel, compare results",
+        description=DOCTOR_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    doctor.add_argument("--device", metavar="SUBSTRING",
+                        help="only the devices whose 'platform / version / device' contains this "
+                             "(the default device still runs: it is the baseline)")
+    doctor.add_argument("--verbose", action="store_true",
+                        help="also print the compilers' output (warnings), which is silent otherwise")
     _add_compare(commands)
     _add_selftest(commands)
     return parser
@@ -366,6 +375,35 @@ single-threaded NumPy implementation of Lu 2013's shared-pool shading on the sam
 floor every kernel must beat; it must also agree with the uniform kernel on the same pool).
 Prints a table and writes perf.csv and perf.html into --out. The method and the counts are in
 harness/perf.py. Exit 0, or 2 on bad input."""
+
+
+DOCTOR_DESCRIPTION = """\
+For each OpenCL device found, build every kernel and run the portability set (the exact reference,
+the frame cache's CDFs, pool and mip pyramids, and every estimator, on 16 pixels and a 4x4 map with
+a sun; a temporal estimator on two frames), each part in its own process, and compare: the
+reference with its independent NumPy twin (within 1e-4), and every result with the default
+device's (integers bit for bit, floats within 1e-4 relative). On Oclgrind, the OpenCL
+specification's simulator, its memory, data-race and API checks are on and any report fails the
+device. Prints one line per device: OK, or which part is wrong and by how much. Exit 0 when every
+device is OK, 1 otherwise. A few seconds per device; about a minute on Oclgrind.
+
+A new GPU: run this first; then choose a device with --device or IBLBENCH_DEVICE."""
+
+
+def _doctor(args) -> int:
+    from iblbench.harness.doctor import diagnose
+
+    def progress(text: str) -> None:   # one status line on a terminal, nothing in a log
+        if sys.stderr.isatty():
+            print(f"\r\033[K{text}", end="", file=sys.stderr, flush=True)
+
+    reports = diagnose(args.device, args.verbose, progress)
+    progress("")
+    for report in reports:
+        if args.verbose and report.build_logs:
+            print(report.build_logs)
+        print(report.line())
+    return 0 if all(report.ok for report in reports) else 1
 
 
 def _add_perf(commands, device) -> None:
@@ -746,7 +784,7 @@ def main(argv=None) -> int:
         status = {"run": _run, "reproduce": _reproduce, "list": _list,
                   "check": _check, "budgets": _budgets, "report": _report, "stress": _stress,
                   "perf": _perf, "compare": _compare,
-                  "selftest": _selftest}[args.command](args)
+                  "selftest": _selftest, "doctor": _doctor}[args.command](args)
     except (InputError, OSError) as error:
         if _disk_full(error):
             where = (getattr(error, "source", None) or getattr(error, "filename", None)

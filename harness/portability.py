@@ -136,6 +136,7 @@ class Outcome:
     arrays: dict[str, np.ndarray] | None
     reports: list[str]
     error: str = ""
+    build_logs: str = ""
 
 
 # pyopencl's own queries: under OCLGRIND_CHECK_API, each Program.build and each kernel it creates
@@ -162,9 +163,10 @@ def oclgrind_reports(stderr: str) -> list[str]:
 
 
 def run_case(device: str, case: str, checks: dict[str, str] | None = None,
-             timeout: float = 600.0) -> Outcome:
+             timeout: float = 600.0, verbose: bool = False) -> Outcome:
     """Run ``case`` on the device matching ``device`` in a child process (with Oclgrind's
-    ``checks`` in its environment) and collect its arrays and reports."""
+    ``checks`` in its environment) and collect its arrays and reports (and with ``verbose`` the
+    compiler's output)."""
     with tempfile.TemporaryDirectory() as folder:
         path = pathlib.Path(folder) / "arrays.npz"
         env = {**os.environ, **(checks or {})}
@@ -175,21 +177,28 @@ def run_case(device: str, case: str, checks: dict[str, str] | None = None,
         except subprocess.TimeoutExpired:
             return Outcome(case, None, [], f"no result within {timeout:.0f} s")
         reports = oclgrind_reports(child.stderr)
+        logs = path.with_suffix(".log")
+        build_logs = logs.read_text() if verbose and logs.exists() else ""
         if child.returncode != 0 or not path.exists():
             lines = [line for line in child.stderr.splitlines() if line.strip()]
             why = lines[-1] if lines else f"exit status {child.returncode}"
-            return Outcome(case, None, reports, why)
+            return Outcome(case, None, reports, why, build_logs)
         with np.load(path) as data:
-            return Outcome(case, {name: data[name] for name in data.files}, reports)
+            return Outcome(case, {name: data[name] for name in data.files}, reports, "", build_logs)
 
 
 def main(argv: list[str]) -> None:
-    """The child of :func:`run_case`: ``DEVICE CASE OUT.npz``."""
+    """The child of :func:`run_case`: ``DEVICE CASE OUT.npz``; the compiler's output goes to
+    ``OUT.log``."""
     from iblbench.harness.device import Compute, choose_device
 
     device, case, out = argv
-    arrays = render(Compute(choose_device(device)), case)
-    np.savez(out, **arrays)
+    compute = Compute(choose_device(device))
+    try:
+        np.savez(out, **render(compute, case))
+    finally:
+        pathlib.Path(out).with_suffix(".log").write_text("".join(
+            f"== {program}\n{log}\n" for program, log in compute.build_logs.items() if log))
 
 
 if __name__ == "__main__":

@@ -79,3 +79,20 @@ def test_differences_are_exact_for_integers_and_relative_for_floats():
                                    "image": base["image"] * 1.01}, base)
     assert off["words"] == float("inf") and off["image"] == pytest.approx(0.01, rel=1e-3)
     assert portability.differences({}, base) == {"words": float("inf"), "image": float("inf")}
+
+
+def test_doctor_names_the_case_and_how_far_off_it_is():
+    from iblbench.harness.doctor import _case_problems
+
+    exact = portability.render(get_compute(), "reference")
+    assert _case_problems(portability.Outcome("reference", exact, []), exact) == []
+    off = _case_problems(portability.Outcome("reference", {"reference": exact["reference"] * 1.01},
+                                             []), exact)
+    assert off[0].startswith("reference off its NumPy twin by 0.01")
+    assert off[1].startswith("reference: 1 arrays differ from the default device's, most "
+                             "reference (0.01 relative)")
+    crashed = portability.Outcome("fis", None, ["OCLGRIND FATAL ERROR | When creating kernel"],
+                                  "clCreateKernel failed")
+    assert _case_problems(crashed, None) == [
+        "fis: 1 Oclgrind reports, first 'OCLGRIND FATAL ERROR' When creating kernel",
+        "fis: cannot run (clCreateKernel failed)"]
