@@ -187,8 +187,7 @@ WARMUP_SEED = 0xFFFFFFFF
 FLOOR_RTOL = 1e-4              # |floor − uniform| ≤ RTOL·|uniform| + ATOL·max|uniform| per channel
 FLOOR_ATOL = 1e-6
 FLOOR_BLOCK = 1 << 15          # pixels × pool entries per block of the floor (fits in L2)
-FMA_CHAINS = 8                 # perf.cl's fma_throughput: chains of float8 per work item
-FMA_LANES = 8
+FMA_CHAINS = 8                 # perf.cl's fma_throughput: chains of fma_width(compute) lanes
 FMA_ITEMS = 1 << 17
 COPY_MIN_BYTES = 64 << 20      # each copy buffer: at least this, and 8× the device's cache
 ROOF_MIN_MS = 20.0             # each roofline launch is sized to take at least this
@@ -316,8 +315,14 @@ class Roofline:
         return "compute" if flops_per_byte * self.gbps >= self.gflops else "memory"
 
 
+def fma_width(compute) -> int:
+    """Lanes of each FMA chain: the device's preferred float vector width (1, 2, 4, 8 or 16)."""
+    width = int(compute.info.device.preferred_vector_width_float)
+    return max(w for w in (1, 2, 4, 8, 16) if w <= max(width, 1))
+
+
 def _perf_kernel(compute, name: str):
-    return compute.kernel("iblbench.harness", "perf.cl", name)
+    return compute.kernel("iblbench.harness", "perf.cl", name, {"FMA_WIDTH": fma_width(compute)})
 
 
 def _launches(compute, kernel, items: int, args, launches: int) -> list[float]:
@@ -332,12 +337,13 @@ def _launches(compute, kernel, items: int, args, launches: int) -> list[float]:
 def run_fma(compute, items: int, iterations: int, launches: int = 1, b: float = 0.999,
             c: float = 1e-3):
     """``launches`` timed launches of ``fma_throughput``: (the outputs ``[items, FMA_CHAINS,
-    FMA_LANES]``, device ms of each launch, FLOPs per launch)."""
-    shape = (items, FMA_CHAINS, FMA_LANES)
+    fma_width]``, device ms of each launch, FLOPs per launch)."""
+    lanes = fma_width(compute)
+    shape = (items, FMA_CHAINS, lanes)
     out = compute.empty(4 * math.prod(shape))
     args = (np.int32(iterations), np.float32(b), np.float32(c), out)
     times = _launches(compute, _perf_kernel(compute, "fma_throughput"), items, args, launches)
-    flops = 2 * FMA_LANES * FMA_CHAINS * iterations * items
+    flops = 2 * lanes * FMA_CHAINS * iterations * items
     return compute.to_host(out, shape, np.float32), times, flops
 
 
