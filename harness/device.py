@@ -201,6 +201,7 @@ class Compute:
             self.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
         self._programs: dict[tuple, cl.Program] = {}
         self._kernels: dict[tuple, cl.Kernel] = {}
+        self._group_limits: dict[int, int] = {}
 
     @property
     def device_name(self) -> str:
@@ -234,12 +235,23 @@ class Compute:
 
     def run(self, kernel: cl.Kernel, size: int, *args, group: int | None = None) -> cl.Event:
         """Launch a 1-D kernel over ``size`` work items (in work groups of ``group``, a divisor
-        of ``size``; default: the device's choice) and wait; returns the profiled event."""
+        of ``size``, or of it the largest divisor the device allows; default: the device's choice)
+        and wait; returns the profiled event."""
         kernel.set_args(*args)
         event = cl.enqueue_nd_range_kernel(self.queue, kernel, (int(size),),
-                                           None if group is None else (int(group),))
+                                           None if group is None else (self._fitting(kernel, group),))
         event.wait()
         return event
+
+    def _fitting(self, kernel: cl.Kernel, group: int) -> int:
+        """The largest divisor of ``group`` that the device allows for ``kernel``: a GPU may allow
+        a kernel that holds many registers fewer work items per group than it allows others."""
+        group = int(group)
+        limit = self._group_limits.get(kernel.int_ptr)
+        if limit is None:
+            limit = self._group_limits[kernel.int_ptr] = kernel.get_work_group_info(
+                cl.kernel_work_group_info.WORK_GROUP_SIZE, self.info.device)
+        return group if group <= limit else max(d for d in range(1, limit + 1) if group % d == 0)
 
     def to_device(self, array: np.ndarray) -> cl.Buffer:
         array = np.ascontiguousarray(array)

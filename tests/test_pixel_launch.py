@@ -37,3 +37,32 @@ def test_a_pixel_does_not_depend_on_the_launch(compute, label):
         np.testing.assert_array_equal(getattr(whole, field)[alone.mask], first)
         assert np.all(getattr(part, field)[~alone.mask] == 0)
     assert np.all(whole.radiance[gbuffer.mask] > 0)
+
+
+@pytest.mark.parametrize("label", ["uniform", "envmap"])   # bis sizes its own groups (bis.py)
+def test_a_device_that_allows_fewer_work_items_per_group_gets_a_divisor(compute, label):
+    """Where a kernel may have fewer than PIXEL_GROUP work items per group (a GPU's limit for a
+    kernel that holds many registers), launches use the largest divisor of the group within it,
+    and the image is the same, bit for bit."""
+    from iblbench.harness.device import Compute
+
+    gbuffer = conformance.glossy_gbuffer(9)
+    estimator = parse_estimator(label).make()
+    images, groups = [], []
+    for limit in (None, 24):
+        device = Compute(compute.info)
+        if limit:
+            fitting = device._fitting
+
+            def limited(kernel, group):
+                device._group_limits[kernel.int_ptr] = limit
+                groups.append((group, fitting(kernel, group)))
+                return groups[-1][1]
+
+            device._fitting = limited
+        cache = FrameCache(device, conformance.sun_map(8, 50.0))
+        cache.require(type(estimator).requires)
+        images.append(estimator.render(DeviceGBuffer(device, gbuffer), cache, 8, 1).radiance)
+    assert (PIXEL_GROUP, 16) in groups and all(used <= 24 and wanted % used == 0
+                                               for wanted, used in groups)
+    np.testing.assert_array_equal(images[0], images[1])
