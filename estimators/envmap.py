@@ -10,7 +10,6 @@ from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lo
 from iblbench.estimators.light_pool import HOOK_SPP, MAX_SPP, TICKS_PER_SAMPLE, hook_surface
 from iblbench.harness.device import event_ms
 
-POOL_LANES = 16   # directions per work item of the χ² hooks (light_pool.cl)
 MIS_MODES = ("none", "brdf")
 HEURISTICS = ("balance", "power")
 
@@ -87,27 +86,29 @@ class MapSampler(Estimator):
         compute = cache.compute
         if self._map_is_black(cache):
             return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
-        groups = -(-n // POOL_LANES)
+        lanes = compute.pool_lanes   # directions per work item (POOL_LANES, light_pool.cl)
+        groups = -(-n // lanes)
         light_buffers, _ = self._light_buffers(cache)
-        out = compute.empty(4 * groups * POOL_LANES * 4)
+        out = compute.empty(4 * groups * lanes * 4)
         compute.run(self._kernel(compute, "map_directions"), groups, hook_surface(cache, normal, view),
                     *light_buffers, np.int32(cache.res), np.int32(HOOK_SPP), np.uint32(seed), out)
-        planes = compute.to_host(out, (4, groups * POOL_LANES), np.float32)[:, :n]
+        planes = compute.to_host(out, (4, groups * lanes), np.float32)[:, :n]
         return np.ascontiguousarray(planes[:3].T), planes[3].copy()
 
     def pdf(self, cache, normal, view, dirs):
         """Density of :meth:`sample_directions` at ``dirs`` ``[n, 3]``."""
         compute, n = cache.compute, len(dirs)
-        groups = -(-n // POOL_LANES)
-        planes = np.zeros((3, groups * POOL_LANES), np.float32)
+        lanes = compute.pool_lanes
+        groups = -(-n // lanes)
+        planes = np.zeros((3, groups * lanes), np.float32)
         planes[:, :n] = np.asarray(dirs, np.float32).T
         planes[2, n:] = 1.0   # padding: any unit direction
         light_buffers, _ = self._light_buffers(cache)
-        out = compute.empty(groups * POOL_LANES * 4)
+        out = compute.empty(groups * lanes * 4)
         compute.run(self._kernel(compute, "map_direction_pdf"), groups, hook_surface(cache, normal, view),
                     *light_buffers, np.int32(cache.res), np.int32(HOOK_SPP),
                     compute.to_device(planes), out)
-        return compute.to_host(out, (groups * POOL_LANES,), np.float32)[:n]
+        return compute.to_host(out, (groups * lanes,), np.float32)[:n]
 
 
 @dataclasses.dataclass(frozen=True)

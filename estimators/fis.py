@@ -10,7 +10,6 @@ import pyopencl.cltypes as cltypes
 
 from iblbench.estimators.base import Tags, read_estimate
 from iblbench.estimators.brdf import Brdf
-from iblbench.estimators.envmap import POOL_LANES
 from iblbench.estimators.light_pool import MAX_SPP, hook_surface
 from iblbench.harness.device import event_ms
 
@@ -134,11 +133,12 @@ class Fis(Brdf):
         compute = cache.compute
         if not np.any(cache.env):
             return np.zeros((0, 3), np.float32), np.zeros(0, np.float32)
-        groups = -(-n // POOL_LANES)
-        out = compute.empty(4 * groups * POOL_LANES * 4)
+        lanes = compute.pool_lanes   # points per work item (POOL_LANES, light_pool.cl)
+        groups = -(-n // lanes)
+        out = compute.empty(4 * groups * lanes * 4)
         compute.run(self._kernel(compute, "fis_directions"), groups, hook_surface(cache, normal, view),
                     np.int32(n), np.uint32(seed), out)
-        planes = compute.to_host(out, (4, groups * POOL_LANES), np.float32)[:, :n]
+        planes = compute.to_host(out, (4, groups * lanes), np.float32)[:, :n]
         return np.ascontiguousarray(planes[:3].T), planes[3].copy()
 
     def limit_map(self, cache) -> np.ndarray:

@@ -188,13 +188,20 @@ class Compute:
 
     Programs are built once per (files, defines) from package data with ``-I`` include
     directories (``estimators/kernels`` and pyopencl's Random123 headers) and ``-D`` options.
+    ``pool_lanes`` (``-DPOOL_LANES``), the width of the explicit vectors in which the estimators
+    run a pixel's samples (light_pool.cl), comes from the device: 16 where its preferred float
+    vector width is 16 (AVX-512), else 8 (a generic CPU target warned of an ABI change for every
+    float16 argument).  Both widths give the same images within float rounding, and Oclgrind
+    checks both (tests/test_portability.py).
     """
 
-    def __init__(self, info: DeviceInfo, fp64: bool = True):
+    def __init__(self, info: DeviceInfo, fp64: bool = True, lanes: int | None = None):
         """``fp64=False`` builds the float path of the kernels that accumulate in double where the
-        device has it (the reference, the CDF scans), as on a device without cl_khr_fp64."""
+        device has it (the reference, the CDF scans), as on a device without cl_khr_fp64;
+        ``lanes`` (8 or 16) overrides :attr:`pool_lanes`."""
         self.info = info
         self.fp64 = fp64
+        self.pool_lanes = lanes or (16 if info.device.preferred_vector_width_float >= 16 else 8)
         self.build_logs: dict[str, str] = {}
         self.context = cl.Context([info.device])
         self.queue = cl.CommandQueue(
@@ -214,6 +221,7 @@ class Compute:
             # The kernel's own folder first, so a plugin's .cl files can include their siblings.
             options = [f"-I{kernel_path(package, filename).parent}"] + [f"-I{d}" for d in include_dirs()]
             options += [f"-D{name}={value}" for name, value in sorted((defines or {}).items())]
+            options.append(f"-DPOOL_LANES={self.pool_lanes}")
             if self.info.has_fp64 and self.fp64:
                 options.append("-DHAVE_FP64=1")
             # The compiler's warnings (PoCL prints hundreds for vector-typed helpers) are kept, not

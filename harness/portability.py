@@ -163,17 +163,17 @@ def oclgrind_reports(stderr: str) -> list[str]:
 
 
 def run_case(device: str, case: str, checks: dict[str, str] | None = None,
-             timeout: float = 600.0, verbose: bool = False) -> Outcome:
+             timeout: float = 600.0, verbose: bool = False, lanes: int | None = None) -> Outcome:
     """Run ``case`` on the device matching ``device`` in a child process (with Oclgrind's
-    ``checks`` in its environment) and collect its arrays and reports (and with ``verbose`` the
-    compiler's output)."""
+    ``checks`` in its environment, and ``lanes`` for ``Compute.pool_lanes`` if given) and collect
+    its arrays and reports (and with ``verbose`` the compiler's output)."""
     with tempfile.TemporaryDirectory() as folder:
         path = pathlib.Path(folder) / "arrays.npz"
         env = {**os.environ, **(checks or {})}
         try:
             child = subprocess.run([sys.executable, "-m", "iblbench.harness.portability", device,
-                                    case, str(path)], capture_output=True, text=True, env=env,
-                                   timeout=timeout)
+                                    case, str(path), str(lanes or 0)], capture_output=True,
+                                   text=True, env=env, timeout=timeout)
         except subprocess.TimeoutExpired:
             return Outcome(case, None, [], f"no result within {timeout:.0f} s")
         reports = oclgrind_reports(child.stderr)
@@ -188,12 +188,12 @@ def run_case(device: str, case: str, checks: dict[str, str] | None = None,
 
 
 def main(argv: list[str]) -> None:
-    """The child of :func:`run_case`: ``DEVICE CASE OUT.npz``; the compiler's output goes to
-    ``OUT.log``."""
+    """The child of :func:`run_case`: ``DEVICE CASE OUT.npz LANES`` (0: the device's); the
+    compiler's output goes to ``OUT.log``."""
     from iblbench.harness.device import Compute, choose_device
 
-    device, case, out = argv
-    compute = Compute(choose_device(device))
+    device, case, out, lanes = argv
+    compute = Compute(choose_device(device), lanes=int(lanes) or None)
     try:
         np.savez(out, **render(compute, case))
     finally:

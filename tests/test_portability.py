@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from iblbench.harness import portability
-from iblbench.harness.device import all_devices, choose_device, get_compute
+from iblbench.harness.device import Compute, all_devices, choose_device, get_compute
 
 OCLGRIND = "oclgrind"
 pytestmark = pytest.mark.skipif(not any(d.is_simulator for d in all_devices()),
@@ -33,13 +33,21 @@ KNOWN_FAULTS = {"reference": "+inf on Oclgrind",
 @pytest.mark.parametrize("case", [pytest.param(case, marks=pytest.mark.xfail(
     reason=KNOWN_FAULTS[case], strict=True)) if case in KNOWN_FAULTS else case
     for case in portability.cases()])
-def test_case_runs_clean_on_oclgrind_and_matches_the_default_device(case):
-    outcome = portability.run_case(OCLGRIND, case, portability.CHECKS)
+@pytest.mark.parametrize("lanes", [8, 16])
+def test_case_runs_clean_on_oclgrind_and_matches_the_default_device(case, lanes):
+    outcome = portability.run_case(OCLGRIND, case, portability.CHECKS, lanes=lanes)
     assert not outcome.reports, f"{len(outcome.reports)} Oclgrind reports:\n" + "\n".join(
         outcome.reports[:10])
     assert outcome.arrays is not None, outcome.error
     expected = portability.render(get_compute(), case)
     assert portability.differences(outcome.arrays, expected) == {}
+
+
+@pytest.mark.parametrize("case", portability.cases()[2:])
+def test_both_lane_widths_give_the_same_images(compute, case):
+    """Compute.pool_lanes: 16 lanes (AVX-512) and 8 (every other device) on the default device."""
+    wide, narrow = (portability.render(Compute(compute.info, lanes=lanes), case) for lanes in (16, 8))
+    assert portability.differences(narrow, wide) == {}
 
 
 def test_the_default_device_is_never_the_simulator():
