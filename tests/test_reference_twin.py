@@ -103,3 +103,17 @@ def test_reference_specular_matches_the_twin(compute, res):
     half_space = gbuffer.shininess == 0
     _assert_within(gbuffer, got, expected, np.where(half_space[..., None], error, 0.0),
                    DIFFUSE_RTOL, f"specular m = 0, R = {res}")
+
+
+@pytest.mark.parametrize("kd, ks", [(1.0, 0.0), (0.0, 1.0)])
+def test_reference_without_fp64_stays_within_its_error(compute, kd, ks):
+    """fp64 is optional (many GPUs have slow double or none): the float path of reference.cl,
+    built as on a device without cl_khr_fp64, against the twin to ``SPECULAR_RTOL``."""
+    from iblbench.harness.device import Compute
+
+    float_only = Compute(compute.info, fp64=False)
+    gbuffer, env = twin_scene(kd, ks), face_pattern_map(8)
+    got = kernel_image(float_only, gbuffer, env).astype(np.float64)
+    expected = twin_image(gbuffer, env)
+    _assert_within(gbuffer, got, expected, np.abs(got - expected) / expected, SPECULAR_RTOL,
+                   f"float path, kd = {kd}, ks = {ks}")
