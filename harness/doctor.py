@@ -1,15 +1,17 @@
 """``iblbench doctor``: is every OpenCL device here right?  For each device it builds and runs the
 portability set (harness/portability.py), each case in a child process, and compares:
 
-- the exact reference with its independent NumPy twin (harness/twins/reference_twin.py), within
-  :data:`REFERENCE_RTOL`;
+- the exact reference with its independent NumPy twin (harness/twins/reference_twin.py), and the
+  map's light pdf with the NumPy one of the smc twin (harness/twins/ghosh2006.py, ``Map.pdf``),
+  within :data:`TWIN_RTOL`;
 - every array with the default device's (integer ones bit for bit, float ones within
   ``portability.FLOAT_RTOL``): the same inputs, seeds and Philox streams give the same image on
   any conforming device, up to float rounding;
 - on a simulator (Oclgrind), its reports of invalid memory access, data races and API misuse.
 
 The default device's estimators have no other device to agree with: the conformance suite
-(`make test`) holds them to the reference statistically.
+(`make test`) holds them to the reference statistically, and smc to its twin in distribution
+(harness/twins/crosscheck.py), which takes too many renders for a check per device.
 """
 from __future__ import annotations
 
@@ -21,7 +23,7 @@ import numpy as np
 
 from iblbench.harness import portability
 
-REFERENCE_RTOL = 1e-4   # the reference kernel against its twin (tests/test_reference_twin.py)
+TWIN_RTOL = 1e-4        # the reference (tests/test_reference_twin.py) and light pdf against twins
 SHOWN = 4               # problems named on a device's line
 
 
@@ -46,15 +48,18 @@ class DeviceReport:
         return f"{verdict} [{self.kind}] {self.label}: {tail}"
 
 
-def _twin_problem(arrays: dict[str, np.ndarray]) -> str | None:
+def _twin_problem(case: str, arrays: dict[str, np.ndarray]) -> str | None:
+    """How far the reference or the light pdf is from its NumPy twin, if beyond tolerance."""
+    from iblbench.harness.twins.ghosh2006 import Map
     from iblbench.harness.twins.reference_twin import twin_image
 
     gbuffer, env, _ = portability.inputs()
-    twin = twin_image(gbuffer, env)
-    got = arrays["reference"].astype(np.float64)
-    covered = gbuffer.mask
-    error = float(np.max(np.abs(got[covered] - twin[covered]) / np.maximum(np.abs(twin[covered]), 1e-12)))
-    return None if error <= REFERENCE_RTOL else f"reference off its NumPy twin by {error:.2g} (relative)"
+    if case == "reference":
+        got, twin = arrays["reference"][gbuffer.mask], twin_image(gbuffer, env)[gbuffer.mask]
+    else:
+        got, twin = arrays["light_pdf"], Map(env).pdf(portability.pdf_directions().astype(np.float64))
+    error = float(np.max(np.abs(got.astype(np.float64) - twin) / np.maximum(np.abs(twin), 1e-12)))
+    return None if error <= TWIN_RTOL else f"{case} off its NumPy twin by {error:.2g} (relative)"
 
 
 def _case_problems(outcome: portability.Outcome, baseline: dict | None) -> list[str]:
@@ -67,8 +72,8 @@ def _case_problems(outcome: portability.Outcome, baseline: dict | None) -> list[
     if outcome.arrays is None:
         problems.append(f"{outcome.case}: cannot run ({outcome.error})")
         return problems
-    if outcome.case == "reference":
-        problems += filter(None, [_twin_problem(outcome.arrays)])
+    if outcome.case in ("reference", "light_pdf"):
+        problems += filter(None, [_twin_problem(outcome.case, outcome.arrays)])
     if baseline is not None:
         off = portability.differences(outcome.arrays, baseline)
         if off:

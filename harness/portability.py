@@ -3,8 +3,9 @@ devices (``iblbench doctor``, tests/test_portability.py).
 
 One *case* renders one thing on 16 pixels (a glossy G-buffer over the whole sphere) lit by a
 4×4-texel-per-face map with a sun: ``reference`` (the exact reference), ``products`` (the frame
-cache's CDFs, face integrals, light pool and both mip pyramids, plain and compensated), or an
-estimator label such as ``envmap{mis="brdf"}`` at 4 spp; a temporal estimator renders a first
+cache's CDFs, face integrals, light pool and both mip pyramids, plain and compensated),
+``light_pdf`` (the map's light pdf, DESIGN §3, at :data:`PDF_DIRECTIONS` directions, by
+``envmap``'s pdf hook), or an estimator label such as ``envmap{mis="brdf"}`` at 4 spp; a temporal estimator renders a first
 frame and then the same map turned by one texel, so its carried state is exercised.  Sizes are
 this small because Oclgrind interprets every work item: the whole set takes about a minute
 there.
@@ -31,6 +32,7 @@ SIZE = 4          # pixels per side
 ENV_RES = 4       # texels per face side
 SPP = 4
 SUN_RATIO = 50.0  # the sun texel's luminance over the sky's
+PDF_DIRECTIONS = 64
 # Estimator configurations beyond each built-in's defaults that run other kernel paths.
 VARIANTS = ("balanced_mis{shared_sequence=false}", 'envmap{mis="brdf"}',
             'envmap{mis="brdf",mis_compensation=true}')
@@ -45,11 +47,11 @@ _REPORT = re.compile(r"^(Invalid (read|write)|.*data race|Work-(group|item) dive
 
 
 def cases() -> list[str]:
-    """Every case of the set: the reference, the frame-cache products, each registered estimator
-    with its defaults, and :data:`VARIANTS`."""
+    """Every case of the set: the reference, the frame-cache products, the light pdf, each
+    registered estimator with its defaults, and :data:`VARIANTS`."""
     from iblbench.estimators.registry import estimator_names
 
-    return ["reference", "products", *estimator_names(), *VARIANTS]
+    return ["reference", "products", "light_pdf", *estimator_names(), *VARIANTS]
 
 
 def inputs():
@@ -58,6 +60,13 @@ def inputs():
 
     env = conformance.sun_map(ENV_RES, SUN_RATIO)
     return conformance.glossy_gbuffer(SIZE), env, np.ascontiguousarray(np.roll(env, 1, axis=2))
+
+
+def pdf_directions() -> np.ndarray:
+    """The ``light_pdf`` case's directions, spread over the sphere, float32 ``[n, 3]``."""
+    from iblbench.harness.conformance import fibonacci_directions
+
+    return fibonacci_directions(PDF_DIRECTIONS).astype(np.float32)
 
 
 def render(compute, case: str) -> dict[str, np.ndarray]:
@@ -74,6 +83,11 @@ def render(compute, case: str) -> dict[str, np.ndarray]:
         return {"reference": Reference(compute, use_cache=False).image(pixels, cache)}
     if case == "products":
         return _products(compute, cache)
+    if case == "light_pdf":
+        light_only = parse_estimator("envmap").make()
+        cache.require(type(light_only).requires)
+        return {"light_pdf": light_only.pdf(cache, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.6, 0.8]),
+                                            pdf_directions())}
     estimator = parse_estimator(case).make()
     out = {}
     frames = [cache, FrameCache(compute, turned, frame=1)] if type(estimator).tags.temporal else [cache]
