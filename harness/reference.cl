@@ -135,7 +135,8 @@ inline float16 log2_lanes(float16 x)
     float16 a = as_float16((bits & 0x007fffff) | 0x3f800000);   /* [1, 2) */
     int16 upper = a > 1.41421356f;                              /* −1 where a ≥ √2 */
     a = select(a, 0.5f * a, upper);
-    float16 exponent = convert_float16(((bits >> 23) & 0xff) - 127 - upper);
+    /* upper only through select: Oclgrind turns `− upper` into + 255, not + 1 (see CLASSIFY). */
+    float16 exponent = convert_float16(((bits >> 23) & 0xff) - 127) + select((float16)0.0f, (float16)1.0f, upper);
     return exponent + log2_of_ratio((a - 1.0f) / (a + 1.0f));
 }
 
@@ -335,12 +336,16 @@ inline void flush_single_cells(face_forms_t forms, float m, single_cells_t *batc
 
 /* Where texel t stands for normal n and mirror direction r: its bounding cap against the
  * horizon, and whether any point of the cap is within θ_cut of r (the cos(θ_cut + α) test).
- * Scalar and vector alike (gentype float or float8), so that both kernels classify alike. */
+ * Scalar and vector alike (gentype float or float8), so that both kernels classify alike.
+ * Vector comparisons go on only through select, &&, || and vector operands: Oclgrind (21.10)
+ * holds a comparison's true lanes as all ones but a constant true as 1, so `!` of a vector
+ * comparison gives −2 and 1, its zero extension (`x − (a > b)`) 255, and scalar && vector 1,
+ * which select and any() read as false. */
 #define CLASSIFY(n, r, cx, cy, cz, sin_a, cut, cn, cr, above, cut_by_horizon, in_lobe) \
     cn = n.x * (cx) + n.y * (cy) + n.z * (cz); \
     cr = r.x * (cx) + r.y * (cy) + r.z * (cz); \
     above = cn >= (sin_a); \
-    cut_by_horizon = cn > -(sin_a) && !(above); \
+    cut_by_horizon = cn > -(sin_a) && cn < (sin_a); \
     in_lobe = cr > (cut).x * sqrt(1.0f - (sin_a) * (sin_a)) - (cut).y * (sin_a);
 
 /* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω of texel t, whose cap reaches the lobe and the upper
@@ -440,7 +445,8 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
             whole_red += convert_acc8(cosine * red);
             whole_green += convert_acc8(cosine * green);
             whole_blue += convert_acc8(cosine * blue);
-            int8 one_by_one = lit && (cut_by_horizon || (specular && in_lobe && above));
+            /* specular picks a whole vector, not lanes by scalar && vector (see CLASSIFY). */
+            int8 one_by_one = lit && (specular ? cut_by_horizon || (in_lobe && above) : cut_by_horizon);
             if (!any(one_by_one)) continue;
             for (int k = 0; k < LANES; ++k) {
                 if (!((int *)&one_by_one)[k]) continue;
