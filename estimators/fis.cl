@@ -84,7 +84,7 @@ ALWAYS_INLINE lanes3_t lanes_filtered_radiance(__global const float4 *mips, int1
     lanes_t lod = max(0.5f * phong_power_log2_lanes(max(jacobian / pdf, 0x1p-126f)) + lod_shift, 0.0f);
     lod = min(lod + lod_bias, (float)top);
     lanes_t level = floor(lod), fine_share = 1.0f - (lod - level);
-    lane_ints_t fine = convert_lane_ints(level), coarse = min(fine + 1, top);
+    lane_ints_t fine = convert_lane_ints(level), coarse = min(fine + 1, (lane_ints_t)top);   /* vector bound: see POOL_LANES */
     lanes3_t a = lanes_level_radiance(mips, level_offsets, res, fine, face, row, col);
     lanes3_t b = lanes_level_radiance(mips, level_offsets, res, coarse, face, row, col);
     return make_lanes3(b.x + fine_share * (a.x - b.x), b.y + fine_share * (a.y - b.y),

@@ -113,7 +113,8 @@ ALWAYS_INLINE void child_widths(__global const float *pyramid, int level, int n,
     for (int k = 0; k < 4; ++k) {
         lane_ints_t child_row = 2 * row + (k >> 1), child_col = 2 * col + (k & 1);
         exists[k] = (child_row < n) & (child_col < n);
-        lane_ints_t at = level + (face * n + min(child_row, n - 1)) * n + min(child_col, n - 1);
+        lane_ints_t last = n - 1;   /* a vector bound for min: see POOL_LANES in light_pool.cl */
+        lane_ints_t at = level + (face * n + min(child_row, last)) * n + min(child_col, last);
         w[k] = select((lanes_t)0.0f, GATHER(lanes_t, pyramid, at), exists[k]);
     }
     descent_widths4(w, exists, q);
