@@ -11,10 +11,13 @@
 
 #define STREAM_FIS_ROTATION 40u
 
-/* 2^32·Φ2(i) of Eq. 10: the radical inverse in base 2 as a 32-bit word, i's bits reversed. */
+/* 2^32·Φ2(i) of Eq. 10: the radical inverse in base 2 as a 32-bit word, i's bits reversed.  The
+ * halves swap by rotate(), not shifts: Oclgrind's compiler turns the all-shift form into
+ * llvm.bitreverse, which its interpreter cannot run.  (PoCL then keeps the shifts, not its
+ * bitreverse lowering; the render is no slower.) */
 ALWAYS_INLINE lane_uints_t radical_inverse_words(lane_uints_t i)
 {
-    i = (i << 16) | (i >> 16);
+    i = rotate(i, (lane_uints_t)16);
     i = ((i & 0x00ff00ffu) << 8) | ((i >> 8) & 0x00ff00ffu);
     i = ((i & 0x0f0f0f0fu) << 4) | ((i >> 4) & 0x0f0f0f0fu);
     i = ((i & 0x33333333u) << 2) | ((i >> 2) & 0x33333333u);
