@@ -452,9 +452,12 @@ ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ti
 }
 
 /* Density of all directions the estimator draws for one pixel, pooled over its strategies:
- * Σ_k t_k p_k(ω) / Σ_k t_k (what the χ² hooks check), given ω's light pdf on its face. */
-inline float pooled_density(const shading_t *s, const int ticks[7], int face, float pdf_light,
-                            vec3_t w)
+ * Σ_k t_k p_k(ω) / Σ_k t_k (what the χ² hooks check), given ω's light pdf on its face.  It and
+ * pooled_pdf are forced inline: a call that takes the hook kernels' shading_t by address keeps it
+ * in memory, with an llvm.experimental.noalias.scope.decl from load_shading that Oclgrind 21.10
+ * cannot run. */
+ALWAYS_INLINE float pooled_density(const shading_t *s, const int ticks[7], int face, float pdf_light,
+                                   vec3_t w)
 {
     int total = ticks[6];
     #pragma unroll
@@ -465,8 +468,8 @@ inline float pooled_density(const shading_t *s, const int ticks[7], int face, fl
 }
 
 /* pooled_density with ω's light pdf looked up from its texel (light_pdf of common.cl). */
-inline float pooled_pdf(const shading_t *s, const int ticks[7], __global const cdf_word_t *marginal,
-                        __global const cdf_word_t *conditional, int res, vec3_t w)
+ALWAYS_INLINE float pooled_pdf(const shading_t *s, const int ticks[7], __global const cdf_word_t *marginal,
+                               __global const cdf_word_t *conditional, int res, vec3_t w)
 {
     int face, texel;
     float pdf_light = light_pdf_on_face(marginal, conditional, res, w, &face, &texel);
