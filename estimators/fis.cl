@@ -11,10 +11,13 @@
 
 #define STREAM_FIS_ROTATION 40u
 
-/* 2^32·Φ2(i) of Eq. 10: the radical inverse in base 2 as a 32-bit word, i's bits reversed. */
+/* 2^32·Φ2(i) of Eq. 10: the radical inverse in base 2 as a 32-bit word, i's bits reversed.  The
+ * halves swap by rotate(), not shifts: Oclgrind's compiler turns the all-shift form into
+ * llvm.bitreverse, which its interpreter cannot run.  (PoCL then keeps the shifts, not its
+ * bitreverse lowering; the render is no slower.) */
 ALWAYS_INLINE lane_uints_t radical_inverse_words(lane_uints_t i)
 {
-    i = (i << 16) | (i >> 16);
+    i = rotate(i, (lane_uints_t)16);
     i = ((i & 0x00ff00ffu) << 8) | ((i >> 8) & 0x00ff00ffu);
     i = ((i & 0x0f0f0f0fu) << 4) | ((i >> 4) & 0x0f0f0f0fu);
     i = ((i & 0x33333333u) << 2) | ((i >> 2) & 0x33333333u);
@@ -84,7 +87,7 @@ ALWAYS_INLINE lanes3_t lanes_filtered_radiance(__global const float4 *mips, int1
     lanes_t lod = max(0.5f * phong_power_log2_lanes(max(jacobian / pdf, 0x1p-126f)) + lod_shift, 0.0f);
     lod = min(lod + lod_bias, (float)top);
     lanes_t level = floor(lod), fine_share = 1.0f - (lod - level);
-    lane_ints_t fine = convert_lane_ints(level), coarse = min(fine + 1, top);
+    lane_ints_t fine = convert_lane_ints(level), coarse = min(fine + 1, (lane_ints_t)top);   /* vector bound: see POOL_LANES */
     lanes3_t a = lanes_level_radiance(mips, level_offsets, res, fine, face, row, col);
     lanes3_t b = lanes_level_radiance(mips, level_offsets, res, coarse, face, row, col);
     return make_lanes3(b.x + fine_share * (a.x - b.x), b.y + fine_share * (a.y - b.y),

@@ -113,7 +113,8 @@ ALWAYS_INLINE void child_widths(__global const float *pyramid, int level, int n,
     for (int k = 0; k < 4; ++k) {
         lane_ints_t child_row = 2 * row + (k >> 1), child_col = 2 * col + (k & 1);
         exists[k] = (child_row < n) & (child_col < n);
-        lane_ints_t at = level + (face * n + min(child_row, n - 1)) * n + min(child_col, n - 1);
+        lane_ints_t last = n - 1;   /* a vector bound for min: see POOL_LANES in light_pool.cl */
+        lane_ints_t at = level + (face * n + min(child_row, last)) * n + min(child_col, last);
         w[k] = select((lanes_t)0.0f, GATHER(lanes_t, pyramid, at), exists[k]);
     }
     descent_widths4(w, exists, q);
@@ -136,14 +137,14 @@ ALWAYS_INLINE int descent_levels(int res, int *top)
 ALWAYS_INLINE int level_size(int res, int l) { return (res + (1 << l) - 1) >> l; }
 
 /* Word k (0 …) of a lane's random stream, four to a Philox block: *block holds block k/4 once k
- * is a multiple of 4 (the caller draws words in order). */
+ * is a multiple of 4 (the caller draws words in order).  Indexed, not a chain of selects over
+ * the four words: Oclgrind 21.10 ran that chain on the previous block after a refill. */
 ALWAYS_INLINE lane_uints_t descent_word(uint seed, uint frame, uint pixel, lane_ints_t draw, int k,
                                         lane_block_t *block)
 {
     if ((k & 3) == 0)
         *block = rng_block_lanes(seed, frame, STREAM_DESCENT, pixel, convert_lane_uints(draw), (uint)(k >> 2));
-    int i = k & 3;
-    return i == 0 ? block->v[0] : i == 1 ? block->v[1] : i == 2 ? block->v[2] : block->v[3];
+    return block->v[k & 3];
 }
 
 #define LIGHT_PARAMS __global const float *pyramid

@@ -177,7 +177,7 @@ ALWAYS_INLINE lanes_t lanes_cdf_bin_position(__global const cdf_word_t *cdf, lan
                                              lane_ints_t i, lane_words_t u, lanes_t *bin)
 {
     lane_words_t upper = GATHER(lane_words_t, cdf, first + i);
-    lane_words_t lower = GATHER(lane_words_t, cdf, first + max(i - 1, 0));
+    lane_words_t lower = GATHER(lane_words_t, cdf, first + max(i - 1, (lane_ints_t)0));
     lower = select((lane_words_t)0, lower, convert_lane_longs(i > 0));
     *bin = convert_lanes(upper - lower) * 0x1p-63f;
     return clamp(convert_lanes(u - lower) / convert_lanes(upper - lower), 0.0f, 0x1.fffffep-1f);

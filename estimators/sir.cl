@@ -292,8 +292,7 @@ ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal
     } else {
         lanes_t u, v;
         face = cube_face_st_lanes(w, &u, &v);
-        texel = (face * res + clamp(convert_lane_ints(floor(v * (float)res)), 0, res - 1)) * res
-              + clamp(convert_lane_ints(floor(u * (float)res)), 0, res - 1);
+        texel = (face * res + lanes_clamp_index(v, res)) * res + lanes_clamp_index(u, res);
         radiance = lanes_radiance(texels, texel);
     }
     /* sir_target and sir_ratio */
@@ -441,7 +440,7 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
         sir_proposal_t q = make_proposal(alias, texels, map_power, stratified_pick);
         lanes3_t w, ratio;
         lanes_t gamma;
-        lane_ints_t resampled = min(k0 + LANE_NUMBERS, N - 1);
+        lane_ints_t resampled = min(k0 + LANE_NUMBERS, (lane_ints_t)(N - 1));   /* vector bound: see POOL_LANES */
         lane_ints_t candidate = GATHER(lane_ints_t, chosen, resampled * stride + slot);
         sir_candidate_lanes(&s, &q, env, res, seed, frame, pixel, candidate, M, &w, &gamma, &ratio);
         float lane_x[POOL_LANES], lane_y[POOL_LANES], lane_z[POOL_LANES];

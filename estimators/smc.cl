@@ -448,12 +448,13 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
                        __global float4 *state, __global float4 *carried_estimate,
                        __global float4 *radiance, __global float2 *counts, __global float4 *stats)
 {
-    /* Items past `listed` redo the last listed pixel in their own scratch slot, bit for bit, so
-     * their particle stores repeat the same values; they store nothing else. */
+    /* Items past `listed` redo the last listed pixel in their own scratch slot (every work item
+     * must reach the LOCKSTEPs) and store nothing: no particles (null planes), which the last
+     * listed item writes and reads (the same values, but a data race all the same). */
     int listed = listed_total[0] - offset;
     if ((int)(get_group_id(0) * get_local_size(0)) >= listed) return;
     int item = get_global_id(0), p = pixels[offset + min(item, listed - 1)];
-    __global float *particles = all_particles + p, *gammas = all_gammas + p;
+    __global float *particles = item < listed ? all_particles + p : 0, *gammas = all_gammas + p;
     vec3_t sum, candidate_ratio;
     float z = bis_pixel(normal, view, kd, ks_m, p, alias, texels, map_power, init_env_pick,
                         texels, ENV_RES, M, N, seed, frame, (uint)p, GROUP_SCRATCH(chosen, N),

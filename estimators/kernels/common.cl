@@ -108,12 +108,13 @@ inline float luminance(float3 c) { return vec3_luminance(vec3_of(c)); }
 /* ---- cube map ------------------------------------------------------------------------------ */
 
 /* Direction -> face and (s, t) in [0, 1] by the OpenGL table; ties go to x, then y.  Selects,
- * no branches, so it vectorises. */
+ * no branches, so it vectorises.  y_major by a select, not !x_major & …: Oclgrind 21.10 gets
+ * vectors' ! of a mask wrong (1 and -2 for -1 and 0). */
 #define DEFINE_CUBE_FACE_ST(name, floatn, intn, vecn)                                              \
 ALWAYS_INLINE intn name(vecn d, floatn *s, floatn *t)                                              \
 {                                                                                                  \
     floatn ax = fabs(d.x), ay = fabs(d.y), az = fabs(d.z);                                         \
-    intn x_major = (ax >= ay) & (ax >= az), y_major = !x_major & (ay >= az);                       \
+    intn x_major = (ax >= ay) & (ax >= az), y_major = select(ay >= az, (intn)0, x_major);          \
     intn positive = select(select(d.z, d.y, y_major), d.x, x_major) >= 0.0f;                       \
     intn face = select(select((intn)4, (intn)2, y_major), (intn)0, x_major)                        \
               + select((intn)1, (intn)0, positive);                                                \

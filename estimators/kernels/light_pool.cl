@@ -146,7 +146,10 @@ inline void drawn_counts(const int ticks[7], int pool_size, int *used, int *draw
 /* A pixel's samples run POOL_LANES draws at a time in explicit vectors (the lanes of one work
  * item are consecutive draws of one strategy), so they are SIMD on any device and compiler, not
  * only where PoCL vectorises across work items (PoCL's work-item vectoriser rejects vector
- * types, so each work item runs its own vector loop).  Lanes past a strategy's draws are masked. */
+ * types, so each work item runs its own vector loop).  Lanes past a strategy's draws are masked.
+ * Integer min/max/clamp of lanes take their bounds as vectors, never the (gentype, sgentype)
+ * forms: Oclgrind 21.10 does not broadcast a scalar bound of those integer built-ins (lanes past
+ * the first get garbage bounds, and indices clamped by them read outside their buffers). */
 #ifndef POOL_LANES
 #define POOL_LANES 16
 #endif
@@ -298,9 +301,15 @@ ALWAYS_INLINE void shade_light_faces(lanes_sum_t *acc, const shading_t *s, const
 ALWAYS_INLINE lanes_t lanes_cdf_bin(__global const cdf_word_t *cdf, lane_ints_t base, lane_ints_t i)
 {
     lane_words_t upper = GATHER(lane_words_t, cdf, base + i);
-    lane_words_t lower = GATHER(lane_words_t, cdf, base + max(i - 1, 0));
+    lane_words_t lower = GATHER(lane_words_t, cdf, base + max(i - 1, (lane_ints_t)0));
     lower = select((lane_words_t)0, lower, convert_lane_longs(i > 0));
     return convert_lanes(upper - lower) * 0x1p-63f;
+}
+
+/* clamp_index of common.cl for the lanes (vector bounds: see POOL_LANES). */
+ALWAYS_INLINE lane_ints_t lanes_clamp_index(lanes_t x, int res)
+{
+    return clamp(convert_lane_ints(floor(x * (float)res)), (lane_ints_t)0, (lane_ints_t)(res - 1));
 }
 
 /* The texel of each lane's direction (*face, *row, *col) and its area_per_solid_angle, as
@@ -310,8 +319,8 @@ ALWAYS_INLINE lanes_t lanes_texel_of(int res, lanes3_t w, lane_ints_t *face, lan
 {
     lanes_t s, t;
     *face = cube_face_st_lanes(w, &s, &t);
-    *row = clamp(convert_lane_ints(floor(t * (float)res)), 0, res - 1);
-    *col = clamp(convert_lane_ints(floor(s * (float)res)), 0, res - 1);
+    *row = lanes_clamp_index(t, res);
+    *col = lanes_clamp_index(s, res);
     lanes_t u = 2.0f * s - 1.0f, v = 2.0f * t - 1.0f;
     lanes_t q = 1.0f + u * u + v * v;
     return q * sqrt(q);   /* area_per_solid_angle */
@@ -443,9 +452,12 @@ ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ti
 }
 
 /* Density of all directions the estimator draws for one pixel, pooled over its strategies:
- * Σ_k t_k p_k(ω) / Σ_k t_k (what the χ² hooks check), given ω's light pdf on its face. */
-inline float pooled_density(const shading_t *s, const int ticks[7], int face, float pdf_light,
-                            vec3_t w)
+ * Σ_k t_k p_k(ω) / Σ_k t_k (what the χ² hooks check), given ω's light pdf on its face.  It and
+ * pooled_pdf are forced inline: a call that takes the hook kernels' shading_t by address keeps it
+ * in memory, with an llvm.experimental.noalias.scope.decl from load_shading that Oclgrind 21.10
+ * cannot run. */
+ALWAYS_INLINE float pooled_density(const shading_t *s, const int ticks[7], int face, float pdf_light,
+                                   vec3_t w)
 {
     int total = ticks[6];
     #pragma unroll
@@ -456,8 +468,8 @@ inline float pooled_density(const shading_t *s, const int ticks[7], int face, fl
 }
 
 /* pooled_density with ω's light pdf looked up from its texel (light_pdf of common.cl). */
-inline float pooled_pdf(const shading_t *s, const int ticks[7], __global const cdf_word_t *marginal,
-                        __global const cdf_word_t *conditional, int res, vec3_t w)
+ALWAYS_INLINE float pooled_pdf(const shading_t *s, const int ticks[7], __global const cdf_word_t *marginal,
+                               __global const cdf_word_t *conditional, int res, vec3_t w)
 {
     int face, texel;
     float pdf_light = light_pdf_on_face(marginal, conditional, res, w, &face, &texel);
