@@ -187,20 +187,30 @@ __kernel void map_alias_columns(__global const float4 *env, __global const cdf_w
                       pair_probability[pair] * (float)(res * res) / 4.0f);
 }
 
-/* One work item (on a changed frame that carries state): map_power[2] = 1 + χ²(P_t ‖ P_{t−1}) =
+/* One work group (on a changed frame that carries state): map_power[2] = 1 + χ²(P_t ‖ P_{t−1}) =
  * Σ_x P_t(x)²/P_{t−1}(x) over the texels' map probabilities P (their .w is P·R²/4), this frame's
- * against last frame's: +∞ where a texel black last frame is lit now (smc.py step 5).  A serial
- * sum over the 6R² texels. */
+ * against last frame's: +∞ where a texel black last frame is lit now (smc.py step 5).  Each work
+ * item sums every get_local_size(0)-th texel, and the group adds its partial sums in a tree in
+ * local memory, a barrier before each level (a serial sum over the 6R² texels by one work item
+ * kept a GPU's other cores idle).  Launched as one group of a power of two ≤ MAP_CHANGE_GROUP. */
+#define MAP_CHANGE_GROUP 64
 __kernel void map_change(__global const float4 *texels, __global const float4 *prev_texels,
                          __global float *map_power)
 {
-    const int n = 6 * ENV_RES * ENV_RES;
+    __local acc_t partial[MAP_CHANGE_GROUP];
+    const int n = 6 * ENV_RES * ENV_RES, item = get_local_id(0), items = get_local_size(0);
     acc_t sum = 0;
-    for (int i = 0; i < n; ++i) {
+    for (int i = item; i < n; i += items) {
         acc_t now = texels[i].w, before = prev_texels[i].w;
         if (now > 0) sum += before > 0 ? now * now / before : (acc_t)INFINITY;
     }
-    map_power[2] = (float)(sum * (acc_t)(4.0f / (float)(ENV_RES * ENV_RES)));
+    partial[item] = sum;
+    for (int width = items / 2; width > 0; width /= 2) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (item < width) partial[item] += partial[item + width];
+    }
+    if (item == 0)
+        map_power[2] = (float)(partial[0] * (acc_t)(4.0f / (float)(ENV_RES * ENV_RES)));
 }
 
 /* Debug twin for the tests: map draw i of the tables (map_sample on pixel i's words of

@@ -137,6 +137,8 @@ from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lo
 from iblbench.estimators.bis import bis_chunks, run_lockstep
 from iblbench.harness.device import event_ms
 
+MAP_CHANGE_GROUP = 64   # work items of map_change's one group (smc.cl), at most
+
 
 @dataclasses.dataclass(frozen=True)
 class SMCParams:
@@ -240,8 +242,8 @@ class SMC(Estimator):
                         6 * res, cache.env_buffer, cache.conditional, pair_probability, alias, texels)]
         if have_state and not static_frame:
             table_events.append(compute.run(
-                compute.kernel(self.kernel_package(), "smc.cl", "map_change", defines), 1,
-                texels, prev_texels, map_power))
+                compute.kernel(self.kernel_package(), "smc.cl", "map_change", defines),
+                MAP_CHANGE_GROUP, texels, prev_texels, map_power, group=MAP_CHANGE_GROUP))
         events = []
         if have_state:
             flags = buffer("flags", count * 4)

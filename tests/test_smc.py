@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from iblbench.estimators.bis import BIS, effective_sample_size, systematic_resample
-from iblbench.estimators.smc import SMC
+from iblbench.estimators.smc import MAP_CHANGE_GROUP, SMC
 from iblbench.harness.conformance import (Harness, check_unbiased, face_pattern_map, glossy_gbuffer,
                                           smooth_map)
 from iblbench.harness.device_gbuffer import DeviceGBuffer
@@ -376,7 +376,8 @@ def test_smc_map_change_is_the_chi_square_of_the_map_distributions(compute, chan
         y = cubemap.luminance(env.astype(np.float64)) * cubemap.texel_solid_angles(res)
         probabilities.append(y / y.sum())
     (_, prev_texels, power), (_, texels, _) = tables
-    compute.run(_smc_kernel(compute, "map_change", res), 1, texels, prev_texels, power)
+    compute.run(_smc_kernel(compute, "map_change", res), MAP_CHANGE_GROUP, texels, prev_texels,
+                power, group=MAP_CHANGE_GROUP)
     device = compute.to_host(power, (3,), np.float32)[2]
     with np.errstate(divide="ignore"):
         expected = np.sum(probabilities[1] ** 2 / probabilities[0])
