@@ -332,7 +332,6 @@ class Runner:
         self.plans = [self._plan_scene(scene) for scene in self.scenes]
         self.compute = get_compute(config.device)
         self.device_name = self.compute.device_name
-        print(f"iblbench: device: {self.compute.info.label}", file=sys.stderr)
         self.reference = Reference(self.compute)
         self.out = pathlib.Path(config.out)
         if self.out.exists() and not self.out.is_dir():
@@ -545,7 +544,7 @@ class Runner:
             self.device_ms_total, start = 0.0, time.perf_counter()
             try:
                 with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
-                          desc="iblbench run") as bar:
+                          desc=f"iblbench run on {self.compute.info.device.name.strip()}") as bar:
                     bar.update(self.resumed)
                     for plan in self.plans:
                         self._run_scene(plan, gbuffers.pop(plan.scene.name, None), bar)
