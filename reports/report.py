@@ -7,7 +7,7 @@ script, the compare viewer's, and its stylesheet are inline).
 
 Contents, per scene: the summary (estimator × spp) in two tables, errors and samples/time, error
 against time with the Pareto front, convergence against spp (with a warning where it is flatter
-than the estimator's tags allow, :mod:`iblbench.harness.convergence`), effective samples against
+than the estimator's tags allow, :mod:`iblbench.harness.verify.convergence`), effective samples against
 spp, FLIP, flicker and smc's ess/reinits where the run has them, error per frame at every spp
 (sequences only), an image grid (reference, each estimator at one spp, ΔE76 heat maps on the
 shared log scale of :mod:`.previews` with its colour bar), a compare viewer (any two of the
@@ -17,10 +17,10 @@ sample picture (:mod:`.sample_picture`); then the run's manifest.
 
 Aggregation: a cell is (scene, estimator, spp).  Each seed's metrics are first averaged over the
 frames, then the cell's value is the mean over seeds with its 95% Student-t interval
-(:func:`iblbench.harness.stats.cell_intervals`, the one aggregation ``iblbench run`` prints too),
+(:func:`iblbench.harness.protocol.stats.cell_intervals`, the one aggregation ``iblbench run`` prints too),
 shown as ``mean ± half-width`` in every table (and the image grid's captions) and as error bars
 in the plots; the manifest's stage timings are the mean over builds with its interval.  ms/frame
-is the cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`),
+is the cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.protocol.timing`),
 aggregated the same way; efficiency = 1 / (relMSE · s per frame) is computed per seed and then
 aggregated.
 The Pareto fronts call a cell dominated only where the intervals of time and of error both
@@ -42,12 +42,12 @@ import markupsafe
 import numpy as np
 import pandas as pd
 
-from iblbench.harness.convergence import flatter_than_tags
-from iblbench.harness.equal_time import TOLERANCE
-from iblbench.harness.metrics import Scorer
-from iblbench.harness.results import load_table
-from iblbench.harness.stats import LEVEL, cell_intervals, interval_text, mean_ci, t_quantile
-from iblbench.harness.timing import TIME
+from iblbench.harness.verify.convergence import flatter_than_tags
+from iblbench.harness.protocol.equal_time import TOLERANCE
+from iblbench.harness.protocol.metrics import Scorer
+from iblbench.harness.protocol.results import load_table
+from iblbench.harness.protocol.stats import LEVEL, cell_intervals, interval_text, mean_ci, t_quantile
+from iblbench.harness.protocol.timing import TIME
 from iblbench.reports import plots
 from iblbench.reports.frames import shown_frame
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
@@ -91,7 +91,7 @@ def load_run(run_dir: pathlib.Path) -> tuple[pd.DataFrame, dict | None]:
 
 def summarize(table: pd.DataFrame) -> pd.DataFrame:
     """One row per (scene, estimator, spp): each column of INTERVAL_COLUMNS the table has (FLIP
-    only where it was computed) as :func:`iblbench.harness.stats.cell_intervals` gives it (the
+    only where it was computed) as :func:`iblbench.harness.protocol.stats.cell_intervals` gives it (the
     mean over seeds of the per-seed means over frames, with ``_low``, ``_high``, ``_half``);
     ``seeds`` counts the seeds, ``nonfinite`` sums every row's; ``efficiency`` = 1/(relMSE·s)
     per row; ``pareto_rel_mse``/``pareto_delta_e76`` are :func:`~.plots.pareto_calls` over the
@@ -255,7 +255,7 @@ class FramePreviews:
     shows one frame and seed).  A PNG no older than its EXRs (and, for a heat map, drawn on
     today's HEAT_SCALE) is kept, so a second report draws nothing.  The reference and the
     G-buffer's mask (``mask``, called at most once) are read only when something must be drawn:
-    the exposure and the heat maps are the run's scorer's (:class:`~iblbench.harness.metrics.
+    the exposure and the heat maps are the run's scorer's (:class:`~iblbench.harness.protocol.metrics.
     Scorer`), non-finite estimate values black as in its scoring.  Where the mask cannot be had
     (the scene left the registry, another resolution) the reference's non-black pixels stand in
     for it: the reference is black outside the mask, so only black covered pixels differ."""
@@ -453,7 +453,7 @@ def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, 
     """Compute and draw the sample picture of ``scene``; a dict for the template (``error``
     says why there is none); ``scene_frame_inputs`` gives the frame's :class:`SceneInputs`."""
     from iblbench.estimators.light_pool import PoolEstimator
-    from iblbench.harness.framecache import FrameCache
+    from iblbench.estimators.runtime.framecache import FrameCache
     from iblbench.reports.sample_picture import (cross_frames, cross_image, plot_sample_picture,
                                                  pool_selection)
 
@@ -506,7 +506,7 @@ def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, 
 def _estimator(label: str):
     """An estimator instance for a results label: ``name`` or ``name{param=value,...}``."""
     try:
-        from iblbench.harness.sweep import parse_estimator
+        from iblbench.harness.protocol.sweep import parse_estimator
     except ImportError:   # no parameter syntax in this version
         from iblbench.estimators.registry import get_estimator_class
         return get_estimator_class(label)()
@@ -516,7 +516,7 @@ def _estimator(label: str):
 def _image_stem(row: dict) -> str:
     """The file stem the runner gave a cell's images."""
     try:
-        from iblbench.harness.results import image_stem
+        from iblbench.harness.protocol.results import image_stem
     except ImportError:
         return f"{row['estimator']}_spp{int(row['spp'])}_s{int(row['seed'])}"
     return image_stem(row)
@@ -588,7 +588,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
 
     def compute():
         if "c" not in compute_holder:
-            from iblbench.harness.device import get_compute
+            from iblbench.estimators.runtime.device import get_compute
             compute_holder["c"] = get_compute(device)
         return compute_holder["c"]
 

@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 from matplotlib import patheffects  # noqa: E402
 
 from iblbench.estimators.light_pool import TICKS_PER_SAMPLE, PoolEstimator  # noqa: E402
-from iblbench.harness.framecache import FrameCache  # noqa: E402
+from iblbench.estimators.runtime.framecache import FrameCache  # noqa: E402
 from iblbench.reports.previews import srgb_encode  # noqa: E402
 from iblbench.scenes import cubemap  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402

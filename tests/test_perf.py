@@ -15,9 +15,10 @@ import pytest
 
 from iblbench.estimators.registry import estimator_names, get_estimator_class
 from iblbench.estimators.uniform import Uniform
-from iblbench.harness import perf, timing
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
+from iblbench.harness.studies import perf
+from iblbench.harness.protocol import timing
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.scenes.gbuffer import trace_gbuffer
 from iblbench.scenes.registry import load_scene
 
@@ -140,7 +141,7 @@ def cli(tmp_path_factory):
     def run(*args: str) -> subprocess.CompletedProcess:
         env = dict(os.environ, IBLBENCH_CACHE=str(cache), PYTHONWARNINGS="ignore")
         env.pop("IBLBENCH_DEVICE", None)
-        return subprocess.run([sys.executable, "-m", "iblbench.harness.cli", "perf", *map(str, args)],
+        return subprocess.run([sys.executable, "-m", "iblbench.cli", "perf", *map(str, args)],
                               capture_output=True, text=True, env=env, timeout=600)
     return run
 

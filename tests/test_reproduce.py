@@ -3,7 +3,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from iblbench.harness import reproduce
+from iblbench.harness.studies import reproduce
 from iblbench.reports.reproduction import summary_head, write_summary
 from iblbench.scenes.errors import InputError
 

@@ -1,4 +1,4 @@
-"""The stress battery (harness/stress.py): every case at the small size over every built-in
+"""The stress battery (harness/verify/stress.py): every case at the small size over every built-in
 estimator, the statistics it rests on, and ``iblbench stress`` with broken estimators."""
 import numpy as np
 import pandas as pd
@@ -7,9 +7,10 @@ import pytest
 from iblbench.estimators import registry
 from iblbench.estimators.base import Estimator, Tags
 from iblbench.estimators.uniform import Uniform
-from iblbench.harness import cli, conformance, stress
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
+from iblbench import cli
+from iblbench.harness.verify import conformance, stress
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 

@@ -1,4 +1,4 @@
-"""One definition of a cell's time (harness/timing.py) in the runner, equal-time calibration, the
+"""One definition of a cell's time (harness/protocol/timing.py) in the runner, equal-time calibration, the
 terminal summary, ``check`` and the report.
 
 Fake estimators report known stage times, so every time column can be checked against values
@@ -19,11 +19,13 @@ import trimesh
 
 from iblbench.estimators.base import Estimate, Estimator, Tags
 from iblbench.estimators.registry import _registry, register
-from iblbench.harness import budgets, cli, runner, timing
-from iblbench.harness.equal_time import CALIBRATION_SEED, TOLERANCE, Calibration
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.runner import TIMING_SEED, WARMUP_PIXELS, WARMUP_SEED, RunConfig, run
-from iblbench.harness.timing import TimedRender, time_columns
+from iblbench.harness.verify import budgets
+from iblbench import cli
+from iblbench.harness.protocol import runner, timing
+from iblbench.harness.protocol.equal_time import CALIBRATION_SEED, TOLERANCE, Calibration
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.harness.protocol.runner import TIMING_SEED, WARMUP_PIXELS, WARMUP_SEED, RunConfig, run
+from iblbench.harness.protocol.timing import TimedRender, time_columns
 from iblbench.reports.report import equal_time_cells, summarize
 from iblbench.scenes.imageio import read_exr
 
@@ -229,8 +231,8 @@ def test_groups_within_counts_consecutive_groups_of_five_by_iqr_over_median():
 
 
 def test_the_timing_floor_times_fixed_launches_of_the_fma_kernel():
-    from iblbench.harness import perf
-    from iblbench.harness.device import get_compute
+    from iblbench.harness.studies import perf
+    from iblbench.estimators.runtime.device import get_compute
 
     floor = perf.measure_timing_floor(get_compute(), launches=10)
     iterations = perf._floor_iterations(get_compute())

@@ -100,10 +100,10 @@ from iblbench.estimators.bis import BIS
 from iblbench.estimators.envmap import MapSampler
 from iblbench.estimators.havran import DEFENSIVE as HAVRAN_DEFENSIVE, Havran
 from iblbench.estimators.light_pool import TICKS_PER_SAMPLE, PoolEstimator
-from iblbench.harness import conformance
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.reference import Reference
+from iblbench.harness.verify import conformance
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.runtime.reference import Reference
 from iblbench.scenes import cubemap, meshes, sequences
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.gbuffer import MIN_COS_VIEW, GBuffer, trace_gbuffer
@@ -911,7 +911,7 @@ def protocol_delta_e76(estimate: np.ndarray, reference: np.ndarray) -> np.ndarra
 
 def _check_scoring(row: _Row, prepared: Prepared) -> None:
     """``scoring_error``: the metrics on the reference of frame 0 (module docstring)."""
-    from iblbench.harness import metrics
+    from iblbench.harness.protocol import metrics
 
     mask = prepared.variant.gbuffer.mask
     reference = prepared.references[0]
@@ -1118,7 +1118,7 @@ def run_stress(estimators: dict, cases=CASE_NAMES, scale: Scale = LARGE, compute
                progress: bool | None = None) -> pd.DataFrame:
     """Rows of every (case, estimator) that applies; ``estimators`` maps labels to instances.
     Each case's inputs and references are prepared once and shared by its estimators."""
-    from iblbench.harness.device import get_compute
+    from iblbench.estimators.runtime.device import get_compute
 
     compute = compute or get_compute()
     cells = [(CASES[name], label) for name in cases for label, e in estimators.items()
@@ -1174,7 +1174,7 @@ def write_outputs(out: pathlib.Path, table: pd.DataFrame, scale: Scale, device: 
                   seconds: float) -> list[pathlib.Path]:
     """``stress.parquet``, ``stress.csv`` and ``stress.html`` in ``out`` (an existing folder, see
     ``runner.prepare_out``), each written atomically."""
-    from iblbench.harness.results import write_table
+    from iblbench.harness.protocol.results import write_table
     from iblbench.reports.report import stress_html
 
     paths = [out / "stress.parquet", out / "stress.csv", out / "stress.html"]

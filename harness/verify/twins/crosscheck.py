@@ -20,9 +20,9 @@ import importlib
 
 import numpy as np
 
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.twins.ghosh2006 import Shading
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.harness.verify.twins.ghosh2006 import Shading
 from iblbench.scenes import sequences, sky
 from iblbench.scenes.gbuffer import GBuffer
 

@@ -11,7 +11,7 @@ cube face size, estimator parameters), the same code (``estimator_version``, ``s
 protocol) and on the same device; it prints ``resumed: N cells already done, M to run`` and runs
 only the M (``force`` runs them all).  A cell also counts as done only while its image files
 exist.  Each finished cell is appended to the results journal before the next one starts (see
-:mod:`iblbench.harness.results`), so a killed run, ``kill -9`` included, loses only the cell in
+:mod:`iblbench.harness.protocol.results`), so a killed run, ``kill -9`` included, loses only the cell in
 flight; Ctrl-C folds the journal into the table and marks the manifest "interrupted".  A scene
 none of whose cells is left is not even traced.
 
@@ -39,7 +39,7 @@ frame in the run's frame list for the same (scene, estimator, spp, budget, seed)
 earlier run (resumption), its map is recomputed from that frame's saved estimate and reference
 EXRs (``images/<scene>/f<frame>/``), and flicker is NaN if they are gone.
 
-Timing (:mod:`iblbench.harness.timing` defines a cell's time).  Each cell is rendered
+Timing (:mod:`iblbench.harness.protocol.timing` defines a cell's time).  Each cell is rendered
 ``repeats`` times after a warm-up (``repeats_for`` may give a slow estimator, say ``bis`` or
 ``smc``, fewer: the run then says so on stderr, and the manifest and ``time_repeats`` record
 it), and its time columns summarise those renders:
@@ -67,13 +67,13 @@ it), and its time columns summarise those renders:
 
 Equal time.  For each budget T in ``time_budget_ms`` and each (scene, estimator), the runner
 calibrates the estimator's cell time (build + sample + shade) against spp
-(:mod:`iblbench.harness.equal_time`), just before the first of those cells, and runs the spp it
+(:mod:`iblbench.harness.protocol.equal_time`), just before the first of those cells, and runs the spp it
 chose.  The first cell of each budget is then corrected on its own time, in its own context
 (after scoring and image writes, on its own seeds): while its median lies outside half of ±10%
 of T, up to ``CELL_CORRECTIONS`` times, the per-spp slope is re-estimated as the median slope
 through the cell's measured points (keeping the calibration's intercept) and the cell is
 rendered again, from ``reset()``, at the spp that predicts T.  The spp kept is the best of
-those measured (:func:`~iblbench.harness.equal_time.best_measured`), rendered once more if it
+those measured (:func:`~iblbench.harness.protocol.equal_time.best_measured`), rendered once more if it
 was not the last; the last rendering is the cell, and its spp is every other cell's of that
 budget.
 Those rows carry ``time_budget_ms = T`` and the chosen ``spp``; the calibration runs, fits and
@@ -83,7 +83,7 @@ with its budget: one outside ±10% is printed and listed in the manifest
 (``time_budget.achieved``), and the report shows the achieved time.
 
 Scores.  The reference-side work of the metrics (exposure, L*a*b*, FLIP's exposure range) is
-done once per frame (:class:`iblbench.harness.metrics.Scorer`); ``metrics`` leaves metrics out.
+done once per frame (:class:`iblbench.harness.protocol.metrics.Scorer`); ``metrics`` leaves metrics out.
 """
 from __future__ import annotations
 
@@ -106,23 +106,23 @@ import numpy as np
 from tqdm import tqdm
 
 from iblbench.estimators.registry import get_estimator_class
-from iblbench.harness.device import cache_dir, get_compute
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import PRODUCTS, FrameCache
-from iblbench.harness.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
-from iblbench.harness.perf import measure_timing_floor, timing_floor_text
-from iblbench.harness.reference import Reference
-from iblbench.harness.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
+from iblbench.estimators.runtime.device import cache_dir, get_compute
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import PRODUCTS, FrameCache
+from iblbench.harness.protocol.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
+from iblbench.harness.studies.perf import measure_timing_floor, timing_floor_text
+from iblbench.estimators.runtime.reference import Reference
+from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
                                       configuration_differences, image_configuration, image_stem,
                                       read_manifest, read_results, row_key, write_manifest,
                                       write_results)
-from iblbench.harness.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
+from iblbench.harness.protocol.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
                                          CELL_CORRECTIONS, TOLERANCE, Calibration,
                                          best_measured, corrected_spp)
-from iblbench.harness.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times, device_ms,
+from iblbench.harness.protocol.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times, device_ms,
                                      host_threads_capped, required_build_ms, time_columns,
                                      timed_renders, too_wide)
-from iblbench.harness.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
+from iblbench.harness.protocol.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
                                     select_frames)
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
@@ -460,7 +460,7 @@ class Runner:
             "timing": {"measure": MEASURE, "repeats": dict(self.repeats),
                        "cell": "median of the cell's timed renders after warm-up: the "
                                "estimator's repeats, more where they spread (timing.spread); "
-                               "min and IQR beside it (harness/timing.py)",
+                               "min and IQR beside it (harness/protocol/timing.py)",
                        "context": "BLAS and OpenMP pools at one host thread for the whole run "
                                   "(threadpoolctl); a cell's repeats (or a calibration spp's "
                                   "renders) back to back before scoring",
@@ -488,7 +488,7 @@ class Runner:
                                       "through the points measured so far",
                              "chosen": f"a measured spp within ±{TOLERANCE:.0%} of the budget, "
                                        "the largest within it first, in the calibration and "
-                                       "again on the first cell (harness/equal_time.py)",
+                                       "again on the first cell (harness/protocol/equal_time.py)",
                              "calibrations": self._resumed_calibrations()}
                             if c.time_budget_ms else None),
         }
@@ -564,7 +564,7 @@ class Runner:
                 self.manifest["timing"]["floor"] = {
                     "kernel": f"fma_throughput, {floors[0].median_ms:.2g} ms, "
                               f"{floors[0].launches} launches back to back, at the run's start "
-                              "and end (harness/timing.py, \"The device's own floor\")",
+                              "and end (harness/protocol/timing.py, \"The device's own floor\")",
                     "groups_within": [round(f.groups_within, 3) for f in floors],
                     "p90_over_p10": [round(f.p90_over_p10, 3) for f in floors]}
             self._report_spread(floors)

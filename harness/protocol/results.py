@@ -14,7 +14,7 @@ Columns, in order (``COLUMNS``):
   is the mean over covered pixels of |ΔE76(est_t, ref_t) − ΔE76(est_p, ref_p)|,
   p the frame before t in the run's frame list, for the same (scene, estimator, spp, seed,
   time_budget_ms); NaN on the first frame of the list (and so for a static scene);
-- times (:mod:`iblbench.harness.timing`, the one definition): ``time_ms`` (the cell's device
+- times (:mod:`iblbench.harness.protocol.timing`, the one definition): ``time_ms`` (the cell's device
   time per frame, build + sample + shade, median of ``time_repeats`` timed renders),
   ``time_ms_min``, ``time_ms_iqr``, the per-stage medians ``time_ms_build``, ``time_ms_sample``,
   ``time_ms_shade``, the host wall time ``time_ms_host`` and ``time_repeats`` (at least the
@@ -50,7 +50,7 @@ import sys
 import numpy as np
 import pandas as pd
 
-from iblbench.harness.timing import COLUMNS as TIME_COLUMNS
+from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 

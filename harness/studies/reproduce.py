@@ -6,9 +6,9 @@ table into the paper's tables and plots and one verdict line per claim: holds, p
 not hold, with our numbers beside the paper's.  Scenes are not tuned to make a claim hold.
 
 Every number is a cell's mean over seeds with its 95% Student-t interval
-(:func:`iblbench.harness.stats.cell_intervals`), and a comparison in a claim is called only where
-the intervals separate (:func:`iblbench.harness.stats.separated`), or, for a ratio of two cells,
-where the ratio's interval (:func:`iblbench.harness.stats.ratio_ci`) lies wholly on one side of
+(:func:`iblbench.harness.protocol.stats.cell_intervals`), and a comparison in a claim is called only where
+the intervals separate (:func:`iblbench.harness.protocol.stats.separated`), or, for a ratio of two cells,
+where the ratio's interval (:func:`iblbench.harness.protocol.stats.ratio_ci`) lies wholly on one side of
 the claim's bound; a claim that hangs on an unresolved comparison is "not resolved at N seeds"
 (N: the fewest seeds of a cell).
 
@@ -16,7 +16,7 @@ Equal time.  A reproduction that compares at equal time first runs its cells at 
 takes one budget from them (:func:`equal_time_budget`: the slowest estimator's mean frame time
 over the scenes, so that every estimator gets about that spp or more, and the budget follows the
 device rather than a number of milliseconds fixed for one machine), and runs every estimator at
-that budget through ``--time-budget-ms``'s machinery (:mod:`iblbench.harness.equal_time`).
+that budget through ``--time-budget-ms``'s machinery (:mod:`iblbench.harness.protocol.equal_time`).
 A cell can still land off its budget (the calibration is checked, not forced: on a loaded
 machine by tens of percent), so each seed's error is scaled to the budget before two estimators
 are compared (:func:`budget_scaled_values`): in the noise regime an unbiased estimator's MSE
@@ -35,10 +35,10 @@ import pathlib
 import numpy as np
 import pandas as pd
 
-from iblbench.harness.runner import RunConfig, run
-from iblbench.harness.stats import MeanCI, RatioCI, cell_intervals, ratio_ci, separated
-from iblbench.harness.sweep import parse_estimator
-from iblbench.harness.timing import TIME
+from iblbench.harness.protocol.runner import RunConfig, run
+from iblbench.harness.protocol.stats import MeanCI, RatioCI, cell_intervals, ratio_ci, separated
+from iblbench.harness.protocol.sweep import parse_estimator
+from iblbench.harness.protocol.timing import TIME
 from iblbench.scenes.errors import InputError
 
 HOLDS, PARTLY, FAILS = "holds", "partly holds", "does not hold"
@@ -131,7 +131,7 @@ def _cell_means(table: pd.DataFrame) -> pd.DataFrame:
     """Per (scene, estimator, spp) of ``table`` (spp cells, or one budget's cells): the mean
     errors, sample counts (``used``, ``effective``), effective ratio and each time column over
     seeds, with their intervals (``_low``, ``_high``, ``_half``) and ``seeds``
-    (:func:`iblbench.harness.stats.cell_intervals`)."""
+    (:func:`iblbench.harness.protocol.stats.cell_intervals`)."""
     cells = cell_intervals(table, ["scene", "estimator", "spp"],
                            [*ERRORS, *COUNTS, "effective_ratio", *TIMES]).reset_index()
     return cells.rename(columns={f"{name}{suffix}": f"{short}{suffix}"
@@ -253,7 +253,7 @@ def budget_scaled_values(rows: pd.DataFrame, column: str,
 
 def cell_ratio(values: dict, scene: str, numerator: str, denominator: str) -> RatioCI:
     """numerator's mean over seeds / denominator's, with its 95% interval
-    (:func:`iblbench.harness.stats.ratio_ci`); no ratio where a cell is missing."""
+    (:func:`iblbench.harness.protocol.stats.ratio_ci`); no ratio where a cell is missing."""
     if (scene, numerator) not in values or (scene, denominator) not in values:
         return RatioCI(math.nan, math.nan, math.nan, math.nan, "a cell is missing")
     return ratio_ci(values[scene, denominator], values[scene, numerator])

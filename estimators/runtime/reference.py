@@ -10,7 +10,7 @@ from typing import Iterator
 import numpy as np
 import pyopencl as cl
 
-from iblbench.harness.device import Compute, cache_dir, event_ms, kernel_path
+from iblbench.estimators.runtime.device import Compute, cache_dir, event_ms, kernel_path
 from iblbench.scenes import cubemap
 from iblbench.scenes.atomic import atomic_path
 
@@ -110,7 +110,7 @@ class Reference:
 
     def _key(self, gbuffer, env: np.ndarray) -> str:
         digest = hashlib.sha256()
-        digest.update(kernel_path("iblbench.harness", "reference.cl").read_bytes())
+        digest.update(kernel_path("iblbench.estimators.runtime", "reference.cl").read_bytes())
         digest.update(kernel_path("iblbench.estimators", "kernels/common.cl").read_bytes())
         digest.update(pathlib.Path(__file__).read_bytes())   # the host-side texel tables
         digest.update(f"density={self.density} fp64={self.compute.info.has_fp64}".encode())
@@ -141,7 +141,7 @@ class Reference:
         table = texel_table(res)
         table_buffer = c.to_device(table)
         out = c.empty(6 * res * res * 8)
-        kernel = c.kernel("iblbench.harness", "reference.cl", "texel_integral_table",
+        kernel = c.kernel("iblbench.estimators.runtime", "reference.cl", "texel_integral_table",
                           {"REF_DENSITY": self.density})
         for pixel in range(gbuffer.count):
             c.run(kernel, 6 * res * res, gbuffer.normal, gbuffer.view, gbuffer.ks, table_buffer,
@@ -157,7 +157,7 @@ class Reference:
         table_buffer = c.to_device(table)
         env_planes = c.to_device(planes(cache.env.reshape(-1, 3)))
         out = c.empty(gbuffer.count * 16)
-        kernel = c.kernel("iblbench.harness", "reference.cl", "reference",
+        kernel = c.kernel("iblbench.estimators.runtime", "reference.cl", "reference",
                           {"REF_DENSITY": self.density})
         group = min(WORK_GROUP, kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
                                                              c.info.device))

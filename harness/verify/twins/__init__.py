@@ -5,5 +5,5 @@ An estimator declares its twin with the class attribute ``twin``: the dotted nam
 whose ``sampler(shading, params, spp, seed)`` returns an object with ``render(env)`` (the
 estimates ``[C, 3]`` of the next frame of every chain of ``shading``, a
 :class:`.ghosh2006.Shading`) and a ``reinits`` count.  The conformance suite then runs
-``check_matches_twin`` on it (harness/conformance.py).
+``check_matches_twin`` on it (harness/verify/conformance.py).
 """

@@ -64,7 +64,7 @@ def cases() -> list[str]:
 
 def inputs():
     """(G-buffer, first map, turned map) of every case."""
-    from iblbench.harness import conformance
+    from iblbench.harness.verify import conformance
 
     env = conformance.sun_map(ENV_RES, SUN_RATIO)
     return conformance.glossy_gbuffer(SIZE), env, np.ascontiguousarray(np.roll(env, 1, axis=2))
@@ -72,17 +72,17 @@ def inputs():
 
 def pdf_directions() -> np.ndarray:
     """The ``light_pdf`` case's directions, spread over the sphere, float32 ``[n, 3]``."""
-    from iblbench.harness.conformance import fibonacci_directions
+    from iblbench.harness.verify.conformance import fibonacci_directions
 
     return fibonacci_directions(PDF_DIRECTIONS).astype(np.float32)
 
 
 def render(compute, case: str) -> dict[str, np.ndarray]:
     """The arrays of one case on ``compute``, by name."""
-    from iblbench.harness.device_gbuffer import DeviceGBuffer
-    from iblbench.harness.framecache import FrameCache
-    from iblbench.harness.reference import Reference
-    from iblbench.harness.sweep import parse_estimator
+    from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+    from iblbench.estimators.runtime.framecache import FrameCache
+    from iblbench.estimators.runtime.reference import Reference
+    from iblbench.harness.protocol.sweep import parse_estimator
 
     gbuffer, env, turned = inputs()
     pixels = DeviceGBuffer(compute, gbuffer)
@@ -92,7 +92,7 @@ def render(compute, case: str) -> dict[str, np.ndarray]:
     if case == "products":
         return _products(compute, cache)
     if case == "probes":
-        from iblbench.harness import perf
+        from iblbench.harness.studies import perf
 
         copied = perf.run_copy(compute, np.arange(64, dtype=np.float32))[0]
         lanes = perf.run_fma(compute, 16, 5, b=1.0)[0]   # [items, chains, the device's width]
@@ -199,7 +199,7 @@ def run_case(device: str, case: str, checks: dict[str, str] | None = None,
         path = pathlib.Path(folder) / "arrays.npz"
         env = {**os.environ, **(checks or {})}
         try:
-            child = subprocess.run([sys.executable, "-m", "iblbench.harness.portability", device,
+            child = subprocess.run([sys.executable, "-m", "iblbench.harness.verify.portability", device,
                                     case, str(path), str(lanes or 0)], capture_output=True,
                                    text=True, env=env, timeout=timeout)
         except subprocess.TimeoutExpired:
@@ -218,7 +218,7 @@ def run_case(device: str, case: str, checks: dict[str, str] | None = None,
 def main(argv: list[str]) -> None:
     """The child of :func:`run_case`: ``DEVICE CASE OUT.npz LANES`` (0: the device's); the
     compiler's output goes to ``OUT.log``."""
-    from iblbench.harness.device import Compute, choose_device
+    from iblbench.estimators.runtime.device import Compute, choose_device
 
     device, case, out, lanes = argv
     compute = Compute(choose_device(device), lanes=int(lanes) or None)

@@ -9,7 +9,7 @@ DESIGN §6) by scene glob, estimator glob and spp, and sets limits on them::
     height = 48                  #   ``--env-res``: the effective sizes of the results table)
     env_res = 32
     seeds = 2                    # seeds per cell (``--seeds``)
-    protocol = "lab-reinhard-v1" # the scoring protocol (harness/metrics.py PROTOCOL)
+    protocol = "lab-reinhard-v1" # the scoring protocol (harness/protocol/metrics.py PROTOCOL)
 
     [[rule]]
     name = "sun-mis-64"          # optional; shown in the output (default: "scene estimator spp=N")
@@ -28,7 +28,7 @@ effective_ratio, evaluations); ``nonfinite = N`` bounds the total count of non-f
 (use 0); ``max_time_ratio`` bounds ``time(metric of the cell) / time(metric of the baseline
 cell)`` (times as below), where the baseline cell is the named estimator on the same scene and spp *in the same
 results table* (``metric`` is one of the time columns: time_ms, the cell's device time per
-frame of :mod:`iblbench.harness.timing`, the default; time_ms_min, time_ms_iqr,
+frame of :mod:`iblbench.harness.protocol.timing`, the default; time_ms_min, time_ms_iqr,
 time_ms_build, time_ms_sample, time_ms_shade, time_ms_host). Absolute times cannot be budgeted:
 they are too noisy across machines.
 ``max_flicker``/``min_flicker`` judge a sequence over its frames after the first (the first
@@ -40,11 +40,11 @@ Any other key is an error (exit 2), so a typo never silently disables a limit, a
 What is compared. Only equal-spp rows count: rows with a ``time_budget_ms`` (equal-time cells,
 whose spp is whatever fitted the budget on that device) are left out. Rows are grouped into
 cells by (scene, estimator, spp). A cell's value for a ``max_``/``min_`` limit is the one
-aggregation of :mod:`iblbench.harness.stats`: each seed's mean over its frames, then
-:func:`~iblbench.harness.stats.mean_ci` over the seeds (the mean, with its 95% Student-t interval
+aggregation of :mod:`iblbench.harness.protocol.stats`: each seed's mean over its frames, then
+:func:`~iblbench.harness.protocol.stats.mean_ci` over the seeds (the mean, with its 95% Student-t interval
 printed beside it in the ``ci95`` column as ``± half-width``). The bound is compared with the
 mean; a NaN in any row makes the value NaN, and NaN always fails. ``nonfinite`` is the sum over the rows. The time ratio is a
-ratio of the two cells' times (:func:`iblbench.harness.timing.one_cell_time`: the same one
+ratio of the two cells' times (:func:`iblbench.harness.protocol.timing.one_cell_time`: the same one
 aggregation, per seed the mean over frames, then the mean over seeds), the time the report and
 ``iblbench run`` print; both times are shown beside the ratio.
 
@@ -91,9 +91,9 @@ import textwrap
 import numpy as np
 import pandas as pd
 
-from iblbench.harness.results import METRIC_COLUMNS, load_table, read_manifest
-from iblbench.harness.stats import mean_ci
-from iblbench.harness.timing import COLUMNS as TIME_COLUMNS, TIME, one_cell_time
+from iblbench.harness.protocol.results import METRIC_COLUMNS, load_table, read_manifest
+from iblbench.harness.protocol.stats import mean_ci
+from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME, one_cell_time
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.tomlfile import read_toml
@@ -451,7 +451,7 @@ TIME_FACTOR = 5.0
 USED_SLACK = 0.01      # used samples in [spp − 1%, spp]: an analytic bound, not a measured one
 
 BUDGETS_HEADER = """\
-# Error budgets made on {date} (harness/budgets.py; checked by `iblbench check DIR --budgets
+# Error budgets made on {date} (harness/verify/budgets.py; checked by `iblbench check DIR --budgets
 # FILE`). Do not edit by hand: remake them with these two commands, the sweep into a fresh folder
 #   {run_command}
 #   iblbench budgets {dir} --margin {margin:g} --se-multiple {k:g} --output {output}

@@ -1,13 +1,13 @@
 """Equal-time cells (``--time-budget-ms``): calibrate an estimator's frame time against spp.
 
-The measure is the cell time of :mod:`iblbench.harness.timing`: device time per frame of build
+The measure is the cell time of :mod:`iblbench.harness.protocol.timing`: device time per frame of build
 + sample + shade.  The frame's build does not depend on spp, so it enters the fit's intercept:
 the calibration adds the frame's build time (``build_ms``) to every timed render.  A
 budget below the build alone cannot be met by any spp.
 
 For one (scene, estimator) the runner times renders on the scene's first frame to run, just before
 its first equal-time cell (``CALIBRATION_REPEATS`` per spp, on seeds no cell uses, through the
-same :func:`~iblbench.harness.timing.timed_renders` as a cell's repeats) at ``CALIBRATION_SPP``,
+same :func:`~iblbench.harness.protocol.timing.timed_renders` as a cell's repeats) at ``CALIBRATION_SPP``,
 then at larger spp until the calibrated range brackets the choice. Each spp's median (over more
 renders where they spread too wide, as a cell's) is fitted as ``a + b·spp`` by least squares on
 relative error, and the first choice is the largest spp whose predicted time is within the budget.
@@ -19,12 +19,12 @@ until the measured time lies within half of ``TOLERANCE`` of the budget (so that
 noise keeps them within it) (:func:`corrected_spp`). The spp run is then chosen among the
 measured ones (:func:`best_measured`). The runner takes up to ``CELL_CORRECTIONS`` more such
 steps on the time of the budget's first cell, in the cells' own context, and again ends on the
-best of the cell's measured spp (:mod:`iblbench.harness.runner`, "Equal time"). Whether the
+best of the cell's measured spp (:mod:`iblbench.harness.protocol.runner`, "Equal time"). Whether the
 cells then landed within ``TOLERANCE`` is checked on the cells themselves (the runner's
 ``time_budget.achieved``).
 
 Why the median slope and the best measured point, not the last step: the device switches
-between slow and fast spells lasting tens to hundreds of renders (:mod:`iblbench.harness.timing`,
+between slow and fast spells lasting tens to hundreds of renders (:mod:`iblbench.harness.protocol.timing`,
 up to 1.5x apart under load), so a step through one point measured in a slow spell undershoots
 in the next fast one.  Seen in a warm idle run (budget 5 ms): blob-sun ``balanced`` measured
 7.6 ms at 479 spp (4.7 ms in calibration), stepped to 281 spp (5.8 ms, still slow), then to 231
@@ -38,7 +38,7 @@ import math
 
 import numpy as np
 
-from iblbench.harness.timing import EXTENSION, device_ms, timed_renders, too_wide
+from iblbench.harness.protocol.timing import EXTENSION, device_ms, timed_renders, too_wide
 
 CALIBRATION_SEED = 0xFFFFFF00   # + repeat index: seeds no benchmark cell uses
 CALIBRATION_SPP = (1, 4, 16, 64)
@@ -80,7 +80,7 @@ class Calibration:
 
     def measure(self, spp: int) -> float:
         """Time ``CALIBRATION_REPEATS`` renders at ``spp`` (once per spp) the way a cell's
-        renders are timed (:func:`~iblbench.harness.timing.timed_renders`, then one more at a
+        renders are timed (:func:`~iblbench.harness.protocol.timing.timed_renders`, then one more at a
         time while they spread too wide, up to ``EXTENSION`` times as many); their median."""
         if spp not in self.runs:
             renders = self._timed(spp, range(CALIBRATION_REPEATS))

@@ -20,13 +20,13 @@ Products:
   weights.  ``require("light_cdfs")`` builds their input (``cdf``); their device times are
   ``timings_ms["map_cdf"]``, ``["compensated_cdf"]`` and ``["compensated_map_cdf"]``, and each
   render that reads them counts them in its ``sample`` stage, as the pool's;
-- ``weight_pyramid``: each face's pyramid of sampling-weight sums (harness/mips.py) over the
+- ``weight_pyramid``: each face's pyramid of sampling-weight sums (estimators/runtime/mips.py) over the
   texels' Y·Ω, :meth:`FrameCache.weight_pyramid` (``timings_ms["weight_pyramid"]``), and with
   ``compensated`` over the MIS-compensated weights of :meth:`FrameCache.light_cdfs`, drawn on
   first use (``["compensated_weight_pyramid"]``, counted in the reading render's ``sample``
   stage).  Its coarsest level is each face's total, so it needs no ``cdf`` product;
 - ``radiance_mips``: the map's radiance mip chain, 2×2 box averages down to 1×1 per face
-  (harness/mips.py), :meth:`FrameCache.radiance_mips` (``timings_ms["radiance_mips"]``).
+  (estimators/runtime/mips.py), :meth:`FrameCache.radiance_mips` (``timings_ms["radiance_mips"]``).
 
 Each build is timed by OpenCL profiling events (``timings_ms``); ``built`` lists what was built,
 so the runner can record which stages were skipped.  :func:`build_fixed_point_cdfs` is the same
@@ -40,8 +40,8 @@ import pyopencl as cl
 import dataclasses
 import weakref
 
-from iblbench.harness import mips
-from iblbench.harness.device import Compute, event_ms
+from iblbench.estimators.runtime import mips
+from iblbench.estimators.runtime.device import Compute, event_ms
 from iblbench.scenes import cubemap
 
 PRODUCTS = ("env", "cdf", "pool", "light_cdfs", "weight_pyramid", "radiance_mips")
@@ -63,7 +63,7 @@ def build_fixed_point_cdfs(compute: Compute, weights: cl.Buffer, runs: int,
     ``totals`` float32 ``[runs]``, each run's Σ w.  A two-level sampler (rows, then columns)
     builds its conditional CDFs from the map and its marginal from the conditional's totals."""
     cdfs, totals = compute.empty(runs * n * 8), compute.empty(runs * 4)
-    event = compute.run(compute.kernel("iblbench.harness", "framecache.cl", "weight_cdfs"), runs,
+    event = compute.run(compute.kernel("iblbench.estimators.runtime", "framecache.cl", "weight_cdfs"), runs,
                         weights, np.int32(n), cdfs, totals)
     return cdfs, totals, event_ms(event)
 
@@ -226,7 +226,7 @@ class FrameCache:
             c, res = self.compute, self.res
             conditional = self._buffer(6 * res * res * 8)      # fixed-point CDF words (common.cl)
             row_weight = self._buffer(6 * res * 4)
-            rows = c.run(c.kernel("iblbench.harness", "framecache.cl", "row_cdfs"), 6 * res,
+            rows = c.run(c.kernel("iblbench.estimators.runtime", "framecache.cl", "row_cdfs"), 6 * res,
                          self._env_buffer, _texel_solid_angles(c, res), np.int32(res), conditional,
                          row_weight, group=_row_groups(6 * res))
             marginal, integral, faces_ms = build_fixed_point_cdfs(c, row_weight, 6, res)
@@ -247,7 +247,7 @@ class FrameCache:
         if face_integral is None:
             face_integral = self.face_integral_buffer if compensate else c.empty(4)
         rows = self._buffer(6 * res * 4)
-        event = c.run(c.kernel("iblbench.harness", "framecache.cl", "sampling_weights"), 6 * res,
+        event = c.run(c.kernel("iblbench.estimators.runtime", "framecache.cl", "sampling_weights"), 6 * res,
                       self._env_buffer, _texel_solid_angles(c, res), face_integral,
                       np.int32(res), np.int32(compensate), np.int32(store), texels, rows)
         return texels, rows, event_ms(event)
@@ -313,7 +313,7 @@ class FrameCache:
             marginal, conditional, integral = cdfs.marginal, cdfs.conditional, cdfs.face_integral
             c, count = self.compute, 6 * key[0]
             dir_pdf, radiance = c.empty(count * 16), c.empty(count * 16)
-            event = c.run(c.kernel("iblbench.harness", "framecache.cl", "build_light_pool"), count,
+            event = c.run(c.kernel("iblbench.estimators.runtime", "framecache.cl", "build_light_pool"), count,
                           self._env_buffer, marginal, conditional, integral, np.int32(self.res),
                           np.int32(key[0]), np.uint32(seed), np.uint32(self.frame), dir_pdf, radiance)
             self.timings_ms["pool"] = event_ms(event)
@@ -322,10 +322,10 @@ class FrameCache:
             self._pools[key] = LightPool(dir_pdf, radiance, key[0], key[1], self.timings_ms["pool"])
         return self._pools[key]
 
-    # ---- mip products (harness/mips.py) ------------------------------------------------------
+    # ---- mip products (estimators/runtime/mips.py) ------------------------------------------------------
 
     def weight_pyramid(self, compensated: bool = False) -> mips.MipChain:
-        """Each face's pyramid of sampling-weight sums (harness/mips.py's layout, level 0 the
+        """Each face's pyramid of sampling-weight sums (estimators/runtime/mips.py's layout, level 0 the
         texels' weights): Y·Ω, or with ``compensated`` the MIS-compensated weights of
         :meth:`light_cdfs`, whose mean Ȳ comes from the plain pyramid's face totals (its
         coarsest level), so neither needs the ``cdf`` product.  Built on first use; a
@@ -349,7 +349,7 @@ class FrameCache:
         return self._weight_pyramids[compensated]
 
     def radiance_mips(self) -> mips.MipChain:
-        """The map's radiance mip chain (harness/mips.py's layout, float4 texels, level 0 a copy
+        """The map's radiance mip chain (estimators/runtime/mips.py's layout, float4 texels, level 0 a copy
         of the map, box averages down to 1×1 per face), built on first use."""
         if self._radiance_mips is None:
             c, res = self.compute, self.res

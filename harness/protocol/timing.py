@@ -24,7 +24,7 @@ minimum, ``time_ms_iqr`` the interquartile range (NumPy's linear quantiles), ``t
 ``time_ms``), ``time_ms_host`` the median host wall time of the render calls (read-back
 included, builds excluded; never used to rank estimators) and ``time_repeats`` the number of
 renders.  How the runner gets those renders without disturbing a temporal estimator's state is
-in :mod:`iblbench.harness.runner`.
+in :mod:`iblbench.harness.protocol.runner`.
 
 **More renders where they spread.**  A frame-by-frame estimator's cell whose timed renders
 spread wider than ``SPREAD_LIMIT`` (IQR/median above 15%, :func:`too_wide`) gets one more timed
@@ -91,7 +91,7 @@ IQR/median ≤ 15% (5 runs; an ``os.sync()`` before each group changed nothing: 
 
 **The device's own floor.**  How repeatable a cell's renders can be depends on how repeatable
 the device is.  So a run measures the device at its start and end
-(:func:`iblbench.harness.perf.measure_timing_floor`; the manifest's ``timing.floor``, printed
+(:func:`iblbench.harness.studies.perf.measure_timing_floor`; the manifest's ``timing.floor``, printed
 at the end of the run): a fixed kernel of multiply-adds (no memory traffic, even work in many
 groups) of about a render's length, launched back to back, and the share of its groups of 5
 launches with IQR/median ≤ 15% (:func:`groups_within`).  It is a snapshot of a fraction of a
@@ -106,7 +106,7 @@ same range (75-87% against 80-83%), as did 20 ms of multiply-adds on both cores 
 cell.
 
 **Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
-time is aggregated as every other figure is (:func:`iblbench.harness.stats.cell_intervals`):
+time is aggregated as every other figure is (:func:`iblbench.harness.protocol.stats.cell_intervals`):
 per seed the mean of its frames' ``time_ms``, then the mean over seeds with its 95% Student-t
 interval (:func:`cell_times`, :func:`one_cell_time`; ``check``'s time ratios too).  The median
 stays where it guards against outliers of one machine moment: over a row's repeats (above).
@@ -120,7 +120,7 @@ import time
 import numpy as np
 import threadpoolctl
 
-from iblbench.harness.stats import cell_intervals
+from iblbench.harness.protocol.stats import cell_intervals
 
 STAGES = ("build", "sample", "shade")
 TIME = "time_ms"
@@ -231,5 +231,5 @@ def one_cell_time(rows, column: str = TIME) -> float:
 def cell_times(table, keys, column: str = TIME):
     """The time of each cell of ``table`` grouped by ``keys``: the mean over seeds of each
     seed's mean ``column`` over its frames (a pandas Series indexed by ``keys``; the interval is
-    in :func:`iblbench.harness.stats.cell_intervals`)."""
+    in :func:`iblbench.harness.protocol.stats.cell_intervals`)."""
     return cell_intervals(table, keys, [column])[column]

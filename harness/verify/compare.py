@@ -1,10 +1,10 @@
 """``iblbench compare A B``: two result folders, cell by cell, with intervals over seeds.
 
 **Cells.**  A cell is (scene, estimator, spp or time budget, frame), as in the results table
-(:func:`iblbench.harness.results.row_key` without the seed).  In each cell and for each metric
+(:func:`iblbench.harness.protocol.results.row_key` without the seed).  In each cell and for each metric
 of ``METRICS`` present in both folders (FLIP only where both runs computed it), compare takes
 the mean over seeds on each side and the ratio B/A with its 95% interval
-(:func:`iblbench.harness.stats.ratio_ci`: delta method on log(ratio), Welch–Satterthwaite
+(:func:`iblbench.harness.protocol.stats.ratio_ci`: delta method on log(ratio), Welch–Satterthwaite
 degrees of freedom).  The two folders' seeds are treated as independent samples, whatever
 their numbers, so a rerun with other seeds is compared as fairly as one with the same seeds.
 A change is **significant** when the interval excludes 1; it is marked ``worse`` or ``better``
@@ -48,8 +48,8 @@ import sys
 
 import pandas as pd
 
-from iblbench.harness.results import KEY_COLUMNS, json_text, load_table, read_manifest, row_key
-from iblbench.harness.stats import LEVEL, RATIO_METHOD, MeanCI, RatioCI, mean_ci, ratio_ci
+from iblbench.harness.protocol.results import KEY_COLUMNS, json_text, load_table, read_manifest, row_key
+from iblbench.harness.protocol.stats import LEVEL, RATIO_METHOD, MeanCI, RatioCI, mean_ci, ratio_ci
 from iblbench.scenes.errors import InputError
 
 METRICS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "effective_ratio", "time_ms")

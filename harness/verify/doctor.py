@@ -1,8 +1,8 @@
 """``iblbench doctor``: is every OpenCL device here right?  For each device it builds and runs the
-portability set (harness/portability.py), each case in a child process, and compares:
+portability set (harness/verify/portability.py), each case in a child process, and compares:
 
-- the exact reference with its independent NumPy twin (harness/twins/reference_twin.py), and the
-  map's light pdf with the NumPy one of the smc twin (harness/twins/ghosh2006.py, ``Map.pdf``),
+- the exact reference with its independent NumPy twin (harness/verify/twins/reference_twin.py), and the
+  map's light pdf with the NumPy one of the smc twin (harness/verify/twins/ghosh2006.py, ``Map.pdf``),
   within :data:`TWIN_RTOL`;
 - every array with the default device's (integer ones bit for bit, float ones within
   ``portability.FLOAT_RTOL``): the same inputs, seeds and Philox streams give the same image on
@@ -11,7 +11,7 @@ portability set (harness/portability.py), each case in a child process, and comp
 
 The default device's estimators have no other device to agree with: the conformance suite
 (`make test`) holds them to the reference statistically, and smc to its twin in distribution
-(harness/twins/crosscheck.py), which takes too many renders for a check per device.
+(harness/verify/twins/crosscheck.py), which takes too many renders for a check per device.
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from iblbench.harness import portability
+from iblbench.harness.verify import portability
 
 TWIN_RTOL = 1e-4        # the reference (tests/test_reference_twin.py) and light pdf against twins
 SHOWN = 4               # problems named on a device's line
@@ -50,8 +50,8 @@ class DeviceReport:
 
 def _twin_problem(case: str, arrays: dict[str, np.ndarray]) -> str | None:
     """How far the reference or the light pdf is from its NumPy twin, if beyond tolerance."""
-    from iblbench.harness.twins.ghosh2006 import Map
-    from iblbench.harness.twins.reference_twin import twin_image
+    from iblbench.harness.verify.twins.ghosh2006 import Map
+    from iblbench.harness.verify.twins.reference_twin import twin_image
 
     gbuffer, env, _ = portability.inputs()
     if case == "reference":
@@ -88,7 +88,7 @@ def diagnose(spec: str | None = None, verbose: bool = False,
              progress: Callable[[str], None] = lambda text: None) -> list[DeviceReport]:
     """A report per OpenCL device (those matching ``spec``, else every one), the default device
     first, whose arrays are every other device's baseline."""
-    from iblbench.harness.device import all_devices, build_failure, choose_device
+    from iblbench.estimators.runtime.device import all_devices, build_failure, choose_device
 
     default = choose_device()
     devices = sorted(all_devices(), key=lambda d: d.key != default.key)

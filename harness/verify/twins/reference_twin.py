@@ -1,4 +1,4 @@
-"""An independent NumPy twin of the exact reference (harness/reference.cl), at the 1e-4 level.
+"""An independent NumPy twin of the exact reference (estimators/runtime/reference.cl), at the 1e-4 level.
 
 tests/test_reference_twin.py holds it to closed forms and to the kernel; `iblbench doctor`
 compares each device's reference with it.

@@ -15,7 +15,7 @@ can fall slower than −1 before enough samples find the bright texels even in r
 worth the warning too, since its numbers at those spp are not yet Monte Carlo's.
 
 **The flattest slope the tags allow** follows the conformance suite
-(:mod:`iblbench.harness.conformance`): ``check_convergence`` (``Tags.unbiased``) and
+(:mod:`iblbench.harness.verify.conformance`): ``check_convergence`` (``Tags.unbiased``) and
 ``check_error_falls`` (not unbiased, on a static map, where the error must go to zero with the
 budget) both accept an RMS error that falls at least ``MIN_ERROR_FALL_8_TO_128`` = 2.5× over 16×
 the samples, a slope of −log 2.5 / log 16 ≈ −0.33 (ideal −½); relMSE, a squared error, gets twice
@@ -32,8 +32,8 @@ converges to a stated limit instead of the exact integral (``tags.has_limit``: f
 map, held to that limit by ``check_consistent_limit``), on any scene.
 
 **The test.**  Each seed's error is its mean over the cell's frames (as in
-:func:`iblbench.harness.stats.cell_intervals`); the ratio of the mean over seeds at b to that at
-a gets its 95% interval from :func:`iblbench.harness.stats.ratio_ci`, and the pair is flagged
+:func:`iblbench.harness.protocol.stats.cell_intervals`); the ratio of the mean over seeds at b to that at
+a gets its 95% interval from :func:`iblbench.harness.protocol.stats.ratio_ci`, and the pair is flagged
 only where the whole interval lies above the allowed ratio (b/a)^slope: convergence flatter
 than the tags allow, with the intervals saying so.  ``ratio_ci`` takes the two levels as
 independent samples; a run reuses its seeds at every spp, and the two levels' errors of one
@@ -50,8 +50,8 @@ import math
 import numpy as np
 import pandas as pd
 
-from iblbench.harness.conformance import MIN_ERROR_FALL_8_TO_128
-from iblbench.harness.stats import RatioCI, ratio_ci
+from iblbench.harness.verify.conformance import MIN_ERROR_FALL_8_TO_128
+from iblbench.harness.protocol.stats import RatioCI, ratio_ci
 
 # Error column → (name in messages, its power of an RMS-like error).
 METRICS = {"rel_mse": ("relMSE", 2)}
@@ -109,7 +109,7 @@ class Flag:
 
 def _tags(label: str):
     """The tags of the estimator a results label names; None where it is not registered here."""
-    from iblbench.harness.sweep import parse_estimator
+    from iblbench.harness.protocol.sweep import parse_estimator
     from iblbench.scenes.errors import InputError
 
     try:

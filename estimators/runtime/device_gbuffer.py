@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from iblbench.harness.device import Compute
+from iblbench.estimators.runtime.device import Compute
 from iblbench.scenes.gbuffer import GBuffer
 
 # Work items per group of a pixel kernel.  PoCL's own choice (local size None) depends on the

@@ -187,46 +187,46 @@ CATALOGUE: tuple[Mutant, ...] = (
        "pdf += GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;", ["smc"],
        ["constant"]),
     # ---- the frame cache --------------------------------------------------------------------
-    _m("framecache-luminance-weights-swapped", "harness/framecache.cl",
+    _m("framecache-luminance-weights-swapped", "estimators/runtime/framecache.cl",
        "return 0.2126f * x + 0.7152f * y + 0.0722f * z;",
        "return 0.7152f * x + 0.2126f * y + 0.0722f * z;",
        ["uniform"], ["sun-1e6"]),
-    _m("framecache-cdf-without-solid-angle", "harness/framecache.cl",
+    _m("framecache-cdf-without-solid-angle", "estimators/runtime/framecache.cl",
        "return luminance_of_sixteen(a, b, c, d) * omega;",
        "return luminance_of_sixteen(a, b, c, d);",
        ["uniform"], ["tiny-faces"]),
-    _m("framecache-zero-bins-kept", "harness/framecache.cl",
+    _m("framecache-zero-bins-kept", "estimators/runtime/framecache.cl",
        "(cdf_word8_t)0, convert_long8(w > 0.0f) == 0);", "(cdf_word8_t)0, convert_long8(w >= 0.0f) == 0);",
        ["uniform"], ["hot-texel"]),
     # ---- the reference ---------------------------------------------------------------------------
-    _m("reference-chord-for-arc", "harness/reference.py",
+    _m("reference-chord-for-arc", "estimators/runtime/reference.py",
        "theta = np.arctan2(s, np.sum(a * b, axis=-1, keepdims=True))",
        "theta = 2.0 * np.sin(np.arctan2(s, np.sum(a * b, axis=-1, keepdims=True)) / 2.0)",
        ["uniform"], ["constant", "tiny-faces"]),
     # The specular integral clips each row of points at the horizon and clamps c_n (reference.cl);
     # without both it integrates the lobe's part below the horizon with negative cosines.
-    _m("reference-specular-without-cos-clamp", "harness/reference.cl",
+    _m("reference-specular-without-cos-clamp", "estimators/runtime/reference.cl",
        ("    float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : s_lo;\n"
         "    float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : s_hi;\n",
         "* max(c_n, 0.0f)\n"),
        ("    float16 row_lo = s_lo + 0.0f * edge, row_hi = s_hi;\n", "* c_n\n"),
        ["bis"], ["grazing"]),
-    _m("reference-cache-key-without-material", "harness/reference.py",
+    _m("reference-cache-key-without-material", "estimators/runtime/reference.py",
        "for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],\n"
        "                      g.shininess[g.mask], np.ascontiguousarray(env, np.float32)):",
        "for array in (g.mask, g.normal[g.mask], g.view[g.mask], np.ascontiguousarray(env, np.float32)):",
        [], ["shininess"]),
-    _m("reference-specular-normalisation-m+1", "harness/reference.cl",
+    _m("reference-specular-normalisation-m+1", "estimators/runtime/reference.cl",
        "if (specular) result += rho_s * (m + 2.0f) / (2.0f * IBL_PI) * s;",
        "if (specular) result += rho_s * (m + 1.0f) / (2.0f * IBL_PI) * s;", ["uniform"], ["shininess"]),
     # ---- the metrics -----------------------------------------------------------------------------
-    _m("metrics-exposure-from-estimate", "harness/metrics.py",
+    _m("metrics-exposure-from-estimate", "harness/protocol/metrics.py",
        "lab = to_lab(tonemap(estimate[mask], self.k))",
        "lab = to_lab(tonemap(estimate[mask], exposure(estimate, mask)))", [], ["constant"], budgets=True),
-    _m("metrics-tonemap-without-exposure-in-denominator", "harness/metrics.py",
+    _m("metrics-tonemap-without-exposure-in-denominator", "harness/protocol/metrics.py",
        "return rgb * (k / (1.0 + k * luminance(rgb)))[..., None]",
        "return rgb * (k / (1.0 + luminance(rgb)))[..., None]", [], ["constant"], budgets=True),
-    _m("metrics-relmse-without-square", "harness/metrics.py",
+    _m("metrics-relmse-without-square", "harness/protocol/metrics.py",
        "return float(np.mean((x - r) ** 2 / (r * r + 0.01)))",
        "return float(np.mean((x - r) ** 2 / (r + 0.01)))", [], ["constant"], budgets=True),
 )
@@ -274,7 +274,15 @@ def copy_sources(folder: pathlib.Path) -> pathlib.Path:
     The top-level package (the Python API) comes too: on ``PYTHONPATH`` first, the copy must
     be a regular package, or an installed one would shadow it."""
     (folder / "iblbench").mkdir(parents=True)
-    shutil.copy(importlib.import_module("iblbench").__file__, folder / "iblbench")
+    api = pathlib.Path(importlib.import_module("iblbench").__file__).parent
+    for entry in api.iterdir():          # the API: __init__, cli and commands/
+        if entry.name in PACKAGES or entry.name == "__pycache__":
+            continue
+        if entry.is_dir():
+            shutil.copytree(entry, folder / "iblbench" / entry.name,
+                            ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+        elif entry.suffix == ".py":
+            shutil.copy(entry, folder / "iblbench")
     for package in PACKAGES:
         source = pathlib.Path(importlib.import_module(f"iblbench.{package}").__file__).parent
         shutil.copytree(source, folder / "iblbench" / package,
@@ -308,7 +316,7 @@ def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout:
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
                    IBLBENCH_CACHE=str(cache or root / "cache"), IBLBENCH_CHI2_PLOTS=str(root / "chi2"))
         budgets = budgets_file()
-        command = [sys.executable, "-m", "iblbench.harness.mutants", json.dumps(dataclasses.asdict(mutant)),
+        command = [sys.executable, "-m", "iblbench.harness.verify.mutants", json.dumps(dataclasses.asdict(mutant)),
                    ",".join(layers), "all" if all_layers else "first", str(budgets) if budgets else "-"]
         try:
             done = subprocess.run(command, env=env, cwd=tmp, capture_output=True, text=True,
@@ -358,8 +366,8 @@ def _first_line(error: BaseException) -> str:
 
 
 def _conformance(mutant: Mutant, compute) -> str:
-    from iblbench.harness import conformance
-    from iblbench.harness.sweep import parse_estimator
+    from iblbench.harness.verify import conformance
+    from iblbench.harness.protocol.sweep import parse_estimator
 
     h = conformance.Harness(compute)
     for name in mutant.estimators:
@@ -373,8 +381,8 @@ def _conformance(mutant: Mutant, compute) -> str:
 
 
 def _stress(mutant: Mutant, compute) -> str:
-    from iblbench.harness import stress
-    from iblbench.harness.sweep import parse_estimator
+    from iblbench.harness.verify import stress
+    from iblbench.harness.protocol.sweep import parse_estimator
 
     names = mutant.estimators or ("uniform",)
     estimators = {name: parse_estimator(name).make() for name in names}
@@ -387,12 +395,12 @@ def _stress(mutant: Mutant, compute) -> str:
 
 
 def _budgets(budgets: str) -> str:
-    from iblbench.harness import budgets as budget_check
+    from iblbench.harness.verify import budgets as budget_check
 
     if budgets == "-":
         return ""
     with tempfile.TemporaryDirectory() as out:
-        done = subprocess.run([sys.executable, "-m", "iblbench.harness.cli", "run", "--config", "quick",
+        done = subprocess.run([sys.executable, "-m", "iblbench.cli", "run", "--config", "quick",
                                "--out", out, "--repeats", "1", "--no-flip"], capture_output=True, text=True)
         if done.returncode != 0:
             return f"quick sweep failed (exit {done.returncode}): {(done.stdout + done.stderr)[-300:]}"
@@ -401,7 +409,7 @@ def _budgets(budgets: str) -> str:
 
 
 def _child(fields: str, layers: str, mode: str, budgets: str) -> None:
-    from iblbench.harness.device import get_compute
+    from iblbench.estimators.runtime.device import get_compute
 
     mutant = Mutant(**{key: tuple(value) if isinstance(value, list) else value
                        for key, value in json.loads(fields).items()})

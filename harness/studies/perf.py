@@ -171,7 +171,7 @@ import time
 
 import numpy as np
 
-from iblbench.harness.timing import SPREAD_LIMIT, groups_within, required_build_ms, spread
+from iblbench.harness.protocol.timing import SPREAD_LIMIT, groups_within, required_build_ms, spread
 from iblbench.scenes.errors import InputError
 
 DEFAULT_SCENES = ("sphere-sun", "blob-sun")
@@ -325,13 +325,13 @@ def fma_width(compute) -> int:
 
 
 def _perf_kernel(compute, name: str):
-    return compute.kernel("iblbench.harness", "perf.cl", name, {"FMA_WIDTH": fma_width(compute)})
+    return compute.kernel("iblbench.estimators.runtime", "probes.cl", name, {"FMA_WIDTH": fma_width(compute)})
 
 
 def _launches(compute, kernel, items: int, args, launches: int) -> list[float]:
     """Device ms of ``launches`` launches after an untimed one (first touch of the buffers'
     pages, kernel compilation)."""
-    from iblbench.harness.device import event_ms
+    from iblbench.estimators.runtime.device import event_ms
 
     compute.run(kernel, items, *args)
     return [event_ms(compute.run(kernel, items, *args)) for _ in range(launches)]
@@ -438,7 +438,7 @@ class CopyProbe:
         compute.run(self.kernel, self.items, *self.buffers)   # first touch of the pages
 
     def gbps(self) -> float:
-        from iblbench.harness.device import event_ms
+        from iblbench.estimators.runtime.device import event_ms
 
         ms = event_ms(self.compute.run(self.kernel, self.items, *self.buffers))
         return 32 * self.items / (ms * 1e6)
@@ -564,7 +564,7 @@ class _Cell:
     evaluations: float = math.nan
 
     def render(self, compute, gbuffer, env, seed: int, timed: bool = True):
-        from iblbench.harness.framecache import FrameCache
+        from iblbench.estimators.runtime.framecache import FrameCache
 
         cache = FrameCache(compute, env, 0)
         cache.require(type(self.estimator).requires)
@@ -670,10 +670,10 @@ def run_perf(config: PerfConfig, log=print):
 
     from iblbench.estimators.registry import estimator_names
     from iblbench.estimators.uniform import Uniform
-    from iblbench.harness.device import get_compute
-    from iblbench.harness.device_gbuffer import DeviceGBuffer
-    from iblbench.harness.framecache import FrameCache
-    from iblbench.harness.sweep import parse_estimator
+    from iblbench.estimators.runtime.device import get_compute
+    from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+    from iblbench.estimators.runtime.framecache import FrameCache
+    from iblbench.harness.protocol.sweep import parse_estimator
     from iblbench.scenes.gbuffer import trace_gbuffer
     from iblbench.scenes.registry import load_scene
 
@@ -755,7 +755,7 @@ def write_outputs(out: pathlib.Path, table, roofline: Roofline, context: dict) -
     import jinja2
     import markupsafe
 
-    from iblbench.harness.results import write_table
+    from iblbench.harness.protocol.results import write_table
     from iblbench.scenes.atomic import atomic_path
 
     csv, html = out / "perf.csv", out / "perf.html"
@@ -780,13 +780,13 @@ def write_outputs(out: pathlib.Path, table, roofline: Roofline, context: dict) -
 def run_command(config: PerfConfig) -> list[pathlib.Path]:
     """``iblbench perf``: measure, print the table, write perf.csv and perf.html into
     ``config.out`` (nothing is written when the input is bad)."""
-    from iblbench.harness.runner import prepare_out
+    from iblbench.harness.protocol.runner import prepare_out
 
     out = pathlib.Path(config.out)
     if out.exists() and not out.is_dir():
         raise InputError(out, "--out exists and is not a directory")
-    from iblbench.harness.device import get_compute
-    from iblbench.harness.timing import host_threads_capped
+    from iblbench.estimators.runtime.device import get_compute
+    from iblbench.harness.protocol.timing import host_threads_capped
 
     start = time.perf_counter()
     with host_threads_capped():   # the NumPy floor runs between timed kernels: no spinning BLAS

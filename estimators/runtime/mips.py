@@ -1,5 +1,5 @@
 """Mip chains of a cube map on the device: the frame cache's ``weight_pyramid`` and
-``radiance_mips`` products (harness/framecache.py), both built by ``reduce_2x2`` of mips.cl.
+``radiance_mips`` products (estimators/runtime/framecache.py), both built by ``reduce_2x2`` of mips.cl.
 
 Layout (one definition, read by every sampler of a chain): level 0 is the finest, of the map's
 face size R; level l has size n_l = ⌈R / 2^l⌉ (:func:`level_sizes`), down to 1×1.  Every level
@@ -25,7 +25,7 @@ import dataclasses
 import numpy as np
 import pyopencl as cl
 
-from iblbench.harness.device import Compute, event_ms
+from iblbench.estimators.runtime.device import Compute, event_ms
 
 
 def level_sizes(res: int) -> tuple[int, ...]:
@@ -78,7 +78,7 @@ def reduce_levels(compute: Compute, buffer: cl.Buffer, res: int, channels: int, 
     """Fill levels 1… of the chain in ``buffer`` from its level 0 (already there), parent level
     by parent level; returns their device ms."""
     sizes, offsets = level_sizes(res), level_offsets(res, channels)
-    kernel = compute.kernel("iblbench.harness", "mips.cl", "reduce_2x2",
+    kernel = compute.kernel("iblbench.estimators.runtime", "mips.cl", "reduce_2x2",
                             {"CHANNELS": channels, "AVERAGE": int(average)})
     total_ms = 0.0
     for level in range(1, len(sizes)):

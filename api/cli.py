@@ -70,7 +70,7 @@ def _spp_list(text: str) -> tuple[int, ...]:
 
 
 def _resolution(text: str) -> tuple[int, int]:
-    from iblbench.harness.sweep import parse_resolution
+    from iblbench.harness.protocol.sweep import parse_resolution
 
     try:
         return parse_resolution(text)
@@ -79,7 +79,7 @@ def _resolution(text: str) -> tuple[int, int]:
 
 
 def _env_res(text: str) -> int:
-    from iblbench.harness.sweep import check_env_res
+    from iblbench.harness.protocol.sweep import check_env_res
 
     try:
         return check_env_res(_positive_int(text))
@@ -122,7 +122,7 @@ def _human_output(args):
 
 
 def _print_json(document: dict) -> None:
-    from iblbench.harness.results import json_text
+    from iblbench.harness.protocol.results import json_text
 
     print(json_text(document))
 
@@ -144,14 +144,14 @@ class _Version(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None):
         from importlib.metadata import version
 
-        from iblbench.harness.runner import _git_revision
+        from iblbench.harness.protocol.runner import _git_revision
 
         print(f"iblbench {version('iblbench')} (git {_git_revision()})")
         parser.exit()
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from iblbench.harness import sweep
+    from iblbench.harness.protocol import sweep
 
     parser = _Parser(prog="iblbench", description=DESCRIPTION, epilog=EPILOG,
                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -358,7 +358,7 @@ def _add_compare(commands) -> None:
 
 
 def _compare(args) -> int:
-    from iblbench.harness.compare import run_command
+    from iblbench.harness.verify.compare import run_command
 
     return run_command(args.a, args.b, args.fail_if, as_json=args.json)
 
@@ -391,7 +391,7 @@ A new GPU: run this first; then choose a device with --device or IBLBENCH_DEVICE
 
 
 def _doctor(args) -> int:
-    from iblbench.harness.doctor import diagnose
+    from iblbench.harness.verify.doctor import diagnose
 
     def progress(text: str) -> None:   # one status line on a terminal, nothing in a log
         if sys.stderr.isatty():
@@ -431,7 +431,7 @@ def _add_perf(commands, device) -> None:
                       help="output directory for perf.csv and perf.html (default: results/perf)")
 
     def format_help() -> str:
-        from iblbench.harness.perf import columns_help
+        from iblbench.harness.studies.perf import columns_help
 
         perf.epilog = columns_help()
         return argparse.ArgumentParser.format_help(perf)
@@ -440,7 +440,7 @@ def _add_perf(commands, device) -> None:
 
 
 def _perf(args) -> None:
-    from iblbench.harness import perf
+    from iblbench.harness.studies import perf
 
     perf.run_command(perf.PerfConfig(
         out=args.out, scenes=tuple(args.scene or perf.DEFAULT_SCENES),
@@ -477,7 +477,7 @@ def _add_selftest(commands) -> None:
 
 
 def _selftest(args) -> int:
-    from iblbench.harness import mutants
+    from iblbench.harness.verify import mutants
 
     try:
         chosen = mutants.catalogue(args.mutant)
@@ -526,7 +526,7 @@ def _stress_case(text: str) -> str:
 
 def stress_cases() -> dict[str, str]:
     """Case name → the failure it guards against."""
-    from iblbench.harness.stress import CASES
+    from iblbench.harness.verify.stress import CASES
 
     return {name: case.guards for name, case in CASES.items()}
 
@@ -552,7 +552,7 @@ def _stress_description() -> str:
 
 def _list(args) -> None:
     if args.what == "devices":
-        from iblbench.harness.device import (all_devices, build_failure, choose_device,
+        from iblbench.estimators.runtime.device import (all_devices, build_failure, choose_device,
                                              measured_gflops)
 
         chosen = choose_device(args.device)
@@ -608,10 +608,10 @@ def _listing_line(name: str, text: str) -> str:
 
 def _run(args) -> None:
     from iblbench import run_config
-    from iblbench.harness.machine_readable import run_summary
-    from iblbench.harness.results import read_manifest
-    from iblbench.harness.runner import Runner
-    from iblbench.harness.sweep import frames_arg, load_sweep
+    from iblbench.harness.protocol.machine_readable import run_summary
+    from iblbench.harness.protocol.results import read_manifest
+    from iblbench.harness.protocol.runner import Runner
+    from iblbench.harness.protocol.sweep import frames_arg, load_sweep
 
     # "all" parses to None, which Sweep.replace would ignore: spell it as the full slice.
     frames = None if args.frames is None else (frames_arg(args.frames) or slice(None))
@@ -643,7 +643,7 @@ def _run(args) -> None:
         print(summary.to_string(float_format=lambda v: f"{v:.4g}"), file=human)
     print(f"wrote {len(rows)} rows to {args.out}/results.parquet"
           + (f" ({len(table)} in all)" if len(table) != len(rows) else ""), file=human)
-    from iblbench.harness.convergence import flatter_than_tags
+    from iblbench.harness.verify.convergence import flatter_than_tags
     for flag in flatter_than_tags(rows):   # issue 11: convergence flatter than the tags allow
         print(f"warning: convergence: {flag.text()}", file=sys.stderr)
     if args.json:
@@ -658,8 +658,8 @@ def terminal_summaries(table):
     per frame, build + sample + shade) as the report and ``check`` show it.  Time, errors and
     samples are the mean over seeds with its 95% Student-t interval, ``mean ± half-width``
     (:func:`iblbench.harness.stats.cell_intervals`); ``seeds`` says how many."""
-    from iblbench.harness.stats import cell_intervals, interval_text
-    from iblbench.harness.timing import TIME
+    from iblbench.harness.protocol.stats import cell_intervals, interval_text
+    from iblbench.harness.protocol.timing import TIME
 
     shown = {TIME: TIME, "mean_delta_e76": "mean_delta_e76", "rel_mse": "rel_mse", "flip": "flip",
              "effective_samples": "effective", "used_samples": "used"}
@@ -686,7 +686,7 @@ def terminal_summaries(table):
 
 
 def _reproduce(args) -> None:
-    from iblbench.harness.reproduce import reproduce
+    from iblbench.harness.studies.reproduce import reproduce
     from iblbench.reports.reproduction import summary_head
 
     summary = reproduce(args.paper, args.out, seeds=args.seeds, device=args.device,
@@ -698,8 +698,8 @@ def _reproduce(args) -> None:
 def _check(args) -> int:
     import pandas as pd
 
-    from iblbench.harness.budgets import check
-    from iblbench.harness.machine_readable import check_summary, junit_xml
+    from iblbench.harness.verify.budgets import check
+    from iblbench.harness.protocol.machine_readable import check_summary, junit_xml
     from iblbench.scenes.atomic import atomic_path
 
     checks, verdict, status = check(args.dir, args.budgets)
@@ -720,7 +720,7 @@ def _check(args) -> int:
 
 
 def _budgets(args) -> None:
-    from iblbench.harness.budgets import write_budgets
+    from iblbench.harness.verify.budgets import write_budgets
 
     extra = {} if args.se_multiple is None else {"se_multiple": args.se_multiple}
     rules = write_budgets(args.dir, args.output, args.margin, why=args.why, **extra)
@@ -742,11 +742,11 @@ def _stress(args) -> int:
     import pandas as pd
 
     from iblbench.estimators.registry import estimator_names
-    from iblbench.harness import stress
-    from iblbench.harness.device import get_compute
-    from iblbench.harness.machine_readable import stress_summary
-    from iblbench.harness.runner import prepare_out
-    from iblbench.harness.sweep import parse_estimator
+    from iblbench.harness.verify import stress
+    from iblbench.estimators.runtime.device import get_compute
+    from iblbench.harness.protocol.machine_readable import stress_summary
+    from iblbench.harness.protocol.runner import prepare_out
+    from iblbench.harness.protocol.sweep import parse_estimator
 
     estimators = {spec.label: spec.make()
                   for spec in map(parse_estimator, args.estimator or estimator_names())}
