@@ -745,7 +745,7 @@ def _stress(args) -> int:
     from iblbench.harness.verify import stress
     from iblbench.estimators.runtime.device import get_compute
     from iblbench.harness.protocol.machine_readable import stress_summary
-    from iblbench.harness.protocol.runner import prepare_out
+    from iblbench.harness.protocol.results import prepare_out
     from iblbench.harness.protocol.sweep import parse_estimator
 
     estimators = {spec.label: spec.make()

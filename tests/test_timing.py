@@ -231,11 +231,11 @@ def test_groups_within_counts_consecutive_groups_of_five_by_iqr_over_median():
 
 
 def test_the_timing_floor_times_fixed_launches_of_the_fma_kernel():
-    from iblbench.harness.studies import perf
+    from iblbench.estimators.runtime import probes
     from iblbench.estimators.runtime.device import get_compute
 
-    floor = perf.measure_timing_floor(get_compute(), launches=10)
-    iterations = perf._floor_iterations(get_compute())
+    floor = timing.measure_timing_floor(get_compute(), launches=10)
+    iterations = probes._floor_iterations(get_compute())
     assert iterations >= 16 and iterations & (iterations - 1) == 0   # sized by doubling
     assert floor.launches == 10 and floor.median_ms > 0
     assert floor.groups_within in (0.0, 0.5, 1.0)   # two groups of five

@@ -75,6 +75,16 @@ _INTS = ("spp", "frame", "seed", "nonfinite", "width", "height", "env_res", "sch
          "time_repeats")
 
 
+def prepare_out(out: pathlib.Path) -> None:
+    """Create ``out`` (InputError when it cannot be, or is not writable)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(out, f"cannot create the output directory ({error.strerror})") from None
+    if not os.access(out, os.W_OK):
+        raise InputError(out, "the output directory is not writable")
+
+
 def extra_columns(rows: list[dict]) -> list[str]:
     """Columns of ``rows`` beyond the fixed ``COLUMNS`` (estimator extras), sorted."""
     fixed = set(COLUMNS)

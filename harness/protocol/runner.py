@@ -110,18 +110,18 @@ from iblbench.estimators.runtime.device import cache_dir, get_compute
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import PRODUCTS, FrameCache
 from iblbench.harness.protocol.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
-from iblbench.harness.studies.perf import measure_timing_floor, timing_floor_text
 from iblbench.estimators.runtime.reference import Reference
 from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
                                       configuration_differences, image_configuration, image_stem,
-                                      read_manifest, read_results, row_key, write_manifest,
-                                      write_results)
+                                      prepare_out, read_manifest, read_results, row_key,
+                                      write_manifest, write_results)
 from iblbench.harness.protocol.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
                                          CELL_CORRECTIONS, TOLERANCE, Calibration,
                                          best_measured, corrected_spp)
 from iblbench.harness.protocol.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times, device_ms,
                                      host_threads_capped, required_build_ms, time_columns,
-                                     timed_renders, too_wide)
+                                     measure_timing_floor, timed_renders, timing_floor_text,
+                                     too_wide)
 from iblbench.harness.protocol.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
                                     select_frames)
 from iblbench.scenes.atomic import atomic_path
@@ -226,16 +226,6 @@ def _require_unique_names(scenes) -> None:
                              f"scene name '{scene.name}' is also the name of "
                              f"{seen[scene.name] or 'a built-in scene'}; rename one of the files")
         seen[scene.name] = scene.source
-
-
-def prepare_out(out: pathlib.Path) -> None:
-    """Create ``out`` (InputError when it cannot be, or is not writable)."""
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise InputError(out, f"cannot create the output directory ({error.strerror})") from None
-    if not os.access(out, os.W_OK):
-        raise InputError(out, "the output directory is not writable")
 
 
 @contextlib.contextmanager

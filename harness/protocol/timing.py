@@ -91,7 +91,7 @@ IQR/median ≤ 15% (5 runs; an ``os.sync()`` before each group changed nothing: 
 
 **The device's own floor.**  How repeatable a cell's renders can be depends on how repeatable
 the device is.  So a run measures the device at its start and end
-(:func:`iblbench.harness.studies.perf.measure_timing_floor`; the manifest's ``timing.floor``, printed
+(:func:`measure_timing_floor`; the manifest's ``timing.floor``, printed
 at the end of the run): a fixed kernel of multiply-adds (no memory traffic, even work in many
 groups) of about a render's length, launched back to back, and the share of its groups of 5
 launches with IQR/median ≤ 15% (:func:`groups_within`).  It is a snapshot of a fraction of a
@@ -233,3 +233,39 @@ def cell_times(table, keys, column: str = TIME):
     seed's mean ``column`` over its frames (a pandas Series indexed by ``keys``; the interval is
     in :func:`iblbench.harness.protocol.stats.cell_intervals`)."""
     return cell_intervals(table, keys, [column])[column]
+
+
+# ---- the device's own floor (the kernel: estimators/runtime/probes.py) ---------------------------
+
+FLOOR_LAUNCHES = 40            # back to back: 8 groups of 5
+
+
+@dataclasses.dataclass(frozen=True)
+class TimingFloor:
+    """How repeatable the device's own timings are now ("The device's own floor", above)."""
+
+    launches: int           # timed launches, back to back
+    median_ms: float        # their median device ms
+    groups_within: float    # share of consecutive groups of 5 with IQR/median ≤ SPREAD_LIMIT
+    p90_over_p10: float     # the spread of all launches
+
+    def text(self) -> str:
+        return (f"{self.groups_within:.0%} of groups of 5 within {SPREAD_LIMIT:.0%} "
+                f"(p90/p10 {self.p90_over_p10:.2f})")
+
+
+def timing_floor_text(floors: list[TimingFloor]) -> str:
+    """The floor measured at a run's start and end, as the terminal and perf.html say it."""
+    return " at the start, ".join(f.text() for f in floors) + " at the end"
+
+
+def measure_timing_floor(compute, launches: int = FLOOR_LAUNCHES) -> TimingFloor:
+    """``launches`` back-to-back launches of ``fma_throughput`` sized to take ≥ FLOOR_MS: a
+    kernel with no memory traffic and even work in many groups, so their spread is the
+    device's (and the machine's), not a kernel's."""
+    from iblbench.estimators.runtime.probes import floor_launches
+
+    times = floor_launches(compute, launches)
+    p10, p90 = np.percentile(times, [10, 90])
+    return TimingFloor(launches=launches, median_ms=float(np.median(times)),
+                       groups_within=groups_within(times), p90_over_p10=float(p90 / p10))

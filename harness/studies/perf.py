@@ -26,7 +26,7 @@ render is the first frame of a sequence, what an ``iblbench run`` cell of a stat
 renders (``smc``: its alias tables' build, then its BIS initialisation, M + N evaluations per
 pixel).
 
-The roofline.  ``fma_throughput`` (``perf.cl``: independent FMA chains, two FLOPs each) gives
+The roofline.  ``fma_throughput`` (``estimators/runtime/probes.cl``: independent FMA chains, two FLOPs each) gives
 the device's FLOP rate and ``copy_bandwidth`` (one float4 read and one written per work item,
 buffers much larger than the last-level cache) its bandwidth, counted as bytes read + bytes
 written (STREAM's convention; a CPU's write-allocate reads are not counted).  Both run on the
@@ -163,7 +163,6 @@ floor must match the ``uniform`` kernel on the same pool (``floor_max_rel_diff``
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import pathlib
 import textwrap
@@ -171,7 +170,10 @@ import time
 
 import numpy as np
 
-from iblbench.harness.protocol.timing import SPREAD_LIMIT, groups_within, required_build_ms, spread
+from iblbench.estimators.runtime.probes import (FMA_ITEMS, CopyProbe, copy_size, fma_iterations,
+                                                run_copy, run_fma)
+from iblbench.harness.protocol.timing import (measure_timing_floor, required_build_ms, spread,
+                                             timing_floor_text)
 from iblbench.scenes.errors import InputError
 
 DEFAULT_SCENES = ("sphere-sun", "blob-sun")
@@ -190,12 +192,7 @@ WARMUP_SEED = 0xFFFFFFFF
 FLOOR_RTOL = 1e-4              # |floor − uniform| ≤ RTOL·|uniform| + ATOL·max|uniform| per channel
 FLOOR_ATOL = 1e-6
 FLOOR_BLOCK = 1 << 15          # pixels × pool entries per block of the floor (fits in L2)
-FMA_CHAINS = 8                 # perf.cl's fma_throughput: chains of fma_width(compute) lanes
-FMA_ITEMS = 1 << 17
-COPY_MIN_BYTES = 64 << 20      # each copy buffer: at least this, and 8× the device's cache
 ROOF_MIN_MS = 20.0             # each roofline launch is sized to take at least this
-FLOOR_MS = 3.0                 # the timing floor's launches: about a render's device time
-FLOOR_LAUNCHES = 40            # back to back: 8 groups of 5
 
 
 def cdf_build_bytes(res: int) -> int:
@@ -318,130 +315,14 @@ class Roofline:
         return "compute" if flops_per_byte * self.gbps >= self.gflops else "memory"
 
 
-def fma_width(compute) -> int:
-    """Lanes of each FMA chain: the device's preferred float vector width (1, 2, 4, 8 or 16)."""
-    width = int(compute.info.device.preferred_vector_width_float)
-    return max(w for w in (1, 2, 4, 8, 16) if w <= max(width, 1))
-
-
-def _perf_kernel(compute, name: str):
-    return compute.kernel("iblbench.estimators.runtime", "probes.cl", name, {"FMA_WIDTH": fma_width(compute)})
-
-
-def _launches(compute, kernel, items: int, args, launches: int) -> list[float]:
-    """Device ms of ``launches`` launches after an untimed one (first touch of the buffers'
-    pages, kernel compilation)."""
-    from iblbench.estimators.runtime.device import event_ms
-
-    compute.run(kernel, items, *args)
-    return [event_ms(compute.run(kernel, items, *args)) for _ in range(launches)]
-
-
-def run_fma(compute, items: int, iterations: int, launches: int = 1, b: float = 0.999,
-            c: float = 1e-3):
-    """``launches`` timed launches of ``fma_throughput``: (the outputs ``[items, FMA_CHAINS,
-    fma_width]``, device ms of each launch, FLOPs per launch)."""
-    lanes = fma_width(compute)
-    shape = (items, FMA_CHAINS, lanes)
-    out = compute.empty(4 * math.prod(shape))
-    args = (np.int32(iterations), np.float32(b), np.float32(c), out)
-    times = _launches(compute, _perf_kernel(compute, "fma_throughput"), items, args, launches)
-    flops = 2 * lanes * FMA_CHAINS * iterations * items
-    return compute.to_host(out, shape, np.float32), times, flops
-
-
-def run_copy(compute, source: np.ndarray, launches: int = 1):
-    """``launches`` timed launches of ``copy_bandwidth`` on ``source`` (float32, a multiple of 4
-    values): (the copy read back, device ms of each launch, bytes moved = read + written)."""
-    source = np.ascontiguousarray(source, np.float32)
-    if source.size % 4:
-        raise ValueError("the copy kernel moves float4s: give a multiple of 4 values")
-    args = (compute.to_device(source), compute.empty(source.nbytes))
-    times = _launches(compute, _perf_kernel(compute, "copy_bandwidth"), source.size // 4, args,
-                      launches)
-    return compute.to_host(args[1], source.shape, np.float32), times, 2 * source.nbytes
-
-
-def copy_size(compute) -> int:
-    """Bytes per copy buffer: ≥ COPY_MIN_BYTES and 8× the device's global-memory cache, within
-    its largest allocation."""
-    device = compute.info.device
-    wanted = max(COPY_MIN_BYTES, 8 * int(device.global_mem_cache_size))
-    return int(min(wanted, device.max_mem_alloc_size // 2, 1 << 30)) // 16 * 16
-
-
-def _fma_iterations(compute, items: int, min_ms: float) -> int:
-    """Iterations (a power of two) for an ``fma_throughput`` launch of ``items`` to take ≥
-    ``min_ms``."""
-    iterations = 16
-    while True:
-        ms = run_fma(compute, items, iterations)[1][0]
-        if ms >= min_ms or iterations >= 1 << 16:
-            return iterations
-        iterations *= 2 if ms > 0 else 16
-
-
 def measure_roofline(compute, repeats: int) -> Roofline:
     """The device's FMA throughput and copy bandwidth: the median of ``repeats`` launches each,
     the FMA launch sized to take ≥ ROOF_MIN_MS."""
-    iterations = _fma_iterations(compute, FMA_ITEMS, ROOF_MIN_MS)
+    iterations = fma_iterations(compute, FMA_ITEMS, ROOF_MIN_MS)
     _, fma_ms, flops = run_fma(compute, FMA_ITEMS, iterations, repeats)
     _, copy_ms, moved = run_copy(compute, np.ones(copy_size(compute) // 4, np.float32), repeats)
     return Roofline(gflops=flops / spread(fma_ms)[0] / 1e6, gbps=moved / spread(copy_ms)[0] / 1e6,
                     fma_flops=flops, copy_bytes=moved)
-
-
-@dataclasses.dataclass(frozen=True)
-class TimingFloor:
-    """How repeatable the device's own timings are now (timing.py, "The device's own floor")."""
-
-    launches: int           # timed launches, back to back
-    median_ms: float        # their median device ms
-    groups_within: float    # share of consecutive groups of 5 with IQR/median ≤ SPREAD_LIMIT
-    p90_over_p10: float     # the spread of all launches
-
-    def text(self) -> str:
-        return (f"{self.groups_within:.0%} of groups of 5 within {SPREAD_LIMIT:.0%} "
-                f"(p90/p10 {self.p90_over_p10:.2f})")
-
-
-def timing_floor_text(floors: list[TimingFloor]) -> str:
-    """The floor measured at a run's start and end, as the terminal and perf.html say it."""
-    return " at the start, ".join(f.text() for f in floors) + " at the end"
-
-
-@functools.lru_cache(maxsize=None)
-def _floor_iterations(compute) -> int:
-    """The floor kernel's size on ``compute``, found once per process (a run measures twice)."""
-    return _fma_iterations(compute, FMA_ITEMS // 8, FLOOR_MS)
-
-
-def measure_timing_floor(compute, launches: int = FLOOR_LAUNCHES) -> TimingFloor:
-    """``launches`` back-to-back launches of ``fma_throughput`` sized to take ≥ FLOOR_MS: a
-    kernel with no memory traffic and even work in many groups, so their spread is the
-    device's (and the machine's), not a kernel's."""
-    times = run_fma(compute, FMA_ITEMS // 8, _floor_iterations(compute), launches)[1]
-    p10, p90 = np.percentile(times, [10, 90])
-    return TimingFloor(launches=launches, median_ms=float(np.median(times)),
-                       groups_within=groups_within(times), p90_over_p10=float(p90 / p10))
-
-
-class CopyProbe:
-    """One timed ``copy_bandwidth`` launch on resident buffers of ``copy_size`` bytes each: the
-    copy bandwidth now (GB/s, read + written), measured beside each timed CDF build."""
-
-    def __init__(self, compute):
-        self.compute = compute
-        self.items = copy_size(compute) // 16
-        self.buffers = (compute.empty(16 * self.items), compute.empty(16 * self.items))
-        self.kernel = _perf_kernel(compute, "copy_bandwidth")
-        compute.run(self.kernel, self.items, *self.buffers)   # first touch of the pages
-
-    def gbps(self) -> float:
-        from iblbench.estimators.runtime.device import event_ms
-
-        ms = event_ms(self.compute.run(self.kernel, self.items, *self.buffers))
-        return 32 * self.items / (ms * 1e6)
 
 
 # ---- the NumPy floor ---------------------------------------------------------------------------
@@ -780,7 +661,7 @@ def write_outputs(out: pathlib.Path, table, roofline: Roofline, context: dict) -
 def run_command(config: PerfConfig) -> list[pathlib.Path]:
     """``iblbench perf``: measure, print the table, write perf.csv and perf.html into
     ``config.out`` (nothing is written when the input is bad)."""
-    from iblbench.harness.protocol.runner import prepare_out
+    from iblbench.harness.protocol.results import prepare_out
 
     out = pathlib.Path(config.out)
     if out.exists() and not out.is_dir():

@@ -92,10 +92,10 @@ def render(compute, case: str) -> dict[str, np.ndarray]:
     if case == "products":
         return _products(compute, cache)
     if case == "probes":
-        from iblbench.harness.studies import perf
+        from iblbench.estimators.runtime import probes
 
-        copied = perf.run_copy(compute, np.arange(64, dtype=np.float32))[0]
-        lanes = perf.run_fma(compute, 16, 5, b=1.0)[0]   # [items, chains, the device's width]
+        copied = probes.run_copy(compute, np.arange(64, dtype=np.float32))[0]
+        lanes = probes.run_fma(compute, 16, 5, b=1.0)[0]   # [items, chains, the device's width]
         return {"fma": lanes[..., 0], "fma_lanes_agree": np.ptp(lanes, axis=-1), "copy": copied}
     if case == "light_pdf":
         light_only = parse_estimator("envmap").make()
