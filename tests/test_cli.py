@@ -484,7 +484,7 @@ def summary_rows(estimator: str, spp: int, evaluations: float, time_ms: float,
 
 def test_terminal_tables_show_evaluations_and_time_beside_spp():
     """One bis sample is 21 integrand evaluations: spp alone would compare unequal work."""
-    from iblbench.cli import terminal_summaries
+    from iblbench.commands.run import terminal_summaries
 
     table = pd.DataFrame(summary_rows("uniform", 16, 16.0, 2.0) + summary_rows("bis", 16, 336.0, 30.0)
                          + summary_rows("uniform", 64, 64.0, 10.0, time_budget_ms=10.0)
@@ -503,7 +503,7 @@ def test_terminal_table_shows_the_mean_over_seeds_and_its_t_interval():
     """Per-seed frame means 1, 2 and 6 (mean 3, median 2, sd √7): the printed cell is the mean
     ± t(0.975, 2)·√7/√3 = 6.57 (t = 4.3027 from the t table), both rounded at the half-width's
     second significant digit; one seed prints no interval."""
-    from iblbench.cli import terminal_summaries
+    from iblbench.commands.run import terminal_summaries
 
     rows = [{"scene": "s", "estimator": "a", "spp": 16, "frame": frame, "seed": seed,
              "time_budget_ms": float("nan"), "mean_delta_e76": value, "rel_mse": value / 10,

@@ -104,6 +104,7 @@ def test_equal_time_cells_and_unregistered_estimators_are_not_judged():
 
 def test_run_prints_a_warning_for_each_flag(monkeypatch, tmp_path, capsys):
     from iblbench import cli
+    from iblbench.commands import run as run_command
     from iblbench.harness.protocol import runner
 
     class FlatRunner:   # the sweep's table, without rendering it
@@ -117,7 +118,7 @@ def test_run_prints_a_warning_for_each_flag(monkeypatch, tmp_path, capsys):
             return table
 
     monkeypatch.setattr(runner, "Runner", FlatRunner)
-    monkeypatch.setattr(cli, "terminal_summaries", lambda table: [])
+    monkeypatch.setattr(run_command, "terminal_summaries", lambda table: [])
     assert cli.main(["run", "--scene", "sphere-sun", "--out", str(tmp_path)]) == 0
     warnings = [line for line in capsys.readouterr().err.splitlines()
                 if line.startswith("warning: convergence: uniform on s: relMSE")]

@@ -20,7 +20,7 @@ import trimesh
 from iblbench.estimators.base import Estimate, Estimator, Tags
 from iblbench.estimators.registry import _registry, register
 from iblbench.harness.verify import budgets
-from iblbench import cli
+from iblbench.commands import run as run_command
 from iblbench.harness.protocol import runner, timing
 from iblbench.harness.protocol.equal_time import CALIBRATION_SEED, TOLERANCE, Calibration
 from iblbench.estimators.runtime.framecache import FrameCache
@@ -362,7 +362,7 @@ def test_terminal_check_and_report_show_one_time_per_cell(tmp_path):
                          "time_repeats": 5})
     table = pd.DataFrame(rows)
     expected = {"a": 59 / 12, "b": 59 / 6}   # seeds' means (5, 4.25, 5.5) and twice those
-    terminal = cli.terminal_summaries(table)[0][1].time_ms
+    terminal = run_command.terminal_summaries(table)[0][1].time_ms
     report = summarize(table).set_index("estimator").time_ms
     rule = budgets.Rule("r", "s", "b", (16,), (), None, budgets.TimeRatio("a", "time_ms", 3.0))
     check = budgets.evaluate([rule], table).iloc[0]

@@ -715,9 +715,32 @@ class Runner:
         """Every cell of one frame; ``warm_up``: the scene's warm-up pixels; ``built``: device
         ms per product built for this frame (empty where ``cache`` was reused from an identical
         earlier frame); ``previous_frame``: the frame before this one in the run's frame list
-        (flicker), None on the first."""
-        scene_name = plan.scene.name
-        images = self.out / "images" / scene_name / f"f{cache.frame}"
+        (flicker), None on the first.  Each cell is rendered, scored, written and journalled,
+        in that order (a journalled cell is complete)."""
+        images = self.out / "images" / plan.scene.name / f"f{cache.frame}"
+        reference = self._frame_reference(plan.scene.name, gbuffer, cache)
+        scorer = Scorer(reference, gbuffer.gbuffer.mask, self.config.metrics)
+        write_exr(images / "reference.exr", reference)
+        todo = self._scene_todo(plan.scene.name, cache.frame)
+        for spec in self.specs:
+            cells = [key for key in todo if key[1] == spec.label]
+            if not cells:
+                continue
+            build_ms = required_build_ms(built, spec.cls.requires)
+            estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
+            # Compiles and touches each kernel once (not timed).
+            warmed = spec.make().render(warm_up, cache, 1, WARMUP_SEED)
+            self.device_ms_total += device_ms(warmed.timings_ms)
+            for key in cells:
+                spp, estimate, renders, sequence_key = self._render_cell(
+                    plan, spec, estimator, key, cells, gbuffer, cache, build_ms, sequences)
+                row = self._score_cell(plan, spec, key, spp, estimate, renders, scorer,
+                                       sequence_key, previous_frame)
+                write_exr(images / f"{image_stem(row)}.exr", estimate.radiance)
+                self._journal_cell(row, bar)
+
+    def _frame_reference(self, scene_name: str, gbuffer: DeviceGBuffer, cache: FrameCache):
+        """The frame's exact reference, its stage timed or marked skipped (cached)."""
         reference = self.reference.image(gbuffer, cache)
         if self.reference.last_ms is None:
             self.manifest["skipped"].append({"scene": scene_name, "frame": cache.frame,
@@ -725,69 +748,73 @@ class Runner:
         else:
             self._stage(scene_name, cache.frame, "reference", self.reference.last_ms)
             self.device_ms_total += self.reference.last_ms
-        mask = gbuffer.gbuffer.mask
-        scorer = Scorer(reference, mask, self.config.metrics)
-        write_exr(images / "reference.exr", reference)
-        todo = self._scene_todo(scene_name, cache.frame)
-        for spec in self.specs:
-            cells = [key for key in todo if key[1] == spec.label]
-            if not cells:
-                continue
-            build_ms = required_build_ms(built, spec.cls.requires)
-            repeats = self.repeats[spec.label]
-            estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
-            # Compiles and touches each kernel once (not timed).
-            warmed = spec.make().render(warm_up, cache, 1, WARMUP_SEED)
-            self.device_ms_total += device_ms(warmed.timings_ms)
-            for key in cells:
-                _, label, spp, frame, seed, budget = key
-                budget_key = (scene_name, label, budget)
-                if budget is not None:
-                    if budget_key not in self.chosen:   # calibrated just before its cells
-                        self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
-                    spp = self.chosen[budget_key]
-                sequence_key = (label, key[2], budget, seed)
-                if spec.cls.tags.temporal:
-                    if sequence_key not in sequences:
-                        sequences[sequence_key] = [spec.make() for _ in range(repeats)]
-                        for instance in sequences[sequence_key]:
-                            instance.reset()
-                    renderers = sequences[sequence_key]
-                else:
-                    renderers = [estimator] * repeats
-                timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
-                if budget_key in self.unverified:
-                    spp, timed = self._correct_budget_cell(budget_key, spec, renderers, gbuffer,
-                                                           cache, spp, seed, build_ms, timed)
-                estimate, renders = timed[0][0], [render for _, render in timed]
-                self._count_spread(renders, repeats)
-                metrics, delta_e = scorer.score(estimate)
-                row = {
-                    "scene": scene_name, "estimator": label, "spp": int(spp), "frame": frame,
-                    "seed": seed, "time_budget_ms": float("nan") if budget is None else budget,
-                    "width": plan.width, "height": plan.height, "env_res": plan.env_res,
-                    "estimator_params": self.params[label],
-                    "estimator_version": spec.cls.version(), "schema_version": SCHEMA_VERSION,
-                    "metrics": ",".join(self.config.metrics),
-                    **metrics, **time_columns(renders),
-                    "device": self.device_name, "protocol": PROTOCOL,
-                }
-                # Estimator-specific per-frame scalars (e.g. smc's ess, reinits): extra columns
-                # after the fixed ones; they never replace a fixed column.
-                row.update({name: float(value) for name, value in estimate.extras.items()
-                            if name not in row})
-                stem = image_stem(row)
-                row["flicker"] = flicker(delta_e, self._previous_map(
-                    plan, sequence_key, previous_frame, stem, mask), mask)
-                self._previous_delta_e[sequence_key] = (frame, delta_e.astype(np.float32))
-                write_exr(images / f"{stem}.exr", estimate.radiance)
-                # The row goes to the journal after its images: a journaled cell is complete.
-                self.journal.append(row)
-                self.rows[row_key(row)] = row
-                bar.update()
-                if time.monotonic() - self._last_fold > FOLD_SECONDS:
-                    self._fold()
-                    self._last_fold = time.monotonic()
+        return reference
+
+    def _render_cell(self, plan: _ScenePlan, spec, estimator, key, cells, gbuffer, cache,
+                     build_ms: float, sequences: dict):
+        """A cell's timed renders: (spp, the scored estimate, every TimedRender, the key of its
+        sequence).  An equal-time cell takes the spp calibrated for it (just before its first
+        cell); a temporal estimator renders on the instances that carry its sequence."""
+        _, label, spp, frame, seed, budget = key
+        repeats = self.repeats[spec.label]
+        budget_key = (plan.scene.name, label, budget)
+        if budget is not None:
+            if budget_key not in self.chosen:   # calibrated just before its cells
+                self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
+            spp = self.chosen[budget_key]
+        sequence_key = (label, key[2], budget, seed)
+        if spec.cls.tags.temporal:
+            if sequence_key not in sequences:
+                sequences[sequence_key] = [spec.make() for _ in range(repeats)]
+                for instance in sequences[sequence_key]:
+                    instance.reset()
+            renderers = sequences[sequence_key]
+        else:
+            renderers = [estimator] * repeats
+        timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
+        if budget_key in self.unverified:
+            spp, timed = self._correct_budget_cell(budget_key, spec, renderers, gbuffer,
+                                                   cache, spp, seed, build_ms, timed)
+        estimate, renders = timed[0][0], [render for _, render in timed]
+        self._count_spread(renders, repeats)
+        return spp, estimate, renders, sequence_key
+
+    def _score_cell(self, plan: _ScenePlan, spec, key, spp: int, estimate, renders, scorer: Scorer,
+                    sequence_key, previous_frame: int | None) -> dict:
+        """The cell's results row: its metrics against the reference, its time columns and its
+        flicker against the previous frame of its sequence."""
+        _, label, _, frame, seed, budget = key
+        mask = scorer.mask
+        metrics, delta_e = scorer.score(estimate)
+        row = {
+            "scene": plan.scene.name, "estimator": label, "spp": int(spp), "frame": frame,
+            "seed": seed, "time_budget_ms": float("nan") if budget is None else budget,
+            "width": plan.width, "height": plan.height, "env_res": plan.env_res,
+            "estimator_params": self.params[label],
+            "estimator_version": spec.cls.version(), "schema_version": SCHEMA_VERSION,
+            "metrics": ",".join(self.config.metrics),
+            **metrics, **time_columns(renders),
+            "device": self.device_name, "protocol": PROTOCOL,
+        }
+        # Estimator-specific per-frame scalars (e.g. smc's ess, reinits): extra columns
+        # after the fixed ones; they never replace a fixed column.
+        row.update({name: float(value) for name, value in estimate.extras.items()
+                    if name not in row})
+        stem = image_stem(row)
+        row["flicker"] = flicker(delta_e, self._previous_map(
+            plan, sequence_key, previous_frame, stem, mask), mask)
+        self._previous_delta_e[sequence_key] = (frame, delta_e.astype(np.float32))
+        return row
+
+    def _journal_cell(self, row: dict, bar) -> None:
+        """The row goes to the journal (after its images: a journalled cell is complete), and
+        the journal is folded into the table every FOLD_SECONDS."""
+        self.journal.append(row)
+        self.rows[row_key(row)] = row
+        bar.update()
+        if time.monotonic() - self._last_fold > FOLD_SECONDS:
+            self._fold()
+            self._last_fold = time.monotonic()
 
     def _cell_renders(self, spec, renderers, gbuffer, cache, spp: int, seed: int,
                       build_ms: float) -> list[tuple]:

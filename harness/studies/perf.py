@@ -631,41 +631,8 @@ def format_table(table) -> str:
         return shown_table(table).to_string(index=False, float_format=lambda v: f"{v:.4g}")
 
 
-def write_outputs(out: pathlib.Path, table, roofline: Roofline, context: dict) -> list[pathlib.Path]:
-    """``perf.csv`` and ``perf.html`` in ``out`` (an existing folder), each written atomically."""
-    import jinja2
-    import markupsafe
-
-    from iblbench.harness.protocol.results import write_table
-    from iblbench.scenes.atomic import atomic_path
-
-    csv, html = out / "perf.csv", out / "perf.html"
-    write_table(table, csv)
-
-    def as_html(frame):
-        return markupsafe.Markup(frame.to_html(index=False, border=0, classes="summary", na_rep="–",
-                                               float_format=lambda v: f"{v:.4g}"))
-
-    templates = jinja2.Environment(
-        loader=jinja2.PackageLoader("iblbench.reports", "templates"),
-        autoescape=jinja2.select_autoescape(["html", "j2"]), trim_blocks=True, lstrip_blocks=True)
-    page = templates.get_template("perf.html.j2").render(
-        title="iblbench perf", summary=as_html(shown_table(table)), table=as_html(table),
-        columns=COLUMNS, roofline=roofline, costs=KERNEL_COSTS, method=__doc__,
-        floor_rtol=FLOOR_RTOL, floor_atol=FLOOR_ATOL, **context)
-    with atomic_path(html) as tmp:
-        tmp.write_text(page, encoding="utf-8")
-    return [csv, html]
-
-
-def run_command(config: PerfConfig) -> list[pathlib.Path]:
-    """``iblbench perf``: measure, print the table, write perf.csv and perf.html into
-    ``config.out`` (nothing is written when the input is bad)."""
-    from iblbench.harness.protocol.results import prepare_out
-
-    out = pathlib.Path(config.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(out, "--out exists and is not a directory")
+def run_study(config: PerfConfig) -> PerfStudy:
+    """Measure (:func:`run_perf`) between two timing floors; nothing is written."""
     from iblbench.estimators.runtime.device import get_compute
     from iblbench.harness.protocol.timing import host_threads_capped
 
@@ -675,15 +642,22 @@ def run_command(config: PerfConfig) -> list[pathlib.Path]:
         floors = [measure_timing_floor(compute)]
         table, roofline = run_perf(config)
         floors.append(measure_timing_floor(compute))
-    seconds = time.perf_counter() - start
-    timing_floor = timing_floor_text(floors)
-    prepare_out(out)
-    paths = write_outputs(out, table, roofline, {"device": table.device.iloc[0],
-                                                 "command": command_line(config),
-                                                 "seconds": f"{seconds:.0f}",
-                                                 "timing_floor": timing_floor,
-                                                 "timing_floor_ms": f"{floors[0].median_ms:.2g}"})
-    print(format_table(table))
-    print(f"timing floor (a fixed kernel launched back to back): {timing_floor}")
-    print(f"wrote {', '.join(map(str, paths))}")
-    return paths
+    return PerfStudy(table, roofline, floors, time.perf_counter() - start, command_line(config))
+
+
+@dataclasses.dataclass
+class PerfStudy:
+    """What ``iblbench perf`` measured: the table, the roofline, the timing floor at the start
+    and the end, the seconds it took and the command that reproduces it."""
+
+    table: object
+    roofline: Roofline
+    floors: list
+    seconds: float
+    command: str
+
+    def context(self) -> dict:
+        """The page's header (:func:`iblbench.reports.perf.write_outputs`)."""
+        return {"device": self.table.device.iloc[0], "command": self.command,
+                "seconds": f"{self.seconds:.0f}", "timing_floor": timing_floor_text(self.floors),
+                "timing_floor_ms": f"{self.floors[0].median_ms:.2g}"}

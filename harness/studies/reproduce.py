@@ -606,14 +606,12 @@ REPRODUCTIONS = {"lu2013": lu2013, "mis-compensation": mis_compensation}
 
 
 def reproduce(name: str, out: pathlib.Path, seeds: int = 3, device: str | None = None,
-              progress: bool | None = None, **options) -> pathlib.Path:
-    """Run reproduction ``name`` into ``out``; returns the path of its Markdown summary."""
-    from iblbench.reports.reproduction import write_summary
-
+              progress: bool | None = None, **options) -> Reproduction:
+    """Run reproduction ``name`` into ``out``; returns its :class:`Reproduction` (the API writes
+    its summary with :func:`iblbench.reports.reproduction.write_summary`)."""
     try:
         experiment = REPRODUCTIONS[name.lower()]
     except KeyError:
         raise InputError(None, f"unknown reproduction '{name}'; valid: "
                                f"{', '.join(sorted(REPRODUCTIONS))}") from None
-    result = experiment(pathlib.Path(out), seeds=seeds, device=device, progress=progress, **options)
-    return write_summary(pathlib.Path(out), result)
+    return experiment(pathlib.Path(out), seeds=seeds, device=device, progress=progress, **options)

@@ -105,7 +105,6 @@ from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference
 from iblbench.scenes import cubemap, meshes, sequences
-from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.gbuffer import MIN_COS_VIEW, GBuffer, trace_gbuffer
 from iblbench.scenes.scene import Camera, Material
 
@@ -1170,15 +1169,19 @@ def _docstring_section(start: str, end: str | None = None) -> list[dict]:
     return blocks
 
 
-def write_outputs(out: pathlib.Path, table: pd.DataFrame, scale: Scale, device: str,
-                  seconds: float) -> list[pathlib.Path]:
-    """``stress.parquet``, ``stress.csv`` and ``stress.html`` in ``out`` (an existing folder, see
-    ``runner.prepare_out``), each written atomically."""
+def write_tables(out: pathlib.Path, table: pd.DataFrame) -> list[pathlib.Path]:
+    """``stress.parquet`` and ``stress.csv`` in ``out`` (an existing folder, see
+    ``results.prepare_out``), each written atomically; ``stress.html`` is the API's
+    (``iblbench.reports.report.stress_html`` on :func:`html_context`)."""
     from iblbench.harness.protocol.results import write_table
-    from iblbench.reports.report import stress_html
 
-    paths = [out / "stress.parquet", out / "stress.csv", out / "stress.html"]
-    write_table(table, *paths[:2])
+    paths = [out / "stress.parquet", out / "stress.csv"]
+    write_table(table, *paths)
+    return paths
+
+
+def html_context(table: pd.DataFrame, scale: Scale, device: str, seconds: float) -> tuple[list, dict]:
+    """The cases and the context that ``stress.html`` shows."""
     variants = dict(zip(table.case, table.variants))
     cases = [{"name": c.name, "guards": c.guards, "z_pixels": c.z_pixels, "notes": c.notes,
               "variants": variants[c.name]} for c in CASES.values() if c.name in variants]
@@ -1188,6 +1191,4 @@ def write_outputs(out: pathlib.Path, table: pd.DataFrame, scale: Scale, device: 
                "alpha_z_case": f"{ALPHA_Z_CASE:.3g}", "alpha_chi2_case": f"{ALPHA_CHI2_CASE:.3g}",
                "columns": _docstring_section("One row per", "Statistical design."),
                "design": _docstring_section("Statistical design.")}
-    with atomic_path(paths[2]) as tmp:
-        tmp.write_text(stress_html(table, cases, context), encoding="utf-8")
-    return paths
+    return cases, context
