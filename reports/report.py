@@ -453,9 +453,8 @@ def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, 
     """Compute and draw the sample picture of ``scene``; a dict for the template (``error``
     says why there is none); ``scene_frame_inputs`` gives the frame's :class:`SceneInputs`."""
     from iblbench.estimators.light_pool import PoolEstimator
-    from iblbench.estimators.runtime.framecache import FrameCache
     from iblbench.reports.sample_picture import (cross_frames, cross_image, plot_sample_picture,
-                                                 pool_selection)
+                                                 pool_selections)
 
     estimators, notes = {}, []
     for name in dict.fromkeys(table[table.scene == scene].estimator):
@@ -485,9 +484,7 @@ def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, 
     if not (0 <= x < w and 0 <= y < h) or not inputs.mask[y, x]:
         raise InputError(None, f"--pixel {x},{y} is not a covered pixel of {scene} ({w}×{h})")
     normal = inputs.normal[y, x].astype(np.float64)
-    cache = FrameCache(compute(), inputs.env, frame)
-    selections = [pool_selection(e, cache, normal, n, seed=0, label=name)
-                  for name, e in estimators.items()]
+    selections = pool_selections(compute(), inputs.env, frame, estimators, normal, n, seed=0)
     frames = cross_frames(normal)
     background = cross_image(inputs.env, normal / np.linalg.norm(normal), frames)
     panels = []
@@ -592,52 +589,87 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
             compute_holder["c"] = get_compute(device)
         return compute_holder["c"]
 
-    scenes = []
-    for scene in dict.fromkeys(table.scene):
-        scene_cells = cells[cells.scene == scene]
-        rows = table[table.scene == scene]
-        slug = _slug(scene)
-        figures = {"time": f"error_vs_time_{slug}.png", "spp": f"convergence_{slug}.png",
-                   "effective": f"effective_{slug}.png"}
-        plots.plot_error_vs_time(report / figures["time"], scene_cells, scene)
-        plots.plot_convergence(report / figures["spp"], scene_cells, scene)
-        plots.plot_effective(report / figures["effective"], scene_cells, scene)
-        frames = sorted(set(rows.frame))
-        if frame is not None and len(frames) > 1:
-            _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
-        scene_frame, frame_rule = shown_frame(run_dir, scene, frames,
-                                              frame if frame in frames else None)
-        # the heat maps' mask and the sample picture share one read (or G-buffer trace)
-        inputs = functools.cache(functools.partial(scene_inputs, run_dir, manifest, scene,
-                                                   scene_frame))
-        grid = image_grid(run_dir, report, table, cells, scene, scene_frame, seed, spp,
-                          lambda: inputs().mask)
-        per_frame = None
-        if len(frames) > 1:
-            data = cell_intervals(rows, ["estimator", "spp", "frame"],
-                                  ["mean_delta_e76", "rel_mse"]).reset_index()
-            per_frame = f"per_frame_{slug}.png"
-            plots.plot_per_frame(report / per_frame, data, scene, scene_frame)
-        extras = f"extras_{slug}.png"
-        extra_columns = plots.plot_extras(report / extras, rows, scene)
-        try:
-            picture = sample_picture(report, inputs, table, scene, scene_frame, spp, pixel,
-                                     compute)
-        except InputError as error:
-            if pixel is not None:
-                raise
-            picture = {"error": str(error)}
-        timed = equal_time[equal_time.scene == scene]
-        scenes.append({"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
-                       "bias": bias_table(run_dir, table, cells, scene, scene_frame, lambda: inputs().mask),
-                       "equal_time": equal_time_html(timed) if len(timed) else None,
-                       "figures": figures, "per_frame": per_frame, "frames": len(frames),
-                       "grid": grid, "picture": picture, "frame_rule": frame_rule,
-                       "extras": extras if extra_columns else None, "extra_columns": extra_columns,
-                       "convergence": [f.text() for f in convergence if f.scene == scene],
-                       "estimators": list(dict.fromkeys(rows.estimator)),
-                       "spp": sorted(set(int(v) for v in rows.spp))})
-    context = {
+    shown = {"spp": spp, "seed": seed, "frame": frame, "pixel": pixel}
+    scenes = [_scene_section(run_dir, report, manifest, table, cells, equal_time, convergence,
+                             scene, shown, compute)
+              for scene in dict.fromkeys(table.scene)]
+    context = _page_context(run_dir, manifest, table, scenes)
+    text = _TEMPLATES.get_template("report.html.j2").render(**context)
+    with atomic_path(report / "index.html") as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    context["path"] = report / "index.html"
+    return context
+
+
+def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, table, cells,
+                   equal_time, convergence, scene: str, shown: dict, compute) -> dict:
+    """One scene's part of the page: its tables, figures, image grid, bias table and sample
+    picture; ``shown``: the spp, seed, frame and pixel asked for (None: the defaults)."""
+    scene_cells = cells[cells.scene == scene]
+    rows = table[table.scene == scene]
+    slug = _slug(scene)
+    figures = _scene_figures(report, scene_cells, scene, slug)
+    frames = sorted(set(rows.frame))
+    frame = shown["frame"]
+    if frame is not None and len(frames) > 1:
+        _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
+    scene_frame, frame_rule = shown_frame(run_dir, scene, frames,
+                                          frame if frame in frames else None)
+    # the heat maps' mask and the sample picture share one read (or G-buffer trace)
+    inputs = functools.cache(functools.partial(scene_inputs, run_dir, manifest, scene,
+                                               scene_frame))
+    grid = image_grid(run_dir, report, table, cells, scene, scene_frame, shown["seed"],
+                      shown["spp"], lambda: inputs().mask)
+    per_frame = _per_frame_figure(report, rows, scene, slug, scene_frame) if len(frames) > 1 else None
+    extras = f"extras_{slug}.png"
+    extra_columns = plots.plot_extras(report / extras, rows, scene)
+    picture = _picture_section(report, inputs, table, scene, scene_frame, shown, compute)
+    timed = equal_time[equal_time.scene == scene]
+    return {"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
+            "bias": bias_table(run_dir, table, cells, scene, scene_frame, lambda: inputs().mask),
+            "equal_time": equal_time_html(timed) if len(timed) else None,
+            "figures": figures, "per_frame": per_frame, "frames": len(frames),
+            "grid": grid, "picture": picture, "frame_rule": frame_rule,
+            "extras": extras if extra_columns else None, "extra_columns": extra_columns,
+            "convergence": [f.text() for f in convergence if f.scene == scene],
+            "estimators": list(dict.fromkeys(rows.estimator)),
+            "spp": sorted(set(int(v) for v in rows.spp))}
+
+
+def _scene_figures(report: pathlib.Path, scene_cells, scene: str, slug: str) -> dict:
+    """Error against time (Pareto front), convergence and effective samples of one scene."""
+    figures = {"time": f"error_vs_time_{slug}.png", "spp": f"convergence_{slug}.png",
+               "effective": f"effective_{slug}.png"}
+    plots.plot_error_vs_time(report / figures["time"], scene_cells, scene)
+    plots.plot_convergence(report / figures["spp"], scene_cells, scene)
+    plots.plot_effective(report / figures["effective"], scene_cells, scene)
+    return figures
+
+
+def _per_frame_figure(report: pathlib.Path, rows, scene: str, slug: str, scene_frame: int) -> str:
+    """A sequence's error per frame."""
+    data = cell_intervals(rows, ["estimator", "spp", "frame"],
+                          ["mean_delta_e76", "rel_mse"]).reset_index()
+    per_frame = f"per_frame_{slug}.png"
+    plots.plot_per_frame(report / per_frame, data, scene, scene_frame)
+    return per_frame
+
+
+def _picture_section(report: pathlib.Path, inputs, table, scene: str, scene_frame: int,
+                     shown: dict, compute) -> dict:
+    """Lu 2013's sample picture, or why there is none (an error only for an asked pixel)."""
+    try:
+        return sample_picture(report, inputs, table, scene, scene_frame, shown["spp"],
+                              shown["pixel"], compute)
+    except InputError as error:
+        if shown["pixel"] is not None:
+            raise
+        return {"error": str(error)}
+
+
+def _page_context(run_dir: pathlib.Path, manifest: dict, table, scenes: list[dict]) -> dict:
+    """The template context of the whole page."""
+    return {
         "title": f"iblbench report: {run_dir.resolve().name}",
         "run_dir": str(run_dir.resolve()),
         "scenes": scenes,
@@ -647,11 +679,6 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         "colour_bar": "colour_bar.png",
         "heat_scale": HEAT_SCALE,
     }
-    text = _TEMPLATES.get_template("report.html.j2").render(**context)
-    with atomic_path(report / "index.html") as tmp:
-        tmp.write_text(text, encoding="utf-8")
-    context["path"] = report / "index.html"
-    return context
 
 
 def _require_in_run(rows: pd.DataFrame, flag: str, value: int | None, column: str,

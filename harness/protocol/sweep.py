@@ -343,17 +343,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     scenes = tuple(_scene(entry, path.parent, path) for entry in scenes)
     if len(set(scenes)) != len(scenes):
         fail(f"scenes lists a scene twice: {list(scenes)}")
-    estimators = document["estimators"]
-    if not isinstance(estimators, list) or not estimators:
-        fail(f"estimators must be a non-empty list, got {estimators!r}")
-    labels = []
-    for entry in estimators:
-        try:
-            labels.append(parse_estimator(entry).label)
-        except InputError as error:
-            fail(error.problem)
-    if len(set(labels)) != len(labels):
-        fail(f"estimators lists an estimator twice: {labels}")
+    labels = _estimator_labels(document["estimators"], fail)
     spp = document.get("spp", [])
     if not isinstance(spp, list) or not all(_positive_int(v) for v in spp):
         fail(f"spp must be a list of positive integers, got {spp!r}")
@@ -375,13 +365,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
             check_env_res(env_res)
         except ValueError as error:
             fail(str(error))
-    budgets = document.get("time_budget_ms", [])
-    if isinstance(budgets, (int, float)) and not isinstance(budgets, bool):
-        budgets = [budgets]
-    if not isinstance(budgets, list) or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
-            for v in budgets):
-        fail(f"time_budget_ms must be a positive number or a list of them, got {budgets!r}")
+    budgets = _time_budgets(document.get("time_budget_ms", []), fail)
     if not spp and not budgets:
         fail("spp is empty and there is no time_budget_ms: the sweep has no cells")
     sanitize = document.get("sanitize", False)
@@ -391,18 +375,48 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
         repeats, repeats_for = parse_repeats(document.get("repeats", DEFAULT_REPEATS))
     except ValueError as error:
         fail(str(error))
-    metrics = document.get("metrics", list(METRICS))
-    if not isinstance(metrics, list) or not all(isinstance(m, str) for m in metrics):
-        fail(f"metrics must be a list of metric names ({', '.join(METRICS)}), got {metrics!r}")
-    try:
-        metrics = parse_metrics(",".join(metrics))
-    except ValueError as error:
-        fail(f"metrics: {error}")
+    metrics = _metric_names(document.get("metrics", list(METRICS)), fail)
     return Sweep(scenes=scenes, estimators=tuple(labels), spp=tuple(sorted(set(spp))), seeds=seeds,
                  first_seed=first_seed, frames=frames, resolution=resolution, env_res=env_res,
                  time_budget_ms=tuple(float(v) for v in budgets), sanitize=sanitize,
                  repeats=repeats, repeats_for=repeats_for, metrics=metrics,
                  protocol=protocol, description=description, source=source)
+
+
+def _estimator_labels(estimators, fail) -> list[str]:
+    """The sweep's ``estimators``: a non-empty list of labels, none twice."""
+    if not isinstance(estimators, list) or not estimators:
+        fail(f"estimators must be a non-empty list, got {estimators!r}")
+    labels = []
+    for entry in estimators:
+        try:
+            labels.append(parse_estimator(entry).label)
+        except InputError as error:
+            fail(error.problem)
+    if len(set(labels)) != len(labels):
+        fail(f"estimators lists an estimator twice: {labels}")
+    return labels
+
+
+def _time_budgets(budgets, fail) -> list:
+    """The sweep's ``time_budget_ms``: a positive number or a list of them."""
+    if isinstance(budgets, (int, float)) and not isinstance(budgets, bool):
+        budgets = [budgets]
+    if not isinstance(budgets, list) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+            for v in budgets):
+        fail(f"time_budget_ms must be a positive number or a list of them, got {budgets!r}")
+    return budgets
+
+
+def _metric_names(metrics, fail) -> tuple[str, ...]:
+    """The sweep's ``metrics``: a list of metric names."""
+    if not isinstance(metrics, list) or not all(isinstance(m, str) for m in metrics):
+        fail(f"metrics must be a list of metric names ({', '.join(METRICS)}), got {metrics!r}")
+    try:
+        return parse_metrics(",".join(metrics))
+    except ValueError as error:
+        fail(f"metrics: {error}")
 
 
 def load_sweep(name_or_path: str | os.PathLike) -> Sweep:
