@@ -3,17 +3,21 @@ from __future__ import annotations
 
 import pathlib
 
+from iblbench.commands.common import add_run_dir
+
+
+DESCRIPTION = """\
+Write a fresh budgets file for `check` from DIR's equal-spp cells: each bound is the measured
+mean over seeds ± K standard errors ± MARGIN × the mean, on both sides, with the run's
+configuration and the measured values in it (format and bound shapes in harness/budgets.py).
+Exit 2 on fewer than 8 seeds per cell."""
+
 
 def add_parser(subparsers) -> None:
     make_budgets = subparsers.add_parser(
         "budgets", help="write a budgets file from a multi-seed run (>= 8 seeds)",
-        description="Write a fresh budgets file for `check` from DIR's equal-spp cells: each "
-                    "bound is the measured mean over seeds ± K standard errors ± MARGIN × the "
-                    "mean, on both sides, with the run's configuration and the measured values "
-                    "in it (format and bound shapes in harness/budgets.py). Exit 2 on fewer than "
-                    "8 seeds per cell.")
-    make_budgets.add_argument("dir", type=pathlib.Path, metavar="DIR",
-                              help="a run's output directory (holds results.parquet)")
+        description=DESCRIPTION)
+    add_run_dir(make_budgets)
     make_budgets.add_argument("--margin", type=float, required=True, metavar="M",
                               help="relative margin beyond the standard errors, e.g. 0.1 for 10%%")
     make_budgets.add_argument("--se-multiple", type=float, metavar="K",

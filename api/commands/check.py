@@ -3,21 +3,23 @@ from __future__ import annotations
 
 import pathlib
 
+from iblbench.commands.common import add_json, add_run_dir, human_output, print_json
 from iblbench.scenes.errors import InputError
-from iblbench.commands.common import add_json, human_output, print_json
+
+
+DESCRIPTION = """\
+Check DIR/results.parquet against the rules of a budgets file (per scene glob, estimator glob
+and spp: max mean ΔE76, max relMSE, min effective ratio, nonfinite == 0, max time ratio to a
+baseline estimator of the same run; format in harness/budgets.py). Prints every rule x cell with
+value, budget and PASS/FAIL, then a verdict. A missing cell fails. Exit 0 all pass, 1 any fails,
+2 bad input."""
 
 
 def add_parser(subparsers) -> None:
     check = subparsers.add_parser(
         "check", help="gate on error budgets: exit 0 when every budget holds, 1 when any fails",
-        description="Check DIR/results.parquet against the rules of a budgets file (per scene glob, "
-                    "estimator glob and spp: max mean ΔE76, max relMSE, min effective ratio, "
-                    "nonfinite == 0, max time ratio to a baseline estimator of the same run; "
-                    "format in harness/budgets.py). Prints every rule x cell with value, budget "
-                    "and PASS/FAIL, then a verdict. A missing cell fails. Exit 0 all pass, 1 any "
-                    "fails, 2 bad input.")
-    check.add_argument("dir", type=pathlib.Path, metavar="DIR",
-                       help="a run's output directory (holds results.parquet)")
+        description=DESCRIPTION)
+    add_run_dir(check)
     check.add_argument("--budgets", type=pathlib.Path, default=pathlib.Path("budgets.toml"),
                        metavar="FILE", help="budgets TOML file (default: budgets.toml)")
     add_json(check)

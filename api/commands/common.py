@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import pathlib
 import sys
 
 
@@ -74,6 +75,12 @@ def pixel(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected X,Y such as 64,40, got '{text}'")
     return x, y
+
+
+def add_run_dir(parser) -> None:
+    """The positional DIR of the commands that read a run's results."""
+    parser.add_argument("dir", type=pathlib.Path, metavar="DIR",
+                        help="a run's output directory (holds results.parquet)")
 
 
 def add_json(parser) -> None:

@@ -18,7 +18,6 @@ device is OK, 1 otherwise. A few seconds per device; about a minute on Oclgrind.
 A new GPU: run this first; then choose a device with --device or IBLBENCH_DEVICE."""
 
 
-
 def add_parser(subparsers) -> None:
     doctor = subparsers.add_parser(
         "doctor", help="check every OpenCL device: build and run each kernel, compare results",

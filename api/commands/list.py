@@ -6,10 +6,13 @@ import re
 from iblbench.commands.common import device_flags
 
 
+DESCRIPTION = """\
+List OpenCL devices (and the one chosen), registered estimators, or built-in scenes."""
+
+
 def add_parser(subparsers) -> None:
     listing = subparsers.add_parser("list", help="list devices, estimators or scenes",
-                                  description="List OpenCL devices (and the one chosen), "
-                                              "registered estimators, or built-in scenes.",
+                                  description=DESCRIPTION,
                                   parents=[device_flags()])
     listing.add_argument("what", choices=("devices", "estimators", "scenes"))
 

@@ -53,7 +53,6 @@ def add_parser(subparsers) -> None:
     perf.format_help = format_help
 
 
-
 def run(args) -> None:
     """Measure, print the table, write perf.csv and perf.html into ``--out`` (nothing is
     written when the input is bad)."""

@@ -6,13 +6,16 @@ import pathlib
 from iblbench.commands.common import device_flags, pixel, positive_int
 
 
+DESCRIPTION = """\
+Summarise a run directory in DIR/report/index.html: tables per scene, error against time with
+the Pareto front, convergence, effective samples, image grids with ΔE heat maps, Lu 2013's
+sample picture, and the manifest. The page opens from disk (no server, no external files)."""
+
+
 def add_parser(subparsers) -> None:
     report = subparsers.add_parser(
         "report", help="write a self-contained HTML report of a run (DIR/report/index.html)",
-        description="Summarise a run directory in DIR/report/index.html: tables per scene, error "
-                    "against time with the Pareto front, convergence, effective samples, image "
-                    "grids with ΔE heat maps, Lu 2013's sample picture, and the manifest. The "
-                    "page opens from disk (no server, no external files).",
+        description=DESCRIPTION,
         parents=[device_flags()])
     report.add_argument("dir", type=pathlib.Path, metavar="DIR", help="an 'iblbench run' --out")
     report.add_argument("--spp", type=positive_int, metavar="N",

@@ -7,19 +7,21 @@ import pathlib
 from iblbench.commands.common import positive_int, rendering_flags
 
 
+DESCRIPTION = """\
+Run a paper's experiments on built-in scenes through the ordinary runner, then write summary.md
+and summary.html (tables, plots, and one verdict per claim: holds / partly holds / does not hold
+/ not resolved, with 95% intervals) beside results.parquet. lu2013: Lu, Pacanowski & Granier
+2013's Fig. 2 and 3 and claims, with the production baselines (brdf, envmap) and an equal-time
+comparison beside them. mis-compensation: Karlík et al. 2019's MIS compensation against plain
+MIS at equal time (envmap and balanced_mis). Equal-time cells run at one budget taken from the
+reproduction's own spp cells (see the summary)."""
+
+
 def add_parser(subparsers) -> None:
     repro = subparsers.add_parser(
         "reproduce", help="re-run a paper's experiments and judge its claims (lu2013, "
                           "mis-compensation)",
-        description="Run a paper's experiments on built-in scenes through the ordinary runner, "
-                    "then write summary.md and summary.html (tables, plots, and one verdict per "
-                    "claim: holds / partly holds / does not hold / not resolved, with 95% "
-                    "intervals) beside results.parquet. lu2013: Lu, Pacanowski & Granier 2013's "
-                    "Fig. 2 and 3 and claims, with the production baselines (brdf, envmap) and "
-                    "an equal-time comparison beside them. mis-compensation: Karlík et al. "
-                    "2019's MIS compensation against plain MIS at equal time (envmap and "
-                    "balanced_mis). Equal-time cells run at one budget taken from the "
-                    "reproduction's own spp cells (see the summary).",
+        description=DESCRIPTION,
         parents=[rendering_flags()])
     repro.add_argument("paper", metavar="PAPER",
                        help="which reproduction: lu2013 or mis-compensation")

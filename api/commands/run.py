@@ -8,17 +8,20 @@ from iblbench.commands.common import (add_json, env_res, human_output, non_negat
                                      print_json, rendering_flags, resolution, spp_list)
 
 
+DESCRIPTION = """\
+Render every (scene, estimator, spp, frame, seed) cell of a sweep, score it against the exact
+reference and write results.parquet/.csv, manifest.json and images/<scene>/f<frame>/ (EXR + PNG
+previews + ΔE heat maps) into --out. The sweep comes from --config (default: the shipped
+'default'); each flag given replaces that field of the config. Re-running resumes: cells already
+in --out with the same configuration, code version and device are skipped."""
+
+
 def add_parser(subparsers) -> None:
     from iblbench.harness.protocol import sweep
 
     run = subparsers.add_parser(
         "run", help="benchmark estimators on scenes and write results, manifest and images",
-        description="Render every (scene, estimator, spp, frame, seed) cell of a sweep, score it "
-                    "against the exact reference and write results.parquet/.csv, manifest.json "
-                    "and images/<scene>/f<frame>/ (EXR + PNG previews + ΔE heat maps) into --out. "
-                    "The sweep comes from --config (default: the shipped 'default'); each flag "
-                    "given replaces that field of the config. Re-running resumes: cells already "
-                    "in --out with the same configuration, code version and device are skipped.",
+        description=DESCRIPTION,
         parents=[rendering_flags()])
     run.add_argument("--config", metavar="NAME|FILE",
                      help="sweep config: a shipped one (quick, default, full, temporal) or a .toml file "

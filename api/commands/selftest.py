@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import argparse
 
-from iblbench.scenes.errors import InputError
 from iblbench.commands.common import positive_int
+from iblbench.scenes.errors import InputError
 
 
 SELFTEST_DESCRIPTION = """\
@@ -16,7 +16,6 @@ default each mutant stops at the first layer that rejects it; --all-layers runs 
 to show which layers catch what. Prints one row per mutant and, per layer, the mutants it
 caught. Exit 0 when every mutant is rejected (or survives as its catalogue entry expects, until
 the check it waits for lands), 1 otherwise."""
-
 
 
 def add_parser(subparsers) -> None:
@@ -31,7 +30,6 @@ def add_parser(subparsers) -> None:
     selftest.add_argument("--jobs", type=positive_int, default=2, metavar="N",
                           help="mutants run at a time (default: 2)")
     selftest.add_argument("--list", action="store_true", help="list the catalogue and exit")
-
 
 
 def run(args) -> int:

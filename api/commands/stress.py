@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import pathlib
 
-from iblbench.scenes.errors import InputError
 from iblbench.commands.common import (LazyDescriptionFormatter, add_json, human_output, print_json,
                                      rendering_flags)
+from iblbench.scenes.errors import InputError
 
 
 def add_parser(subparsers) -> None:

@@ -10,7 +10,7 @@ from typing import Callable
 import numpy as np
 import trimesh
 
-from iblbench.harness.verify import conformance
+from iblbench.harness.verify import fixtures
 from iblbench.scenes import cubemap, meshes, sequences
 from iblbench.scenes.gbuffer import GBuffer, trace_gbuffer
 from iblbench.scenes.scene import Camera, Material
@@ -108,11 +108,11 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _glossy(scale: Scale, **material) -> GBuffer:
-    return conformance.glossy_gbuffer(scale.normals, **material)
+    return fixtures.glossy_gbuffer(scale.normals, **material)
 
 
 def _smooth(scale: Scale) -> np.ndarray:
-    return conformance.smooth_map(scale.res)
+    return fixtures.smooth_map(scale.res)
 
 
 def _hot_texel(res: int, face: int, row: int, col: int) -> np.ndarray:
@@ -160,7 +160,7 @@ def degenerate_sphere() -> trimesh.Trimesh:
 
 
 def _sun(ratio: float) -> Callable[[Scale], list[Variant]]:
-    return lambda s: [Variant(f"R={s.res}", _glossy(s), [conformance.sun_map(s.res, ratio)])]
+    return lambda s: [Variant(f"R={s.res}", _glossy(s), [fixtures.sun_map(s.res, ratio)])]
 
 
 def _hot_texels(s: Scale) -> list[Variant]:
@@ -186,7 +186,7 @@ def _view_at(normal: np.ndarray, side: np.ndarray, degrees: float) -> np.ndarray
 
 
 def _grazing(s: Scale) -> list[Variant]:
-    normal = conformance.fibonacci_directions(s.normals ** 2).reshape(s.normals, s.normals, 3)
+    normal = fixtures.fibonacci_directions(s.normals ** 2).reshape(s.normals, s.normals, 3)
     side = _unit(np.cross(normal, (0.3, 0.5, 0.81)))
     view = _view_at(normal, side, GRAZING_DEGREES)
     return [Variant(f"view-{GRAZING_DEGREES:g}deg", GBuffer.from_pixels(normal, view, 0.5, 0.3, 20.0),
@@ -197,7 +197,7 @@ def _grazing(s: Scale) -> list[Variant]:
             # cuts: the specular integral must clip each texel at the horizon and clamp cos.
             Variant(f"view-{HORIZON_DEGREES:g}deg-specular-m2-R2",
                     GBuffer.from_pixels(normal, _view_at(normal, side, HORIZON_DEGREES), 0.0,
-                                        0.8, 2.0), [conformance.face_pattern_map(2)]),
+                                        0.8, 2.0), [fixtures.face_pattern_map(2)]),
             Variant("shading-normals-facing-away", _trace(leaning_normals_sphere(), s), [_smooth(s)])]
 
 
@@ -258,7 +258,7 @@ def cap_normals(normals: int, degrees: float) -> np.ndarray:
 
 
 def cap_gbuffer(normals: int, degrees: float) -> GBuffer:
-    """:func:`cap_normals`, views tilted off each normal as ``conformance.glossy_gbuffer``'s, its
+    """:func:`cap_normals`, views tilted off each normal as ``fixtures.glossy_gbuffer``'s, its
     Phong material."""
     normal = cap_normals(normals, degrees)
     tilt = np.roll(normal, 1, axis=-1)
@@ -355,8 +355,8 @@ CASES: dict[str, StressCase] = {case.name: case for case in (
                "\"brdf\")",
                lambda s: [Variant("all-black", _glossy(s), [np.zeros((6, s.res, s.res, 3), np.float32)],
                                   exact=0.0),
-                          Variant("white-furnace", conformance.white_lambertian(s.normals),
-                                  [conformance.constant_map(0.7, s.res)], exact=0.7)],
+                          Variant("white-furnace", fixtures.white_lambertian(s.normals),
+                                  [fixtures.constant_map(0.7, s.res)], exact=0.7)],
                "every pixel: the black map's references are 0 (every output must be exactly 0), "
                "the constant map's are its value",
                params=(("mis_compensation", True), ("mis", "brdf"))),
@@ -364,26 +364,26 @@ CASES: dict[str, StressCase] = {case.name: case for case in (
                "the face split)", _black_faces,
                "pixels that see light; those that see only black faces must be exactly 0"),
     StressCase("tiny-faces", "R = 1 and R = 2 faces: CDFs of one or two bins",
-               lambda s: [Variant(f"R={r}", _glossy(s), [conformance.smooth_map(r)]) for r in (1, 2)],
+               lambda s: [Variant(f"R={r}", _glossy(s), [fixtures.smooth_map(r)]) for r in (1, 2)],
                _ALL_PIXELS),
     StressCase("huge-faces", "R = 1024 faces: CDFs of 1024 bins (float32 ones were 4e-4 off), "
                "and the reference's "
                "tables at 6M texels", lambda s: [Variant(
-                   f"R={HUGE_RES}", conformance.glossy_gbuffer(HUGE_NORMALS),
-                   [conformance.smooth_map(HUGE_RES)])],
+                   f"R={HUGE_RES}", fixtures.glossy_gbuffer(HUGE_NORMALS),
+                   [fixtures.smooth_map(HUGE_RES)])],
                f"{HUGE_NORMALS}² normals (the reference costs ~0.5 s per pixel), all of them",
                notes="fixed by 612c1bf: the reference's texel tables took 19.6 s and 4.6 GB at "
                      "R = 1024; now 2.8 s and 0.34 GB (one face's edges, turned per face)"),
     StressCase("constant", "the white furnace: a constant map on a white Lambertian is its value",
-               lambda s: [Variant("white-furnace", conformance.white_lambertian(s.normals),
-                                  [conformance.constant_map(0.7, s.res)], exact=0.7)],
+               lambda s: [Variant("white-furnace", fixtures.white_lambertian(s.normals),
+                                  [fixtures.constant_map(0.7, s.res)], exact=0.7)],
                _ALL_PIXELS, notes="fixed by de34403: conformance.white_lambertian looked from "
                                   "(0, 0, 1), behind half its normals (n·view < 0)"),
     StressCase("face-pattern", "a distinct, asymmetric blob on every face "
                "(conformance.face_pattern_map): a flipped, turned or swapped face moves light "
                "(issue 13: the built-in skies' −Y ground face is uniform, so a sign error there "
                "passed)", lambda s: [Variant(f"R={s.res}", _glossy(s),
-                                             [conformance.face_pattern_map(s.res)])],
+                                             [fixtures.face_pattern_map(s.res)])],
                _ALL_PIXELS),
     StressCase("grazing", f"views at {GRAZING_DEGREES}° to the normal (also on a purely specular "
                "material, whose mirror lobe the horizon cuts in half: the integral must clamp "
