@@ -355,7 +355,7 @@ def test_smc_map_change_is_the_chi_square_of_the_map_distributions(compute, chan
     χ² 0.02), under the re-init bound 1/reinit_map_ess; a sun stepping one texel
     (_turning_sun_frames; χ² 2.1e3), far over it; and +∞ where a texel black last frame is lit
     now."""
-    from iblbench.harness.verify.stress import rotated_map
+    from iblbench.harness.verify.stress_cases import rotated_map
 
     res = 8
     if change == "turn":

@@ -121,10 +121,10 @@ def terminal_summaries(table):
     """The tables ``iblbench run`` prints: per (scene, estimator, spp) cell, then per equal-time
     cell. Beside spp each shows what a sample costs, as the estimators' spp are not comparable
     (one bis or smc sample costs 21 integrand evaluations): ``evaluations`` (integrand evaluations per
-    covered pixel) and the cell's time of :mod:`iblbench.harness.timing` (``time_ms``: device ms
+    covered pixel) and the cell's time of :mod:`iblbench.harness.protocol.timing` (``time_ms``: device ms
     per frame, build + sample + shade) as the report and ``check`` show it.  Time, errors and
     samples are the mean over seeds with its 95% Student-t interval, ``mean ± half-width``
-    (:func:`iblbench.harness.stats.cell_intervals`); ``seeds`` says how many."""
+    (:func:`iblbench.harness.protocol.stats.cell_intervals`); ``seeds`` says how many."""
     from iblbench.harness.protocol.stats import cell_intervals, interval_text
     from iblbench.harness.protocol.timing import TIME
 

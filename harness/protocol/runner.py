@@ -198,7 +198,7 @@ def _package_version(name: str) -> str:
 def _git_revision() -> str:
     """The source checkout's revision, "-dirty" with uncommitted changes; "unknown" when the
     package is not running from its own checkout (a site-packages install)."""
-    package_root = pathlib.Path(__file__).resolve().parent.parent
+    package_root = pathlib.Path(__file__).resolve().parents[2]   # harness/protocol/ → the checkout
     try:
         top = subprocess.run(["git", "-C", str(package_root), "rev-parse", "--show-toplevel"],
                              capture_output=True, text=True, check=True, timeout=10).stdout.strip()
