@@ -20,7 +20,7 @@ import pytest
 
 from iblbench import cli
 from iblbench.harness.verify.budgets import (LIMIT_KEYS, configuration_differences, evaluate,
-                                     load_budgets, read_budgets)
+                                             load_budgets, read_budgets)
 from iblbench.harness.protocol.results import COLUMNS, write_results
 from iblbench.harness.protocol.sweep import load_sweep
 

@@ -8,7 +8,7 @@ from iblbench.estimators import havran as hv
 from iblbench.estimators.havran import EqualAreaMap, Havran, fir_filter
 from iblbench.harness.protocol import metrics
 from iblbench.harness.verify.conformance import (Harness, constant_map, smooth_map, stress_maps,
-                                          white_lambertian, yield_checks)
+                                                 white_lambertian, yield_checks)
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference

@@ -5,8 +5,9 @@ import pytest
 from iblbench.estimators import registry
 from iblbench.estimators.balanced_mis import BalancedMIS
 from iblbench.estimators.light_pool import TICKS_PER_SAMPLE
-from iblbench.harness.verify.conformance import (Harness, check_unbiased, constant_map, fibonacci_directions,
-                                          glossy_gbuffer, smooth_map, stress_maps)
+from iblbench.harness.verify.conformance import (Harness, check_unbiased, constant_map,
+                                                 fibonacci_directions, glossy_gbuffer, smooth_map,
+                                                 stress_maps)
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.scenes import cubemap

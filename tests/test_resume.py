@@ -19,8 +19,8 @@ import trimesh
 from iblbench.estimators.registry import _registry, register
 from iblbench.estimators.uniform import Uniform
 from iblbench.cli import main
-from iblbench.harness.protocol.results import (DETERMINISTIC_COLUMNS, JOURNAL, Journal, read_journal,
-                                      read_results, row_key, write_results)
+from iblbench.harness.protocol.results import (DETERMINISTIC_COLUMNS, JOURNAL, Journal,
+                                               read_journal, read_results, row_key, write_results)
 from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.scenes.errors import InputError
 

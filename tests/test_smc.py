@@ -6,8 +6,8 @@ import pytest
 
 from iblbench.estimators.bis import BIS, effective_sample_size, systematic_resample
 from iblbench.estimators.smc import SMC
-from iblbench.harness.verify.conformance import (Harness, check_unbiased, face_pattern_map, glossy_gbuffer,
-                                          smooth_map)
+from iblbench.harness.verify.conformance import (Harness, check_unbiased, face_pattern_map,
+                                                 glossy_gbuffer, smooth_map)
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference

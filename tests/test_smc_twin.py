@@ -11,8 +11,8 @@ from iblbench.estimators.smc import SMC
 from iblbench.harness.verify.conformance import sidak_z as sidak
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference
-from iblbench.harness.verify.twins.crosscheck import (ENV_RES, estimator_runs, log_variance_z, mean_z,
-                                               shading_points, twin_runs)
+from iblbench.harness.verify.twins.crosscheck import (ENV_RES, estimator_runs, log_variance_z,
+                                                      mean_z, shading_points, twin_runs)
 from iblbench.harness.verify.twins.ghosh2006 import GhoshSampler, Map, Shading, move_kinds
 from iblbench.scenes import sequences
 

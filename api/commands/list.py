@@ -20,7 +20,7 @@ def add_parser(subparsers) -> None:
 def run(args) -> None:
     if args.what == "devices":
         from iblbench.estimators.runtime.device import (all_devices, build_failure, choose_device,
-                                             measured_gflops)
+                                                        measured_gflops)
 
         chosen = choose_device(args.device)
         for info in all_devices():

@@ -4,8 +4,9 @@ from __future__ import annotations
 import pathlib
 import sys
 
-from iblbench.commands.common import (add_json, env_res, human_output, non_negative_int, positive_int,
-                                     print_json, rendering_flags, resolution, spp_list)
+from iblbench.commands.common import (add_json, env_res, human_output, non_negative_int,
+                                      positive_int, print_json, rendering_flags, resolution,
+                                      spp_list)
 
 
 DESCRIPTION = """\

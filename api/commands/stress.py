@@ -6,7 +6,7 @@ import argparse
 import pathlib
 
 from iblbench.commands.common import (LazyDescriptionFormatter, add_json, human_output, print_json,
-                                     rendering_flags)
+                                      rendering_flags)
 from iblbench.scenes.errors import InputError
 
 

@@ -112,18 +112,18 @@ from iblbench.estimators.runtime.framecache import PRODUCTS, FrameCache
 from iblbench.harness.protocol.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.estimators.runtime.reference import Reference
 from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
-                                      configuration_differences, image_configuration, image_stem,
-                                      prepare_out, read_manifest, read_results, row_key,
-                                      write_manifest, write_results)
+                                               configuration_differences, image_configuration,
+                                               image_stem, prepare_out, read_manifest, read_results,
+                                               row_key, write_manifest, write_results)
 from iblbench.harness.protocol.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
-                                         CELL_CORRECTIONS, TOLERANCE, Calibration,
-                                         best_measured, corrected_spp)
-from iblbench.harness.protocol.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times, device_ms,
-                                     host_threads_capped, required_build_ms, time_columns,
-                                     measure_timing_floor, timed_renders, timing_floor_text,
-                                     too_wide)
-from iblbench.harness.protocol.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text, parse_estimator,
-                                    select_frames)
+                                                  CELL_CORRECTIONS, TOLERANCE, Calibration,
+                                                  best_measured, corrected_spp)
+from iblbench.harness.protocol.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times,
+                                              device_ms, host_threads_capped, required_build_ms,
+                                              time_columns, measure_timing_floor, timed_renders,
+                                              timing_floor_text, too_wide)
+from iblbench.harness.protocol.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text,
+                                             parse_estimator, select_frames)
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.framing import warn_about_framing

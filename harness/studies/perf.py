@@ -173,7 +173,7 @@ import numpy as np
 from iblbench.estimators.runtime.probes import (FMA_ITEMS, CopyProbe, copy_size, fma_iterations,
                                                 run_copy, run_fma)
 from iblbench.harness.protocol.timing import (measure_timing_floor, required_build_ms, spread,
-                                             timing_floor_text)
+                                              timing_floor_text)
 from iblbench.scenes.errors import InputError
 
 DEFAULT_SCENES = ("sphere-sun", "blob-sun")

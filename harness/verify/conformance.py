@@ -27,10 +27,9 @@ from iblbench.estimators.runtime.reference import Reference
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 from iblbench.harness.verify.fixtures import (FACE_BLOB_WIDTH, FACE_BLOBS, SUN_FACE,  # noqa: F401
-                                             constant_map, face_pattern_map,
-                                             fibonacci_directions, glossy_gbuffer,
-                                             grazing_gbuffer, smooth_map, stress_maps, sun_map,
-                                             white_lambertian)
+                                              constant_map, face_pattern_map, fibonacci_directions,
+                                              glossy_gbuffer, grazing_gbuffer, smooth_map,
+                                              stress_maps, sun_map, white_lambertian)
 
 ALPHA_Z = 1e-3
 ALPHA_CHI2 = 1e-2

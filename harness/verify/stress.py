@@ -100,7 +100,7 @@ from iblbench.estimators.havran import DEFENSIVE as HAVRAN_DEFENSIVE, Havran
 from iblbench.estimators.light_pool import TICKS_PER_SAMPLE, PoolEstimator
 from iblbench.harness.verify import conformance
 from iblbench.harness.verify.stress_cases import (CASE_NAMES, CASES, KNOWN_FAILURES, LARGE,  # noqa: F401
-                                                 NO_Z_PIXELS, SMALL, Scale, StressCase, Variant)
+                                                  NO_Z_PIXELS, SMALL, Scale, StressCase, Variant)
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference
