@@ -16,8 +16,8 @@
     iblbench.report("runs/nb")                              # runs/nb/report/index.html
     checks, verdict, status = iblbench.check("runs/q", "budgets.toml")
 
-:func:`run` is ``iblbench run`` as a function: the same runner (:mod:`iblbench.harness.runner`),
-the same sweep configs and overrides (:mod:`iblbench.harness.sweep`), the same files in
+:func:`run` is ``iblbench run`` as a function: the same runner (:mod:`iblbench.harness.protocol.runner`),
+the same sweep configs and overrides (:mod:`iblbench.harness.protocol.sweep`), the same files in
 ``out``, the same resumption.  It returns the rows of this sweep (the folder may also hold
 other sweeps' cells) as a pandas DataFrame: one row per (scene, estimator, spp, frame, seed),
 the columns of ``results.parquet`` (README, "Command line").  Bad input raises
@@ -74,9 +74,9 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
     - ``device``, ``sanitize``, ``save_inputs``: as the flags of ``iblbench run``;
     - ``progress``: a progress bar (None: only on a terminal).
     """
-    from iblbench.harness.metrics import parse_metrics
-    from iblbench.harness.runner import Runner
-    from iblbench.harness.sweep import check_env_res, parse_frames, parse_repeats, parse_resolution
+    from iblbench.harness.protocol.metrics import parse_metrics
+    from iblbench.harness.protocol.runner import Runner
+    from iblbench.harness.protocol.sweep import check_env_res, parse_frames, parse_repeats, parse_resolution
 
     given = {name: value for name, value in (
         ("scenes", scenes), ("estimators", estimators), ("spp", spp), ("seeds", seeds),
@@ -122,12 +122,12 @@ def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seed
                first_seed=None, frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None,
                repeats_for=None, metrics=None, sanitize=None, device=None, save_inputs=False,
                force=False, progress=None, note=None):
-    """The :class:`~iblbench.harness.runner.RunConfig` of a sweep config (``config``, default
+    """The :class:`~iblbench.harness.protocol.runner.RunConfig` of a sweep config (``config``, default
     ``default``) whose fields given here (not None) are replaced, values already parsed
     (``iblbench run`` and :func:`run` share it); ``note`` is added to the manifest's
     ``sweep`` record."""
-    from iblbench.harness.runner import RunConfig
-    from iblbench.harness.sweep import load_sweep
+    from iblbench.harness.protocol.runner import RunConfig
+    from iblbench.harness.protocol.sweep import load_sweep
 
     def given(values, kind):
         return None if values is None else tuple(map(kind, values))
@@ -149,8 +149,8 @@ def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seed
 
 def check(out, budgets="budgets.toml"):
     """``iblbench check``: (checks DataFrame, verdict line, exit status 0 or 1); InputError on
-    bad input (:func:`iblbench.harness.budgets.check`)."""
-    from iblbench.harness.budgets import check as check_budgets
+    bad input (:func:`iblbench.harness.verify.budgets.check`)."""
+    from iblbench.harness.verify.budgets import check as check_budgets
 
     return check_budgets(out, budgets)
 
@@ -249,7 +249,7 @@ def _toml_key(key, where: str) -> str:
 
 
 def _toml_value(value, key: str, where: str) -> str:
-    from iblbench.harness.sweep import toml_value
+    from iblbench.harness.protocol.sweep import toml_value
 
     if hasattr(value, "tolist"):           # NumPy arrays and scalars
         value = value.tolist()

@@ -95,9 +95,9 @@ class Estimator:
 def estimator_version(cls: type) -> str:
     """Hash of everything an estimator's output depends on: its Python source (and its bases'),
     its kernels, every shared kernel include, and the frame-cache code when it requires products."""
-    import iblbench.harness.framecache as framecache
-    import iblbench.harness.mips as mips
-    from iblbench.harness.device import kernel_path
+    import iblbench.estimators.runtime.framecache as framecache
+    import iblbench.estimators.runtime.mips as mips
+    from iblbench.estimators.runtime.device import kernel_path
 
     digest = hashlib.sha256()
     for klass in cls.__mro__:
@@ -109,9 +109,9 @@ def estimator_version(cls: type) -> str:
         digest.update(shared.read_bytes())
     if cls.requires:
         digest.update(inspect.getsource(framecache).encode())
-        digest.update(kernel_path("iblbench.harness", "framecache.cl").read_bytes())
+        digest.update(kernel_path("iblbench.estimators.runtime", "framecache.cl").read_bytes())
         digest.update(inspect.getsource(mips).encode())
-        digest.update(kernel_path("iblbench.harness", "mips.cl").read_bytes())
+        digest.update(kernel_path("iblbench.estimators.runtime", "mips.cl").read_bytes())
     return digest.hexdigest()[:12]
 
 

@@ -29,7 +29,7 @@ import numpy as np
 import pyopencl as cl
 
 from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
-from iblbench.harness.device import event_ms
+from iblbench.estimators.runtime.device import event_ms
 
 
 @dataclasses.dataclass(frozen=True)

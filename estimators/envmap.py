@@ -8,7 +8,7 @@ import numpy as np
 
 from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
 from iblbench.estimators.light_pool import HOOK_SPP, MAX_SPP, TICKS_PER_SAMPLE, hook_surface
-from iblbench.harness.device import event_ms
+from iblbench.estimators.runtime.device import event_ms
 
 MIS_MODES = ("none", "brdf")
 HEURISTICS = ("balance", "power")

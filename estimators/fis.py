@@ -11,7 +11,7 @@ import pyopencl.cltypes as cltypes
 from iblbench.estimators.base import Tags, read_estimate
 from iblbench.estimators.brdf import Brdf
 from iblbench.estimators.light_pool import MAX_SPP, hook_surface
-from iblbench.harness.device import event_ms
+from iblbench.estimators.runtime.device import event_ms
 
 MAX_LEVELS = 16   # mip levels render_fis takes (its int16 of level offsets): faces up to 2^15, past
                  # the 8192² that mips.level_offsets allows
@@ -73,7 +73,7 @@ class Fis(Brdf):
     sample reads exactly what the reference integrates, and every level is constant over blocks
     of 2^l × 2^l level-0 texels.
 
-    Mips and cube edges: ``FrameCache.radiance_mips`` (harness/mips.py), per face 2×2 box means
+    Mips and cube edges: ``FrameCache.radiance_mips`` (estimators/runtime/mips.py), per face 2×2 box means
     ("each pixel of level l is the average of the four corresponding pixels of level l − 1",
     Sec. 20.4), not weighted by solid angle, as a GPU's mip generation; an odd face size
     averages the children a parent has.  No filtering across cube edges: a texel at a face edge

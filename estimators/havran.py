@@ -102,7 +102,7 @@ import weakref
 import numpy as np
 
 from iblbench.estimators.base import Estimator, Tags, read_estimate
-from iblbench.harness.device import event_ms
+from iblbench.estimators.runtime.device import event_ms
 from iblbench.scenes import cubemap
 
 LLOYD_ITERATIONS = 4

@@ -15,7 +15,7 @@ class Hierarchical(Envmap):
     samples under MIS (``envmap``'s budget, heuristics and compensation: its parameters and
     kernels, with this light sampler).
 
-    Distribution.  The frame cache's ``weight_pyramid`` (harness/mips.py): level 0 holds each
+    Distribution.  The frame cache's ``weight_pyramid`` (estimators/runtime/mips.py): level 0 holds each
     texel's weight Y·Ω (Y its luminance, Ω its exact solid angle, so p(ω) ∝ Y(ω) as ``envmap``'s),
     each coarser level the sums of 2×2 children, the 1×1 level each face's total I_f.  A sample
     picks a face with probability ∝ I_f, then at every level one of the four children of the

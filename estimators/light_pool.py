@@ -20,7 +20,7 @@ import dataclasses
 import numpy as np
 
 from iblbench.estimators.base import Estimator, Tags, read_estimate
-from iblbench.harness.device import event_ms
+from iblbench.estimators.runtime.device import event_ms
 
 TICKS_PER_SAMPLE = 65536   # fixed point of the sample counts (light_pool.cl)
 MAX_SPP = 2 ** 31 // TICKS_PER_SAMPLE - 1

@@ -135,7 +135,7 @@ import pyopencl as cl
 
 from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
 from iblbench.estimators.bis import bis_chunks, run_lockstep
-from iblbench.harness.device import event_ms
+from iblbench.estimators.runtime.device import event_ms
 
 MAP_CHANGE_GROUP = 64   # work items of map_change's one group (smc.cl), at most
 
@@ -170,7 +170,7 @@ class SMC(Estimator):
     tags = Tags(unbiased=False, temporal=True, has_pdf=False)
     requires = ("cdf",)
     kernel_files = ("smc.cl", "sir.cl", "lanes.cl")
-    twin = "iblbench.harness.twins.ghosh2006"   # its NumPy twin (conformance.check_matches_twin)
+    twin = "iblbench.harness.verify.twins.ghosh2006"   # its NumPy twin (conformance.check_matches_twin)
 
     def __init__(self, params=None, **overrides):
         super().__init__(params, **overrides)

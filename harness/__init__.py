@@ -1,1 +1,2 @@
-"""Harness: CLI, device selection, runner, frame cache, reference, metrics and results."""
+"""Harness: the benchmark protocol (:mod:`.protocol`), verification (:mod:`.verify`) and studies
+(:mod:`.studies`).  It never imports ``reports`` or the API (``iblbench``); see ARCHITECTURE.md."""

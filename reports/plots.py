@@ -19,8 +19,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
-from iblbench.harness.stats import MeanCI, cell_intervals, separated  # noqa: E402
-from iblbench.harness.timing import TIME  # noqa: E402
+from iblbench.harness.protocol.stats import MeanCI, cell_intervals, separated  # noqa: E402
+from iblbench.harness.protocol.timing import TIME  # noqa: E402
 from iblbench.reports.previews import HEAT_CMAP, HEAT_MAX  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
 
@@ -50,7 +50,7 @@ def pareto_calls(cells, column: str) -> list[str]:
     """Each cell's place on the (``time_ms``, ``column``) Pareto front, called only where the
     intervals say so: "◆" on the front of the means (:func:`pareto_front`), "dominated" when
     another cell is faster and more accurate with both intervals separated
-    (:func:`~iblbench.harness.stats.separated`), else "not resolved at N seeds" (the means
+    (:func:`~iblbench.harness.protocol.stats.separated`), else "not resolved at N seeds" (the means
     alone put it behind the front)."""
     def ci(row, name):
         return MeanCI(row[name], row[f"{name}_low"], row[f"{name}_high"], row["seeds"], np.nan)

@@ -19,7 +19,7 @@ import matplotlib
 import numpy as np
 from PIL import Image, PngImagePlugin
 
-from iblbench.harness.metrics import tonemap
+from iblbench.harness.protocol.metrics import tonemap
 from iblbench.scenes.atomic import atomic_path
 
 HEAT_MIN = 0.1     # ΔE76 at the bottom (black) of the heat maps' log scale; less is shown as it

@@ -7,7 +7,7 @@ script, the compare viewer's, and its stylesheet are inline).
 
 Contents, per scene: the summary (estimator × spp) in two tables, errors and samples/time, error
 against time with the Pareto front, convergence against spp (with a warning where it is flatter
-than the estimator's tags allow, :mod:`iblbench.harness.convergence`), effective samples against
+than the estimator's tags allow, :mod:`iblbench.harness.verify.convergence`), effective samples against
 spp, FLIP, flicker and smc's ess/reinits where the run has them, error per frame at every spp
 (sequences only), an image grid (reference, each estimator at one spp, ΔE76 heat maps on the
 shared log scale of :mod:`.previews` with its colour bar), a compare viewer (any two of the
@@ -17,10 +17,10 @@ sample picture (:mod:`.sample_picture`); then the run's manifest.
 
 Aggregation: a cell is (scene, estimator, spp).  Each seed's metrics are first averaged over the
 frames, then the cell's value is the mean over seeds with its 95% Student-t interval
-(:func:`iblbench.harness.stats.cell_intervals`, the one aggregation ``iblbench run`` prints too),
+(:func:`iblbench.harness.protocol.stats.cell_intervals`, the one aggregation ``iblbench run`` prints too),
 shown as ``mean ± half-width`` in every table (and the image grid's captions) and as error bars
 in the plots; the manifest's stage timings are the mean over builds with its interval.  ms/frame
-is the cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.timing`),
+is the cell's device time per frame (build + sample + shade, :mod:`iblbench.harness.protocol.timing`),
 aggregated the same way; efficiency = 1 / (relMSE · s per frame) is computed per seed and then
 aggregated.
 The Pareto fronts call a cell dominated only where the intervals of time and of error both
@@ -42,12 +42,12 @@ import markupsafe
 import numpy as np
 import pandas as pd
 
-from iblbench.harness.convergence import flatter_than_tags
-from iblbench.harness.equal_time import TOLERANCE
-from iblbench.harness.metrics import Scorer
-from iblbench.harness.results import load_table
-from iblbench.harness.stats import LEVEL, cell_intervals, interval_text, mean_ci, t_quantile
-from iblbench.harness.timing import TIME
+from iblbench.harness.verify.convergence import flatter_than_tags
+from iblbench.harness.protocol.equal_time import TOLERANCE
+from iblbench.harness.protocol.metrics import Scorer
+from iblbench.harness.protocol.results import load_table
+from iblbench.harness.protocol.stats import LEVEL, cell_intervals, interval_text, mean_ci, t_quantile
+from iblbench.harness.protocol.timing import TIME
 from iblbench.reports import plots
 from iblbench.reports.frames import shown_frame
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
@@ -91,7 +91,7 @@ def load_run(run_dir: pathlib.Path) -> tuple[pd.DataFrame, dict | None]:
 
 def summarize(table: pd.DataFrame) -> pd.DataFrame:
     """One row per (scene, estimator, spp): each column of INTERVAL_COLUMNS the table has (FLIP
-    only where it was computed) as :func:`iblbench.harness.stats.cell_intervals` gives it (the
+    only where it was computed) as :func:`iblbench.harness.protocol.stats.cell_intervals` gives it (the
     mean over seeds of the per-seed means over frames, with ``_low``, ``_high``, ``_half``);
     ``seeds`` counts the seeds, ``nonfinite`` sums every row's; ``efficiency`` = 1/(relMSE·s)
     per row; ``pareto_rel_mse``/``pareto_delta_e76`` are :func:`~.plots.pareto_calls` over the
@@ -255,7 +255,7 @@ class FramePreviews:
     shows one frame and seed).  A PNG no older than its EXRs (and, for a heat map, drawn on
     today's HEAT_SCALE) is kept, so a second report draws nothing.  The reference and the
     G-buffer's mask (``mask``, called at most once) are read only when something must be drawn:
-    the exposure and the heat maps are the run's scorer's (:class:`~iblbench.harness.metrics.
+    the exposure and the heat maps are the run's scorer's (:class:`~iblbench.harness.protocol.metrics.
     Scorer`), non-finite estimate values black as in its scoring.  Where the mask cannot be had
     (the scene left the registry, another resolution) the reference's non-black pixels stand in
     for it: the reference is black outside the mask, so only black covered pixels differ."""
@@ -453,9 +453,8 @@ def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, 
     """Compute and draw the sample picture of ``scene``; a dict for the template (``error``
     says why there is none); ``scene_frame_inputs`` gives the frame's :class:`SceneInputs`."""
     from iblbench.estimators.light_pool import PoolEstimator
-    from iblbench.harness.framecache import FrameCache
     from iblbench.reports.sample_picture import (cross_frames, cross_image, plot_sample_picture,
-                                                 pool_selection)
+                                                 pool_selections)
 
     estimators, notes = {}, []
     for name in dict.fromkeys(table[table.scene == scene].estimator):
@@ -485,9 +484,7 @@ def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, 
     if not (0 <= x < w and 0 <= y < h) or not inputs.mask[y, x]:
         raise InputError(None, f"--pixel {x},{y} is not a covered pixel of {scene} ({w}×{h})")
     normal = inputs.normal[y, x].astype(np.float64)
-    cache = FrameCache(compute(), inputs.env, frame)
-    selections = [pool_selection(e, cache, normal, n, seed=0, label=name)
-                  for name, e in estimators.items()]
+    selections = pool_selections(compute(), inputs.env, frame, estimators, normal, n, seed=0)
     frames = cross_frames(normal)
     background = cross_image(inputs.env, normal / np.linalg.norm(normal), frames)
     panels = []
@@ -506,7 +503,7 @@ def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, 
 def _estimator(label: str):
     """An estimator instance for a results label: ``name`` or ``name{param=value,...}``."""
     try:
-        from iblbench.harness.sweep import parse_estimator
+        from iblbench.harness.protocol.sweep import parse_estimator
     except ImportError:   # no parameter syntax in this version
         from iblbench.estimators.registry import get_estimator_class
         return get_estimator_class(label)()
@@ -516,7 +513,7 @@ def _estimator(label: str):
 def _image_stem(row: dict) -> str:
     """The file stem the runner gave a cell's images."""
     try:
-        from iblbench.harness.results import image_stem
+        from iblbench.harness.protocol.results import image_stem
     except ImportError:
         return f"{row['estimator']}_spp{int(row['spp'])}_s{int(row['seed'])}"
     return image_stem(row)
@@ -588,56 +585,91 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
 
     def compute():
         if "c" not in compute_holder:
-            from iblbench.harness.device import get_compute
+            from iblbench.estimators.runtime.device import get_compute
             compute_holder["c"] = get_compute(device)
         return compute_holder["c"]
 
-    scenes = []
-    for scene in dict.fromkeys(table.scene):
-        scene_cells = cells[cells.scene == scene]
-        rows = table[table.scene == scene]
-        slug = _slug(scene)
-        figures = {"time": f"error_vs_time_{slug}.png", "spp": f"convergence_{slug}.png",
-                   "effective": f"effective_{slug}.png"}
-        plots.plot_error_vs_time(report / figures["time"], scene_cells, scene)
-        plots.plot_convergence(report / figures["spp"], scene_cells, scene)
-        plots.plot_effective(report / figures["effective"], scene_cells, scene)
-        frames = sorted(set(rows.frame))
-        if frame is not None and len(frames) > 1:
-            _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
-        scene_frame, frame_rule = shown_frame(run_dir, scene, frames,
-                                              frame if frame in frames else None)
-        # the heat maps' mask and the sample picture share one read (or G-buffer trace)
-        inputs = functools.cache(functools.partial(scene_inputs, run_dir, manifest, scene,
-                                                   scene_frame))
-        grid = image_grid(run_dir, report, table, cells, scene, scene_frame, seed, spp,
-                          lambda: inputs().mask)
-        per_frame = None
-        if len(frames) > 1:
-            data = cell_intervals(rows, ["estimator", "spp", "frame"],
-                                  ["mean_delta_e76", "rel_mse"]).reset_index()
-            per_frame = f"per_frame_{slug}.png"
-            plots.plot_per_frame(report / per_frame, data, scene, scene_frame)
-        extras = f"extras_{slug}.png"
-        extra_columns = plots.plot_extras(report / extras, rows, scene)
-        try:
-            picture = sample_picture(report, inputs, table, scene, scene_frame, spp, pixel,
-                                     compute)
-        except InputError as error:
-            if pixel is not None:
-                raise
-            picture = {"error": str(error)}
-        timed = equal_time[equal_time.scene == scene]
-        scenes.append({"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
-                       "bias": bias_table(run_dir, table, cells, scene, scene_frame, lambda: inputs().mask),
-                       "equal_time": equal_time_html(timed) if len(timed) else None,
-                       "figures": figures, "per_frame": per_frame, "frames": len(frames),
-                       "grid": grid, "picture": picture, "frame_rule": frame_rule,
-                       "extras": extras if extra_columns else None, "extra_columns": extra_columns,
-                       "convergence": [f.text() for f in convergence if f.scene == scene],
-                       "estimators": list(dict.fromkeys(rows.estimator)),
-                       "spp": sorted(set(int(v) for v in rows.spp))})
-    context = {
+    shown = {"spp": spp, "seed": seed, "frame": frame, "pixel": pixel}
+    scenes = [_scene_section(run_dir, report, manifest, table, cells, equal_time, convergence,
+                             scene, shown, compute)
+              for scene in dict.fromkeys(table.scene)]
+    context = _page_context(run_dir, manifest, table, scenes)
+    text = _TEMPLATES.get_template("report.html.j2").render(**context)
+    with atomic_path(report / "index.html") as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    context["path"] = report / "index.html"
+    return context
+
+
+def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, table, cells,
+                   equal_time, convergence, scene: str, shown: dict, compute) -> dict:
+    """One scene's part of the page: its tables, figures, image grid, bias table and sample
+    picture; ``shown``: the spp, seed, frame and pixel asked for (None: the defaults)."""
+    scene_cells = cells[cells.scene == scene]
+    rows = table[table.scene == scene]
+    slug = _slug(scene)
+    figures = _scene_figures(report, scene_cells, scene, slug)
+    frames = sorted(set(rows.frame))
+    frame = shown["frame"]
+    if frame is not None and len(frames) > 1:
+        _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
+    scene_frame, frame_rule = shown_frame(run_dir, scene, frames,
+                                          frame if frame in frames else None)
+    # the heat maps' mask and the sample picture share one read (or G-buffer trace)
+    inputs = functools.cache(functools.partial(scene_inputs, run_dir, manifest, scene,
+                                               scene_frame))
+    grid = image_grid(run_dir, report, table, cells, scene, scene_frame, shown["seed"],
+                      shown["spp"], lambda: inputs().mask)
+    per_frame = _per_frame_figure(report, rows, scene, slug, scene_frame) if len(frames) > 1 else None
+    extras = f"extras_{slug}.png"
+    extra_columns = plots.plot_extras(report / extras, rows, scene)
+    picture = _picture_section(report, inputs, table, scene, scene_frame, shown, compute)
+    timed = equal_time[equal_time.scene == scene]
+    return {"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
+            "bias": bias_table(run_dir, table, cells, scene, scene_frame, lambda: inputs().mask),
+            "equal_time": equal_time_html(timed) if len(timed) else None,
+            "figures": figures, "per_frame": per_frame, "frames": len(frames),
+            "grid": grid, "picture": picture, "frame_rule": frame_rule,
+            "extras": extras if extra_columns else None, "extra_columns": extra_columns,
+            "convergence": [f.text() for f in convergence if f.scene == scene],
+            "estimators": list(dict.fromkeys(rows.estimator)),
+            "spp": sorted(set(int(v) for v in rows.spp))}
+
+
+def _scene_figures(report: pathlib.Path, scene_cells, scene: str, slug: str) -> dict:
+    """Error against time (Pareto front), convergence and effective samples of one scene."""
+    figures = {"time": f"error_vs_time_{slug}.png", "spp": f"convergence_{slug}.png",
+               "effective": f"effective_{slug}.png"}
+    plots.plot_error_vs_time(report / figures["time"], scene_cells, scene)
+    plots.plot_convergence(report / figures["spp"], scene_cells, scene)
+    plots.plot_effective(report / figures["effective"], scene_cells, scene)
+    return figures
+
+
+def _per_frame_figure(report: pathlib.Path, rows, scene: str, slug: str, scene_frame: int) -> str:
+    """A sequence's error per frame."""
+    data = cell_intervals(rows, ["estimator", "spp", "frame"],
+                          ["mean_delta_e76", "rel_mse"]).reset_index()
+    per_frame = f"per_frame_{slug}.png"
+    plots.plot_per_frame(report / per_frame, data, scene, scene_frame)
+    return per_frame
+
+
+def _picture_section(report: pathlib.Path, inputs, table, scene: str, scene_frame: int,
+                     shown: dict, compute) -> dict:
+    """Lu 2013's sample picture, or why there is none (an error only for an asked pixel)."""
+    try:
+        return sample_picture(report, inputs, table, scene, scene_frame, shown["spp"],
+                              shown["pixel"], compute)
+    except InputError as error:
+        if shown["pixel"] is not None:
+            raise
+        return {"error": str(error)}
+
+
+def _page_context(run_dir: pathlib.Path, manifest: dict, table, scenes: list[dict]) -> dict:
+    """The template context of the whole page."""
+    return {
         "title": f"iblbench report: {run_dir.resolve().name}",
         "run_dir": str(run_dir.resolve()),
         "scenes": scenes,
@@ -647,11 +679,6 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         "colour_bar": "colour_bar.png",
         "heat_scale": HEAT_SCALE,
     }
-    text = _TEMPLATES.get_template("report.html.j2").render(**context)
-    with atomic_path(report / "index.html") as tmp:
-        tmp.write_text(text, encoding="utf-8")
-    context["path"] = report / "index.html"
-    return context
 
 
 def _require_in_run(rows: pd.DataFrame, flag: str, value: int | None, column: str,

@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
-from iblbench.harness.stats import interval_text  # noqa: E402
+from iblbench.harness.protocol.stats import interval_text  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
 
 _TEMPLATES = jinja2.Environment(
@@ -27,7 +27,7 @@ def _format(value) -> str:
 
 def _shown(frame) -> tuple[list[str], list[list[str]]]:
     """(columns, rows) of a table: a column with a ``_half`` beside it (its 95% interval's
-    half-width) as ``mean ± half-width`` (:func:`iblbench.harness.stats.interval_text`)."""
+    half-width) as ``mean ± half-width`` (:func:`iblbench.harness.protocol.stats.interval_text`)."""
     columns = [c for c in frame.columns if not c.endswith("_half")]
     rows = []
     for _, row in frame.iterrows():

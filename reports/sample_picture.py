@@ -2,7 +2,8 @@
 light-sample pool drawn as not selected (red), selected (yellow) and effective (green).
 
 Nothing here re-implements sampling.  The pool is the one the estimators read,
-``FrameCache.light_pool(pool_size(spp), seed)``, copied back from the device; the per-face split
+``FrameCache.light_pool(pool_size(spp), seed)``, copied back from the device
+(:func:`iblbench.estimators.runtime.pool_reads.pool_reads`); the per-face split
 N_f(n) for the pixel's normal comes from the estimator's own ``split_strategies`` kernel
 (``PoolEstimator.strategy_ticks``).  With the shared sequence (the pool estimators' default) a
 pixel reads the first ⌈N_f(n)⌉ pool entries of face f, so those are "selected"; the rest of the
@@ -23,7 +24,7 @@ import numpy as np  # noqa: E402
 from matplotlib import patheffects  # noqa: E402
 
 from iblbench.estimators.light_pool import TICKS_PER_SAMPLE, PoolEstimator  # noqa: E402
-from iblbench.harness.framecache import FrameCache  # noqa: E402
+from iblbench.estimators.runtime.pool_reads import PoolRead, pool_reads  # noqa: E402
 from iblbench.reports.previews import srgb_encode  # noqa: E402
 from iblbench.scenes import cubemap  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
@@ -59,31 +60,34 @@ class PoolSelection:
                 "effective": int(self.effective.sum())}
 
 
-def pool_selection(cls, cache: FrameCache, normal: np.ndarray, spp: int, seed: int = 0,
-                   label: str | None = None) -> PoolSelection:
-    """The pool a render of ``cls`` (a pool estimator class, or an instance with its parameters)
-    at (``spp``, ``seed``) reads, and which entries a pixel with ``normal`` selects, through the
-    estimator's own pool and split kernels."""
-    estimator = cls() if isinstance(cls, type) else cls
-    if not isinstance(estimator, PoolEstimator):
-        raise TypeError(f"{getattr(cls, 'name', cls)} does not read a light-sample pool")
-    if not estimator.params.shared_sequence:
-        raise ValueError("with shared_sequence=false each pixel reads from its own hashed pool "
-                         "offset; the picture shows the shared-sequence read only")
+def pool_selections(compute, env: np.ndarray, frame: int, estimators: dict, normal: np.ndarray,
+                    spp: int, seed: int = 0) -> list[PoolSelection]:
+    """The pool a render of each of ``estimators`` (name → a pool estimator instance with its
+    parameters) at (``spp``, ``seed``) reads, and which entries a pixel with ``normal`` selects,
+    through the estimators' own pool and split kernels
+    (:func:`iblbench.estimators.runtime.pool_reads.pool_reads`)."""
+    for estimator in estimators.values():
+        if not isinstance(estimator, PoolEstimator):
+            raise TypeError(f"{getattr(estimator, 'name', estimator)} does not read a light-sample pool")
+        if not estimator.params.shared_sequence:
+            raise ValueError("with shared_sequence=false each pixel reads from its own hashed pool "
+                             "offset; the picture shows the shared-sequence read only")
     normal = np.asarray(normal, np.float64)
     normal = normal / np.linalg.norm(normal)
-    pool = cache.light_pool(estimator.pool_size(spp), seed)
-    per_face = pool.per_face
-    dir_pdf = cache.compute.to_host(pool.dir_pdf, (6 * per_face, 4), np.float32)
-    ticks = estimator.strategy_ticks(cache, normal[None].astype(np.float32), spp)[0]
+    reads = pool_reads(compute, env, frame, estimators, normal, spp, seed)
+    return [_selection(label, spp, read, normal) for label, read in reads.items()]
+
+
+def _selection(label: str, spp: int, read: PoolRead, normal: np.ndarray) -> PoolSelection:
+    per_face, ticks = read.per_face, read.ticks
     draws = np.minimum(-(-ticks[:6] // TICKS_PER_SAMPLE), per_face)
     face = np.repeat(np.arange(6), per_face)
     index = np.tile(np.arange(per_face), 6)
-    valid = np.repeat(cache.face_integrals > 0, per_face)
+    valid = np.repeat(read.face_integrals > 0, per_face)
     selected = valid & (index < draws[face])
-    directions = dir_pdf[:, :3].astype(np.float64)
+    directions = read.directions
     effective = selected & (directions @ normal > 0)
-    return PoolSelection(label or estimator.name, spp, ticks, draws, directions, face, selected, effective, valid)
+    return PoolSelection(label, spp, ticks, draws, directions, face, selected, effective, valid)
 
 
 # ---- the unfolded cube (a cross seen from the centre of the cube) -----------------------------
@@ -204,4 +208,4 @@ def plot_sample_picture(path: pathlib.Path, env: np.ndarray, normal: np.ndarray,
     plt.close(fig)
 
 
-__all__ = ["PoolSelection", "pool_selection", "plot_sample_picture", "cross_frames", "to_cross"]
+__all__ = ["PoolSelection", "pool_selections", "plot_sample_picture", "cross_frames", "to_cross"]

@@ -1,7 +1,7 @@
 """Shared fixtures: one OpenCL context for the session, and a private reference cache."""
 import pytest
 
-from iblbench.harness.device import get_compute
+from iblbench.estimators.runtime.device import get_compute
 
 
 def pytest_collection_modifyitems(items):

@@ -17,7 +17,7 @@ import pytest
 import trimesh
 
 import iblbench
-from iblbench.harness.results import TABLE, read_manifest
+from iblbench.harness.protocol.results import TABLE, read_manifest
 
 TINY = dict(resolution="16x16", env_res=4, repeats=1, metrics="de76,relmse", progress=False)
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from iblbench.estimators import registry
-from iblbench.harness import conformance
-from iblbench.harness.conformance import ALPHA_CHI2, check_estimator, chi2_sampling
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import CDF_ONE, FrameCache
-from iblbench.harness.sweep import parse_estimator
+from iblbench.harness.verify import conformance
+from iblbench.harness.verify.conformance import ALPHA_CHI2, check_estimator, chi2_sampling
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import CDF_ONE, FrameCache
+from iblbench.harness.protocol.sweep import parse_estimator
 from iblbench.scenes import cubemap
 from iblbench.scenes.errors import InputError
 

@@ -18,11 +18,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from iblbench.harness import cli
-from iblbench.harness.budgets import (LIMIT_KEYS, configuration_differences, evaluate,
-                                     load_budgets, read_budgets)
-from iblbench.harness.results import COLUMNS, write_results
-from iblbench.harness.sweep import load_sweep
+from iblbench import cli
+from iblbench.harness.verify.budgets import (LIMIT_KEYS, configuration_differences, evaluate,
+                                             load_budgets, read_budgets)
+from iblbench.harness.protocol.results import COLUMNS, write_results
+from iblbench.harness.protocol.sweep import load_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 BUDGETS = ROOT / "budgets.toml"
@@ -33,7 +33,7 @@ DELTA_E = ("mean_delta_e76", "mean_delta_e2000")
 
 def iblbench(*args, timeout: float = 300) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONWARNINGS="ignore")
-    return subprocess.run([sys.executable, "-m", "iblbench.harness.cli", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "iblbench.cli", *map(str, args)],
                           capture_output=True, text=True, env=env, timeout=timeout, cwd=ROOT)
 
 

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from iblbench.harness import cli
-from iblbench.harness.results import write_manifest, write_results
+from iblbench import cli
+from iblbench.harness.protocol.results import write_manifest, write_results
 from test_budgets import row
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -114,7 +114,7 @@ def test_budgets_from_a_real_run_pass_check_on_it(tmp_path):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
 
     def iblbench(*args):
-        return subprocess.run([sys.executable, "-m", "iblbench.harness.cli", *map(str, args)],
+        return subprocess.run([sys.executable, "-m", "iblbench.cli", *map(str, args)],
                               capture_output=True, text=True, env=env, timeout=300, cwd=ROOT)
 
     run = tmp_path / "run"
@@ -132,7 +132,7 @@ def test_budgets_from_a_real_run_pass_check_on_it(tmp_path):
 
 def test_run_command_names_the_python_api_for_an_api_run(tmp_path):
     """A run made by iblbench.run has no command line: the header must not claim one."""
-    from iblbench.harness.budgets import run_command
+    from iblbench.harness.verify.budgets import run_command
 
     api_run = {"sweep": {"source": "shipped:default", "via": "iblbench.run (Python API)",
                          "overridden_by_arguments": ["scenes", "spp"]}}

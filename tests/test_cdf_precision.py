@@ -2,7 +2,7 @@
 
 Float32 CDFs collapsed the bins of texels after a bright sun (probability < 6e-8 near c ≈ 1) and
 a float32 variate cannot reach bins under 2^-24 anyway: pure light sampling then missed 3.6% of
-∫L cos⁺ on normals that see only the dim part of the sun's face (harness/cdf_precision.py).  The
+∫L cos⁺ on normals that see only the dim part of the sun's face (harness/verify/cdf_precision.py).  The
 fixed-point CDFs (kernels/common.cl) searched with 63-bit variates fix both.  Tolerances:
 
 - REL_TOL = 1e-6 on P(texel|f): the device rounds Y·Ω and the row totals in float32 (a few ulps,
@@ -18,10 +18,10 @@ import pyopencl as cl
 import pytest
 from scipy import stats
 
-from iblbench.harness import cdf_precision
-from iblbench.harness.conformance import smooth_map
-from iblbench.harness.device import Compute, DeviceInfo, include_dirs
-from iblbench.harness.framecache import FrameCache
+from iblbench.harness.verify import cdf_precision
+from iblbench.harness.verify.conformance import smooth_map
+from iblbench.estimators.runtime.device import Compute, DeviceInfo, include_dirs
+from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.scenes import cubemap
 
 CDF_ONE = cdf_precision.FIXED_POINT_ONE

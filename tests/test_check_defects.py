@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from iblbench.harness import cli
-from iblbench.harness.results import write_results
+from iblbench import cli
+from iblbench.harness.protocol.results import write_results
 from test_budgets import row
 
 CONFIGURATION = """

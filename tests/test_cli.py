@@ -46,7 +46,7 @@ def cli(cache):
     def run(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
         env = dict(os.environ, IBLBENCH_CACHE=str(cache), PYTHONWARNINGS="ignore")
         env.pop("IBLBENCH_DEVICE", None)
-        return subprocess.run([sys.executable, "-m", "iblbench.harness.cli", *map(str, args)],
+        return subprocess.run([sys.executable, "-m", "iblbench.cli", *map(str, args)],
                               capture_output=True, text=True, env=env, timeout=timeout)
     return run
 
@@ -117,7 +117,7 @@ def modules_imported_by(argv: list[str], heavy: tuple[str, ...]) -> list[str]:
     """The modules of ``heavy`` (a package or module name each) that ``main(argv)`` imports, in
     a fresh interpreter."""
     code = ("import contextlib, io, sys\n"
-            "from iblbench.harness.cli import main\n"
+            "from iblbench.cli import main\n"
             "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
             f"    main({argv!r})\n"
             f"heavy = {heavy!r}\n"
@@ -133,7 +133,7 @@ def test_help_imports_no_heavy_module():
     """``iblbench --help`` builds every subparser without importing colour-science, scipy,
     trimesh, OpenCL or the stress battery (they cost seconds at start-up)."""
     assert modules_imported_by(["--help"], ("colour", "scipy", "trimesh", "pyopencl", "matplotlib",
-                                            "flip_evaluator", "iblbench.harness.stress")) == []
+                                            "flip_evaluator", "iblbench.harness.verify.stress")) == []
 
 
 def test_stress_help_still_lists_the_cases(cli):
@@ -399,7 +399,7 @@ def listing(command: str, columns: int) -> dict[str, str]:
     """``iblbench list COMMAND`` at a terminal width: name -> its text, continuation lines joined;
     every line fits the width."""
     env = dict(os.environ, COLUMNS=str(columns), PYTHONWARNINGS="ignore")
-    result = subprocess.run([sys.executable, "-m", "iblbench.harness.cli", "list", command],
+    result = subprocess.run([sys.executable, "-m", "iblbench.cli", "list", command],
                             capture_output=True, text=True, env=env, timeout=120)
     assert result.returncode == 0, result.stderr
     entries: dict[str, str] = {}
@@ -484,7 +484,7 @@ def summary_rows(estimator: str, spp: int, evaluations: float, time_ms: float,
 
 def test_terminal_tables_show_evaluations_and_time_beside_spp():
     """One bis sample is 21 integrand evaluations: spp alone would compare unequal work."""
-    from iblbench.harness.cli import terminal_summaries
+    from iblbench.commands.run import terminal_summaries
 
     table = pd.DataFrame(summary_rows("uniform", 16, 16.0, 2.0) + summary_rows("bis", 16, 336.0, 30.0)
                          + summary_rows("uniform", 64, 64.0, 10.0, time_budget_ms=10.0)
@@ -503,7 +503,7 @@ def test_terminal_table_shows_the_mean_over_seeds_and_its_t_interval():
     """Per-seed frame means 1, 2 and 6 (mean 3, median 2, sd √7): the printed cell is the mean
     ± t(0.975, 2)·√7/√3 = 6.57 (t = 4.3027 from the t table), both rounded at the half-width's
     second significant digit; one seed prints no interval."""
-    from iblbench.harness.cli import terminal_summaries
+    from iblbench.commands.run import terminal_summaries
 
     rows = [{"scene": "s", "estimator": "a", "spp": 16, "frame": frame, "seed": seed,
              "time_budget_ms": float("nan"), "mean_delta_e76": value, "rel_mse": value / 10,

@@ -6,10 +6,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from iblbench.harness.cli import main
-from iblbench.harness.compare import pair_estimators, parse_threshold
-from iblbench.harness.results import TABLE, read_manifest, write_manifest
-from iblbench.harness.runner import MAX_SEED, RunConfig, run
+from iblbench.cli import main
+from iblbench.harness.verify.compare import pair_estimators, parse_threshold
+from iblbench.harness.protocol.results import TABLE, read_manifest, write_manifest
+from iblbench.harness.protocol.runner import MAX_SEED, RunConfig, run
 from iblbench.scenes.errors import InputError
 
 MUTANT = "balanced{uniform_faces=true}"

@@ -2,7 +2,7 @@
 turn of any face and under any swap of two faces (issue 13, §3)."""
 import numpy as np
 
-from iblbench.harness.conformance import face_pattern_map, smooth_map
+from iblbench.harness.verify.fixtures import face_pattern_map, smooth_map
 from iblbench.scenes import cubemap
 
 

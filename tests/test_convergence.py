@@ -1,4 +1,4 @@
-"""harness/convergence.py on synthetic results tables: a flat error is flagged, a 1/spp one and a
+"""harness/verify/convergence.py on synthetic results tables: a flat error is flagged, a 1/spp one and a
 noisy one whose mean follows 1/spp are not, and the estimator's tags set the allowance."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from iblbench.estimators.base import Tags
-from iblbench.harness.convergence import allowance, flatter_than_tags
+from iblbench.harness.verify.convergence import allowance, flatter_than_tags
 
 SPP = (16, 64, 256)
 
@@ -17,7 +17,7 @@ SPP = (16, 64, 256)
 def _table(estimator: str, error, seeds: int, noise: float, frames: int = 1,
            rng_seed: int = 1) -> pd.DataFrame:
     """Rows of one (scene, estimator): relMSE = error(spp), each seed and frame times a lognormal
-    factor of log-sd ``noise`` (mean 1), and a flat ΔE76 (not judged: harness/convergence.py)."""
+    factor of log-sd ``noise`` (mean 1), and a flat ΔE76 (not judged: harness/verify/convergence.py)."""
     rng = np.random.default_rng(rng_seed)
     rows = []
     for spp in SPP:
@@ -103,7 +103,9 @@ def test_equal_time_cells_and_unregistered_estimators_are_not_judged():
 
 
 def test_run_prints_a_warning_for_each_flag(monkeypatch, tmp_path, capsys):
-    from iblbench.harness import cli, runner
+    from iblbench import cli
+    from iblbench.commands import run as run_command
+    from iblbench.harness.protocol import runner
 
     class FlatRunner:   # the sweep's table, without rendering it
         def __init__(self, config):
@@ -116,7 +118,7 @@ def test_run_prints_a_warning_for_each_flag(monkeypatch, tmp_path, capsys):
             return table
 
     monkeypatch.setattr(runner, "Runner", FlatRunner)
-    monkeypatch.setattr(cli, "terminal_summaries", lambda table: [])
+    monkeypatch.setattr(run_command, "terminal_summaries", lambda table: [])
     assert cli.main(["run", "--scene", "sphere-sun", "--out", str(tmp_path)]) == 0
     warnings = [line for line in capsys.readouterr().err.splitlines()
                 if line.startswith("warning: convergence: uniform on s: relMSE")]

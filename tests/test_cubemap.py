@@ -3,7 +3,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from iblbench.harness.device import include_dirs
+from iblbench.estimators.runtime.device import include_dirs
 from iblbench.scenes import cubemap
 
 MAPPING_KERNEL = """

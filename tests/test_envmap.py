@@ -232,7 +232,7 @@ def test_a_latlong_crop_stops_a_run_with_exit_2_on_one_line(tmp_path, smooth_lat
     trimesh.creation.icosphere(1).export(tmp_path / "ball.obj")
     (tmp_path / "scene.toml").write_text('[mesh]\npath = "ball.obj"\n[environment]\npath = "crop.exr"\n'
                                          "[camera]\neye = [0, 0, 3]\ntarget = [0, 0, 0]\n")
-    result = subprocess.run([sys.executable, "-m", "iblbench.harness.cli", "run", "--scene",
+    result = subprocess.run([sys.executable, "-m", "iblbench.cli", "run", "--scene",
                              str(tmp_path / "scene.toml"), "--estimator", "uniform", "--spp", "1",
                              "--seeds", "1", "--out", str(tmp_path / "out"), "--no-progress"],
                             capture_output=True, text=True, timeout=120,

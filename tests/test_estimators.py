@@ -6,7 +6,7 @@ import pytest
 
 from iblbench.estimators import registry
 from iblbench.estimators.base import Estimator, Tags
-from iblbench.harness.conformance import check_estimator, parametrize_with_checks
+from iblbench.harness.verify.conformance import check_estimator, parametrize_with_checks
 from iblbench.scenes.errors import InputError
 
 BUILTINS = [registry.make_estimator(name) for name in registry.estimator_names()]

@@ -8,9 +8,9 @@ import pytest
 
 from iblbench.estimators.base import Tags
 from iblbench.estimators.fis import Fis, FisParams
-from iblbench.harness import conformance
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
+from iblbench.harness.verify import conformance
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 
@@ -240,9 +240,9 @@ def test_report_states_the_bias_at_the_highest_spp(tmp_path):
 
 
 def test_run_warnings_let_fis_level_off_at_its_bias():
-    """harness/convergence.py: an estimator with a stated limit may level off (slope 0) on a
+    """harness/verify/convergence.py: an estimator with a stated limit may level off (slope 0) on a
     static scene too; the others keep their allowance."""
-    from iblbench.harness.convergence import allowance
+    from iblbench.harness.verify.convergence import allowance
 
     for sequence in (False, True):
         assert allowance(Fis.tags, "rel_mse", sequence).slope == 0

@@ -4,11 +4,11 @@ import math
 import numpy as np
 import pytest
 
-from iblbench.harness.conformance import fibonacci_directions, smooth_map
-from iblbench.harness.device import Compute, DeviceInfo
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import CDF_ONE, FrameCache, build_fixed_point_cdfs
-from iblbench.harness.reference import Reference
+from iblbench.harness.verify.conformance import fibonacci_directions, smooth_map
+from iblbench.estimators.runtime.device import Compute, DeviceInfo
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import CDF_ONE, FrameCache, build_fixed_point_cdfs
+from iblbench.estimators.runtime.reference import Reference
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from iblbench.harness.runner import RunConfig, Runner
+from iblbench.harness.protocol.runner import RunConfig, Runner
 from iblbench.scenes import framing, gbuffer, meshes
 from iblbench.scenes.scene import Camera, EnvSequence, Material, Scene
 

@@ -9,7 +9,7 @@ mutated file and the problem: never a traceback, another exit code, a hang, or a
 in ``--out``.
 
 The mutants run in this process through ``cli.main`` (one OpenCL context, kernels built once,
-about 0.2 s per successful run); a sample also runs as real ``python -m iblbench.harness.cli``
+about 0.2 s per successful run); a sample also runs as real ``python -m iblbench.cli``
 processes, to see the real exit code and stderr.
 """
 from __future__ import annotations
@@ -37,7 +37,7 @@ import pandas as pd
 import pytest
 import trimesh
 
-from iblbench.harness import cli
+from iblbench import cli
 from iblbench.scenes.envmap import FACE_FILE_NAMES
 from iblbench.scenes.imageio import write_exr, write_hdr
 
@@ -775,7 +775,7 @@ def run_in_process(argv: list[str], timeout: float) -> Outcome:
 
 
 def start_process(argv: list[str]) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "iblbench.harness.cli", *argv],
+    return subprocess.Popen([sys.executable, "-m", "iblbench.cli", *argv],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

@@ -6,12 +6,12 @@ from scipy.spatial import cKDTree
 
 from iblbench.estimators import havran as hv
 from iblbench.estimators.havran import EqualAreaMap, Havran, fir_filter
-from iblbench.harness import metrics
-from iblbench.harness.conformance import (Harness, constant_map, smooth_map, stress_maps,
-                                          white_lambertian, yield_checks)
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.reference import Reference
+from iblbench.harness.protocol import metrics
+from iblbench.harness.verify.conformance import (Harness, constant_map, smooth_map, stress_maps,
+                                                 white_lambertian, yield_checks)
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.runtime.reference import Reference
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import trace_gbuffer
 from iblbench.scenes.registry import builtin_scene

@@ -10,9 +10,9 @@ import pytest
 from scipy import stats
 
 from iblbench.estimators.havran import EqualAreaMap, Havran, equal_area_to_direction, frame_map
-from iblbench.harness.conformance import Harness, glossy_gbuffer, sidak_z, sun_map
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.stress import havran_map_chi2, havran_map_density
+from iblbench.harness.verify.conformance import Harness, glossy_gbuffer, sidak_z, sun_map
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.harness.verify.stress import havran_map_chi2, havran_map_density
 
 K_LARGE = 4096
 SEEDS = 16

@@ -11,10 +11,10 @@ import pytest
 
 from iblbench.estimators import registry
 from iblbench.estimators.hierarchical import Hierarchical
-from iblbench.harness import conformance
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.sweep import parse_estimator
+from iblbench.harness.verify import conformance
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.harness.protocol.sweep import parse_estimator
 from iblbench.scenes import cubemap
 from iblbench.scenes.errors import InputError
 

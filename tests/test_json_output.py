@@ -18,9 +18,9 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from iblbench.harness import cli
-from iblbench.harness.machine_readable import run_summary
-from iblbench.harness.results import COLUMNS, json_text, write_results
+from iblbench import cli
+from iblbench.harness.protocol.machine_readable import run_summary
+from iblbench.harness.protocol.results import COLUMNS, json_text, write_results
 from test_budgets import row
 from test_check_defects import CONFIGURATION, configured, rule
 

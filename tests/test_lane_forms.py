@@ -6,7 +6,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from iblbench.harness.device import include_dirs
+from iblbench.estimators.runtime.device import include_dirs
 
 LANES_KERNEL = """
 #include "common.cl"

@@ -5,10 +5,11 @@ import pytest
 from iblbench.estimators import registry
 from iblbench.estimators.balanced_mis import BalancedMIS
 from iblbench.estimators.light_pool import TICKS_PER_SAMPLE
-from iblbench.harness.conformance import (Harness, check_unbiased, constant_map, fibonacci_directions,
-                                          glossy_gbuffer, smooth_map, stress_maps)
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
+from iblbench.harness.verify.conformance import (Harness, check_unbiased, constant_map,
+                                                 fibonacci_directions, glossy_gbuffer, smooth_map,
+                                                 stress_maps)
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 
@@ -260,7 +261,7 @@ def claim2_cells(balanced_over_uniform_3n: dict[str, float]):
     ((1.05, 1.5, 0.95), "partly holds"),
     ((1.05, 0.92, 1.08), "holds")])
 def test_claim2_verdict_follows_the_within_10_percent_test(ratios, verdict):
-    from iblbench.harness.reproduce import lu2013_verdicts
+    from iblbench.harness.studies.reproduce import lu2013_verdicts
 
     scenes = ("sphere-sun", "blob-sun", "sphere-backlit")
     claim2 = lu2013_verdicts(claim2_cells(dict(zip(scenes, ratios))), scenes)[1]

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from iblbench.estimators.base import Estimate
-from iblbench.harness import metrics
+from iblbench.harness.protocol import metrics
 
 
 def cie_lightness(y):

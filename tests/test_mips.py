@@ -1,9 +1,9 @@
-"""The frame cache's mip products (harness/mips.py) against a NumPy twin of the 2×2 reduction."""
+"""The frame cache's mip products (estimators/runtime/mips.py) against a NumPy twin of the 2×2 reduction."""
 import numpy as np
 import pytest
 
-from iblbench.harness import mips
-from iblbench.harness.framecache import FrameCache
+from iblbench.estimators.runtime import mips
+from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.scenes import cubemap
 
 

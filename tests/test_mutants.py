@@ -1,4 +1,4 @@
-"""The mutation suite (harness/mutants.py, issue 13): every realistic bug of the catalogue is
+"""The mutation suite (harness/verify/mutants.py, issue 13): every realistic bug of the catalogue is
 rejected by the conformance suite, the stress battery or the budgets, not only by a unit test.
 
 The catalogue runs once per module, two mutants at a time, each stopping at the first layer
@@ -10,8 +10,8 @@ import tempfile
 
 import pytest
 
-from iblbench.harness import mutants
-from iblbench.harness.cli import main
+from iblbench.harness.verify import mutants
+from iblbench.cli import main
 
 pytestmark = pytest.mark.slow
 AREAS = ("uniform", "balanced", "balanced_mis", "havran", "bis", "smc")
@@ -23,7 +23,7 @@ def test_catalogue_covers_every_estimator_and_harness_part_and_applies_cleanly()
     covered = {e.partition("{")[0] for m in mutants.CATALOGUE for e in m.estimators}
     assert set(AREAS) <= covered
     paths = {m.path for m in mutants.CATALOGUE}
-    for part in ("harness/framecache", "harness/reference", "harness/metrics"):
+    for part in ("estimators/runtime/framecache", "estimators/runtime/reference", "harness/protocol/metrics"):
         assert any(p.startswith(part) for p in paths), part
     with tempfile.TemporaryDirectory() as tmp:
         root = mutants.copy_sources(pathlib.Path(tmp))

@@ -15,9 +15,11 @@ import pytest
 
 from iblbench.estimators.registry import estimator_names, get_estimator_class
 from iblbench.estimators.uniform import Uniform
-from iblbench.harness import perf, timing
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
+from iblbench.estimators.runtime import probes
+from iblbench.harness.studies import perf
+from iblbench.harness.protocol import timing
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.scenes.gbuffer import trace_gbuffer
 from iblbench.scenes.registry import load_scene
 
@@ -92,25 +94,25 @@ def test_fma_kernel_runs_every_fma_it_counts(compute):
     chain in NumPy gives the kernel's output bit for bit, so none was skipped or folded, and
     FLOPs = 2 per FMA × lanes × chains × iterations × items."""
     items, iterations, c = 96, 37, np.float32(1e-3)
-    out, times, flops = perf.run_fma(compute, items, iterations, b=1.0, c=float(c))
+    out, times, flops = probes.run_fma(compute, items, iterations, b=1.0, c=float(c))
     lanes = int(compute.info.device.preferred_vector_width_float)   # 16 on AVX-512 PoCL
-    assert out.shape == (items, perf.FMA_CHAINS, lanes) and len(times) == 1
+    assert out.shape == (items, probes.FMA_CHAINS, lanes) and len(times) == 1
     start = np.arange(items, dtype=np.float32) * np.float32(1e-9)
-    expected = start[:, None] + np.arange(perf.FMA_CHAINS, dtype=np.float32)[None, :]
+    expected = start[:, None] + np.arange(probes.FMA_CHAINS, dtype=np.float32)[None, :]
     for _ in range(iterations):
         expected = expected + c
     np.testing.assert_array_equal(out, np.broadcast_to(expected[:, :, None], out.shape))
-    assert flops == 2 * lanes * perf.FMA_CHAINS * iterations * items
+    assert flops == 2 * lanes * probes.FMA_CHAINS * iterations * items
 
 
 def test_copy_kernel_moves_exactly_its_bytes(compute):
     """The copy equals its input (every float4 read and written once): bytes moved = 2 × size."""
     source = np.random.default_rng(1).standard_normal(4 * 5000).astype(np.float32)
-    copy, times, moved = perf.run_copy(compute, source, launches=2)
+    copy, times, moved = probes.run_copy(compute, source, launches=2)
     np.testing.assert_array_equal(copy, source)
     assert moved == 2 * source.nbytes and len(times) == 2
     with pytest.raises(ValueError):
-        perf.run_copy(compute, source[:-1])
+        probes.run_copy(compute, source[:-1])
 
 
 def test_roofline_fraction_is_the_binding_roof():
@@ -140,7 +142,7 @@ def cli(tmp_path_factory):
     def run(*args: str) -> subprocess.CompletedProcess:
         env = dict(os.environ, IBLBENCH_CACHE=str(cache), PYTHONWARNINGS="ignore")
         env.pop("IBLBENCH_DEVICE", None)
-        return subprocess.run([sys.executable, "-m", "iblbench.harness.cli", "perf", *map(str, args)],
+        return subprocess.run([sys.executable, "-m", "iblbench.cli", "perf", *map(str, args)],
                               capture_output=True, text=True, env=env, timeout=600)
     return run
 

@@ -5,7 +5,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
-from iblbench.harness.device import include_dirs
+from iblbench.estimators.runtime.device import include_dirs
 
 POWER_KERNEL = """
 #include "common.cl"

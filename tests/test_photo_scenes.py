@@ -80,7 +80,7 @@ def test_a_turntable_frame_is_the_map_turned_by_its_step(tmp_path):
 def test_park_turn_runs_every_frame_with_the_temporal_estimators(tmp_path):
     """park-turn end to end at a tiny size: every frame scored, smc's state kept across frames,
     nothing non-finite, and its error bounded like the frame-by-frame uniform estimator's."""
-    from iblbench.harness.runner import RunConfig, run
+    from iblbench.harness.protocol.runner import RunConfig, run
 
     table = run(RunConfig(out=tmp_path, scenes=("park-turn",), estimators=("uniform", "smc"),
                           spp=(8,), seeds=1, resolution=(12, 12), env_res=8,

@@ -5,10 +5,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from iblbench.harness import conformance
-from iblbench.harness.device_gbuffer import PIXEL_GROUP, DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.sweep import parse_estimator
+from iblbench.harness.verify import conformance
+from iblbench.estimators.runtime.device_gbuffer import PIXEL_GROUP, DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.harness.protocol.sweep import parse_estimator
 
 
 def test_buffers_hold_whole_groups_padded_with_the_last_pixel(compute):
@@ -44,7 +44,7 @@ def test_a_device_that_allows_fewer_work_items_per_group_gets_a_divisor(compute,
     """Where a kernel may have fewer than PIXEL_GROUP work items per group (a GPU's limit for a
     kernel that holds many registers), launches use the largest divisor of the group within it,
     and the image is the same, bit for bit."""
-    from iblbench.harness.device import Compute
+    from iblbench.estimators.runtime.device import Compute
 
     gbuffer = conformance.glossy_gbuffer(9)
     estimator = parse_estimator(label).make()

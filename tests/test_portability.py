@@ -1,4 +1,4 @@
-"""Every kernel is valid, safe OpenCL C 1.2: the portability set (harness/portability.py) runs on
+"""Every kernel is valid, safe OpenCL C 1.2: the portability set (harness/verify/portability.py) runs on
 Oclgrind, the OpenCL specification's simulator, with its memory, data-race and API checks on, and
 gives the default device's arrays (integer ones bit for bit, float ones within
 ``portability.FLOAT_RTOL``).  Oclgrind joins the test extra; without it these tests skip."""
@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from iblbench.harness import portability
-from iblbench.harness.device import Compute, all_devices, choose_device, get_compute
+from iblbench.harness.verify import portability
+from iblbench.estimators.runtime.device import Compute, all_devices, choose_device, get_compute
 
 OCLGRIND = "oclgrind"
 pytestmark = pytest.mark.skipif(not any(d.is_simulator for d in all_devices()),
@@ -49,10 +49,10 @@ def test_the_default_device_is_never_the_simulator():
 
 
 def test_our_own_device_queries_are_valid_opencl_1_2():
-    """Under Oclgrind's API check, the device queries of harness/device.py report nothing (the
+    """Under Oclgrind's API check, the device queries of estimators/runtime/device.py report nothing (the
     clGetDeviceInfo reports of a full case come from pyopencl's Program.build and kernel
     creation: portability.PYOPENCL_QUERY)."""
-    code = ("from iblbench.harness.device import all_devices\n"
+    code = ("from iblbench.estimators.runtime.device import all_devices\n"
             "d = next(d for d in all_devices() if d.is_simulator)\n"
             "print(d.label, d.short_name, d.key, d.has_fp64, d.kind, d.is_gpu)\n")
     child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -82,7 +82,7 @@ def test_differences_are_exact_for_integers_and_relative_for_floats():
 
 
 def test_doctor_names_the_case_and_how_far_off_it_is():
-    from iblbench.harness.doctor import _case_problems
+    from iblbench.harness.verify.doctor import _case_problems
 
     exact = portability.render(get_compute(), "reference")
     assert _case_problems(portability.Outcome("reference", exact, []), exact) == []

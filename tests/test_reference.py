@@ -1,11 +1,11 @@
-"""The exact reference (harness/reference.cl) against closed forms and brute-force quadrature."""
+"""The exact reference (estimators/runtime/reference.cl) against closed forms and brute-force quadrature."""
 import numpy as np
 import pytest
 
-from iblbench.harness.conformance import face_pattern_map, fibonacci_directions
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.reference import Reference
+from iblbench.harness.verify.conformance import face_pattern_map, fibonacci_directions
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.runtime.reference import Reference
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 

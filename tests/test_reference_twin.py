@@ -1,5 +1,5 @@
-"""The exact reference (harness/reference.cl) against its independent NumPy twin
-(harness/twins/reference_twin.py, whose docstring says how it integrates), at the 1e-4 level; the
+"""The exact reference (estimators/runtime/reference.cl) against its independent NumPy twin
+(harness/verify/twins/reference_twin.py, whose docstring says how it integrates), at the 1e-4 level; the
 twin's own accuracy is checked against closed forms (the white furnace, and the lobe's
 hemisphere integral 2π/(m+2) on a constant map seen head-on), and its rule against a rule of
 twice the order.
@@ -7,11 +7,11 @@ twice the order.
 import numpy as np
 import pytest
 
-from iblbench.harness.conformance import face_pattern_map, fibonacci_directions
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.reference import Reference
-from iblbench.harness.twins.reference_twin import GAUSS_ORDER, texel_integrals, twin_image
+from iblbench.harness.verify.conformance import face_pattern_map, fibonacci_directions
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.runtime.reference import Reference
+from iblbench.harness.verify.twins.reference_twin import GAUSS_ORDER, texel_integrals, twin_image
 from iblbench.scenes.gbuffer import GBuffer
 
 SHININESS = (0.0, 1.0, 2.0, 20.0, 150.0, 1e3, 1e4)
@@ -109,7 +109,7 @@ def test_reference_specular_matches_the_twin(compute, res):
 def test_reference_without_fp64_stays_within_its_error(compute, kd, ks):
     """fp64 is optional (many GPUs have slow double or none): the float path of reference.cl,
     built as on a device without cl_khr_fp64, against the twin to ``SPECULAR_RTOL``."""
-    from iblbench.harness.device import Compute
+    from iblbench.estimators.runtime.device import Compute
 
     float_only = Compute(compute.info, fp64=False)
     gbuffer, env = twin_scene(kd, ks), face_pattern_map(8)

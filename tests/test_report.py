@@ -20,9 +20,9 @@ import pytest
 from PIL import Image
 
 from iblbench.estimators.light_pool import TICKS_PER_SAMPLE
-from iblbench.harness import cli
-from iblbench.harness.metrics import delta_e_images, exposure
-from iblbench.harness.runner import RunConfig, run
+from iblbench import cli
+from iblbench.harness.protocol.metrics import delta_e_images, exposure
+from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.reports import plots
 from iblbench.reports.plots import pareto_front
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from matplotlib.container import ErrorbarContainer
 
-from iblbench.harness.runner import RunConfig, run
+from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.reports import plots
 from iblbench.reports.frames import shown_frame
 from iblbench.reports.report import write_report

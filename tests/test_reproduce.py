@@ -3,7 +3,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from iblbench.harness import reproduce
+from iblbench.harness.studies import reproduce
 from iblbench.reports.reproduction import summary_head, write_summary
 from iblbench.scenes.errors import InputError
 
@@ -117,8 +117,8 @@ def test_summary_has_verdict_table_and_plots(tmp_path):
 
 def test_lu2013_end_to_end_on_tiny_images(tmp_path):
     scenes = ("sphere-sun", "sphere-backlit")   # blob-sun's 327k triangles take longest to build
-    summary = reproduce.reproduce("lu2013", tmp_path, seeds=1, progress=False,
-                                  resolution=(10, 10), env_res=8, scenes=scenes)
+    summary = write_summary(tmp_path, reproduce.reproduce("lu2013", tmp_path, seeds=1, progress=False,
+                                                          resolution=(10, 10), env_res=8, scenes=scenes))
     text = summary.read_text()
     verdicts = [line for line in text.splitlines() if line.startswith("| ") and "**" in line]
     assert len(verdicts) == 5 and "not compared" in verdicts[4]
@@ -303,9 +303,9 @@ def test_lu2013_equal_time_verdict_compares_each_pair():
 
 def test_mis_compensation_end_to_end_on_tiny_images(tmp_path):
     pair = PAIRS[-1]
-    summary = reproduce.reproduce("mis-compensation", tmp_path, seeds=2, progress=False,
-                                  resolution=(12, 12), env_res=8, scenes=("sphere-sun",),
-                                  pairs=(pair,))
+    summary = write_summary(tmp_path, reproduce.reproduce(
+        "mis-compensation", tmp_path, seeds=2, progress=False, resolution=(12, 12), env_res=8,
+        scenes=("sphere-sun",), pairs=(pair,)))
     text = summary.read_text()
     verdicts = [line for line in text.splitlines() if line.startswith("| ") and "**" in line]
     assert len(verdicts) == 4 and "MIS Compensation" in text

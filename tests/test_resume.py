@@ -18,10 +18,10 @@ import trimesh
 
 from iblbench.estimators.registry import _registry, register
 from iblbench.estimators.uniform import Uniform
-from iblbench.harness.cli import main
-from iblbench.harness.results import (DETERMINISTIC_COLUMNS, JOURNAL, Journal, read_journal,
-                                      read_results, row_key, write_results)
-from iblbench.harness.runner import RunConfig, run
+from iblbench.cli import main
+from iblbench.harness.protocol.results import (DETERMINISTIC_COLUMNS, JOURNAL, Journal,
+                                               read_journal, read_results, row_key, write_results)
+from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.scenes.errors import InputError
 
 TINY = """\
@@ -130,7 +130,7 @@ def test_kill_9_mid_run_then_resume_equals_an_uninterrupted_run(tmp_path):
     env.pop("IBLBENCH_DEVICE", None)
 
     def start(out: Path) -> subprocess.Popen:
-        return subprocess.Popen([sys.executable, "-m", "iblbench.harness.cli", "run", "--config",
+        return subprocess.Popen([sys.executable, "-m", "iblbench.cli", "run", "--config",
                                  str(config), "--out", str(out), "--no-progress"],
                                 env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
@@ -251,7 +251,7 @@ def test_equal_time_gives_the_slower_estimator_fewer_samples(tmp_path, capsys):
         assert fit["b_ms_per_spp"] > 0 and fit["a_ms"] >= 0
         assert fit["measured_ms"] <= 2.2 or fit["chosen_spp"] == 1
         assert {1, 4, 16, 64} <= {run["spp"] for run in fit["runs"]}
-        # three renders per spp, more while they spread too wide (up to 3 × 3; harness/timing.py)
+        # three renders per spp, more while they spread too wide (up to 3 × 3; harness/protocol/timing.py)
         assert all(3 <= len(run["device_ms"]) <= 9 for run in fit["runs"])
     assert fits["balanced_mis"]["b_ms_per_spp"] > fits["uniform"]["b_ms_per_spp"]
     # Resuming keeps the chosen spp and the recorded calibration.

@@ -17,10 +17,10 @@ import OpenEXR
 import pandas as pd
 import pytest
 
-from iblbench.harness import runner as runner_module
-from iblbench.harness.cli import EXIT_DISK_FULL, main
-from iblbench.harness.results import JOURNAL, read_journal, read_results
-from iblbench.harness.runner import LOCK, RunConfig, Runner, _locked, run
+from iblbench.harness.protocol import runner as runner_module
+from iblbench.cli import EXIT_DISK_FULL, main
+from iblbench.harness.protocol.results import JOURNAL, read_journal, read_results
+from iblbench.harness.protocol.runner import LOCK, RunConfig, Runner, _locked, run
 from iblbench.scenes.errors import InputError
 
 SMALL = dict(scenes=("sphere-sun",), estimators=("uniform",), seeds=1, resolution=(16, 16),
@@ -133,7 +133,7 @@ def test_a_full_disk_is_one_line_and_its_own_exit_code(tmp_path, capsys, monkeyp
 def test_ctrl_c_saves_the_finished_cells_and_releases_the_folder(tmp_path):
     out = tmp_path / "out"
     process = subprocess.Popen(
-        [sys.executable, "-m", "iblbench.harness.cli", "run", "--out", str(out), *FLAGS,
+        [sys.executable, "-m", "iblbench.cli", "run", "--out", str(out), *FLAGS,
          "--spp", "1,2,3,4,5,6,7,8", "--seeds", "4"],
         env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
@@ -155,10 +155,10 @@ def test_ctrl_c_saves_the_finished_cells_and_releases_the_folder(tmp_path):
 
 REFERENCE_SCRIPT = """
 import sys
-from iblbench.harness.device import get_compute
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.reference import Reference
+from iblbench.estimators.runtime.device import get_compute
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.runtime.reference import Reference
 from iblbench.scenes.gbuffer import trace_gbuffer
 from iblbench.scenes.registry import load_scene
 

@@ -4,7 +4,7 @@ import pandas as pd
 import pytest
 import trimesh
 
-from iblbench.harness.runner import RunConfig, run
+from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.scenes.errors import InputError
 
 
@@ -69,7 +69,7 @@ def test_a_camera_that_sees_no_geometry_is_refused_before_out_is_made(tmp_path):
 
 
 def test_metrics_and_repeats_flags_and_what_a_rerun_keeps(tmp_path, capsys):
-    from iblbench.harness.cli import main
+    from iblbench.cli import main
 
     flags = ["run", "--scene", "sphere-sun", "--estimator", "uniform", "--spp", "4", "--seeds", "1",
              "--res", "16x16", "--env-res", "8", "--no-progress", "--out", str(tmp_path)]

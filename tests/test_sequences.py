@@ -11,10 +11,10 @@ import pandas as pd
 import pytest
 import trimesh
 
-from iblbench.harness import framecache
-from iblbench.harness.cli import main
-from iblbench.harness.metrics import delta_e_images
-from iblbench.harness.sweep import frames_arg, parse_frames, select_frames
+from iblbench.estimators.runtime import framecache
+from iblbench.cli import main
+from iblbench.harness.protocol.metrics import delta_e_images
+from iblbench.harness.protocol.sweep import frames_arg, parse_frames, select_frames
 from iblbench.scenes import cubemap, registry, sequences, sky
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.gbuffer import trace_gbuffer
@@ -218,7 +218,7 @@ def test_bad_frames_exit_2_with_one_line(tmp_path, capsys, spec, message):
 
 
 def test_frames_slice_in_a_sweep_config(tmp_path):
-    from iblbench.harness.sweep import load_sweep
+    from iblbench.harness.protocol.sweep import load_sweep
 
     path = tmp_path / "sweep.toml"
     path.write_text('protocol = "lab-reinhard-v1"\nscenes = ["sphere-switch"]\n'

@@ -6,12 +6,12 @@ import pytest
 
 from iblbench.estimators.bis import BIS, effective_sample_size, systematic_resample
 from iblbench.estimators.smc import MAP_CHANGE_GROUP, SMC
-from iblbench.harness.conformance import (Harness, check_unbiased, face_pattern_map, glossy_gbuffer,
-                                          smooth_map)
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.reference import Reference
-from iblbench.harness.runner import RunConfig, run
+from iblbench.harness.verify.conformance import (Harness, check_unbiased, face_pattern_map,
+                                                 glossy_gbuffer, smooth_map)
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.runtime.reference import Reference
+from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.scenes import cubemap
 
 WEIGHTS = np.array([0.05, 0.0, 0.3, 0.15, 0.0, 0.02, 0.28, 0.2], np.float32)
@@ -180,7 +180,7 @@ def test_runner_writes_smc_extras_as_columns(tmp_path):
 
 def test_smc_reinitialises_at_the_switch_frames(tmp_path):
     """sphere-switch: a light 100× the sky turns on at frame 10 and off at 20 (scenes.sequences)."""
-    from iblbench.harness.runner import RunConfig, run
+    from iblbench.harness.protocol.runner import RunConfig, run
 
     table = run(RunConfig(out=tmp_path, scenes=("sphere-switch",), estimators=("smc",), spp=(8,),
                           seeds=1, resolution=(16, 16), env_res=16, frames=slice(8, 23), progress=False))
@@ -196,7 +196,7 @@ def test_smc_static_frames_stay_unbiased_and_gain_from_their_fresh_samples(compu
     mean over seeds of frame 5 passes a Šidák z-test against the reference, and (b) the error
     falls as the samples accumulate: n = 160 + 5·16 = 240 samples at frame 5 against 160 at
     frame 0 predicts an RMS ratio of √(160/240) = 0.82 (asserted ≤ 0.9)."""
-    from iblbench.harness.conformance import sidak_z
+    from iblbench.harness.verify.conformance import sidak_z
 
     gbuffer = DeviceGBuffer(compute, glossy_gbuffer())
     env = smooth_map()
@@ -355,7 +355,7 @@ def test_smc_map_change_is_the_chi_square_of_the_map_distributions(compute, chan
     χ² 0.02), under the re-init bound 1/reinit_map_ess; a sun stepping one texel
     (_turning_sun_frames; χ² 2.1e3), far over it; and +∞ where a texel black last frame is lit
     now."""
-    from iblbench.harness.stress import rotated_map
+    from iblbench.harness.verify.stress_cases import rotated_map
 
     res = 8
     if change == "turn":

@@ -1,19 +1,19 @@
 """smc against an independent NumPy twin of Ghosh et al. 2006's sampler
-(harness/twins/ghosh2006.py) on ``rotating-sun``, a map that turns 1° a frame with held frames
+(harness/verify/twins/ghosh2006.py) on ``rotating-sun``, a map that turns 1° a frame with held frames
 and never re-initialises (issue 13 §1): per frame, in distribution over independent chains
-(harness/twins/crosscheck.py, at 2× the chains of ``check_matches_twin``), and against the
+(harness/verify/twins/crosscheck.py, at 2× the chains of ``check_matches_twin``), and against the
 reference.
 """
 import numpy as np
 import pytest
 
 from iblbench.estimators.smc import SMC
-from iblbench.harness.conformance import sidak_z as sidak
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.reference import Reference
-from iblbench.harness.twins.crosscheck import (ENV_RES, estimator_runs, log_variance_z, mean_z,
-                                               shading_points, twin_runs)
-from iblbench.harness.twins.ghosh2006 import GhoshSampler, Map, Shading, move_kinds
+from iblbench.harness.verify.conformance import sidak_z as sidak
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.runtime.reference import Reference
+from iblbench.harness.verify.twins.crosscheck import (ENV_RES, estimator_runs, log_variance_z,
+                                                      mean_z, shading_points, twin_runs)
+from iblbench.harness.verify.twins.ghosh2006 import GhoshSampler, Map, Shading, move_kinds
 from iblbench.scenes import sequences
 
 FRAMES = 10          # the init, a hold (1), six turning frames, two more holds (7, 8), one turn

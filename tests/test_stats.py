@@ -1,11 +1,11 @@
-"""The one aggregation (harness/stats.py): hand-computed cases with table t quantiles, and
+"""The one aggregation (harness/protocol/stats.py): hand-computed cases with table t quantiles, and
 coverage simulated with stated tolerances."""
 import math
 
 import numpy as np
 import pytest
 
-from iblbench.harness.stats import mean_ci, ratio_ci, separated, t_quantile
+from iblbench.harness.protocol.stats import mean_ci, ratio_ci, separated, t_quantile
 
 # Two-sided 95% critical values of Student's t from printed tables (e.g. NIST/SEMATECH
 # e-Handbook 1.4.2.5.2, upper 0.025 point).

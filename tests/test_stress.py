@@ -1,4 +1,4 @@
-"""The stress battery (harness/stress.py): every case at the small size over every built-in
+"""The stress battery (harness/verify/stress.py): every case at the small size over every built-in
 estimator, the statistics it rests on, and ``iblbench stress`` with broken estimators."""
 import numpy as np
 import pandas as pd
@@ -7,9 +7,10 @@ import pytest
 from iblbench.estimators import registry
 from iblbench.estimators.base import Estimator, Tags
 from iblbench.estimators.uniform import Uniform
-from iblbench.harness import cli, conformance, stress
-from iblbench.harness.device_gbuffer import DeviceGBuffer
-from iblbench.harness.framecache import FrameCache
+from iblbench import cli
+from iblbench.harness.verify import conformance, stress, stress_cases
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 
@@ -49,7 +50,7 @@ def test_case_passes_on_every_builtin(battery, case):
     if case == "constant":
         assert (rows.reference_error <= stress.EXACT_RTOL).all()
     if case == "temporal-dropout":
-        assert (rows.recovery <= stress.RECOVERY_LIMIT).all()
+        assert (rows.recovery <= stress_cases.RECOVERY_LIMIT).all()
 
 
 # ---- the statistics ------------------------------------------------------------------------------
@@ -171,7 +172,7 @@ def test_known_failures_are_reported_not_failed(compute, monkeypatch):
 
 
 def test_degenerate_mesh_traces_a_valid_gbuffer():
-    gbuffer = stress._trace(stress.degenerate_sphere(), stress.SMALL)
+    gbuffer = stress_cases._trace(stress_cases.degenerate_sphere(), stress.SMALL)
     assert gbuffer.covered > 50 and stress.gbuffer_invalid(gbuffer) == 0
 
 

@@ -10,8 +10,8 @@ import pandas as pd
 import pytest
 import trimesh
 
-from iblbench.harness.cli import main
-from iblbench.harness.sweep import load_sweep, parse_estimator, repeats_arg
+from iblbench.cli import main
+from iblbench.harness.protocol.sweep import load_sweep, parse_estimator, repeats_arg
 from iblbench.scenes.errors import InputError
 
 VALID = """\

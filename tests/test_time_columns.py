@@ -1,5 +1,5 @@
 """Each time column of a real run equals the sum of the profiled OpenCL events of the stages it
-names (harness/timing.py), counted here from the events themselves.
+names (harness/protocol/timing.py), counted here from the events themselves.
 
 Every kernel launch and copy of a small run is logged as it is enqueued (pyopencl's
 ``enqueue_nd_range_kernel`` and ``enqueue_copy`` wrapped), with the phase it ran in: the frame
@@ -29,8 +29,8 @@ import pyopencl as cl
 import pytest
 
 from iblbench.estimators.registry import get_estimator_class
-from iblbench.harness import runner
-from iblbench.harness.runner import RunConfig, run
+from iblbench.harness.protocol import runner
+from iblbench.harness.protocol.runner import RunConfig, run
 
 ESTIMATORS = ("uniform", "balanced_mis", "bis", "smc")
 # Build kernels of each frame-cache product (the upload is the host → device copy of the map).

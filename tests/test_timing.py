@@ -1,4 +1,4 @@
-"""One definition of a cell's time (harness/timing.py) in the runner, equal-time calibration, the
+"""One definition of a cell's time (harness/protocol/timing.py) in the runner, equal-time calibration, the
 terminal summary, ``check`` and the report.
 
 Fake estimators report known stage times, so every time column can be checked against values
@@ -19,11 +19,13 @@ import trimesh
 
 from iblbench.estimators.base import Estimate, Estimator, Tags
 from iblbench.estimators.registry import _registry, register
-from iblbench.harness import budgets, cli, runner, timing
-from iblbench.harness.equal_time import CALIBRATION_SEED, TOLERANCE, Calibration
-from iblbench.harness.framecache import FrameCache
-from iblbench.harness.runner import TIMING_SEED, WARMUP_PIXELS, WARMUP_SEED, RunConfig, run
-from iblbench.harness.timing import TimedRender, time_columns
+from iblbench.harness.verify import budgets
+from iblbench.commands import run as run_command
+from iblbench.harness.protocol import runner, timing
+from iblbench.harness.protocol.equal_time import CALIBRATION_SEED, TOLERANCE, Calibration
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.harness.protocol.runner import TIMING_SEED, WARMUP_PIXELS, WARMUP_SEED, RunConfig, run
+from iblbench.harness.protocol.timing import TimedRender, time_columns
 from iblbench.reports.report import equal_time_cells, summarize
 from iblbench.scenes.imageio import read_exr
 
@@ -229,11 +231,11 @@ def test_groups_within_counts_consecutive_groups_of_five_by_iqr_over_median():
 
 
 def test_the_timing_floor_times_fixed_launches_of_the_fma_kernel():
-    from iblbench.harness import perf
-    from iblbench.harness.device import get_compute
+    from iblbench.estimators.runtime import probes
+    from iblbench.estimators.runtime.device import get_compute
 
-    floor = perf.measure_timing_floor(get_compute(), launches=10)
-    iterations = perf._floor_iterations(get_compute())
+    floor = timing.measure_timing_floor(get_compute(), launches=10)
+    iterations = probes._floor_iterations(get_compute())
     assert iterations >= 16 and iterations & (iterations - 1) == 0   # sized by doubling
     assert floor.launches == 10 and floor.median_ms > 0
     assert floor.groups_within in (0.0, 0.5, 1.0)   # two groups of five
@@ -360,7 +362,7 @@ def test_terminal_check_and_report_show_one_time_per_cell(tmp_path):
                          "time_repeats": 5})
     table = pd.DataFrame(rows)
     expected = {"a": 59 / 12, "b": 59 / 6}   # seeds' means (5, 4.25, 5.5) and twice those
-    terminal = cli.terminal_summaries(table)[0][1].time_ms
+    terminal = run_command.terminal_summaries(table)[0][1].time_ms
     report = summarize(table).set_index("estimator").time_ms
     rule = budgets.Rule("r", "s", "b", (16,), (), None, budgets.TimeRatio("a", "time_ms", 3.0))
     check = budgets.evaluate([rule], table).iloc[0]

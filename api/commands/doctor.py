@@ -1,0 +1,45 @@
+"""``iblbench doctor``: every OpenCL device checked (the engine: :mod:`iblbench.harness.verify.doctor`)."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+DOCTOR_DESCRIPTION = """\
+For each OpenCL device found, build every kernel and run the portability set (the exact reference,
+the frame cache's CDFs, pool and mip pyramids, and every estimator, on 16 pixels and a 4x4 map with
+a sun; a temporal estimator on two frames), each part in its own process, and compare: the
+reference with its independent NumPy twin (within 1e-4), and every result with the default
+device's (integers bit for bit, floats within 1e-4 relative). On Oclgrind, the OpenCL
+specification's simulator, its memory, data-race and API checks are on and any report fails the
+device. Prints one line per device: OK, or which part is wrong and by how much. Exit 0 when every
+device is OK, 1 otherwise. A few seconds per device; about a minute on Oclgrind.
+
+A new GPU: run this first; then choose a device with --device or IBLBENCH_DEVICE."""
+
+
+def add_parser(subparsers) -> None:
+    doctor = subparsers.add_parser(
+        "doctor", help="check every OpenCL device: build and run each kernel, compare results",
+        description=DOCTOR_DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    doctor.add_argument("--device", metavar="SUBSTRING",
+                        help="only the devices whose 'platform / version / device' contains this "
+                             "(the default device still runs: it is the baseline)")
+    doctor.add_argument("--verbose", action="store_true",
+                        help="also print the compilers' output (warnings), which is silent otherwise")
+
+
+def run(args) -> int:
+    from iblbench.harness.verify.doctor import diagnose
+
+    def progress(text: str) -> None:   # one status line on a terminal, nothing in a log
+        if sys.stderr.isatty():
+            print(f"\r\033[K{text}", end="", file=sys.stderr, flush=True)
+
+    reports = diagnose(args.device, args.verbose, progress)
+    progress("")
+    for report in reports:
+        if args.verbose and report.build_logs:
+            print(report.build_logs)
+        print(report.line())
+    return 0 if all(report.ok for report in reports) else 1

@@ -1,0 +1,38 @@
+"""``iblbench report``: a run's HTML report (:mod:`iblbench.reports.report`)."""
+from __future__ import annotations
+
+import pathlib
+
+from iblbench.commands.common import device_flags, pixel, positive_int
+
+
+DESCRIPTION = """\
+Summarise a run directory in DIR/report/index.html: tables per scene, error against time with
+the Pareto front, convergence, effective samples, image grids with ΔE heat maps, Lu 2013's
+sample picture, and the manifest. The page opens from disk (no server, no external files)."""
+
+
+def add_parser(subparsers) -> None:
+    report = subparsers.add_parser(
+        "report", help="write a self-contained HTML report of a run (DIR/report/index.html)",
+        description=DESCRIPTION,
+        parents=[device_flags()])
+    report.add_argument("dir", type=pathlib.Path, metavar="DIR", help="an 'iblbench run' --out")
+    report.add_argument("--spp", type=positive_int, metavar="N",
+                        help="spp of the image grid and sample picture (default: the largest "
+                             "spp every estimator of the scene ran)")
+    report.add_argument("--seed", type=int, help="seed of the images shown (default: the run's "
+                                                 "first; one the run lacks is an error)")
+    report.add_argument("--frame", type=int, help="frame of the images shown (default: each "
+                                                  "scene's first; one the run lacks is an error)")
+    report.add_argument("--pixel", type=pixel, metavar="X,Y",
+                        help="pixel of the sample picture (default: the covered pixel nearest "
+                             "the image centre)")
+
+
+def run(args) -> None:
+    from iblbench.reports.report import write_report
+
+    context = write_report(args.dir, spp=args.spp, seed=args.seed, frame=args.frame,
+                           pixel=args.pixel, device=args.device)
+    print(f"wrote {context['path']}")

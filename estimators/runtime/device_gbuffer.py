@@ -1,0 +1,66 @@
+"""The G-buffer's covered pixels, compacted and resident on the device for every frame."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from iblbench.estimators.runtime.device import Compute
+from iblbench.scenes.gbuffer import GBuffer
+
+# Work items per group of a pixel kernel.  PoCL's own choice (local size None) depends on the
+# factors of the pixel count: at 128² it gave 3 groups of 3124 (sphere scenes; on 2 cores one
+# thread runs two of them), 5 of 1867 (blob), 1 of 1304 (park-turn at 48²: one core), and
+# groups of 1 at a prime count.  Groups of 64 spread any count over the cores: at load ~1, 200
+# renders each, interleaved, the median shade time fell to 0.70-0.89x at 9216 pixels (balanced
+# 256 spp, uniform 16, envmap{mis="brdf"} 64) and to 0.55-0.56x (envmap) at 1280 against 1304;
+# images bit-identical.  It does not make renders more repeatable: groups of 5 within 15%
+# IQR/median were as often or less often so (45-72% against 55-90%).  And the runner's
+# 64-pixel warm-up now compiles the local size the timed renders use.
+PIXEL_GROUP = 64
+
+
+def _float4(xyz: np.ndarray, w: np.ndarray | float = 0.0) -> np.ndarray:
+    out = np.empty(xyz.shape[:-1] + (4,), np.float32)
+    out[..., :3] = xyz
+    out[..., 3] = w
+    return out
+
+
+class DeviceGBuffer:
+    """Covered pixels only, as float4 buffers: ``normal``, ``view``, ``kd`` and ``ks`` (w = shininess).
+
+    Uploaded once per scene (geometry and camera are static).  ``count`` is the number of covered
+    pixels; the buffers hold ``launch_size`` ≥ ``count`` of them (a multiple of ``PIXEL_GROUP``,
+    padded with copies of the last pixel, so the padding shades a real surface and stays finite).
+    A pixel kernel runs over ``launch_size`` work items (:meth:`run`); per-pixel outputs are
+    ``launch_size`` long, and the first ``count`` are the image's.  ``scatter`` puts per-pixel
+    kernel outputs back into the image.
+    """
+
+    def __init__(self, compute: Compute, gbuffer: GBuffer):
+        self.gbuffer = gbuffer
+        self.shape = gbuffer.shape
+        self.pixel_index = np.flatnonzero(gbuffer.mask)
+        self.count = len(self.pixel_index)
+        self.launch_size = -(-self.count // PIXEL_GROUP) * PIXEL_GROUP
+        self.is_diffuse = gbuffer.is_diffuse
+        m = gbuffer.mask
+        self.normal = compute.to_device(self._padded(_float4(gbuffer.normal[m])))
+        self.view = compute.to_device(self._padded(_float4(gbuffer.view[m])))
+        self.kd = compute.to_device(self._padded(_float4(gbuffer.kd[m])))
+        self.ks = compute.to_device(self._padded(_float4(gbuffer.ks[m], gbuffer.shininess[m])))
+
+    def _padded(self, pixels: np.ndarray) -> np.ndarray:
+        """``pixels`` followed by copies of the last one up to ``launch_size``."""
+        padding = np.repeat(pixels[-1:], self.launch_size - self.count, axis=0)
+        return np.concatenate([pixels, padding])
+
+    def run(self, compute: Compute, kernel: cl.Kernel, *args) -> cl.Event:
+        """Launch a pixel kernel over ``launch_size`` work items in groups of ``PIXEL_GROUP``."""
+        return compute.run(kernel, self.launch_size, *args, group=PIXEL_GROUP)
+
+    def scatter(self, values: np.ndarray) -> np.ndarray:
+        """Per-covered-pixel ``[N, ...]`` → image ``[H, W, ...]`` with zeros elsewhere."""
+        out = np.zeros((self.shape[0] * self.shape[1],) + values.shape[1:], values.dtype)
+        out[self.pixel_index] = values
+        return out.reshape(self.shape + values.shape[1:])

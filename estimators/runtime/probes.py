@@ -1,0 +1,111 @@
+"""The device probes: the FMA-throughput and copy-bandwidth kernels of ``probes.cl`` and their
+launchers.  ``iblbench perf`` builds the device's roofline from them
+(:mod:`iblbench.harness.studies.perf`), the timing floor launches the FMA kernel back to back
+(:func:`iblbench.harness.protocol.timing.measure_timing_floor`), and :class:`CopyProbe` measures
+the copy bandwidth beside each timed CDF build.
+
+``fma_throughput`` runs ``FMA_CHAINS`` independent FMA chains per work item, each a vector of
+:func:`fma_width` lanes (the device's preferred float width, ``-DFMA_WIDTH``), two FLOPs per
+step; ``copy_bandwidth`` reads one float4 and writes one per work item."""
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+from iblbench.estimators.runtime.device import event_ms
+
+FMA_CHAINS = 8                 # probes.cl's fma_throughput: chains of fma_width(compute) lanes
+FMA_ITEMS = 1 << 17
+COPY_MIN_BYTES = 64 << 20      # each copy buffer: at least this, and 8× the device's cache
+FLOOR_MS = 3.0                 # the timing floor's launches: about a render's device time
+
+
+def fma_width(compute) -> int:
+    """Lanes of each FMA chain: the device's preferred float vector width (1, 2, 4, 8 or 16)."""
+    width = int(compute.info.device.preferred_vector_width_float)
+    return max(w for w in (1, 2, 4, 8, 16) if w <= max(width, 1))
+
+
+def _probe_kernel(compute, name: str):
+    return compute.kernel("iblbench.estimators.runtime", "probes.cl", name, {"FMA_WIDTH": fma_width(compute)})
+
+
+def _launches(compute, kernel, items: int, args, launches: int) -> list[float]:
+    """Device ms of ``launches`` launches after an untimed one (first touch of the buffers'
+    pages, kernel compilation)."""
+    compute.run(kernel, items, *args)
+    return [event_ms(compute.run(kernel, items, *args)) for _ in range(launches)]
+
+
+def run_fma(compute, items: int, iterations: int, launches: int = 1, b: float = 0.999,
+            c: float = 1e-3):
+    """``launches`` timed launches of ``fma_throughput``: (the outputs ``[items, FMA_CHAINS,
+    fma_width]``, device ms of each launch, FLOPs per launch)."""
+    lanes = fma_width(compute)
+    shape = (items, FMA_CHAINS, lanes)
+    out = compute.empty(4 * math.prod(shape))
+    args = (np.int32(iterations), np.float32(b), np.float32(c), out)
+    times = _launches(compute, _probe_kernel(compute, "fma_throughput"), items, args, launches)
+    flops = 2 * lanes * FMA_CHAINS * iterations * items
+    return compute.to_host(out, shape, np.float32), times, flops
+
+
+def run_copy(compute, source: np.ndarray, launches: int = 1):
+    """``launches`` timed launches of ``copy_bandwidth`` on ``source`` (float32, a multiple of 4
+    values): (the copy read back, device ms of each launch, bytes moved = read + written)."""
+    source = np.ascontiguousarray(source, np.float32)
+    if source.size % 4:
+        raise ValueError("the copy kernel moves float4s: give a multiple of 4 values")
+    args = (compute.to_device(source), compute.empty(source.nbytes))
+    times = _launches(compute, _probe_kernel(compute, "copy_bandwidth"), source.size // 4, args,
+                      launches)
+    return compute.to_host(args[1], source.shape, np.float32), times, 2 * source.nbytes
+
+
+def copy_size(compute) -> int:
+    """Bytes per copy buffer: ≥ COPY_MIN_BYTES and 8× the device's global-memory cache, within
+    its largest allocation."""
+    device = compute.info.device
+    wanted = max(COPY_MIN_BYTES, 8 * int(device.global_mem_cache_size))
+    return int(min(wanted, device.max_mem_alloc_size // 2, 1 << 30)) // 16 * 16
+
+
+def fma_iterations(compute, items: int, min_ms: float) -> int:
+    """Iterations (a power of two) for an ``fma_throughput`` launch of ``items`` to take ≥
+    ``min_ms``."""
+    iterations = 16
+    while True:
+        ms = run_fma(compute, items, iterations)[1][0]
+        if ms >= min_ms or iterations >= 1 << 16:
+            return iterations
+        iterations *= 2 if ms > 0 else 16
+
+
+@functools.lru_cache(maxsize=None)
+def _floor_iterations(compute) -> int:
+    """The floor kernel's size on ``compute``, found once per process (a run measures twice)."""
+    return fma_iterations(compute, FMA_ITEMS // 8, FLOOR_MS)
+
+
+def floor_launches(compute, launches: int) -> list[float]:
+    """Device ms of ``launches`` back-to-back launches of ``fma_throughput`` sized to take ≥
+    FLOOR_MS (the timing floor's kernel)."""
+    return run_fma(compute, FMA_ITEMS // 8, _floor_iterations(compute), launches)[1]
+
+
+class CopyProbe:
+    """One timed ``copy_bandwidth`` launch on resident buffers of ``copy_size`` bytes each: the
+    copy bandwidth now (GB/s, read + written), measured beside each timed CDF build."""
+
+    def __init__(self, compute):
+        self.compute = compute
+        self.items = copy_size(compute) // 16
+        self.buffers = (compute.empty(16 * self.items), compute.empty(16 * self.items))
+        self.kernel = _probe_kernel(compute, "copy_bandwidth")
+        compute.run(self.kernel, self.items, *self.buffers)   # first touch of the pages
+
+    def gbps(self) -> float:
+        ms = event_ms(self.compute.run(self.kernel, self.items, *self.buffers))
+        return 32 * self.items / (ms * 1e6)

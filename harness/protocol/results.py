@@ -1,0 +1,352 @@
+"""The tidy results table of DESIGN §6, its crash-safe journal, and the run manifest.
+
+Columns, in order (``COLUMNS``):
+
+- key: ``scene``, ``estimator`` (the label, with parameter overrides, e.g.
+  ``balanced_mis{shared_sequence=false}``), ``spp``, ``frame``, ``seed``, ``time_budget_ms``
+  (NaN for an equal-spp cell; for an equal-time cell the budget, and ``spp`` is the spp chosen
+  to fit it);
+- configuration: ``width``, ``height``, ``env_res`` (the effective image and cube face sizes),
+  ``estimator_params`` (every parameter as sorted JSON), ``estimator_version`` (hash of the
+  estimator's sources), ``schema_version`` (``SCHEMA_VERSION``), ``metrics`` (the metrics
+  computed, e.g. ``de76,de2000,relmse,flip``; ``run --metrics``);
+- metrics: ``mean_delta_e76`` … ``nonfinite`` (NaN for a metric the run left out); ``flicker``
+  is the mean over covered pixels of |ΔE76(est_t, ref_t) − ΔE76(est_p, ref_p)|,
+  p the frame before t in the run's frame list, for the same (scene, estimator, spp, seed,
+  time_budget_ms); NaN on the first frame of the list (and so for a static scene);
+- times (:mod:`iblbench.harness.protocol.timing`, the one definition): ``time_ms`` (the cell's device
+  time per frame, build + sample + shade, median of ``time_repeats`` timed renders),
+  ``time_ms_min``, ``time_ms_iqr``, the per-stage medians ``time_ms_build``, ``time_ms_sample``,
+  ``time_ms_shade``, the host wall time ``time_ms_host`` and ``time_repeats`` (at least the
+  repeats asked for; more where the renders spread too wide);
+- ``device``, ``protocol``;
+- then any *extra* columns: estimator-specific per-frame scalars from ``Estimate.extras``
+  (e.g. ``smc``'s ``ess``, ``reinits``, ``resample_steps``), sorted by name, NaN in the rows of
+  estimators that do not report them.  They are not part of the cell key or of ``COLUMNS``
+  (which stays fixed), and a row without them is still a finished cell.
+
+Schema versions: 1 had no schema_version, time_budget_ms, width, height, env_res or
+estimator_params column; 2 had no flicker column; 3 timed one render per cell (host wall time
+``time_ms_frame``, device stages of that one render); 4 is this one.  Rows of another schema never count as finished cells.
+
+Storage.  ``results.parquet`` and ``results.csv`` are replaced whole, each in one rename, so a
+reader never sees half a table.  While a run is going, each finished cell is appended to
+``results.journal.jsonl`` (one JSON line, written to the OS before the next cell starts); the
+journal is folded into the table every ``FOLD_SECONDS``, at the end of a run, and when a run
+starts on a folder a killed run left behind.  A ``kill -9`` can cut only the line being written,
+which :func:`read_results` ignores: the cell in flight is lost, nothing else.  The journal is
+fsynced when it closes, not per line (an fsync per cell was 5-13 ms of a cell's ~30 ms of host
+time): a power cut, unlike a killed process, can lose the cells since the last fold (at most
+``FOLD_SECONDS``), which a resume renders again.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import pathlib
+import sys
+
+import numpy as np
+import pandas as pd
+
+from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS
+from iblbench.scenes.atomic import atomic_path
+from iblbench.scenes.errors import InputError
+
+SCHEMA_VERSION = 4
+KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed", "time_budget_ms"]
+CONFIG_COLUMNS = ["width", "height", "env_res", "estimator_params", "estimator_version",
+                  "schema_version", "metrics"]
+METRIC_COLUMNS = [
+    "mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "flicker",
+    "used_samples", "effective_samples", "effective_ratio", "evaluations", "nonfinite",
+    *TIME_COLUMNS,
+]
+COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "protocol"]
+# Columns that are the same on every rerun of a cell on one device (renders are deterministic
+# per seed): everything but the measured times and how many renders they took (timing module).
+DETERMINISTIC_COLUMNS = [c for c in COLUMNS if not c.startswith("time_")]
+TABLE = "results.parquet"
+CSV = "results.csv"
+JOURNAL = "results.journal.jsonl"
+FOLD_SECONDS = 10.0
+_INTS = ("spp", "frame", "seed", "nonfinite", "width", "height", "env_res", "schema_version",
+         "time_repeats")
+
+
+def prepare_out(out: pathlib.Path) -> None:
+    """Create ``out`` (InputError when it cannot be, or is not writable)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise InputError(out, f"cannot create the output directory ({error.strerror})") from None
+    if not os.access(out, os.W_OK):
+        raise InputError(out, "the output directory is not writable")
+
+
+def extra_columns(rows: list[dict]) -> list[str]:
+    """Columns of ``rows`` beyond the fixed ``COLUMNS`` (estimator extras), sorted."""
+    fixed = set(COLUMNS)
+    return sorted({name for row in rows for name in row if name not in fixed})
+
+
+def results_frame(rows: list[dict]) -> pd.DataFrame:
+    frame = pd.DataFrame(rows, columns=COLUMNS + extra_columns(rows))
+    frame["schema_version"] = frame["schema_version"].fillna(1)   # rows from before the column
+    frame["time_budget_ms"] = frame["time_budget_ms"].astype("float64")
+    ints = {c: "int64" for c in _INTS if not frame[c].isna().any()}
+    return frame.astype(ints)
+
+
+def budget_of(row: dict) -> float | None:
+    """The row's time budget in ms, None for an equal-spp cell."""
+    value = row.get("time_budget_ms")
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return None
+    return float(value)
+
+
+def row_key(row: dict) -> tuple:
+    """Identity of a cell: an equal-time cell is keyed by its budget, not the spp chosen for it."""
+    budget = budget_of(row)
+    spp = None if budget is not None else int(row["spp"])
+    return (row["scene"], row["estimator"], spp, int(row["frame"]), int(row["seed"]), budget)
+
+
+cell_key = row_key   # the name before issue 4
+
+
+def image_stem(row: dict) -> str:
+    """File stem of a cell's images under ``images/<scene>/f<frame>/``.
+
+    ``{estimator}_spp{spp}_s{seed}``, the label made file-name safe (``{`` → ``-``, ``,`` →
+    ``-``, ``}`` and quotes dropped) and ``_t{budget}ms`` before ``_spp`` for an equal-time cell.
+    """
+    label = str(row["estimator"])
+    safe = label.replace("{", "-").replace(",", "-").replace("}", "").replace('"', "")
+    budget = budget_of(row)
+    timed = f"_t{budget:g}ms" if budget is not None else ""
+    return f"{safe}{timed}_spp{int(row['spp'])}_s{int(row['seed'])}"
+
+
+def _plain(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def load_table(run_dir: str | pathlib.Path, required_columns) -> pd.DataFrame:
+    """The results table of a run directory, for reading it (report, check); an
+    :class:`InputError` naming the path if it is missing, unreadable or lacks a column."""
+    run_dir = pathlib.Path(run_dir)
+    if not run_dir.is_dir():
+        raise InputError(run_dir, "no such run directory")
+    path = run_dir / TABLE
+    if not path.is_file():
+        raise InputError(path, "no results table; run 'iblbench run --out DIR' first")
+    try:
+        table = pd.read_parquet(path)
+    except Exception as error:   # pyarrow raises several types for damaged files
+        raise InputError(path, f"cannot read the results table ({type(error).__name__})") from None
+    missing = [column for column in required_columns if column not in table.columns]
+    if missing:
+        raise InputError(path, f"not an iblbench results table: missing columns {', '.join(missing)}")
+    return table
+
+
+def _read_table(out_dir: pathlib.Path) -> list[dict]:
+    path = out_dir / TABLE
+    if not path.exists():
+        return []
+    try:
+        return pd.read_parquet(path).to_dict("records")
+    except Exception as error:   # pyarrow raises several types for damaged files
+        raise InputError(path, f"cannot read the existing results table ({error}); "
+                               "use a new --out") from None
+
+
+_TEXT_COLUMNS = ("scene", "estimator", "estimator_params", "estimator_version", "metrics",
+                 "device", "protocol")
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def journal_row_is_sound(row) -> bool:
+    """A journal line's JSON is a row :func:`results_frame` can hold: an object with every key
+    column, text where the table has text, numbers (or null) everywhere else."""
+    if not isinstance(row, dict) or not all(column in row for column in KEY_COLUMNS):
+        return False
+    if not all(isinstance(row[c], int) and not isinstance(row[c], bool)
+               for c in ("spp", "frame", "seed")):
+        return False
+    for column, value in row.items():
+        if column in _TEXT_COLUMNS:
+            if not isinstance(value, str):
+                return False
+        elif value is not None and not _is_number(value):
+            return False
+    return True
+
+
+def read_journal(out_dir: pathlib.Path) -> list[dict]:
+    """Rows appended by a run that has not folded them yet; a torn last line is dropped, and a
+    line that is JSON but not a sound row (:func:`journal_row_is_sound`) is skipped and counted
+    in a warning on stderr (its cell is run again).  A reader outside the run's lock may find the
+    journal gone between a look and a read (a fold dropped it): that is no journal."""
+    path = out_dir / JOURNAL
+    try:
+        lines = path.read_bytes().split(b"\n")
+    except FileNotFoundError:
+        return []
+    rows, unsound = [], 0
+    for number, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            row = json.loads(line)
+        except ValueError:
+            if number == len(lines) - 1:   # the line being written when the run was killed
+                break
+            raise InputError(path, f"line {number + 1} is damaged; move the journal away to "
+                                   "resume without its cells") from None
+        if journal_row_is_sound(row):
+            rows.append(row)
+        else:
+            unsound += 1
+    if unsound:
+        print(f"iblbench: warning: skipped {unsound} damaged line{'s' * (unsound > 1)} of {path} "
+              "(their cells will be run again)", file=sys.stderr)
+    return rows
+
+
+def cell_files(out_dir: pathlib.Path, row: dict) -> list[pathlib.Path]:
+    """The image files a finished cell leaves under ``images/<scene>/f<frame>/`` (its EXR; the
+    PNG previews are ``iblbench report``'s)."""
+    folder = out_dir / "images" / str(row["scene"]) / f"f{int(row['frame'])}"
+    return [folder / f"{image_stem(row)}.exr"]
+
+
+def image_configuration(row: dict) -> tuple[int, int, int] | None:
+    """A row's (width, height, env_res); None for a row from before those columns."""
+    values = tuple(row.get(column) for column in ("width", "height", "env_res"))
+    return tuple(int(v) for v in values) if all(pd.notna(v) for v in values) else None
+
+
+def configuration_differences(rows: list[dict], expected: dict[str, tuple[int, int, int]]) -> list[str]:
+    """What differs between the rows' image configuration and ``expected`` (scene → (width,
+    height, env_res)), one phrase per (scene, configuration) found, for scenes in ``expected``."""
+    found = sorted({(row["scene"], image_configuration(row)) for row in rows
+                    if row["scene"] in expected and image_configuration(row) is not None})
+    differences = []
+    for scene, (width, height, env_res) in found:
+        new_width, new_height, new_env_res = expected[scene]
+        parts = []
+        if (width, height) != (new_width, new_height):
+            parts.append(f"--res {width}x{height} (now {new_width}x{new_height})")
+        if env_res != new_env_res:
+            parts.append(f"--env-res {env_res} (now {new_env_res})")
+        if parts:
+            differences.append(f"{scene} was run with {' and '.join(parts)}")
+    return differences
+
+
+def read_results(out_dir: pathlib.Path) -> list[dict]:
+    """Every row in ``out_dir``: the table, then the journal's rows (a journal row replaces the
+    table's row of the same cell)."""
+    rows = {row_key(row): row for row in _read_table(out_dir)}
+    rows.update((row_key(row), row) for row in read_journal(out_dir))
+    return list(rows.values())
+
+
+def write_table(frame: pd.DataFrame, *paths: pathlib.Path) -> None:
+    """Write ``frame`` to each path, as Parquet or CSV by its suffix, each replaced in one
+    fsynced step (a reader never sees half a table)."""
+    for path in paths:
+        with atomic_path(path) as tmp:
+            if path.suffix == ".parquet":
+                frame.to_parquet(tmp, index=False)
+            else:
+                frame.to_csv(tmp, index=False)
+            _fsync(tmp)
+
+
+def write_results(out_dir: pathlib.Path, rows: list[dict]) -> pd.DataFrame:
+    """(Re)write ``results.parquet`` and ``results.csv``, then drop the journal, whose rows
+    ``rows`` must include."""
+    frame = results_frame(rows)
+    write_table(frame, out_dir / TABLE, out_dir / CSV)
+    journal = out_dir / JOURNAL
+    if journal.exists():
+        journal.unlink()
+    _fsync_dir(out_dir)
+    return frame
+
+
+class Journal:
+    """Append-only record of finished cells (``results.journal.jsonl``), fsynced on close
+    (module docstring, "Storage")."""
+
+    def __init__(self, out_dir: pathlib.Path):
+        self.path = out_dir / JOURNAL
+        self._fd: int | None = None
+
+    def append(self, row: dict) -> None:
+        if self._fd is None:
+            self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        line = json.dumps({k: _plain(v) for k, v in row.items()}, allow_nan=True) + "\n"
+        os.write(self._fd, line.encode())
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.fsync(self._fd)
+            os.close(self._fd)
+            self._fd = None
+
+
+def _fsync(path: pathlib.Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(path: pathlib.Path) -> None:
+    try:
+        _fsync(path)
+    except OSError:   # some file systems cannot fsync a directory
+        pass
+
+
+def _json_safe(value):
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def json_text(value) -> str:
+    """The one way iblbench writes JSON (manifests, ``--json`` summaries): indented, NumPy
+    scalars as Python numbers, NaN and infinities as null (strict JSON has no NaN)."""
+    return json.dumps(_json_safe(value), indent=2, default=str, allow_nan=False)
+
+
+def read_manifest(out_dir: pathlib.Path) -> dict:
+    """The manifest of an earlier run in ``out_dir`` ({} if none or unreadable)."""
+    try:
+        return json.loads((out_dir / "manifest.json").read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def write_manifest(out_dir: pathlib.Path, manifest: dict) -> None:
+    with atomic_path(out_dir / "manifest.json") as tmp:
+        tmp.write_text(json_text(manifest))

@@ -1,0 +1,498 @@
+"""Sweep configs: which cells ``iblbench run`` renders, described in a TOML file.
+
+A sweep is scenes × estimators × spp × frames × seeds at one resolution, under one error
+protocol.  ``iblbench run --config NAME|FILE`` takes a shipped config by name (``quick``,
+``default``, ``full``: ``harness/configs/NAME.toml``) or a path to a ``.toml`` file; explicit
+command-line flags replace the config's fields one by one.  ``iblbench run`` with no
+``--config`` uses ``default``.
+
+Format (every key at the top level)::
+
+    protocol = "lab-reinhard-v1"        # required; the only protocol there is
+    description = "what this sweep is"  # optional, recorded in the manifest
+    scenes = ["sphere-sun", "my/scene.toml"]   # required: built-in names or scene .toml files
+                                        # (relative paths: from this file's folder)
+    estimators = ["uniform", "balanced_mis{shared_sequence=false}"]   # required
+    spp = [16, 64, 256]                 # required unless time_budget_ms is given
+    seeds = 2                           # required: seeds 0..N-1
+    first_seed = 0                      # optional: seeds first_seed..first_seed+N-1 instead
+                                        # (a seeds-only rerun: --first-seed 8 after --seeds 8)
+    frames = "0:67:6"                   # optional: "START:STOP[:STEP]", a Python slice of each
+                                        # sequence's frames ("::6", "10:", "-5:" all work; the
+                                        # default "all" is ":"); also a list [0, 5, 9] or "A..B"
+                                        # (inclusive); static environments always run frame 0
+    resolution = "128x128"              # optional: "WxH" or [W, H]; default: each scene's own
+    env_res = 64                        # optional cube face resolution; default: each scene's own
+    time_budget_ms = [20.0]             # optional: equal-time cells instead of the spp list
+    repeats = 5                         # optional: timed renders per cell (default 5; a cell's
+                                        # time is their median, harness/protocol/timing.py); or a table
+                                        # with counts of its own for slow estimators:
+                                        # repeats = { default = 5, bis = 3, smc = 3 }
+    metrics = ["de76", "de2000", "relmse", "flip"]   # optional: the metrics to compute (ΔE76
+                                        # always; default all; leave "flip" out to save time)
+    sanitize = false                    # optional: repair bad environment texels
+
+Estimator overrides are written ``name{param=value,...}``: the braces hold a TOML inline table
+of the estimator's ``Params`` fields (values are TOML scalars: ``true``, ``3``, ``0.5``,
+``"text"``).  The canonical spelling (lower-case name, parameters sorted, TOML values) is the
+estimator's label in the results table, so ``balanced_mis`` and
+``balanced_mis{shared_sequence=false}`` are two estimators of one table.
+
+Every problem (missing file, TOML syntax, unknown key, wrong type, unknown scene, estimator or
+parameter) is an :class:`InputError` naming the config file and the problem.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import re
+import sys
+from importlib.resources import files
+from pathlib import Path
+from typing import Any
+
+from iblbench.harness.protocol.metrics import METRICS, PROTOCOL, parse_metrics
+from iblbench.scenes.errors import InputError
+from iblbench.scenes.tomlfile import read_toml
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:   # pragma: no cover
+    import tomli as tomllib
+
+SHIPPED = ("quick", "default", "full", "temporal")
+DEFAULT_REPEATS = 5   # timed renders per cell (harness/protocol/timing.py)
+MAX_REPEATS = 255     # the timing seeds hold the repeat in 8 bits (runner.timing_seed)
+CONFIG_PACKAGE = "iblbench.harness.configs"
+KEYS = {"protocol", "description", "scenes", "estimators", "spp", "seeds", "first_seed", "frames",
+        "resolution", "env_res", "time_budget_ms", "sanitize", "repeats", "metrics"}
+REQUIRED = ("protocol", "scenes", "estimators", "seeds")
+_NAME = re.compile(r"^\s*([A-Za-z0-9_.\-]+)\s*(?:\{(.*)\})?\s*$", re.S)
+
+
+# ---- estimator labels --------------------------------------------------------------------------
+
+def toml_value(value: Any) -> str:
+    """A scalar spelled as TOML (and as it appears in labels)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    return str(value)
+
+
+@dataclasses.dataclass(frozen=True)
+class EstimatorSpec:
+    """A registered estimator class with parameter overrides; ``label`` names its rows."""
+
+    cls: type
+    overrides: tuple[tuple[str, Any], ...] = ()
+
+    @property
+    def label(self) -> str:
+        if not self.overrides:
+            return self.cls.name
+        return self.cls.name + "{" + ",".join(f"{k}={toml_value(v)}" for k, v in self.overrides) + "}"
+
+    def make(self):
+        return self.cls(**dict(self.overrides))
+
+    def params_json(self) -> str:
+        """Every parameter of the estimator, defaults included, as sorted JSON."""
+        return json.dumps(dataclasses.asdict(self.make().params), sort_keys=True, default=str)
+
+
+def _params_of(cls) -> dict[str, dataclasses.Field]:
+    return {field.name: field for field in dataclasses.fields(cls.Params)}
+
+
+def _check_type(cls, name: str, field: dataclasses.Field, value: Any) -> None:
+    default = field.default
+    if default is dataclasses.MISSING:
+        return
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, float):
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    else:
+        ok = True
+    if not ok:
+        raise InputError(None, f"estimator '{cls.name}' parameter '{name}' must be "
+                               f"{type(default).__name__} like its default "
+                               f"{toml_value(default)}, got {toml_value(value)}")
+
+
+def parse_estimator(text: str) -> EstimatorSpec:
+    """``name`` or ``name{param=value,...}`` → an :class:`EstimatorSpec` (InputError if bad)."""
+    from iblbench.estimators.registry import get_estimator_class
+
+    if not isinstance(text, str):
+        raise InputError(None, f"an estimator must be a string such as 'uniform', got {text!r}")
+    match = _NAME.match(text)
+    if not match:
+        raise InputError(None, f"cannot read estimator {text!r}; write NAME or "
+                               "NAME{param=value,...}")
+    name, body = match.groups()
+    cls = get_estimator_class(name)
+    overrides: dict[str, Any] = {}
+    if body is not None and body.strip():
+        try:
+            overrides = tomllib.loads(f"x = {{{body}}}")["x"]
+        except tomllib.TOMLDecodeError as error:
+            raise InputError(None, f"cannot read the parameters of estimator {text!r} ({error}); "
+                                   "write NAME{param=value,...} with TOML values") from None
+    valid = _params_of(cls)
+    for key, value in overrides.items():
+        if key not in valid:
+            names = ", ".join(sorted(valid)) or "none (it has no parameters)"
+            raise InputError(None, f"estimator '{cls.name}' has no parameter '{key}'; "
+                                   f"valid parameters: {names}")
+        if isinstance(value, (dict, list)):
+            raise InputError(None, f"estimator '{cls.name}' parameter '{key}' must be a TOML "
+                                   f"scalar, got {value!r}")
+        _check_type(cls, key, valid[key], value)
+    spec = EstimatorSpec(cls, tuple(sorted(overrides.items())))
+    try:
+        spec.make()
+    except (TypeError, ValueError) as error:
+        raise InputError(None, f"estimator {text!r}: {error}") from None
+    return spec
+
+
+# ---- the sweep ---------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """A resolved sweep; ``source`` says where it came from."""
+
+    scenes: tuple[str, ...]
+    estimators: tuple[str, ...]              # canonical labels
+    spp: tuple[int, ...]
+    seeds: int
+    first_seed: int = 0
+    frames: tuple[int, ...] | slice | None = None   # None: every frame; a slice: of each sequence
+    resolution: tuple[int, int] | None = None
+    env_res: int | None = None
+    time_budget_ms: tuple[float, ...] = ()
+    sanitize: bool = False
+    repeats: int = DEFAULT_REPEATS
+    repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats) overrides
+    metrics: tuple[str, ...] = METRICS
+    protocol: str = PROTOCOL
+    description: str = ""
+    source: str = ""
+
+    def replace(self, **changes) -> "Sweep":
+        """A copy with the given (non-None) fields replaced, labels canonicalised."""
+        changes = {k: v for k, v in changes.items() if v is not None}
+        if "estimators" in changes:
+            changes["estimators"] = tuple(parse_estimator(e).label for e in changes["estimators"])
+        return dataclasses.replace(self, **changes)
+
+    def to_manifest(self) -> dict:
+        return {"source": self.source, "description": self.description,
+                "protocol": self.protocol, "scenes": list(self.scenes),
+                "estimators": list(self.estimators), "spp": list(self.spp), "seeds": self.seeds,
+                "first_seed": self.first_seed, "frames": frames_text(self.frames),
+                "resolution": None if self.resolution is None else list(self.resolution),
+                "env_res": self.env_res, "time_budget_ms": list(self.time_budget_ms),
+                "sanitize": self.sanitize, "repeats": self.repeats,
+                "repeats_for": dict(self.repeats_for), "metrics": list(self.metrics)}
+
+
+def config_path(name_or_path: str | os.PathLike) -> tuple[Path, str]:
+    """The file of a shipped config name or a path, and a description of the source."""
+    text = os.fspath(name_or_path)
+    if text in SHIPPED:
+        path = Path(str(files(CONFIG_PACKAGE).joinpath(f"{text}.toml")))
+        return path, f"shipped:{text}"
+    if not text.lower().endswith(".toml") and os.sep not in text and not os.path.exists(text):
+        raise InputError(text, f"unknown sweep config; shipped configs: {', '.join(SHIPPED)}, "
+                               "or give the path of a .toml file")
+    return Path(text), str(Path(text).resolve())
+
+
+def _positive_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value > 0
+
+
+def parse_resolution(value) -> tuple[int, int]:
+    """``"WxH"`` or ``[W, H]`` → (W, H), each side at most MAX_IMAGE_SIDE; ValueError if not."""
+    from iblbench.scenes.registry import MAX_IMAGE_SIDE   # (trimesh: not at CLI start-up)
+
+    if isinstance(value, str):
+        parts = value.lower().split("x")
+        if len(parts) == 2 and all(p.strip().isdigit() for p in parts):
+            value = [int(p) for p in parts]
+    if isinstance(value, list) and len(value) == 2 and all(
+            _positive_int(v) and v <= MAX_IMAGE_SIDE for v in value):
+        return int(value[0]), int(value[1])
+    raise ValueError(f"resolution must be \"WxH\" or [W, H] with integers in 1..{MAX_IMAGE_SIDE}, "
+                     f"got {value!r}")
+
+
+def check_env_res(value) -> int:
+    """A cube-face resolution override: an integer in 1..MAX_RES; ValueError if not."""
+    from iblbench.scenes.envmap import MAX_RES
+
+    if not (_positive_int(value) and value <= MAX_RES):
+        raise ValueError(f"env_res must be an integer in 1..{MAX_RES}, got {value!r}")
+    return int(value)
+
+
+_SLICE = re.compile(r"\s*(-?\d+)?\s*:\s*(-?\d+)?\s*(?::\s*(-?\d+)?\s*)?")
+
+
+def parse_frames(value) -> tuple[int, ...] | slice | None:
+    """A frame selection → None (every frame), a ``slice`` or a tuple of frame indices.
+
+    ``"START:STOP[:STEP]"`` is a Python slice over each sequence's frames (parts may be omitted
+    or negative: ``"::6"``, ``"10:"``, ``"-5:"``; ``":"`` is every frame); ``"all"`` → None;
+    ``"A..B"`` (inclusive) and a list ``[0, 5]`` → frame indices.  ValueError if malformed.
+    """
+    if value == "all":
+        return None
+    if isinstance(value, str):
+        match = _SLICE.fullmatch(value)
+        if match:
+            start, stop, step = (None if part is None else int(part) for part in match.groups())
+            if step == 0:
+                raise ValueError(f"frames slice step must not be zero, got {value!r}")
+            if start is None and stop is None and step in (None, 1):
+                return None
+            return slice(start, stop, step)
+        match = re.fullmatch(r"\s*(\d+)\s*\.\.\s*(\d+)\s*", value)
+        if match and int(match[1]) <= int(match[2]):
+            return tuple(range(int(match[1]), int(match[2]) + 1))
+    elif (isinstance(value, list) and value and all(isinstance(v, int) and not isinstance(v, bool)
+                                                     and v >= 0 for v in value)):
+        return tuple(sorted(set(value)))
+    raise ValueError(f"frames must be \"START:STOP[:STEP]\" (a Python slice such as 0:67:6), "
+                     f"\"all\", \"A..B\" or a list of frame indices >= 0, got {value!r}")
+
+
+def frames_text(frames) -> str | list[int]:
+    """The manifest's spelling of a frame selection."""
+    if frames is None or frames == slice(None):
+        return "all"
+    if isinstance(frames, slice):
+        parts = ["" if v is None else str(v) for v in (frames.start, frames.stop)]
+        return ":".join(parts + ([str(frames.step)] if frames.step is not None else []))
+    return list(frames)
+
+
+def select_frames(frames, num_frames: int) -> list[int]:
+    """The frame indices a selection picks from a sequence of ``num_frames`` (in run order)."""
+    if frames is None:
+        return list(range(num_frames))
+    if isinstance(frames, slice):
+        return list(range(num_frames))[frames]
+    return list(frames)
+
+
+def _scene(entry, folder: Path, path: Path) -> str:
+    from iblbench.scenes.registry import scene_names
+
+    if not isinstance(entry, str) or not entry:
+        raise InputError(path, f"scenes must be a list of scene names or .toml paths, got {entry!r}")
+    if entry.lower().endswith(".toml"):
+        scene = Path(entry) if Path(entry).is_absolute() else folder / entry
+        if not scene.is_file():
+            raise InputError(path, f"scene file {str(scene)!r} not found")
+        return str(scene)
+    if entry.lower() not in scene_names():
+        raise InputError(path, f"unknown scene {entry!r}; valid scenes: {', '.join(scene_names())}")
+    return entry.lower()
+
+
+def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
+    """Validate a parsed TOML document; every problem is an InputError naming ``path``."""
+    unknown = sorted(set(document) - KEYS)
+    if unknown:
+        raise InputError(path, f"unknown key {unknown[0]!r}; valid keys: {', '.join(sorted(KEYS))}")
+    missing = [key for key in REQUIRED if key not in document]
+    if "spp" not in document and "time_budget_ms" not in document:
+        missing.append("spp")
+    if missing:
+        raise InputError(path, f"missing required key {missing[0]!r}")
+
+    def fail(problem: str):
+        raise InputError(path, problem)
+
+    protocol = document["protocol"]
+    if protocol != PROTOCOL:
+        fail(f"protocol must be {PROTOCOL!r} (the only one implemented), got {protocol!r}")
+    description = document.get("description", "")
+    if not isinstance(description, str):
+        fail(f"description must be a string, got {description!r}")
+    scenes = document["scenes"]
+    if not isinstance(scenes, list) or not scenes:
+        fail(f"scenes must be a non-empty list, got {scenes!r}")
+    scenes = tuple(_scene(entry, path.parent, path) for entry in scenes)
+    if len(set(scenes)) != len(scenes):
+        fail(f"scenes lists a scene twice: {list(scenes)}")
+    labels = _estimator_labels(document["estimators"], fail)
+    spp = document.get("spp", [])
+    if not isinstance(spp, list) or not all(_positive_int(v) for v in spp):
+        fail(f"spp must be a list of positive integers, got {spp!r}")
+    seeds = document["seeds"]
+    if not _positive_int(seeds):
+        fail(f"seeds must be a positive integer (seeds 0..N-1), got {seeds!r}")
+    first_seed = document.get("first_seed", 0)
+    if type(first_seed) is not int or first_seed < 0:
+        fail(f"first_seed must be a non-negative integer, got {first_seed!r}")
+    try:
+        frames = parse_frames(document.get("frames", "all"))
+        resolution = (parse_resolution(document["resolution"]) if "resolution" in document
+                      else None)
+    except ValueError as error:
+        fail(str(error))
+    env_res = document.get("env_res")
+    if env_res is not None:
+        try:
+            check_env_res(env_res)
+        except ValueError as error:
+            fail(str(error))
+    budgets = _time_budgets(document.get("time_budget_ms", []), fail)
+    if not spp and not budgets:
+        fail("spp is empty and there is no time_budget_ms: the sweep has no cells")
+    sanitize = document.get("sanitize", False)
+    if not isinstance(sanitize, bool):
+        fail(f"sanitize must be true or false, got {sanitize!r}")
+    try:
+        repeats, repeats_for = parse_repeats(document.get("repeats", DEFAULT_REPEATS))
+    except ValueError as error:
+        fail(str(error))
+    metrics = _metric_names(document.get("metrics", list(METRICS)), fail)
+    return Sweep(scenes=scenes, estimators=tuple(labels), spp=tuple(sorted(set(spp))), seeds=seeds,
+                 first_seed=first_seed, frames=frames, resolution=resolution, env_res=env_res,
+                 time_budget_ms=tuple(float(v) for v in budgets), sanitize=sanitize,
+                 repeats=repeats, repeats_for=repeats_for, metrics=metrics,
+                 protocol=protocol, description=description, source=source)
+
+
+def _estimator_labels(estimators, fail) -> list[str]:
+    """The sweep's ``estimators``: a non-empty list of labels, none twice."""
+    if not isinstance(estimators, list) or not estimators:
+        fail(f"estimators must be a non-empty list, got {estimators!r}")
+    labels = []
+    for entry in estimators:
+        try:
+            labels.append(parse_estimator(entry).label)
+        except InputError as error:
+            fail(error.problem)
+    if len(set(labels)) != len(labels):
+        fail(f"estimators lists an estimator twice: {labels}")
+    return labels
+
+
+def _time_budgets(budgets, fail) -> list:
+    """The sweep's ``time_budget_ms``: a positive number or a list of them."""
+    if isinstance(budgets, (int, float)) and not isinstance(budgets, bool):
+        budgets = [budgets]
+    if not isinstance(budgets, list) or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+            for v in budgets):
+        fail(f"time_budget_ms must be a positive number or a list of them, got {budgets!r}")
+    return budgets
+
+
+def _metric_names(metrics, fail) -> tuple[str, ...]:
+    """The sweep's ``metrics``: a list of metric names."""
+    if not isinstance(metrics, list) or not all(isinstance(m, str) for m in metrics):
+        fail(f"metrics must be a list of metric names ({', '.join(METRICS)}), got {metrics!r}")
+    try:
+        return parse_metrics(",".join(metrics))
+    except ValueError as error:
+        fail(f"metrics: {error}")
+
+
+def load_sweep(name_or_path: str | os.PathLike) -> Sweep:
+    """A shipped config by name (quick, default, full, temporal) or a sweep .toml file."""
+    path, source = config_path(name_or_path)
+    return parse_sweep(read_toml(path, "sweep config"), path, source)
+
+
+# ---- command-line values -----------------------------------------------------------------------
+
+def frames_arg(text: str) -> tuple[int, ...] | slice | None:
+    """``--frames``: ``START:STOP[:STEP]`` (a Python slice), ``all``, ``A..B`` (inclusive) or
+    ``N,N,...``; a bad spec is an InputError (the CLI prints it on one line and exits 2)."""
+    value: Any = text.strip()
+    if re.fullmatch(r"\d+(\s*,\s*\d+)*", value):
+        value = [int(part) for part in value.split(",")]
+    try:
+        return parse_frames(value)
+    except ValueError as error:
+        raise InputError(None, f"--frames: {error}") from None
+
+
+def parse_repeats(value) -> tuple[int, tuple[tuple[str, int], ...]]:
+    """Timed renders per cell: ``N``, or a table ``{default = N, NAME = M, ...}`` whose other
+    keys are estimator names with a count of their own (fewer for a slow estimator) → (N,
+    ((name, M), ...) sorted); ValueError naming the problem."""
+    table = value if isinstance(value, dict) else {"default": value}
+
+    def count(key, number) -> int:
+        if not (_positive_int(number) and number <= MAX_REPEATS):
+            where = "" if key == "default" else f" for {key}"
+            raise ValueError(f"repeats{where} must be an integer in 1..{MAX_REPEATS}, "
+                             f"got {number!r}")
+        return int(number)
+
+    default = count("default", table.get("default", DEFAULT_REPEATS))
+    return default, tuple(sorted((str(key).lower(), count(key, number))
+                                 for key, number in table.items() if key != "default"))
+
+
+def repeats_arg(text: str) -> tuple[int, tuple[tuple[str, int], ...]]:
+    """``--repeats``: ``N`` or ``N,NAME=M,...`` (``parse_repeats``)."""
+    import argparse
+
+    table = {}
+    for part in text.split(","):
+        key, _, number = part.rpartition("=")
+        try:
+            table[key.strip() or "default"] = int(number)
+        except ValueError:
+            table[key.strip() or "default"] = number.strip()
+    try:
+        return parse_repeats(table)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"{error} (write N or N,NAME=M,...)")
+
+
+def metrics_arg(text: str) -> tuple[str, ...]:
+    """``--metrics``: comma-separated metric names (harness.metrics)."""
+    import argparse
+
+    try:
+        return parse_metrics(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error))
+
+
+def budgets_arg(text: str) -> tuple[float, ...]:
+    """``--time-budget-ms``: ``T`` or ``T,T,...`` milliseconds, each positive."""
+    import argparse
+
+    try:
+        values = tuple(float(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        values = ()
+    if not values or not all(math.isfinite(v) and v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected positive milliseconds such as 20 or 5,20, "
+                                         f"got '{text}'")
+    return values

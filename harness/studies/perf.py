@@ -1,0 +1,663 @@
+"""``iblbench perf``: the throughput of every estimator, against the device's roofline and a
+NumPy floor, measured side by side in one run.
+
+Per (scene, estimator) it renders one frame ``repeats`` times after one untimed warm-up render,
+interleaved in rounds (round r renders every estimator once, then the NumPy floor, so slow
+drifts of a shared machine hit them all alike), and reports the median, min and IQR of each
+device stage (OpenCL profiling events, DESIGN §3 "Timing"):
+
+- ``build``: the per-frame FrameCache products the estimator requires (the map's upload and,
+  where required, the CDFs), from ``FrameCache.timings_ms``; every repeat builds a fresh cache,
+  as a new frame would (reusing the dead cache's device buffers, as a renderer keeps them
+  resident).  ``cdf_ms`` is the CDF build alone and ``cdf_bound_ms`` its copy-bandwidth bound:
+  the bytes it must move (:func:`cdf_build_bytes`) over the copy bandwidth measured by a copy
+  launch straight before each timed build (:class:`CopyProbe`), so that on a shared machine a
+  build and its bound see the same load;
+- ``sample`` and ``shade``: ``Estimate.timings_ms`` (the pool estimators' ``sample`` is the
+  draw of the light-sample pool and its layout as planes, with ``balanced_mis``'s shared BRDF
+  numbers; ``havran``'s is the device time of its map's CDFs, its K lights and their filter;
+  ``smc``'s the build of its map proposal's alias tables, ``map_alias_pairs`` and
+  ``map_alias_columns``);
+- the rates divide by the render's device time, sample + shade (build does not scale with spp
+  and is reported beside them).
+
+Temporal estimators (``havran``, ``smc``) are ``reset()`` before every render, so each timed
+render is the first frame of a sequence, what an ``iblbench run`` cell of a static scene
+renders (``smc``: its alias tables' build, then its BIS initialisation, M + N evaluations per
+pixel).
+
+The roofline.  ``fma_throughput`` (``estimators/runtime/probes.cl``: independent FMA chains, two FLOPs each) gives
+the device's FLOP rate and ``copy_bandwidth`` (one float4 read and one written per work item,
+buffers much larger than the last-level cache) its bandwidth, counted as bytes read + bytes
+written (STREAM's convention; a CPU's write-allocate reads are not counted).  Both run on the
+estimators' own context and queue, as the median of ``repeats`` launches after a warm-up (the
+FMA launch sized to take at least ``ROOF_MIN_MS``, the copy buffers ``copy_size``).  An estimator's shading kernel (its ``shade`` stage) then
+reaches ``gflops`` = FLOPs/s and ``gbytes_per_s`` = bytes/s by the counts of ``KERNEL_COSTS``,
+and its roofline fraction is achieved / attainable with attainable = min(peak FLOP rate,
+intensity × peak bandwidth), i.e. max(gflops / peak_gflops, gbytes_per_s / peak_gbps).
+
+FLOP and byte counts (``KERNEL_COSTS``) are estimates, counted by reading the kernels as they
+are as of this revision (``estimators/*.cl``, ``estimators/kernels/*.cl``), rounded, good to
+perhaps ±30%; they must be re-derived whenever a shading kernel changes (nothing checks them
+against the kernels; ``tests/test_perf.py`` only holds the table below and ``KERNEL_COSTS`` to
+each other).  FLOPs, counted per work item as the source reads after the compiler's exact
+simplifications:
+- an add, subtract, multiply, divide, sqrt, min, max, floor or ceil is one, a·b + c two (fused
+  or not); compares, selects, sign flips, fabs, int ↔ float conversions and all integer work
+  (Philox, CDF searches, indexing, tick arithmetic) are not counted;
+- the polynomial steps count their real FLOPs (no library exp2, log2, sin or cos is left on a
+  hot path): ``phong_power`` c^m = 35 (its log2 half, the atanh series, 16; its exp2 half, a
+  Taylor polynomial to r⁷ over the float's bits, 19), ``sincos_turn`` 24, a direction about an
+  axis 68 (its basis 13, sincos_turn, the rest 31), ``phong_mixture_pdf`` 5, a cube-map texel
+  lookup 10, ``light_pdf_on_face`` 26, a map draw by the alias tables (``sir.cl``) 28 (two
+  alias draws 6, the face-plane point 10, its unit direction 12);
+- a factor that is the same for every sample of a pixel (kd/π, (m+2)/2π, 1/(m+1), Y(kd), the
+  bases about n and r) counts once per pixel, as the compiler hoists it; a common subexpression
+  once; products by constant ±1, 0 or 1 (a corner of Eq. 3, a proposal with env_pick = 0)
+  nothing, as they fold.
+Evaluations are Estimate.evaluations, the useful ones: the pool kernels run their draws in
+blocks of 16 lanes and a strategy's last block is masked (uniform at spp 64: 6 × 16 lanes for 66
+draws), and bis/smc pad their pixels to whole groups; the masked lanes are not counted, so a
+fraction is one of useful work.
+Bytes: the roofline's DRAM traffic, i.e. what each pixel must move (its four G-buffer float4s in,
+64 B, its outputs out, and smc's particles), with the map, CDFs, face integrals, light pool,
+shared BRDF numbers, light set and smc's alias tables and texels taken as cache-resident: they
+are shared by every pixel, and at the default env 64 they fit in the last-level cache
+(6·64²·(16 + 8) B ≈ 0.6 MB, the CDFs' words or the alias tables' beside the texels); so are
+bis's and smc's per-group scratch blocks (64 pixels × (M cumulative bounds in acc_t, N chosen
+candidate ints, 3 acc_t sums), 8M + 4N + 24 B a pixel: 169 KB at spp 16, 211 KB at spp 20),
+written and read back within the group's run.  (Each group has a block of its own, so the
+blocks' write-backs do reach DRAM on a CPU; not counted.)  At large faces the
+random texel reads of balanced_mis, bis and smc, balanced_mis's CDF reads and smc's alias-table
+reads also reach DRAM and the byte counts are lower bounds.  Per sample, at spp samples and E
+evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``bytes_per_sample``
+= B_s + B_p/spp.  The rows, F_e per evaluation, F_s / B_s per sample, F_p / B_p per pixel:
+
+    estimator      F_e   F_s / B_s   F_p / B_p
+    uniform         65     0 / 0      88 / 88
+        a light sample: lobe power 41 (r·ω 5, max, phong_power 35), n·ω 5, D = t_f·pdf 1,
+        add_samples 18 (β/D·cos 2, lobe 1, 3 × (kd/π + ks·lobe 2, ×L, ×weight, +=)); per pixel:
+        shading 24 (reflection 12, Y(kd), Y(ks) 10, lobe choice 2), the face split 12 (μ_f = 1/6
+        folds), hoisted factors 5, the 16-lane sums out 47; bytes: 64 in, 24 out (radiance,
+        used, effective, evaluations)
+    balanced        65     0 / 0     214 / 88
+        uniform's samples; per pixel + F_f(n)·I_f of Eq. 3, 6 faces × 18 (4 corners × 4: n·c
+        with c = (±1, ±1, ±1) folds to 2 adds), and the split of split_ticks over weights 30
+    balanced_mis   110     0 / 0     246 / 88
+        the mean of a light sample, 72 (+ t_6·phong_mixture_pdf 7 in D), and a BRDF sample of
+        the shared sequence, 148 (cos θ from the shared log2 ξ: exp2 half 19; direction 31 in
+        the per-pixel bases; lobe power 41; n·ω 5; mixture pdf 5; light_pdf 26; D 3;
+        add_samples 18); per pixel balanced's 214 + the bases about n and r 26 + pdf factors 6
+    havran          57     5 / 0      17 / 92
+        a light above the horizon: lobe power 41, phong_value 7, ×W, ×cos 6, sum 3; per light
+        n·ω 5, culled or not; per pixel the reflection 12 and hoisted factors 5; bytes: 64 in,
+        radiance float4, counts float2 and evaluations out
+    bis            183     3 / 0      50 / 88
+        F_e is a candidate, 183: uniforms 3, stratum 2, sample_phong_direction 104 (both polar
+        cosines, ξ^{1/(m+1)} 35 and √ξ, the direction 68), lobe power 41, q 10 (n·ω 5, mixture
+        pdf 5), γ = L_Y ρ_Y cos 20 (texel lookup 10, Y(L) 5, ρ_Y 3, products 2), γ/q 1, and as it
+        leaves its lane the total (fp64) and the bound 2 (its f/γ is dead: no candidate ratio);
+        F_s is a resampled one's excess: regenerated in 16-lane vectors, 181 (the candidate's
+        181 before its lane's sums, less q 10, γ/q 1 and ×cos 1, which nothing reads there, +
+        f/γ 12), its systematic position 2 and f/γ sums 3: 186 = 183 + 3; per pixel shading 24,
+        hoisted factors 19 (11 before the candidates, the 8 that f/γ needs again before the
+        regeneration), the resampling uniform, Σw/N and Ẑ 3, output 4
+    smc            176    45 / 24     58 / 140
+        the first frame's smc_init (BIS with M = 20 N, the first half of the candidates from
+        the map); F_e is a candidate, 176: a 16-lane block takes one strategy, the BRDF's
+        draw 107 (uniforms 3, both cosines 36, direction 68) or a map draw 28, half each
+        67.5, stratum 2, the texel of ω and its area_per_solid_angle 20, lobe power 41, n·ω 5,
+        q 9 (mixture pdf 5 × (1 − env_pick), + env_pick × the texel's .w × area 3), γ's other
+        10, γ/q 1, f/γ 12, as it leaves its lane the total and bound 2 and the w·f/γ sums 6
+        (175.5); F_s is a resampled one's excess, 45: regenerated in blocks that mix both
+        strategies, so both draws 135, stratum 2, texel 10, lobe power 41, n·ω 5, γ 10, f/γ 12
+        (215: q is dead there), its position 2 and sums 3, the effective count 1: 221 = 176 +
+        45; per sample the particle (ω, W) and gammas written, 24 B; per pixel shading 24,
+        hoisted factors 20 (bis's + 1 − env_pick), the stratified pick 3, the resampling 3, the
+        candidate ratio Σw·f/γ / Σw 3, 1/N 1, the estimate 3, stats 1; bytes: 64 in, its list
+        entry 4, state, carried estimate, radiance, counts and stats out (72)
+    brdf           174     0 / 0     103 / 88
+        a BRDF sample drawn per pixel (estimators/envmap.cl without light samples), 174:
+        uniforms 3, sincos_turn 24, √ξ 1, log2 ξ 16 and the exp2 half 19 of ξ^{1/(m+1)},
+        the direction 31 in the per-pixel bases, lobe power 41, n·ω 5, mixture pdf 5, texel
+        lookup 10, D 1, add_samples 18; per pixel shading 24, the bases about n and r 26,
+        hoisted factors 6, the 16-lane sums out 47; bytes as uniform's
+    envmap         115     0 / 0      76 / 88
+        the default, light samples only: a light sample of the map's 2-D distribution, 115: its
+        point and pdf 38 (as sample_face's), the face direction normalised 12, lobe power 41,
+        n·ω 5, D 1, add_samples 18; per pixel shading 24, hoisted factors 5, sums out 47
+    hierarchical   182     0 / 0      95 / 88
+        the default, light samples only: a light sample by descent through the weight pyramid,
+        at the default env 64 (six levels below the faces; 14 more or fewer per level): per
+        level the children's total 3, 2^31/total 1, four shares and their clamps 8, the
+        probability and its product 2 (the integer widths and the pick are not counted), 84;
+        the face's probability 1, the point in the texel 12 (a grid cell's centre, 6 per
+        coordinate), its pdf 8, the face direction normalised 12, lobe power 41, n·ω 5, D 1,
+        add_samples 18; per pixel envmap's 76 and the faces' widths 19 (their total 5,
+        2^31/total 1, six shares and clamps 12, hoisted: the same for every sample)
+    fis            223     0 / 0     123 / 88
+        a filtered BRDF sample, 223: its Hammersley point 2 and lobe rescale 5, brdf's draw
+        after the uniforms 91 (sincos_turn 24, √ξ 1, ξ^{1/(m+1)} 35, direction 31), lobe power
+        41, n·ω 5, mixture pdf 5, the texel of ω and its area_per_solid_angle 20, the lod of
+        Eq. 13 26 (log2 16, the clamps, bias, floor and share 10), the blend of two levels 9,
+        D 1, add_samples 18; per pixel brdf's 103 and the lod shift ½·log2(R²/4N) 20 (its
+        library log2 counted as the polynomial's 16); bytes as brdf's (the mip chain, 4/3 of
+        the map, taken as cache-resident like the map)
+
+The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
+μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
+⌈N_f⌉ entries of each lit face's pool, N_f = N_s/6, with the fractional last weight β of
+Eq. 5, shaded with DESIGN §3's Phong BRDF.  It reads the same inputs as the kernels: the
+G-buffer, and a light-sample pool drawn on the device by the FrameCache and read back
+(directions, pdf_L and radiance).  It is the fastest NumPy formulation found, on one host thread
+(BLAS capped to one by ``host_threads_capped``), in float32 as the kernels do, over blocks of
+pixels that fit in cache: the dot products and the sums over the pool are matrix products, the
+lobe's power NumPy's SIMD exp and log (sphere-sun and blob-sun, 256², spp 64, in one run
+here: 308 and 304 Msamples/s, against 55 and 54 for the floor before issue 20, which used
+element-wise products, exp2/log2 and ``einsum``).  Its time is host wall time.  Deviation from the kernels, not from the paper: N_f and β are
+exact (N_s/6 and frac(N_f)) where the kernel rounds them to 2^-16 of a sample (ticks), a
+relative difference under 1e-4 of a pixel.  ``FLOOR_RTOL``/``FLOOR_ATOL`` state how closely the
+floor must match the ``uniform`` kernel on the same pool (``floor_max_rel_diff``); the
+``speedup_vs_floor`` of a kernel is its msamples_per_s over the floor's.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+import textwrap
+import time
+
+import numpy as np
+
+from iblbench.estimators.runtime.probes import (FMA_ITEMS, CopyProbe, copy_size, fma_iterations,
+                                                run_copy, run_fma)
+from iblbench.harness.protocol.timing import (measure_timing_floor, required_build_ms, spread,
+                                              timing_floor_text)
+from iblbench.scenes.errors import InputError
+
+DEFAULT_SCENES = ("sphere-sun", "blob-sun")
+DEFAULT_RESOLUTION = (256, 256)
+DEFAULT_ENV_RES = 64
+DEFAULT_SPP = 64
+DEFAULT_REPEATS = 5
+# bis and smc evaluate M + N = 21 candidates per resampled sample (M = 20 N), so spp 64 would
+# take seconds per frame at 256² on a 2-core CPU (spp 16: about 0.8 s and 1.9 s): they run at
+# Kronander's N = 20 (M = 400) with 3 repeats unless --spp / --repeats are given, which keeps a
+# default run near a minute there (the run prints the spp and repeats of every row).
+SLOW_DEFAULTS = {"bis": (20, 3), "smc": (20, 3)}
+FLOOR = "numpy-floor"
+FLOOR_SEED = 0xFFFFFF80        # a seed no benchmark cell uses
+WARMUP_SEED = 0xFFFFFFFF
+FLOOR_RTOL = 1e-4              # |floor − uniform| ≤ RTOL·|uniform| + ATOL·max|uniform| per channel
+FLOOR_ATOL = 1e-6
+FLOOR_BLOCK = 1 << 15          # pixels × pool entries per block of the floor (fits in L2)
+ROOF_MIN_MS = 20.0             # each roofline launch is sized to take at least this
+
+
+def cdf_build_bytes(res: int) -> int:
+    """The bytes a frame's CDF build must move at faces of ``res`` texels: every float4 texel
+    read once (16 B) and every 64-bit CDF word written once, R² conditional and R marginal words
+    per face.  Not counted: the texel solid angles Ω (R² floats shared by the six faces, and
+    geometry a kernel could compute), the row and face totals (R + 1 floats per face) and a
+    CPU's write-allocate reads (the copy roofline does not count them either)."""
+    return 6 * (res * res * (16 + 8) + res * 8)
+
+
+@dataclasses.dataclass(frozen=True)
+class KernelCost:
+    """Analytic FLOPs and DRAM bytes of an estimator's shading kernel, per integrand evaluation,
+    per sample and per pixel (an estimate: module docstring)."""
+
+    flops_per_eval: float
+    flops_per_sample: float
+    bytes_per_sample: float
+    flops_per_pixel: float
+    bytes_per_pixel: float
+
+    def per_sample(self, spp: int, evaluations: float) -> tuple[float, float]:
+        """(FLOPs, bytes) per sample of a render at ``spp`` with ``evaluations`` per pixel."""
+        flops = self.flops_per_sample + (self.flops_per_eval * evaluations + self.flops_per_pixel) / spp
+        return flops, self.bytes_per_sample + self.bytes_per_pixel / spp
+
+
+KERNEL_COSTS = {
+    "uniform": KernelCost(65, 0, 0, 88, 88),
+    "balanced": KernelCost(65, 0, 0, 214, 88),
+    "balanced_mis": KernelCost(110, 0, 0, 246, 88),
+    "havran": KernelCost(57, 5, 0, 17, 92),
+    "bis": KernelCost(183, 3, 0, 50, 88),
+    "smc": KernelCost(176, 45, 24, 58, 140),
+    "brdf": KernelCost(174, 0, 0, 103, 88),
+    "envmap": KernelCost(115, 0, 0, 76, 88),
+    "hierarchical": KernelCost(182, 0, 0, 95, 88),
+    "fis": KernelCost(223, 0, 0, 123, 88),
+}
+
+# Every column of perf.csv, in order, with what it means (the --help epilog and perf.html).
+COLUMNS = {
+    "scene": "scene name",
+    "estimator": f"estimator label; '{FLOOR}' is the NumPy shared-pool floor (one host thread)",
+    "estimator_version": "hash of the estimator's Python and kernel sources (as in results rows)",
+    "spp": "samples per pixel (havran: K lights; bis: N resampled; smc: N particles)",
+    "repeats": "timed renders after one untimed warm-up; times are their median",
+    "pixels": "covered pixels (work items)",
+    "evaluations": "integrand evaluations per covered pixel (Estimate.evaluations)",
+    "build_ms": "device ms of the FrameCache products required (upload, CDFs), median",
+    "build_ms_min": "its minimum over repeats",
+    "build_ms_iqr": "its interquartile range",
+    "cdf_ms": "device ms of the CDF build alone (part of build_ms; NaN: not required), median",
+    "cdf_bound_ms": "the CDF build's copy-bandwidth bound: 6·(R²·(16 + 8) + R·8) B (float4 "
+                    "texels read once, conditional and marginal CDF words written once) / the "
+                    "median copy bandwidth of a copy launched straight before each timed build",
+    "sample_ms": "device ms of the sample stage (pool draw; havran: map build, light placement "
+                 "and filter; 0: none), median",
+    "sample_ms_min": "its minimum",
+    "sample_ms_iqr": "its interquartile range",
+    "shade_ms": "device ms of the shading kernel, median (the floor: host wall ms)",
+    "shade_ms_min": "its minimum",
+    "shade_ms_iqr": "its interquartile range",
+    "frame_ms": "build + sample + shade per repeat, median",
+    "frame_ms_min": "its minimum",
+    "frame_ms_iqr": "its interquartile range",
+    "render_ms": "sample + shade per repeat, median: the time the rates divide by",
+    "host_ms": "host wall ms of the render call (read-back included), median",
+    "msamples_per_s": "pixels × spp / render_ms, in millions per second",
+    "mevals_per_s": "pixels × evaluations / render_ms, in millions per second",
+    "flops_per_sample": "analytic FLOPs per sample of the shading kernel (an estimate)",
+    "bytes_per_sample": "analytic DRAM bytes per sample (an estimate; shared tables cached)",
+    "gflops": "FLOPs per sample × pixels × spp / shade_ms, GFLOP/s",
+    "gbytes_per_s": "bytes per sample × pixels × spp / shade_ms, GB/s",
+    "roofline_fraction": "max(gflops/peak_gflops, gbytes_per_s/peak_gbps): achieved over "
+                         "attainable at the kernel's intensity",
+    "bound": "the roof that binds at the kernel's intensity: compute or memory",
+    "speedup_vs_floor": "msamples_per_s over the NumPy floor's (same scene)",
+    "floor_max_rel_diff": "floor row: max over pixels and channels of |floor − uniform| / "
+                          "(|uniform| + max|uniform|·ATOL/RTOL), on the same pool (≤ RTOL passes)",
+    "peak_gflops": "the device's measured FMA throughput, GFLOP/s (median)",
+    "peak_gbps": "the device's measured copy bandwidth, GB/s, read + written (median)",
+    "device": "OpenCL device | platform version | driver",
+}
+SHOWN = {"scene": "scene", "estimator": "estimator", "spp": "spp", "pixels": "pixels",
+         "msamples_per_s": "Msamples/s", "mevals_per_s": "Mevals/s", "build_ms": "build ms",
+         "sample_ms": "sample ms", "shade_ms": "shade ms", "shade_iqr_pct": "IQR %",
+         "gflops": "GFLOP/s", "gbytes_per_s": "GB/s", "roofline_fraction": "roof",
+         "speedup_vs_floor": "× floor"}
+
+
+def columns_help() -> str:
+    """The columns of perf.csv, one per line, and the printed table's headers (--help epilog)."""
+    width = max(map(len, COLUMNS))
+    printed = ", ".join(f"{header} = {name}" for name, header in SHOWN.items()
+                        if header != name and name != "shade_iqr_pct")
+    return ("columns of perf.csv:\n" + "\n".join(f"  {name:{width}s}  {text}"
+                                                  for name, text in COLUMNS.items())
+            + "\n\n" + textwrap.fill(f"the printed table shows {printed}, and IQR % = 100 × "
+                                     "shade_ms_iqr / shade_ms.", 92))
+
+
+# ---- the roofline --------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Roofline:
+    gflops: float          # median FMA throughput
+    gbps: float            # median copy bandwidth, bytes read + written
+    fma_flops: int         # FLOPs per timed FMA launch
+    copy_bytes: int        # bytes moved per timed copy launch
+
+    def fraction(self, gflops: float, gbps: float) -> float:
+        """Achieved over attainable, min(peak, intensity × bandwidth), for a kernel that reaches
+        ``gflops`` and ``gbps``."""
+        return max(gflops / self.gflops, gbps / self.gbps)
+
+    def bound(self, flops_per_byte: float) -> str:
+        """The roof that binds at an arithmetic intensity (FLOPs per byte)."""
+        return "compute" if flops_per_byte * self.gbps >= self.gflops else "memory"
+
+
+def measure_roofline(compute, repeats: int) -> Roofline:
+    """The device's FMA throughput and copy bandwidth: the median of ``repeats`` launches each,
+    the FMA launch sized to take ≥ ROOF_MIN_MS."""
+    iterations = fma_iterations(compute, FMA_ITEMS, ROOF_MIN_MS)
+    _, fma_ms, flops = run_fma(compute, FMA_ITEMS, iterations, repeats)
+    _, copy_ms, moved = run_copy(compute, np.ones(copy_size(compute) // 4, np.float32), repeats)
+    return Roofline(gflops=flops / spread(fma_ms)[0] / 1e6, gbps=moved / spread(copy_ms)[0] / 1e6,
+                    fma_flops=flops, copy_bytes=moved)
+
+
+# ---- the NumPy floor ---------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class HostPool:
+    """A light-sample pool read back from the device: ``per_face`` entries per face, face-major;
+    ``dirs`` ``[6·per_face, 3]``, ``pdf`` ``[6·per_face]`` (pdf_L(ω|f)), ``radiance``
+    ``[6·per_face, 3]``; ``face_integrals`` I_f ``[6]``."""
+
+    dirs: np.ndarray
+    pdf: np.ndarray
+    radiance: np.ndarray
+    per_face: int
+    face_integrals: np.ndarray
+
+    @classmethod
+    def read(cls, cache, per_face: int, seed: int) -> "HostPool":
+        pool = cache.light_pool(per_face, seed)
+        count = 6 * pool.per_face
+        dir_pdf = cache.compute.to_host(pool.dir_pdf, (count, 4), np.float32)
+        radiance = cache.compute.to_host(pool.radiance, (count, 4), np.float32)
+        return cls(dir_pdf[:, :3].copy(), dir_pdf[:, 3].copy(), radiance[:, :3].copy(),
+                   pool.per_face, np.asarray(cache.face_integrals, np.float32))
+
+
+@dataclasses.dataclass(frozen=True)
+class HostSurface:
+    """The covered pixels' shading inputs, float32: ``normal``, ``view``, ``kd``, ``ks`` ``[N, 3]``
+    and ``shininess`` ``[N]``."""
+
+    normal: np.ndarray
+    view: np.ndarray
+    kd: np.ndarray
+    ks: np.ndarray
+    shininess: np.ndarray
+
+    @classmethod
+    def of(cls, gbuffer) -> "HostSurface":
+        m = gbuffer.mask
+        return cls(*(np.ascontiguousarray(getattr(gbuffer, name)[m], np.float32)
+                     for name in ("normal", "view", "kd", "ks", "shininess")))
+
+
+def floor_samples(pool: HostPool, spp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pool entries every pixel reads (the first ⌈N_f⌉ of each lit face, N_f = spp/6) and
+    their weights β_i/(N_f·pdf_i) of Eq. 4-5: (directions ``[S, 3]``, weights ``[S]``,
+    radiance ``[S, 3]``)."""
+    n_f = spp / 6.0
+    draws = min(math.ceil(n_f), pool.per_face)
+    beta = np.minimum(1.0, n_f - np.arange(draws))
+    lit = np.flatnonzero(pool.face_integrals > 0)
+    entries = (lit[:, None] * pool.per_face + np.arange(draws)).ravel()
+    pdf = pool.pdf[entries].astype(np.float64)
+    with np.errstate(divide="ignore"):
+        weight = np.where(pdf > 0, np.tile(beta, len(lit)) / (n_f * pdf), 0.0)
+    return pool.dirs[entries], weight.astype(np.float32), pool.radiance[entries]
+
+
+def numpy_floor(surface: HostSurface, pool: HostPool, spp: int) -> np.ndarray:
+    """Lu 2013's shared-pool shading with μ_f = 1/6 (module docstring), float32 ``[N, 3]``:
+    Σ_f Σ_i β_i/(N_f pdf_i) · ρ(ω_i) cos⁺(n, ω_i) L_i, ρ = kd/π + ks (m+2)/(2π) cos⁺(r, ω)^m.
+    Per block of pixels, as a NumPy user would write it: n·ω and r·ω of every (pixel, sample) as
+    matrix products ``[pixels, 3] @ [3, samples]``, the lobe cos⁺(r, ω)^m as exp(m·log c) in
+    NumPy's SIMD exp and log, and the sums over the samples as matrix products with the samples'
+    weighted radiance ``[samples, 3]``; the per-pixel factors come after."""
+    dirs, weight, radiance = floor_samples(pool, spp)
+    count = len(surface.normal)
+    out = np.zeros((count, 3), np.float32)
+    if not len(dirs):
+        return out
+    weighted = (weight[:, None] * radiance).astype(np.float32)    # β_i L_i / (N_f pdf_i)
+    n, v = surface.normal, surface.view
+    r = 2.0 * np.sum(n * v, axis=1, keepdims=True, dtype=np.float32) * n - v
+    columns = np.ascontiguousarray(dirs.T)                        # [3, samples]
+    block = max(1, FLOOR_BLOCK // len(dirs))
+    tiny = np.float32(np.finfo(np.float32).tiny)
+    for start in range(0, count, block):
+        rows = slice(start, start + block)
+        m = surface.shininess[rows, None]
+        cosine = n[rows] @ columns
+        mirror = r[rows] @ columns
+        np.maximum(cosine, 0.0, out=cosine)
+        lobe = np.maximum(mirror, tiny)
+        np.log(lobe, out=lobe)
+        lobe *= m
+        np.exp(lobe, out=lobe)
+        lobe *= mirror > 0
+        lobe *= cosine
+        out[rows] = (surface.kd[rows] / np.float32(np.pi) * (cosine @ weighted)
+                     + surface.ks[rows] * ((m + 2.0) / np.float32(2.0 * np.pi)) * (lobe @ weighted))
+    return out
+
+
+def floor_difference(floor: np.ndarray, kernel: np.ndarray) -> float:
+    """max |floor − kernel| / (|kernel| + max|kernel|·ATOL/RTOL) over pixels and channels: ≤
+    FLOOR_RTOL exactly when every value is within RTOL·|kernel| + ATOL·max|kernel|."""
+    scale = np.abs(kernel) + float(np.max(np.abs(kernel), initial=0.0)) * FLOOR_ATOL / FLOOR_RTOL
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(scale > 0, np.abs(floor - kernel) / scale,
+                         np.where(floor == kernel, 0.0, np.inf))
+    return float(np.max(ratio, initial=0.0))
+
+
+# ---- measuring -----------------------------------------------------------------------------------
+
+@dataclasses.dataclass
+class _Cell:
+    """The repeated renders of one (scene, estimator)."""
+
+    label: str
+    estimator: object
+    spp: int
+    build: list = dataclasses.field(default_factory=list)
+    cdf: list = dataclasses.field(default_factory=list)
+    copy_gbps: list = dataclasses.field(default_factory=list)   # CopyProbe beside each CDF build
+    sample: list = dataclasses.field(default_factory=list)
+    shade: list = dataclasses.field(default_factory=list)
+    host: list = dataclasses.field(default_factory=list)
+    evaluations: float = math.nan
+
+    def render(self, compute, gbuffer, env, seed: int, timed: bool = True):
+        from iblbench.estimators.runtime.framecache import FrameCache
+
+        cache = FrameCache(compute, env, 0)
+        cache.require(type(self.estimator).requires)
+        self.estimator.reset()
+        start = time.perf_counter()
+        try:
+            estimate = self.estimator.render(gbuffer, cache, self.spp, seed)
+        except ValueError as error:   # e.g. an spp beyond the estimator's limit
+            raise InputError(None, f"estimator '{self.label}' at spp {self.spp}: {error}") from None
+        host = (time.perf_counter() - start) * 1e3
+        if timed:
+            self.build.append(required_build_ms(cache.timings_ms, type(self.estimator).requires))
+            self.cdf.append(cache.timings_ms.get("cdf", math.nan))
+            self.sample.append(estimate.timings_ms.get("sample", 0.0))
+            self.shade.append(estimate.timings_ms.get("shade", math.nan))
+            self.host.append(host)
+            self.evaluations = float(estimate.evaluations)
+        return estimate
+
+
+@dataclasses.dataclass
+class PerfConfig:
+    out: pathlib.Path
+    scenes: tuple[str, ...] = DEFAULT_SCENES
+    estimators: tuple[str, ...] = ()        # labels; () is every registered estimator
+    spp: int | None = None                  # None: DEFAULT_SPP, SLOW_DEFAULTS for bis and smc
+    resolution: tuple[int, int] = DEFAULT_RESOLUTION
+    env_res: int = DEFAULT_ENV_RES
+    repeats: int | None = None              # None: DEFAULT_REPEATS, SLOW_DEFAULTS for bis and smc
+    device: str | None = None
+
+
+def command_line(config: PerfConfig) -> str:
+    """The ``iblbench perf`` command that measures ``config`` (for the page and the report)."""
+    words = ["iblbench perf"] + [f"--scene {name}" for name in config.scenes]
+    words += [f"--estimator '{label}'" for label in config.estimators]
+    words += [f"--spp {config.spp}"] * bool(config.spp) + [f"--repeats {config.repeats}"] * bool(config.repeats)
+    words += [f"--res {config.resolution[0]}x{config.resolution[1]}", f"--env-res {config.env_res}"]
+    return " ".join(words + [f"--device '{config.device}'"] * bool(config.device) + [f"--out {config.out}"])
+
+
+def _budget(config: PerfConfig, name: str) -> tuple[int, int]:
+    """(spp, repeats) of an estimator: the flags, else the defaults (SLOW_DEFAULTS for bis, smc)."""
+    spp, repeats = SLOW_DEFAULTS.get(name, (DEFAULT_SPP, DEFAULT_REPEATS))
+    return config.spp or spp, config.repeats or repeats
+
+
+def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
+         device: str) -> dict:
+    build, sample, shade = spread(cell.build), spread(cell.sample), spread(cell.shade)
+    frame = spread([b + s + h for b, s, h in zip(cell.build, cell.sample, cell.shade)])
+    render_ms = spread([s + h for s, h in zip(cell.sample, cell.shade)])[0]
+    samples = pixels * cell.spp
+    cdf_ms = spread(cell.cdf)[0]
+    cdf_bound_ms = (cdf_build_bytes(env_res) / (spread(cell.copy_gbps)[0] * 1e6)
+                    if math.isfinite(cdf_ms) else math.nan)
+    row = {"scene": scene, "estimator": cell.label,
+           "estimator_version": type(cell.estimator).version(), "spp": cell.spp,
+           "repeats": len(cell.shade),
+           "pixels": pixels, "evaluations": cell.evaluations,
+           **{f"{stage}_ms{suffix}": value for stage, values in
+              (("build", build), ("sample", sample), ("shade", shade), ("frame", frame))
+              for suffix, value in zip(("", "_min", "_iqr"), values)},
+           "cdf_ms": cdf_ms, "cdf_bound_ms": cdf_bound_ms,
+           "render_ms": render_ms, "host_ms": spread(cell.host)[0],
+           "msamples_per_s": samples / (render_ms * 1e3),
+           "mevals_per_s": pixels * cell.evaluations / (render_ms * 1e3)}
+    cost = KERNEL_COSTS.get(getattr(cell.estimator, "name", ""))
+    flops = nbytes = gflops = gbps = math.nan
+    if cost is not None:
+        flops, nbytes = cost.per_sample(cell.spp, cell.evaluations)
+        gflops, gbps = flops * samples / (shade[0] * 1e6), nbytes * samples / (shade[0] * 1e6)
+    row.update({"flops_per_sample": flops, "bytes_per_sample": nbytes, "gflops": gflops,
+                "gbytes_per_s": gbps,
+                "roofline_fraction": roofline.fraction(gflops, gbps) if cost else math.nan,
+                "bound": roofline.bound(flops / nbytes) if cost else "",
+                "speedup_vs_floor": math.nan, "floor_max_rel_diff": math.nan,
+                "peak_gflops": roofline.gflops, "peak_gbps": roofline.gbps, "device": device})
+    return row
+
+
+def _floor_row(scene: str, spp: int, evaluations: int, pixels: int, times: list,
+               difference: float, roofline: Roofline, device: str) -> dict:
+    """The floor's row: ``evaluations`` pool entries read per pixel; host times ``times``."""
+    median, low, iqr = spread(times)
+    flops, nbytes = KERNEL_COSTS["uniform"].per_sample(spp, evaluations)
+    row = {column: math.nan for column in COLUMNS}
+    row.update({"scene": scene, "estimator": FLOOR, "estimator_version": "", "spp": spp,
+                "repeats": len(times),
+                "pixels": pixels, "evaluations": float(evaluations), "shade_ms": median,
+                "shade_ms_min": low, "shade_ms_iqr": iqr, "render_ms": median, "host_ms": median,
+                "msamples_per_s": pixels * spp / (median * 1e3),
+                "mevals_per_s": pixels * evaluations / (median * 1e3),
+                "flops_per_sample": flops, "bytes_per_sample": nbytes, "bound": "",
+                "speedup_vs_floor": 1.0, "floor_max_rel_diff": difference,
+                "peak_gflops": roofline.gflops, "peak_gbps": roofline.gbps, "device": device})
+    return row
+
+
+def run_perf(config: PerfConfig, log=print):
+    """Measure (module docstring); returns (the perf table, the roofline)."""
+    import pandas as pd
+
+    from iblbench.estimators.registry import estimator_names
+    from iblbench.estimators.uniform import Uniform
+    from iblbench.estimators.runtime.device import get_compute
+    from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+    from iblbench.estimators.runtime.framecache import FrameCache
+    from iblbench.harness.protocol.sweep import parse_estimator
+    from iblbench.scenes.gbuffer import trace_gbuffer
+    from iblbench.scenes.registry import load_scene
+
+    specs = [parse_estimator(label) for label in (config.estimators or estimator_names())]
+    labels = [spec.label for spec in specs]
+    if len(set(labels)) != len(labels):
+        raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
+    scenes = [load_scene(name, env_res=config.env_res) for name in dict.fromkeys(config.scenes)]
+    compute = get_compute(config.device)
+    floor_spp = config.spp or DEFAULT_SPP
+    rows = []
+    log(f"device: {compute.device_name}")
+    roofline = measure_roofline(compute, config.repeats or DEFAULT_REPEATS)
+    log(f"roofline: {roofline.gflops:.4g} GFLOP/s (FMA), {roofline.gbps:.4g} GB/s (copy)")
+    probe = CopyProbe(compute)
+    for scene in scenes:
+        gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, *config.resolution)
+        if gbuffer.covered == 0:
+            raise InputError(scene.source or scene.name, "the camera sees none of the mesh")
+        device_gbuffer = DeviceGBuffer(compute, gbuffer)
+        env = np.asarray(scene.environment.frame(0), np.float32)
+        cells = []
+        for spec in specs:
+            spp, repeats = _budget(config, spec.cls.name)
+            cells.append((_Cell(spec.label, spec.make(), spp), repeats))
+        for cell, _ in cells:
+            cell.render(compute, device_gbuffer, env, WARMUP_SEED, timed=False)
+        # The floor's inputs: a pool drawn on the device; the uniform kernel on the same pool.
+        floor_cache = FrameCache(compute, env, 0)
+        floor_cache.require(Uniform.requires)
+        pool = HostPool.read(floor_cache, Uniform.pool_size(floor_spp), FLOOR_SEED)
+        surface = HostSurface.of(gbuffer)
+        floor_image = numpy_floor(surface, pool, floor_spp)   # also its warm-up
+        difference = math.nan
+        if Uniform.name in {spec.cls.name for spec in specs}:
+            kernel = Uniform().render(device_gbuffer, floor_cache, floor_spp, FLOOR_SEED)
+            difference = floor_difference(floor_image, kernel.radiance[gbuffer.mask])
+        floor_times, floor_repeats = [], config.repeats or DEFAULT_REPEATS
+        for round_ in range(max([floor_repeats] + [repeats for _, repeats in cells])):
+            for cell, repeats in cells:
+                if round_ < repeats:
+                    if {"cdf", "pool"} & set(type(cell.estimator).requires):   # builds CDFs
+                        cell.copy_gbps.append(probe.gbps())
+                    cell.render(compute, device_gbuffer, env, round_)
+            if round_ < floor_repeats:
+                start = time.perf_counter()
+                numpy_floor(surface, pool, floor_spp)
+                floor_times.append((time.perf_counter() - start) * 1e3)
+        floor = _floor_row(scene.name, floor_spp, len(floor_samples(pool, floor_spp)[0]),
+                           device_gbuffer.count, floor_times, difference, roofline,
+                           compute.device_name)
+        scene_rows = [_row(scene.name, cell, device_gbuffer.count, env.shape[1], roofline,
+                           compute.device_name)
+                      for cell, _ in cells]
+        for row in scene_rows:
+            row["speedup_vs_floor"] = row["msamples_per_s"] / floor["msamples_per_s"]
+        rows += scene_rows + [floor]
+        log(f"{scene.name}: {len(cells)} estimators and the floor measured")
+    return pd.DataFrame(rows, columns=list(COLUMNS)), roofline
+
+
+# ---- output -------------------------------------------------------------------------------------
+
+def shown_table(table):
+    """The printed subset of the table, with readable headers."""
+    shown = table.assign(shade_iqr_pct=100.0 * table.shade_ms_iqr / table.shade_ms)
+    return shown[list(SHOWN)].rename(columns=SHOWN)
+
+
+def format_table(table) -> str:
+    import pandas as pd
+
+    with pd.option_context("display.width", 250, "display.max_columns", 50):
+        return shown_table(table).to_string(index=False, float_format=lambda v: f"{v:.4g}")
+
+
+def run_study(config: PerfConfig) -> PerfStudy:
+    """Measure (:func:`run_perf`) between two timing floors; nothing is written."""
+    from iblbench.estimators.runtime.device import get_compute
+    from iblbench.harness.protocol.timing import host_threads_capped
+
+    start = time.perf_counter()
+    with host_threads_capped():   # the NumPy floor runs between timed kernels: no spinning BLAS
+        compute = get_compute(config.device)   # cached: run_perf gets the same context
+        floors = [measure_timing_floor(compute)]
+        table, roofline = run_perf(config)
+        floors.append(measure_timing_floor(compute))
+    return PerfStudy(table, roofline, floors, time.perf_counter() - start, command_line(config))
+
+
+@dataclasses.dataclass
+class PerfStudy:
+    """What ``iblbench perf`` measured: the table, the roofline, the timing floor at the start
+    and the end, the seconds it took and the command that reproduces it."""
+
+    table: object
+    roofline: Roofline
+    floors: list
+    seconds: float
+    command: str
+
+    def context(self) -> dict:
+        """The page's header (:func:`iblbench.reports.perf.write_outputs`)."""
+        return {"device": self.table.device.iloc[0], "command": self.command,
+                "seconds": f"{self.seconds:.0f}", "timing_floor": timing_floor_text(self.floors),
+                "timing_floor_ms": f"{self.floors[0].median_ms:.2g}"}

@@ -1,0 +1,146 @@
+"""Convergence flatter than an estimator's tags allow (issue 11, "Statistics").
+
+Between two consecutive spp levels a < b of a (scene, estimator) cell, an error E should fall
+as a power of the budget: E_b / E_a ≈ (b/a)^slope.  The ideal Monte Carlo slope of an RMS-like
+error is −½, and of a squared error −1.
+
+**The error judged is relMSE** (``METRICS``): a fixed per-pixel weighting of squared errors in
+linear HDR, so an unbiased estimator's expected relMSE is its variance over spp, exactly −1
+whatever the budget.  Mean ΔE76 has no such law: it is taken after exposure, Reinhard's tone
+map and Lab, which saturate a large error, so it falls slower at low spp (uniform on
+sphere-switch, 48×48, env 16, 3 seeds: ΔE76 6.8 → 5.5 from 4 to 16 spp, slope −0.15, while
+its relMSE fell 0.90 → 0.36, slope −0.65), and a warning there would speak of the tone map,
+not of the estimator.  An estimator whose error is heavy-tailed (a sun that few samples find)
+can fall slower than −1 before enough samples find the bright texels even in relMSE; that is
+worth the warning too, since its numbers at those spp are not yet Monte Carlo's.
+
+**The flattest slope the tags allow** follows the conformance suite
+(:mod:`iblbench.harness.verify.conformance`): ``check_convergence`` (``Tags.unbiased``) and
+``check_error_falls`` (not unbiased, on a static map, where the error must go to zero with the
+budget) both accept an RMS error that falls at least ``MIN_ERROR_FALL_8_TO_128`` = 2.5× over 16×
+the samples, a slope of −log 2.5 / log 16 ≈ −0.33 (ideal −½); relMSE, a squared error, gets twice
+that, −0.66 (ideal −1).  This applies to
+
+- an unbiased estimator (``tags.unbiased``), on any scene;
+- an estimator that is not unbiased, on a static scene (one frame), or one that is not temporal
+  on any scene (each frame is then a static problem of its own);
+
+and a temporal estimator that is not unbiased, on a sequence, may level off at the bias its
+state carries from frame to frame (havran's filter lag does not shrink with the budget), so its
+flattest allowed slope is 0: it is flagged only when its error rises.  So may an estimator that
+converges to a stated limit instead of the exact integral (``tags.has_limit``: fis's filtered
+map, held to that limit by ``check_consistent_limit``), on any scene.
+
+**The test.**  Each seed's error is its mean over the cell's frames (as in
+:func:`iblbench.harness.protocol.stats.cell_intervals`); the ratio of the mean over seeds at b to that at
+a gets its 95% interval from :func:`iblbench.harness.protocol.stats.ratio_ci`, and the pair is flagged
+only where the whole interval lies above the allowed ratio (b/a)^slope: convergence flatter
+than the tags allow, with the intervals saying so.  ``ratio_ci`` takes the two levels as
+independent samples; a run reuses its seeds at every spp, and the two levels' errors of one
+seed are then positively correlated (they share random streams), which makes the interval
+wider than needed: the test is conservative.  One seed gives no interval and nothing is
+flagged; a cell whose estimator is not registered here is not judged.  Equal-time cells
+(``time_budget_ms``) are left out.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pandas as pd
+
+from iblbench.harness.verify.conformance import MIN_ERROR_FALL_8_TO_128
+from iblbench.harness.protocol.stats import RatioCI, ratio_ci
+
+# Error column → (name in messages, its power of an RMS-like error).
+METRICS = {"rel_mse": ("relMSE", 2)}
+FLATTEST_RMS_SLOPE = -math.log(MIN_ERROR_FALL_8_TO_128) / math.log(16)
+
+
+@dataclasses.dataclass(frozen=True)
+class Allowance:
+    """The flattest slope of an error against spp that an estimator's tags allow, and why."""
+    slope: float
+    ideal: float
+    why: str
+
+
+def allowance(tags, metric: str, sequence: bool) -> Allowance:
+    """The flattest allowed slope of ``metric`` (a key of METRICS) for an estimator with
+    ``tags`` on a static scene or a ``sequence`` (module docstring)."""
+    power = METRICS[metric][1]
+    ideal = -0.5 * power
+    if sequence and tags.temporal and not tags.unbiased:
+        return Allowance(0.0, ideal, "temporal and not unbiased, on a sequence: may level off "
+                                     "at its bias, must not rise")
+    if tags.has_limit and not tags.unbiased:
+        return Allowance(0.0, ideal, "converges to a stated limit, not to the exact integral: "
+                                     "may level off at its bias, must not rise")
+    why = ("unbiased" if tags.unbiased else
+           "not unbiased, on a static scene" if not sequence else "not unbiased, not temporal")
+    return Allowance(power * FLATTEST_RMS_SLOPE, ideal, why)
+
+
+@dataclasses.dataclass(frozen=True)
+class Flag:
+    """One step between spp levels whose error fell less than the tags allow."""
+    scene: str
+    estimator: str
+    metric: str
+    spp_low: int
+    spp_high: int
+    low: float             # the mean error over seeds at spp_low …
+    high: float            # … and at spp_high
+    ratio: RatioCI         # high / low with its 95% interval
+    allowed: Allowance
+
+    @property
+    def allowed_ratio(self) -> float:
+        return (self.spp_high / self.spp_low) ** self.allowed.slope
+
+    def text(self) -> str:
+        name = METRICS[self.metric][0]
+        return (f"{self.estimator} on {self.scene}: {name} {self.low:.3g} → {self.high:.3g} from "
+                f"{self.spp_low} to {self.spp_high} spp, ×{self.ratio.text()}; its tags "
+                f"({self.allowed.why}) allow at most ×{self.allowed_ratio:.3g} (slope "
+                f"{self.allowed.slope:+.2f}, ideal {self.allowed.ideal:+.2f})")
+
+
+def _tags(label: str):
+    """The tags of the estimator a results label names; None where it is not registered here."""
+    from iblbench.harness.protocol.sweep import parse_estimator
+    from iblbench.scenes.errors import InputError
+
+    try:
+        return parse_estimator(label).cls.tags
+    except InputError:
+        return None
+
+
+def flatter_than_tags(table: pd.DataFrame) -> list[Flag]:
+    """Every (scene, estimator, consecutive spp levels, metric) of a results table whose error
+    falls less than the estimator's tags allow, by the interval test of the module docstring."""
+    if "time_budget_ms" in table:
+        table = table[table.time_budget_ms.isna()]
+    metrics = [m for m in METRICS if m in table]
+    flags = []
+    for (scene, label), rows in table.groupby(["scene", "estimator"], sort=False):
+        tags = _tags(label)
+        if tags is None:
+            continue
+        sequence = rows.frame.nunique() > 1
+        per_seed = rows.groupby(["spp", "seed"])[metrics].mean()
+        levels = sorted(per_seed.index.get_level_values("spp").unique())
+        for a, b in zip(levels, levels[1:]):
+            for metric in metrics:
+                before, after = per_seed.loc[a, metric].to_numpy(), per_seed.loc[b, metric].to_numpy()
+                ratio = ratio_ci(before, after)
+                allowed = allowance(tags, metric, sequence)
+                if ratio.resolved and ratio.low > (b / a) ** allowed.slope:
+                    flags.append(Flag(scene, label, metric, int(a), int(b), float(np.mean(before)),
+                                      float(np.mean(after)), ratio, allowed))
+    return flags
+
+
+__all__ = ["METRICS", "Allowance", "Flag", "allowance", "flatter_than_tags"]

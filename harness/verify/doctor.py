@@ -1,0 +1,118 @@
+"""``iblbench doctor``: is every OpenCL device here right?  For each device it builds and runs the
+portability set (harness/verify/portability.py), each case in a child process, and compares:
+
+- the exact reference with its independent NumPy twin (harness/verify/twins/reference_twin.py), and the
+  map's light pdf with the NumPy one of the smc twin (harness/verify/twins/ghosh2006.py, ``Map.pdf``),
+  within :data:`TWIN_RTOL`;
+- every array with the default device's (integer ones bit for bit, float ones within
+  ``portability.FLOAT_RTOL``): the same inputs, seeds and Philox streams give the same image on
+  any conforming device, up to float rounding;
+- on a simulator (Oclgrind), its reports of invalid memory access, data races and API misuse.
+
+The default device's estimators have no other device to agree with: the conformance suite
+(`make test`) holds them to the reference statistically, and smc to its twin in distribution
+(harness/verify/twins/crosscheck.py), which takes too many renders for a check per device.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Callable
+
+import numpy as np
+
+from iblbench.harness.verify import portability
+
+TWIN_RTOL = 1e-4        # the reference (tests/test_reference_twin.py) and light pdf against twins
+SHOWN = 4               # problems named on a device's line
+
+
+@dataclasses.dataclass
+class DeviceReport:
+    label: str
+    kind: str
+    problems: list[str]
+    seconds: float
+    cases: int
+    build_logs: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    def line(self) -> str:
+        verdict = "OK  " if self.ok else "FAIL"
+        more = f"; and {len(self.problems) - SHOWN} more" if len(self.problems) > SHOWN else ""
+        tail = (f"{self.cases} cases in {self.seconds:.0f} s" if self.ok
+                else "; ".join(self.problems[:SHOWN]) + more)
+        return f"{verdict} [{self.kind}] {self.label}: {tail}"
+
+
+def _twin_problem(case: str, arrays: dict[str, np.ndarray]) -> str | None:
+    """How far the reference or the light pdf is from its NumPy twin, if beyond tolerance."""
+    from iblbench.harness.verify.twins.ghosh2006 import Map
+    from iblbench.harness.verify.twins.reference_twin import twin_image
+
+    gbuffer, env, _ = portability.inputs()
+    if case == "reference":
+        got, twin = arrays["reference"][gbuffer.mask], twin_image(gbuffer, env)[gbuffer.mask]
+    else:
+        got, twin = arrays["light_pdf"], Map(env).pdf(portability.pdf_directions().astype(np.float64))
+    error = float(np.max(np.abs(got.astype(np.float64) - twin) / np.maximum(np.abs(twin), 1e-12)))
+    return None if error <= TWIN_RTOL else f"{case} off its NumPy twin by {error:.2g} (relative)"
+
+
+def _case_problems(outcome: portability.Outcome, baseline: dict | None) -> list[str]:
+    problems = []
+    if outcome.reports:
+        first = outcome.reports[0].split(" | ")
+        where = next((part for part in first if part.startswith("At line")), first[-1])
+        problems.append(f"{outcome.case}: {len(outcome.reports)} Oclgrind reports, first "
+                        f"'{first[0]}' {where}")
+    if outcome.arrays is None:
+        problems.append(f"{outcome.case}: cannot run ({outcome.error})")
+        return problems
+    if outcome.case in ("reference", "light_pdf"):
+        problems += filter(None, [_twin_problem(outcome.case, outcome.arrays)])
+    if baseline is not None:
+        off = portability.differences(outcome.arrays, baseline)
+        if off:
+            name, value = max(off.items(), key=lambda item: item[1])
+            size = "not finite, or integers differ" if value == float("inf") else f"{value:.2g} relative"
+            problems.append(f"{outcome.case}: {len(off)} arrays differ from the default device's, "
+                            f"most {name} ({size})")
+    return problems
+
+
+def diagnose(spec: str | None = None, verbose: bool = False,
+             progress: Callable[[str], None] = lambda text: None) -> list[DeviceReport]:
+    """A report per OpenCL device (those matching ``spec``, else every one), the default device
+    first, whose arrays are every other device's baseline."""
+    from iblbench.estimators.runtime.device import all_devices, build_failure, choose_device
+
+    default = choose_device()
+    devices = sorted(all_devices(), key=lambda d: d.key != default.key)
+    if spec:
+        devices = [d for d in devices if d.key == default.key or spec.lower() in d.label.lower()]
+    baselines: dict[str, dict] = {}
+    reports = []
+    for info in devices:
+        start = time.perf_counter()
+        failure = build_failure(info)
+        if failure:
+            reports.append(DeviceReport(info.label, info.kind, [f"cannot build a kernel: {failure}"],
+                                        time.perf_counter() - start, 0))
+            continue
+        checks = portability.CHECKS if info.is_simulator else None
+        problems, logs = [], []
+        for case in portability.cases():
+            progress(f"{info.kind} {info.device.name.strip()}: {case}")
+            outcome = portability.run_case(info.label, case, checks, verbose=verbose)
+            logs.append(outcome.build_logs)
+            if info.key == default.key and outcome.arrays is not None:
+                baselines[case] = outcome.arrays
+            baseline = None if info.key == default.key else baselines.get(case)
+            problems += _case_problems(outcome, baseline)
+        reports.append(DeviceReport(info.label, info.kind, problems, time.perf_counter() - start,
+                                    len(portability.cases()), "\n".join(filter(None, logs))))
+    return [r for r in reports if not spec or spec.lower() in r.label.lower()]

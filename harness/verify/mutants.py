@@ -1,0 +1,431 @@
+"""The project's own mutation suite (issue 13): realistic one-line bugs, each applied to a
+temporary copy of the sources, and the check layers that must reject them.
+
+A :class:`Mutant` replaces one exact piece of text (it must occur exactly once, so a catalogue
+entry that no longer matches the code fails loudly instead of testing nothing) in one file of
+the installed ``iblbench`` packages: a kernel (``.cl``) or a Python module.  :func:`run_mutant`
+copies the four packages into a temporary folder, applies the mutation there and runs the
+layers in a fresh interpreter whose ``PYTHONPATH`` puts the copy first, with its own reference
+cache, so that neither the imports nor the kernel and reference caches of this process see
+the bug.  (A plugin's subclass can load its own kernel files, but a bug in a shared include such
+as ``common.cl`` or in a Python module needs the whole copy.)
+
+Layers, in order (``run_mutant`` stops at the first that rejects unless asked for all):
+
+- ``conformance``: ``check_estimator``'s checks (``conformance.yield_checks``) on each of the
+  mutant's estimators, stopping at the first failed check;
+- ``stress``: the stress battery at its quick size (``stress.SMALL``), on the mutant's cases
+  only (the ones that guard the code it breaks) and its estimators;
+- ``budgets``: the ``quick`` sweep (``iblbench run --config quick --repeats 1 --no-flip``) checked
+  against the repository's ``budgets.toml`` (only where that file exists: a source checkout).
+
+A mutant that only a check still to land can catch says so in ``expect_killed_after``: the
+test suite expects it to survive until then (``xfail``, not strict).
+
+``iblbench selftest`` runs the catalogue and prints which layer rejected each mutant.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+import dataclasses
+import importlib
+import json
+import os
+import pathlib
+import queue
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+PACKAGES = ("estimators", "harness", "scenes", "reports")
+LAYERS = ("conformance", "stress", "budgets")
+RESULT_TAG = "MUTANT-RESULT "
+
+
+@dataclasses.dataclass(frozen=True)
+class Mutant:
+    """One realistic bug: ``old`` → ``new`` in ``path`` (``estimators/...``, ``harness/...``,
+    relative to the ``iblbench`` namespace).  ``estimators``: the built-ins whose conformance
+    and stress rows run, as a sweep names them (``name`` or ``name{param=value,...}``: a
+    configuration where the bug shows, such as bis with M = 2 candidates per sample); ``stress``:
+    the stress cases that guard the broken code;
+    ``budgets``: whether the budgets layer applies (the quick sweep runs uniform, balanced and
+    balanced_mis)."""
+
+    name: str
+    path: str
+    old: str | tuple[str, ...]   # a tuple: several places of one bug, replaced pairwise with new
+    new: str | tuple[str, ...]
+    estimators: tuple[str, ...]
+    stress: tuple[str, ...] = ()
+    budgets: bool = False
+    expect_killed_after: str = ""
+
+    def apply(self, root: pathlib.Path) -> None:
+        target = root / "iblbench" / self.path
+        text = target.read_text(encoding="utf-8")
+        olds, news = ((self.old,), (self.new,)) if isinstance(self.old, str) else (self.old, self.new)
+        for old, new in zip(olds, news, strict=True):
+            count = text.count(old)
+            if count != 1:
+                raise ValueError(f"mutant {self.name}: the text to replace occurs {count} times "
+                                 f"in {self.path} (must be once): {old!r}")
+            text = text.replace(old, new)
+        target.write_text(text, encoding="utf-8")
+
+
+
+def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed_after=""):
+    return Mutant(name, path, old, new, tuple(estimators), tuple(stress), budgets, expect_killed_after)
+
+
+COMMON, POOL = "estimators/kernels/common.cl", "estimators/kernels/light_pool.cl"
+
+CATALOGUE: tuple[Mutant, ...] = (
+    # ---- the light pool: uniform, balanced, balanced_mis ----------------------------------------
+    _m("pool-effective-counts-every-sample", POOL,
+       "acc->effective += select((lane_ints_t)0, beta, counts);",
+       "acc->effective += select((lane_ints_t)0, beta, active);", ["uniform"], ["hot-texel"]),
+    _m("pool-beta-always-one", POOL,
+       "return min(TICKS_PER_SAMPLE, ticks - i * TICKS_PER_SAMPLE - LANE_NUMBERS * TICKS_PER_SAMPLE);",
+       "return (lane_ints_t)TICKS_PER_SAMPLE;", ["balanced"], ["sun-1e6"]),
+    _m("pool-specular-normalisation-m+1", POOL,
+       "lanes_t lobe = (s->m + 2.0f) / (2.0f * IBL_PI) * power;",
+       "lanes_t lobe = (s->m + 1.0f) / (2.0f * IBL_PI) * power;", ["uniform"], ["shininess"]),
+    _m("balanced-form-factor-unclamped", POOL,
+       "sum += max(0.0f, vec3_dot(n, corner));", "sum += vec3_dot(n, corner);",
+       ["balanced"], ["black-faces"]),
+    _m("balanced-mu-without-face-integral", POOL,
+       "weight[f] = balanced_faces ? face_form_factor(n, f) * face_integral[f] : 1.0f;",
+       "weight[f] = balanced_faces ? face_form_factor(n, f) : 1.0f;", ["balanced"], budgets=True),
+    _m("mis-denominator-without-brdf", POOL,
+       "            if (brdf_samples)\n                denominator +=",
+       "            if (0)\n                denominator +=", ["balanced_mis"], ["shininess"]),
+    _m("mis-brdf-lobe-axis-normal", POOL,
+       "lanes3_pick(specular, b_r, b_n)", "lanes3_pick(specular, b_n, b_n)",
+       ["balanced_mis"], ["shininess"]),
+    # ---- the production baselines: envmap, brdf ----------------------------------------------------
+    _m("envmap-row-bin-per-face", POOL,
+       "map_rows ? lanes_cdf_bin(marginal, (lane_ints_t)0, map_row)",
+       "map_rows ? lanes_cdf_bin(marginal, f * res, row)", ["envmap"], ["face-pattern"]),
+    _m("envmap-light-jacobian-inverted", "estimators/envmap.cl",
+       "*pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;",
+       "*pdf = row_bin * col_bin / (q * sqrt(q)) * (float)(res * res) / 4.0f;", ["envmap"], ["sun-1e6"]),
+    _m("hierarchical-light-jacobian-inverted", "estimators/hierarchical.cl",
+       "*pdf = probability * area * sqrt(area) * (float)(res * res) / 4.0f;",
+       "*pdf = probability / (area * sqrt(area)) * (float)(res * res) / 4.0f;", ["hierarchical"], ["sun-1e6"]),
+    _m("hierarchical-density-quad-transposed", "estimators/hierarchical.cl",
+       "descent_probability4(q, 2 * (child_row & 1) + (child_col & 1))",
+       "descent_probability4(q, (child_row & 1) + 2 * (child_col & 1))",
+       ['hierarchical{mis="brdf"}'], ["face-pattern"]),
+    # ---- shared conventions (common.cl) -----------------------------------------------------------
+    _m("light-pdf-jacobian-inverted", COMMON,
+       "cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area",
+       "cdf_bin(rows, row) * cdf_bin(cols, col) / area_per_solid_angle(*x, *y) / texel_area",
+       ["uniform"], ["sun-1e6"]),
+    _m("light-pdf-hook-texel-area", COMMON,
+       "* (float)(res * res) / 4.0f;", "* (float)(res * res) / 2.0f;",
+       ["balanced_mis"], ["shininess"]),
+    _m("phong-pdf-normalisation-m+2", COMMON,
+       "p_spec * (m + 1.0f) / (2.0f * IBL_PI) * power", "p_spec * (m + 2.0f) / (2.0f * IBL_PI) * power",
+       ["balanced_mis"], ["shininess"]),
+    _m("face-orientation-minus-y", COMMON,
+       "case 3:  return (float3)( u, -1.0f, -v);", "case 3:  return (float3)( u, -1.0f,  v);",
+       ["uniform"], ["black-faces"]),
+    _m("diffuse-sampling-uniform-cosine", COMMON,
+       "float cos_theta = specular ? phong_power(xi_cos, 1.0f / (m + 1.0f)) : sqrt(xi_cos);",
+       "float cos_theta = specular ? phong_power(xi_cos, 1.0f / (m + 1.0f)) : xi_cos;",
+       ["balanced_mis"], ["shininess"]),
+    # ---- havran --------------------------------------------------------------------------------
+    _m("havran-lobe-axis-normal", "estimators/havran.cl",
+       "float3 r = reflect_view(n, view[p].xyz);", "float3 r = n;", ["havran"], ["shininess"]),
+    # The renderer places and filters its lights on the device (havran.cl); EqualAreaMap.sample
+    # and fir_filter are the tests' NumPy twins, so the mutants change the kernels' side.
+    _m("havran-fir-not-renormalised", "estimators/havran.py",
+       "compute.to_device((a / a.sum()).astype(acc))", "compute.to_device(a.astype(acc))",
+       ["havran"], ["static-sequence"]),
+    _m("havran-pdf-blend-row0-only", "estimators/havran.cl",
+       "acc_t width = (1 - t) * col_prob[(cdf0 - col_cdf) + j] + t * col_prob[(cdf1 - col_cdf) + j];",
+       "acc_t width = col_prob[(cdf0 - col_cdf) + j];", ["havran"], ["hot-texel", "black-faces"]),
+    _m("havran-pdf-of-own-row-not-blend", "estimators/havran.cl",
+       "acc_t pdf = row_prob[i] * nz * width * nphi",
+       "acc_t pdf = row_prob[i] * nz * col_prob[i * nphi + j] * nphi", ["havran"],
+       ["hot-texel", "black-faces"]),
+    _m("havran-weight-without-k", "estimators/havran.cl",
+       "acc_t scale = pdf * count;",
+       "acc_t scale = pdf * max(count - 1, 1);", ["havran"], ["constant"]),
+    _m("havran-culling-keeps-backfacing", "estimators/havran.cl",
+       "        if (c <= 0.0f)\n            continue;",
+       "        if (c < -0.5f)\n            continue;", ["havran"], ["constant"]),
+    # ---- bis (sir.cl) ----------------------------------------------------------------------------
+    _m("bis-resampling-fixed-variate", "estimators/sir.cl",
+       "float u = lane_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;",
+       "float u = 0.5f;", ["bis{M=2,N=1}"], ["one-sample"]),
+    _m("bis-target-without-cosine", "estimators/sir.cl",
+       "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y * cosine, cosine > 0.0f);",
+       "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y, cosine > 0.0f);", ["bis"], ["constant"]),
+    _m("bis-normaliser-over-n-not-m", "estimators/sir.cl",
+       "return positive ? (float)(total / (acc_t)M) : 0.0f;",
+       "return positive ? (float)(total / (acc_t)N) : 0.0f;", ["bis"], ["constant"]),
+    # ---- smc -----------------------------------------------------------------------------------
+    _m("smc-weight-update-without-previous-target", "estimators/smc.cl",
+       "exp(log(g.y / g.x) / (float)steps)", "exp(log(g.y) / (float)steps)", ["smc"],
+       ["temporal-dropout"]),
+    _m("smc-mh-acceptance-inverted-proposal", "estimators/smc.cl",
+       "ratio = (pi_new * q_old) / (pi_old * q_new);", "ratio = (pi_new * q_new) / (pi_old * q_old);",
+       ["smc"], ["temporal-dropout"]),
+    _m("smc-reinit-threshold-one-sided", "estimators/smc.cl",
+       "if (!(ratio <= threshold && ratio >= 1.0f / threshold)) reinit = 1;",
+       "if (!(ratio <= threshold)) reinit = 1;", ["smc"], ["temporal-dropout", "dimming-sun"]),
+    _m("smc-estimate-without-normaliser", "estimators/smc.cl",
+       "estimate = z * ratio;", "estimate = ratio;", ["smc"], ["smooth-rotation"]),
+    _m("smc-init-proposal-pdf-without-map-share", "estimators/sir.cl",
+       "pdf += q->env_pick * GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;",
+       "pdf += GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;", ["smc"],
+       ["constant"]),
+    # ---- the frame cache --------------------------------------------------------------------
+    _m("framecache-luminance-weights-swapped", "estimators/runtime/framecache.cl",
+       "return 0.2126f * x + 0.7152f * y + 0.0722f * z;",
+       "return 0.7152f * x + 0.2126f * y + 0.0722f * z;",
+       ["uniform"], ["sun-1e6"]),
+    _m("framecache-cdf-without-solid-angle", "estimators/runtime/framecache.cl",
+       "return luminance_of_sixteen(a, b, c, d) * omega;",
+       "return luminance_of_sixteen(a, b, c, d);",
+       ["uniform"], ["tiny-faces"]),
+    _m("framecache-zero-bins-kept", "estimators/runtime/framecache.cl",
+       "(cdf_word8_t)0, convert_long8(w > 0.0f) == 0);", "(cdf_word8_t)0, convert_long8(w >= 0.0f) == 0);",
+       ["uniform"], ["hot-texel"]),
+    # ---- the reference ---------------------------------------------------------------------------
+    _m("reference-chord-for-arc", "estimators/runtime/reference.py",
+       "theta = np.arctan2(s, np.sum(a * b, axis=-1, keepdims=True))",
+       "theta = 2.0 * np.sin(np.arctan2(s, np.sum(a * b, axis=-1, keepdims=True)) / 2.0)",
+       ["uniform"], ["constant", "tiny-faces"]),
+    # The specular integral clips each row of points at the horizon and clamps c_n (reference.cl);
+    # without both it integrates the lobe's part below the horizon with negative cosines.
+    _m("reference-specular-without-cos-clamp", "estimators/runtime/reference.cl",
+       ("    float16 row_lo = b_s > 0.0f ? clamp(edge, s_lo, s_hi) : s_lo;\n"
+        "    float16 row_hi = b_s < 0.0f ? clamp(edge, s_lo, s_hi) : s_hi;\n",
+        "* max(c_n, 0.0f)\n"),
+       ("    float16 row_lo = s_lo + 0.0f * edge, row_hi = s_hi;\n", "* c_n\n"),
+       ["bis"], ["grazing"]),
+    _m("reference-cache-key-without-material", "estimators/runtime/reference.py",
+       "for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],\n"
+       "                      g.shininess[g.mask], np.ascontiguousarray(env, np.float32)):",
+       "for array in (g.mask, g.normal[g.mask], g.view[g.mask], np.ascontiguousarray(env, np.float32)):",
+       [], ["shininess"]),
+    _m("reference-specular-normalisation-m+1", "estimators/runtime/reference.cl",
+       "if (specular) result += rho_s * (m + 2.0f) / (2.0f * IBL_PI) * s;",
+       "if (specular) result += rho_s * (m + 1.0f) / (2.0f * IBL_PI) * s;", ["uniform"], ["shininess"]),
+    # ---- the metrics -----------------------------------------------------------------------------
+    _m("metrics-exposure-from-estimate", "harness/protocol/metrics.py",
+       "lab = to_lab(tonemap(estimate[mask], self.k))",
+       "lab = to_lab(tonemap(estimate[mask], exposure(estimate, mask)))", [], ["constant"], budgets=True),
+    _m("metrics-tonemap-without-exposure-in-denominator", "harness/protocol/metrics.py",
+       "return rgb * (k / (1.0 + k * luminance(rgb)))[..., None]",
+       "return rgb * (k / (1.0 + luminance(rgb)))[..., None]", [], ["constant"], budgets=True),
+    _m("metrics-relmse-without-square", "harness/protocol/metrics.py",
+       "return float(np.mean((x - r) ** 2 / (r * r + 0.01)))",
+       "return float(np.mean((x - r) ** 2 / (r + 0.01)))", [], ["constant"], budgets=True),
+)
+
+
+def catalogue(names=None) -> list[Mutant]:
+    """The catalogue, or the named mutants of it (ValueError naming an unknown one)."""
+    by_name = {m.name: m for m in CATALOGUE}
+    if not names:
+        return list(CATALOGUE)
+    unknown = [n for n in names if n not in by_name]
+    if unknown:
+        raise ValueError(f"unknown mutant(s) {', '.join(unknown)}; known: {', '.join(by_name)}")
+    return [by_name[n] for n in names]
+
+
+@dataclasses.dataclass
+class Outcome:
+    """What the layers said about one mutant: ``rejected_by`` maps each layer that ran to the
+    first failure it reported ("" where it passed); ``killed_by`` is the first rejecting layer."""
+
+    mutant: Mutant
+    rejected_by: dict[str, str]
+    seconds: float
+    error: str = ""
+
+    @property
+    def killed_by(self) -> str | None:
+        return next((layer for layer, why in self.rejected_by.items() if why), None)
+
+    @property
+    def killed(self) -> bool:
+        return self.killed_by is not None
+
+
+def budgets_file() -> pathlib.Path | None:
+    """The repository's budgets.toml beside the packages (a source checkout), or None."""
+    root = pathlib.Path(importlib.import_module("iblbench.harness").__file__).resolve().parents[1]
+    path = root / "budgets.toml"
+    return path if path.is_file() else None
+
+
+def copy_sources(folder: pathlib.Path) -> pathlib.Path:
+    """Copy the installed ``iblbench`` packages into ``folder/iblbench``; returns ``folder``.
+    The top-level package (the Python API) comes too: on ``PYTHONPATH`` first, the copy must
+    be a regular package, or an installed one would shadow it."""
+    (folder / "iblbench").mkdir(parents=True)
+    api = pathlib.Path(importlib.import_module("iblbench").__file__).parent
+    for entry in api.iterdir():          # the API: __init__, cli and commands/
+        if entry.name in PACKAGES or entry.name == "__pycache__":
+            continue
+        if entry.is_dir():
+            shutil.copytree(entry, folder / "iblbench" / entry.name,
+                            ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+        elif entry.suffix == ".py":
+            shutil.copy(entry, folder / "iblbench")
+    for package in PACKAGES:
+        source = pathlib.Path(importlib.import_module(f"iblbench.{package}").__file__).parent
+        shutil.copytree(source, folder / "iblbench" / package,
+                        ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    return folder
+
+
+def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout: float = 600.0,
+               cache: pathlib.Path | None = None, workspace: pathlib.Path | None = None) -> Outcome:
+    """Apply ``mutant`` to a temporary copy and run ``layers`` on it in a fresh interpreter.
+
+    ``cache``: the reference cache it uses (default: its own, fresh).  Mutants may share one:
+    a reference's key hashes its kernel, its host code and its inputs, so a mutant of those
+    never reads a clean entry (and the cache-key mutant only mixes up its own entries).
+
+    ``workspace``: the folder the copy goes into, emptied first (default: a fresh temporary
+    one).  PoCL keys its kernel cache by the preprocessed source, whose line markers name each
+    file's path, so mutants that run one after another in one workspace rebuild only the
+    programs that their bug changes instead of every kernel they use."""
+    start = time.perf_counter()
+    with contextlib.ExitStack() as stack:
+        if workspace is None:
+            tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix=f"iblbench-mutant-{mutant.name}-"))
+        else:
+            if workspace.exists():   # last mutant's copy: a failure to remove it must show
+                shutil.rmtree(workspace)
+            workspace.mkdir(parents=True)
+            tmp = str(workspace)
+        root = copy_sources(pathlib.Path(tmp))
+        mutant.apply(root)
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
+                   IBLBENCH_CACHE=str(cache or root / "cache"), IBLBENCH_CHI2_PLOTS=str(root / "chi2"))
+        budgets = budgets_file()
+        command = [sys.executable, "-m", "iblbench.harness.verify.mutants", json.dumps(dataclasses.asdict(mutant)),
+                   ",".join(layers), "all" if all_layers else "first", str(budgets) if budgets else "-"]
+        try:
+            done = subprocess.run(command, env=env, cwd=tmp, capture_output=True, text=True,
+                                  timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return Outcome(mutant, {}, time.perf_counter() - start, f"timed out after {timeout:.0f} s")
+    lines = [line for line in done.stdout.splitlines() if line.startswith(RESULT_TAG)]
+    if not lines:
+        tail = (done.stdout + done.stderr)[-2000:]
+        return Outcome(mutant, {}, time.perf_counter() - start, f"no result (exit {done.returncode}): {tail}")
+    return Outcome(mutant, json.loads(lines[-1][len(RESULT_TAG):]), time.perf_counter() - start)
+
+
+def run_catalogue(mutants, layers=LAYERS, all_layers: bool = False, jobs: int = 2,
+                  progress=None) -> list[Outcome]:
+    """:func:`run_mutant` over ``mutants``, ``jobs`` at a time (kernel builds and imports are
+    single-threaded; two overlap well on two cores); ``progress(outcome)`` after each.  Each of
+    the ``jobs`` workers keeps one workspace, so the kernel cache serves its unmutated programs."""
+    with tempfile.TemporaryDirectory(prefix="iblbench-mutants-cache-") as cache, \
+            concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        workspaces = queue.SimpleQueue()
+        for slot in range(max(1, jobs)):
+            workspaces.put(pathlib.Path(cache) / f"workspace-{slot}")
+
+        def run_in_a_free_workspace(mutant):
+            workspace = workspaces.get()
+            try:
+                return run_mutant(mutant, layers, all_layers, cache=pathlib.Path(cache) / "references",
+                                  workspace=workspace)
+            finally:
+                workspaces.put(workspace)
+
+        futures = [pool.submit(run_in_a_free_workspace, m) for m in mutants]
+        outcomes = []
+        for future in futures:
+            outcomes.append(future.result())
+            if progress:
+                progress(outcomes[-1])
+    return outcomes
+
+
+# ---- the layers, run inside the mutated copy ---------------------------------------------------
+
+def _first_line(error: BaseException) -> str:
+    text = str(error).strip().splitlines()
+    return f"{type(error).__name__}: {text[0] if text else ''}"[:300]
+
+
+def _conformance(mutant: Mutant, compute) -> str:
+    from iblbench.harness.verify import conformance
+    from iblbench.harness.protocol.sweep import parse_estimator
+
+    h = conformance.Harness(compute)
+    for name in mutant.estimators:
+        estimator = parse_estimator(name).make()
+        for check in conformance.yield_checks(estimator):
+            try:
+                check(estimator, h)
+            except Exception as error:   # an exception is a rejection too (check_estimator raises)
+                return f"{name} {check.__name__}: {_first_line(error)}"
+    return ""
+
+
+def _stress(mutant: Mutant, compute) -> str:
+    from iblbench.harness.verify import stress
+    from iblbench.harness.protocol.sweep import parse_estimator
+
+    names = mutant.estimators or ("uniform",)
+    estimators = {name: parse_estimator(name).make() for name in names}
+    try:
+        table = stress.run_stress(estimators, mutant.stress, stress.SMALL, compute, progress=False)
+    except Exception as error:
+        return f"stress: {_first_line(error)}"
+    failed = table[table.status == "FAIL"]
+    return "; ".join(f"{r.case}/{r.estimator}: {r.failures}"[:300] for r in failed.itertuples())
+
+
+def _budgets(budgets: str) -> str:
+    from iblbench.harness.verify import budgets as budget_check
+
+    if budgets == "-":
+        return ""
+    with tempfile.TemporaryDirectory() as out:
+        done = subprocess.run([sys.executable, "-m", "iblbench.cli", "run", "--config", "quick",
+                               "--out", out, "--repeats", "1", "--no-flip"], capture_output=True, text=True)
+        if done.returncode != 0:
+            return f"quick sweep failed (exit {done.returncode}): {(done.stdout + done.stderr)[-300:]}"
+        checks, verdict, status = budget_check.check(out, budgets)
+    return "" if status == 0 else verdict[:300]
+
+
+def _child(fields: str, layers: str, mode: str, budgets: str) -> None:
+    from iblbench.estimators.runtime.device import get_compute
+
+    mutant = Mutant(**{key: tuple(value) if isinstance(value, list) else value
+                       for key, value in json.loads(fields).items()})
+    compute = get_compute()
+    results: dict[str, str] = {}
+    for layer in layers.split(","):
+        if layer == "conformance" and mutant.estimators:
+            results[layer] = _conformance(mutant, compute)
+        elif layer == "stress" and mutant.stress:
+            results[layer] = _stress(mutant, compute)
+        elif layer == "budgets" and mutant.budgets:
+            results[layer] = _budgets(budgets)
+        if mode == "first" and any(results.values()):
+            break
+    print(RESULT_TAG + json.dumps(results), flush=True)
+
+
+if __name__ == "__main__":
+    _child(*sys.argv[1:5])

@@ -1,0 +1,233 @@
+"""The portability set: every kernel on tiny inputs, run on any OpenCL device and compared across
+devices (``iblbench doctor``, tests/test_portability.py).
+
+One *case* renders one thing on 16 pixels (a glossy G-buffer over the whole sphere) lit by a
+4×4-texel-per-face map with a sun: ``reference`` (the exact reference), ``products`` (the frame
+cache's CDFs, face integrals, light pool and both mip pyramids, plain and compensated),
+``light_pdf`` (the map's light pdf, DESIGN §3, at :data:`PDF_DIRECTIONS` directions, by
+``envmap``'s pdf hook), ``probes`` (``iblbench perf``'s FMA and copy kernels), or an estimator
+label such as ``envmap{mis="brdf"}`` at 4 spp; a temporal estimator renders a first
+frame and then the same map turned by one texel, so its carried state is exercised.  Sizes are
+this small because Oclgrind interprets every work item: the whole set takes about a minute
+there.
+
+Each case runs in a process of its own (:func:`run_case`): Oclgrind's checks are switched on by
+environment variables read when its platform loads, it stops listing errors at 1000 per
+process, and a driver that crashes takes only that case with it.  The child writes the arrays
+to an ``.npz`` file and the parent reads Oclgrind's reports from its standard error
+(:func:`oclgrind_reports`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+import re
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+SIZE = 4          # pixels per side
+ENV_RES = 4       # texels per face side
+SPP = 4
+SUN_RATIO = 50.0  # the sun texel's luminance over the sky's
+PDF_DIRECTIONS = 64
+# Estimator configurations beyond each built-in's defaults that run other kernel paths.
+VARIANTS = ("balanced_mis{shared_sequence=false}", 'envmap{mis="brdf"}',
+            'envmap{mis="brdf",mis_compensation=true}')
+# Oclgrind's checks: memory (always on), data races and API misuse.
+CHECKS = {"OCLGRIND_DATA_RACES": "1", "OCLGRIND_CHECK_API": "1"}
+# Its uninitialised-value check, where it runs: Oclgrind 21.10's checker marks any vector
+# shuffle lane that picks element 11 as uninitialised (it compares the mask with an LLVM value
+# kind, 11, not with undef), so row_cdfs's shuffles are reported, falsely (built without
+# optimisation and without the shuffles only a .hi half is left, as false); it crashes on a
+# shuffle with an undef lane (the reference, brdf) and stops at LLVM's `freeze` (the mips,
+# havran).  Every case but the probes builds the CDFs, so the probes alone are checked.
+UNINITIALIZED = {"OCLGRIND_UNINITIALIZED": "1"}
+UNINITIALIZED_CASES = ("probes",)
+# First lines of Oclgrind's reports: memory, races, barriers, uninitialised values, API misuse,
+# and its own fatal errors (such as an LLVM intrinsic it cannot run).
+_REPORT = re.compile(r"^(Invalid (read|write)|.*data race|Work-(group|item) divergence|"
+                     r"Uninitiali[sz]ed|Oclgrind - OpenCL runtime error|OCLGRIND FATAL ERROR|"
+                     r"Oclgrind: \d+ errors generated)")
+
+
+def cases() -> list[str]:
+    """Every case of the set: the reference, the frame-cache products, the light pdf, the perf
+    probes, each registered estimator with its defaults, and :data:`VARIANTS`."""
+    from iblbench.estimators.registry import estimator_names
+
+    return ["reference", "products", "light_pdf", "probes", *estimator_names(), *VARIANTS]
+
+
+def inputs():
+    """(G-buffer, first map, turned map) of every case."""
+    from iblbench.harness.verify import conformance
+
+    env = conformance.sun_map(ENV_RES, SUN_RATIO)
+    return conformance.glossy_gbuffer(SIZE), env, np.ascontiguousarray(np.roll(env, 1, axis=2))
+
+
+def pdf_directions() -> np.ndarray:
+    """The ``light_pdf`` case's directions, spread over the sphere, float32 ``[n, 3]``."""
+    from iblbench.harness.verify.conformance import fibonacci_directions
+
+    return fibonacci_directions(PDF_DIRECTIONS).astype(np.float32)
+
+
+def render(compute, case: str) -> dict[str, np.ndarray]:
+    """The arrays of one case on ``compute``, by name."""
+    from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+    from iblbench.estimators.runtime.framecache import FrameCache
+    from iblbench.estimators.runtime.reference import Reference
+    from iblbench.harness.protocol.sweep import parse_estimator
+
+    gbuffer, env, turned = inputs()
+    pixels = DeviceGBuffer(compute, gbuffer)
+    cache = FrameCache(compute, env)
+    if case == "reference":
+        return {"reference": Reference(compute, use_cache=False).image(pixels, cache)}
+    if case == "products":
+        return _products(compute, cache)
+    if case == "probes":
+        from iblbench.estimators.runtime import probes
+
+        copied = probes.run_copy(compute, np.arange(64, dtype=np.float32))[0]
+        lanes = probes.run_fma(compute, 16, 5, b=1.0)[0]   # [items, chains, the device's width]
+        return {"fma": lanes[..., 0], "fma_lanes_agree": np.ptp(lanes, axis=-1), "copy": copied}
+    if case == "light_pdf":
+        light_only = parse_estimator("envmap").make()
+        cache.require(type(light_only).requires)
+        return {"light_pdf": light_only.pdf(cache, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.6, 0.8]),
+                                            pdf_directions())}
+    estimator = parse_estimator(case).make()
+    out = {}
+    frames = [cache, FrameCache(compute, turned, frame=1)] if type(estimator).tags.temporal else [cache]
+    for frame, frame_cache in enumerate(frames):
+        frame_cache.require(type(estimator).requires)
+        estimate = estimator.render(pixels, frame_cache, SPP, 0)
+        out.update({f"f{frame}_radiance": estimate.radiance, f"f{frame}_used": estimate.used,
+                    f"f{frame}_effective": estimate.effective,
+                    f"f{frame}_evaluations": np.float64(estimate.evaluations)})
+    return out
+
+
+def _products(compute, cache) -> dict[str, np.ndarray]:
+    out = {}
+    marginal, conditional = cache.host_cdfs()
+    out.update(cdf_marginal=marginal, cdf_conditional=conditional,
+               face_integrals=cache.face_integrals)
+    for compensated in (False, True):
+        tag = "compensated" if compensated else "plain"
+        cdfs = cache.light_cdfs(compensated)
+        out[f"light_marginal_{tag}"] = compute.to_host(cdfs.marginal, (6, cache.res), np.uint64)
+        pool = cache.light_pool(8, 0, compensated)
+        out[f"pool_{tag}"] = compute.to_host(pool.dir_pdf, (6 * 8, 4), np.float32)
+        levels = cache.weight_pyramid(compensated).host_levels(compute)
+        out.update({f"weights_{tag}_{i}": level for i, level in enumerate(levels)})
+    levels = cache.radiance_mips().host_levels(compute)
+    out.update({f"radiance_mips_{i}": level for i, level in enumerate(levels)})
+    return out
+
+
+# Integer streams (fixed-point CDFs, sample counts) must agree bit for bit across devices; float
+# arithmetic may differ in rounding and in the order of sums (vector widths, fused multiply-add).
+FLOAT_RTOL = 1e-4
+
+
+def differences(ours: dict[str, np.ndarray], baseline: dict[str, np.ndarray]) -> dict[str, float]:
+    """Per array of ``baseline``: 0 where ``ours`` matches it (bit for bit for integer arrays,
+    within :data:`FLOAT_RTOL` for float ones), else how far off: the largest relative difference
+    (inf for a missing array, a shape change or an integer mismatch)."""
+    out = {}
+    for name, expected in baseline.items():
+        got = ours.get(name)
+        if got is None or np.shape(got) != np.shape(expected):
+            out[name] = float("inf")
+        elif np.issubdtype(np.asarray(expected).dtype, np.integer):
+            out[name] = 0.0 if np.array_equal(got, expected) else float("inf")
+        else:
+            scale = np.maximum(np.abs(expected), 1e-3 * max(float(np.max(np.abs(expected))), 1e-30))
+            relative = float(np.max(np.abs(np.asarray(got, np.float64) - expected) / scale, initial=0.0))
+            out[name] = relative if relative > FLOAT_RTOL or not np.isfinite(got).all() else 0.0
+    return {name: value for name, value in out.items() if value}
+
+
+@dataclasses.dataclass
+class Outcome:
+    """One case on one device: its arrays (None when the child failed), Oclgrind's reports, and
+    the child's last line of error when it failed."""
+
+    case: str
+    arrays: dict[str, np.ndarray] | None
+    reports: list[str]
+    error: str = ""
+    build_logs: str = ""
+
+
+# pyopencl's own queries: under OCLGRIND_CHECK_API, each Program.build and each kernel it creates
+# asks Oclgrind (OpenCL 1.2) for a device property 1.2 does not define; iblbench's own device
+# queries are all OpenCL 1.2 names (tests/test_portability.py checks them alone).
+PYOPENCL_QUERY = "Oclgrind - OpenCL runtime error detected | Function: clGetDeviceInfo | " \
+                 "Error: CL_INVALID_VALUE | For argument 'param_name'"
+
+
+def oclgrind_reports(stderr: str) -> list[str]:
+    """Each report Oclgrind wrote to ``stderr``, its lines joined by " | " (whitespace folded),
+    less :data:`PYOPENCL_QUERY`."""
+    lines = stderr.splitlines()
+    reports = []
+    for at, line in enumerate(lines):
+        if _REPORT.match(line):
+            block = [line]
+            for detail in lines[at + 1:]:
+                if not detail.strip() or _REPORT.match(detail):
+                    break
+                block.append(" ".join(detail.split()))
+            reports.append(" | ".join(block))
+    return [report for report in reports if report != PYOPENCL_QUERY]
+
+
+def run_case(device: str, case: str, checks: dict[str, str] | None = None,
+             timeout: float = 600.0, verbose: bool = False, lanes: int | None = None) -> Outcome:
+    """Run ``case`` on the device matching ``device`` in a child process (with Oclgrind's
+    ``checks`` in its environment, and ``lanes`` for ``Compute.pool_lanes`` if given) and collect
+    its arrays and reports (and with ``verbose`` the compiler's output)."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = pathlib.Path(folder) / "arrays.npz"
+        env = {**os.environ, **(checks or {})}
+        try:
+            child = subprocess.run([sys.executable, "-m", "iblbench.harness.verify.portability", device,
+                                    case, str(path), str(lanes or 0)], capture_output=True,
+                                   text=True, env=env, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return Outcome(case, None, [], f"no result within {timeout:.0f} s")
+        reports = oclgrind_reports(child.stderr)
+        logs = path.with_suffix(".log")
+        build_logs = logs.read_text() if verbose and logs.exists() else ""
+        if child.returncode != 0 or not path.exists():
+            lines = [line for line in child.stderr.splitlines() if line.strip()]
+            why = lines[-1] if lines else f"exit status {child.returncode}"
+            return Outcome(case, None, reports, why, build_logs)
+        with np.load(path) as data:
+            return Outcome(case, {name: data[name] for name in data.files}, reports, "", build_logs)
+
+
+def main(argv: list[str]) -> None:
+    """The child of :func:`run_case`: ``DEVICE CASE OUT.npz LANES`` (0: the device's); the
+    compiler's output goes to ``OUT.log``."""
+    from iblbench.estimators.runtime.device import Compute, choose_device
+
+    device, case, out, lanes = argv
+    compute = Compute(choose_device(device), lanes=int(lanes) or None)
+    try:
+        np.savez(out, **render(compute, case))
+    finally:
+        pathlib.Path(out).with_suffix(".log").write_text("".join(
+            f"== {program}\n{log}\n" for program, log in compute.build_logs.items() if log))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
