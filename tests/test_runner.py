@@ -85,3 +85,13 @@ def test_metrics_and_repeats_flags_and_what_a_rerun_keeps(tmp_path, capsys):
     assert main(flags + ["--no-flip", "--repeats", "7"]) == 0
     assert "resumed" not in capsys.readouterr().err
     assert (pd.read_parquet(tmp_path / "results.parquet").time_repeats >= 7).all()
+
+
+def test_the_git_revision_is_found_from_the_checkout():
+    """Tests run from the project's git checkout (make test, CI's clone), so the manifest's
+    revision is a commit, not "unknown": the runner counts its depth below the checkout right."""
+    import re
+
+    from iblbench.harness.protocol import runner
+
+    assert re.fullmatch(r"[0-9a-f]{40}(-dirty)?", runner._git_revision())
