@@ -100,3 +100,15 @@ def test_doctor_names_the_case_and_how_far_off_it_is():
     assert _case_problems(crashed, None) == [
         "fis: 1 Oclgrind reports, first 'OCLGRIND FATAL ERROR' When creating kernel",
         "fis: cannot run (clCreateKernel failed)"]
+
+
+def test_a_simulator_alone_is_not_chosen_by_default(monkeypatch):
+    from iblbench.estimators.runtime import device
+    from iblbench.scenes.errors import InputError
+
+    simulators = [d for d in all_devices() if d.is_simulator]
+    monkeypatch.setattr(device, "all_devices", lambda: simulators)
+    monkeypatch.delenv(device.ENV_DEVICE, raising=False)
+    with pytest.raises(InputError, match="only a simulator"):
+        device.choose_device()
+    assert device.choose_device(OCLGRIND).is_simulator

@@ -168,7 +168,12 @@ def choose_device(spec: str | None = None) -> DeviceInfo:
             valid = "; ".join(d.label for d in all_devices())
             raise InputError(None, f"no OpenCL device matches '{spec}'; devices: {valid}")
     else:
-        devices = [d for d in devices if not d.is_simulator] or devices
+        devices = [d for d in devices if not d.is_simulator]
+        if not devices:
+            raise InputError(None, "only a simulator (Oclgrind) is installed, which runs kernels "
+                                   "thousands of times slower; install a driver (Debian: "
+                                   "apt-get install pocl-opencl-icd) or choose it by name "
+                                   "(--device oclgrind)")
     failures = {d.label: build_failure(d) for d in devices}
     if all(failures.values()):
         reasons = "; ".join(f"{label}: {reason}" for label, reason in failures.items())
