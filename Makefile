@@ -26,20 +26,23 @@ $(STAMP): pyproject.toml
 	@# A driver may be there and still unable to build for this CPU (the pip PoCL's LLVM 14 names
 	@# CPUs newer than it 'generic', which it cannot target): then, as root on Debian, install
 	@# Debian's PoCL; otherwise stop here with the reason.
-	@if ! $(VENV)/bin/iblbench list devices >/dev/null 2>&1; then \
+	@if ! IBLBENCH_DEVICE= $(VENV)/bin/iblbench list devices >/dev/null 2>&1; then \
 		echo "OpenCL: no device here can build a kernel:"; \
-		$(VENV)/bin/iblbench list devices 2>&1 | sed 's/^/  /'; \
+		IBLBENCH_DEVICE= $(VENV)/bin/iblbench list devices 2>&1 | sed 's/^/  /'; \
 		if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 			echo "OpenCL: installing Debian's pocl-opencl-icd (PoCL for this CPU) with apt-get"; \
-			apt-get install -y -q pocl-opencl-icd >/dev/null 2>&1 \
-				|| (apt-get update -q >/dev/null 2>&1 && apt-get install -y -q pocl-opencl-icd >/dev/null 2>&1) \
-				|| { echo "error: apt-get could not install pocl-opencl-icd"; exit 1; }; \
+			export DEBIAN_FRONTEND=noninteractive; \
+			apt-get install -y -q pocl-opencl-icd >$(VENV)/apt.log 2>&1 \
+				|| (apt-get update -q && apt-get install -y -q pocl-opencl-icd) >>$(VENV)/apt.log 2>&1 \
+				|| { tail -5 $(VENV)/apt.log; echo "error: apt-get could not install pocl-opencl-icd"; exit 1; }; \
+			IBLBENCH_DEVICE= $(VENV)/bin/iblbench list devices >/dev/null \
+				|| { echo "error: still no OpenCL device that can build a kernel"; exit 1; }; \
 		else \
 			echo "error: install an OpenCL driver for this CPU or GPU (Debian: apt-get install pocl-opencl-icd)"; \
 			exit 1; \
 		fi; \
 	fi
-	@echo "OpenCL: $$($(VENV)/bin/iblbench list devices | grep '^\*' | cut -c3-)"
+	@echo "OpenCL: $$(IBLBENCH_DEVICE= $(VENV)/bin/iblbench list devices | grep '^\*' | cut -c3-)"
 	touch $(STAMP)
 
 # bench: under 10 minutes on a 2-core CPU from a clean clone, about 5 CPU-minutes in all; the

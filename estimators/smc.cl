@@ -192,8 +192,8 @@ __kernel void map_alias_columns(__global const float4 *env, __global const cdf_w
  * against last frame's: +∞ where a texel black last frame is lit now (smc.py step 5).  Each work
  * item sums every get_local_size(0)-th texel, and the group adds its partial sums in a tree in
  * local memory, a barrier before each level (a serial sum over the 6R² texels by one work item
- * kept a GPU's other cores idle).  Launched as one group of a power of two ≤ MAP_CHANGE_GROUP. */
-#define MAP_CHANGE_GROUP 64
+ * kept a GPU's other cores idle).  Launched as one group of a power of two ≤ MAP_CHANGE_GROUP
+ * (smc.py), the local array's size. */
 __kernel void map_change(__global const float4 *texels, __global const float4 *prev_texels,
                          __global float *map_power)
 {

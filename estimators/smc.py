@@ -226,7 +226,7 @@ class SMC(Estimator):
         radiance = buffer("radiance", count * 16)
         counts = buffer("counts", count * 8)
         stats = buffer("stats", count * 16)
-        defines = {**self.defines(gbuffer), "ENV_RES": cache.res}
+        defines = {**self.defines(gbuffer), "ENV_RES": cache.res, "MAP_CHANGE_GROUP": MAP_CHANGE_GROUP}
         # The map proposal's alias tables (sir.cl), the map's power and its change, built on the
         # device.  The texels alternate between two buffers: last frame's are γ_{t−1}'s map.
         res = cache.res
@@ -241,9 +241,9 @@ class SMC(Estimator):
             compute.run(compute.kernel(self.kernel_package(), "smc.cl", "map_alias_columns", defines),
                         6 * res, cache.env_buffer, cache.conditional, pair_probability, alias, texels)]
         if have_state and not static_frame:
-            table_events.append(compute.run(
-                compute.kernel(self.kernel_package(), "smc.cl", "map_change", defines),
-                MAP_CHANGE_GROUP, texels, prev_texels, map_power, group=MAP_CHANGE_GROUP))
+            change = compute.kernel(self.kernel_package(), "smc.cl", "map_change", defines)
+            group = compute.fitting_group(change, MAP_CHANGE_GROUP)   # one group, the whole launch
+            table_events.append(compute.run(change, group, texels, prev_texels, map_power, group=group))
         events = []
         if have_state:
             flags = buffer("flags", count * 4)

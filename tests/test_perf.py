@@ -95,7 +95,7 @@ def test_fma_kernel_runs_every_fma_it_counts(compute):
     FLOPs = 2 per FMA × lanes × chains × iterations × items."""
     items, iterations, c = 96, 37, np.float32(1e-3)
     out, times, flops = probes.run_fma(compute, items, iterations, b=1.0, c=float(c))
-    lanes = int(compute.info.device.preferred_vector_width_float)   # 16 on AVX-512 PoCL
+    lanes = probes.fma_width(compute)   # 16 on AVX-512 PoCL
     assert out.shape == (items, probes.FMA_CHAINS, lanes) and len(times) == 1
     start = np.arange(items, dtype=np.float32) * np.float32(1e-9)
     expected = start[:, None] + np.arange(probes.FMA_CHAINS, dtype=np.float32)[None, :]

@@ -52,14 +52,14 @@ def test_a_device_that_allows_fewer_work_items_per_group_gets_a_divisor(compute,
     for limit in (None, 24):
         device = Compute(compute.info)
         if limit:
-            fitting = device._fitting
+            fitting = device.fitting_group
 
             def limited(kernel, group):
                 device._group_limits[kernel.int_ptr] = limit
                 groups.append((group, fitting(kernel, group)))
                 return groups[-1][1]
 
-            device._fitting = limited
+            device.fitting_group = limited
         cache = FrameCache(device, conformance.sun_map(8, 50.0))
         cache.require(type(estimator).requires)
         images.append(estimator.render(DeviceGBuffer(device, gbuffer), cache, 8, 1).radiance)

@@ -29,7 +29,8 @@ def test_case_runs_clean_on_oclgrind_and_matches_the_default_device(case, lanes)
     assert portability.differences(outcome.arrays, expected) == {}
 
 
-@pytest.mark.parametrize("case", portability.cases()[4:])
+@pytest.mark.parametrize("case", [case for case in portability.cases()
+                                  if case not in ("reference", "products", "probes")])
 def test_both_lane_widths_give_the_same_images(compute, case):
     """Compute.pool_lanes: 16 lanes (AVX-512) and 8 (every other device) on the default device."""
     wide, narrow = (portability.render(Compute(compute.info, lanes=lanes), case) for lanes in (16, 8))

@@ -111,7 +111,8 @@ def run(args) -> None:
         print(summary.to_string(float_format=lambda v: f"{v:.4g}"), file=human)
     print(f"wrote {len(rows)} rows to {args.out}/results.parquet"
           + (f" ({len(table)} in all)" if len(table) != len(rows) else "")
-          + (f", run on {', '.join(sorted(set(rows['device'])))}" if "device" in rows else ""),
+          + (f", run on {', '.join(sorted(set(rows['device'])))}" if len(rows) and "device" in rows
+             else ""),
           file=human)
     from iblbench.harness.verify.convergence import flatter_than_tags
     for flag in flatter_than_tags(rows):   # issue 11: convergence flatter than the tags allow

@@ -207,6 +207,8 @@ class Compute:
         self.info = info
         self.fp64 = fp64
         self.pool_lanes = lanes or (16 if info.device.preferred_vector_width_float >= 16 else 8)
+        if self.pool_lanes not in (8, 16):
+            raise ValueError(f"lanes must be 8 or 16 (light_pool.cl's widths), got {lanes}")
         self.build_logs: dict[str, str] = {}
         self.context = cl.Context([info.device])
         self.queue = cl.CommandQueue(
@@ -252,11 +254,11 @@ class Compute:
         and wait; returns the profiled event."""
         kernel.set_args(*args)
         event = cl.enqueue_nd_range_kernel(self.queue, kernel, (int(size),),
-                                           None if group is None else (self._fitting(kernel, group),))
+                                           None if group is None else (self.fitting_group(kernel, group),))
         event.wait()
         return event
 
-    def _fitting(self, kernel: cl.Kernel, group: int) -> int:
+    def fitting_group(self, kernel: cl.Kernel, group: int) -> int:
         """The largest divisor of ``group`` that the device allows for ``kernel``: a GPU may allow
         a kernel that holds many registers fewer work items per group than it allows others."""
         group = int(group)

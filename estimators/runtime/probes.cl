@@ -1,15 +1,15 @@
-/* The device's measured roofline for `iblbench perf` (harness/perf.py): FMA throughput and copy
- * bandwidth, on the same context and queue as the estimator kernels. */
+/* The device's measured roofline for `iblbench perf` (harness/studies/perf.py): FMA throughput
+ * and copy bandwidth, on the same context and queue as the estimator kernels. */
 
 /* Eight independent chains of fma_t multiply-adds per work item, `iterations` rounds:
  * 2·8·FMA_WIDTH·iterations FLOPs per work item (an FMA is two).  FMA_WIDTH is the device's
- * preferred float vector width (perf.py's fma_width): explicit vectors of that width in named
- * registers fill the SIMD lanes and hide the FMA latency (on this AVX-512 CPU float16 ran 2.7×
+ * preferred float vector width (probes.py's fma_width): explicit vectors of that width in named
+ * registers fill the SIMD lanes and hide the FMA latency (on this AVX-512 CPU float16 ran 1.8-2.7×
  * float8's rate, which used half of each register; PoCL's vectorisation across work items
  * reached a third of float8's rate with scalar chains, and a private array of chains a quarter);
  * a GPU, whose preferred width is 1, runs scalar chains per work item.  b and c are arguments, so
  * the compiler cannot fold the chains; with b = 1 every step is an exactly rounded float add,
- * which the tests replay in NumPy to check that every FMA ran.  perf.py's FMA_CHAINS states the
+ * which the tests replay in NumPy to check that every FMA ran.  probes.py's FMA_CHAINS states the
  * shape. */
 #if FMA_WIDTH == 16
 typedef float16 fma_t;

@@ -113,7 +113,8 @@ class Reference:
         digest.update(kernel_path("iblbench.estimators.runtime", "reference.cl").read_bytes())
         digest.update(kernel_path("iblbench.estimators", "kernels/common.cl").read_bytes())
         digest.update(pathlib.Path(__file__).read_bytes())   # the host-side texel tables
-        digest.update(f"density={self.density} fp64={self.compute.info.has_fp64}".encode())
+        fp64 = self.compute.info.has_fp64 and self.compute.fp64   # the path Compute builds
+        digest.update(f"density={self.density} fp64={fp64}".encode())
         g = gbuffer.gbuffer
         for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],
                       g.shininess[g.mask], np.ascontiguousarray(env, np.float32)):

@@ -4,8 +4,8 @@ portability set (harness/verify/portability.py), each case in a child process, a
 - the exact reference with its independent NumPy twin (harness/verify/twins/reference_twin.py), and the
   map's light pdf with the NumPy one of the smc twin (harness/verify/twins/ghosh2006.py, ``Map.pdf``),
   within :data:`TWIN_RTOL`;
-- every array with the default device's (integer ones bit for bit, float ones within
-  ``portability.FLOAT_RTOL``): the same inputs, seeds and Philox streams give the same image on
+- every array with the default device's, on the same fp64 path, within ``portability.FLOAT_RTOL``
+  (the CDF words as numbers): the same inputs, seeds and Philox streams give the same image on
   any conforming device, up to float rounding;
 - on a simulator (Oclgrind), its reports of invalid memory access, data races and API misuse.
 
@@ -75,7 +75,7 @@ def _case_problems(outcome: portability.Outcome, baseline: dict | None) -> list[
     if outcome.case in ("reference", "light_pdf"):
         problems += filter(None, [_twin_problem(outcome.case, outcome.arrays)])
     if baseline is not None:
-        off = portability.differences(outcome.arrays, baseline)
+        off = portability.differences(outcome.arrays, baseline, exact_integers=False)
         if off:
             name, value = max(off.items(), key=lambda item: item[1])
             size = "not finite, or integers differ" if value == float("inf") else f"{value:.2g} relative"
@@ -86,15 +86,33 @@ def _case_problems(outcome: portability.Outcome, baseline: dict | None) -> list[
 
 def diagnose(spec: str | None = None, verbose: bool = False,
              progress: Callable[[str], None] = lambda text: None) -> list[DeviceReport]:
-    """A report per OpenCL device (those matching ``spec``, else every one), the default device
-    first, whose arrays are every other device's baseline."""
+    """A report per OpenCL device (those matching ``spec``, else every one).  The default device
+    runs first, and its arrays are the other devices' baseline, on the same fp64 path as theirs
+    (a device without cl_khr_fp64 against the default device's float path); with no default
+    device (none that builds, or only a simulator) the devices are held to the twins alone."""
     from iblbench.estimators.runtime.device import all_devices, build_failure, choose_device
+    from iblbench.scenes.errors import InputError
 
-    default = choose_device()
-    devices = sorted(all_devices(), key=lambda d: d.key != default.key)
+    try:
+        default = choose_device()
+    except InputError:
+        default = None
+    devices = sorted(all_devices(), key=lambda d: default is None or d.key != default.key)
     if spec:
-        devices = [d for d in devices if d.key == default.key or spec.lower() in d.label.lower()]
-    baselines: dict[str, dict] = {}
+        devices = [d for d in devices if spec.lower() in d.label.lower()]
+    baselines: dict[bool, dict] = {}
+
+    def baseline(fp64: bool) -> dict:
+        """The default device's arrays of every case on the fp64 or the float path."""
+        if fp64 not in baselines:
+            baselines[fp64] = {}
+            for case in portability.cases():
+                progress(f"baseline on {default.device.name.strip()}: {case}")
+                outcome = portability.run_case(default.label, case, fp64=fp64)
+                if outcome.arrays is not None:
+                    baselines[fp64][case] = outcome.arrays
+        return baselines[fp64]
+
     reports = []
     for info in devices:
         start = time.perf_counter()
@@ -104,15 +122,16 @@ def diagnose(spec: str | None = None, verbose: bool = False,
                                         time.perf_counter() - start, 0))
             continue
         checks = portability.CHECKS if info.is_simulator else None
+        compared = default is not None and info.key != default.key and (
+            default.has_fp64 or not info.has_fp64)
         problems, logs = [], []
         for case in portability.cases():
             progress(f"{info.kind} {info.device.name.strip()}: {case}")
             outcome = portability.run_case(info.label, case, checks, verbose=verbose)
             logs.append(outcome.build_logs)
-            if info.key == default.key and outcome.arrays is not None:
-                baselines[case] = outcome.arrays
-            baseline = None if info.key == default.key else baselines.get(case)
-            problems += _case_problems(outcome, baseline)
+            if default is not None and info.key == default.key and outcome.arrays is not None:
+                baselines.setdefault(info.has_fp64, {})[case] = outcome.arrays   # its own path
+            problems += _case_problems(outcome, baseline(info.has_fp64).get(case) if compared else None)
         reports.append(DeviceReport(info.label, info.kind, problems, time.perf_counter() - start,
                                     len(portability.cases()), "\n".join(filter(None, logs))))
-    return [r for r in reports if not spec or spec.lower() in r.label.lower()]
+    return reports
