@@ -7,13 +7,13 @@ import sys
 
 DOCTOR_DESCRIPTION = """\
 For each OpenCL device found, build every kernel and run the portability set (the exact reference,
-the frame cache's CDFs, pool and mip pyramids, and every estimator, on 16 pixels and a 4x4 map with
-a sun; a temporal estimator on two frames), each part in its own process, and compare: the
-reference with its independent NumPy twin (within 1e-4), and every result with the default
-device's (integers bit for bit, floats within 1e-4 relative). On Oclgrind, the OpenCL
-specification's simulator, its memory, data-race and API checks are on and any report fails the
-device. Prints one line per device: OK, or which part is wrong and by how much. Exit 0 when every
-device is OK, 1 otherwise. A few seconds per device; about a minute on Oclgrind.
+the frame cache's CDFs, pool and mip pyramids, the light pdf, the perf probes and every estimator,
+on 16 pixels and a 4x4 map with a sun; a temporal estimator on two frames), each part in its own
+process, and compare: the reference and the light pdf with their independent NumPy twins (within
+1e-4), and every result with the default device's on the same fp64 path (within 1e-4 relative).
+On Oclgrind, the OpenCL specification's simulator, its memory, data-race and API checks are on
+and any report fails the device. Prints one line per device: OK, or which part is wrong and by
+how much. Exit 0 when every device is OK, 1 otherwise. Some 15-30 s per device here.
 
 A new GPU: run this first; then choose a device with --device or IBLBENCH_DEVICE."""
 
