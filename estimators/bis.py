@@ -70,8 +70,7 @@ SCRATCH_BYTES = 64 << 20   # BIS scratch per launch (N chosen, M bounds, 3 sums 
 
 def lockstep_group(compute, kernel) -> int:
     """Work items per group of a LOCKSTEP kernel on this device."""
-    return min(LOCKSTEP_GROUP, kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
-                                                          compute.info.device))
+    return min(LOCKSTEP_GROUP, compute.group_limit(kernel))
 
 
 def run_lockstep(compute, kernel, count: int, *args) -> cl.Event:

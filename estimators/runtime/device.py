@@ -174,12 +174,12 @@ def choose_device(spec: str | None = None) -> DeviceInfo:
                                    "thousands of times slower; install a driver (Debian: "
                                    "apt-get install pocl-opencl-icd) or choose it by name "
                                    "(--device oclgrind)")
-    failures = {d.label: build_failure(d) for d in devices}
+    failures = {d: build_failure(d) for d in devices}
     if all(failures.values()):
-        reasons = "; ".join(f"{label}: {reason}" for label, reason in failures.items())
+        reasons = "; ".join(f"{d.label}: {reason}" for d, reason in failures.items())
         raise InputError(None, f"no OpenCL device here can build a kernel ({reasons}); on Debian "
                                "'apt-get install pocl-opencl-icd' gives a PoCL for this CPU")
-    devices = [d for d in devices if not failures[d.label]]
+    devices = [d for d in devices if not failures[d]]
     gpus = [d for d in devices if d.is_gpu]
     if gpus:
         return gpus[0]
@@ -258,14 +258,18 @@ class Compute:
         event.wait()
         return event
 
-    def fitting_group(self, kernel: cl.Kernel, group: int) -> int:
-        """The largest divisor of ``group`` that the device allows for ``kernel``: a GPU may allow
-        a kernel that holds many registers fewer work items per group than it allows others."""
-        group = int(group)
-        limit = self._group_limits.get(kernel.int_ptr)
-        if limit is None:
-            limit = self._group_limits[kernel.int_ptr] = kernel.get_work_group_info(
+    def group_limit(self, kernel: cl.Kernel) -> int:
+        """The most work items per group the device allows for ``kernel`` (asked once): a GPU may
+        allow a kernel that holds many registers fewer than it allows others."""
+        if kernel.int_ptr not in self._group_limits:
+            self._group_limits[kernel.int_ptr] = kernel.get_work_group_info(
                 cl.kernel_work_group_info.WORK_GROUP_SIZE, self.info.device)
+        return self._group_limits[kernel.int_ptr]
+
+    def fitting_group(self, kernel: cl.Kernel, group: int) -> int:
+        """The largest divisor of ``group`` within :meth:`group_limit`, for a launch whose size is a
+        multiple of ``group``."""
+        group, limit = int(group), self.group_limit(kernel)
         return group if group <= limit else max(d for d in range(1, limit + 1) if group % d == 0)
 
     def to_device(self, array: np.ndarray) -> cl.Buffer:

@@ -160,8 +160,7 @@ class Reference:
         out = c.empty(gbuffer.count * 16)
         kernel = c.kernel("iblbench.estimators.runtime", "reference.cl", "reference",
                           {"REF_DENSITY": self.density})
-        group = min(WORK_GROUP, kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
-                                                             c.info.device))
+        group = min(WORK_GROUP, c.group_limit(kernel))
         self.last_ms = 0.0
         first, chunk = 0, FIRST_CHUNK_PIXELS
         while first < gbuffer.count:
