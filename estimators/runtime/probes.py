@@ -29,7 +29,8 @@ def fma_width(compute) -> int:
 
 
 def _probe_kernel(compute, name: str):
-    return compute.kernel("iblbench.estimators.runtime", "probes.cl", name, {"FMA_WIDTH": fma_width(compute)})
+    return compute.kernel("iblbench.estimators.runtime", "probes.cl", name,
+                          {"FMA_WIDTH": fma_width(compute)})
 
 
 def _launches(compute, kernel, items: int, args, launches: int) -> list[float]:
