@@ -36,4 +36,4 @@ class Balanced(PoolEstimator):
     kernel_files = ("balanced.cl",)
 
     def defines(self, gbuffer=None) -> dict:
-        return {"LU_BALANCED_FACES": 0} if self.params.uniform_faces else {}
+        return {**super().defines(gbuffer), **({"LU_BALANCED_FACES": 0} if self.params.uniform_faces else {})}

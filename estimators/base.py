@@ -35,7 +35,9 @@ class Estimate:
     ``evaluations``: integrand evaluations per covered pixel (mean); ``nonfinite``: count of
     non-finite output values; ``timings_ms``: device time per stage (``sample``, ``shade``);
     ``extras``: estimator-specific per-frame scalars (e.g. ``smc``'s ``ess`` and ``reinits``),
-    which the runner writes as extra result columns after the fixed ones.
+    which the runner writes as extra result columns after the fixed ones.  ``shadow_rays``: the
+    visibility queries V(x, ω) per covered pixel (mean; 0 on a G-buffer without visibility): the
+    integrand evaluations, but for ``bis``, whose target leaves V out (its N resampled samples).
     """
 
     radiance: np.ndarray
@@ -45,6 +47,7 @@ class Estimate:
     nonfinite: int
     timings_ms: dict[str, float]
     extras: dict[str, float] = dataclasses.field(default_factory=dict)
+    shadow_rays: float = 0.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -117,13 +120,25 @@ def estimator_version(cls: type) -> str:
 
 def specular_lobe_defines(gbuffer) -> dict:
     """Kernel defines of an estimator that samples the Phong BRDF: an all-diffuse G-buffer
-    compiles the specular-lobe sampling branch out (DESIGN §2)."""
-    return {"SPECULAR_LOBE": 0} if gbuffer is not None and gbuffer.is_diffuse else {}
+    compiles the specular-lobe sampling branch out (DESIGN §2), and the G-buffer's own
+    (:func:`visibility_defines`)."""
+    lobe = {"SPECULAR_LOBE": 0} if gbuffer is not None and gbuffer.is_diffuse else {}
+    return {**visibility_defines(gbuffer), **lobe}
+
+
+def visibility_defines(gbuffer) -> dict:
+    """The kernel defines every kernel that reads a DeviceGBuffer is built with: its visibility
+    (``DeviceGBuffer.defines``; none without a G-buffer, for the χ² hooks)."""
+    return dict(gbuffer.defines) if gbuffer is not None else {}
 
 
 def read_estimate(compute, gbuffer, radiance, counts, evaluations: float,
-                  timings_ms: dict[str, float], planar: bool = False) -> Estimate:
+                  timings_ms: dict[str, float], planar: bool = False,
+                  shadow_rays: float | None = None) -> Estimate:
     """Copy a kernel's per-pixel outputs (float4 radiance, float2 used/effective) into an Estimate.
+
+    ``shadow_rays``: the visibility queries per pixel where they are not the ``evaluations``;
+    0 whatever it says on a G-buffer without visibility.
 
     ``planar``: the kernel wrote planes of ``gbuffer.launch_size`` floats instead (R, G, B; used,
     effective), of which the first ``gbuffer.count`` are the image's."""
@@ -140,4 +155,5 @@ def read_estimate(compute, gbuffer, radiance, counts, evaluations: float,
         evaluations=float(evaluations),
         nonfinite=int(np.count_nonzero(~np.isfinite(rgb))),
         timings_ms=timings_ms,
+        shadow_rays=float(evaluations if shadow_rays is None else shadow_rays) if gbuffer.has_visibility else 0.0,
     )

@@ -4,7 +4,7 @@
 
 __kernel void render_bis(__global const float4 *normal, __global const float4 *view,
                          __global const float4 *kd, __global const float4 *ks_m,
-                         __global const float4 *env, const int res, const int M, const int N,
+                         __global const uint *visibility, __global const float4 *env, const int res, const int M, const int N,
                          const uint seed, const uint frame, const int offset, const int count,
                          __global int *chosen, __global acc_t *bounds, __global acc_t *sums,
                          __global float4 *radiance, __global float2 *counts)
@@ -13,7 +13,7 @@ __kernel void render_bis(__global const float4 *normal, __global const float4 *v
      * the last pixel in their own scratch slot and store nothing. */
     int item = get_global_id(0), p = offset + min(item, count - 1);
     vec3_t sum;
-    float z = bis_pixel(normal, view, kd, ks_m, p, 0, 0, 0, 0.0f,   /* Burke: BRDF candidates */
+    float z = bis_pixel(normal, view, kd, ks_m, visibility, p, 0, 0, 0, 0.0f,   /* Burke: BRDF candidates */
                         env, res, M, N, seed, frame, (uint)p, GROUP_SCRATCH(chosen, N),
                         GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 3), get_local_id(0),
                         get_local_size(0), &sum, 0, 0, 0, 0);
@@ -27,7 +27,7 @@ __kernel void render_bis(__global const float4 *normal, __global const float4 *v
 /* Debug twin for the tests: the M candidates (ω, w) of pixel 0 and the resampling uniform. */
 __kernel void bis_candidates(__global const float4 *normal, __global const float4 *view,
                              __global const float4 *kd, __global const float4 *ks_m,
-                             __global const float4 *env, const int res, const uint seed,
+                             __global const uint *visibility, __global const float4 *env, const int res, const uint seed,
                              const uint frame, __global float4 *out, __global float *u)
 {
     int i = get_global_id(0);
@@ -36,7 +36,7 @@ __kernel void bis_candidates(__global const float4 *normal, __global const float
     vec3_t w, radiance;
     float gamma, power;
     float weight = sir_candidate(&s, &q, env, res, seed, frame, 0u, i, (int)get_global_size(0), &w,
-                                 &gamma, &radiance, &power);
+                                 &gamma, &radiance, &power, visibility, 0);
     out[i] = (float4)(w.x, w.y, w.z, weight);
     if (i == 0) u[0] = lane_uniform4(seed, frame, STREAM_SIR_RESAMPLE, 0u, 0u, 0u).x;
 }

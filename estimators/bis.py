@@ -131,8 +131,8 @@ class BIS(Estimator):
         shade_ms = 0.0
         for offset, pixels, *scratch in bis_chunks(compute, kernel, gbuffer.count, M, N):
             event = run_lockstep(compute, kernel, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd,
-                                 gbuffer.ks, cache.env_buffer, np.int32(cache.res), np.int32(M),
+                                 gbuffer.ks, gbuffer.visibility, cache.env_buffer, np.int32(cache.res), np.int32(M),
                                  np.int32(N), np.uint32(seed), np.uint32(cache.frame), np.int32(offset),
                                  np.int32(pixels), *scratch, radiance, counts)
             shade_ms += event_ms(event)
-        return read_estimate(compute, gbuffer, radiance, counts, M + N, {"shade": shade_ms})
+        return read_estimate(compute, gbuffer, radiance, counts, M + N, {"shade": shade_ms}, shadow_rays=N)

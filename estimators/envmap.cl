@@ -127,7 +127,7 @@ ALWAYS_INLINE void strategy_split(int spp, int *light, int *brdf)
  * samples. */
 __kernel void render_map(__global const float4 *normal, __global const float4 *view,
                          __global const float4 *kd, __global const float4 *ks_m,
-                         __global const float4 *env, LIGHT_PARAMS, const int res, const int spp,
+                         __global const uint *visibility, __global const float4 *env, LIGHT_PARAMS, const int res, const int spp,
                          const uint seed, const uint frame, __global float *radiance,
                          __global float *counts, __global int *evaluations)
 {
@@ -146,7 +146,8 @@ __kernel void render_map(__global const float4 *normal, __global const float4 *v
         lanes_t power = phong_power_lanes(max(lanes_dot(s.r, w), 0.0f), (lanes_t)s.m);
         lanes_t other = BRDF_SAMPLES ? (float)brdf * phong_mixture_pdf_lanes(s.p_spec, s.m, cosine, power) : 0.0f;
         add_samples(&acc, &s, draw < light_draws, lanes_beta(light, i), cosine, power,
-                    lanes_texel_radiance(env, texel), mis_denominator((float)light * pdf_light, other));
+                    lanes_texel_radiance(env, texel), mis_denominator((float)light * pdf_light, other),
+                    lanes_visible(visibility, p, w));
     }
 #endif
 #if BRDF_SAMPLES
@@ -161,7 +162,8 @@ __kernel void render_map(__global const float4 *normal, __global const float4 *v
         lanes_t other = (float)light * lanes_map_pdf(LIGHT_ARGS, res, w, &texel);
         lanes_t own = (float)brdf * phong_mixture_pdf_lanes(s.p_spec, s.m, cosine, power);
         add_samples(&acc, &s, draw < brdf_draws, lanes_beta(brdf, i), cosine, power,
-                    lanes_texel_radiance(env, texel), mis_denominator(own, other));
+                    lanes_texel_radiance(env, texel), mis_denominator(own, other),
+                    lanes_visible(visibility, p, w));
     }
 #endif
     radiance[p] = sum_of8(to8(acc.r));

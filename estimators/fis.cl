@@ -105,7 +105,7 @@ inline float lod_shift_of(int res, int spp)
  * last 1×1. */
 __kernel void render_fis(__global const float4 *normal, __global const float4 *view,
                          __global const float4 *kd, __global const float4 *ks_m,
-                         __global const float4 *mips, const int16 level_offsets,
+                         __global const uint *visibility, __global const float4 *mips, const int16 level_offsets,
                          const int levels, const int res, const int spp, const float lod_bias,
                          const uint seed, const uint frame, __global float *radiance,
                          __global float *counts, __global int *evaluations)
@@ -127,7 +127,8 @@ __kernel void render_fis(__global const float4 *normal, __global const float4 *v
         lanes_t pdf = phong_mixture_pdf_lanes(s.p_spec, s.m, cosine, power);
         lanes3_t filtered = lanes_filtered_radiance(mips, level_offsets, res, levels - 1, lod_shift,
                                                     lod_bias, w, pdf);
-        add_samples(&acc, &s, draw < spp, lanes_beta(ticks, i), cosine, power, filtered, (float)ticks * pdf);
+        add_samples(&acc, &s, draw < spp, lanes_beta(ticks, i), cosine, power, filtered, (float)ticks * pdf,
+                    lanes_visible(visibility, p, w));
     }
     radiance[p] = sum_of8(to8(acc.r));
     radiance[n + p] = sum_of8(to8(acc.g));

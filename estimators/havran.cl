@@ -208,7 +208,7 @@ __kernel void filter_lights(__global const acc_t *dir_ring, __global const acc_t
 
 __kernel void render_havran(__global const float4 *normal, __global const float4 *view,
                             __global const float4 *kd, __global const float4 *ks_m,
-                            __global const float4 *light_dir, __global const float4 *light_weight,
+                            __global const uint *visibility, __global const float4 *light_dir, __global const float4 *light_weight,
                             const int count, __global float4 *radiance, __global float2 *counts,
                             __global int *evaluations)
 {
@@ -218,16 +218,20 @@ __kernel void render_havran(__global const float4 *normal, __global const float4
     float3 kdp = kd[p].xyz, ksp = ks_m[p].xyz;
     float m = ks_m[p].w;
     float3 sum = (float3)(0.0f);
-    int above = 0;
+    int above = 0, lit = 0;
     for (int k = 0; k < count; ++k) {
         float3 w = light_dir[k].xyz;
         float c = dot(n, w);
         if (c <= 0.0f)
             continue;
         ++above;
+        /* Havran's directional lights cast shadows: V at the light's direction. */
+        if (!visible(visibility, p, vec3_of(w)))
+            continue;
+        ++lit;
         sum += light_weight[k].xyz * phong_brdf(r, w, kdp, ksp, m) * c;
     }
     radiance[p] = (float4)(sum, 0.0f);
-    counts[p] = (float2)((float)count, (float)above);
+    counts[p] = (float2)((float)count, (float)lit);
     evaluations[p] = above;
 }

@@ -101,7 +101,7 @@ import weakref
 
 import numpy as np
 
-from iblbench.estimators.base import Estimator, Tags, read_estimate
+from iblbench.estimators.base import Estimator, Tags, read_estimate, visibility_defines
 from iblbench.estimators.runtime.device import event_ms
 from iblbench.scenes import cubemap
 
@@ -516,12 +516,13 @@ class Havran(Estimator):
         # Like a light pool's build_ms, the frame's map build counts in every render's "sample"
         # stage, though it is built once per frame and reused.
         light_dir, light_weight, _, _, sample_ms = self._filtered(cache, int(spp), seed)
-        kernel = compute.kernel(self.kernel_package(), self.kernel_files[0], "render_havran")
+        kernel = compute.kernel(self.kernel_package(), self.kernel_files[0], "render_havran",
+                                visibility_defines(gbuffer))
         radiance = compute.empty(gbuffer.launch_size * 16)
         counts = compute.empty(gbuffer.launch_size * 8)
         evaluations = compute.empty(gbuffer.launch_size * 4)
         event = gbuffer.run(compute, kernel, gbuffer.normal, gbuffer.view, gbuffer.kd,
-                            gbuffer.ks, light_dir, light_weight, np.int32(spp), radiance, counts,
+                            gbuffer.ks, gbuffer.visibility, light_dir, light_weight, np.int32(spp), radiance, counts,
                             evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean() \
             if gbuffer.count else 0.0

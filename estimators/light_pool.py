@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from iblbench.estimators.base import Estimator, Tags, read_estimate
+from iblbench.estimators.base import Estimator, Tags, read_estimate, visibility_defines
 from iblbench.estimators.runtime.device import event_ms
 
 TICKS_PER_SAMPLE = 65536   # fixed point of the sample counts (light_pool.cl)
@@ -78,7 +78,7 @@ class PoolEstimator(Estimator):
 
     def defines(self, gbuffer=None) -> dict:
         """Compile-time options of the kernels (for this G-buffer, when one is given)."""
-        return {}
+        return visibility_defines(gbuffer)
 
     def _kernel(self, compute, name: str, gbuffer=None):
         return compute.kernel(self.kernel_package(), self.kernel_files[0], name, self.defines(gbuffer))
@@ -111,7 +111,7 @@ class PoolEstimator(Estimator):
         evaluations = compute.empty(gbuffer.launch_size * 4)
         event = gbuffer.run(
             compute, kernel, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-            cache.env_buffer, cdfs.marginal, cdfs.conditional, cdfs.face_integral,
+            gbuffer.visibility, cache.env_buffer, cdfs.marginal, cdfs.conditional, cdfs.face_integral,
             planes, np.int32(cache.res), np.int32(pool.per_face),
             np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),
             np.uint32(cache.frame), numbers, radiance, counts, evaluations)

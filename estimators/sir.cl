@@ -1,9 +1,12 @@
 /* Sampling-importance-resampling shared by `bis` and `smc` (Kronander et al. §5, Burke 2005).
  *
  * Target (Kronander Eq. 3): γ(ω) = L_Y(ω) · ρ_Y(ω) · cos⁺(n, ω), the luminance of the radiance
- * times the luminance of the BRDF times the cosine; the integrand is f(ω) = L(ω) ρ(ω) cos⁺ (RGB,
- * no visibility: DESIGN §3's reference has none).  f/γ = L ρ / (L_Y ρ_Y) wherever γ > 0, and
- * γ = 0 ⇒ f = 0 (a non-negative colour of zero luminance is black), so γ covers f's support.
+ * times the luminance of the BRDF times the cosine; the integrand is f(ω) = L(ω) ρ(ω) cos⁺ V(x, ω)
+ * (RGB; V = 1 in a scene without visibility).  Kronander's §5 target leaves V out, because V is
+ * the expensive factor: so does `bis`, whose f/γ carries V, evaluated at the N resampled samples
+ * only.  `smc` (SIR_TARGET_VISIBILITY = 1) targets γ·V, as its MH moves evaluate V (issue 22):
+ * then f/γ needs no V.  f/γ = L ρ V / (L_Y ρ_Y) wherever γ > 0, and γ = 0 ⇒ f = 0 (a
+ * non-negative colour of zero luminance is black), so γ covers f's support.
  *
  * BIS of one pixel (bis_pixel): M candidates ω_i ~ q (sir_proposal_t: Burke's p_B, the Phong
  * mixture of common.cl, or that mixed with map sampling), weights w_i = γ(ω_i)/q(ω_i),
@@ -34,6 +37,10 @@
 
 #include "lanes.cl"
 
+#ifndef SIR_TARGET_VISIBILITY
+#define SIR_TARGET_VISIBILITY 0
+#endif
+
 #define STREAM_SIR_CANDIDATE 20u
 #define STREAM_SIR_RESAMPLE 21u
 
@@ -50,13 +57,15 @@ ALWAYS_INLINE float brdf_luminance(const shading_t *s, float power)
     return vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * ((s->m + 2.0f) / (2.0f * IBL_PI) * power);
 }
 
-/* γ(ω) of the map `env` at a direction of lobe power `power`; *radiance gets L(ω) (for f/γ). */
+/* γ(ω) of the map `env` at a direction of lobe power `power` (times V(x_p, ω) where
+ * SIR_TARGET_VISIBILITY); *radiance gets L(ω) (for f/γ). */
 ALWAYS_INLINE float sir_target(const shading_t *s, __global const float4 *env, int res, vec3_t w,
-                      float power, vec3_t *radiance)
+                      float power, vec3_t *radiance, __global const uint *visibility, int p)
 {
     float cosine = vec3_dot(s->n, w);
     *radiance = env_radiance(env, res, w);
-    return cosine > 0.0f ? vec3_luminance(*radiance) * brdf_luminance(s, power) * cosine : 0.0f;
+    int open = SIR_TARGET_VISIBILITY ? visible(visibility, p, w) : 1;
+    return cosine > 0.0f && open ? vec3_luminance(*radiance) * brdf_luminance(s, power) * cosine : 0.0f;
 }
 
 /* f(ω)/γ(ω) = L ρ / (L_Y ρ_Y), for γ(ω) > 0. */
@@ -195,7 +204,8 @@ ALWAYS_INLINE vec3_t proposal_sample(const shading_t *s, const sir_proposal_t *q
  * that only the map samples find). */
 ALWAYS_INLINE float sir_candidate(const shading_t *s, const sir_proposal_t *q,
                          __global const float4 *env, int res, uint seed, uint frame, uint pixel,
-                         int i, int M, vec3_t *w, float *gamma, vec3_t *radiance, float *power)
+                         int i, int M, vec3_t *w, float *gamma, vec3_t *radiance, float *power,
+                         __global const uint *visibility, int p)
 {
     uniform4_t xi = lane_uniform4(seed, frame, STREAM_SIR_CANDIDATE, pixel, (uint)i, 0u);
     xi.w = ((float)i + 0.5f) / (float)M;
@@ -205,7 +215,7 @@ ALWAYS_INLINE float sir_candidate(const shading_t *s, const sir_proposal_t *q,
     *w = proposal_sample(s, q, res, xi, point);
     *power = phong_lobe_power(s->r, *w, s->m);
     float pdf = proposal_pdf(s, q, res, *w, *power);
-    *gamma = sir_target(s, env, res, *w, *power, radiance);
+    *gamma = sir_target(s, env, res, *w, *power, radiance, visibility, p);
     float weight = (pdf > 0.0f && *gamma > 0.0f) ? *gamma / pdf : 0.0f;
     return isfinite(weight) ? weight : 0.0f;
 }
@@ -237,7 +247,8 @@ ALWAYS_INLINE lane_ints_t alias_draw_lanes(__global const ulong *table, lane_int
 ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal_t *q,
                                           __global const float4 *env, int res, uint seed, uint frame,
                                           uint pixel, lane_ints_t index, int M, lanes3_t *direction,
-                                          lanes_t *target, lanes3_t *ratio)
+                                          lanes_t *target, lanes3_t *ratio,
+                                          __global const uint *visibility, int p)
 {
     lane_block_t block = rng_block_lanes(seed, frame, STREAM_SIR_CANDIDATE, pixel, convert_lane_uints(index), 0u);
     lanes_t xi_cos = lanes_unit(block.v[0]), xi_azimuth = lanes_unit(block.v[1]);
@@ -299,7 +310,11 @@ ALWAYS_INLINE lanes_t sir_candidate_lanes(const shading_t *s, const sir_proposal
     lanes_t lobe = (s->m + 2.0f) / (2.0f * IBL_PI) * power;
     lanes_t rho_y = vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * lobe;
     lanes_t radiance_y = 0.2126f * radiance.x + 0.7152f * radiance.y + 0.0722f * radiance.z;
-    lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y * cosine, cosine > 0.0f);
+    lane_ints_t counted = cosine > 0.0f;
+#if SIR_TARGET_VISIBILITY
+    counted &= lanes_visible(visibility, p, w);
+#endif
+    lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y * cosine, counted);
     lanes_t gamma_all = radiance_y * rho_y;
     *direction = w;
     *target = gamma;
@@ -318,7 +333,7 @@ ALWAYS_INLINE acc_t systematic_position(int k, int n, float u, acc_t total)
 
 /* The pixel's inputs: its G-buffer entry p and the proposal's (make_proposal). */
 #define SIR_PIXEL_ARGS __global const float4 *normal, __global const float4 *view, \
-    __global const float4 *kd, __global const float4 *ks_m, int p, \
+    __global const float4 *kd, __global const float4 *ks_m, __global const uint *visibility, int p, \
     __global const ulong *alias, __global const float4 *texels, __global const float *map_power, \
     float env_pick
 
@@ -383,7 +398,7 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
         lanes_t gamma;
         float lane_weight[POOL_LANES], lane_x[POOL_LANES], lane_y[POOL_LANES], lane_z[POOL_LANES];
         lanes_t weight = sir_candidate_lanes(&s, &q, env, res, seed, frame, pixel, i + LANE_NUMBERS, M,
-                                             &direction, &gamma, &ratio);
+                                             &direction, &gamma, &ratio, visibility, p);
         /* f/γ zeroed where the weight is 0 (it may be NaN there), so that each candidate adds
          * w·f/γ without a branch: +0 for those, which leaves the sums as they were. */
         lane_ints_t positive = weight > 0.0f;
@@ -442,7 +457,14 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
         lanes_t gamma;
         lane_ints_t resampled = min(k0 + LANE_NUMBERS, (lane_ints_t)(N - 1));   /* vector bound: see POOL_LANES */
         lane_ints_t candidate = GATHER(lane_ints_t, chosen, resampled * stride + slot);
-        sir_candidate_lanes(&s, &q, env, res, seed, frame, pixel, candidate, M, &w, &gamma, &ratio);
+        sir_candidate_lanes(&s, &q, env, res, seed, frame, pixel, candidate, M, &w, &gamma, &ratio,
+                            visibility, p);
+#if !SIR_TARGET_VISIBILITY
+        /* f's V at the resampled samples (the target has none). */
+        lane_ints_t open = lanes_visible(visibility, p, w);
+        ratio = make_lanes3(select((lanes_t)0.0f, ratio.x, open), select((lanes_t)0.0f, ratio.y, open),
+                            select((lanes_t)0.0f, ratio.z, open));
+#endif
         float lane_x[POOL_LANES], lane_y[POOL_LANES], lane_z[POOL_LANES];
         float lane_wx[POOL_LANES], lane_wy[POOL_LANES], lane_wz[POOL_LANES], lane_gamma[POOL_LANES];
         vstore_lanes(ratio.x, 0, lane_x);

@@ -15,6 +15,8 @@
  * compile-time constant (smc.py defines it).
  * smc_advance still runs one work item per pixel without LOCKSTEP (its loops exit early per
  * pixel), so PoCL does not vectorise it. */
+/* The SMC target is γ·V: its MH moves and reweighting evaluate V (sir.cl). */
+#define SIR_TARGET_VISIBILITY 1
 #include "sir.cl"
 
 #define STREAM_SMC_MOVE 30u
@@ -228,7 +230,7 @@ __kernel void map_draws(__global const ulong *alias, const uint seed, __global i
  * smc_init finishes it.  Every other pixel's outputs are final. */
 __kernel void smc_advance(__global const float4 *normal, __global const float4 *view,
                           __global const float4 *kd, __global const float4 *ks_m,
-                          __global const float4 *env, __global const float4 *prev_texels,
+                          __global const uint *visibility, __global const float4 *env, __global const float4 *prev_texels,
                           __global const ulong *alias, __global const float4 *texels,
                           __global const float *map_power, const int count, const int N,
                           const int steps, const float nu, const float cos_delta,
@@ -281,7 +283,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
             float4 q = load_particle(particles, N, plane, i);
             float2 g = load_gammas(gammas, N, plane, i);
             vec3_t L, w = particle_direction(q);
-            g.y = static_frame ? g.x : sir_target(&s, env, res, w, phong_lobe_power(s.r, w, s.m), &L);
+            g.y = static_frame ? g.x : sir_target(&s, env, res, w, phong_lobe_power(s.r, w, s.m), &L, visibility, p);
             store_gammas(gammas, N, plane, i, g);
             if (q.w > 0.0f && !(g.x > 0.0f)) reinit = 1;   /* guard: γ_{t−1} = 0 */
             sum_sq += q.w * q.w;
@@ -341,11 +343,11 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
                 }
                 float power_new = phong_lobe_power(s.r, w_new, s.m);
                 vec3_t L, L_prev;
-                float g1_new = sir_target(&s, env, res, w_new, power_new, &L);
+                float g1_new = sir_target(&s, env, res, w_new, power_new, &L, visibility, p);
                 float g0_new = static_frame ? g1_new : 0.0f;
                 evaluations += 1.0f;
                 if (alpha < 1.0f) {
-                    g0_new = sir_target(&s, prev_texels, res, w_new, power_new, &L_prev);
+                    g0_new = sir_target(&s, prev_texels, res, w_new, power_new, &L_prev, visibility, p);
                     evaluations += 1.0f;
                 }
                 if (static_frame && kind != 0 && g1_new > 0.0f) {
@@ -448,7 +450,7 @@ __kernel void smc_list_reinit(__global const int *reinit_flag, const int count, 
  * them); its re-init then counts in stats.y. */
 __kernel void smc_init(__global const float4 *normal, __global const float4 *view,
                        __global const float4 *kd, __global const float4 *ks_m,
-                       __global const float4 *texels, __global const ulong *alias,
+                       __global const uint *visibility, __global const float4 *texels, __global const ulong *alias,
                        __global const float *map_power,
                        const int count, const int N, const int M, const float init_env_pick,
                        const int have_state, const uint seed, const uint frame,
@@ -466,7 +468,7 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
     int item = get_global_id(0), p = pixels[offset + min(item, listed - 1)];
     __global float *particles = item < listed ? all_particles + p : 0, *gammas = all_gammas + p;
     vec3_t sum, candidate_ratio;
-    float z = bis_pixel(normal, view, kd, ks_m, p, alias, texels, map_power, init_env_pick,
+    float z = bis_pixel(normal, view, kd, ks_m, visibility, p, alias, texels, map_power, init_env_pick,
                         texels, ENV_RES, M, N, seed, frame, (uint)p, GROUP_SCRATCH(chosen, N),
                         GROUP_SCRATCH(bounds, M), GROUP_SCRATCH(sums, 3), get_local_id(0),
                         get_local_size(0), &sum,

@@ -249,7 +249,7 @@ class SMC(Estimator):
             flags = buffer("flags", count * 4)
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_advance", defines), count,
-                gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer,
+                gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, cache.env_buffer,
                 prev_texels, alias, texels, map_power, np.int32(count), np.int32(N),
                 np.int32(p.intermediates + 1), np.float32(p.nu),
                 np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
@@ -267,7 +267,7 @@ class SMC(Estimator):
         init = compute.kernel(self.kernel_package(), "smc.cl", "smc_init", defines)
         for offset, pixels, *scratch in bis_chunks(compute, init, count, M, N, buffer):
             events.append(run_lockstep(
-                compute, init, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
+                compute, init, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility,
                 texels, alias, map_power, np.int32(count), np.int32(N), np.int32(M),
                 np.float32(p.init_env_pick),
                 np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), listed, listed_total,

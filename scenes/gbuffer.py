@@ -48,7 +48,9 @@ class GBuffer:
 
     ``mask`` bool ``[H, W]``; ``position``, ``normal`` (unit shading normal), ``view`` (unit,
     surface → camera), ``kd``, ``ks`` float32 ``[H, W, 3]``; ``shininess`` float32 ``[H, W]``.
-    Uncovered pixels hold zeros.
+    Uncovered pixels hold zeros.  ``visibility``: None (no V in the integrand), or the per-pixel
+    bit masks ``[H, W, words]`` uint32 over ``visibility_res``² cells a cube face
+    (:mod:`iblbench.scenes.visibility`).
     """
 
     mask: np.ndarray
@@ -58,6 +60,8 @@ class GBuffer:
     kd: np.ndarray
     ks: np.ndarray
     shininess: np.ndarray
+    visibility: np.ndarray | None = None
+    visibility_res: int = 0
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -73,7 +77,10 @@ class GBuffer:
         return not np.any(self.ks[self.mask] > 0)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {name: getattr(self, name) for name in GBUFFER_ARRAYS}
+        arrays = {name: getattr(self, name) for name in GBUFFER_ARRAYS}
+        if self.visibility is not None:
+            arrays.update(visibility=self.visibility, visibility_res=np.int32(self.visibility_res))
+        return arrays
 
     @classmethod
     def from_pixels(cls, normal, view, kd, ks, shininess, mask=None) -> "GBuffer":
@@ -103,7 +110,9 @@ class GBuffer:
     @classmethod
     def load_npz(cls, path: str | os.PathLike) -> "GBuffer":
         with np.load(path) as data:
-            return cls(**{name: data[name] for name in GBUFFER_ARRAYS})
+            visibility = {"visibility": data["visibility"], "visibility_res": int(data["visibility_res"])} \
+                if "visibility" in data else {}
+            return cls(**{name: data[name] for name in GBUFFER_ARRAYS}, **visibility)
 
 
 def camera_rays(camera, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:

@@ -98,6 +98,29 @@ def torus(major_radius: float = 1.0, minor_radius: float = 0.4, major_sections: 
     return trimesh.Trimesh(vertices, mesh.faces, vertex_normals=normals, process=False)
 
 
+def ground(half_size: float = 6.0, height: float = -1.0) -> trimesh.Trimesh:
+    """A square ground plane at y = ``height``, normal +Y, of side 2·``half_size`` (two triangles)."""
+    import trimesh
+
+    h = half_size
+    vertices = np.array([[-h, height, -h], [h, height, -h], [h, height, h], [-h, height, h]])
+    faces = np.array([[0, 2, 1], [0, 3, 2]])
+    normals = np.tile([0.0, 1.0, 0.0], (4, 1))
+    return trimesh.Trimesh(vertices, faces, vertex_normals=normals, process=False)
+
+
+def on_ground(mesh: trimesh.Trimesh, half_size: float = 6.0) -> trimesh.Trimesh:
+    """``mesh`` resting on a :func:`ground` plane that touches its lowest point; one mesh, each
+    part keeping its own vertex normals."""
+    import trimesh
+
+    floor = ground(half_size, float(np.asarray(mesh.vertices)[:, 1].min()))
+    vertices = np.concatenate([mesh.vertices, floor.vertices])
+    faces = np.concatenate([mesh.faces, floor.faces + len(mesh.vertices)])
+    normals = np.concatenate([mesh.vertex_normals, floor.vertex_normals])
+    return trimesh.Trimesh(vertices, faces, vertex_normals=normals, process=False)
+
+
 def load_mesh(path: str | os.PathLike) -> trimesh.Trimesh:
     """One triangle mesh from a file; a multi-object file is concatenated into a single mesh."""
     import trimesh

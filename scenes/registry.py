@@ -11,6 +11,14 @@ Built-in scenes (static Preetham sun + sky, kd = 0.5, ks = 0.3, shininess = 150,
   scale and normal variety.
 - ``torus-sun``: a torus seen from above; inner faces point down and back at the tube.
 
+Built-in scenes with occlusion (visibility on, 16² cells a face: :mod:`iblbench.scenes.visibility`):
+
+- ``sphere-ground``: the sphere resting on a ground plane under the sun and sky: a contact
+  shadow, and the ground hiding the lower hemisphere.
+- ``park-ground``: the same under the park photograph (below), its low sun casting a long shadow.
+- ``torus-day``: the torus seen from above under ``day`` (below): the tube shadows the ring's
+  inner side.
+
 Built-in scenes lit by real HDR photographs (CC0, shipped in ``scenes/data/``, whose README gives
 their origin and terms), same material and 128 × 128:
 
@@ -67,12 +75,16 @@ User scene format (paths are relative to the TOML file's folder)::
     [render]                        # optional
     width = 128                     # each side at most 16384
     height = 128
+    visibility = true               # optional (default false): shadows, V(x, ω) traced by Embree
+    visibility_res = 16             # optional (default 16): cells per cube-face side of the
+                                    # visibility masks, a power of two dividing the face size
 
 Unknown sections or keys are errors (they are usually typos).  Every problem is an ``InputError``
 naming the TOML file, or the referenced file when that file is the problem.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import glob
 import math
@@ -88,6 +100,7 @@ from .envmap import LAYOUTS, MAX_RES, load_environment
 from .errors import InputError
 from .scene import Camera, EnvSequence, Material, Scene
 from .tomlfile import read_toml
+from .visibility import check_resolution
 
 DEFAULT_ENV_RES = 64
 # Bounds that only a corrupt or mistyped scene file exceeds; past them a run would exhaust memory
@@ -163,6 +176,15 @@ def _blob_sun(env_res: int | None) -> Scene:
     return _sun_sky_scene("blob-sun", meshes.blob(), camera, env_res)
 
 
+def _sphere_ground(env_res: int | None) -> Scene:
+    """The sphere resting on a ground plane under the default sun-and-sky, seen from above the
+    front: the sphere's contact shadow on the ground (sharp from the sun, soft from the sky), and
+    the ground occluding the sphere's lower hemisphere.  Visibility on (16² cells a face)."""
+    camera = Camera(eye=(0.0, 2.0, 4.2), target=(0.0, -0.6, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    scene = _sun_sky_scene("sphere-ground", meshes.on_ground(meshes.sphere()), camera, env_res)
+    return dataclasses.replace(scene, visibility=True)
+
+
 def _torus_sun(env_res: int | None) -> Scene:
     """A torus (ring radius 1, tube 0.4) lying in the XZ plane, seen from 34° above, default sky.
 
@@ -224,6 +246,19 @@ def _sphere_park(env_res: int | None) -> Scene:
     return _photo_scene("sphere-park", PARK_MAP, PARK_SUN_AZIMUTH_DEG, env_res)
 
 
+def _park_ground(env_res: int | None) -> Scene:
+    """sphere-park's sphere resting on a ground plane, camera raised to see its shadow: the park's
+    low sun casts a long shadow, the ground hides the photographed grass below the horizon.
+    Visibility on (16² cells a face)."""
+    camera = _camera_facing_light(PARK_SUN_AZIMUTH_DEG)
+    eye = np.array(camera.eye) * 1.4 + (0.0, 2.0, 0.0)
+    camera = dataclasses.replace(camera, eye=tuple(eye), target=(0.0, -0.6, 0.0))
+    env = _shipped_environment(PARK_MAP, env_res or DEFAULT_ENV_RES)
+    return Scene(name="park-ground", mesh=meshes.on_ground(meshes.sphere()), material=_MATERIAL,
+                 camera=camera, environment=EnvSequence.static(env, source=f"shipped:{PARK_MAP}"),
+                 resolution=(128, 128), source="builtin:park-ground", visibility=True)
+
+
 def _sphere_studio(env_res: int | None) -> Scene:
     """The sphere under Poly Haven's Studio Small 03 (CC0): small bright softboxes, dark room.
 
@@ -238,6 +273,7 @@ _SEQUENCES: dict[str, tuple[Callable[[int], EnvSequence], int]] = {
     "blob-day": (sequences.day, DEFAULT_ENV_RES),
     "torus-moving": (sequences.moving_lights, DEFAULT_ENV_RES),
     "sphere-switch": (sequences.switch, DEFAULT_ENV_RES),
+    "torus-day": (sequences.day, DEFAULT_ENV_RES),
     "park-turn": (lambda res: sequences.turntable(shipped_map(PARK_MAP), res), PARK_TURN_ENV_RES)}
 
 
@@ -253,6 +289,14 @@ def _blob_day(env_res: int | None) -> Scene:
     """The blob-sun blob and camera under the 67-frame ``day`` sequence (Lu 2013, Fig. 1)."""
     camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
     return _sequence_scene("blob-day", meshes.blob(), camera, env_res)
+
+
+def _torus_day(env_res: int | None) -> Scene:
+    """The torus seen from above under ``day``: the ring's inner side is shadowed by the tube
+    across it as the sun moves.  Visibility on (16² cells a face)."""
+    camera = Camera(eye=(0.0, 3.2, 1.8), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    return dataclasses.replace(_sequence_scene("torus-day", meshes.torus(), camera, env_res),
+                               visibility=True)
 
 
 def _torus_moving(env_res: int | None) -> Scene:
@@ -285,6 +329,9 @@ BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {
     "torus-moving": _torus_moving,
     "sphere-switch": _sphere_switch,
     "sphere-park": _sphere_park,
+    "sphere-ground": _sphere_ground,
+    "park-ground": _park_ground,
+    "torus-day": _torus_day,
     "sphere-studio": _sphere_studio,
     "park-turn": _park_turn,
 }
@@ -338,7 +385,7 @@ _SECTIONS = {
     "environment": ({"path"}, {"layout", "res"}),
     "material": (set(), {"kd", "ks", "shininess"}),
     "camera": ({"eye", "target"}, {"up", "fov_y"}),
-    "render": (set(), {"width", "height"}),
+    "render": (set(), {"width", "height", "visibility", "visibility_res"}),
 }
 
 
@@ -385,6 +432,12 @@ class _Fields:
             self.fail(f"{self._where(key)} must be at most {maximum}, got {value!r}")
         return value
 
+    def boolean(self, key: str) -> bool:
+        value = self.table[key]
+        if not isinstance(value, bool):
+            self.fail(f"{self._where(key)} must be true or false, got {value!r}")
+        return value
+
     def string(self, key: str) -> str:
         value = self.table[key]
         if not isinstance(value, str) or not value:
@@ -428,8 +481,15 @@ def _toml_scene(path: Path, sanitize: bool, env_res: int | None) -> Scene:
     render = fields["render"]
     resolution = tuple(render.positive_int(k, MAX_IMAGE_SIDE) if render.has(k) else 128
                        for k in ("width", "height"))
+    visibility = render.boolean("visibility") if render.has("visibility") else False
+    visibility_res = render.positive_int("visibility_res", MAX_RES) if render.has("visibility_res") else 16
+    if visibility:
+        try:
+            check_resolution(visibility_res, environment.frame(0).shape[1], "render.visibility_res")
+        except ValueError as error:
+            render.fail(str(error))
     return Scene(path.stem, mesh, material, camera, environment, resolution, source=os.fspath(path),
-                 mesh_source=os.fspath(mesh_path))
+                 mesh_source=os.fspath(mesh_path), visibility=visibility, visibility_res=visibility_res)
 
 
 def _placed_mesh(fields: _Fields, mesh):

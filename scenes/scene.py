@@ -55,6 +55,8 @@ class Scene:
     """Everything a benchmark cell needs except the estimator.
 
     ``mesh`` is a ``trimesh.Trimesh``; ``resolution`` is the default image size (W, H).
+    ``visibility``: whether the integrand carries V(x, ω), traced by Embree into per-pixel masks
+    of ``visibility_res``² cells per cube face (:mod:`iblbench.scenes.visibility`).
     """
 
     name: str
@@ -65,3 +67,5 @@ class Scene:
     resolution: tuple[int, int] = (128, 128)
     source: str = ""
     mesh_source: str = ""   # the mesh file of a user scene
+    visibility: bool = False
+    visibility_res: int = 16

@@ -62,8 +62,8 @@ def _bis_candidates_twin(compute, gbuffer, cache, gb, env, M, seed):
     twin of their weights and f/γ; returns (weights, twin weights, f/γ, u, pixel)."""
     out, u = compute.empty(M * 16), compute.empty(4)
     compute.run(compute.kernel("iblbench.estimators", "bis.cl", "bis_candidates"), M, gbuffer.normal,
-                gbuffer.view, gbuffer.kd, gbuffer.ks, cache.env_buffer, np.int32(cache.res),
-                np.uint32(seed), np.uint32(cache.frame), out, u)
+                gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, cache.env_buffer,
+                np.int32(cache.res), np.uint32(seed), np.uint32(cache.frame), out, u)
     cand = compute.to_host(out, (M, 4), np.float32).astype(np.float64)
     u = float(compute.to_host(u, (1,), np.float32)[0])
     dirs, weights = cand[:, :3], cand[:, 3]

@@ -157,6 +157,36 @@ inline float area_per_solid_angle(float u, float v)
     return q * sqrt(q);
 }
 
+/* ---- visibility ------------------------------------------------------------------------------ */
+
+/* V(x, ω) from the G-buffer's per-pixel bit masks (iblbench.scenes.visibility, whose docstring
+ * is the layout): VIS_RES² cells a cube face, cell (face, ⌊t·VIS_RES⌋, ⌊s·VIS_RES⌋) of ω, bit
+ * b = (face·VIS_RES + row)·VIS_RES + col of the pixel's VIS_WORDS words.  Set by the harness
+ * from the G-buffer (VISIBILITY=1 and VIS_RES): without it V is 1 and compiles away, so a scene
+ * without visibility runs the very code it ran before. */
+#ifndef VISIBILITY
+#define VISIBILITY 0
+#endif
+#ifndef VIS_RES
+#define VIS_RES 1
+#endif
+#define VIS_WORDS ((6 * VIS_RES * VIS_RES + 31) / 32)
+
+/* V(x_pixel, w) (the one visibility function of every kernel; light_pool.cl's lanes_visible is
+ * its lanes form): 1 where the pixel's mask says the cell of w is open, else 0. */
+ALWAYS_INLINE int visible(__global const uint *visibility, int pixel, vec3_t w)
+{
+#if VISIBILITY
+    float s, t;
+    int face = cube_face_st(w, &s, &t);
+    int cell = (face * VIS_RES + clamp((int)floor(t * VIS_RES), 0, VIS_RES - 1)) * VIS_RES
+             + clamp((int)floor(s * VIS_RES), 0, VIS_RES - 1);
+    return (int)((visibility[pixel * VIS_WORDS + (cell >> 5)] >> (cell & 31)) & 1u);
+#else
+    return 1;
+#endif
+}
+
 /* ---- CDF search and light sampling --------------------------------------------------------- */
 
 /* The light CDFs are fixed point (built by harness/framecache.cl): entry i is the inclusive prefix

@@ -234,22 +234,44 @@ ALWAYS_INLINE lane_ints_t lanes_beta(int ticks, int i)
     return min(TICKS_PER_SAMPLE, ticks - i * TICKS_PER_SAMPLE - LANE_NUMBERS * TICKS_PER_SAMPLE);
 }
 
+/* clamp_index of common.cl for the lanes (vector bounds: see POOL_LANES). */
+ALWAYS_INLINE lane_ints_t lanes_clamp_index(lanes_t x, int res)
+{
+    return clamp(convert_lane_ints(floor(x * (float)res)), (lane_ints_t)0, (lane_ints_t)(res - 1));
+}
+
+/* visible() of common.cl for the lanes' directions w, as a mask (-1 where the cell of w is open,
+ * 0 where shadowed); all open without VISIBILITY. */
+ALWAYS_INLINE lane_ints_t lanes_visible(__global const uint *visibility, int pixel, lanes3_t w)
+{
+#if VISIBILITY
+    lanes_t s, t;
+    lane_ints_t face = cube_face_st_lanes(w, &s, &t);
+    lane_ints_t cell = (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES + lanes_clamp_index(s, VIS_RES);
+    lane_uints_t word = GATHER(lane_uints_t, visibility + pixel * VIS_WORDS, cell >> 5);
+    return ((word >> convert_lane_uints(cell & 31)) & 1u) != 0u;
+#else
+    return (lane_ints_t)(-1);
+#endif
+}
+
 /* A pixel's running estimate, one partial sum per lane. */
 typedef struct {
     lanes_t r, g, b;
     lane_ints_t effective;   /* ticks of the samples with a positive cosine and denominator */
 } lanes_sum_t;
 
-/* Add the lanes' samples of strategy weight β (in ticks) where `active`: β·s(ω) / D(ω), where
+/* Add the lanes' samples of strategy weight β (in ticks) where `active` and `open` (V(x, ω) = 1,
+ * lanes_visible; a shadowed sample adds 0 and is not effective): β·s(ω) / D(ω), where
  * D(ω) = Σ_k t_k p_k(ω) is the balance-heuristic denominator in ticks.  With counts N_k = t_k/Q
  * this is (1/N_s)·β_i·s/(Σ_k (N_k/N_s) p_k), i.e. Eq. 4 when only the light faces have ticks
  * and Eq. 6 with the BRDF.  `power` is the lobe power cos⁺(r, ω)^m, `cosine` is n·ω; the
  * arithmetic is phong_value's, times the radiance, times the weight. */
 ALWAYS_INLINE void add_samples(lanes_sum_t *acc, const shading_t *s, lane_ints_t active,
                                lane_ints_t beta, lanes_t cosine, lanes_t power, lanes3_t radiance,
-                               lanes_t denominator)
+                               lanes_t denominator, lane_ints_t open)
 {
-    lane_ints_t counts = active & (cosine > 0.0f) & (denominator > 0.0f);
+    lane_ints_t counts = active & (cosine > 0.0f) & (denominator > 0.0f) & open;
     lanes_t weight = convert_lanes(beta) / denominator * cosine;
     lanes_t lobe = (s->m + 2.0f) / (2.0f * IBL_PI) * power;
     acc->r += select((lanes_t)0.0f, (s->kd.x / IBL_PI + s->ks.x * lobe) * radiance.x * weight, counts);
@@ -276,7 +298,7 @@ ALWAYS_INLINE lanes3_t lanes3_load(__global const float *plane0, int stride, int
  * brdf_samples = 0 leaves the BRDF term out of the denominator (t_6 = 0 there). */
 ALWAYS_INLINE void shade_light_faces(lanes_sum_t *acc, const shading_t *s, const int ticks[7],
                                      int brdf_samples, __global const float *planes, int pool_size,
-                                     int offset)
+                                     int offset, __global const uint *visibility, int pixel)
 {
     int stride = POOL_PLANE_STRIDE(pool_size);
     for (int f = 0; f < 6; ++f) {
@@ -292,7 +314,8 @@ ALWAYS_INLINE void shade_light_faces(lanes_sum_t *acc, const shading_t *s, const
             if (brdf_samples)
                 denominator += (float)ticks[6] * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
             add_samples(acc, s, i + LANE_NUMBERS < draws, lanes_beta(ticks[f], i), cosine, power,
-                        lanes3_load(planes + 4 * stride, stride, first + i), denominator);
+                        lanes3_load(planes + 4 * stride, stride, first + i), denominator,
+                        lanes_visible(visibility, pixel, w));
         }
     }
 }
@@ -304,12 +327,6 @@ ALWAYS_INLINE lanes_t lanes_cdf_bin(__global const cdf_word_t *cdf, lane_ints_t 
     lane_words_t lower = GATHER(lane_words_t, cdf, base + max(i - 1, (lane_ints_t)0));
     lower = select((lane_words_t)0, lower, convert_lane_longs(i > 0));
     return convert_lanes(upper - lower) * 0x1p-63f;
-}
-
-/* clamp_index of common.cl for the lanes (vector bounds: see POOL_LANES). */
-ALWAYS_INLINE lane_ints_t lanes_clamp_index(lanes_t x, int res)
-{
-    return clamp(convert_lane_ints(floor(x * (float)res)), (lane_ints_t)0, (lane_ints_t)(res - 1));
 }
 
 /* The texel of each lane's direction (*face, *row, *col) and its area_per_solid_angle, as
@@ -413,7 +430,8 @@ ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ti
                               __global const float4 *env, __global const cdf_word_t *marginal,
                               __global const cdf_word_t *conditional, int res, uint seed,
                               uint frame, int shared_sequence, uint stream_pixel,
-                              __global const float *shared_numbers, int numbers_stride)
+                              __global const float *shared_numbers, int numbers_stride,
+                              __global const uint *visibility, int pixel)
 {
     int draws = draws_for(ticks[6]);
     vec3_t t_n, b_n, t_r, b_r;
@@ -447,7 +465,7 @@ ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ti
         for (int k = 1; k < 6; ++k) face_ticks = select(face_ticks, (lane_ints_t)ticks[k], face == k);
         lanes_t denominator = convert_lanes(face_ticks) * pdf_light + (float)ticks[6] * pdf_brdf;
         add_samples(acc, s, draw < draws, lanes_beta(ticks[6], i), cosine, power, lanes_texel_radiance(env, texel),
-                    denominator);
+                    denominator, lanes_visible(visibility, pixel, w));
     }
 }
 

@@ -48,7 +48,7 @@ __kernel void brdf_numbers(const uint seed, const uint frame, const int spp, __g
  * (in samples); evaluations per pixel. */
 __kernel void render_light_pool(__global const float4 *normal, __global const float4 *view,
                                 __global const float4 *kd, __global const float4 *ks_m,
-                                __global const float4 *env, __global const cdf_word_t *marginal,
+                                __global const uint *visibility, __global const float4 *env, __global const cdf_word_t *marginal,
                                 __global const cdf_word_t *conditional, __global const float *face_integral,
                                 __global const float *pool, const int res, const int pool_size, const int spp,
                                 const int shared_sequence, const uint seed, const uint frame,
@@ -64,10 +64,10 @@ __kernel void render_light_pool(__global const float4 *normal, __global const fl
     int offset = shared_sequence ? 0
                : (int)(rng_unit(rng_block(seed, frame, STREAM_POOL_OFFSET, (uint)p, 0u, 0u).v[0]) * pool_size);
     lanes_sum_t acc = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lane_ints_t)0};
-    shade_light_faces(&acc, &s, ticks, LU_BRDF_SAMPLES, pool, pool_size, offset);
+    shade_light_faces(&acc, &s, ticks, LU_BRDF_SAMPLES, pool, pool_size, offset, visibility, p);
 #if LU_BRDF_SAMPLES
     shade_brdf(&acc, &s, ticks, env, marginal, conditional, res, seed, frame, shared_sequence, (uint)p,
-               shared_numbers, BRDF_NUMBERS_STRIDE(spp));
+               shared_numbers, BRDF_NUMBERS_STRIDE(spp), visibility, p);
 #endif
     radiance[p] = sum_of8(to8(acc.r));
     radiance[n + p] = sum_of8(to8(acc.g));

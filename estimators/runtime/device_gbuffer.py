@@ -27,7 +27,10 @@ def _float4(xyz: np.ndarray, w: np.ndarray | float = 0.0) -> np.ndarray:
 
 
 class DeviceGBuffer:
-    """Covered pixels only, as float4 buffers: ``normal``, ``view``, ``kd`` and ``ks`` (w = shininess).
+    """Covered pixels only, as float4 buffers: ``normal``, ``view``, ``kd`` and ``ks`` (w = shininess),
+    and ``visibility``, each pixel's visibility mask (uint32 words, common.cl's ``visible``; one
+    unread word when the G-buffer has none).  ``defines``: the kernel defines every kernel that
+    reads the G-buffer is built with (``VISIBILITY``, ``VIS_RES``), empty without visibility.
 
     Uploaded once per scene (geometry and camera are static).  ``count`` is the number of covered
     pixels; the buffers hold ``launch_size`` ≥ ``count`` of them (a multiple of ``PIXEL_GROUP``,
@@ -49,6 +52,11 @@ class DeviceGBuffer:
         self.view = compute.to_device(self._padded(_float4(gbuffer.view[m])))
         self.kd = compute.to_device(self._padded(_float4(gbuffer.kd[m])))
         self.ks = compute.to_device(self._padded(_float4(gbuffer.ks[m], gbuffer.shininess[m])))
+        self.has_visibility = gbuffer.visibility is not None
+        self.visibility_res = gbuffer.visibility_res if self.has_visibility else 0
+        self.visibility = compute.to_device(self._padded(gbuffer.visibility[m]) if self.has_visibility
+                                            else np.zeros(1, np.uint32))
+        self.defines = {"VISIBILITY": 1, "VIS_RES": self.visibility_res} if self.has_visibility else {}
 
     def _padded(self, pixels: np.ndarray) -> np.ndarray:
         """``pixels`` followed by copies of the last one up to ``launch_size``."""

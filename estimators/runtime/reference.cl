@@ -404,14 +404,31 @@ inline int face_below(float3 n, int face)
     return below;
 }
 
+/* V of the texels `in_face` (indices within face `face`, past the face clamped to its last) for
+ * pixel p: the bit of the visibility cell that holds each (VIS_RES divides res, so a texel lies
+ * in one cell: the reference Σ_t V_cell(t)·L_t·∫_t ρ cos⁺ stays exact under this V), as a mask. */
+inline int8 texels_open(__global const uint *visibility, int p, int face, int8 in_face, int res)
+{
+    in_face = min(in_face, (int8)(res * res - 1));
+    int8 row = in_face / res, col = in_face - row * (int8)res;
+    int texels_per_cell = res / VIS_RES;
+    int8 cell = (face * VIS_RES + row / texels_per_cell) * VIS_RES + col / texels_per_cell;
+    __global const uint *mask = visibility + p * VIS_WORDS;
+    int8 word_index = cell >> 5;
+    uint8 word = (uint8)(mask[word_index.s0], mask[word_index.s1], mask[word_index.s2], mask[word_index.s3],
+                         mask[word_index.s4], mask[word_index.s5], mask[word_index.s6], mask[word_index.s7]);
+    return ((word >> convert_uint8(cell & 31)) & 1u) != 0u;
+}
+
 /* The reference of pixels first … first + count − 1 (one enqueue of a chunk), one work item
  * each.  Faces wholly below the horizon are skipped (exact: cos⁺ = 0 on them).  A face's
  * texels go LANES at a time: the diffuse term n·Φ_t of lit texels wholly above the horizon in
  * vector lanes; lit texels that the horizon cuts or the lobe reaches (a few hundred per pixel)
- * one by one, as texel_integrals does them. */
+ * one by one, as texel_integrals does them.  With VISIBILITY, texels of shadowed cells are not lit:
+ * V multiplies each texel's term (texels_open). */
 __kernel void reference(__global const float4 *normal, __global const float4 *view,
                         __global const float4 *kd, __global const float4 *ks_m,
-                        __global const float *env_planes, __global const float *table,
+                        __global const uint *visibility, __global const float *env_planes, __global const float *table,
                         const int res, const int texels, const int first, const int count,
                         __global float4 *out)
 {
@@ -439,6 +456,9 @@ __kernel void reference(__global const float4 *normal, __global const float4 *vi
             CLASSIFY(n, r, PLANE_LANES(table, 0, t, texels), PLANE_LANES(table, 1, t, texels),
                      PLANE_LANES(table, 2, t, texels), sin_a, cut, cn, cr, above, cut_by_horizon, in_lobe)
             int8 lit = red + green + blue > 0.0f && t + lane < end;
+#if VISIBILITY
+            lit = lit && texels_open(visibility, p, face, t - face * res * res + lane, res);
+#endif
             float8 cosine = n.x * PLANE_LANES(table, 4, t, texels) + n.y * PLANE_LANES(table, 5, t, texels)
                           + n.z * PLANE_LANES(table, 6, t, texels);
             cosine = select((float8)0.0f, cosine, lit && above);

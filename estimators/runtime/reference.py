@@ -116,8 +116,11 @@ class Reference:
         fp64 = self.compute.info.has_fp64 and self.compute.fp64   # the path Compute builds
         digest.update(f"density={self.density} fp64={fp64}".encode())
         g = gbuffer.gbuffer
+        masks = () if g.visibility is None else (g.visibility[g.mask],)
+        if masks:
+            digest.update(f"visibility_res={g.visibility_res}".encode())
         for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],
-                      g.shininess[g.mask], np.ascontiguousarray(env, np.float32)):
+                      g.shininess[g.mask], np.ascontiguousarray(env, np.float32), *masks):
             digest.update(np.ascontiguousarray(array).tobytes())
             digest.update(str(array.shape).encode())
         return digest.hexdigest()[:24]
@@ -159,13 +162,13 @@ class Reference:
         env_planes = c.to_device(planes(cache.env.reshape(-1, 3)))
         out = c.empty(gbuffer.count * 16)
         kernel = c.kernel("iblbench.estimators.runtime", "reference.cl", "reference",
-                          {"REF_DENSITY": self.density})
+                          {"REF_DENSITY": self.density, **gbuffer.defines})
         group = min(WORK_GROUP, c.group_limit(kernel))
         self.last_ms = 0.0
         first, chunk = 0, FIRST_CHUNK_PIXELS
         while first < gbuffer.count:
             count = min(chunk, gbuffer.count - first)
-            kernel.set_args(gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, env_planes,
+            kernel.set_args(gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, env_planes,
                             table_buffer, np.int32(cache.res), np.int32(table.shape[1]),
                             np.int32(first), np.int32(count), out)
             size = -(-count // group) * group

@@ -263,6 +263,7 @@ class Scorer:
             "effective_samples": effective,
             "effective_ratio": effective / used if used > 0 else nan,
             "evaluations": estimate.evaluations,
+            "shadow_rays": estimate.shadow_rays,
             "nonfinite": estimate.nonfinite,
         }
         return row, de76

@@ -10,7 +10,8 @@ Columns, in order (``COLUMNS``):
   ``estimator_params`` (every parameter as sorted JSON), ``estimator_version`` (hash of the
   estimator's sources), ``schema_version`` (``SCHEMA_VERSION``), ``metrics`` (the metrics
   computed, e.g. ``de76,de2000,relmse,flip``; ``run --metrics``);
-- metrics: ``mean_delta_e76`` … ``nonfinite`` (NaN for a metric the run left out); ``flicker``
+- metrics: ``mean_delta_e76`` … ``nonfinite`` (NaN for a metric the run left out); ``shadow_rays``
+  is the visibility queries per covered pixel (0 in a scene without visibility); ``flicker``
   is the mean over covered pixels of |ΔE76(est_t, ref_t) − ΔE76(est_p, ref_p)|,
   p the frame before t in the run's frame list, for the same (scene, estimator, spp, seed,
   time_budget_ms); NaN on the first frame of the list (and so for a static scene);
@@ -27,7 +28,7 @@ Columns, in order (``COLUMNS``):
 
 Schema versions: 1 had no schema_version, time_budget_ms, width, height, env_res or
 estimator_params column; 2 had no flicker column; 3 timed one render per cell (host wall time
-``time_ms_frame``, device stages of that one render); 4 is this one.  Rows of another schema never count as finished cells.
+``time_ms_frame``, device stages of that one render); 4 had no shadow_rays column; 5 is this one.  Rows of another schema never count as finished cells.
 
 Storage.  ``results.parquet`` and ``results.csv`` are replaced whole, each in one rename, so a
 reader never sees half a table.  While a run is going, each finished cell is appended to
@@ -54,13 +55,13 @@ from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed", "time_budget_ms"]
 CONFIG_COLUMNS = ["width", "height", "env_res", "estimator_params", "estimator_version",
                   "schema_version", "metrics"]
 METRIC_COLUMNS = [
     "mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "flicker",
-    "used_samples", "effective_samples", "effective_ratio", "evaluations", "nonfinite",
+    "used_samples", "effective_samples", "effective_ratio", "evaluations", "shadow_rays", "nonfinite",
     *TIME_COLUMNS,
 ]
 COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "protocol"]

@@ -118,6 +118,7 @@ from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Jou
 from iblbench.harness.protocol.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
                                                   CELL_CORRECTIONS, TOLERANCE, Calibration,
                                                   best_measured, corrected_spp)
+from iblbench.harness.protocol.shadows import attach_visibility
 from iblbench.harness.protocol.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times,
                                               device_ms, host_threads_capped, required_build_ms,
                                               time_columns, measure_timing_floor, timed_renders,
@@ -331,7 +332,7 @@ class Runner:
         self.repeats = {spec.label: overrides.get(spec.cls.name, config.repeats)
                         for spec in self.specs}
         # The manifest's "stages" and "skipped": G-buffers may be traced before it is made.
-        self.stages, self.skipped = [], []
+        self.stages, self.skipped, self.visibility = [], [], []
 
     def _read_state(self) -> None:
         """What ``out`` holds, read under its lock (a snapshot read before it could be stale by
@@ -446,6 +447,7 @@ class Runner:
             "cells_to_run": len(self.todo),
             "stages": self.stages,
             "skipped": self.skipped,
+            "visibility": self.visibility,
             "timing": {"measure": MEASURE, "repeats": dict(self.repeats),
                        "cell": "median of the cell's timed renders after warm-up: the "
                                "estimator's repeats, more where they spread (timing.spread); "
@@ -635,6 +637,14 @@ class Runner:
                              f"the camera sees none of the mesh{mesh}; check the camera's eye "
                              "and target, and the mesh's position and size")
         warn_about_framing(scene, gbuffer)   # too few mesh pixels, or the camera inside the mesh
+        gbuffer, record = attach_visibility(scene, gbuffer, plan.env_res, cache_dir() / "visibility")
+        if record is not None:
+            self.visibility.append(record)
+            if record.get("cached") or "skipped" in record:
+                self.skipped.append({"scene": scene.name, "stage": "visibility",
+                                     "why": record.get("skipped", "cached")})
+            else:
+                self._stage(scene.name, None, "visibility", record["seconds"] * 1e3)
         return gbuffer
 
     def _run_scene(self, plan: _ScenePlan, gbuffer, bar) -> None:
