@@ -218,7 +218,7 @@ __kernel void render_havran(__global const float4 *normal, __global const float4
     float3 kdp = kd[p].xyz, ksp = ks_m[p].xyz;
     float m = ks_m[p].w;
     float3 sum = (float3)(0.0f);
-    int above = 0, lit = 0;
+    int above = 0;
     for (int k = 0; k < count; ++k) {
         float3 w = light_dir[k].xyz;
         float c = dot(n, w);
@@ -228,10 +228,9 @@ __kernel void render_havran(__global const float4 *normal, __global const float4
         /* Havran's directional lights cast shadows: V at the light's direction. */
         if (!visible(visibility, p, vec3_of(w)))
             continue;
-        ++lit;
         sum += light_weight[k].xyz * phong_brdf(r, w, kdp, ksp, m) * c;
     }
     radiance[p] = (float4)(sum, 0.0f);
-    counts[p] = (float2)((float)count, (float)lit);
+    counts[p] = (float2)((float)count, (float)above);
     evaluations[p] = above;
 }

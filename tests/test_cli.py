@@ -26,7 +26,7 @@ RUN_FLAGS = ("--scene", "--estimator", "--spp", "--seeds", "--res", "--env-res",
 RESULT_COLUMNS = {
     "scene", "estimator", "estimator_version", "spp", "frame", "seed", "mean_delta_e76",
     "mean_delta_e2000", "rel_mse", "flip", "flicker", "used_samples", "effective_samples", "effective_ratio",
-    "evaluations", "nonfinite", "time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build",
+    "evaluations", "shadow_rays", "nonfinite", "time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build",
     "time_ms_sample", "time_ms_shade", "time_ms_host", "time_repeats", "device", "protocol",
     "schema_version", "time_budget_ms", "width", "height", "env_res", "estimator_params", "metrics",
 }

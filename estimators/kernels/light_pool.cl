@@ -262,7 +262,8 @@ typedef struct {
 } lanes_sum_t;
 
 /* Add the lanes' samples of strategy weight β (in ticks) where `active` and `open` (V(x, ω) = 1,
- * lanes_visible; a shadowed sample adds 0 and is not effective): β·s(ω) / D(ω), where
+ * lanes_visible; a shadowed sample adds 0, but counts as effective: Lu 2013's effective samples
+ * are those of positive cosine): β·s(ω) / D(ω), where
  * D(ω) = Σ_k t_k p_k(ω) is the balance-heuristic denominator in ticks.  With counts N_k = t_k/Q
  * this is (1/N_s)·β_i·s/(Σ_k (N_k/N_s) p_k), i.e. Eq. 4 when only the light faces have ticks
  * and Eq. 6 with the BRDF.  `power` is the lobe power cos⁺(r, ω)^m, `cosine` is n·ω; the
@@ -271,12 +272,12 @@ ALWAYS_INLINE void add_samples(lanes_sum_t *acc, const shading_t *s, lane_ints_t
                                lane_ints_t beta, lanes_t cosine, lanes_t power, lanes3_t radiance,
                                lanes_t denominator, lane_ints_t open)
 {
-    lane_ints_t counts = active & (cosine > 0.0f) & (denominator > 0.0f) & open;
+    lane_ints_t counts = active & (cosine > 0.0f) & (denominator > 0.0f), lit = counts & open;
     lanes_t weight = convert_lanes(beta) / denominator * cosine;
     lanes_t lobe = (s->m + 2.0f) / (2.0f * IBL_PI) * power;
-    acc->r += select((lanes_t)0.0f, (s->kd.x / IBL_PI + s->ks.x * lobe) * radiance.x * weight, counts);
-    acc->g += select((lanes_t)0.0f, (s->kd.y / IBL_PI + s->ks.y * lobe) * radiance.y * weight, counts);
-    acc->b += select((lanes_t)0.0f, (s->kd.z / IBL_PI + s->ks.z * lobe) * radiance.z * weight, counts);
+    acc->r += select((lanes_t)0.0f, (s->kd.x / IBL_PI + s->ks.x * lobe) * radiance.x * weight, lit);
+    acc->g += select((lanes_t)0.0f, (s->kd.y / IBL_PI + s->ks.y * lobe) * radiance.y * weight, lit);
+    acc->b += select((lanes_t)0.0f, (s->kd.z / IBL_PI + s->ks.z * lobe) * radiance.z * weight, lit);
     acc->effective += select((lane_ints_t)0, beta, counts);
 }
 

@@ -165,8 +165,8 @@ CATALOGUE: tuple[Mutant, ...] = (
        "float u = lane_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;",
        "float u = 0.5f;", ["bis{M=2,N=1}"], ["one-sample"]),
     _m("bis-target-without-cosine", "estimators/sir.cl",
-       "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y * cosine, cosine > 0.0f);",
-       "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y, cosine > 0.0f);", ["bis"], ["constant"]),
+       "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y * cosine, counted);",
+       "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y, counted);", ["bis"], ["constant"]),
     _m("bis-normaliser-over-n-not-m", "estimators/sir.cl",
        "return positive ? (float)(total / (acc_t)M) : 0.0f;",
        "return positive ? (float)(total / (acc_t)N) : 0.0f;", ["bis"], ["constant"]),
@@ -213,12 +213,28 @@ CATALOGUE: tuple[Mutant, ...] = (
        ["bis"], ["grazing"]),
     _m("reference-cache-key-without-material", "estimators/runtime/reference.py",
        "for array in (g.mask, g.normal[g.mask], g.view[g.mask], g.kd[g.mask], g.ks[g.mask],\n"
-       "                      g.shininess[g.mask], np.ascontiguousarray(env, np.float32)):",
+       "                      g.shininess[g.mask], np.ascontiguousarray(env, np.float32), *masks):",
        "for array in (g.mask, g.normal[g.mask], g.view[g.mask], np.ascontiguousarray(env, np.float32)):",
        [], ["shininess"]),
     _m("reference-specular-normalisation-m+1", "estimators/runtime/reference.cl",
        "if (specular) result += rho_s * (m + 2.0f) / (2.0f * IBL_PI) * s;",
        "if (specular) result += rho_s * (m + 1.0f) / (2.0f * IBL_PI) * s;", ["uniform"], ["shininess"]),
+    # ---- visibility (issue 22) -------------------------------------------------------------------
+    # A cell index that slips by one column: the estimators read the neighbouring cell's bit, the
+    # reference (which finds the cell from the texel) the right one.
+    _m("visibility-cell-index-off-by-one", POOL,
+       "lane_ints_t cell = (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES + lanes_clamp_index(s, VIS_RES);",
+       "lane_ints_t cell = (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES\n"
+       "                       + min(lanes_clamp_index(s, VIS_RES) + 1, (lane_ints_t)(VIS_RES - 1));",
+       ["uniform"], ["occlusion"]),
+    # Shadow rays from the hit point itself: they hit the triangle they start on.
+    _m("visibility-without-normal-offset", "scenes/visibility.py",
+       "return point + OFFSET_SCALE * diagonal * geometric, covered",
+       "return point, covered", ["uniform"], ["occlusion"]),
+    # V on the estimators' side only: the exact reference integrates the unshadowed map.
+    _m("visibility-missing-from-reference", "estimators/runtime/reference.cl",
+       "lit = lit && texels_open(visibility, p, face, t - face * res * res + lane, res);",
+       "lit = lit;", ["envmap"], ["occlusion"]),
     # ---- the metrics -----------------------------------------------------------------------------
     _m("metrics-exposure-from-estimate", "harness/protocol/metrics.py",
        "lab = to_lab(tonemap(estimate[mask], self.k))",

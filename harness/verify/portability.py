@@ -1,8 +1,9 @@
 """The portability set: every kernel on tiny inputs, run on any OpenCL device and compared across
 devices (``iblbench doctor``, tests/test_portability.py).
 
-One *case* renders one thing on 16 pixels (a glossy G-buffer over the whole sphere) lit by a
-4×4-texel-per-face map with a sun: ``reference`` (the exact reference), ``products`` (the frame
+One *case* renders one thing on 16 pixels (a glossy G-buffer over the whole sphere, with
+visibility masks of 2² cells a face, three in four open) lit by a 4×4-texel-per-face map with a
+sun: ``reference`` (the exact reference), ``products`` (the frame
 cache's CDFs, face integrals, light pool and both mip pyramids, plain and compensated),
 ``light_pdf`` (the map's light pdf, DESIGN §3, at :data:`PDF_DIRECTIONS` directions, by
 ``envmap``'s pdf hook), ``probes`` (``iblbench perf``'s FMA and copy kernels), or an estimator
@@ -35,6 +36,7 @@ ENV_RES = 4       # texels per face side
 SPP = 4
 SUN_RATIO = 50.0  # the sun texel's luminance over the sky's
 PDF_DIRECTIONS = 64
+VIS_RES, OPEN_SHARE, VIS_SEED = 2, 0.75, 22   # the G-buffer's visibility masks (inputs)
 # Estimator configurations beyond each built-in's defaults that run other kernel paths.
 VARIANTS = ("balanced_mis{shared_sequence=false}", 'envmap{mis="brdf"}',
             'envmap{mis="brdf",mis_compensation=true}')
@@ -64,11 +66,17 @@ def cases() -> list[str]:
 
 
 def inputs():
-    """(G-buffer, first map, turned map) of every case."""
+    """(G-buffer, first map, turned map) of every case.  The G-buffer carries visibility masks
+    of VIS_RES² cells a face, OPEN_SHARE of them open (random, seeded), so every kernel that
+    reads the G-buffer runs its visibility path (issue 22)."""
     from iblbench.harness.verify import conformance
+    from iblbench.scenes import visibility
 
     env = conformance.sun_map(ENV_RES, SUN_RATIO)
-    return conformance.glossy_gbuffer(SIZE), env, np.ascontiguousarray(np.roll(env, 1, axis=2))
+    gbuffer = conformance.glossy_gbuffer(SIZE)
+    cells = np.random.default_rng(VIS_SEED).random(gbuffer.shape + (6 * VIS_RES * VIS_RES,)) < OPEN_SHARE
+    gbuffer = dataclasses.replace(gbuffer, visibility=visibility.pack_bits(cells), visibility_res=VIS_RES)
+    return gbuffer, env, np.ascontiguousarray(np.roll(env, 1, axis=2))
 
 
 def pdf_directions() -> np.ndarray:

@@ -11,7 +11,7 @@ import numpy as np
 import trimesh
 
 from iblbench.harness.verify import fixtures
-from iblbench.scenes import cubemap, meshes, sequences
+from iblbench.scenes import cubemap, meshes, sequences, visibility
 from iblbench.scenes.gbuffer import GBuffer, trace_gbuffer
 from iblbench.scenes.scene import Camera, Material
 
@@ -322,6 +322,51 @@ def _dimming_light(s: Scale) -> Variant:
                    [dimmed, np.zeros_like(dimmed), bright, bright, dimmed])
 
 
+OCCLUSION_VIS_RES = 4   # visibility cells per face side in the occlusion case (divides SMALL's R = 8)
+OCCLUSION_SEED = 22
+GROUND_CAMERA = Camera(eye=(0.0, 3.0, 2.0), target=(0.0, -1.0, 0.0))
+
+
+def with_masks(gbuffer: GBuffer, open_cells: np.ndarray, vis_res: int) -> GBuffer:
+    """``gbuffer`` with the visibility masks whose open cells are ``open_cells`` (booleans
+    ``[H, W, 6·Rv²]`` in bit order)."""
+    return dataclasses.replace(gbuffer, visibility=visibility.pack_bits(open_cells), visibility_res=vis_res)
+
+
+def traced_with_visibility(mesh: trimesh.Trimesh, material: Material, camera: Camera, image: int,
+                           vis_res: int) -> GBuffer:
+    """A traced G-buffer with its traced visibility masks."""
+    gbuffer = trace_gbuffer(mesh, material, camera, image, image)
+    masks, _stats = visibility.trace_visibility(mesh, camera, gbuffer.normal, image, image, vis_res)
+    return dataclasses.replace(gbuffer, visibility=masks, visibility_res=vis_res)
+
+
+def _occlusion(s: Scale) -> list[Variant]:
+    """Every cell shut (an enclosed pixel: exactly 0), one open cell (the one around the pixel's
+    normal), random cells (half open: a cell index that slips shows), the ground plane alone
+    under a constant map (every cell above it open: the white furnace's value, whatever the
+    estimator; a ray that starts on the plane without the normal offset hits it), and a sphere
+    on the ground (traced masks: a contact shadow and the ground under the sphere)."""
+    cells = 6 * OCCLUSION_VIS_RES ** 2
+    glossy = _glossy(s)
+    shape = glossy.shape + (cells,)
+    normal_cell = visibility.cell_of(glossy.normal, OCCLUSION_VIS_RES)
+    one_open = np.arange(cells) == normal_cell[..., None]
+    coin = np.random.default_rng(OCCLUSION_SEED).random(shape) < 0.5
+    plane = meshes.ground(half_size=4.0, height=-1.0)
+    white = Material(kd=(1.0, 1.0, 1.0), ks=(0.0, 0.0, 0.0), shininess=1.0)
+    return [Variant("enclosed", with_masks(glossy, np.zeros(shape, bool), OCCLUSION_VIS_RES),
+                    [_smooth(s)], exact=0.0),
+            Variant("single-open-cell", with_masks(glossy, one_open, OCCLUSION_VIS_RES), [_smooth(s)]),
+            Variant("random-cells", with_masks(glossy, coin, OCCLUSION_VIS_RES), [_smooth(s)]),
+            Variant("ground-alone", traced_with_visibility(plane, white, GROUND_CAMERA, s.image,
+                                                           OCCLUSION_VIS_RES),
+                    [fixtures.constant_map(0.7, s.res)], exact=0.7),
+            Variant("sphere-on-ground", traced_with_visibility(meshes.on_ground(meshes.sphere(3)),
+                                                               MESH_MATERIAL, GROUND_CAMERA, s.image,
+                                                               OCCLUSION_VIS_RES), [_smooth(s)])]
+
+
 _ALL_PIXELS = "every covered pixel (the reach model keeps them all: no rare texels)"
 _CHI2_BINS_FIX = ("fixed by b3ec8be: χ² bins are texel blocks integrated on a texel-aligned grid "
                   "and pooled until each expects ≥ 5 (sphere bins integrated a one-texel pdf to "
@@ -436,6 +481,14 @@ CASES: dict[str, StressCase] = {case.name: case for case in (
                lambda s: [Variant("spp=1-colour-split", _glossy(s, kd=0.8, ks=0.0), [_colour_split(s)])],
                "pixels whose samples reach their integrand (a diffuse material, so that one light "
                "draw per face reaches every texel often enough)", spp=1),
+    StressCase("occlusion", "visibility (issue 22): a pixel enclosed on every side must be exactly "
+               "0; one open cell, random open cells and a traced sphere on the ground must stay "
+               "unbiased against the masked reference (a slipped cell index, or V missing from "
+               "one side, shows); the ground plane alone under a constant map is the white "
+               "furnace (a shadow ray that starts on its own surface, without the normal offset, "
+               "shuts cells)", _occlusion,
+               "pixels that see light (an enclosed pixel's references are 0: every output must be "
+               "exactly 0)"),
     StressCase("degenerate-mesh", "zero-area triangles and zero-length vertex normals: the traced "
                "G-buffer stays valid", lambda s: [Variant(
                    "zero-area-and-zero-normals", _trace(degenerate_sphere(), s), [_smooth(s)])],

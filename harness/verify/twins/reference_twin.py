@@ -162,13 +162,26 @@ def texel_integrals(normal, view, m: float, res: int, order: int = GAUSS_ORDER):
     return cosine.reshape(6, res, res), lobe.reshape(6, res, res)
 
 
+def texel_visibility(words: np.ndarray, vis_res: int, res: int) -> np.ndarray:
+    """V per texel [6, R, R] (0 or 1) of one pixel's visibility mask ``words`` (uint32): texel
+    (f, row, col) lies in cell (f, row·Rv/R, col·Rv/R), whose bit is bit b % 32 of word b // 32,
+    b = (f·Rv + cell row)·Rv + cell column (the layout of iblbench.scenes.visibility)."""
+    face, row, col = np.meshgrid(np.arange(6), np.arange(res), np.arange(res), indexing="ij")
+    bit = (face * vis_res + row * vis_res // res) * vis_res + col * vis_res // res
+    return (np.asarray(words, np.uint64)[bit // 32] >> (bit % 32).astype(np.uint64)) & 1
+
+
 def twin_image(gbuffer: GBuffer, env: np.ndarray, order: int = GAUSS_ORDER) -> np.ndarray:
-    """The reference radiance of every pixel [H, W, 3], float64."""
+    """The reference radiance of every pixel [H, W, 3], float64; with the G-buffer's visibility
+    masks, each texel's integrals times its cell's V."""
     env = np.asarray(env, np.float64)
     out = np.zeros(gbuffer.shape + (3,))
     for index in np.ndindex(gbuffer.shape):
         m = float(gbuffer.shininess[index])
         cosine, lobe = texel_integrals(gbuffer.normal[index], gbuffer.view[index], m, env.shape[1], order)
+        if gbuffer.visibility is not None:
+            open_texels = texel_visibility(gbuffer.visibility[index], gbuffer.visibility_res, env.shape[1])
+            cosine, lobe = cosine * open_texels, lobe * open_texels
         diffuse = np.einsum("frc,frck->k", cosine, env)
         specular = np.einsum("frc,frck->k", lobe, env)
         out[index] = (gbuffer.kd[index] / np.pi * diffuse
