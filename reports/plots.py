@@ -159,10 +159,12 @@ def _positive(values) -> np.ndarray:
     return np.where(values > 0, values, np.nan)   # log axes: zero/negative cannot be drawn
 
 
-def plot_error_vs_time(path: pathlib.Path, summary, scene: str) -> None:
+def plot_error_vs_time(path: pathlib.Path, summary, scene: str,
+                       xlabel: str = "device time per frame (ms: build + sample + shade)") -> None:
     """relMSE and mean ΔE76 against ms/frame, log-log, a curve per estimator (points labelled
     with their spp, error bars in time and error), the Pareto front of the means over all cells
-    ringed and joined, cells behind it by their means only, not resolved, ringed in grey."""
+    ringed and joined, cells behind it by their means only, not resolved, ringed in grey.
+    ``xlabel`` names what ``time_ms`` holds (the report charges shadow rays into it)."""
     styles = _styles(summary)
     fig, axes = plt.subplots(1, 2, figsize=(11, 6.0), layout="constrained")
     for ax, (column, label) in zip(axes, ERRORS):
@@ -185,7 +187,7 @@ def plot_error_vs_time(path: pathlib.Path, summary, scene: str) -> None:
         ax.set_xscale("log")
         ax.set_yscale("log")
         _plain_log_axes(ax, "xy")
-        ax.set_xlabel("device time per frame (ms: build + sample + shade)")
+        ax.set_xlabel(xlabel)
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
     _figure_legend(fig)

@@ -60,7 +60,7 @@ REQUIRED_COLUMNS = ("scene", "estimator", "spp", "frame", "seed", "mean_delta_e7
                     "mean_delta_e2000", "rel_mse", "used_samples", "effective_samples",
                     "effective_ratio", "nonfinite", TIME, "time_ms_iqr", "time_ms_host")
 MEAN_COLUMNS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "used_samples",
-                "effective_samples", "effective_ratio")
+                "effective_samples", "effective_ratio", "shadow_rays")
 # Each is a cell's mean over seeds with its interval (module docstring).
 INTERVAL_COLUMNS = (*MEAN_COLUMNS, "flip", TIME, "time_ms_iqr", "time_ms_host", "efficiency")
 
@@ -167,7 +167,7 @@ _TABLE_COLUMNS = {   # summary column → header (with units)
     "effective_ratio": "effective ratio", "effective_samples": "effective spp",
     "used_samples": "used spp", "flip": "FLIP", "time_ms": "ms/frame (device)",
     "time_ms_iqr": "IQR ms", "time_ms_host": "ms/frame (host wall)",
-    "efficiency": "efficiency 1/(relMSE·s)",
+    "efficiency": "efficiency 1/(relMSE·s)", "shadow_rays": "shadow rays/px",
     "nonfinite": "non-finite px", "pareto_rel_mse": "Pareto (relMSE)",
     "pareto_delta_e76": "Pareto (ΔE76)",
 }
@@ -525,6 +525,44 @@ def _slug(text: str) -> str:
 
 # ---- the page ---------------------------------------------------------------------------------
 
+def ray_costs(manifest: dict | None, ray_cost_ns: float | None) -> dict[str, tuple[float, int]]:
+    """Per scene with visibility: (ns per shadow ray, covered pixels), the cost being
+    ``ray_cost_ns`` or, by default, the host Embree rate its trace measured (the manifest's
+    visibility record)."""
+    costs = {}
+    for record in (manifest or {}).get("visibility") or []:
+        rate = record.get("embree_rays_per_s")
+        if "covered_pixels" in record and (ray_cost_ns is not None or rate):
+            costs[record["scene"]] = (ray_cost_ns if ray_cost_ns is not None else 1e9 / rate,
+                                      int(record["covered_pixels"]))
+    return costs
+
+
+def with_ray_cost(cells: pd.DataFrame, ns_per_ray: float, pixels: int) -> pd.DataFrame:
+    """``cells`` with ``time_ms`` (and its interval) plus each cell's shadow rays for the frame
+    at ``ns_per_ray``: time + shadow_rays × pixels × cost, Kronander's trade-off of BIS."""
+    charge = cells.shadow_rays * pixels * ns_per_ray * 1e-6
+    return cells.assign(**{c: cells[c] + charge for c in (TIME, f"{TIME}_low", f"{TIME}_high") if c in cells})
+
+
+def _visibility_table(manifest: dict) -> markupsafe.Markup | None:
+    """The visibility records: one row per scene and Rv of the masked reference against real
+    shadow rays (``harness/protocol/visibility_error.py``), with the trace's cost."""
+    rows = []
+    for record in manifest.get("visibility") or []:
+        base = {"scene": record["scene"], "scene Rv": record["visibility_res"],
+                "traced": "skipped: " + record["skipped"] if "skipped" in record
+                else ("cached" if record.get("cached") else f"{record.get('trace_seconds', 0):.1f} s"),
+                "Embree rays/s": record.get("embree_rays_per_s", "–")}
+        for error in record.get("geometric_error") or [{}]:
+            rows.append({**base, "Rv": error.get("visibility_res", "–") if error else "–",
+                         "masked − shadow rays (Σ Y, relative)": error.get("relative_difference", "–"),
+                         "per pixel p90": error.get("pixel_difference_p90", "–"),
+                         "shadow rays' std. error": error.get("relative_standard_error", "–"),
+                         "pixels × samples": f"{error['pixels']} × {error['samples']}" if error else "–"})
+    return _table_html(pd.DataFrame(rows), "summary") if rows else None
+
+
 def _manifest_context(manifest: dict | None) -> dict | None:
     if manifest is None:
         return None
@@ -550,6 +588,7 @@ def _manifest_context(manifest: dict | None) -> dict | None:
         "timing": _dict_table(manifest["timing"]) if manifest.get("timing") else None,
         "stages": _table_html(stages, "summary") if len(stages) else None,
         "skipped": _table_html(skipped, "summary wraps") if len(skipped) else None,
+        "visibility": _visibility_table(manifest),
         "status": manifest.get("status"),
         "protocol": manifest.get("protocol"),
         "git_revision": manifest.get("git_revision"),
@@ -559,13 +598,14 @@ def _manifest_context(manifest: dict | None) -> dict | None:
 
 def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
                  frame: int | None = None, pixel: tuple[int, int] | None = None,
-                 device: str | None = None) -> dict:
+                 device: str | None = None, ray_cost_ns: float | None = None) -> dict:
     """Write ``run_dir/report/index.html`` and its images; returns the template context
     (``path`` is the page).  ``spp``/``seed``/``frame`` pick the images shown (default: the
     largest spp every estimator ran, the run's first seed, each sequence's median-luminance frame
     (:mod:`.frames`); one the run
     lacks is an InputError) and ``pixel`` (x, y) the sample picture's pixel (default: the covered
-    pixel nearest the centre)."""
+    pixel nearest the centre); ``ray_cost_ns`` the cost of a shadow ray in the error against
+    time-plus-rays plot of scenes with visibility (default: the Embree rate their trace measured)."""
     run_dir = pathlib.Path(run_dir)
     table, manifest = load_run(run_dir)
     table, equal_time = split_equal_time(table)
@@ -589,7 +629,8 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
             compute_holder["c"] = get_compute(device)
         return compute_holder["c"]
 
-    shown = {"spp": spp, "seed": seed, "frame": frame, "pixel": pixel}
+    shown = {"spp": spp, "seed": seed, "frame": frame, "pixel": pixel,
+             "ray_costs": ray_costs(manifest, ray_cost_ns)}
     scenes = [_scene_section(run_dir, report, manifest, table, cells, equal_time, convergence,
                              scene, shown, compute)
               for scene in dict.fromkeys(table.scene)]
@@ -608,7 +649,7 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
     scene_cells = cells[cells.scene == scene]
     rows = table[table.scene == scene]
     slug = _slug(scene)
-    figures = _scene_figures(report, scene_cells, scene, slug)
+    figures = _scene_figures(report, scene_cells, scene, slug, shown["ray_costs"].get(scene))
     frames = sorted(set(rows.frame))
     frame = shown["frame"]
     if frame is not None and len(frames) > 1:
@@ -636,11 +677,21 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
             "spp": sorted(set(int(v) for v in rows.spp))}
 
 
-def _scene_figures(report: pathlib.Path, scene_cells, scene: str, slug: str) -> dict:
-    """Error against time (Pareto front), convergence and effective samples of one scene."""
+def _scene_figures(report: pathlib.Path, scene_cells, scene: str, slug: str,
+                   ray_cost: tuple[float, int] | None) -> dict:
+    """Error against time (Pareto front), convergence and effective samples of one scene, and
+    for a scene with visibility error against time plus shadow rays at ``ray_cost``
+    (ns per ray, covered pixels)."""
     figures = {"time": f"error_vs_time_{slug}.png", "spp": f"convergence_{slug}.png",
                "effective": f"effective_{slug}.png"}
     plots.plot_error_vs_time(report / figures["time"], scene_cells, scene)
+    if ray_cost is not None and "shadow_rays" in scene_cells:
+        ns_per_ray, pixels = ray_cost
+        figures["ray_cost"] = f"error_vs_time_and_rays_{slug}.png"
+        figures["ns_per_ray"] = ns_per_ray
+        plots.plot_error_vs_time(report / figures["ray_cost"], with_ray_cost(scene_cells, ns_per_ray, pixels),
+                                 scene, xlabel=f"device time + shadow rays × {ns_per_ray:.3g} ns "
+                                               f"(ms per frame, {pixels} pixels)")
     plots.plot_convergence(report / figures["spp"], scene_cells, scene)
     plots.plot_effective(report / figures["effective"], scene_cells, scene)
     return figures

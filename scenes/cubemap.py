@@ -111,3 +111,34 @@ def integrate(env: np.ndarray) -> np.ndarray:
 def face_luminance_integrals(env: np.ndarray) -> np.ndarray:
     """I_f = Σ_texels Y·Ω per face, float64 ``[6]`` (Lu 2013 Eq. 3's face intensity)."""
     return np.einsum("frc,rc->f", luminance(env), texel_solid_angles(env.shape[1]))
+
+
+class MapSampler:
+    """A cube map's radiance lookup (nearest texel) and its luminance sampler (DESIGN §3)."""
+
+    def __init__(self, env):
+        self.env = np.asarray(env, np.float64)
+        self.res = res = self.env.shape[1]
+        weight = luminance(self.env) * texel_solid_angles(res)   # Y·Ω
+        self.prob = (weight / weight.sum()).reshape(-1)   # μ_f P(texel|f) = Y·Ω/Σ I
+        self.cumulative = np.cumsum(self.prob)
+
+    def radiance(self, w):
+        face, row, col = direction_to_texel(w, self.res)
+        return self.env[face, row, col]
+
+    def pdf(self, w):
+        face, s, t = direction_to_face_st(w)
+        res = self.res
+        row, col = (np.clip(np.floor(a * res).astype(int), 0, res - 1) for a in (t, s))
+        x, y = 2 * s - 1, 2 * t - 1
+        return self.prob[(face * res + row) * res + col] * (1 + x * x + y * y) ** 1.5 * res * res / 4
+
+    def sample(self, shape, rng):
+        texel = np.minimum(np.searchsorted(self.cumulative, rng.random(shape) * self.cumulative[-1],
+                                           side="right"), self.prob.size - 1)
+        face, rest = np.divmod(texel, self.res * self.res)
+        row, col = np.divmod(rest, self.res)
+        s = (col + rng.random(shape)) / self.res
+        t = (row + rng.random(shape)) / self.res
+        return face_st_to_direction(face, s, t)

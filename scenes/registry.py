@@ -209,6 +209,8 @@ STUDIO_LIGHT_AZIMUTH_DEG = -82.8
 # a quarter of a 64² one (0.7 against 2.6 s: the sub-sample count per texel is capped, so 64²
 # costs 4× the samples).
 PARK_TURN_RESOLUTION = (48, 48)
+# park-ground: the ground fills most of the frame (twice sphere-park's covered pixels at 128²).
+PARK_GROUND_RESOLUTION = (96, 96)
 PARK_TURN_ENV_RES = 32
 
 
@@ -256,7 +258,7 @@ def _park_ground(env_res: int | None) -> Scene:
     env = _shipped_environment(PARK_MAP, env_res or DEFAULT_ENV_RES)
     return Scene(name="park-ground", mesh=meshes.on_ground(meshes.sphere()), material=_MATERIAL,
                  camera=camera, environment=EnvSequence.static(env, source=f"shipped:{PARK_MAP}"),
-                 resolution=(128, 128), source="builtin:park-ground", visibility=True)
+                 resolution=PARK_GROUND_RESOLUTION, source="builtin:park-ground", visibility=True)
 
 
 def _sphere_studio(env_res: int | None) -> Scene:

@@ -18,7 +18,7 @@ does not hit the triangle it starts on); the bit is 1 when at least two of the f
 scene (a majority, ties counted visible).  Cells wholly below the shading normal's horizon (all
 four corners have n·ω ≤ 0) are not traced and hold 0: the integrand ρ·cos⁺ is 0 there, so their
 bit never changes an image.  How close this V is to true geometric visibility is measured, not
-assumed (``harness/verify/visibility_error.py``).
+assumed (:mod:`iblbench.harness.protocol.visibility_error`).
 
 Cache.  :func:`cached_visibility` keeps masks on disk (``<folder>/<key>.npz``, written
 atomically), keyed by a hash of this module's source, the mesh's vertices and faces, the camera,
@@ -108,7 +108,8 @@ def cell_of(directions: np.ndarray, vis_res: int) -> np.ndarray:
     return (face * vis_res + row) * vis_res + col
 
 
-def _occlusion_scene(mesh):
+def occlusion_scene(mesh):
+    """An Embree scene of ``mesh`` for :func:`unoccluded`."""
     from embreex import rtcore_scene as rtcs
     from embreex.mesh_construction import TriangleMesh
 
@@ -143,14 +144,18 @@ def offset_points(mesh, camera, width: int, height: int) -> tuple[np.ndarray, np
 
 
 def trace_visibility(mesh, camera, normals: np.ndarray, width: int, height: int,
-                     vis_res: int) -> tuple[np.ndarray, TraceStats]:
+                     vis_res: int, only: np.ndarray | None = None) -> tuple[np.ndarray, TraceStats]:
     """The masks ``[H, W, words]`` uint32 (zeros off the mesh) of the module docstring, and the
-    tracing cost.  ``normals`` ``[H, W, 3]``: the G-buffer's shading normals (the horizon test)."""
+    tracing cost.  ``normals`` ``[H, W, 3]``: the G-buffer's shading normals (the horizon test).
+    ``only``: a boolean ``[H, W]`` of the pixels to trace (the others stay 0); None for all."""
     rays, corners = cell_rays(vis_res)
     k = rays.shape[1]
     origins, covered = offset_points(mesh, camera, width, height)
+    if only is not None:
+        keep = np.asarray(only).reshape(-1)[covered]
+        origins, covered = origins[keep], covered[keep]
     shading = normals.reshape(-1, 3)[covered].astype(np.float64)
-    scene = _occlusion_scene(mesh)
+    scene = occlusion_scene(mesh)
     masks = np.zeros((width * height, words(vis_res)), np.uint32)
     traced, start = 0, time.perf_counter()
     for first in range(0, len(covered), PIXELS_PER_BATCH):

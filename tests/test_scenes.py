@@ -246,10 +246,11 @@ def test_builtin_sphere_sun_scene_is_case_insensitive():
 
 
 EXPECTED_SCENES = ("blob-sun", "sphere-backlit", "sphere-sun", "torus-sun", "sphere-park",
-                   "sphere-studio", "blob-day", "torus-moving", "sphere-switch", "park-turn")
-SEQUENCE_SCENES = ("blob-day", "torus-moving", "sphere-switch", "park-turn")
+                   "sphere-studio", "blob-day", "torus-moving", "sphere-switch", "park-turn",
+                   "sphere-ground", "park-ground", "torus-day")
+SEQUENCE_SCENES = ("blob-day", "torus-moving", "sphere-switch", "park-turn", "torus-day")
 # park-turn, the default sweep's short sequence, is small by default (scenes/registry.py).
-OWN_SIZE = {"park-turn": ((48, 48), 32)}
+OWN_SIZE = {"park-turn": ((48, 48), 32), "park-ground": ((96, 96), 64)}
 
 
 def test_scene_names_lists_every_builtin_scene():

@@ -637,7 +637,9 @@ class Runner:
                              f"the camera sees none of the mesh{mesh}; check the camera's eye "
                              "and target, and the mesh's position and size")
         warn_about_framing(scene, gbuffer)   # too few mesh pixels, or the camera inside the mesh
-        gbuffer, record = attach_visibility(scene, gbuffer, plan.env_res, cache_dir() / "visibility")
+        gbuffer, record = attach_visibility(self.compute, scene, gbuffer,
+                                            scene.environment.frame(plan.frames[0]),
+                                            cache_dir() / "visibility")
         if record is not None:
             self.visibility.append(record)
             if record.get("cached") or "skipped" in record:

@@ -5,26 +5,28 @@ from __future__ import annotations
 import dataclasses
 import time
 
+from iblbench.harness.protocol.visibility_error import visibility_error
 from iblbench.scenes import visibility
 from iblbench.scenes.errors import InputError
 
 
-def attach_visibility(scene, gbuffer, env_res: int, folder) -> tuple[object, dict | None]:
+def attach_visibility(compute, scene, gbuffer, env, folder) -> tuple[object, dict | None]:
     """``gbuffer`` with the scene's visibility masks (:mod:`iblbench.scenes.visibility`), and the
     manifest's record of them (None for a scene that asks for no visibility): its resolution,
-    whether the cache held it, the rays traced and the Embree ray rate of that trace, or why it
-    was skipped.
+    whether the cache held it, the rays traced and the Embree ray rate of that trace, and
+    ``geometric_error``, the masked reference against real shadow rays under ``env`` (a frame of
+    the scene) at Rv/2, Rv and 2·Rv (:mod:`.visibility_error`); or why it was skipped.
 
     A scene that asks for visibility but has one convex mesh and nothing else gets none
     (V = 1 wherever the surface faces ω: nothing to trace), and the record says so."""
     if not scene.visibility:
         return gbuffer, None
-    record = {"scene": scene.name, "visibility_res": scene.visibility_res}
+    record = {"scene": scene.name, "visibility_res": scene.visibility_res, "covered_pixels": gbuffer.covered}
     if not visibility.needs_visibility(scene.mesh):
         return gbuffer, dict(record, skipped="one convex mesh and nothing else: V = 1 wherever its "
                                              "surface faces ω, so nothing is traced")
     try:
-        visibility.check_resolution(scene.visibility_res, env_res)
+        visibility.check_resolution(scene.visibility_res, env.shape[1])
     except ValueError as error:
         raise InputError(scene.source or scene.name, str(error)) from None
     start = time.perf_counter()
@@ -34,5 +36,6 @@ def attach_visibility(scene, gbuffer, env_res: int, folder) -> tuple[object, dic
                   rays=stats.rays, trace_seconds=round(stats.seconds, 3),
                   embree_rays_per_s=round(stats.rays_per_second),
                   bytes_per_pixel=4 * visibility.words(scene.visibility_res),
-                  rays_per_cell=visibility.RAYS_PER_CELL_SIDE ** 2)
+                  rays_per_cell=visibility.RAYS_PER_CELL_SIDE ** 2,
+                  geometric_error=visibility_error(compute, scene, gbuffer, env))
     return dataclasses.replace(gbuffer, visibility=masks, visibility_res=scene.visibility_res), record

@@ -78,7 +78,7 @@ import dataclasses
 
 import numpy as np
 
-from iblbench.scenes import cubemap
+from iblbench.scenes.cubemap import MapSampler as Map
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -138,37 +138,6 @@ def about_axis(axis, cos_theta, u):
     sin_theta = np.sqrt(np.maximum(1 - cos_theta ** 2, 0))[..., None]
     phi = 2 * np.pi * u[..., None]
     return cos_theta[..., None] * axis + sin_theta * (np.cos(phi) * a + np.sin(phi) * b)
-
-
-class Map:
-    """A cube map's radiance lookup (nearest texel) and its luminance sampler (DESIGN §3)."""
-
-    def __init__(self, env):
-        self.env = np.asarray(env, np.float64)
-        self.res = res = self.env.shape[1]
-        weight = cubemap.luminance(self.env) * cubemap.texel_solid_angles(res)   # Y·Ω
-        self.prob = (weight / weight.sum()).reshape(-1)   # μ_f P(texel|f) = Y·Ω/Σ I
-        self.cumulative = np.cumsum(self.prob)
-
-    def radiance(self, w):
-        face, row, col = cubemap.direction_to_texel(w, self.res)
-        return self.env[face, row, col]
-
-    def pdf(self, w):
-        face, s, t = cubemap.direction_to_face_st(w)
-        res = self.res
-        row, col = (np.clip(np.floor(a * res).astype(int), 0, res - 1) for a in (t, s))
-        x, y = 2 * s - 1, 2 * t - 1
-        return self.prob[(face * res + row) * res + col] * (1 + x * x + y * y) ** 1.5 * res * res / 4
-
-    def sample(self, shape, rng):
-        texel = np.minimum(np.searchsorted(self.cumulative, rng.random(shape) * self.cumulative[-1],
-                                           side="right"), self.prob.size - 1)
-        face, rest = np.divmod(texel, self.res * self.res)
-        row, col = np.divmod(rest, self.res)
-        s = (col + rng.random(shape)) / self.res
-        t = (row + rng.random(shape)) / self.res
-        return cubemap.face_st_to_direction(face, s, t)
 
 
 def systematic_indices(weights, n, rng):
