@@ -217,6 +217,27 @@ def test_a_run_records_visibility_and_shadow_rays(tmp_path):
     assert table.loc[("sphere-ground", "bis"), "shadow_rays"] == 4          # N, not M + N
     assert table.loc[("sphere-ground", "bis"), "evaluations"] > 4
     assert (table.loc["sphere-sun", "shadow_rays"] == 0).all()
+    # The report: the visibility table in the manifest section, and error against time plus
+    # shadow rays for sphere-ground only, at the measured rate or the one asked for.
+    from iblbench.reports.report import write_report
+    context = write_report(out, ray_cost_ns=250.0)
+    html = context["path"].read_text()
+    assert "<h3>Visibility</h3>" in html and "Error against time and shadow rays" in html
+    figures = {s["name"]: s["figures"] for s in context["scenes"]}
+    assert figures["sphere-ground"]["ns_per_ray"] == 250.0 and "ray_cost" not in figures["sphere-sun"]
+    assert (out / "report" / figures["sphere-ground"]["ray_cost"]).is_file()
+    default = {s["name"]: s["figures"] for s in write_report(out)["scenes"]}
+    assert default["sphere-ground"]["ns_per_ray"] == pytest.approx(1e9 / record["embree_rays_per_s"])
+
+
+def test_ray_cost_adds_each_cells_shadow_rays_to_its_time_and_interval():
+    import pandas as pd
+    from iblbench.reports.report import with_ray_cost
+    cells = pd.DataFrame({"shadow_rays": [10.0, 0.0], "time_ms": [2.0, 3.0], "time_ms_low": [1.5, 2.5],
+                          "time_ms_high": [2.5, 3.5]})
+    charged = with_ray_cost(cells, ns_per_ray=1000.0, pixels=100)    # 10 × 100 × 1 µs = 1 ms
+    assert charged.time_ms.tolist() == [3.0, 3.0]
+    assert charged.time_ms_low.tolist() == [2.5, 2.5] and charged.time_ms_high.tolist() == [3.5, 3.5]
 
 
 def _user_scene(tmp_path, mesh, render: str) -> str:
