@@ -96,8 +96,8 @@ class PoolEstimator(Estimator):
         cdfs = self.light_cdfs(cache)
         pool = cache.light_pool(self.pool_size(spp), seed, self.mis_compensated)
         plane = 12 * pool.per_face + 16   # POOL_PLANE_STRIDE (light_pool.cl)
-        planes = compute.empty(7 * plane * 4)
-        events = [compute.run(self._kernel(compute, "pool_planes"), plane, pool.dir_pdf, pool.radiance,
+        planes = compute.empty(8 * plane * 4)   # POOL_PLANES (light_pool.cl)
+        events = [compute.run(self._kernel(compute, "pool_planes", gbuffer), plane, pool.dir_pdf, pool.radiance,
                               np.int32(pool.per_face), planes)]
         shared_brdf = self.brdf_samples and self.params.shared_sequence
         numbers_stride = 16 * (spp // 16 + 1)   # BRDF_NUMBERS_STRIDE (light_pool.cl)

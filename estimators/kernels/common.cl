@@ -172,15 +172,21 @@ inline float area_per_solid_angle(float u, float v)
 #endif
 #define VIS_WORDS ((6 * VIS_RES * VIS_RES + 31) / 32)
 
+/* The visibility cell (its bit's index) that holds direction w. */
+ALWAYS_INLINE int visibility_cell(vec3_t w)
+{
+    float s, t;
+    int face = cube_face_st(w, &s, &t);
+    return (face * VIS_RES + clamp((int)floor(t * VIS_RES), 0, VIS_RES - 1)) * VIS_RES
+         + clamp((int)floor(s * VIS_RES), 0, VIS_RES - 1);
+}
+
 /* V(x_pixel, w) (the one visibility function of every kernel; light_pool.cl's lanes_visible is
  * its lanes form): 1 where the pixel's mask says the cell of w is open, else 0. */
 ALWAYS_INLINE int visible(__global const uint *visibility, int pixel, vec3_t w)
 {
 #if VISIBILITY
-    float s, t;
-    int face = cube_face_st(w, &s, &t);
-    int cell = (face * VIS_RES + clamp((int)floor(t * VIS_RES), 0, VIS_RES - 1)) * VIS_RES
-             + clamp((int)floor(s * VIS_RES), 0, VIS_RES - 1);
+    int cell = visibility_cell(w);
     return (int)((visibility[pixel * VIS_WORDS + (cell >> 5)] >> (cell & 31)) & 1u);
 #else
     return 1;

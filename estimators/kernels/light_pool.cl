@@ -165,6 +165,7 @@ typedef rng_block16_t lane_block_t;
 #define vload_lanes vload16
 #define convert_lanes convert_float16
 #define convert_lane_ints convert_int16
+#define as_lane_ints as_int16
 #define convert_lane_longs convert_long16
 #define phong_power_lanes phong_power16
 #define phong_power_log2_lanes phong_power16_log2
@@ -193,6 +194,7 @@ typedef rng_block8_t lane_block_t;
 #define vload_lanes vload8
 #define convert_lanes convert_float8
 #define convert_lane_ints convert_int8
+#define as_lane_ints as_int8
 #define convert_lane_longs convert_long8
 #define phong_power_lanes phong_power8
 #define phong_power_log2_lanes phong_power8_log2
@@ -240,16 +242,26 @@ ALWAYS_INLINE lane_ints_t lanes_clamp_index(lanes_t x, int res)
     return clamp(convert_lane_ints(floor(x * (float)res)), (lane_ints_t)0, (lane_ints_t)(res - 1));
 }
 
-/* visible() of common.cl for the lanes' directions w, as a mask (-1 where the cell of w is open,
- * 0 where shadowed); all open without VISIBILITY. */
+/* The pixel's mask bits of the lanes' visibility cells (visibility_cell of common.cl), as a mask:
+ * -1 where open, 0 where shadowed; all open without VISIBILITY. */
+ALWAYS_INLINE lane_ints_t lanes_cells_open(__global const uint *visibility, int pixel, lane_ints_t cell)
+{
+#if VISIBILITY
+    lane_uints_t word = GATHER(lane_uints_t, visibility + pixel * VIS_WORDS, cell >> 5);
+    return ((word >> convert_lane_uints(cell & 31)) & 1u) != 0u;
+#else
+    return (lane_ints_t)(-1);
+#endif
+}
+
+/* visible() of common.cl for the lanes' directions w, as lanes_cells_open's mask. */
 ALWAYS_INLINE lane_ints_t lanes_visible(__global const uint *visibility, int pixel, lanes3_t w)
 {
 #if VISIBILITY
     lanes_t s, t;
     lane_ints_t face = cube_face_st_lanes(w, &s, &t);
     lane_ints_t cell = (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES + lanes_clamp_index(s, VIS_RES);
-    lane_uints_t word = GATHER(lane_uints_t, visibility + pixel * VIS_WORDS, cell >> 5);
-    return ((word >> convert_lane_uints(cell & 31)) & 1u) != 0u;
+    return lanes_cells_open(visibility, pixel, cell);
 #else
     return (lane_ints_t)(-1);
 #endif
@@ -281,11 +293,12 @@ ALWAYS_INLINE void add_samples(lanes_sum_t *acc, const shading_t *s, lane_ints_t
     acc->effective += select((lane_ints_t)0, beta, counts);
 }
 
-/* The pool is read as planes (pool_planes kernel): x, y, z, pdf, R, G, B, each of
+/* The pool is read as planes (pool_planes kernel): x, y, z, pdf, R, G, B and the visibility cell
+ * of the direction (int bits; shared by every pixel, so no pixel finds it again), each of
  * POOL_PLANE_STRIDE(size) floats, face f's entries at [2·size·f, 2·size·f + size) and again after
  * them, so a pixel's window of draws from any offset < size is contiguous (no wrap), and zeros
  * past the last face pad the last lanes. */
-#define POOL_PLANES 7
+#define POOL_PLANES 8
 #define POOL_PLANE_STRIDE(size) (12 * (size) + 16)
 
 ALWAYS_INLINE lanes3_t lanes3_load(__global const float *plane0, int stride, int i)
@@ -314,9 +327,10 @@ ALWAYS_INLINE void shade_light_faces(lanes_sum_t *acc, const shading_t *s, const
             lanes_t denominator = face_ticks * pdf;
             if (brdf_samples)
                 denominator += (float)ticks[6] * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
+            lane_ints_t cell = as_lane_ints(vload_lanes(0, planes + 7 * stride + first + i));
             add_samples(acc, s, i + LANE_NUMBERS < draws, lanes_beta(ticks[f], i), cosine, power,
                         lanes3_load(planes + 4 * stride, stride, first + i), denominator,
-                        lanes_visible(visibility, pixel, w));
+                        lanes_cells_open(visibility, pixel, cell));
         }
     }
 }

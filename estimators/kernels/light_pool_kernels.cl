@@ -9,8 +9,8 @@
 #include "light_pool.cl"
 
 /* The pool as planes for shade_light_faces: work item k writes entry k of the planes x, y, z,
- * pdf, R, G, B (POOL_PLANE_STRIDE(size) floats each): face f's entry i at k = 2·size·f + i and
- * 2·size·f + size + i, zeros past the six faces. */
+ * pdf, R, G, B and the direction's visibility cell (POOL_PLANE_STRIDE(size) floats each): face
+ * f's entry i at k = 2·size·f + i and 2·size·f + size + i, zeros past the six faces. */
 __kernel void pool_planes(__global const float4 *dir_pdf, __global const float4 *radiance,
                           const int pool_size, __global float *planes)
 {
@@ -26,6 +26,7 @@ __kernel void pool_planes(__global const float4 *dir_pdf, __global const float4 
     planes[4 * stride + k] = c.x;
     planes[5 * stride + k] = c.y;
     planes[6 * stride + k] = c.z;
+    planes[7 * stride + k] = as_float(valid ? visibility_cell(vec3(d.x, d.y, d.z)) : 0);
 }
 
 /* The shared BRDF numbers of draw i = get_global_id(0) (see BRDF_NUMBERS_STRIDE), the scalar

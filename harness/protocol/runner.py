@@ -118,7 +118,7 @@ from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Jou
 from iblbench.harness.protocol.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
                                                   CELL_CORRECTIONS, TOLERANCE, Calibration,
                                                   best_measured, corrected_spp)
-from iblbench.harness.protocol.shadows import attach_visibility
+from iblbench.harness.protocol.shadows import attach_visibility, measured_record
 from iblbench.harness.protocol.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times,
                                               device_ms, host_threads_capped, required_build_ms,
                                               time_columns, measure_timing_floor, timed_renders,
@@ -637,10 +637,10 @@ class Runner:
                              f"the camera sees none of the mesh{mesh}; check the camera's eye "
                              "and target, and the mesh's position and size")
         warn_about_framing(scene, gbuffer)   # too few mesh pixels, or the camera inside the mesh
-        gbuffer, record = attach_visibility(self.compute, scene, gbuffer,
-                                            scene.environment.frame(plan.frames[0]),
-                                            cache_dir() / "visibility")
+        gbuffer, record = attach_visibility(scene, gbuffer, plan.env_res, cache_dir() / "visibility")
         if record is not None:
+            record = measured_record(self.compute, scene, gbuffer,
+                                     scene.environment.frame(plan.frames[0]), record)
             self.visibility.append(record)
             if record.get("cached") or "skipped" in record:
                 self.skipped.append({"scene": scene.name, "stage": "visibility",

@@ -10,12 +10,11 @@ from iblbench.scenes import visibility
 from iblbench.scenes.errors import InputError
 
 
-def attach_visibility(compute, scene, gbuffer, env, folder) -> tuple[object, dict | None]:
+def attach_visibility(scene, gbuffer, env_res: int, folder) -> tuple[object, dict | None]:
     """``gbuffer`` with the scene's visibility masks (:mod:`iblbench.scenes.visibility`), and the
     manifest's record of them (None for a scene that asks for no visibility): its resolution,
-    whether the cache held it, the rays traced and the Embree ray rate of that trace, and
-    ``geometric_error``, the masked reference against real shadow rays under ``env`` (a frame of
-    the scene) at Rv/2, Rv and 2·Rv (:mod:`.visibility_error`); or why it was skipped.
+    whether the cache held it, the rays traced and the Embree ray rate of that trace; or why it
+    was skipped.  (The runner adds the masks' ``geometric_error``: :func:`measured_record`.)
 
     A scene that asks for visibility but has one convex mesh and nothing else gets none
     (V = 1 wherever the surface faces ω: nothing to trace), and the record says so."""
@@ -26,7 +25,7 @@ def attach_visibility(compute, scene, gbuffer, env, folder) -> tuple[object, dic
         return gbuffer, dict(record, skipped="one convex mesh and nothing else: V = 1 wherever its "
                                              "surface faces ω, so nothing is traced")
     try:
-        visibility.check_resolution(scene.visibility_res, env.shape[1])
+        visibility.check_resolution(scene.visibility_res, env_res)
     except ValueError as error:
         raise InputError(scene.source or scene.name, str(error)) from None
     start = time.perf_counter()
@@ -36,6 +35,14 @@ def attach_visibility(compute, scene, gbuffer, env, folder) -> tuple[object, dic
                   rays=stats.rays, trace_seconds=round(stats.seconds, 3),
                   embree_rays_per_s=round(stats.rays_per_second),
                   bytes_per_pixel=4 * visibility.words(scene.visibility_res),
-                  rays_per_cell=visibility.RAYS_PER_CELL_SIDE ** 2,
-                  geometric_error=visibility_error(compute, scene, gbuffer, env))
+                  rays_per_cell=visibility.RAYS_PER_CELL_SIDE ** 2)
     return dataclasses.replace(gbuffer, visibility=masks, visibility_res=scene.visibility_res), record
+
+
+def measured_record(compute, scene, gbuffer, env, record: dict) -> dict:
+    """``record`` with ``geometric_error`` where the scene's masks were traced or read: the
+    masked reference against real shadow rays under ``env`` (a frame of the scene) at Rv/2, Rv
+    and 2·Rv (:mod:`.visibility_error`)."""
+    if gbuffer.visibility is None:
+        return record
+    return dict(record, geometric_error=visibility_error(compute, scene, gbuffer, env))

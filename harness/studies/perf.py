@@ -551,9 +551,10 @@ def run_perf(config: PerfConfig, log=print):
 
     from iblbench.estimators.registry import estimator_names
     from iblbench.estimators.uniform import Uniform
-    from iblbench.estimators.runtime.device import get_compute
+    from iblbench.estimators.runtime.device import cache_dir, get_compute
     from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
     from iblbench.estimators.runtime.framecache import FrameCache
+    from iblbench.harness.protocol.shadows import attach_visibility
     from iblbench.harness.protocol.sweep import parse_estimator
     from iblbench.scenes.gbuffer import trace_gbuffer
     from iblbench.scenes.registry import load_scene
@@ -574,8 +575,9 @@ def run_perf(config: PerfConfig, log=print):
         gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, *config.resolution)
         if gbuffer.covered == 0:
             raise InputError(scene.source or scene.name, "the camera sees none of the mesh")
-        device_gbuffer = DeviceGBuffer(compute, gbuffer)
         env = np.asarray(scene.environment.frame(0), np.float32)
+        gbuffer, _ = attach_visibility(scene, gbuffer, env.shape[1], cache_dir() / "visibility")
+        device_gbuffer = DeviceGBuffer(compute, gbuffer)
         cells = []
         for spec in specs:
             spp, repeats = _budget(config, spec.cls.name)
@@ -590,7 +592,10 @@ def run_perf(config: PerfConfig, log=print):
         floor_image = numpy_floor(surface, pool, floor_spp)   # also its warm-up
         difference = math.nan
         if Uniform.name in {spec.cls.name for spec in specs}:
-            kernel = Uniform().render(device_gbuffer, floor_cache, floor_spp, FLOOR_SEED)
+            # The floor has no V: the kernel it must agree with renders without the masks.
+            unmasked = DeviceGBuffer(compute, dataclasses.replace(gbuffer, visibility=None)) \
+                if gbuffer.visibility is not None else device_gbuffer
+            kernel = Uniform().render(unmasked, floor_cache, floor_spp, FLOOR_SEED)
             difference = floor_difference(floor_image, kernel.radiance[gbuffer.mask])
         floor_times, floor_repeats = [], config.repeats or DEFAULT_REPEATS
         for round_ in range(max([floor_repeats] + [repeats for _, repeats in cells])):

@@ -220,13 +220,18 @@ CATALOGUE: tuple[Mutant, ...] = (
        "if (specular) result += rho_s * (m + 2.0f) / (2.0f * IBL_PI) * s;",
        "if (specular) result += rho_s * (m + 1.0f) / (2.0f * IBL_PI) * s;", ["uniform"], ["shininess"]),
     # ---- visibility (issue 22) -------------------------------------------------------------------
-    # A cell index that slips by one column: the estimators read the neighbouring cell's bit, the
-    # reference (which finds the cell from the texel) the right one.
-    _m("visibility-cell-index-off-by-one", POOL,
+    # A cell index that slips by one column (the pool's and the scalar kernels', then the lanes'):
+    # the estimators read the neighbouring cell's bit, the reference (which finds the cell from
+    # the texel) the right one.
+    _m("visibility-cell-index-off-by-one", COMMON,
+       "         + clamp((int)floor(s * VIS_RES), 0, VIS_RES - 1);",
+       "         + clamp((int)floor(s * VIS_RES) + 1, 0, VIS_RES - 1);",
+       ["uniform"], ["occlusion"]),
+    _m("visibility-lanes-cell-index-off-by-one", POOL,
        "lane_ints_t cell = (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES + lanes_clamp_index(s, VIS_RES);",
        "lane_ints_t cell = (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES\n"
        "                       + min(lanes_clamp_index(s, VIS_RES) + 1, (lane_ints_t)(VIS_RES - 1));",
-       ["uniform"], ["occlusion"]),
+       ["envmap"], ["occlusion"]),
     # Shadow rays from the hit point itself: they hit the triangle they start on.
     _m("visibility-without-normal-offset", "scenes/visibility.py",
        "return point + OFFSET_SCALE * diagonal * geometric, covered",
