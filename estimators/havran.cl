@@ -206,9 +206,17 @@ __kernel void filter_lights(__global const acc_t *dir_ring, __global const acc_t
     light_weight[k] = (float4)((float)w[0], (float)w[1], (float)w[2], 0.0f);
 }
 
+/* The visibility cell of each light's direction, once per frame for every pixel (VISIBILITY). */
+__kernel void light_cells(__global const float4 *light_dir, __global int *cells)
+{
+    int k = get_global_id(0);
+    cells[k] = visibility_cell(vec3_load(light_dir, k));
+}
+
 __kernel void render_havran(__global const float4 *normal, __global const float4 *view,
                             __global const float4 *kd, __global const float4 *ks_m,
-                            __global const uint *visibility, __global const float4 *light_dir, __global const float4 *light_weight,
+                            __global const uint *visibility, __global const int *light_cell,
+                            __global const float4 *light_dir, __global const float4 *light_weight,
                             const int count, __global float4 *radiance, __global float2 *counts,
                             __global int *evaluations)
 {
@@ -226,7 +234,7 @@ __kernel void render_havran(__global const float4 *normal, __global const float4
             continue;
         ++above;
         /* Havran's directional lights cast shadows: V at the light's direction. */
-        if (!visible(visibility, p, vec3_of(w)))
+        if (!cell_open(visibility, p, light_cell[k]))
             continue;
         sum += light_weight[k].xyz * phong_brdf(r, w, kdp, ksp, m) * c;
     }

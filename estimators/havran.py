@@ -516,14 +516,19 @@ class Havran(Estimator):
         # Like a light pool's build_ms, the frame's map build counts in every render's "sample"
         # stage, though it is built once per frame and reused.
         light_dir, light_weight, _, _, sample_ms = self._filtered(cache, int(spp), seed)
-        kernel = compute.kernel(self.kernel_package(), self.kernel_files[0], "render_havran",
-                                visibility_defines(gbuffer))
+        defines = visibility_defines(gbuffer)
+        cells = compute.empty(4 * int(spp) if defines else 4)
+        if defines:   # the lights' visibility cells, found once for every pixel
+            event = compute.run(compute.kernel(self.kernel_package(), self.kernel_files[0], "light_cells",
+                                               defines), int(spp), light_dir, cells)
+            sample_ms += event_ms(event)
+        kernel = compute.kernel(self.kernel_package(), self.kernel_files[0], "render_havran", defines)
         radiance = compute.empty(gbuffer.launch_size * 16)
         counts = compute.empty(gbuffer.launch_size * 8)
         evaluations = compute.empty(gbuffer.launch_size * 4)
         event = gbuffer.run(compute, kernel, gbuffer.normal, gbuffer.view, gbuffer.kd,
-                            gbuffer.ks, gbuffer.visibility, light_dir, light_weight, np.int32(spp), radiance, counts,
-                            evaluations)
+                            gbuffer.ks, gbuffer.visibility, cells, light_dir, light_weight, np.int32(spp),
+                            radiance, counts, evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean() \
             if gbuffer.count else 0.0
         return read_estimate(compute, gbuffer, radiance, counts, mean_evaluations,

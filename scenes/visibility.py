@@ -33,6 +33,7 @@ import os
 import pathlib
 import time
 import zipfile
+from typing import Callable
 
 import numpy as np
 
@@ -144,10 +145,12 @@ def offset_points(mesh, camera, width: int, height: int) -> tuple[np.ndarray, np
 
 
 def trace_visibility(mesh, camera, normals: np.ndarray, width: int, height: int,
-                     vis_res: int, only: np.ndarray | None = None) -> tuple[np.ndarray, TraceStats]:
+                     vis_res: int, only: np.ndarray | None = None,
+                     progress: Callable[[int], None] | None = None) -> tuple[np.ndarray, TraceStats]:
     """The masks ``[H, W, words]`` uint32 (zeros off the mesh) of the module docstring, and the
     tracing cost.  ``normals`` ``[H, W, 3]``: the G-buffer's shading normals (the horizon test).
-    ``only``: a boolean ``[H, W]`` of the pixels to trace (the others stay 0); None for all."""
+    ``only``: a boolean ``[H, W]`` of the pixels to trace (the others stay 0); None for all.
+    ``progress`` is called with the pixels traced since its last call."""
     rays, corners = cell_rays(vis_res)
     k = rays.shape[1]
     origins, covered = offset_points(mesh, camera, width, height)
@@ -168,6 +171,8 @@ def trace_visibility(mesh, camera, normals: np.ndarray, width: int, height: int,
         bits[pixel, cell] = 2 * free.sum(axis=1) >= k
         masks[covered[first:first + PIXELS_PER_BATCH]] = pack_bits(bits)
         traced += len(ray_origins)
+        if progress is not None:
+            progress(len(n))
     stats = TraceStats(traced, time.perf_counter() - start)
     return masks.reshape(height, width, -1), stats
 
@@ -186,10 +191,10 @@ def visibility_key(mesh, camera, width: int, height: int, vis_res: int) -> str:
     return digest.hexdigest()[:24]
 
 
-def cached_visibility(mesh, camera, normals: np.ndarray, vis_res: int,
-                      folder: str | os.PathLike) -> tuple[np.ndarray, TraceStats, bool]:
-    """:func:`trace_visibility`'s masks from the cache in ``folder``, traced and stored on a miss;
-    the stats of the trace that made them; and whether it was a hit."""
+def cached_visibility(mesh, camera, normals: np.ndarray, vis_res: int, folder: str | os.PathLike,
+                      progress: Callable[[int], None] | None = None) -> tuple[np.ndarray, TraceStats, bool]:
+    """:func:`trace_visibility`'s masks from the cache in ``folder``, traced and stored on a miss
+    (``progress`` as there); the stats of the trace that made them; and whether it was a hit."""
     height, width = normals.shape[:2]
     path = pathlib.Path(folder) / f"{visibility_key(mesh, camera, width, height, vis_res)}.npz"
     try:
@@ -199,7 +204,7 @@ def cached_visibility(mesh, camera, normals: np.ndarray, vis_res: int,
             return masks, TraceStats(rays, seconds), True
     except (OSError, EOFError, KeyError, ValueError, zipfile.BadZipFile):
         pass   # absent or damaged: traced again and replaced
-    masks, stats = trace_visibility(mesh, camera, normals, width, height, vis_res)
+    masks, stats = trace_visibility(mesh, camera, normals, width, height, vis_res, progress=progress)
     with atomic_path(path) as tmp:
         np.savez(tmp, masks=masks, rays=stats.rays, seconds=stats.seconds)
     return masks, stats, False

@@ -181,16 +181,24 @@ ALWAYS_INLINE int visibility_cell(vec3_t w)
          + clamp((int)floor(s * VIS_RES), 0, VIS_RES - 1);
 }
 
-/* V(x_pixel, w) (the one visibility function of every kernel; light_pool.cl's lanes_visible is
- * its lanes form): 1 where the pixel's mask says the cell of w is open, else 0. */
-ALWAYS_INLINE int visible(__global const uint *visibility, int pixel, vec3_t w)
+/* The pixel's mask bit of visibility cell `cell`: 1 where open, 0 where shadowed (1 without
+ * VISIBILITY). */
+ALWAYS_INLINE int cell_open(__global const uint *visibility, int pixel, int cell)
 {
 #if VISIBILITY
-    int cell = visibility_cell(w);
     return (int)((visibility[pixel * VIS_WORDS + (cell >> 5)] >> (cell & 31)) & 1u);
 #else
     return 1;
 #endif
+}
+
+/* V(x_pixel, w) (the one visibility function of every kernel; light_pool.cl's lanes_visible is
+ * its lanes form): 1 where the pixel's mask says the cell of w is open, else 0.  Where many
+ * pixels share a direction (a light pool's entry, a directional light) its cell is found once
+ * and read with cell_open. */
+ALWAYS_INLINE int visible(__global const uint *visibility, int pixel, vec3_t w)
+{
+    return VISIBILITY ? cell_open(visibility, pixel, visibility_cell(w)) : 1;
 }
 
 /* ---- CDF search and light sampling --------------------------------------------------------- */

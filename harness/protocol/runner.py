@@ -637,7 +637,10 @@ class Runner:
                              f"the camera sees none of the mesh{mesh}; check the camera's eye "
                              "and target, and the mesh's position and size")
         warn_about_framing(scene, gbuffer)   # too few mesh pixels, or the camera inside the mesh
-        gbuffer, record = attach_visibility(scene, gbuffer, plan.env_res, cache_dir() / "visibility")
+        with tqdm(total=gbuffer.covered, unit="px", disable=self._bar_disabled(), leave=False,
+                  desc=f"{scene.name}: tracing visibility") as bar:
+            gbuffer, record = attach_visibility(scene, gbuffer, plan.env_res, cache_dir() / "visibility",
+                                                bar.update)
         if record is not None:
             record = measured_record(self.compute, scene, gbuffer,
                                      scene.environment.frame(plan.frames[0]), record)

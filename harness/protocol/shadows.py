@@ -10,11 +10,12 @@ from iblbench.scenes import visibility
 from iblbench.scenes.errors import InputError
 
 
-def attach_visibility(scene, gbuffer, env_res: int, folder) -> tuple[object, dict | None]:
+def attach_visibility(scene, gbuffer, env_res: int, folder, progress=None) -> tuple[object, dict | None]:
     """``gbuffer`` with the scene's visibility masks (:mod:`iblbench.scenes.visibility`), and the
     manifest's record of them (None for a scene that asks for no visibility): its resolution,
     whether the cache held it, the rays traced and the Embree ray rate of that trace; or why it
     was skipped.  (The runner adds the masks' ``geometric_error``: :func:`measured_record`.)
+    ``progress``: called with the pixels traced since its last call (a trace only).
 
     A scene that asks for visibility but has one convex mesh and nothing else gets none
     (V = 1 wherever the surface faces ω: nothing to trace), and the record says so."""
@@ -30,7 +31,7 @@ def attach_visibility(scene, gbuffer, env_res: int, folder) -> tuple[object, dic
         raise InputError(scene.source or scene.name, str(error)) from None
     start = time.perf_counter()
     masks, stats, cached = visibility.cached_visibility(scene.mesh, scene.camera, gbuffer.normal,
-                                                        scene.visibility_res, folder)
+                                                        scene.visibility_res, folder, progress)
     record.update(cached=cached, seconds=round(time.perf_counter() - start, 3),
                   rays=stats.rays, trace_seconds=round(stats.seconds, 3),
                   embree_rays_per_s=round(stats.rays_per_second),
