@@ -234,8 +234,10 @@ __kernel void render_havran(__global const float4 *normal, __global const float4
             continue;
         ++above;
         /* Havran's directional lights cast shadows: V at the light's direction. */
-        if (!cell_open(visibility, p, light_cell[k]))
+#if VISIBILITY
+        if (!cell_open(visibility, p, light_cell[k]))   /* light_cell has K entries only with V */
             continue;
+#endif
         sum += light_weight[k].xyz * phong_brdf(r, w, kdp, ksp, m) * c;
     }
     radiance[p] = (float4)(sum, 0.0f);

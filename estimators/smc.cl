@@ -240,7 +240,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
                           __global float *all_scratch_g,
                           __global float4 *state, __global float4 *carried_estimate,
                           __global float4 *radiance, __global float2 *counts, __global float4 *stats,
-                          __global int *reinit_flag)
+                          __global int *reinit_flag, __global float *rays)
 {
     const int res = ENV_RES, plane = count;
     int p = get_global_id(0);
@@ -262,7 +262,9 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
         ? !(power / previous <= threshold && power / previous >= 1.0f / threshold) : power != previous;
     int map_moved = !static_frame && map_ess > 0.0f && !(map_ess * map_power[2] <= 1.0f);
     int reinit = map_jumped || map_moved || !(z_prev > 0.0f && isfinite(z_prev));
-    float evaluations = 0.0f, ess_min = -1.0f, resampled = 0.0f;
+    /* rays: visibility queries at new directions (the MH proposals); γ_t at a particle, γ_{t−1}
+     * at a proposal and f at the particles reuse a direction whose V is known. */
+    float evaluations = 0.0f, ess_min = -1.0f, resampled = 0.0f, moves = 0.0f;
     /* A static frame's independent MH proposals, n_map from the map and n_brdf from the BRDF
      * (fixed by the schedule), give a fresh estimate of Z_t, Σ γ_t(ω)/(n_map p_map(ω) +
      * n_brdf p_B(ω)) (multi-sample MIS, balance heuristic), from n_map + n_brdf samples. */
@@ -346,6 +348,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
                 float g1_new = sir_target(&s, env, res, w_new, power_new, &L, visibility, p);
                 float g0_new = static_frame ? g1_new : 0.0f;
                 evaluations += 1.0f;
+                moves += 1.0f;
                 if (alpha < 1.0f) {
                     g0_new = sir_target(&s, prev_texels, res, w_new, power_new, &L_prev, visibility, p);
                     evaluations += 1.0f;
@@ -385,6 +388,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
     }
     reinit_flag[p] = reinit;
     stats[p] = (float4)(ess_min, 0.0f, evaluations, resampled);
+    rays[p] = moves;
     if (reinit) return;
     float3 estimate = carried_estimate[p].xyz;
     if (static_frame && n_map + n_brdf > 0) {
@@ -458,7 +462,8 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
                        __global int *chosen, __global acc_t *bounds, __global acc_t *sums,
                        __global float *all_particles, __global float *all_gammas,
                        __global float4 *state, __global float4 *carried_estimate,
-                       __global float4 *radiance, __global float2 *counts, __global float4 *stats)
+                       __global float4 *radiance, __global float2 *counts, __global float4 *stats,
+                       __global float *rays)
 {
     /* Items past `listed` redo the last listed pixel in their own scratch slot (every work item
      * must reach the LOCKSTEPs) and store nothing: no particles (null planes), which the last
@@ -485,4 +490,5 @@ __kernel void smc_init(__global const float4 *normal, __global const float4 *vie
     radiance[p] = (float4)(z > 0.0f ? estimate : (float3)(0.0f), 0.0f);
     counts[p] = (float2)(z > 0.0f ? (float)N : 0.0f, z > 0.0f ? effective : 0.0f);
     stats[p] = (float4)(before.x, (float)have_state, before.z + (float)(M + N), before.w);
+    rays[p] = (have_state ? rays[p] : 0.0f) + (float)M;   /* the candidates' V (γ·V); the N resampled reuse them */
 }

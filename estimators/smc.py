@@ -226,6 +226,7 @@ class SMC(Estimator):
         radiance = buffer("radiance", count * 16)
         counts = buffer("counts", count * 8)
         stats = buffer("stats", count * 16)
+        rays = buffer("rays", count * 4)
         defines = {**self.defines(gbuffer), "ENV_RES": cache.res, "MAP_CHANGE_GROUP": MAP_CHANGE_GROUP}
         # The map proposal's alias tables (sir.cl), the map's power and its change, built on the
         # device.  The texels alternate between two buffers: last frame's are γ_{t−1}'s map.
@@ -255,7 +256,7 @@ class SMC(Estimator):
                 np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
                 np.float32(p.reinit_map_ess), np.int32(static_frame), np.uint32(seed),
                 np.uint32(cache.frame), particles, gammas, scratch_p, scratch_g, state,
-                carried_estimate, radiance, counts, stats, flags))
+                carried_estimate, radiance, counts, stats, flags, rays))
             listed, listed_total = buffer("listed", count * 4), buffer("listed_total", 4)
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_list_reinit", defines), 1,
@@ -272,12 +273,13 @@ class SMC(Estimator):
                 np.float32(p.init_env_pick),
                 np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), listed, listed_total,
                 np.int32(offset), *scratch, particles, gammas, state, carried_estimate, radiance,
-                counts, stats))
+                counts, stats, rays))
         st = compute.to_host(stats, (gbuffer.count, 4), np.float32)
         carried = st[:, 0] >= 0
         estimate = read_estimate(compute, gbuffer, radiance, counts, float(st[:, 2].mean()),
                                  {"sample": sum(map(event_ms, table_events)),
-                                  "shade": sum(map(event_ms, events))})
+                                  "shade": sum(map(event_ms, events))},
+                                 shadow_rays=float(compute.to_host(rays, (count,), np.float32).mean()))
         estimate.extras = {
             "ess": float(st[carried, 0].mean()) if carried.any() else float("nan"),
             "reinits": float(st[:, 1].sum()),

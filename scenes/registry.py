@@ -176,13 +176,23 @@ def _blob_sun(env_res: int | None) -> Scene:
     return _sun_sky_scene("blob-sun", meshes.blob(), camera, env_res)
 
 
+BUILTIN_VISIBILITY_RES = 16
+
+
+def _builtin_visibility_res(env_res: int | None) -> int:
+    """A built-in scene's Rv: 16, or under ``--env-res`` R the largest power of two up to 16 that
+    divides R (a user scene's visibility_res must divide its faces itself)."""
+    side = env_res or DEFAULT_ENV_RES
+    return max(r for r in (1, 2, 4, 8, BUILTIN_VISIBILITY_RES) if side % r == 0)
+
+
 def _sphere_ground(env_res: int | None) -> Scene:
     """The sphere resting on a ground plane under the default sun-and-sky, seen from above the
     front: the sphere's contact shadow on the ground (sharp from the sun, soft from the sky), and
     the ground occluding the sphere's lower hemisphere.  Visibility on (16² cells a face)."""
     camera = Camera(eye=(0.0, 2.0, 4.2), target=(0.0, -0.6, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
     scene = _sun_sky_scene("sphere-ground", meshes.on_ground(meshes.sphere()), camera, env_res)
-    return dataclasses.replace(scene, visibility=True)
+    return dataclasses.replace(scene, visibility=True, visibility_res=_builtin_visibility_res(env_res))
 
 
 def _torus_sun(env_res: int | None) -> Scene:
@@ -258,7 +268,8 @@ def _park_ground(env_res: int | None) -> Scene:
     env = _shipped_environment(PARK_MAP, env_res or DEFAULT_ENV_RES)
     return Scene(name="park-ground", mesh=meshes.on_ground(meshes.sphere()), material=_MATERIAL,
                  camera=camera, environment=EnvSequence.static(env, source=f"shipped:{PARK_MAP}"),
-                 resolution=PARK_GROUND_RESOLUTION, source="builtin:park-ground", visibility=True)
+                 resolution=PARK_GROUND_RESOLUTION, source="builtin:park-ground", visibility=True,
+                 visibility_res=_builtin_visibility_res(env_res))
 
 
 def _sphere_studio(env_res: int | None) -> Scene:
@@ -298,7 +309,7 @@ def _torus_day(env_res: int | None) -> Scene:
     across it as the sun moves.  Visibility on (16² cells a face)."""
     camera = Camera(eye=(0.0, 3.2, 1.8), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
     return dataclasses.replace(_sequence_scene("torus-day", meshes.torus(), camera, env_res),
-                               visibility=True)
+                               visibility=True, visibility_res=_builtin_visibility_res(env_res))
 
 
 def _torus_moving(env_res: int | None) -> Scene:

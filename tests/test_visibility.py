@@ -4,7 +4,7 @@ on the ground-plane scene, and what a run records.
 
 The stress battery's ``occlusion`` case (harness/verify/stress_cases.py) holds every estimator
 to an enclosed pixel (exactly 0), one open cell, random cells, the ground plane alone (the white
-furnace) and a traced sphere on the ground; the mutation catalogue's three visibility bugs show
+furnace) and a traced sphere on the ground; the mutation catalogue's four visibility bugs show
 that it can fail."""
 import dataclasses
 import json
@@ -44,11 +44,25 @@ def test_bits_are_packed_little_endian_in_cell_order():
     assert np.array_equal(visibility.unpack_bits(visibility.pack_bits(bits), vis_res), bits)
 
 
-def test_cell_of_a_direction_is_its_texel_at_the_visibility_resolution():
-    """The cell of ω is (face, ⌊t·Rv⌋, ⌊s·Rv⌋): the centre of every cell maps to itself."""
+def test_the_kernels_cell_of_a_direction_is_its_texel_at_the_visibility_resolution(compute):
+    """common.cl's visibility_cell (through havran's light_cells) against NumPy's
+    direction_to_texel at Rv: the centre of every cell maps to itself, and random directions to
+    (face, ⌊t·Rv⌋, ⌊s·Rv⌋)."""
     vis_res = 8
     centres = cubemap.texel_directions(vis_res).reshape(-1, 3)
-    assert np.array_equal(visibility.cell_of(centres, vis_res), np.arange(6 * vis_res * vis_res))
+    rng = np.random.default_rng(3)
+    random = rng.standard_normal((4096, 3))
+    directions = np.concatenate([centres, random / np.linalg.norm(random, axis=1, keepdims=True)])
+    light_dir = np.zeros((len(directions), 4), np.float32)
+    light_dir[:, :3] = directions
+    cells = compute.empty(4 * len(directions))
+    kernel = compute.kernel("iblbench.estimators", "havran.cl", "light_cells",
+                            {"VISIBILITY": 1, "VIS_RES": vis_res})
+    compute.run(kernel, len(directions), compute.to_device(light_dir), cells)
+    got = compute.to_host(cells, (len(directions),), np.int32)
+    face, row, col = cubemap.direction_to_texel(light_dir[:, :3].astype(np.float64), vis_res)
+    assert np.array_equal(got[:len(centres)], np.arange(6 * vis_res * vis_res))
+    assert np.array_equal(got, (face * vis_res + row) * vis_res + col)
 
 
 def _sphere_hit(origins: np.ndarray, dirs: np.ndarray, centre, radius: float) -> np.ndarray:
@@ -196,9 +210,10 @@ def test_a_run_records_visibility_and_shadow_rays(tmp_path):
     """sphere-ground: the manifest keeps the trace's rays and Embree rate, every row counts its
     shadow rays; sphere-sun has none."""
     out = tmp_path / "out"
-    result = _run(tmp_path, "--scene", "sphere-ground", "--scene", "sphere-sun", "--estimator", "envmap",
-                  "--estimator", "bis", "--spp", "4", "--seeds", "1", "--res", "12x12",
-                  "--repeats", "1", "--out", str(out))
+    args = ("--scene", "sphere-ground", "--scene", "sphere-sun", "--estimator", "envmap", "--estimator", "bis",
+            "--estimator", "smc", "--spp", "4", "--seeds", "1", "--res", "12x12", "--repeats", "1",
+            "--out", str(out))
+    result = _run(tmp_path, *args)
     assert result.returncode == 0, result.stderr
     manifest = json.loads((out / "manifest.json").read_text())
     (record,) = manifest["visibility"]
@@ -216,6 +231,7 @@ def test_a_run_records_visibility_and_shadow_rays(tmp_path):
     assert table.loc[("sphere-ground", "envmap"), "shadow_rays"] == 4
     assert table.loc[("sphere-ground", "bis"), "shadow_rays"] == 4          # N, not M + N
     assert table.loc[("sphere-ground", "bis"), "evaluations"] > 4
+    assert table.loc[("sphere-ground", "smc"), "shadow_rays"] == 80       # its init's M = 20 N candidates
     assert (table.loc["sphere-sun", "shadow_rays"] == 0).all()
     # The report: the visibility table in the manifest section, and error against time plus
     # shadow rays for sphere-ground only, at the measured rate or the one asked for.
@@ -228,6 +244,9 @@ def test_a_run_records_visibility_and_shadow_rays(tmp_path):
     assert (out / "report" / figures["sphere-ground"]["ray_cost"]).is_file()
     default = {s["name"]: s["figures"] for s in write_report(out)["scenes"]}
     assert default["sphere-ground"]["ns_per_ray"] == pytest.approx(1e9 / record["embree_rays_per_s"])
+    # A rerun resumes every cell and traces nothing: the record is carried over.
+    assert _run(tmp_path, *args).returncode == 0
+    assert json.loads((out / "manifest.json").read_text())["visibility"] == [record]
 
 
 def test_ray_cost_adds_each_cells_shadow_rays_to_its_time_and_interval():

@@ -186,7 +186,7 @@ ALWAYS_INLINE int visibility_cell(vec3_t w)
 ALWAYS_INLINE int cell_open(__global const uint *visibility, int pixel, int cell)
 {
 #if VISIBILITY
-    return (int)((visibility[pixel * VIS_WORDS + (cell >> 5)] >> (cell & 31)) & 1u);
+    return (int)((visibility[(size_t)pixel * VIS_WORDS + (cell >> 5)] >> (cell & 31)) & 1u);
 #else
     return 1;
 #endif

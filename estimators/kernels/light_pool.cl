@@ -165,7 +165,6 @@ typedef rng_block16_t lane_block_t;
 #define vload_lanes vload16
 #define convert_lanes convert_float16
 #define convert_lane_ints convert_int16
-#define as_lane_ints as_int16
 #define convert_lane_longs convert_long16
 #define phong_power_lanes phong_power16
 #define phong_power_log2_lanes phong_power16_log2
@@ -194,7 +193,6 @@ typedef rng_block8_t lane_block_t;
 #define vload_lanes vload8
 #define convert_lanes convert_float8
 #define convert_lane_ints convert_int8
-#define as_lane_ints as_int8
 #define convert_lane_longs convert_long8
 #define phong_power_lanes phong_power8
 #define phong_power_log2_lanes phong_power8_log2
@@ -247,7 +245,7 @@ ALWAYS_INLINE lane_ints_t lanes_clamp_index(lanes_t x, int res)
 ALWAYS_INLINE lane_ints_t lanes_cells_open(__global const uint *visibility, int pixel, lane_ints_t cell)
 {
 #if VISIBILITY
-    lane_uints_t word = GATHER(lane_uints_t, visibility + pixel * VIS_WORDS, cell >> 5);
+    lane_uints_t word = GATHER(lane_uints_t, visibility + (size_t)pixel * VIS_WORDS, cell >> 5);
     return ((word >> convert_lane_uints(cell & 31)) & 1u) != 0u;
 #else
     return (lane_ints_t)(-1);
@@ -294,7 +292,8 @@ ALWAYS_INLINE void add_samples(lanes_sum_t *acc, const shading_t *s, lane_ints_t
 }
 
 /* The pool is read as planes (pool_planes kernel): x, y, z, pdf, R, G, B and the visibility cell
- * of the direction (int bits; shared by every pixel, so no pixel finds it again), each of
+ * of the direction (a whole number, exact in a float below 2^24 cells; shared by every pixel, so
+ * no pixel finds it again), each of
  * POOL_PLANE_STRIDE(size) floats, face f's entries at [2·size·f, 2·size·f + size) and again after
  * them, so a pixel's window of draws from any offset < size is contiguous (no wrap), and zeros
  * past the last face pad the last lanes. */
@@ -327,7 +326,7 @@ ALWAYS_INLINE void shade_light_faces(lanes_sum_t *acc, const shading_t *s, const
             lanes_t denominator = face_ticks * pdf;
             if (brdf_samples)
                 denominator += (float)ticks[6] * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
-            lane_ints_t cell = as_lane_ints(vload_lanes(0, planes + 7 * stride + first + i));
+            lane_ints_t cell = convert_lane_ints(vload_lanes(0, planes + 7 * stride + first + i));
             add_samples(acc, s, i + LANE_NUMBERS < draws, lanes_beta(ticks[f], i), cosine, power,
                         lanes3_load(planes + 4 * stride, stride, first + i), denominator,
                         lanes_cells_open(visibility, pixel, cell));

@@ -413,7 +413,7 @@ inline int8 texels_open(__global const uint *visibility, int p, int face, int8 i
     int8 row = in_face / res, col = in_face - row * (int8)res;
     int texels_per_cell = res / VIS_RES;
     int8 cell = (face * VIS_RES + row / texels_per_cell) * VIS_RES + col / texels_per_cell;
-    __global const uint *mask = visibility + p * VIS_WORDS;
+    __global const uint *mask = visibility + (size_t)p * VIS_WORDS;
     int8 word_index = cell >> 5;
     uint8 word = (uint8)(mask[word_index.s0], mask[word_index.s1], mask[word_index.s2], mask[word_index.s3],
                          mask[word_index.s4], mask[word_index.s5], mask[word_index.s6], mask[word_index.s7]);

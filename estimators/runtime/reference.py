@@ -126,7 +126,12 @@ class Reference:
         return digest.hexdigest()[:24]
 
     def image(self, gbuffer, cache) -> np.ndarray:
-        """The reference radiance ``[H, W, 3]`` float32 for a DeviceGBuffer and FrameCache."""
+        """The reference radiance ``[H, W, 3]`` float32 for a DeviceGBuffer and FrameCache.
+
+        With visibility, Rv must divide the face size (each texel in one cell: reference.cl)."""
+        if gbuffer.has_visibility and cache.res % gbuffer.visibility_res:
+            raise ValueError(f"visibility_res {gbuffer.visibility_res} does not divide the "
+                             f"environment's face size {cache.res}")
         path = cache_dir() / "reference" / f"{self._key(gbuffer, cache.env)}.npy"
         if self.use_cache and path.exists():
             self.last_ms = None

@@ -661,6 +661,8 @@ class Runner:
             self.manifest["stages"] += [dict(stage, resumed=True) for stage
                                         in self.previous_manifest.get("stages", [])
                                         if stage.get("scene") == scene.name]
+            self.visibility += [record for record in self.previous_manifest.get("visibility") or []
+                                if record.get("scene") == scene.name]   # not traced again
             return
         inputs = self.out / "inputs" / scene.name
         if self.config.save_inputs:

@@ -53,7 +53,8 @@ def _twin_problem(case: str, arrays: dict[str, np.ndarray]) -> str | None:
     from iblbench.harness.verify.twins.ghosh2006 import Map
     from iblbench.harness.verify.twins.reference_twin import twin_image
 
-    gbuffer, env, _ = portability.inputs()
+    case, masked = portability.split_case(case)
+    gbuffer, env, _ = portability.inputs(masked)
     if case == "reference":
         got, twin = arrays["reference"][gbuffer.mask], twin_image(gbuffer, env)[gbuffer.mask]
     else:
@@ -72,7 +73,7 @@ def _case_problems(outcome: portability.Outcome, baseline: dict | None) -> list[
     if outcome.arrays is None:
         problems.append(f"{outcome.case}: cannot run ({outcome.error})")
         return problems
-    if outcome.case in ("reference", "light_pdf"):
+    if portability.split_case(outcome.case)[0] in ("reference", "light_pdf"):
         problems += filter(None, [_twin_problem(outcome.case, outcome.arrays)])
     if baseline is not None:
         off = portability.differences(outcome.arrays, baseline, exact_integers=False)

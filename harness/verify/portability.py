@@ -1,13 +1,14 @@
 """The portability set: every kernel on tiny inputs, run on any OpenCL device and compared across
 devices (``iblbench doctor``, tests/test_portability.py).
 
-One *case* renders one thing on 16 pixels (a glossy G-buffer over the whole sphere, with
-visibility masks of 2² cells a face, three in four open) lit by a 4×4-texel-per-face map with a
-sun: ``reference`` (the exact reference), ``products`` (the frame
+One *case* renders one thing on 16 pixels (a glossy G-buffer over the whole sphere) lit by a
+4×4-texel-per-face map with a sun: ``reference`` (the exact reference), ``products`` (the frame
 cache's CDFs, face integrals, light pool and both mip pyramids, plain and compensated),
 ``light_pdf`` (the map's light pdf, DESIGN §3, at :data:`PDF_DIRECTIONS` directions, by
 ``envmap``'s pdf hook), ``probes`` (``iblbench perf``'s FMA and copy kernels), or an estimator
-label such as ``envmap{mis="brdf"}`` at 4 spp; a temporal estimator renders a first
+label such as ``envmap{mis="brdf"}`` at 4 spp; a name ending in ``+visibility`` (the reference and
+each estimator's defaults) renders the G-buffer with visibility masks of 2² cells a face, three
+in four open (issue 22), so both paths of every kernel that reads V run; a temporal estimator renders a first
 frame and then the same map with each face's texel columns shifted by one, so its carried state
 is exercised.  Sizes are
 this small because Oclgrind interprets every work item: the whole set takes about a minute
@@ -57,25 +58,35 @@ _REPORT = re.compile(r"^(Invalid (read|write)|.*data race|Work-(group|item) dive
                      r"Oclgrind: \d+ errors generated)")
 
 
+MASKED = "+visibility"
+
+
 def cases() -> list[str]:
     """Every case of the set: the reference, the frame-cache products, the light pdf, the perf
-    probes, each registered estimator with its defaults, and :data:`VARIANTS`."""
+    probes, each registered estimator with its defaults, :data:`VARIANTS`, and the reference and
+    each estimator again with visibility masks (``MASKED``)."""
     from iblbench.estimators.registry import estimator_names
 
-    return ["reference", "products", "light_pdf", "probes", *estimator_names(), *VARIANTS]
+    return ["reference", "products", "light_pdf", "probes", *estimator_names(), *VARIANTS,
+            *(name + MASKED for name in ("reference", *estimator_names()))]
 
 
-def inputs():
-    """(G-buffer, first map, turned map) of every case.  The G-buffer carries visibility masks
-    of VIS_RES² cells a face, OPEN_SHARE of them open (random, seeded), so every kernel that
-    reads the G-buffer runs its visibility path (issue 22)."""
+def split_case(case: str) -> tuple[str, bool]:
+    """(the case's name without ``MASKED``, whether its G-buffer has visibility masks)."""
+    return case.removesuffix(MASKED), case.endswith(MASKED)
+
+
+def inputs(masked: bool = False):
+    """(G-buffer, first map, turned map) of every case; ``masked``: the G-buffer carries
+    visibility masks of VIS_RES² cells a face, OPEN_SHARE of them open (random, seeded)."""
     from iblbench.harness.verify import conformance
     from iblbench.scenes import visibility
 
     env = conformance.sun_map(ENV_RES, SUN_RATIO)
     gbuffer = conformance.glossy_gbuffer(SIZE)
-    cells = np.random.default_rng(VIS_SEED).random(gbuffer.shape + (6 * VIS_RES * VIS_RES,)) < OPEN_SHARE
-    gbuffer = dataclasses.replace(gbuffer, visibility=visibility.pack_bits(cells), visibility_res=VIS_RES)
+    if masked:
+        cells = np.random.default_rng(VIS_SEED).random(gbuffer.shape + (6 * VIS_RES * VIS_RES,)) < OPEN_SHARE
+        gbuffer = dataclasses.replace(gbuffer, visibility=visibility.pack_bits(cells), visibility_res=VIS_RES)
     return gbuffer, env, np.ascontiguousarray(np.roll(env, 1, axis=2))
 
 
@@ -93,7 +104,8 @@ def render(compute, case: str) -> dict[str, np.ndarray]:
     from iblbench.estimators.runtime.reference import Reference
     from iblbench.harness.protocol.sweep import parse_estimator
 
-    gbuffer, env, turned = inputs()
+    case, masked = split_case(case)
+    gbuffer, env, turned = inputs(masked)
     pixels = DeviceGBuffer(compute, gbuffer)
     cache = FrameCache(compute, env)
     if case == "reference":
