@@ -532,7 +532,7 @@ def ray_costs(manifest: dict | None, ray_cost_ns: float | None) -> dict[str, tup
     costs = {}
     for record in (manifest or {}).get("visibility") or []:
         rate = record.get("embree_rays_per_s")
-        if "covered_pixels" in record and (ray_cost_ns is not None or rate):
+        if "rays" in record and (ray_cost_ns is not None or rate):   # a trace skipped: no V, no rays
             costs[record["scene"]] = (ray_cost_ns if ray_cost_ns is not None else 1e9 / rate,
                                       int(record["covered_pixels"]))
     return costs
