@@ -52,11 +52,12 @@ Python API (a notebook; returns the results table as a pandas DataFrame):
 
 exit codes: 0 done; 1 a check or stress gate failed; 2 bad input (one line naming it);
   3 the disk is full (free space and rerun: a run resumes); 130 interrupted (Ctrl-C; a run saves
-  its finished cells first)
+  its finished cells first); 141 the reader of the output left (`| head`)
 """
 
 
 EXIT_DISK_FULL = 3
+EXIT_CLOSED_PIPE = 141   # 128 + SIGPIPE: the reader of the output left
 
 # In the order `iblbench --help` lists them.
 COMMANDS = ("run", "reproduce", "report", "list", "check", "budgets", "stress", "perf", "doctor",
@@ -77,17 +78,15 @@ class _Parser(argparse.ArgumentParser):
 
 class _Version(argparse.Action):
     """``--version``: the package version, and the source checkout's git revision where there is one
-    (imported only when asked: the runner that records it in every manifest is heavy)."""
+    (from the light ``provenance`` module: no OpenCL, NumPy or pandas is imported)."""
 
     def __init__(self, option_strings, dest, **kwargs):
         super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
 
     def __call__(self, parser, namespace, values, option_string=None):
-        from importlib.metadata import version
+        from iblbench.harness.protocol.provenance import git_revision, package_version
 
-        from iblbench.harness.protocol.runner import _git_revision
-
-        print(f"iblbench {version('iblbench')} (git {_git_revision()})")
+        print(f"iblbench {package_version('iblbench')} (git {git_revision()})")
         parser.exit()
 
 
@@ -106,6 +105,8 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         status = command(args.command).run(args)
+    except BrokenPipeError:
+        return _closed_pipe()
     except (InputError, OSError) as error:
         if _disk_full(error):
             where = (getattr(error, "source", None) or getattr(error, "filename", None)
@@ -120,7 +121,19 @@ def main(argv=None) -> int:
     except KeyboardInterrupt as error:
         print(f"iblbench: interrupted{f': {error}' if str(error) else ''}", file=sys.stderr)
         return 130
+    try:
+        sys.stdout.flush()   # what is still buffered meets a reader that left (`| head`) here
+    except BrokenPipeError:
+        return _closed_pipe()
     return status or 0
+
+
+def _closed_pipe() -> int:
+    """The reader of our output left (`iblbench list scenes | head`): end quietly, as a shell
+    tool killed by SIGPIPE does (status 128 + 13), with stdout pointed at /dev/null so that
+    Python's own flush at exit does not fail again."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    return EXIT_CLOSED_PIPE
 
 
 def _disk_full(error: Exception) -> bool:

@@ -63,6 +63,9 @@ def systematic_resample(weights, u: float, n: int | None = None) -> np.ndarray:
     return np.minimum(np.searchsorted(cumulative, positions, side="right"), len(w) - 1)
 
 
+# The most spp (resampled samples N) of bis and smc: N = 4096 weighs M = 20N = 81,920 candidates
+# a pixel, seconds a frame at 128² on a CPU; 40,000 spp ran past 25 s a cell (issue 23).
+MAX_SPP = 4096
 LOCKSTEP_GROUP = 64   # work items per group of a LOCKSTEP kernel (sir.cl): 4 AVX-512 vectors, 2 warps
 SCRATCH_BYTES = 64 << 20   # BIS scratch per launch (N chosen, M bounds, 3 sums a pixel); more pixels,
 #                             more launches
@@ -107,6 +110,7 @@ class BIS(Estimator):
     tags = Tags(unbiased=True, temporal=False, has_pdf=False)
     requires = ("env",)
     kernel_files = ("bis.cl", "sir.cl", "lanes.cl")
+    max_spp = MAX_SPP
 
     def __init__(self, params=None, **overrides):
         super().__init__(params, **overrides)
@@ -121,8 +125,8 @@ class BIS(Estimator):
         return candidates_for(spp, self.params.M, self.params.N), int(spp)
 
     def render(self, gbuffer, cache, spp, seed):
-        if spp < 1:
-            raise ValueError(f"spp must be ≥ 1, got {spp}")
+        if not 1 <= spp <= MAX_SPP:
+            raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
         compute = cache.compute
         M, N = self.budget(spp)
         kernel = compute.kernel(self.kernel_package(), "bis.cl", "render_bis", self.defines(gbuffer))

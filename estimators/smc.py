@@ -134,7 +134,7 @@ import numpy as np
 import pyopencl as cl
 
 from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
-from iblbench.estimators.bis import bis_chunks, run_lockstep
+from iblbench.estimators.bis import MAX_SPP, bis_chunks, run_lockstep
 from iblbench.estimators.runtime.device import event_ms
 
 MAP_CHANGE_GROUP = 64   # work items of map_change's one group (smc.cl), at most
@@ -171,6 +171,7 @@ class SMC(Estimator):
     requires = ("cdf",)
     kernel_files = ("smc.cl", "sir.cl", "lanes.cl")
     twin = "iblbench.harness.verify.twins.ghosh2006"   # its NumPy twin (conformance.check_matches_twin)
+    max_spp = MAX_SPP   # N particles (bis's bound: its init is bis)
 
     def __init__(self, params=None, **overrides):
         super().__init__(params, **overrides)
@@ -205,8 +206,8 @@ class SMC(Estimator):
         return self.params.N or int(spp)
 
     def render(self, gbuffer, cache, spp, seed):
-        if spp < 1:
-            raise ValueError(f"spp must be ≥ 1, got {spp}")
+        if not 1 <= spp <= MAX_SPP:
+            raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
         compute, p = cache.compute, self.params
         N = self.particles(spp)
         M = p.init_candidates * N

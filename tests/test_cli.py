@@ -463,6 +463,23 @@ def test_version(cli):
                         result.stdout), result.stdout
 
 
+def test_version_imports_no_heavy_module():
+    """Issue 23: --version took 1.6-2.2 s (it imported the runner, OpenCL and pandas) against
+    0.3 s for --help; it reads the version and the revision from harness/protocol/provenance.py."""
+    assert modules_imported_by(["--version"], ("pyopencl", "pandas", "scipy", "colour", "trimesh",
+                                                "iblbench.harness.protocol.runner")) == []
+
+
+def test_a_closed_pipe_ends_the_output_without_a_traceback():
+    """Issue 23: `iblbench list scenes | head` ended in a BrokenPipeError traceback."""
+    listing = subprocess.Popen([sys.executable, "-m", "iblbench.cli", "list", "scenes"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    listing.stdout.close()           # as `head` does once it has its lines: every write fails
+    stderr = listing.stderr.read().decode()
+    assert listing.wait(timeout=60) == 141, stderr   # 128 + SIGPIPE, as a shell tool ends
+    assert "Traceback" not in stderr and "BrokenPipeError" not in stderr, stderr
+
+
 @pytest.mark.parametrize("args, needle", [(("run", "--spp", "x"), "argument --spp"),
                                           (("no-such-command",), "invalid choice"),
                                           ((), "required")])

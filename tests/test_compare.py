@@ -9,7 +9,7 @@ import pytest
 from iblbench.cli import main
 from iblbench.harness.verify.compare import pair_estimators, parse_threshold
 from iblbench.harness.protocol.results import TABLE, read_manifest, write_manifest
-from iblbench.harness.protocol.runner import MAX_SEED, RunConfig, run
+from iblbench.harness.protocol.runner import MAX_SEED, MAX_SEEDS, RunConfig, run
 from iblbench.scenes.errors import InputError
 
 MUTANT = "balanced{uniform_faces=true}"
@@ -47,6 +47,25 @@ def test_seeds_beyond_the_cell_seed_range_are_refused(tmp_path, first_seed, seed
     """Cell seeds stay below the timing and calibration seeds (runner.timing_seed)."""
     with pytest.raises(InputError, match=f"the seeds must lie in 0..{MAX_SEED}"):
         run(RunConfig(out=tmp_path / "run", seeds=seeds, first_seed=first_seed))
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("seeds", [MAX_SEEDS + 1, 8388607, 1_000_000_000])
+def test_too_many_seeds_are_refused_at_once_naming_seeds_only(tmp_path, seeds):
+    """Issue 23: --seeds 8388607 was accepted (2.7 GB and no cell after 50 s); --seeds 1e9 was
+    refused naming --first-seed, which was not given."""
+    with pytest.raises(InputError, match=f"--seeds must be in 1..{MAX_SEEDS}") as error:
+        run(RunConfig(out=tmp_path / "run", seeds=seeds))
+    assert "--first-seed" not in str(error.value)
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("estimator", ["bis", "smc"])
+def test_an_spp_past_bis_and_smcs_bound_is_refused_before_anything_is_written(tmp_path, estimator):
+    """Issue 23: bis had no spp bound (a 40,000-spp cell ran past 25 s)."""
+    from iblbench.estimators.bis import MAX_SPP
+    with pytest.raises(InputError, match=f"--spp 40000 is above {estimator}'s limit of {MAX_SPP}"):
+        run(RunConfig(out=tmp_path / "run", estimators=[estimator], spp=[16, 40000]))
     assert not (tmp_path / "run").exists()
 
 

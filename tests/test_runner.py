@@ -89,9 +89,9 @@ def test_metrics_and_repeats_flags_and_what_a_rerun_keeps(tmp_path, capsys):
 
 def test_the_git_revision_is_found_from_the_checkout():
     """Tests run from the project's git checkout (make test, CI's clone), so the manifest's
-    revision is a commit, not "unknown": the runner counts its depth below the checkout right."""
+    revision is a commit, not "unknown": provenance counts its depth below the checkout right."""
     import re
 
-    from iblbench.harness.protocol import runner
+    from iblbench.harness.protocol import provenance
 
-    assert re.fullmatch(r"[0-9a-f]{40}(-dirty)?", runner._git_revision())
+    assert re.fullmatch(r"[0-9a-f]{40}(-dirty)?", provenance.git_revision())

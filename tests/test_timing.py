@@ -300,6 +300,19 @@ def test_calibration_lands_within_tolerance_on_a_known_cost(power, monkeypatch):
     assert fit["chosen_spp"] == 1 and fit["over_budget"]
 
 
+def test_calibration_never_chooses_past_the_estimators_spp_bound(monkeypatch):
+    """Issue 23: bis and smc got a bound (4096 spp); an equal-time cell whose budget affords
+    more takes the bound, and measures nothing past it."""
+    monkeypatch.setattr(Linear, "max_spp", 100, raising=False)
+
+    class Pixels:
+        shape = (2, 2)
+
+    calibration = Calibration(Linear(), Pixels(), None, build_ms=0.2)
+    fit = calibration.choose(80.0)          # 0.9 + 0.013·spp: about 6,000 spp fit
+    assert fit["chosen_spp"] == 100 and max(run["spp"] for run in fit["runs"]) <= 100
+
+
 def test_budget_cells_report_their_achieved_device_time(tmp_path, fakes, known_builds, capsys):
     out = tmp_path / "out"
     table = run(tiny(out, ("linear_timing_test",), spp=(), time_budget_ms=(0.5, 20.0)))

@@ -60,20 +60,28 @@ def fit_linear(runs: dict[int, list[float]]) -> tuple[float, float]:
     return float(a), float(max(b, 1e-12))
 
 
-def choose_spp(a: float, b: float, budget_ms: float) -> int:
-    """The largest spp in [1, BUDGET_MAX_SPP] whose predicted time a + b·spp is ≤ the budget
-    (1 when even one sample is predicted over it)."""
-    return int(max(1, min(BUDGET_MAX_SPP, math.floor((budget_ms - a) / b + 1e-9))))
+def choose_spp(a: float, b: float, budget_ms: float, limit: int = BUDGET_MAX_SPP) -> int:
+    """The largest spp in [1, ``limit``] whose predicted time a + b·spp is ≤ the budget (1 when
+    even one sample is predicted over it)."""
+    return int(max(1, min(limit, math.floor((budget_ms - a) / b + 1e-9))))
+
+
+def spp_limit(cls) -> int:
+    """The most spp an equal-time cell of estimator class ``cls`` may choose: BUDGET_MAX_SPP, or
+    the estimator's own ``max_spp`` where that is lower (bis, smc)."""
+    return min(BUDGET_MAX_SPP, cls.max_spp or BUDGET_MAX_SPP)
 
 
 class Calibration:
     """Timed renders of one (scene, estimator) on one frame, shared by every budget.
 
-    ``build_ms``: the frame's build time for this estimator (added to each render)."""
+    ``build_ms``: the frame's build time for this estimator (added to each render); ``limit``:
+    the most spp it may choose, BUDGET_MAX_SPP or the estimator's own ``max_spp``."""
 
     def __init__(self, estimator, gbuffer, cache, build_ms: float = 0.0):
         self.estimator, self.gbuffer, self.cache = estimator, gbuffer, cache
         self.build_ms = build_ms
+        self.limit = spp_limit(type(estimator))
         self.runs: dict[int, list[float]] = {}
         self.host: dict[int, list[float]] = {}
         self.renders = []   # every TimedRender, for the run's device-time total
@@ -101,18 +109,18 @@ class Calibration:
         for spp in CALIBRATION_SPP:
             self.measure(spp)
         a, b = fit_linear(self.runs)
-        chosen = choose_spp(a, b, budget_ms)
+        chosen = choose_spp(a, b, budget_ms, self.limit)
         for _ in range(10):   # extend the calibrated range until it brackets the choice
             top = max(self.runs)
-            if chosen <= 2 * top or top >= BUDGET_MAX_SPP:
+            if chosen <= 2 * top or top >= self.limit:
                 break
-            self.measure(min(chosen, 4 * top, BUDGET_MAX_SPP))
+            self.measure(min(chosen, 4 * top, self.limit))
             a, b = fit_linear(self.runs)
-            chosen = choose_spp(a, b, budget_ms)
+            chosen = choose_spp(a, b, budget_ms, self.limit)
         fitted, refined = chosen, {}
         for _ in range(REFINE_STEPS):
             refined[chosen] = self.measure(chosen)
-            step = corrected_spp(a, refined, chosen, budget_ms)
+            step = corrected_spp(a, refined, chosen, budget_ms, self.limit)
             if step is None or step in self.runs:
                 break
             chosen = step
@@ -125,7 +133,8 @@ class Calibration:
                           "median_device_ms": medians[s]} for s in sorted(self.runs)]}
 
 
-def corrected_spp(a: float, measured: dict[int, float], spp: int, budget_ms: float) -> int | None:
+def corrected_spp(a: float, measured: dict[int, float], spp: int, budget_ms: float,
+                  limit: int = BUDGET_MAX_SPP) -> int | None:
     """One refinement step after the median time ``measured[spp]``: None when it is already
     within half of ``TOLERANCE`` of the budget (so that noise keeps the cells within it) or at
     most the intercept ``a``; else the largest spp predicted within the budget by ``a`` and a
@@ -135,7 +144,7 @@ def corrected_spp(a: float, measured: dict[int, float], spp: int, budget_ms: flo
     if abs(measured[spp] - budget_ms) <= TOLERANCE / 2 * budget_ms or measured[spp] <= a:
         return None
     slopes = [(ms - a) / s for s, ms in measured.items() if ms > a]
-    return choose_spp(a, float(np.median(slopes)), budget_ms)
+    return choose_spp(a, float(np.median(slopes)), budget_ms, limit)
 
 
 def best_measured(medians: dict[int, float], budget_ms: float) -> int:

@@ -96,11 +96,9 @@ import os
 import pathlib
 import platform
 import signal
-import subprocess
 import sys
 import threading
 import time
-from importlib.metadata import PackageNotFoundError, version
 
 import numpy as np
 from tqdm import tqdm
@@ -117,7 +115,8 @@ from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Jou
                                                row_key, write_manifest, write_results)
 from iblbench.harness.protocol.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
                                                   CELL_CORRECTIONS, TOLERANCE, Calibration,
-                                                  best_measured, corrected_spp)
+                                                  best_measured, corrected_spp, spp_limit)
+from iblbench.harness.protocol.provenance import git_revision, package_version
 from iblbench.harness.protocol.shadows import attach_visibility, measured_record
 from iblbench.harness.protocol.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times,
                                               device_ms, host_threads_capped, required_build_ms,
@@ -141,6 +140,9 @@ WARMUP_PIXELS = 64
 TIMING_SEED = 0x80000000   # timing renders: TIMING_SEED + 256·seed + repeat (timing_seed)
 # The largest cell seed whose timing seeds stay below the calibration seeds.
 MAX_SEED = (CALIBRATION_SEED - TIMING_SEED) // 256 - 1
+# Seeds per cell at most: a sweep plans every (cell, seed) up front, and 8,388,607 seeds took
+# 2.7 GB before the first cell (issue 23); a study needs tens, a coverage simulation hundreds.
+MAX_SEEDS = 10_000
 LOCK = ".iblbench.lock"
 
 
@@ -187,28 +189,6 @@ def warm_up_gbuffer(gbuffer):
     mask = np.zeros(gbuffer.mask.size, bool)
     mask[keep] = True
     return dataclasses.replace(gbuffer, mask=mask.reshape(gbuffer.mask.shape))
-
-
-def _package_version(name: str) -> str:
-    try:
-        return version(name)
-    except PackageNotFoundError:
-        return "not installed"
-
-
-def _git_revision() -> str:
-    """The source checkout's revision, "-dirty" with uncommitted changes; "unknown" when the
-    package is not running from its own checkout (a site-packages install)."""
-    package_root = pathlib.Path(__file__).resolve().parents[2]   # harness/protocol/ → the checkout
-    try:
-        top = subprocess.run(["git", "-C", str(package_root), "rev-parse", "--show-toplevel"],
-                             capture_output=True, text=True, check=True, timeout=10).stdout.strip()
-        if pathlib.Path(top).resolve() != package_root:
-            return "unknown"
-        return subprocess.run(["git", "-C", top, "describe", "--always", "--dirty", "--abbrev=40"],
-                              capture_output=True, text=True, check=True, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
 
 
 def _device_record(compute) -> dict:
@@ -292,8 +272,9 @@ class Runner:
         for spp in config.spp:
             if spp < 1:
                 raise InputError(None, f"--spp values must be positive integers, got {spp}")
-        if config.seeds < 1:
-            raise InputError(None, f"--seeds must be at least 1, got {config.seeds}")
+        if not 1 <= config.seeds <= MAX_SEEDS:
+            raise InputError(None, f"--seeds must be in 1..{MAX_SEEDS} (every seed renders every "
+                                   f"cell again), got {config.seeds}")
         if not 0 <= config.first_seed <= MAX_SEED - config.seeds + 1:
             raise InputError(None, f"--first-seed {config.first_seed} with --seeds {config.seeds}: "
                                    f"the seeds must lie in 0..{MAX_SEED}")
@@ -434,9 +415,9 @@ class Runner:
             "sweep": sweep,
             "protocol": PROTOCOL,
             "schema_version": SCHEMA_VERSION,
-            "git_revision": _git_revision(),
-            "versions": {"iblbench": _package_version("iblbench"), "python": platform.python_version(),
-                         **{p: _package_version(p) for p in ("numpy", "pyopencl", "embreex",
+            "git_revision": git_revision(),
+            "versions": {"iblbench": package_version("iblbench"), "python": platform.python_version(),
+                         **{p: package_version(p) for p in ("numpy", "pyopencl", "embreex",
                                                             "colour-science", "pandas")}},
             "estimator_versions": {s.label: s.cls.version() for s in self.specs},
             "estimator_params": dict(self.params),
@@ -868,7 +849,7 @@ class Runner:
         for correction in range(CELL_CORRECTIONS + 2):
             measured[spp] = float(np.median([device_ms(render.stages) for _, render in timed]))
             fit["cell_runs"].append({"spp": spp, "median_device_ms": measured[spp]})
-            step = (corrected_spp(fit["a_ms"], measured, spp, fit["budget_ms"])
+            step = (corrected_spp(fit["a_ms"], measured, spp, fit["budget_ms"], spp_limit(spec.cls))
                     if correction < CELL_CORRECTIONS else None)
             if step is None or step in measured:
                 step = best_measured(measured, fit["budget_ms"])
