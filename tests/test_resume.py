@@ -271,3 +271,23 @@ def test_cli_summary_reports_error_at_equal_time(tmp_path, tiny_config, capsys):
     assert "error at equal time" in captured.out and "mean_delta_e76" in captured.out
     table = sorted_table(out)
     assert table.time_budget_ms.isna().sum() == 2 and (table.time_budget_ms == 50).sum() == 2
+
+
+# ---- a damaged manifest (issue 23) ---------------------------------------------------------------
+
+@pytest.mark.parametrize("text, why", [("[1, 2]", "not a JSON object"),
+                                       ('{"created": "2026-', "not valid JSON")])
+def test_a_damaged_manifest_stops_run_compare_and_check_and_is_kept(tmp_path, tiny_config, capsys,
+                                                                    text, why):
+    """Issue 23: a manifest that is JSON but not an object crashed `run` and `compare` with a
+    traceback; a truncated one was replaced by `run` (the run history lost) and `check` passed."""
+    out = tmp_path / "out"
+    cli_run(capsys, tiny_config, out)
+    manifest = out / "manifest.json"
+    manifest.write_text(text)
+    for argv in (["run", "--config", str(tiny_config), "--out", str(out), "--no-progress"],
+                 ["compare", str(out), str(out)], ["check", str(out)]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and str(manifest) in err and why in err, (argv, err)
+    assert manifest.read_text() == text

@@ -341,11 +341,25 @@ def json_text(value) -> str:
 
 
 def read_manifest(out_dir: pathlib.Path) -> dict:
-    """The manifest of an earlier run in ``out_dir`` ({} if none or unreadable)."""
+    """The manifest of an earlier run in ``out_dir`` ({} if there is none).  One that cannot be
+    read, is not JSON (truncated) or is not a JSON object is an InputError naming it: a run
+    would otherwise replace it and lose the run history, and a check would pass on it (issue 23).
+    Manifests are written atomically, so only damage from outside makes one."""
+    path = pathlib.Path(out_dir) / "manifest.json"
     try:
-        return json.loads((out_dir / "manifest.json").read_text())
-    except (OSError, ValueError):
+        manifest = json.loads(path.read_text())
+    except FileNotFoundError:
         return {}
+    except OSError as error:
+        raise InputError(path, f"cannot read the manifest ({error.strerror})") from None
+    except ValueError as error:
+        raise InputError(path, f"the manifest is not valid JSON ({error}); move it aside to start "
+                               "a new run history here") from None
+    if not isinstance(manifest, dict):
+        raise InputError(path, f"the manifest is not a JSON object (it holds a "
+                               f"{type(manifest).__name__}); move it aside to start a new run "
+                               "history here")
+    return manifest
 
 
 def write_manifest(out_dir: pathlib.Path, manifest: dict) -> None:

@@ -422,7 +422,9 @@ def verdict(checks: pd.DataFrame) -> str:
 
 
 def check(out_dir: str | pathlib.Path, budgets: str | pathlib.Path) -> tuple[pd.DataFrame, str, int]:
-    """Evaluate ``budgets`` on ``out_dir``'s results: (checks table, verdict line, exit status)."""
+    """Evaluate ``budgets`` on ``out_dir``'s results: (checks table, verdict line, exit status).
+    A run whose manifest is damaged is refused, not checked (read_manifest raises)."""
+    read_manifest(pathlib.Path(out_dir))
     configuration, rules = read_budgets(budgets)
     table = load_results(out_dir)
     differences = configuration_differences(configuration, table)
