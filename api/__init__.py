@@ -39,6 +39,7 @@ is traced, such as a camera that sees no geometry, may leave the scene file behi
 from __future__ import annotations
 
 import json
+import numbers
 import os
 import pathlib
 import re
@@ -97,13 +98,16 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
             metrics = parse_metrics(metrics if isinstance(metrics, str) else ",".join(metrics))
     except ValueError as error:
         raise InputError(None, str(error)) from None
+    spp = _whole_numbers("spp", _listed(spp))
+    seeds, first_seed = (None if value is None else _whole_numbers(name, [value])[0]
+                         for name, value in (("seeds", seeds), ("first_seed", first_seed)))
     out = pathlib.Path(out)
     entries, written, created = ((None, [], {}) if scenes is None
                                  else _scene_entries(_listed(scenes), out, force))
     try:
         runner = Runner(run_config(
             out, config=config, scenes=entries, estimators=_listed(estimators),
-            spp=_listed(spp), seeds=seeds, first_seed=first_seed, frames=frames,
+            spp=spp, seeds=seeds, first_seed=first_seed, frames=frames,
             resolution=resolution, env_res=env_res,
             time_budget_ms=_listed(time_budget_ms), repeats=repeats, repeats_for=repeats_for,
             metrics=metrics, sanitize=sanitize, device=device, save_inputs=save_inputs,
@@ -171,6 +175,17 @@ def _listed(value):
     if value is None or isinstance(value, (list, tuple)):
         return value
     return [value]
+
+
+def _whole_numbers(name: str, values):
+    """``values`` as ints, None staying None; anything but a whole number (16.5, "16,64", True)
+    is an InputError naming ``name``, never truncated (issue 23: spp=[16.5] ran as 16)."""
+    if values is None:
+        return None
+    for value in values:
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+            raise InputError(None, f"{name} must be a whole number or a list of them, got {value!r}")
+    return [int(value) for value in values]
 
 
 def _scene_entries(scenes, out: pathlib.Path, force: bool):

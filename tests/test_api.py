@@ -138,7 +138,13 @@ def test_bad_arguments_are_input_errors(tmp_path):
     for arguments, needle in ((dict(resolution="16by16"), "resolution"),
                               (dict(metrics=["de76", "psnr"]), "psnr"),
                               (dict(spp=0), "spp"), (dict(estimators="unifrom"), "unifrom"),
-                              (dict(scenes=[3.5]), "a scene must be")):
+                              (dict(scenes=[3.5]), "a scene must be"),
+                              # issue 23: spp=[16.5] ran as 16; "16,64" and seeds="2" raised
+                              # a raw ValueError or TypeError
+                              (dict(spp=[16.5]), r"spp must be a whole number.*16\.5"),
+                              (dict(spp="16,64"), r"spp must be a whole number.*'16,64'"),
+                              (dict(seeds="2"), r"seeds must be a whole number.*'2'"),
+                              (dict(seeds=True), "seeds must be a whole number")):
         with pytest.raises(iblbench.InputError, match=needle):
             iblbench.run(**({"scenes": "sphere-sun", "estimators": "uniform", "spp": 2,
                              "seeds": 1, "out": tmp_path / "x"} | arguments))
