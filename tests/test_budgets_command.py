@@ -140,3 +140,19 @@ def test_run_command_names_the_python_api_for_an_api_run(tmp_path):
     cli_run = {"sweep": {"source": "shipped:quick", "overridden_by_flags": ["--seeds"]}}
     expected = f"iblbench run --config quick --out {tmp_path} with --seeds"
     assert run_command(tmp_path, cli_run).startswith(expected)
+
+
+def test_without_output_an_existing_budgets_file_is_kept(tmp_path, capsys, monkeypatch):
+    """Issue 23: without --output, `budgets` overwrote ./budgets.toml silently (from the
+    repository root, the committed file).  It writes there only where none exists."""
+    run = seeded_run(tmp_path, 8)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["budgets", str(run), "--margin", "0.1"]) == 0
+    written = (tmp_path / "budgets.toml").read_text(encoding="utf-8")
+    (tmp_path / "budgets.toml").write_text("committed", encoding="utf-8")
+    capsys.readouterr()
+    assert cli.main(["budgets", str(run), "--margin", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "budgets.toml" in err and "--output" in err, err
+    assert (tmp_path / "budgets.toml").read_text(encoding="utf-8") == "committed"
+    assert "[configuration]" in written

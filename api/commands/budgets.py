@@ -22,15 +22,24 @@ def add_parser(subparsers) -> None:
                               help="relative margin beyond the standard errors, e.g. 0.1 for 10%%")
     make_budgets.add_argument("--se-multiple", type=float, metavar="K",
                               help="standard errors of the mean on each side (default: 3)")
-    make_budgets.add_argument("--output", type=pathlib.Path, default=pathlib.Path("budgets.toml"),
-                              metavar="FILE", help="file to write (default: budgets.toml)")
+    make_budgets.add_argument("--output", type=pathlib.Path, metavar="FILE",
+                              help="file to write (default: budgets.toml, only where none exists: "
+                                   "an existing file is replaced only when named here)")
     make_budgets.add_argument("--why", default="", metavar="TEXT",
                               help="why the budgets are made anew, written into the file")
 
 
+DEFAULT_OUTPUT = pathlib.Path("budgets.toml")
+
+
 def run(args) -> None:
     from iblbench.harness.verify.budgets import write_budgets
+    from iblbench.scenes.errors import InputError
 
+    output = args.output or DEFAULT_OUTPUT
+    if args.output is None and output.exists():   # from the repository root: the committed file
+        raise InputError(output, "exists and --output was not given; name the file to write "
+                                 "(--output budgets.toml replaces this one)")
     extra = {} if args.se_multiple is None else {"se_multiple": args.se_multiple}
-    rules = write_budgets(args.dir, args.output, args.margin, why=args.why, **extra)
-    print(f"wrote {rules} rules to {args.output}")
+    rules = write_budgets(args.dir, output, args.margin, why=args.why, **extra)
+    print(f"wrote {rules} rules to {output}")
