@@ -538,3 +538,18 @@ def test_terminal_table_shows_the_mean_over_seeds_and_its_t_interval():
     assert cell.effective == "8 ± 0" and cell.seeds == 3
     (_, single), = terminal_summaries(table[table.seed == 1])
     assert single.loc[("s", "a", 16)].mean_delta_e76 == "2 (n=1, no interval)"
+
+
+def test_run_help_says_what_the_default_sweep_and_metrics_are(cli):
+    """Issue 23: `iblbench --help` called the 720-cell default sweep a "small default suite", and
+    `run --help` gave the metrics' default as "all" while the default sweep leaves FLIP out."""
+    from iblbench.harness.protocol.sweep import load_sweep
+
+    default = load_sweep("default")
+    assert "flip" not in default.metrics and "flip" in load_sweep("full").metrics
+    top = cli("--help").stdout
+    assert "small default suite" not in top and "the default sweep" in top
+    text = " ".join(cli("run", "--help").stdout.split())
+    metrics_help = text[text.index("--metrics M[,M...] metrics"):text.index("--no-flip leave")]
+    assert "(default: all;" not in metrics_help
+    assert f"{','.join(default.metrics)} for the shipped default" in metrics_help
