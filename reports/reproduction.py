@@ -16,7 +16,10 @@ from iblbench.scenes.atomic import atomic_path  # noqa: E402
 
 _TEMPLATES = jinja2.Environment(
     loader=jinja2.PackageLoader("iblbench.reports", "templates"),
-    autoescape=jinja2.select_autoescape(["html"]), trim_blocks=True, lstrip_blocks=True)
+    # HTML templates escape what they interpolate (their names end in .html.j2, which
+    # select_autoescape(["html"]) does not match: issue 23); the Markdown one must not.
+    autoescape=lambda name: name is not None and name.endswith((".html", ".html.j2")),
+    trim_blocks=True, lstrip_blocks=True)
 
 
 def _format(value) -> str:

@@ -115,6 +115,18 @@ def test_summary_has_verdict_table_and_plots(tmp_path):
     assert "Fig. 2 analogue" not in head and "a difference" not in head
 
 
+def test_the_html_summary_escapes_what_it_shows_and_the_markdown_keeps_it(tmp_path):
+    """Issue 23: the reproduction templates had HTML escaping off (select_autoescape(["html"])
+    does not match "reproduction.html.j2")."""
+    result = reproduce.Reproduction(title="<b>t</b> & co", setup_differences=["<script>x</script>"],
+                                    sections=[], verdicts=[], results=synthetic_cells())
+    md = write_summary(tmp_path, result).read_text()
+    html = (tmp_path / "summary.html").read_text()
+    assert "<script>" not in html and "&lt;script&gt;x&lt;/script&gt;" in html
+    assert "&lt;b&gt;t&lt;/b&gt; &amp; co" in html
+    assert "<script>x</script>" in md and "<b>t</b> & co" in md
+
+
 def test_lu2013_end_to_end_on_tiny_images(tmp_path):
     scenes = ("sphere-sun", "sphere-backlit")   # blob-sun's 327k triangles take longest to build
     summary = write_summary(tmp_path, reproduce.reproduce("lu2013", tmp_path, seeds=1, progress=False,
