@@ -110,9 +110,10 @@ def main(argv=None) -> int:
     except (InputError, OSError) as error:
         if _disk_full(error):
             where = (getattr(error, "source", None) or getattr(error, "filename", None)
-                     or getattr(args, "out", None) or "the output")
-            print(f"iblbench: error: {where}: no space left on device; free some and rerun "
-                  "(a run resumes from its saved cells)", file=sys.stderr)
+                     or getattr(args, "out", None) or getattr(args, "dir", None) or "the output")
+            resumes = " (a run resumes from its saved cells)" if args.command == "run" else ""
+            print(f"iblbench: error: {where}: no space left on device; free some and rerun{resumes}",
+                  file=sys.stderr)
             return EXIT_DISK_FULL
         if not isinstance(error, InputError):
             raise

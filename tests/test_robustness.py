@@ -127,6 +127,18 @@ def test_a_full_disk_is_one_line_and_its_own_exit_code(tmp_path, capsys, monkeyp
     assert err.count("\n") == 1 and "no space left on device" in err, err
 
 
+def test_a_full_disk_under_report_names_the_run_and_promises_no_resume(tmp_path, capsys, monkeypatch):
+    """Issue 23: `report` on a full disk named no path and said "a run resumes"."""
+    import iblbench.reports.report as report_module
+    from iblbench.cli import main
+
+    monkeypatch.setattr(report_module, "write_report", _pyarrow_no_space)
+    code = main(["report", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code == EXIT_DISK_FULL and err.count("\n") == 1, err
+    assert str(tmp_path / "run") in err and "resume" not in err, err
+
+
 # ---- 5. Ctrl-C -------------------------------------------------------------------------------
 
 
