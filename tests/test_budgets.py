@@ -66,7 +66,7 @@ def test_quick_sweep_is_within_the_repo_budgets(quick_run):
     for scene in QUICK.scenes:
         for estimator in QUICK.estimators:
             for spp in QUICK.spp:
-                assert re.search(rf"{scene}\s+{estimator}\s+{spp}\s", result.stdout), (
+                assert re.search(rf"{scene}\s+{estimator}\s+(spp=)?{spp}\s", result.stdout), (
                     scene, estimator, spp)
 
 
@@ -111,8 +111,7 @@ def test_tightening_one_budget_fails_and_names_the_rule(quick_run, tmp_path):
     assert result.returncode == 1, check_output(result)
     failing = [line for line in result.stdout.splitlines() if line.rstrip().endswith("FAIL")]
     assert len(failing) == 1, check_output(result)
-    assert failing[0].split()[:7] == [*name.split(), "sphere-sun", "balanced_mis", "64",
-                                      "mean_delta_e76"], failing[0]
+    assert failing[0].split()[:4] == [*name.split(), "mean_delta_e76"], failing[0]
     verdict = result.stdout.strip().splitlines()[-1]
     assert verdict.startswith("check: FAIL") and name in verdict, verdict
 

@@ -156,3 +156,16 @@ def test_without_output_an_existing_budgets_file_is_kept(tmp_path, capsys, monke
     assert err.count("\n") == 1 and "budgets.toml" in err and "--output" in err, err
     assert (tmp_path / "budgets.toml").read_text(encoding="utf-8") == "committed"
     assert "[configuration]" in written
+
+
+def test_the_check_table_fits_a_terminal(tmp_path, capsys):
+    """Issue 23: the `check` table was about 220 characters wide (the rule's name, then its
+    scene, estimator and spp again).  Where every rule is named as `budgets` names them, those
+    three columns are left out: every line fits 130 columns, and each still names its rule."""
+    run = seeded_run(tmp_path, 8)
+    output = tmp_path / "b.toml"
+    assert make(run, output, capsys, "--margin", 0.1)[0] == 0
+    assert cli.main(["check", str(run), "--budgets", str(output)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert max(map(len, lines)) <= 130, max(lines, key=len)
+    assert any(line.split()[:3] == ["sphere-sun", "uniform", "spp=16"] for line in lines), lines
