@@ -41,8 +41,8 @@ EXRs (``images/<scene>/f<frame>/``), and flicker is NaN if they are gone.
 
 Timing (:mod:`iblbench.harness.protocol.timing` defines a cell's time).  Each cell is rendered
 ``repeats`` times after a warm-up (``repeats_for`` may give a slow estimator, say ``bis`` or
-``smc``, fewer: the run then says so on stderr, and the manifest and ``time_repeats`` record
-it), and its time columns summarise those renders:
+``smc``, fewer: the manifest's ``timing.repeats``, the report's manifest section and
+``time_repeats`` record it), and its time columns summarise those renders:
 
 - Warm-up: per frame and estimator, one render at 1 spp on a G-buffer of a few of the scene's
   pixels (``WARMUP_PIXELS``), on a throwaway instance and seed: it compiles the estimator's
@@ -502,11 +502,6 @@ class Runner:
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
                       file=sys.stderr)
-            fewer = sorted(label for label, n in self.repeats.items() if n < self.config.repeats)
-            if fewer and self.todo:
-                print("iblbench: fewer timed renders per cell for "
-                      + ", ".join(f"{label} ({self.repeats[label]})" for label in fewer)
-                      + f" than for the others ({self.config.repeats})", file=sys.stderr)
             _remove_stale_temporaries(self.out)
             self.journal = Journal(self.out)
             self._fold()   # a journal a killed run left becomes part of the table now
@@ -552,16 +547,18 @@ class Runner:
         return table[[row_key(row) in self.cells for row in table.to_dict("records")]]
 
     def _report_spread(self, floors) -> None:
-        """Says how many cells needed more timed renders, how many stayed too wide, and how
-        repeatable the device itself was (``floors``: TimingFloor at the start and end)."""
+        """Says how many cells needed more timed renders, how many stayed too wide, and, only
+        where it was poor, how repeatable the device itself was (``floors``: TimingFloor at the
+        start and end; the manifest and the report always have it)."""
         counts = self.manifest["timing"]["spread"]
         if counts["extended_cells"] or counts["wide_cells"]:
             print(f"iblbench: timing: {counts['extended_cells']} of {counts['cells']} cells got "
                   f"more timed renders (IQR/median above {SPREAD_LIMIT:.0%}, up to {EXTENSION}x "
                   f"the repeats); {counts['wide_cells']} stayed above it", file=sys.stderr)
-        if floors:
-            print("iblbench: timing: how repeatable the device itself was, a fixed kernel "
-                  f"launched back to back: {timing_floor_text(floors)}", file=sys.stderr)
+        if any(floor.poor for floor in floors):
+            print("iblbench: timing: the device itself was not repeatable (a fixed kernel "
+                  f"launched back to back: {timing_floor_text(floors)}); compare times with "
+                  "care", file=sys.stderr)
 
     def _check_budgets(self, table) -> list[dict]:
         """Each equal-time cell's time against its budget; prints those outside ±TOLERANCE."""

@@ -238,6 +238,7 @@ def cell_times(table, keys, column: str = TIME):
 # ---- the device's own floor (the kernel: estimators/runtime/probes.py) ---------------------------
 
 FLOOR_LAUNCHES = 40            # back to back: 8 groups of 5
+FLOOR_POOR = 0.5               # a floor with fewer groups within SPREAD_LIMIT is said on stderr
 
 
 @dataclasses.dataclass(frozen=True)
@@ -252,6 +253,11 @@ class TimingFloor:
     def text(self) -> str:
         return (f"{self.groups_within:.0%} of groups of 5 within {SPREAD_LIMIT:.0%} "
                 f"(p90/p10 {self.p90_over_p10:.2f})")
+
+    @property
+    def poor(self) -> bool:
+        """Fewer than FLOOR_POOR of its groups of 5 within SPREAD_LIMIT: the terminal says so."""
+        return self.groups_within < FLOOR_POOR
 
 
 def timing_floor_text(floors: list[TimingFloor]) -> str:
