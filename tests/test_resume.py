@@ -291,3 +291,19 @@ def test_a_damaged_manifest_stops_run_compare_and_check_and_is_kept(tmp_path, ti
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and str(manifest) in err and why in err, (argv, err)
     assert manifest.read_text() == text
+
+
+def test_a_damaged_estimate_image_is_rendered_again_on_resume(tmp_path, tiny_config, capsys):
+    """Issue 23: resume counted a cell whose EXR was corrupt as done (and `report` then failed
+    on the image)."""
+    from iblbench.scenes.imageio import read_exr
+
+    out = tmp_path / "out"
+    table, _ = cli_run(capsys, tiny_config, out)
+    image = out / "images" / "sphere-sun" / "f0" / "balanced_spp8_s1.exr"
+    whole = read_exr(image)
+    image.write_bytes(image.read_bytes()[: image.stat().st_size // 2])   # cut in half
+    again, err = cli_run(capsys, tiny_config, out)
+    assert f"resumed: {len(table) - 1} cells already done, 1 to run" in err, err
+    assert np.array_equal(read_exr(image), whole)   # the same seed renders the same image
+    pd.testing.assert_frame_equal(again[DETERMINISTIC_COLUMNS], table[DETERMINISTIC_COLUMNS])

@@ -230,6 +230,20 @@ def cell_files(out_dir: pathlib.Path, row: dict) -> list[pathlib.Path]:
     return [folder / f"{image_stem(row)}.exr"]
 
 
+def cell_files_intact(out_dir: pathlib.Path, row: dict) -> bool:
+    """Whether every image a finished cell left is there and reads whole: a damaged EXR makes
+    the cell unfinished (a resume renders it again), where before it counted as done and the
+    report then failed on it (issue 23)."""
+    from iblbench.scenes.imageio import read_exr
+
+    try:
+        for path in cell_files(out_dir, row):
+            read_exr(path)
+    except InputError:
+        return False
+    return True
+
+
 def image_configuration(row: dict) -> tuple[int, int, int] | None:
     """A row's (width, height, env_res); None for a row from before those columns."""
     values = tuple(row.get(column) for column in ("width", "height", "env_res"))

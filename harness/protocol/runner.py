@@ -109,7 +109,7 @@ from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import PRODUCTS, FrameCache
 from iblbench.harness.protocol.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.estimators.runtime.reference import Reference
-from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files,
+from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files_intact,
                                                configuration_differences, image_configuration,
                                                image_stem, prepare_out, read_manifest, read_results,
                                                row_key, write_manifest, write_results)
@@ -372,7 +372,7 @@ class Runner:
                 and row.get("time_repeats", 0) >= self.repeats[spec.label]
                 and (row.get("width"), row.get("height"), row.get("env_res"))
                 == (plan.width, plan.height, plan.env_res)
-                and all(path.is_file() for path in cell_files(self.out, row)))
+                and cell_files_intact(self.out, row))
 
     def _plan_cells(self):
         """The keys of the cells to run, the keys of every cell of the sweep, and the spp earlier
