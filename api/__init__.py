@@ -191,10 +191,15 @@ def _whole_numbers(name: str, values):
 def _scene_entries(scenes, out: pathlib.Path, force: bool):
     """The runner's scene entries (names and .toml paths as given, each dict written as
     ``out/scenes/<name>.toml``), the files written, and the files and folders created."""
+    from iblbench.scenes.registry import scene_key_problem
+
     entries, documents = [], {}
     for scene in scenes:
         if isinstance(scene, dict):
             name = _scene_name(scene)
+            problem = scene_key_problem({k: v for k, v in scene.items() if k != "name"})
+            if problem:   # before any name clash: a typo is the problem to report (issue 23)
+                raise InputError(f"scene dict {name!r}", problem)
             if name in documents:
                 raise InputError(f"scene dict {name!r}", "two scene dicts have this name; give "
                                                          "each its own 'name'")

@@ -402,20 +402,39 @@ _SECTIONS = {
 }
 
 
+def _section_problem(section: str, table: Any) -> str | None:
+    """What is wrong with the keys of one scene table, or None."""
+    if not isinstance(table, dict):
+        return f"[{section}] must be a table"
+    required, optional = _SECTIONS[section]
+    unknown = set(table) - required - optional
+    if unknown:
+        return (f"unknown key {sorted(unknown)[0]!r} in [{section}]; valid keys: "
+                f"{', '.join(sorted(required | optional))}")
+    missing = required - set(table)
+    return f"missing required key {sorted(missing)[0]!r} in [{section}]" if missing else None
+
+
+def scene_key_problem(document: dict) -> str | None:
+    """The first problem with a scene document's sections and keys (unknown or missing), or
+    None: what a scene file or a Python API scene dict is checked against before anything else."""
+    unknown = set(document) - set(_SECTIONS)
+    if unknown:
+        return f"unknown section [{sorted(unknown)[0]}]; valid sections: {', '.join(_SECTIONS)}"
+    for section in ("mesh", "environment", "camera"):
+        if section not in document:
+            return f"missing required section [{section}]"
+    return next(filter(None, (_section_problem(section, table) for section, table in document.items())), None)
+
+
 class _Fields:
     """Typed access to one TOML table; every problem is an InputError naming the TOML file."""
 
     def __init__(self, toml_path: Path, section: str, table: Any):
         self.toml_path, self.section = toml_path, section
-        if not isinstance(table, dict):
-            self.fail(f"[{section}] must be a table")
-        required, optional = _SECTIONS[section]
-        unknown = set(table) - required - optional
-        if unknown:
-            self.fail(f"unknown key {sorted(unknown)[0]!r} in [{section}]; valid keys: {', '.join(sorted(required | optional))}")
-        missing = required - set(table)
-        if missing:
-            self.fail(f"missing required key {sorted(missing)[0]!r} in [{section}]")
+        problem = _section_problem(section, table)
+        if problem:
+            self.fail(problem)
         self.table = table
 
     def fail(self, problem: str):
@@ -478,12 +497,9 @@ class _Fields:
 
 def _toml_scene(path: Path, sanitize: bool, env_res: int | None) -> Scene:
     document = read_toml(path, "scene file")
-    unknown = set(document) - set(_SECTIONS)
-    if unknown:
-        raise InputError(path, f"unknown section [{sorted(unknown)[0]}]; valid sections: {', '.join(_SECTIONS)}")
-    for section in ("mesh", "environment", "camera"):
-        if section not in document:
-            raise InputError(path, f"missing required section [{section}]")
+    problem = scene_key_problem(document)
+    if problem:
+        raise InputError(path, problem)
     fields = {section: _Fields(path, section, document.get(section, {})) for section in _SECTIONS}
     folder = path.parent
     material = _material(fields["material"])

@@ -134,6 +134,15 @@ def test_two_dicts_of_one_name_and_a_changed_dict_are_refused(swept, folder):
     assert (out / "scenes" / "ball.toml").read_text() == before
 
 
+def test_a_typo_in_a_dict_under_a_name_out_already_has_is_reported_as_the_typo(swept, folder):
+    """Issue 23: a dict scene with a typo'd key, under a name already used in that out, was
+    reported as a name clash instead of the typo."""
+    out, _ = swept
+    typo = ball(folder, material={"kd": 0.5, "shinyness": 20})
+    with pytest.raises(iblbench.InputError, match="unknown key 'shinyness' in \\[material\\]"):
+        iblbench.run(scenes=[typo], estimators="uniform", spp=2, seeds=1, out=out, **TINY)
+
+
 def test_bad_arguments_are_input_errors(tmp_path):
     for arguments, needle in ((dict(resolution="16by16"), "resolution"),
                               (dict(metrics=["de76", "psnr"]), "psnr"),
