@@ -300,13 +300,18 @@ class FramePreviews:
         return relative
 
     def estimate(self, stem: str) -> tuple[str | None, str | None]:
-        """The preview and the heat map of the estimate ``stem``."""
+        """The preview and the heat map of the estimate ``stem``; (None, None) when its EXR is
+        missing or does not read whole (the page shows "no image" there instead of failing as a
+        whole: issue 23; a resumed run renders such a cell again)."""
         sources = [self.run_images / f"{stem}.exr", self.run_images / "reference.exr"]
         preview, draw_preview = self._target(f"{stem}.png", sources[:1])
         heat, draw_heat = self._target(f"{stem}_de76.png", sources, HEAT_SCALE)
         if draw_preview or draw_heat:
             scorer = self._scorer_of_frame()
-            radiance = read_exr(sources[0])
+            try:
+                radiance = read_exr(sources[0])
+            except InputError:
+                return None, None
             if draw_preview:
                 write_preview(self.report / preview, radiance, scorer.k)
             if draw_heat:
@@ -362,8 +367,8 @@ def bias_table(run_dir, table, cells, scene, frame, mask) -> markupsafe.Markup |
     of the bias, mean(((m − r)² − s²/n)/(r² + 0.01)) with m and s a pixel's mean and standard
     deviation over the n seeds (the squared bias with the variance of the mean taken out, so
     it estimates the floor the cell's relMSE, shown beside it, levels off at), its 95% interval
-    by the jackknife over seeds (n ≥ 3).  An estimator whose EXRs are gone is left out; None
-    when none is left."""
+    by the jackknife over seeds (n ≥ 3).  An estimator whose EXRs are gone or do not read whole
+    is left out; None when none is left."""
     folder = pathlib.Path(run_dir) / "images" / scene / f"f{frame}"
     rows = table[(table.scene == scene) & (table.frame == frame)]
     shown = []
@@ -377,8 +382,11 @@ def bias_table(run_dir, table, cells, scene, frame, mask) -> markupsafe.Markup |
         if not biased or not all(p.exists() for p in [folder / "reference.exr", *paths]):
             continue
         covered, n = mask(), len(paths)
-        reference = read_exr(folder / "reference.exr")[covered].astype(np.float64)
-        estimates = np.array([read_exr(path)[covered] for path in paths], np.float64)
+        try:
+            reference = read_exr(folder / "reference.exr")[covered].astype(np.float64)
+            estimates = np.array([read_exr(path)[covered] for path in paths], np.float64)
+        except InputError:      # an EXR that no longer reads whole: left out, as one gone
+            continue
         with np.errstate(divide="ignore", invalid="ignore"):
             image_mean = mean_ci(cubemap.luminance(estimates).sum(1) / cubemap.luminance(reference).sum() - 1)
 

@@ -168,4 +168,6 @@ def test_the_check_table_fits_a_terminal(tmp_path, capsys):
     assert cli.main(["check", str(run), "--budgets", str(output)]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert max(map(len, lines)) <= 130, max(lines, key=len)
+    cells = [line for line in lines if "sphere-sun" in line]
+    assert cells and all(line.count("sphere-sun") == 1 for line in cells), cells[0]   # said once
     assert any(line.split()[:3] == ["sphere-sun", "uniform", "spp=16"] for line in lines), lines

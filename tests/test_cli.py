@@ -553,3 +553,16 @@ def test_run_help_says_what_the_default_sweep_and_metrics_are(cli):
     metrics_help = text[text.index("--metrics M[,M...] metrics"):text.index("--no-flip leave")]
     assert "(default: all;" not in metrics_help
     assert f"{','.join(default.metrics)} for the shipped default" in metrics_help
+
+
+def test_run_help_and_the_run_agree_on_who_draws_the_previews(cli, tmp_path):
+    """Issue 23: `run --help` said the run writes PNG previews and ΔE heat maps, the README that
+    `iblbench report` draws them; the run writes EXRs only."""
+    text = " ".join(cli("run", "--help").stdout.split())
+    assert "EXR + PNG" not in text and "`iblbench report` draws the PNG previews" in text
+    out = tmp_path / "out"
+    result = cli("run", "--scene", "sphere-sun", "--estimator", "uniform", "--spp", "2", "--seeds", "1",
+                 "--res", "8x8", "--env-res", "8", "--repeats", "1", "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    images = list((out / "images").rglob("*.*"))
+    assert images and all(path.suffix == ".exr" for path in images), images

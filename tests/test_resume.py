@@ -307,3 +307,16 @@ def test_a_damaged_estimate_image_is_rendered_again_on_resume(tmp_path, tiny_con
     assert f"resumed: {len(table) - 1} cells already done, 1 to run" in err, err
     assert np.array_equal(read_exr(image), whole)   # the same seed renders the same image
     pd.testing.assert_frame_equal(again[DETERMINISTIC_COLUMNS], table[DETERMINISTIC_COLUMNS])
+
+
+def test_the_report_shows_no_image_where_an_estimate_is_damaged(tmp_path, tiny_config, capsys):
+    """Issue 23: a corrupt estimate EXR failed the whole report; it shows "no image" there."""
+    from iblbench.reports.report import write_report
+
+    out = tmp_path / "out"
+    cli_run(capsys, tiny_config, out)
+    image = out / "images" / "sphere-sun" / "f0" / "balanced_spp8_s0.exr"
+    image.write_bytes(image.read_bytes()[: image.stat().st_size // 2])
+    html = write_report(out)["path"].read_text()
+    assert "no image" in html and "balanced_spp8_s0.png" not in html
+    assert "uniform_spp8_s0.png" in html

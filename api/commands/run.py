@@ -11,8 +11,8 @@ from iblbench.commands.common import (add_json, env_res, human_output, non_negat
 
 DESCRIPTION = """\
 Render every (scene, estimator, spp, frame, seed) cell of a sweep, score it against the exact
-reference and write results.parquet/.csv, manifest.json and images/<scene>/f<frame>/ (EXR + PNG
-previews + ΔE heat maps) into --out. The sweep comes from --config (default: the shipped
+reference and write results.parquet/.csv, manifest.json and images/<scene>/f<frame>/ (the EXR of
+every image; `iblbench report` draws the PNG previews and ΔE heat maps) into --out. The sweep comes from --config (default: the shipped
 'default'); each flag given replaces that field of the config. Re-running resumes: cells already
 in --out with the same configuration, code version and device are skipped."""
 
