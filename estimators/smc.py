@@ -280,7 +280,8 @@ class SMC(Estimator):
         estimate = read_estimate(compute, gbuffer, radiance, counts, float(st[:, 2].mean()),
                                  {"sample": sum(map(event_ms, table_events)),
                                   "shade": sum(map(event_ms, events))},
-                                 shadow_rays=float(compute.to_host(rays, (count,), np.float32).mean()))
+                                 shadow_rays=float(compute.to_host(rays, (count,), np.float32).mean())
+                                 if gbuffer.has_visibility else 0.0)   # no read back without V
         estimate.extras = {
             "ess": float(st[carried, 0].mean()) if carried.any() else float("nan"),
             "reinits": float(st[:, 1].sum()),

@@ -428,14 +428,11 @@ def scene_key_problem(document: dict) -> str | None:
 
 
 class _Fields:
-    """Typed access to one TOML table; every problem is an InputError naming the TOML file."""
+    """Typed access to one TOML table whose keys scene_key_problem has checked; every problem is
+    an InputError naming the TOML file."""
 
-    def __init__(self, toml_path: Path, section: str, table: Any):
-        self.toml_path, self.section = toml_path, section
-        problem = _section_problem(section, table)
-        if problem:
-            self.fail(problem)
-        self.table = table
+    def __init__(self, toml_path: Path, section: str, table: dict):
+        self.toml_path, self.section, self.table = toml_path, section, table
 
     def fail(self, problem: str):
         raise InputError(self.toml_path, problem)

@@ -31,7 +31,7 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     import pandas as pd
 
-    from iblbench.harness.verify.budgets import check
+    from iblbench.harness.verify.budgets import check, rule_name
     from iblbench.harness.protocol.machine_readable import check_summary, junit_xml
     from iblbench.scenes.atomic import atomic_path
 
@@ -41,7 +41,7 @@ def run(args) -> int:
     # cell, which the scene, estimator and spp columns said again: the table was about 220
     # characters wide (issue 23).  They are left out where every rule is so named; --json and
     # --junit keep them.
-    derived = checks.scene + " " + checks.estimator + " spp=" + checks.spp.astype(str)
+    derived = [rule_name(*cell) for cell in zip(checks.scene, checks.estimator, checks.spp)]
     shown = checks.drop(columns=["scene", "estimator", "spp"]) if (checks.rule == derived).all() else checks
     with pd.option_context("display.width", 250, "display.max_colwidth", 60):
         print(shown.to_string(index=False), file=human)

@@ -26,7 +26,7 @@ __kernel void pool_planes(__global const float4 *dir_pdf, __global const float4 
     planes[4 * stride + k] = c.x;
     planes[5 * stride + k] = c.y;
     planes[6 * stride + k] = c.z;
-    planes[7 * stride + k] = valid ? (float)visibility_cell(vec3(d.x, d.y, d.z)) : 0.0f;
+    planes[7 * stride + k] = VISIBILITY && valid ? (float)visibility_cell(vec3(d.x, d.y, d.z)) : 0.0f;
 }
 
 /* The shared BRDF numbers of draw i = get_global_id(0) (see BRDF_NUMBERS_STRIDE), the scalar

@@ -527,6 +527,11 @@ def _bound_lines(rows: pd.DataFrame, spp: int, margin: float, k: float) -> list[
                     f"max_used_samples = {spp}  # the budget, spp"]
 
 
+def rule_name(scene, estimator, spp) -> str:
+    """The name ``iblbench budgets`` gives the rule of one cell (``check`` knows it by it)."""
+    return f"{scene} {estimator} spp={spp}"
+
+
 def run_command(out_dir: pathlib.Path, manifest: dict) -> str:
     """The ``iblbench run`` that made ``out_dir``, from its manifest's sweep: exact for a sweep
     config run as it is; otherwise it names the flags whose values the manifest holds."""
@@ -595,7 +600,7 @@ def derive_budgets(out_dir: str | pathlib.Path, margin: float,
              for key, value in dataclasses.asdict(configuration).items()]
     groups = dict(iter(cells))
     for (scene, estimator, spp), rows in groups.items():
-        text += ["", "[[rule]]", f"name = {json.dumps(f'{scene} {estimator} spp={spp}')}",
+        text += ["", "[[rule]]", f"name = {json.dumps(rule_name(scene, estimator, spp))}",
                  f"scene = {json.dumps(glob.escape(scene))}",
                  f"estimator = {json.dumps(glob.escape(estimator))}", f"spp = {spp}",
                  "nonfinite = 0  # measured 0"]
