@@ -62,7 +62,8 @@ REQUIRED_COLUMNS = ("scene", "estimator", "spp", "frame", "seed", "mean_delta_e7
 MEAN_COLUMNS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "used_samples",
                 "effective_samples", "effective_ratio", "shadow_rays")
 # Each is a cell's mean over seeds with its interval (module docstring).
-INTERVAL_COLUMNS = (*MEAN_COLUMNS, "flip", TIME, "time_ms_iqr", "time_ms_host", "efficiency")
+INTERVAL_COLUMNS = (*MEAN_COLUMNS, "flip", TIME, "time_ms_iqr", "time_ms_host")
+SHOWN_INTERVALS = (*INTERVAL_COLUMNS, "efficiency")   # efficiency: summarize derives it
 
 _TEMPLATES = jinja2.Environment(
     loader=jinja2.PackageLoader("iblbench.reports", "templates"),
@@ -91,18 +92,24 @@ def load_run(run_dir: pathlib.Path) -> tuple[pd.DataFrame, dict | None]:
 
 def summarize(table: pd.DataFrame) -> pd.DataFrame:
     """One row per (scene, estimator, spp): each column of INTERVAL_COLUMNS the table has (FLIP
-    only where it was computed) as :func:`iblbench.harness.protocol.stats.cell_intervals` gives it (the
-    mean over seeds of the per-seed means over frames, with ``_low``, ``_high``, ``_half``);
-    ``seeds`` counts the seeds, ``nonfinite`` sums every row's; ``efficiency`` = 1/(relMSE·s)
-    per row; ``pareto_rel_mse``/``pareto_delta_e76`` are :func:`~.plots.pareto_calls` over the
-    scene's cells (time, error)."""
+    only where it was computed) as :func:`iblbench.harness.protocol.stats.cell_intervals` gives it
+    (errors over the cell's replicates, the time as the median of its timed renders, each with
+    ``_low``, ``_high``, ``_half``, ``_n``, ``_method``); ``seeds`` counts the seeds,
+    ``nonfinite`` sums every row's; ``efficiency`` = 1/(relMSE·s) of the cell's figures, its
+    interval from their bounds (low: both high; high: both low), so it is at least 95%;
+    ``pareto_rel_mse``/``pareto_delta_e76`` are :func:`~.plots.pareto_calls` over the scene's
+    cells (time, error)."""
     keys = ["scene", "estimator", "spp"]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        table = table.assign(efficiency=1e3 / (table.rel_mse * table.time_ms))
     columns = [c for c in INTERVAL_COLUMNS if c in table and table[c].notna().any()]
     cells = cell_intervals(table, keys, columns)
     cells["nonfinite"] = table.groupby(keys, sort=False).nonfinite.sum()
     cells = cells.reset_index()
+    if "rel_mse" in cells:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cells["efficiency"] = 1e3 / (cells.rel_mse * cells[TIME])
+            cells["efficiency_low"] = 1e3 / (cells.rel_mse_high * cells[f"{TIME}_high"])
+            cells["efficiency_high"] = 1e3 / (cells.rel_mse_low * cells[f"{TIME}_low"])
+        cells["efficiency_half"] = (cells.efficiency_high - cells.efficiency_low) / 2
     for column in ("rel_mse", "mean_delta_e76"):
         name = f"pareto_{column.replace('mean_', '')}"
         cells[name] = ""
@@ -157,8 +164,9 @@ def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
 
 def _intervals(cells: pd.DataFrame, column: str) -> list[str]:
     """The column's cells as ``mean ± half-width`` (``stats.interval_text``)."""
+    counts = cells[f"{column}_n"] if f"{column}_n" in cells else cells.seeds
     return [interval_text(mean, half, n) for mean, half, n in
-            zip(cells[column], cells[f"{column}_half"], cells.seeds)]
+            zip(cells[column], cells[f"{column}_half"], counts)]
 
 
 _TABLE_COLUMNS = {   # summary column → header (with units)
@@ -192,7 +200,7 @@ def summary_html(cells: pd.DataFrame, columns=None) -> markupsafe.Markup:
     """The summary table of one scene's ``columns`` (default: every one of _TABLE_COLUMNS the
     cells have); every aggregated figure as ``mean ± half-width``."""
     columns = [c for c in (columns or _TABLE_COLUMNS) if c in cells]
-    frame = pd.DataFrame({_TABLE_COLUMNS[c]: _intervals(cells, c) if c in INTERVAL_COLUMNS
+    frame = pd.DataFrame({_TABLE_COLUMNS[c]: _intervals(cells, c) if c in SHOWN_INTERVALS
                           else cells[c] for c in columns})
     return _table_html(frame, "summary")
 

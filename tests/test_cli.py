@@ -29,6 +29,7 @@ RESULT_COLUMNS = {
     "evaluations", "shadow_rays", "nonfinite", "time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build",
     "time_ms_sample", "time_ms_shade", "time_ms_host", "time_repeats", "device", "protocol",
     "schema_version", "time_budget_ms", "width", "height", "env_res", "estimator_params", "metrics",
+    "mean_delta_e76_renders", "mean_delta_e2000_renders", "rel_mse_renders", "time_ms_renders",
 }
 
 
@@ -303,6 +304,15 @@ def test_tiny_run_results_table(tiny_run):
     for column in ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "time_ms", "time_ms_host"):
         assert np.isfinite(table[column]).all() and (table[column] >= 0).all(), column
     assert (table["time_repeats"] >= 5).all()   # more where the renders spread too wide
+    # Every planned render is scored (5 repeats), the scored one first; every timed one is timed.
+    for row in table.itertuples():
+        for metric in ("mean_delta_e76", "mean_delta_e2000", "rel_mse"):
+            values = [float(v) for v in getattr(row, f"{metric}_renders").split()]
+            assert len(values) == 5 and values[0] == pytest.approx(getattr(row, metric), rel=1e-6)
+            assert len(set(values)) == 5, metric   # five renders, five draws
+        times = [float(v) for v in row.time_ms_renders.split()]
+        assert len(times) == row.time_repeats
+        assert np.median(times) == pytest.approx(row.time_ms, rel=1e-6)
 
 
 def test_tiny_run_json_summary(tiny_run, cli):
@@ -325,12 +335,27 @@ def test_tiny_run_json_summary(tiny_run, cli):
         ("sphere-sun", "uniform", 4, 2), ("sphere-sun", "uniform", 16, 2)]
     for cell in summary["cells"]:
         rows = table[table.spp == cell["spp"]].sort_values("seed")
-        for metric in ("mean_delta_e76", "rel_mse", "time_ms", "effective_samples"):
-            values = rows[metric].to_numpy()
-            half = stats.t.ppf(0.975, 1) * values.std(ddof=1) / np.sqrt(2)
+        # Errors: every scored render of both seeds (2 × 5 replicates), a t interval over them.
+        for metric in ("mean_delta_e76", "rel_mse"):
+            values = np.concatenate([[float(v) for v in text.split()]
+                                     for text in rows[f"{metric}_renders"]])
+            assert values.size == 10
+            half = stats.t.ppf(0.975, 9) * values.std(ddof=1) / np.sqrt(10)
             figure = cell["metrics"][metric]
             assert figure["mean"] == pytest.approx(values.mean()), metric
             assert figure["half_width"] == pytest.approx(half), metric
+            assert figure["n"] == 10
+        # Samples: one value per seed.
+        values = rows["effective_samples"].to_numpy()
+        figure = cell["metrics"]["effective_samples"]
+        assert figure["mean"] == pytest.approx(values.mean())
+        assert figure["half_width"] == pytest.approx(stats.t.ppf(0.975, 1) * values.std(ddof=1)
+                                                     / np.sqrt(2))
+        # Time: the median of every timed render, inside its interval.
+        times = np.concatenate([[float(v) for v in text.split()] for text in rows.time_ms_renders])
+        figure = cell["metrics"]["time_ms"]
+        assert figure["mean"] == pytest.approx(np.median(times))
+        assert figure["low"] <= figure["mean"] <= figure["high"] and figure["n"] == times.size
 
 
 def test_tiny_run_manifest(tiny_run):

@@ -80,7 +80,8 @@ def test_run_summary_with_one_seed_has_no_interval():
     table = pd.DataFrame([row("sphere-sun", "uniform", 16, time_budget_ms=np.nan)], columns=COLUMNS)
     cell = json.loads(json_text(run_summary(table, "o", {})))["cells"][0]
     assert cell["metrics"]["mean_delta_e76"] == {"mean": 1.0, "low": None, "high": None,
-                                                 "half_width": None}
+                                                 "half_width": None, "n": 1,
+                                                 "method": "mean over seeds, 95% Student-t interval"}
 
 
 # ---- check: --json and --junit ----------------------------------------------------------------------

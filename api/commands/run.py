@@ -128,9 +128,10 @@ def terminal_summaries(table):
     cell. Beside spp each shows what a sample costs, as the estimators' spp are not comparable
     (one bis or smc sample costs 21 integrand evaluations): ``evaluations`` (integrand evaluations per
     covered pixel) and the cell's time of :mod:`iblbench.harness.protocol.timing` (``time_ms``: device ms
-    per frame, build + sample + shade) as the report and ``check`` show it.  Time, errors and
-    samples are the mean over seeds with its 95% Student-t interval, ``mean ± half-width``
-    (:func:`iblbench.harness.protocol.stats.cell_intervals`); ``seeds`` says how many."""
+    per frame, build + sample + shade) as the report and ``check`` show it.  Errors are the mean
+    over the cell's scored renders, the time the median of its timed renders, each with its 95%
+    interval, ``mean ± half-width`` (:func:`iblbench.harness.protocol.stats.cell_intervals`);
+    ``seeds`` says how many seeds."""
     from iblbench.harness.protocol.stats import cell_intervals, interval_text
     from iblbench.harness.protocol.timing import TIME
 
@@ -150,8 +151,9 @@ def terminal_summaries(table):
             spp = {} if "spp" in keys else {"spp": ("spp", "first")}
             summary = rows.groupby(keys).agg(**spp, evaluations=("evaluations", "mean"))
             for column in columns:
-                summary[shown[column]] = [interval_text(*cells.loc[key, [column, f"{column}_half"]],
-                                                        cells.seeds[key]) for key in summary.index]
+                summary[shown[column]] = [interval_text(
+                    cells.loc[key, column], cells.loc[key, f"{column}_half"],
+                    int(cells.loc[key, f"{column}_n"])) for key in summary.index]
             summary["seeds"] = cells.seeds
             summary["nonfinite"] = rows.groupby(keys).nonfinite.sum()
             summaries.append((title, summary))

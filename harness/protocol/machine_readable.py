@@ -67,9 +67,10 @@ import xml.etree.ElementTree as ET
 import pandas as pd
 
 from iblbench.harness.protocol.results import METRIC_COLUMNS
-from iblbench.harness.protocol.stats import MEAN_METHOD, cell_intervals
+from iblbench.harness.protocol.stats import MEAN_METHOD, RENDERS, cell_intervals
 
-RUN_METRICS = tuple(c for c in METRIC_COLUMNS if c not in ("nonfinite", "time_repeats"))
+RUN_METRICS = tuple(c for c in METRIC_COLUMNS
+                    if c not in ("nonfinite", "time_repeats") and not c.endswith(RENDERS))
 RULE_COLUMNS = ["scene", "estimator", "spp", "metric", "value", "ci95", "bound", "result"]
 
 
@@ -94,7 +95,8 @@ def run_summary(rows: pd.DataFrame, out, manifest: dict) -> dict:
                 "frames": int(group.frame.nunique()), "seeds": int(interval.seeds),
                 "nonfinite": int(group.nonfinite.sum()),
                 "metrics": {c: {"mean": interval[c], "low": interval[f"{c}_low"],
-                                "high": interval[f"{c}_high"], "half_width": interval[f"{c}_half"]}
+                                "high": interval[f"{c}_high"], "half_width": interval[f"{c}_half"],
+                                "n": int(interval[f"{c}_n"]), "method": interval[f"{c}_method"]}
                             for c in columns}})
     out = pathlib.Path(out)
     return {"command": "run", "exit": 0, "status": manifest.get("status"), "out": str(out),

@@ -242,26 +242,35 @@ class Scorer:
                                      "HDR", applyMagma=False, parameters=parameters)[0]
         return float(error_map[..., 0][self.mask].mean())
 
-    def score(self, estimate) -> tuple[dict, np.ndarray]:
-        """One results row's metrics for an :class:`Estimate`, and the ΔE76 image for a heat map.
-
-        Non-finite estimate values are counted (``nonfinite``) and scored as black, so one NaN
-        cannot hide the rest of the image's error.
-        """
-        mask, nan = self.mask, float("nan")
-        radiance = np.where(np.isfinite(estimate.radiance), estimate.radiance, 0.0)
+    def errors(self, radiance: np.ndarray) -> tuple[dict[str, float], np.ndarray]:
+        """ΔE76, ΔE2000 and relMSE of one image (NaN for a metric left out), and its ΔE76 image:
+        what every timed render of a cell is scored on (its replicates; FLIP, at ~0.5 s an
+        image, only on the scored render).  Non-finite values are scored as black, so one NaN
+        cannot hide the rest of the image's error."""
+        radiance = np.where(np.isfinite(radiance), radiance, 0.0)
         de76, de2000 = self.delta_e_images(radiance)
+        mask, nan = self.mask, float("nan")
+        return {"mean_delta_e76": float(de76[mask].mean()),
+                "mean_delta_e2000": float(de2000[mask].mean()) if de2000 is not None else nan,
+                "rel_mse": (rel_mse(radiance, self.reference, mask) if "relmse" in self.metrics
+                            else nan)}, de76
+
+    def score(self, estimate) -> tuple[dict, np.ndarray]:
+        """One results row's metrics for an :class:`Estimate` (:meth:`errors`, FLIP and the
+        sample counts; non-finite values are counted in ``nonfinite``), and the ΔE76 image for a
+        heat map."""
+        mask = self.mask
+        errors, de76 = self.errors(estimate.radiance)
         used = float(estimate.used[mask].mean()) if mask.any() else 0.0
         effective = float(estimate.effective[mask].mean()) if mask.any() else 0.0
         row = {
-            "mean_delta_e76": float(de76[mask].mean()),
-            "mean_delta_e2000": float(de2000[mask].mean()) if de2000 is not None else nan,
-            "rel_mse": rel_mse(radiance, self.reference, mask) if "relmse" in self.metrics else nan,
-            "flip": self.flip(radiance) if "flip" in self.metrics else nan,
-            "flicker": nan,   # set by the runner, which knows the previous frame
+            **errors,
+            "flip": (self.flip(np.where(np.isfinite(estimate.radiance), estimate.radiance, 0.0))
+                     if "flip" in self.metrics else float("nan")),
+            "flicker": float("nan"),   # set by the runner, which knows the previous frame
             "used_samples": used,
             "effective_samples": effective,
-            "effective_ratio": effective / used if used > 0 else nan,
+            "effective_ratio": effective / used if used > 0 else float("nan"),
             "evaluations": estimate.evaluations,
             "shadow_rays": estimate.shadow_rays,
             "nonfinite": estimate.nonfinite,

@@ -15,11 +15,16 @@ Columns, in order (``COLUMNS``):
   is the mean over covered pixels of |ΔE76(est_t, ref_t) − ΔE76(est_p, ref_p)|,
   p the frame before t in the run's frame list, for the same (scene, estimator, spp, seed,
   time_budget_ms); NaN on the first frame of the list (and so for a static scene);
+- replicates: ``mean_delta_e76_renders``, ``mean_delta_e2000_renders``, ``rel_mse_renders``: the
+  metric of each of the cell's planned timed renders, render 0 (the scored one) first, as text
+  (:func:`iblbench.harness.protocol.stats.renders_text`; empty for a metric left out): the
+  replicates a cell's interval is made of (:mod:`iblbench.harness.protocol.stats`);
 - times (:mod:`iblbench.harness.protocol.timing`, the one definition): ``time_ms`` (the cell's device
   time per frame, build + sample + shade, median of ``time_repeats`` timed renders),
   ``time_ms_min``, ``time_ms_iqr``, the per-stage medians ``time_ms_build``, ``time_ms_sample``,
-  ``time_ms_shade``, the host wall time ``time_ms_host`` and ``time_repeats`` (at least the
-  repeats asked for; more where the renders spread too wide);
+  ``time_ms_shade``, the host wall time ``time_ms_host``, ``time_repeats`` (at least the
+  repeats asked for; more where the renders spread too wide) and ``time_ms_renders`` (each timed
+  render's device time, as text);
 - ``device``, ``protocol``;
 - then any *extra* columns: estimator-specific per-frame scalars from ``Estimate.extras``
   (e.g. ``smc``'s ``ess``, ``reinits``, ``resample_steps``), sorted by name, NaN in the rows of
@@ -28,7 +33,7 @@ Columns, in order (``COLUMNS``):
 
 Schema versions: 1 had no schema_version, time_budget_ms, width, height, env_res or
 estimator_params column; 2 had no flicker column; 3 timed one render per cell (host wall time
-``time_ms_frame``, device stages of that one render); 4 had no shadow_rays column; 5 is this one.  Rows of another schema never count as finished cells.
+``time_ms_frame``, device stages of that one render); 4 had no shadow_rays column; 5 had no per-render columns (``*_renders``); 6 is this one.  Rows of another schema never count as finished cells.
 
 Storage.  ``results.parquet`` and ``results.csv`` are replaced whole, each in one rename, so a
 reader never sees half a table.  While a run is going, each finished cell is appended to
@@ -51,18 +56,21 @@ import sys
 import numpy as np
 import pandas as pd
 
-from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS
+from iblbench.harness.protocol.stats import RENDERS
+from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError
 
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed", "time_budget_ms"]
 CONFIG_COLUMNS = ["width", "height", "env_res", "estimator_params", "estimator_version",
                   "schema_version", "metrics"]
+REPLICATED = ("mean_delta_e76", "mean_delta_e2000", "rel_mse")   # scored on every planned render
+REPLICATE_COLUMNS = [metric + RENDERS for metric in REPLICATED]
 METRIC_COLUMNS = [
     "mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "flicker",
     "used_samples", "effective_samples", "effective_ratio", "evaluations", "shadow_rays", "nonfinite",
-    *TIME_COLUMNS,
+    *REPLICATE_COLUMNS, *TIME_COLUMNS,
 ]
 COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "protocol"]
 # Columns that are the same on every rerun of a cell on one device (renders are deterministic
@@ -168,7 +176,7 @@ def _read_table(out_dir: pathlib.Path) -> list[dict]:
 
 
 _TEXT_COLUMNS = ("scene", "estimator", "estimator_params", "estimator_version", "metrics",
-                 "device", "protocol")
+                 "device", "protocol", *REPLICATE_COLUMNS, TIME + RENDERS)
 
 
 def _is_number(value) -> bool:

@@ -109,7 +109,9 @@ from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import PRODUCTS, FrameCache
 from iblbench.harness.protocol.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.estimators.runtime.reference import Reference
-from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal, cell_files_intact,
+from iblbench.harness.protocol.stats import RENDERS, renders_text
+from iblbench.harness.protocol.results import (FOLD_SECONDS, REPLICATED, SCHEMA_VERSION, Journal,
+                                               cell_files_intact,
                                                configuration_differences, image_configuration,
                                                image_stem, prepare_out, read_manifest, read_results,
                                                row_key, write_manifest, write_results)
@@ -726,11 +728,11 @@ class Runner:
             warmed = spec.make().render(warm_up, cache, 1, WARMUP_SEED)
             self.device_ms_total += device_ms(warmed.timings_ms)
             for key in cells:
-                spp, estimate, renders, sequence_key = self._render_cell(
+                spp, estimates, renders, sequence_key = self._render_cell(
                     plan, spec, estimator, key, cells, gbuffer, cache, build_ms, sequences)
-                row = self._score_cell(plan, spec, key, spp, estimate, renders, scorer,
+                row = self._score_cell(plan, spec, key, spp, estimates, renders, scorer,
                                        sequence_key, previous_frame)
-                write_exr(images / f"{image_stem(row)}.exr", estimate.radiance)
+                write_exr(images / f"{image_stem(row)}.exr", estimates[0].radiance)
                 self._journal_cell(row, bar)
 
     def _frame_reference(self, scene_name: str, gbuffer: DeviceGBuffer, cache: FrameCache):
@@ -746,8 +748,8 @@ class Runner:
 
     def _render_cell(self, plan: _ScenePlan, spec, estimator, key, cells, gbuffer, cache,
                      build_ms: float, sequences: dict):
-        """A cell's timed renders: (spp, the scored estimate, every TimedRender, the key of its
-        sequence).  An equal-time cell takes the spp calibrated for it (just before its first
+        """A cell's timed renders: (spp, the estimates of its planned renders, the scored one
+        first, every TimedRender, the key of its sequence).  An equal-time cell takes the spp calibrated for it (just before its first
         cell); a temporal estimator renders on the instances that carry its sequence."""
         _, label, spp, frame, seed, budget = key
         repeats = self.repeats[spec.label]
@@ -769,17 +771,24 @@ class Runner:
         if budget_key in self.unverified:
             spp, timed = self._correct_budget_cell(budget_key, spec, renderers, gbuffer,
                                                    cache, spp, seed, build_ms, timed)
-        estimate, renders = timed[0][0], [render for _, render in timed]
+        renders = [render for _, render in timed]
         self._count_spread(renders, repeats)
-        return spp, estimate, renders, sequence_key
+        # Renders added for a wide spread are timed, not scored: the replicates a row carries
+        # must not depend on the machine's noise.
+        return spp, [estimate for estimate, _ in timed[:repeats]], renders, sequence_key
 
-    def _score_cell(self, plan: _ScenePlan, spec, key, spp: int, estimate, renders, scorer: Scorer,
-                    sequence_key, previous_frame: int | None) -> dict:
-        """The cell's results row: its metrics against the reference, its time columns and its
+    def _score_cell(self, plan: _ScenePlan, spec, key, spp: int, estimates, renders,
+                    scorer: Scorer, sequence_key, previous_frame: int | None) -> dict:
+        """The cell's results row: the scored render's (``estimates[0]``) metrics against the
+        reference, every planned render's errors (the replicates), its time columns and its
         flicker against the previous frame of its sequence."""
         _, label, _, frame, seed, budget = key
-        mask = scorer.mask
+        estimate, mask = estimates[0], scorer.mask
         metrics, delta_e = scorer.score(estimate)
+        others = [scorer.errors(other.radiance)[0] for other in estimates[1:]]
+        replicates = {metric + RENDERS: renders_text([metrics[metric]]
+                                                     + [errors[metric] for errors in others])
+                      if math.isfinite(metrics[metric]) else "" for metric in REPLICATED}
         row = {
             "scene": plan.scene.name, "estimator": label, "spp": int(spp), "frame": frame,
             "seed": seed, "time_budget_ms": float("nan") if budget is None else budget,
@@ -787,7 +796,7 @@ class Runner:
             "estimator_params": self.params[label],
             "estimator_version": spec.cls.version(), "schema_version": SCHEMA_VERSION,
             "metrics": ",".join(self.config.metrics),
-            **metrics, **time_columns(renders),
+            **metrics, **replicates, **time_columns(renders),
             "device": self.device_name, "protocol": PROTOCOL,
         }
         # Estimator-specific per-frame scalars (e.g. smc's ess, reinits): extra columns

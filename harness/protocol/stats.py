@@ -1,47 +1,92 @@
-"""The one aggregation of iblbench: the mean over seeds with its 95% interval, and the ratio of
-two such means with its interval (issue 11, "Statistics a researcher can rely on").
+"""The one aggregation of iblbench: a cell's error as a mean with its 95% interval, its time as a
+median with its 95% interval, and the ratio or difference of two cells with its interval and
+p-value (issue 11, "Statistics a researcher can rely on"; issue 23, "Intervals that resolve with
+few seeds").
 
-**A cell's value** (one scene, estimator, spp or time budget, and frame) is the mean of its
-rows over seeds, with a two-sided Student-t interval, :func:`mean_ci`::
+**Replicates: every timed render is scored.**  A cell (one scene, estimator, spp or time budget,
+and frame) renders each seed R times for its timing (``repeats``; render 0 with the cell's seed,
+renders 1..R−1 with timing seeds no cell uses, each drawing its own samples), and every one of
+those R renders is scored: a results row carries, beside the scored render's metrics, the ΔE76,
+ΔE2000 and relMSE of each of its R planned renders (``<metric>_renders``, :func:`renders_text`;
+renders added only because the timing spread was wide are timed, not scored, so the count never
+depends on the machine).  A *replicate* is one (seed, render) pair: its value is the render's
+metric, averaged over the cell's frames when there are several (render r of a seed follows the
+same seeds through every frame, and a temporal estimator's twin r carries its own state), so
+replicates are independent draws of the cell's error at its spp, and S seeds give S·R of them.
+
+**A cell's error** is the mean over its replicates with a two-sided Student-t interval,
+:func:`mean_ci`::
 
     mean ± t(0.975, n − 1) · s / √n          s: the sample standard deviation (ddof = 1)
 
-It assumes the seeds' values are independent draws (they are: each seed keys its own Philox
-stream) and that their mean is close to normal, which holds for the means over pixels that the
-metrics are.  With one seed there is no interval: ``low`` and ``high`` are NaN and
-:attr:`MeanCI.resolved` is False ("not resolved at 1 seed").
+One seed gives R replicates and an interval; seeds add replicates.  It assumes the replicates
+are independent draws (each render keys its own Philox stream) and that their mean is close to
+normal, which holds for the means over pixels that the metrics are (``tests/test_coverage.py``
+simulates the coverage).  This is batch means with a whole render at the cell's spp as the
+batch, not a split of the cell's spp into smaller batches: a metric of a render at spp/B is not
+a draw of the metric at spp (the error at spp/B is larger), and the metrics are not linear in
+the image, so batches of one render would need a model of how each metric scales with spp.
+Rows without replicates (older schemas, a metric left out) fall back to one value per seed.
+With one value there is no interval: ``low`` and ``high`` are NaN and :attr:`MeanCI.resolved`
+is False ("not resolved").
 
-**The ratio of two cells** B/A, from independent seeds, :func:`ratio_ci`, is the delta method
-on the log scale with Welch–Satterthwaite degrees of freedom::
+**A cell's time** is the median of every timed render of the cell (all seeds and frames, the
+renders added for a wide spread included; ``time_ms_renders``) with a distribution-free 95%
+interval for the median from order statistics, interpolated as Hettmansperger & Sheather (1986)
+do, :func:`median_ci`.  It assumes only that the renders' times are independent draws of one
+distribution (a steady device: the manifest's timing floor says how steady it was).  Below 6
+renders no pair of order statistics reaches 95%: the interval is then the range, and its level
+(50% at 2, 75% at 3, 87.5% at 4, 93.75% at 5) is carried in :attr:`MeanCI.level`.
+
+**Two cells that share replicates** (the same seeds and repeats: two runs of one sweep, or two
+estimators of one run) are compared *paired*: the replicates are matched by (seed, render) and
+the test is on their differences, :func:`ratio_ci` with ``paired=True`` and
+:func:`difference_test`; otherwise unpaired (Welch).
+
+**The ratio of two cells** B/A, :func:`ratio_ci`, is the delta method on the log scale.
+Unpaired, with Welch–Satterthwaite degrees of freedom::
 
     r = m_B / m_A,   v_X = s_X² / (n_X · m_X²)   (the relative variance of the mean)
     se = √(v_A + v_B),   df = (v_A + v_B)² / (v_A² / (n_A − 1) + v_B² / (n_B − 1))
     interval = r · exp(± t(0.975, df) · se)
 
-It is not Fieller's interval: Fieller's is exact for normal means but is unbounded when the
-denominator's interval contains 0; the log-scale interval is always positive and finite, and
-for the relative errors of a benchmark (a few percent to about 30%) the two agree closely
-(tests/test_stats.py simulates its coverage).  It needs both means positive; otherwise the
-ratio is undefined (NaN, with the reason).  When both samples are constant (``se`` = 0: the
-same seeds of unchanged code give the same quality figures) the interval is the point r.
+Paired (n matched replicates), the same on the per-pair relative differences, so what the two
+cells share (the same light pool, the same sun hit) cancels::
+
+    z_i = b_i / m_B − a_i / m_A,   se = s_z / √n,   df = n − 1
+
+and its p-value is the two-sided t-test of log r = 0 (``RatioCI.p``).  It is not Fieller's
+interval: Fieller's is exact for normal means but is unbounded when the denominator's interval
+contains 0; the log-scale interval is always positive and finite, and for the relative errors
+of a benchmark (a few percent to about 30%) the two agree closely (tests/test_stats.py simulates
+its coverage).  It needs both means positive; otherwise the ratio is undefined (NaN, with the
+reason).  When both samples are constant (``se`` = 0: the same seeds of unchanged code give the
+same quality figures) the interval is the point r.
 
 **Significance** is one decision everywhere: a ratio is significant when its 95% interval
-excludes 1 (:attr:`RatioCI.significant`), and two cells are ordered only when their intervals
-do not overlap (:func:`separated`; a conservative test: non-overlapping 95% intervals imply a
-difference at well under 5%).  Anything else is "not resolved at N seeds".
+excludes 1 (:attr:`RatioCI.significant`, the same as p < 0.05), and two cells are ordered only
+then.  :func:`separated` (intervals that do not overlap) remains for cells that share nothing.
+Anything else is "not resolved".
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
 from scipy import stats as _scipy_stats
 
 LEVEL = 0.95
-MEAN_METHOD = "mean over seeds, 95% Student-t interval"
-RATIO_METHOD = ("ratio of means B/A, 95% interval by the delta method on log(ratio) with "
-                "Welch-Satterthwaite degrees of freedom")
+MEAN_METHOD = ("mean over the cell's scored renders (every timed render of every seed), 95% "
+               "Student-t interval")
+SEED_METHOD = "mean over seeds, 95% Student-t interval"
+MEDIAN_METHOD = ("median of the cell's timed renders (every seed and frame), 95% order-statistic "
+                 "interval (Hettmansperger-Sheather)")
+RATIO_METHOD = ("ratio of means B/A, 95% interval by the delta method on log(ratio): paired over "
+                "the (seed, render) replicates both cells have, else Welch-Satterthwaite")
+RENDERS = "_renders"          # a metric's per-render values: column f"{metric}{RENDERS}"
+TIME_COLUMN = "time_ms"       # the one column aggregated as a median (timing.TIME)
 
 
 def t_quantile(df: float, level: float = LEVEL) -> float:
@@ -51,12 +96,14 @@ def t_quantile(df: float, level: float = LEVEL) -> float:
 
 @dataclasses.dataclass(frozen=True)
 class MeanCI:
-    """The mean of ``n`` values and its interval (``low``, ``high``; NaN when n < 2)."""
+    """A cell's figure (a mean; for a time, the median) of ``n`` values and its interval (``low``,
+    ``high``; NaN when n < 2) at ``level`` (below LEVEL only for a median of under 6 values)."""
     mean: float
     low: float
     high: float
     n: int
     sd: float
+    level: float = LEVEL
 
     @property
     def resolved(self) -> bool:
@@ -72,11 +119,12 @@ class MeanCI:
 
     def to_dict(self) -> dict:
         return {"mean": _finite(self.mean), "low": _finite(self.low), "high": _finite(self.high),
-                "n": self.n, "sd": _finite(self.sd)}
+                "n": self.n, "sd": _finite(self.sd), "level": self.level}
 
 
 def mean_ci(values, level: float = LEVEL) -> MeanCI:
-    """Mean over seeds with its Student-t interval; a NaN value makes every figure NaN."""
+    """Mean of independent values with its Student-t interval; a NaN value makes every figure
+    NaN."""
     values = np.asarray(values, dtype=np.float64).ravel()
     n = values.size
     if n == 0:
@@ -89,14 +137,51 @@ def mean_ci(values, level: float = LEVEL) -> MeanCI:
     return MeanCI(mean, mean - half, mean + half, n, sd)
 
 
+def median_ci(values, level: float = LEVEL) -> MeanCI:
+    """The median of independent values (in ``MeanCI.mean``) with a distribution-free interval
+    from order statistics (module docstring).  [X(k), X(n+1−k)] covers the median with
+    probability γ_k = 1 − 2·P(Bin(n, ½) ≤ k − 1); with k the largest index where γ_k ≥ level,
+    Hettmansperger & Sheather (1986) interpolate towards [X(k+1), X(n−k)] by
+    λ = (n − k)·I / (k + (n − 2k)·I), I = (γ_k − level) / (γ_k − γ_{k+1}).  Where even the
+    range (k = 1) is below ``level``, the range is the interval and γ_1 its level."""
+    values = np.sort(np.asarray(values, dtype=np.float64).ravel())
+    n = values.size
+    if n == 0:
+        raise ValueError("median_ci of no values")
+    median = float(np.median(values))
+    if n < 2 or not np.isfinite(values).all():
+        return MeanCI(median, math.nan, math.nan, n, math.nan)
+    coverage = _order_coverage(n)
+    if coverage[0] < level:
+        return MeanCI(median, float(values[0]), float(values[-1]), n, math.nan, coverage[0])
+    k = max(i + 1 for i, gamma in enumerate(coverage) if gamma >= level)
+    if 2 * k >= n:   # X(k+1) would pass X(n−k): nothing to interpolate towards
+        return MeanCI(median, float(values[k - 1]), float(values[n - k]), n, math.nan, level)
+    share = (coverage[k - 1] - level) / (coverage[k - 1] - coverage[k])
+    weight = (n - k) * share / (k + (n - 2 * k) * share)
+    low = (1 - weight) * values[k - 1] + weight * values[k]
+    high = (1 - weight) * values[n - k] + weight * values[n - k - 1]
+    return MeanCI(median, float(low), float(high), n, math.nan, level)
+
+
+@functools.lru_cache(maxsize=None)
+def _order_coverage(n: int) -> tuple[float, ...]:
+    """γ_1, γ_2, …: the probability that [X(k), X(n+1−k)] holds the median of n values."""
+    binomial = _scipy_stats.binom(n, 0.5)
+    return tuple(1.0 - 2.0 * float(binomial.cdf(k - 1)) for k in range(1, n // 2 + 2))
+
+
 @dataclasses.dataclass(frozen=True)
 class RatioCI:
-    """B/A with its interval; ``low``/``high`` NaN, and ``reason`` saying why, when there is none."""
+    """B/A with its interval and p-value; ``low``/``high`` NaN, and ``reason`` saying why, when
+    there is none.  ``paired``: whether matched replicates made it."""
     ratio: float
     low: float
     high: float
     df: float
     reason: str = ""
+    p: float = math.nan
+    paired: bool = False
 
     @property
     def resolved(self) -> bool:
@@ -117,12 +202,16 @@ class RatioCI:
     def to_dict(self) -> dict:
         return {"ratio": _finite(self.ratio), "low": _finite(self.low),
                 "high": _finite(self.high), "df": _finite(self.df),
-                "significant": self.significant, "reason": self.reason or None}
+                "significant": self.significant, "p": _finite(self.p), "paired": self.paired,
+                "reason": self.reason or None}
 
 
-def ratio_ci(a, b, level: float = LEVEL) -> RatioCI:
-    """mean(b) / mean(a) of two independent samples with its interval (module docstring)."""
+def ratio_ci(a, b, level: float = LEVEL, paired: bool = False) -> RatioCI:
+    """mean(b) / mean(a) with its interval (module docstring); ``paired``: ``a`` and ``b`` are
+    matched replicates (equal lengths, the i-th of each from the same seed and render)."""
     a, b = (np.asarray(x, dtype=np.float64).ravel() for x in (a, b))
+    if paired and a.size != b.size:
+        raise ValueError("paired samples of different sizes")
     mean_a, mean_b = float(a.mean()), float(b.mean())
     if not (math.isfinite(mean_a) and math.isfinite(mean_b)):
         return RatioCI(math.nan, math.nan, math.nan, math.nan, "NaN values")
@@ -131,14 +220,94 @@ def ratio_ci(a, b, level: float = LEVEL) -> RatioCI:
     ratio = mean_b / mean_a
     if min(a.size, b.size) < 2:
         return RatioCI(ratio, math.nan, math.nan, math.nan, "n=1: no interval")
-    var_a = a.var(ddof=1) / (a.size * mean_a ** 2)
-    var_b = b.var(ddof=1) / (b.size * mean_b ** 2)
-    total = var_a + var_b
+    if paired:
+        total = float(np.var(b / mean_b - a / mean_a, ddof=1)) / a.size
+        df = a.size - 1.0
+    else:
+        var_a = a.var(ddof=1) / (a.size * mean_a ** 2)
+        var_b = b.var(ddof=1) / (b.size * mean_b ** 2)
+        total = var_a + var_b
+        df = (total ** 2 / (var_a ** 2 / (a.size - 1) + var_b ** 2 / (b.size - 1))
+              if total > 0 else math.inf)
     if total == 0:
-        return RatioCI(ratio, ratio, ratio, math.inf)
-    df = total ** 2 / (var_a ** 2 / (a.size - 1) + var_b ** 2 / (b.size - 1))
-    spread = math.exp(t_quantile(df, level) * math.sqrt(total))
-    return RatioCI(ratio, ratio / spread, ratio * spread, float(df))
+        return RatioCI(ratio, ratio, ratio, math.inf, p=0.0 if ratio != 1 else 1.0, paired=paired)
+    se = math.sqrt(total)
+    spread = math.exp(t_quantile(df, level) * se)
+    p = float(2 * _scipy_stats.t.sf(abs(math.log(ratio)) / se, df))
+    return RatioCI(ratio, ratio / spread, ratio * spread, float(df), p=p, paired=paired)
+
+
+def renders_text(values) -> str:
+    """A row's per-render values of one metric as stored (``"0.5123 0.4987 …"``, 7 digits)."""
+    return " ".join(f"{float(value):.7g}" for value in values)
+
+
+def renders_values(text) -> np.ndarray:
+    """The values :func:`renders_text` stored; empty for a missing or empty entry."""
+    if not isinstance(text, str) or not text.strip():
+        return np.empty(0)
+    return np.array(text.split(), dtype=np.float64)
+
+
+def replicates(rows, column: str):
+    """The cell's replicates of ``column`` (module docstring): a pandas Series indexed by
+    (seed, render), each the mean over the cell's frames of that render's value; renders a seed
+    lacks in some frame are left out.  None where a row has no per-render values (then the cell
+    has one value per seed, :func:`seed_values`)."""
+    import pandas as pd
+
+    name = column + RENDERS
+    if name not in rows.columns:
+        return None
+    values = [renders_values(text) for text in rows[name]]
+    if any(v.size == 0 for v in values):
+        return None
+    chains = {}
+    for seed, group in pd.Series(values, index=rows["seed"].to_numpy()).groupby(level=0, sort=True):
+        depth = min(v.size for v in group)
+        chains.update({(int(seed), r): value for r, value in
+                       enumerate(np.mean([v[:depth] for v in group], axis=0))})
+    return pd.Series(chains, dtype=np.float64)
+
+
+def seed_values(rows, column: str):
+    """Per seed, the mean of its rows' ``column`` (its frames; a NaN row makes it NaN: fail
+    closed), as a Series indexed by (seed, 0)."""
+    import pandas as pd
+
+    per_seed = rows.groupby("seed", sort=True)[column].mean(skipna=False)
+    return pd.Series(per_seed.to_numpy(), index=pd.MultiIndex.from_arrays(
+        [per_seed.index.astype(int), np.zeros(len(per_seed), int)]), dtype=np.float64)
+
+
+def cell_values(rows, column: str):
+    """(values, method): the cell's replicates where its rows carry them, else its per-seed
+    values (:func:`replicates`, :func:`seed_values`)."""
+    chains = replicates(rows, column)
+    return (chains, MEAN_METHOD) if chains is not None else (seed_values(rows, column), SEED_METHOD)
+
+
+def column_interval(rows, column: str) -> tuple[MeanCI, str]:
+    """One cell's figure of ``column`` with its interval, and the method that made it: the time
+    (``TIME_COLUMN``) as :func:`median_ci` of every timed render where the rows carry them, any
+    other figure as :func:`mean_ci` of :func:`cell_values`."""
+    if column == TIME_COLUMN:
+        times = [renders_values(text) for text in rows.get(TIME_COLUMN + RENDERS, ())]
+        if times and all(t.size for t in times):
+            return median_ci(np.concatenate(times)), MEDIAN_METHOD
+    values, method = cell_values(rows, column)
+    return mean_ci(values.to_numpy()), method
+
+
+def compare_cells(rows_a, rows_b, column: str) -> RatioCI:
+    """B/A of two cells' ``column`` (:func:`ratio_ci`), paired over the replicates both have
+    when they share at least two, unpaired otherwise."""
+    a, _ = cell_values(rows_a, column)
+    b, _ = cell_values(rows_b, column)
+    shared = a.index.intersection(b.index)
+    if len(shared) >= 2:
+        return ratio_ci(a[shared].to_numpy(), b[shared].to_numpy(), paired=True)
+    return ratio_ci(a.to_numpy(), b.to_numpy())
 
 
 def interval_text(mean: float, half_width: float, n: int, digits: int = 4) -> str:
@@ -159,25 +328,27 @@ def interval_text(mean: float, half_width: float, n: int, digits: int = 4) -> st
 
 
 def cell_intervals(table, keys, columns):
-    """The cells of a results table with :func:`mean_ci` of each column: per seed the mean of
-    its rows (its frames; a NaN row makes it NaN: fail closed), then the mean over seeds and
-    its interval.  A pandas DataFrame indexed by ``keys`` with, per column ``c``, ``c`` (the
-    mean), ``c_low``, ``c_high`` and ``c_half`` (NaN with one seed), and ``seeds`` (how many)."""
+    """The cells of a results table with each column's figure and interval
+    (:func:`column_interval`: errors over the cell's replicates, the time as a median of its
+    timed renders).  A pandas DataFrame indexed by ``keys`` with, per column ``c``, ``c`` (the
+    figure), ``c_low``, ``c_high``, ``c_half`` (NaN without an interval), ``c_n`` (how many
+    values) and ``c_method``; and ``seeds`` (how many)."""
     import pandas as pd
 
     keys, columns = list(keys), list(columns)
-    per_seed = table.groupby(keys + ["seed"], sort=False)[columns].mean(skipna=False)
     cells = {}
-    for key, seeds in per_seed.groupby(level=keys, sort=False):
-        cell = {"seeds": len(seeds)}
+    for key, rows in table.groupby(keys, sort=False):
+        cell = {"seeds": int(rows["seed"].nunique())}
         for column in columns:
-            ci = mean_ci(seeds[column])
+            ci, method = column_interval(rows, column)
             cell.update({column: ci.mean, f"{column}_low": ci.low, f"{column}_high": ci.high,
-                         f"{column}_half": ci.half_width})
-        cells[key] = cell
+                         f"{column}_half": ci.half_width, f"{column}_n": ci.n,
+                         f"{column}_method": method})
+        cells[key if len(keys) > 1 else (key[0] if isinstance(key, tuple) else key)] = cell
     frame = pd.DataFrame.from_dict(cells, orient="index")
-    index = pd.MultiIndex.from_tuples(list(cells), names=keys)
-    frame.index = index if len(keys) > 1 else index.get_level_values(0)
+    index = (pd.MultiIndex.from_tuples(list(cells), names=keys) if len(keys) > 1
+             else pd.Index(list(cells), name=keys[0]))
+    frame.index = index
     return frame
 
 

@@ -106,10 +106,12 @@ same range (75-87% against 80-83%), as did 20 ms of multiply-adds on both cores 
 cell.
 
 **Over several rows** (frames × seeds of one (scene, estimator, spp) or equal-time cell), the
-time is aggregated as every other figure is (:func:`iblbench.harness.protocol.stats.cell_intervals`):
-per seed the mean of its frames' ``time_ms``, then the mean over seeds with its 95% Student-t
-interval (:func:`cell_times`, :func:`one_cell_time`; ``check``'s time ratios too).  The median
-stays where it guards against outliers of one machine moment: over a row's repeats (above).
+time is the median of every timed render of the cell (``time_ms_renders``, each render's device
+time), with a distribution-free 95% interval from order statistics
+(:func:`iblbench.harness.protocol.stats.median_ci`, through
+:func:`~iblbench.harness.protocol.stats.cell_intervals`: :func:`cell_times`, :func:`one_cell_time`,
+``check``'s time ratios too), not from the spread over seeds of per-seed medians: the renders
+are the cell's own draws of its time (issue 23).
 """
 from __future__ import annotations
 
@@ -120,12 +122,12 @@ import time
 import numpy as np
 import threadpoolctl
 
-from iblbench.harness.protocol.stats import cell_intervals
+from iblbench.harness.protocol.stats import RENDERS, TIME_COLUMN, cell_intervals, renders_text
 
 STAGES = ("build", "sample", "shade")
-TIME = "time_ms"
+TIME = TIME_COLUMN
 COLUMNS = ("time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build", "time_ms_sample",
-           "time_ms_shade", "time_ms_host", "time_repeats")
+           "time_ms_shade", "time_ms_host", "time_repeats", TIME + RENDERS)
 SPREAD_LIMIT = 0.15   # IQR/median a cell's timed renders should stay within
 EXTENSION = 3         # a cell with a wider spread gets renders up to EXTENSION × its repeats
 MEASURE = ("device time per frame of the stages the estimator needs: build + sample + shade "
@@ -212,13 +214,15 @@ def time_columns(renders: list[TimedRender]) -> dict:
     """The results row's time columns of one cell from its timed renders (module docstring)."""
     if not renders:
         raise ValueError("a cell needs at least one timed render")
-    median, low, iqr = spread(device_ms(r.stages) for r in renders)
+    times = [device_ms(r.stages) for r in renders]
+    median, low, iqr = spread(times)
     columns = {"time_ms": median, "time_ms_min": low, "time_ms_iqr": iqr}
     for stage in STAGES:
         values = [r.stages[stage] for r in renders if stage in r.stages]
         columns[f"time_ms_{stage}"] = float(np.median(values)) if values else math.nan
     columns["time_ms_host"] = float(np.median([r.host_ms for r in renders]))
     columns["time_repeats"] = len(renders)
+    columns[TIME + RENDERS] = renders_text(times)
     return columns
 
 
