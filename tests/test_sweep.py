@@ -82,8 +82,12 @@ def test_default_and_full_parse():
     assert names == set(estimator_names())
     assert 'envmap{mis="brdf",mis_compensation=true}' in default.estimators
     assert {"sphere-park", "park-turn"} <= set(default.scenes)
-    assert default.repeats_for == (("bis", 3), ("smc", 3))
-    assert default.spp == (16, 64, 256) and default.seeds == 2
+    assert default.repeats == 5 and default.repeats_for == () and default.seeds == 2
+    # Issue 23: each estimator's spp levels span about the same time (bis and smc fewer spp,
+    # uniform and balanced more), so that every curve reaches the budgets the report ranks at.
+    levels = dict(default.spp_for)
+    assert default.spp == (8, 32, 128, 512) and levels["bis"] == levels["smc"] == (1, 4, 16)
+    assert min(levels["uniform"]) > max(default.spp) / 16 and set(levels) < set(estimator_names())
     full = load_sweep("full")
     assert "balanced_mis{shared_sequence=false}" in full.estimators
     assert "balanced_mis" in full.estimators and full.seeds == 8
@@ -113,6 +117,31 @@ def test_config_fields(tmp_path):
     with pytest.raises(argparse.ArgumentTypeError, match="repeats for smc must be an integer"):
         repeats_arg("4,smc=0")
     assert load_sweep(write(tmp_path, VALID + "frames = [3, 1]\n")).frames == (1, 3)
+    sweep = load_sweep(write(tmp_path, VALID.replace("spp = [4]",
+                                                     "spp = { default = [8, 2, 8], BIS = [1] }")))
+    assert sweep.spp == (2, 8) and sweep.spp_for == (("bis", (1,)),)
+    for bad, needle in (("{ bis = [0] }", "spp for bis must be a list of positive integers"),
+                        ('{ default = "4" }', "spp must be a list of positive integers")):
+        with pytest.raises(InputError, match=needle):
+            load_sweep(write(tmp_path, VALID.replace("spp = [4]", f"spp = {bad}")))
+
+
+def test_estimators_run_their_own_spp_levels_unless_spp_is_given(tmp_path, capsys):
+    """A sweep's ``spp`` table gives an estimator its own levels (issue 23); ``--spp`` gives
+    every estimator the same ones again, and the manifest records both."""
+    path = write(tmp_path, VALID.replace('["uniform"]', '["uniform", "envmap"]').replace(
+        "spp = [4]", "spp = { default = [4], uniform = [2, 16] }"))
+    out = tmp_path / "out"
+    assert main(["run", "--config", str(path), "--out", str(out), "--no-progress"]) == 0
+    table = pd.read_parquet(out / "results.parquet")
+    assert sorted(zip(table.estimator, table.spp)) == [("envmap", 4), ("uniform", 2), ("uniform", 16)]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["config"]["spp_for"] == {"uniform": [2, 16]}
+    assert main(["run", "--config", str(path), "--out", str(tmp_path / "flag"), "--spp", "8",
+                 "--no-progress"]) == 0
+    table = pd.read_parquet(tmp_path / "flag" / "results.parquet")
+    assert sorted(zip(table.estimator, table.spp)) == [("envmap", 8), ("uniform", 8)]
+    capsys.readouterr()
 
 
 def test_relative_scene_files_are_found_from_the_config_folder(tmp_path):

@@ -116,11 +116,15 @@ def run(args) -> None:
           + (f", run on {', '.join(sorted(set(rows['device'])))}" if len(rows) and "device" in rows
              else ""),
           file=human)
+    from iblbench.harness.protocol.ranking import rankings_text, scene_rankings
+    rankings = scene_rankings(rows) if len(rows) else {}
+    if any(rankings.values()):
+        print(rankings_text(rankings), file=human)
     from iblbench.harness.verify.convergence import flatter_than_tags
     for flag in flatter_than_tags(rows):   # issue 11: convergence flatter than the tags allow
         print(f"warning: convergence: {flag.text()}", file=sys.stderr)
     if args.json:
-        print_json(run_summary(rows, args.out, read_manifest(args.out)))
+        print_json(run_summary(rows, args.out, read_manifest(args.out), rankings))
 
 
 def terminal_summaries(table):

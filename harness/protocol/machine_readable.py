@@ -15,17 +15,34 @@ the same ``--out`` are left out)::
     {"command": "run", "exit": 0, "status": "complete",     # the manifest's status
      "out": "runs/a", "results": "runs/a/results.parquet", "rows": 12,
      "resumed_cells": 0, "cells_run": 12,                   # rows: (…, frame, seed) rows
-     "aggregation": "mean over seeds, 95% Student-t interval",
+     "aggregation": "mean over the cell's scored renders (…), 95% Student-t interval",
      "cells": [{"scene": "sphere-sun", "estimator": "uniform", "spp": 16,
                 "time_budget_ms": null,                     # a number for an equal-time cell
                 "frames": 1, "seeds": 2, "nonfinite": 0,    # nonfinite: summed over the rows
                 "metrics": {"mean_delta_e76": {"mean": 3.1, "low": 2.7, "high": 3.5,
-                                               "half_width": 0.4}, ...}}]}
+                                               "half_width": 0.4, "n": 10,
+                                               "method": "mean over the cell's …"}, ...}}],
+     "equal_time_answer": {"resolved_pairs": [157, 184],    # adjacent ranks resolved, of all
+                           "rankings": [{"scene": "sphere-sun", "budget_ms": 5.0,
+                                         "metric": "mean_delta_e76", "winner": "balanced_mis",
+                                         "verdict": "at 5 ms/frame on sphere-sun: …",
+                                         "resolved_pairs": [9, 11],
+                                         "ranked": [{"estimator": "balanced_mis",
+                                                     "status": "ranked", "span_ms": [2.1, 30],
+                                                     "error": {"mean": 0.72, …},
+                                                     "spp_between": [64, 256],
+                                                     "versus_next": {"ratio": 1.8, "p": 1e-6,
+                                                                     "paired": true, …}}, …],
+                                         "unranked": [{"estimator": "smc",
+                                                       "status": "not reached", …}]}, …]}}
 
-A cell's figure is the one aggregation of :mod:`iblbench.harness.protocol.stats` (per seed the mean over
-frames, then the mean over seeds with its 95% Student-t interval; ``low``/``high`` are null with
-one seed).  ``metrics`` holds each of ``RUN_METRICS`` the run computed (a metric left out, NaN
-in every row, is absent); ``time_ms`` is the cell's time (:mod:`iblbench.harness.protocol.timing`).
+A cell's figure is the one aggregation of :mod:`iblbench.harness.protocol.stats`: an error is the
+mean over the cell's replicates (each scored render of each seed) with its 95% Student-t
+interval, the time the median of its timed renders with an order-statistic interval; ``n`` says
+how many values and ``method`` which; ``low``/``high`` are null without an interval.
+``metrics`` holds each of ``RUN_METRICS`` the run computed (a metric left out, NaN in every row,
+is absent); ``time_ms`` is the cell's time (:mod:`iblbench.harness.protocol.timing`).
+``equal_time_answer`` is :mod:`iblbench.harness.protocol.ranking`'s, per scene and headline budget.
 
 **check**::
 
@@ -76,8 +93,14 @@ RULE_COLUMNS = ["scene", "estimator", "spp", "metric", "value", "ci95", "bound",
 
 # ---- run ----------------------------------------------------------------------------------------
 
-def run_summary(rows: pd.DataFrame, out, manifest: dict) -> dict:
-    """The ``run --json`` document of a sweep's rows (module docstring)."""
+def run_summary(rows: pd.DataFrame, out, manifest: dict, rankings=None) -> dict:
+    """The ``run --json`` document of a sweep's rows (module docstring); ``rankings``: the
+    equal-time answer (:func:`iblbench.harness.protocol.ranking.scene_rankings`), computed here
+    when not given."""
+    from iblbench.harness.protocol.ranking import resolved_share, scene_rankings
+
+    if rankings is None:
+        rankings = scene_rankings(rows) if len(rows) else {}
     cells = []
     for keys, selected in ((["scene", "estimator", "spp"], rows[rows.time_budget_ms.isna()]),
                            (["scene", "estimator", "time_budget_ms"],
@@ -102,7 +125,10 @@ def run_summary(rows: pd.DataFrame, out, manifest: dict) -> dict:
     return {"command": "run", "exit": 0, "status": manifest.get("status"), "out": str(out),
             "results": str(out / "results.parquet"), "rows": len(rows),
             "resumed_cells": manifest.get("resumed_cells"),
-            "cells_run": manifest.get("cells_to_run"), "aggregation": MEAN_METHOD, "cells": cells}
+            "cells_run": manifest.get("cells_to_run"), "aggregation": MEAN_METHOD, "cells": cells,
+            "equal_time_answer": {
+                "resolved_pairs": list(resolved_share(rankings)),
+                "rankings": [ranking.to_dict() for scene in rankings.values() for ranking in scene]}}
 
 
 # ---- check --------------------------------------------------------------------------------------

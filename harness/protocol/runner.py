@@ -169,6 +169,7 @@ class RunConfig:
     force: bool = False                        # recompute finished cells too
     repeats: int = DEFAULT_REPEATS             # timed renders per cell (timing module)
     repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats): its own count
+    spp_for: tuple[tuple[str, tuple[int, ...]], ...] = ()   # (estimator name, its own spp levels)
     metrics: tuple[str, ...] = METRICS         # ΔE76 always; see harness.metrics
     sweep: dict | None = None                  # the resolved sweep and its source (manifest)
 
@@ -224,12 +225,12 @@ def _locked(out: pathlib.Path):
         yield
 
 
-def _require_spp_within_bounds(specs, spp_values) -> None:
-    """Every spp of the sweep within every selected estimator's ``max_spp``, checked before
-    anything is written (a render past the bound fails mid-run)."""
+def _require_spp_within_bounds(specs, spp_of: dict) -> None:
+    """Every spp of the sweep within each selected estimator's ``max_spp`` (``spp_of``: label →
+    its spp levels), checked before anything is written (a render past the bound fails mid-run)."""
     for spec in specs:
         bound = spec.cls.max_spp
-        above = [spp for spp in spp_values if bound is not None and spp > bound]
+        above = [spp for spp in spp_of[spec.label] if bound is not None and spp > bound]
         if above:
             raise InputError(None, f"--spp {max(above)} is above {spec.label}'s limit of "
                                    f"{bound} samples per pixel")
@@ -271,7 +272,7 @@ class Runner:
     """Runs every cell of the sweep not already in ``out`` (see the module docstring)."""
 
     def __init__(self, config: RunConfig):
-        for spp in config.spp:
+        for spp in tuple(config.spp) + tuple(v for _, levels in config.spp_for for v in levels):
             if spp < 1:
                 raise InputError(None, f"--spp values must be positive integers, got {spp}")
         if not 1 <= config.seeds <= MAX_SEEDS:
@@ -295,7 +296,9 @@ class Runner:
         labels = [spec.label for spec in self.specs]
         if len(set(labels)) != len(labels):
             raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
-        _require_spp_within_bounds(self.specs, config.spp)
+        levels = {get_estimator_class(name).name: tuple(v) for name, v in config.spp_for}
+        self.spp = {spec.label: levels.get(spec.cls.name, tuple(config.spp)) for spec in self.specs}
+        _require_spp_within_bounds(self.specs, self.spp)
         self.scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
                        for name in config.scenes]
         _require_unique_names(self.scenes)
@@ -359,9 +362,10 @@ class Runner:
 
     # ---- planning ----------------------------------------------------------------------------
 
-    def _variants(self):
-        """(spp, budget) of each cell family: the spp list, then each time budget."""
-        return ([(spp, None) for spp in self.config.spp]
+    def _variants(self, spec):
+        """(spp, budget) of each cell family of ``spec``: its spp levels (``spp_for`` or the
+        sweep's), then each time budget."""
+        return ([(spp, None) for spp in self.spp[spec.label]]
                 + [(None, float(b)) for b in self.config.time_budget_ms])
 
     def _valid(self, row: dict | None, plan: _ScenePlan, spec) -> bool:
@@ -382,7 +386,7 @@ class Runner:
         todo, cells, chosen = set(), set(), {}
         for plan in self.plans:
             for spec in self.specs:
-                for spp, budget in self._variants():
+                for spp, budget in self._variants(spec):
                     for seed in self.seeds:
                         keys = [(plan.scene.name, spec.label, spp, frame, seed, budget)
                                 for frame in plan.frames]
@@ -407,7 +411,8 @@ class Runner:
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
             "config": {"scenes": [scene_entry(s) for s in c.scenes],
                        "estimators": [s.label for s in self.specs],
-                       "spp": list(c.spp), "seeds": c.seeds, "first_seed": c.first_seed,
+                       "spp": list(c.spp), "spp_for": {n: list(v) for n, v in c.spp_for},
+                       "seeds": c.seeds, "first_seed": c.first_seed,
                        "resolution": c.resolution,
                        "frames": frames_text(c.frames),
                        "time_budget_ms": list(c.time_budget_ms), "force": c.force,

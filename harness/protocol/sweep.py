@@ -189,6 +189,7 @@ class Sweep:
     sanitize: bool = False
     repeats: int = DEFAULT_REPEATS
     repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats) overrides
+    spp_for: tuple[tuple[str, tuple[int, ...]], ...] = ()   # (estimator name, its spp levels)
     metrics: tuple[str, ...] = METRICS
     protocol: str = PROTOCOL
     description: str = ""
@@ -209,7 +210,9 @@ class Sweep:
                 "resolution": None if self.resolution is None else list(self.resolution),
                 "env_res": self.env_res, "time_budget_ms": list(self.time_budget_ms),
                 "sanitize": self.sanitize, "repeats": self.repeats,
-                "repeats_for": dict(self.repeats_for), "metrics": list(self.metrics)}
+                "repeats_for": dict(self.repeats_for),
+                "spp_for": {name: list(levels) for name, levels in self.spp_for},
+                "metrics": list(self.metrics)}
 
 
 def config_path(name_or_path: str | os.PathLike) -> tuple[Path, str]:
@@ -344,9 +347,10 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     if len(set(scenes)) != len(scenes):
         fail(f"scenes lists a scene twice: {list(scenes)}")
     labels = _estimator_labels(document["estimators"], fail)
-    spp = document.get("spp", [])
-    if not isinstance(spp, list) or not all(_positive_int(v) for v in spp):
-        fail(f"spp must be a list of positive integers, got {spp!r}")
+    try:
+        spp, spp_for = parse_spp(document.get("spp", []))
+    except ValueError as error:
+        fail(str(error))
     seeds = document["seeds"]
     if not _positive_int(seeds):
         fail(f"seeds must be a positive integer (seeds 0..N-1), got {seeds!r}")
@@ -376,7 +380,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     except ValueError as error:
         fail(str(error))
     metrics = _metric_names(document.get("metrics", list(METRICS)), fail)
-    return Sweep(scenes=scenes, estimators=tuple(labels), spp=tuple(sorted(set(spp))), seeds=seeds,
+    return Sweep(scenes=scenes, estimators=tuple(labels), spp=spp, spp_for=spp_for, seeds=seeds,
                  first_seed=first_seed, frames=frames, resolution=resolution, env_res=env_res,
                  time_budget_ms=tuple(float(v) for v in budgets), sanitize=sanitize,
                  repeats=repeats, repeats_for=repeats_for, metrics=metrics,
@@ -437,6 +441,23 @@ def frames_arg(text: str) -> tuple[int, ...] | slice | None:
         return parse_frames(value)
     except ValueError as error:
         raise InputError(None, f"--frames: {error}") from None
+
+
+def parse_spp(value) -> tuple[tuple[int, ...], tuple[tuple[str, tuple[int, ...]], ...]]:
+    """The spp levels: a list, or a table ``{default = [...], NAME = [...], ...}`` whose other
+    keys are estimator names with levels of their own (so that an estimator 100× as costly a
+    sample covers the same time range as the others) → (levels, ((name, levels), ...) sorted),
+    each sorted without repeats; ValueError naming the problem."""
+    table = value if isinstance(value, dict) else {"default": value}
+
+    def levels(key, values) -> tuple[int, ...]:
+        if not isinstance(values, list) or not all(_positive_int(v) for v in values):
+            where = "" if key == "default" else f" for {key}"
+            raise ValueError(f"spp{where} must be a list of positive integers, got {values!r}")
+        return tuple(sorted(set(values)))
+
+    return levels("default", table.get("default", [])), tuple(sorted(
+        (str(key).lower(), levels(key, values)) for key, values in table.items() if key != "default"))
 
 
 def parse_repeats(value) -> tuple[int, tuple[tuple[str, int], ...]]:
