@@ -25,6 +25,9 @@ from iblbench.reports.previews import HEAT_CMAP, HEAT_MAX  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
 
 DPI = 100
+# Text that stays about 10 px or more where a page 800 px wide scales a figure 11 inches wide
+# down to its column (issue 23: it was about 7 px).
+matplotlib.rcParams.update({"font.size": 12, "legend.fontsize": 10})
 
 # (column, axis label) of the two error measures the report plots.
 ERRORS = (("rel_mse", "relMSE (linear HDR, dimensionless)"),
@@ -140,7 +143,7 @@ def _plain_log_axes(ax, which: str = "xy") -> None:
 
 def _legend(ax) -> None:
     """The legend under the axes, where it can hide no data."""
-    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.17), ncol=2, frameon=False)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.17), ncol=2, frameon=False)
 
 
 def _figure_legend(fig) -> None:
@@ -150,7 +153,7 @@ def _figure_legend(fig) -> None:
     for ax in fig.axes:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             entries.setdefault(label, handle)
-    fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncol=4, fontsize=8,
+    fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncol=4,
                frameon=False)
 
 
@@ -173,7 +176,7 @@ def plot_error_vs_time(path: pathlib.Path, summary, scene: str,
             _errorbar(ax, rows, "time_ms", column, styles[name], name, x_interval=True)
             for r in rows.itertuples():
                 ax.annotate(str(r.spp), (r.time_ms, getattr(r, column)), textcoords="offset points",
-                            xytext=(4, 4), fontsize=6, color=styles[name]["color"])
+                            xytext=(4, 4), fontsize=9, color=styles[name]["color"])
         calls = np.array(pareto_calls(summary, column))
         cells = summary[calls == "◆"].sort_values("time_ms")
         ax.step(cells.time_ms, cells[column], where="post", color="black", lw=1, ls=":",
@@ -279,8 +282,8 @@ def plot_per_frame(path: pathlib.Path, per_frame, scene: str, shown: int) -> Non
                        label=f"frame {shown}, shown in the images")
             ax.set_yscale("log")
             _plain_log_axes(ax, "y")
-            ax.set_title(f"{spp} spp", fontsize=9, loc="left")
-            ax.set_ylabel(label, fontsize=8)
+            ax.set_title(f"{spp} spp", fontsize=11, loc="left")
+            ax.set_ylabel(label, fontsize=10)
             ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
             ax.grid(True, which="both", alpha=0.3)
     for ax in axes[-1]:
@@ -374,3 +377,59 @@ def write_colour_bar(path: pathlib.Path) -> None:
     bar.set_label(f"ΔE76 per pixel (CIELAB units, log scale; ≤ {low:g} and uncovered pixels "
                   f"black, ≥ {high:g} shown as {high:g})")
     _save(fig, path)
+
+
+def plot_answer(path: pathlib.Path, cells, rankings: dict, highlight: bool) -> None:
+    """The equal-time answer at a glance: mean ΔE76 against ms/frame, log-log, one panel per
+    scene on shared axes, each estimator's cells (error bars: their 95% intervals in time and
+    error) joined in spp order, the scene's headline budgets dashed.  ``highlight``: the top
+    three at the scene's middle headline budget (``rankings``: scene → its
+    :class:`~iblbench.harness.protocol.ranking.Ranking` list) in colour and named in the panel,
+    every other estimator grey; else every estimator in its colour, with one legend."""
+    scenes = list(dict.fromkeys(cells.scene))
+    columns = min(3, len(scenes))
+    rows = -(-len(scenes) // columns)
+    styles = _styles(cells)
+    with plt.rc_context({"font.size": 11}):   # three panels a row: a little smaller
+        fig, axes = plt.subplots(rows, columns, figsize=(3.2 * columns + 0.6, 2.9 * rows + 0.9),
+                                 sharex=True, sharey=True, layout="constrained", squeeze=False)
+        for ax, scene in zip(axes.flat, scenes):
+            scene_rankings = rankings.get(scene) or []
+            chosen = scene_rankings[len(scene_rankings) // 2] if scene_rankings else None
+            top = [s.estimator for s in chosen.ranked[:3]] if chosen is not None else []
+            for name in _estimators(cells[cells.scene == scene]):
+                summary = cells[(cells.scene == scene) & (cells.estimator == name)].sort_values("spp")
+                if not highlight:
+                    style, extra = styles[name], {"label": name}
+                elif name in top:   # a long label wraps at its parameters' commas
+                    style = styles[name]
+                    extra = {"label": f"{top.index(name) + 1}. {name}".replace(",", ",\n   "),
+                             "lw": 2, "zorder": 3}
+                else:   # "_": named, but in no legend
+                    style = {"color": "0.75", "marker": "."}
+                    extra = {"label": f"_{name}", "lw": 0.8, "zorder": 1}
+                _errorbar(ax, summary, TIME, "mean_delta_e76", style, extra.pop("label", None),
+                          x_interval=True, ms=4, **extra)
+            for ranking in scene_rankings:
+                ax.axvline(ranking.budget_ms, color="black", ls="--",
+                           lw=1.4 if ranking is chosen else 0.6, alpha=0.7, zorder=0)
+            title = scene if chosen is None else f"{scene} (top 3 at {chosen.budget_ms:g} ms)"
+            ax.set_title(title, fontsize=11)
+            if highlight and top:   # in rank order, in the empty fast-and-accurate corner
+                handles, labels = ax.get_legend_handles_labels()
+                order = sorted(range(len(labels)), key=lambda i: labels[i])
+                ax.legend([handles[i] for i in order], [labels[i] for i in order], fontsize=8,
+                          loc="lower left", frameon=True, framealpha=0.85, handlelength=1.5)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            _plain_log_axes(ax, "xy")
+            ax.grid(True, which="both", alpha=0.3)
+        for ax in axes.flat[len(scenes):]:
+            ax.set_visible(False)
+        for ax in axes[-1]:
+            ax.set_xlabel("device time per frame (ms)")
+        for ax in axes[:, 0]:
+            ax.set_ylabel("mean ΔE76 (CIELAB)")
+        if not highlight:
+            _figure_legend(fig)
+        _save(fig, path)

@@ -45,10 +45,12 @@ import pandas as pd
 from iblbench.harness.verify.convergence import flatter_than_tags
 from iblbench.harness.protocol.equal_time import TOLERANCE
 from iblbench.harness.protocol.metrics import Scorer
+from iblbench.harness.protocol.ranking import scene_rankings
 from iblbench.harness.protocol.results import load_table
 from iblbench.harness.protocol.stats import LEVEL, cell_intervals, interval_text, mean_ci, t_quantile
 from iblbench.harness.protocol.timing import TIME
 from iblbench.reports import plots
+from iblbench.reports.answer import answer_context, ranking_table
 from iblbench.reports.frames import shown_frame
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
 from iblbench.scenes import cubemap
@@ -624,6 +626,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
     time-plus-rays plot of scenes with visibility (default: the Embree rate their trace measured)."""
     run_dir = pathlib.Path(run_dir)
     table, manifest = load_run(run_dir)
+    rankings = scene_rankings(table)   # equal-time cells are points of the curves too
     table, equal_time = split_equal_time(table)
     for flag, value, column in (("--spp", spp, "spp"), ("--seed", seed, "seed"),
                                 ("--frame", frame, "frame")):
@@ -648,9 +651,10 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
     shown = {"spp": spp, "seed": seed, "frame": frame, "pixel": pixel,
              "ray_costs": ray_costs(manifest, ray_cost_ns)}
     scenes = [_scene_section(run_dir, report, manifest, table, cells, equal_time, convergence,
-                             scene, shown, compute)
+                             scene, shown, compute, rankings.get(scene, []))
               for scene in dict.fromkeys(table.scene)]
     context = _page_context(run_dir, manifest, table, scenes)
+    context["answer"] = answer_context(report, cells, rankings, _table_html)
     text = _TEMPLATES.get_template("report.html.j2").render(**context)
     with atomic_path(report / "index.html") as tmp:
         tmp.write_text(text, encoding="utf-8")
@@ -659,9 +663,11 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
 
 
 def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, table, cells,
-                   equal_time, convergence, scene: str, shown: dict, compute) -> dict:
-    """One scene's part of the page: its tables, figures, image grid, bias table and sample
-    picture; ``shown``: the spp, seed, frame and pixel asked for (None: the defaults)."""
+                   equal_time, convergence, scene: str, shown: dict, compute,
+                   rankings: list) -> dict:
+    """One scene's part of the page: its ranking at its headline budgets (``rankings``) first,
+    then its tables, figures, image grid, bias table and sample picture; ``shown``: the spp,
+    seed, frame and pixel asked for (None: the defaults)."""
     scene_cells = cells[cells.scene == scene]
     rows = table[table.scene == scene]
     slug = _slug(scene)
@@ -683,6 +689,8 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
     picture = _picture_section(report, inputs, table, scene, scene_frame, shown, compute)
     timed = equal_time[equal_time.scene == scene]
     return {"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
+            "rankings": [{"budget_ms": r.budget_ms, "verdict": r.verdict(),
+                          "table": ranking_table(r, _table_html)} for r in rankings],
             "bias": bias_table(run_dir, table, cells, scene, scene_frame, lambda: inputs().mask),
             "equal_time": equal_time_html(timed) if len(timed) else None,
             "figures": figures, "per_frame": per_frame, "frames": len(frames),

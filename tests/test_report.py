@@ -145,7 +145,8 @@ def test_summary_table_lists_every_cell(reported):
         median = float(np.median([float(v) for v in renders[cell].split()]))
         text = r[header.index("ms/frame (device)")]
         shown, half = (float(part) for part in text.split(" ± "))
-        assert shown == pytest.approx(median, rel=0.05, abs=1e-3) and 0 < half, (text, renders[cell])
+        # shown rounded at the half-width's second significant digit: within half / 20
+        assert abs(shown - median) <= half / 10 and 0 < half, (text, renders[cell])
     # The efficiency column is 1/(relMSE·s) of the table's own relMSE and ms/frame.
     for r in summarize(table).itertuples():
         assert r.efficiency == pytest.approx(1e3 / (r.rel_mse * r.time_ms))   # one row per cell
@@ -320,8 +321,14 @@ def two_seeds(reported, tmp_path_factory):
     shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
     table = pd.read_parquet(copy / "results.parquet")
     errors = ["mean_delta_e76", "mean_delta_e2000", "rel_mse"]
+
+    def scaled(texts, factor):   # the per-render columns scaled with their figure
+        return [" ".join(f"{float(v) * factor:.7g}" for v in text.split()) for text in texts]
+
     second = table.assign(seed=1, **{c: table[c] * 1.5 for c in errors},
-                          time_ms=table.time_ms * 1.2)
+                          **{f"{c}_renders": scaled(table[f"{c}_renders"], 1.5) for c in errors},
+                          time_ms=table.time_ms * 1.2,
+                          time_ms_renders=scaled(table.time_ms_renders, 1.2))
     both = pd.concat([table, second])
     timed = both.assign(time_budget_ms=both.groupby("estimator").time_ms.transform("max"))
     pd.concat([both, timed]).to_parquet(copy / "results.parquet", index=False)
@@ -386,9 +393,11 @@ def test_report_renders_in_headless_chromium(browser):
     broken = [src for src, complete, width in images if not complete or width == 0]
     assert not broken, broken
     assert not errors, errors
-    checked = [(c, rows) for c, rows in tables if "kv" not in c and "counts" not in c]
+    # The answer's tables (checked below) give intervals as [low, high].
+    checked = [(c, rows) for c, rows in tables
+               if not {"kv", "counts", "ranking", "matrix"} & set(c.split())]
     # 2 of the summary, equal time, stage timings, skipped stages
-    assert len(tables) - len(checked) >= 5 and len(checked) == 5
+    assert len(tables) - len(checked) >= 6 and len(checked) == 5
     over_seeds = [rows for _, rows in checked if "seeds" in rows[0]]
     assert len(over_seeds) == 3
     equal_time = next(rows[0] for rows in over_seeds if "spp run" in rows[0])
@@ -407,6 +416,36 @@ def test_report_renders_in_headless_chromium(browser):
     # The image grid's estimator captions give the cell's mean ΔE76 over the seeds too.
     estimates = [c for c in captions if "spp" in c]
     assert len(estimates) == len(ESTIMATORS) and all(" ± " in c for c in estimates), captions
+
+
+def test_each_scene_opens_with_its_ranking_and_the_toggle_switches_the_plot(browser):
+    """Issue 23: the page opens with the scene × budget matrix and the answer's plot; each scene
+    section's first heading after its title is a ranking at a budget, with its verdict and a
+    table whose every ranked row has an interval; the checkbox swaps the top-three plot for the
+    every-estimator one and back, and both load."""
+    page, errors = browser()
+    first = page.evaluate("document.querySelector('h2').closest('section').id")
+    assert first == "answer"
+    assert page.locator("#answer table.matrix tr").count() == 1 + 1   # header + sphere-sun
+    openings = page.evaluate("Array.from(document.querySelectorAll('section[id^=scene-]')).map("
+                             "s => { const h = s.querySelector('h2').nextElementSibling;"
+                             " return [h.tagName, h.className, h.innerText,"
+                             " h.nextElementSibling.className]; })")
+    assert openings and all(tag == "H3" and cls == "ranking" and text.startswith("Ranking at ")
+                            and verdict == "verdict" for tag, cls, text, verdict in openings)
+    rows = page.evaluate("Array.from(document.querySelectorAll('table.ranking tr')).slice(1).map("
+                         "r => Array.from(r.cells).map(c => c.innerText.trim()))")
+    ranked = [r for r in rows if r[0].isdigit()]
+    assert ranked and all(re.fullmatch(r"\S+ \[\S+, \S+\]", r[2]) for r in ranked), rows
+    plot = page.locator("#answer-plot")
+    assert plot.get_attribute("src") == "answer_top3.png"
+    page.locator("#answer-all").check()
+    assert plot.get_attribute("src") == "answer_all.png"
+    page.wait_for_function("document.getElementById('answer-plot').complete")
+    assert page.evaluate("document.getElementById('answer-plot').naturalWidth") > 0
+    page.locator("#answer-all").uncheck()
+    assert plot.get_attribute("src") == "answer_top3.png"
+    assert not errors, errors
 
 
 def test_every_plot_draws_each_estimator_with_an_interval(two_seeds, browser):

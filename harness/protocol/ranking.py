@@ -14,7 +14,9 @@ their own uncertainty (the time intervals in the tables) is not carried into the
 
 **Who is not ranked.**  An estimator whose fastest cell takes longer than T is "not reached"
 (it cannot render a frame in T at the spp measured); one whose slowest cell is faster than T is
-"not measured" (its error at T would need more spp than the sweep ran; no extrapolation).
+"not measured" (its error at T would need more spp than the sweep ran; no extrapolation).  A
+budget within the equal-time tolerance (±10%) beyond a curve's end reads that end's cell, as an
+equal-time cell of that budget is (it landed within ±10% of it).
 
 **Ranks.**  The ranked estimators are sorted by their mean error at T.  Each adjacent pair is
 *resolved* when the ratio of the two errors' means excludes 1 at 95%
@@ -34,6 +36,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from iblbench.harness.protocol.equal_time import TOLERANCE
 from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, cell_values,
                                              column_interval, mean_ci, ratio_ci)
 
@@ -159,10 +162,11 @@ def curve(rows: pd.DataFrame, metric: str = METRIC) -> list[Point]:
 def standing_at(estimator: str, points: list[Point], budget_ms: float) -> Standing:
     """Where ``estimator``'s curve stands at ``budget_ms`` (module docstring)."""
     span = (points[0].time_ms, points[-1].time_ms)
-    if budget_ms < span[0]:
+    if budget_ms * (1 + TOLERANCE) < span[0]:
         return Standing(estimator, "not reached", span)
-    if budget_ms > span[1]:
+    if budget_ms > span[1] * (1 + TOLERANCE):
         return Standing(estimator, "not measured", span)
+    budget_ms = min(max(budget_ms, span[0]), span[1])   # within the tolerance of an end
     upper = next(i for i, p in enumerate(points) if p.time_ms >= budget_ms)
     lo, hi = points[max(upper - 1, 0)], points[upper]
     shared = lo.replicates.index.intersection(hi.replicates.index)

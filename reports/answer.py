@@ -1,0 +1,87 @@
+"""The report's equal-time answer (issue 23): the scene × budget matrix the page opens with,
+each scene's ranking tables at its headline budgets, and the small-multiple error–time plot with
+the top three highlighted (:func:`iblbench.harness.protocol.ranking.scene_rankings` decides; this
+module only shows)."""
+from __future__ import annotations
+
+import math
+import pathlib
+
+import markupsafe
+import pandas as pd
+
+from iblbench.harness.protocol.ranking import METRIC_NAMES, Ranking, resolved_share
+from iblbench.reports import plots
+
+PLOTS = {"highlight": "answer_top3.png", "all": "answer_all.png"}
+
+
+def _interval(ci) -> str:
+    if ci is None:
+        return "–"
+    if not ci.resolved:
+        return f"{ci.mean:.3g} (no interval)"
+    return f"{ci.mean:.3g} [{ci.low:.3g}, {ci.high:.3g}]"
+
+
+def _versus(ratio) -> str:
+    """The test against the next rank: ``1.73 [1.60, 1.87], p 2e-07 (paired)``."""
+    if ratio is None:
+        return ""
+    p = f", p {ratio.p:.2g}" if math.isfinite(ratio.p) else ""
+    return f"{ratio.text()}{p} ({'paired' if ratio.paired else 'Welch'})"
+
+
+def ranking_table(ranking: Ranking, table_html) -> markupsafe.Markup:
+    """One budget's ranking: the ranked estimators best first, each with its error at the budget
+    and its 95% interval, its ratio to the best, the two spp it was read between, and the test
+    against the next rank (ratio next ÷ this, its interval, p, paired or Welch; resolved or not);
+    then the estimators the budget does not rank, and why."""
+    name = METRIC_NAMES.get(ranking.metric, ranking.metric)
+    best = ranking.ranked[0].error.mean if ranking.ranked else math.nan
+    rows = []
+    for i, standing in enumerate(ranking.ranked):
+        ratio = ranking.versus_next[i] if i < len(ranking.versus_next) else None
+        rows.append({
+            "rank": str(i + 1), "estimator": standing.estimator,
+            f"{name} at {ranking.budget_ms:g} ms [95%]": _interval(standing.error),
+            "× best": f"{standing.error.mean / best:.2f}",
+            "read between spp": "–".join(str(s) for s in dict.fromkeys(standing.spp)),
+            "next ÷ this [95%], p": _versus(ratio),
+            "resolved": ("yes" if ratio.significant else "NO") if ratio is not None else ""})
+    for standing in ranking.unranked:
+        fastest, slowest = standing.span_ms
+        rows.append({"rank": "–", "estimator": standing.estimator,
+                     f"{name} at {ranking.budget_ms:g} ms [95%]": standing.status,
+                     "× best": "", "read between spp": f"its cells: {fastest:.3g}–{slowest:.3g} ms",
+                     "next ÷ this [95%], p": "", "resolved": ""})
+    return table_html(pd.DataFrame(rows), "summary ranking")
+
+
+def matrix_table(rankings: dict[str, list[Ranking]], table_html) -> markupsafe.Markup:
+    """Scene × budget: the winner at each headline budget, or the tie (those not resolved from
+    it), with the budget in ms; budgets in order, lowest first."""
+    width = max((len(r) for r in rankings.values()), default=0)
+    labels = ["lowest budget", "middle budget", "highest budget"] if width == 3 else \
+        [f"budget {i + 1}" for i in range(width)]
+    rows = []
+    for scene, scene_rankings in rankings.items():
+        row = {"scene": scene}
+        for label, ranking in zip(labels, scene_rankings):
+            row[label] = f"{ranking.budget_ms:g} ms: {ranking.winner}"
+        rows.append(row)
+    return table_html(pd.DataFrame(rows, columns=["scene", *labels]).fillna("–"), "summary matrix")
+
+
+def answer_context(report: pathlib.Path, cells, rankings: dict[str, list[Ranking]],
+                   table_html) -> dict:
+    """The page's opening: the matrix, the verdicts, the share of adjacent ranks resolved and
+    the two versions of the small-multiple plot (written under ``report``)."""
+    if not any(rankings.values()):
+        return {}
+    for highlight, name in ((True, PLOTS["highlight"]), (False, PLOTS["all"])):
+        plots.plot_answer(report / name, cells, rankings, highlight)
+    resolved, pairs = resolved_share(rankings)
+    return {"matrix": matrix_table(rankings, table_html), "plots": PLOTS,
+            "resolved": resolved, "pairs": pairs,
+            "verdicts": [r.verdict() for scene in rankings.values() for r in scene]}
