@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from iblbench.harness.protocol.stats import (cell_intervals, median_ci, mean_ci, ratio_ci,
-                                             renders_text, separated, t_quantile)
+                                             renders_text, separated, skew_corrected_ci,
+                                             t_quantile)
 
 # Two-sided 95% critical values of Student's t from printed tables (e.g. NIST/SEMATECH
 # e-Handbook 1.4.2.5.2, upper 0.025 point).
@@ -172,3 +173,24 @@ def test_cell_intervals_use_every_scored_render_and_the_median_of_timed_renders(
     assert cell.time_ms == 4.0 and cell.time_ms_n == 7
     assert cell.time_ms_low <= 4.0 <= cell.time_ms_high
     assert "median" in cell.time_ms_method and "scored renders" in cell.rel_mse_method
+
+
+def test_skew_corrected_interval_is_the_t_interval_without_skew_and_moves_up_with_it():
+    symmetric = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    plain, hall = mean_ci(symmetric), skew_corrected_ci(symmetric)
+    assert (hall.low, hall.high) == pytest.approx((plain.low, plain.high))
+    skewed = np.array([1.0, 1.1, 0.9, 1.0, 1.05, 0.95, 1.0, 1.02, 0.98, 4.0])
+    plain, hall = mean_ci(skewed), skew_corrected_ci(skewed)
+    assert hall.mean == plain.mean and hall.high > plain.high and hall.low > plain.low
+
+
+def test_skew_corrected_interval_covers_a_right_skewed_mean():
+    """10 lognormal (σ = 0.5, skewness 1.75, as skewed as a relMSE over renders) values, 4000
+    samples: Hall's interval holds the mean e^⅛ in 92.5-97% of them (the binomial standard
+    error is 0.4%), the plain t interval in under 92% (it misses on the high side)."""
+    rng = np.random.default_rng(1992)
+    samples = rng.lognormal(0.0, 0.5, size=(4000, 10))
+    mean = math.exp(0.125)
+    hall = np.mean([(lambda c: c.low <= mean <= c.high)(skew_corrected_ci(x)) for x in samples])
+    plain = np.mean([(lambda c: c.low <= mean <= c.high)(mean_ci(x)) for x in samples])
+    assert 0.925 <= hall <= 0.97 and plain < 0.92, (hall, plain)

@@ -8,8 +8,9 @@ value per (seed, render), :func:`~iblbench.harness.protocol.stats.cell_values`).
 budget T is read along the curve between the two points whose times bracket T, interpolated in
 log–log (log error linear in log time), *replicate by replicate*: replicate (s, r) at T is
 exp((1 − w)·log e_lo(s, r) + w·log e_hi(s, r)), w = log(T / t_lo) / log(t_hi / t_lo).  The
-interval at T is then the Student-t interval over those interpolated replicates, so it carries
-the two points' own spread and whatever they share.  The times are taken as the cells' medians:
+interval at T is then the cells' own interval (Student-t, skewness-corrected:
+:func:`~iblbench.harness.protocol.stats.skew_corrected_ci`) over those interpolated replicates,
+so it carries the two points' own spread and whatever they share.  The times are taken as the cells' medians:
 their own uncertainty (the time intervals in the tables) is not carried into the error's.
 
 **Who is not ranked.**  An estimator whose fastest cell takes longer than T is "not reached"
@@ -38,7 +39,7 @@ import pandas as pd
 
 from iblbench.harness.protocol.equal_time import TOLERANCE
 from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, cell_values,
-                                             column_interval, mean_ci, ratio_ci)
+                                             column_interval, ratio_ci, skew_corrected_ci)
 
 METRIC = "mean_delta_e76"
 METRIC_NAMES = {"mean_delta_e76": "ΔE76", "mean_delta_e2000": "ΔE2000", "rel_mse": "relMSE"}
@@ -174,14 +175,14 @@ def standing_at(estimator: str, points: list[Point], budget_ms: float) -> Standi
         values = hi.replicates if hi.time_ms == budget_ms else None
         if values is None:   # the two cells share no replicates: nothing to read between
             return Standing(estimator, "not measured", span)
-        return Standing(estimator, "ranked", span, mean_ci(values.to_numpy()), values,
+        return Standing(estimator, "ranked", span, skew_corrected_ci(values.to_numpy()), values,
                         (hi.spp, hi.spp))
     w = math.log(budget_ms / lo.time_ms) / math.log(hi.time_ms / lo.time_ms)
     tiny = np.finfo(np.float64).tiny   # a replicate of error 0 stays finite in the log
     log_lo = np.log(np.maximum(lo.replicates[shared].to_numpy(), tiny))
     log_hi = np.log(np.maximum(hi.replicates[shared].to_numpy(), tiny))
     values = pd.Series(np.exp((1 - w) * log_lo + w * log_hi), index=shared)
-    return Standing(estimator, "ranked", span, mean_ci(values.to_numpy()), values,
+    return Standing(estimator, "ranked", span, skew_corrected_ci(values.to_numpy()), values,
                     (lo.spp, hi.spp))
 
 

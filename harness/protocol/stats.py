@@ -19,6 +19,8 @@ replicates are independent draws of the cell's error at its spp, and S seeds giv
 
     mean ± t(0.975, n − 1) · s / √n          s: the sample standard deviation (ddof = 1)
 
+corrected for the replicates' skewness as Hall (1992) does (:func:`skew_corrected_ci`: a
+relMSE over renders is skewed to the right, and the plain interval missed it on the high side).
 One seed gives R replicates and an interval; seeds add replicates.  It assumes the replicates
 are independent draws (each render keys its own Philox stream) and that their mean is close to
 normal, which holds for the means over pixels that the metrics are (``tests/test_coverage.py``
@@ -79,7 +81,7 @@ from scipy import stats as _scipy_stats
 
 LEVEL = 0.95
 MEAN_METHOD = ("mean over the cell's scored renders (every timed render of every seed), 95% "
-               "Student-t interval")
+               "Student-t interval with Hall's (1992) skewness correction")
 SEED_METHOD = "mean over seeds, 95% Student-t interval"
 MEDIAN_METHOD = ("median of the cell's timed renders (every seed and frame), 95% order-statistic "
                  "interval (Hettmansperger-Sheather)")
@@ -135,6 +137,36 @@ def mean_ci(values, level: float = LEVEL) -> MeanCI:
     sd = float(values.std(ddof=1))
     half = t_quantile(n - 1, level) * sd / math.sqrt(n)
     return MeanCI(mean, mean - half, mean + half, n, sd)
+
+
+def skew_corrected_ci(values, level: float = LEVEL) -> MeanCI:
+    """Mean of independent values with Hall's (1992) skewness-corrected Student-t interval.
+
+    A relMSE over renders is skewed to the right (a render that hits a sun-lit texel in few
+    pixels has a large error), and the plain t interval then misses the mean on its high side:
+    in 2000 simulated runs of 10 replicates it held the true relMSE of uniform at 16 spp in 85-87%
+    of runs.  Hall's transformation of the Studentised mean T = √n(x̄ − μ)/s, with γ the
+    replicates' skewness, a = γ/(3√n) and b = γ/(6√n),
+
+        g(T) = ((1 + a·T)³ − 1)/(3a) + b,   monotone, with g⁻¹(y) = (∛(1 + 3a(y − b)) − 1)/a,
+
+    is close to symmetric, so μ ∈ [x̄ − s·g⁻¹(q)/√n, x̄ − s·g⁻¹(−q)/√n], q = t(0.975, n − 1).
+    γ = 0 gives the plain t interval.  ``tests/test_coverage.py`` has the coverage."""
+    values = np.asarray(values, dtype=np.float64).ravel()
+    plain = mean_ci(values, level)
+    if not plain.resolved or plain.sd == 0:
+        return plain
+    n, mean = values.size, plain.mean
+    centred = values - mean
+    gamma = float(np.mean(centred ** 3) / np.mean(centred ** 2) ** 1.5)
+    a, b = gamma / (3 * math.sqrt(n)), gamma / (6 * math.sqrt(n))
+    q = t_quantile(n - 1, level)
+
+    def inverse(y: float) -> float:
+        return y - b if abs(a) < 1e-12 else (float(np.cbrt(1 + 3 * a * (y - b))) - 1) / a
+
+    scale = plain.sd / math.sqrt(n)
+    return MeanCI(mean, mean - scale * inverse(q), mean - scale * inverse(-q), n, plain.sd)
 
 
 def median_ci(values, level: float = LEVEL) -> MeanCI:
@@ -296,7 +328,8 @@ def column_interval(rows, column: str) -> tuple[MeanCI, str]:
         if times and all(t.size for t in times):
             return median_ci(np.concatenate(times)), MEDIAN_METHOD
     values, method = cell_values(rows, column)
-    return mean_ci(values.to_numpy()), method
+    interval = skew_corrected_ci if method == MEAN_METHOD else mean_ci
+    return interval(values.to_numpy()), method
 
 
 def compare_cells(rows_a, rows_b, column: str) -> RatioCI:
