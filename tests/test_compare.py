@@ -83,6 +83,43 @@ def test_flags_the_uniform_faces_mutant(runs, capsys):
     assert f"balanced (A) paired with {MUTANT} (B) by base name" in out.out
 
 
+@pytest.fixture(scope="module")
+def two_seed_runs(tmp_path_factory):
+    """The default sweep's shape: 2 seeds × 5 timed renders, every render scored (issue 23):
+    balanced (a), the uniform_faces mutant on a's seeds, and a's seeds-only rerun (b)."""
+    root = tmp_path_factory.mktemp("compare-replicates")
+    common = dict(scenes=SCENES, spp=SPP, resolution=(32, 32), env_res=16, repeats=5,
+                  metrics=("de76", "relmse"), progress=False, seeds=2)
+    run(RunConfig(out=root / "a", estimators=("balanced",), **common))
+    run(RunConfig(out=root / "mutant", estimators=(MUTANT,), **common))
+    run(RunConfig(out=root / "b", estimators=("balanced",), first_seed=2, **common))
+    return {"a": root / "a", "b": root / "b", "mutant": root / "mutant"}
+
+
+def test_two_seeds_flag_the_mutant_with_a_paired_test_more_powerful_than_welch(two_seed_runs,
+                                                                              capsys):
+    """Issue 23: with 2 seeds the per-seed interval (t(0.975, 1) = 12.7) resolved nothing;
+    paired over the 10 replicates the runs share (same seeds and timing seeds), compare flags
+    the mutant's ΔE76 at every spp, and its p-value is below Welch's on the same values (both
+    shown).  The seeds-only rerun shares no replicate: Welch, and nothing beyond the threshold."""
+    status, out = _compare(capsys, two_seed_runs["a"], two_seed_runs["mutant"],
+                           "--fail-if", "mean_delta_e76>5%", "--json")
+    assert status == 1, out.err
+    summary = json.loads(out.out)
+    assert {f["cell"].split(": ")[0] for f in summary["failures"]} == {
+        f"{scene} balanced → {MUTANT} spp={spp} frame 0" for scene in SCENES for spp in SPP}
+    for cell in summary["cells"]:
+        entry = cell["metrics"]["mean_delta_e76"]
+        assert entry["paired"] and entry["a"]["n"] == entry["b"]["n"] == 10
+        assert entry["p"] < 0.05 and entry["p"] <= entry["p_unpaired"], entry
+    assert "paired (Welch " in out.err
+    status, out = _compare(capsys, two_seed_runs["a"], two_seed_runs["b"],
+                           "--fail-if", "mean_delta_e76>5%", "--json")
+    assert status == 0, out.err
+    for cell in json.loads(out.out)["cells"]:
+        assert not cell["metrics"]["mean_delta_e76"]["paired"]
+
+
 def test_seed_only_rerun_is_not_flagged(runs, capsys):
     status, out = _compare(capsys, runs["a"], runs["b"], "--fail-if", "mean_delta_e76>5%",
                            "--fail-if", "rel_mse>10%", "--json")

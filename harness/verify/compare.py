@@ -1,15 +1,20 @@
-"""``iblbench compare A B``: two result folders, cell by cell, with intervals over seeds.
+"""``iblbench compare A B``: two result folders, cell by cell, with intervals.
 
 **Cells.**  A cell is (scene, estimator, spp or time budget, frame), as in the results table
 (:func:`iblbench.harness.protocol.results.row_key` without the seed).  In each cell and for each metric
 of ``METRICS`` present in both folders (FLIP only where both runs computed it), compare takes
-the mean over seeds on each side and the ratio B/A with its 95% interval
-(:func:`iblbench.harness.protocol.stats.ratio_ci`: delta method on log(ratio), Welch–Satterthwaite
-degrees of freedom).  The two folders' seeds are treated as independent samples, whatever
-their numbers, so a rerun with other seeds is compared as fairly as one with the same seeds.
+each side's figure with its interval as the report does
+(:func:`iblbench.harness.protocol.stats.column_interval`) and the ratio B/A of the means with its
+95% interval (:func:`iblbench.harness.protocol.stats.compare_cells`: delta method on
+log(ratio)).  The values compared are the cells' replicates (each scored render of each seed; a
+time: each timed render) where the rows carry them, else one value per seed.  When the two
+sides share replicates (the same seeds and repeats: a rerun of one sweep) the test is **paired**
+over them, so what a seed's renders share cancels; otherwise, and for a rerun with other seeds,
+the sides are independent samples (Welch–Satterthwaite).  Each metric's entry gives the p-value
+of the test used and, beside it, ``p_unpaired``: Welch's on the same values.
 A change is **significant** when the interval excludes 1; it is marked ``worse`` or ``better``
 by the metric's direction (higher is better only for ``effective_ratio``).  A cell with one
-seed on either side has no interval and is never significant ("n=1").
+value on either side has no interval and is never significant ("n=1").
 
 **Pairing estimators.**  Labels carry parameter overrides (``balanced{uniform_faces=true}``).
 Equal labels are paired first.  Then a label left over on each side with the same base name
@@ -33,9 +38,9 @@ configuration (``width``,
 ``height``, ``env_res``).  It compares them anyway: the user decides what a difference means;
 times are only meaningful on one device.
 
-Not done: a paired test for runs that share seeds (more power when only timing changed), and
-correction for the many cells × metrics tested (at 95% one comparison in 20 of unchanged
-code is significant by chance; a threshold keeps those small chance changes from failing).
+Not done: correction for the many cells × metrics tested (at 95% one comparison in 20 of
+unchanged code is significant by chance; a threshold keeps those small chance changes from
+failing).
 """
 from __future__ import annotations
 
@@ -49,7 +54,8 @@ import sys
 import pandas as pd
 
 from iblbench.harness.protocol.results import KEY_COLUMNS, json_text, load_table, read_manifest, row_key
-from iblbench.harness.protocol.stats import LEVEL, RATIO_METHOD, MeanCI, RatioCI, mean_ci, ratio_ci
+from iblbench.harness.protocol.stats import (LEVEL, RATIO_METHOD, MeanCI, RatioCI, cell_values,
+                                             column_interval, compare_cells, ratio_ci)
 from iblbench.scenes.errors import InputError
 
 METRICS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "effective_ratio", "time_ms")
@@ -203,10 +209,13 @@ def compare(dir_a, dir_b, thresholds=()) -> dict:
                     or not _comparable(rows_a[metric], rows_b[metric]):
                 continue
             compared.add(metric)
-            ratio = ratio_ci(rows_a[metric], rows_b[metric])
-            metrics[metric] = {"a": mean_ci(rows_a[metric]).to_dict(),
-                               "b": mean_ci(rows_b[metric]).to_dict(),
-                               **ratio.to_dict(), "change": _direction(metric, ratio)}
+            ratio = compare_cells(rows_a, rows_b, metric)
+            unpaired = ratio_ci(*(cell_values(rows, metric)[0].to_numpy()
+                                  for rows in (rows_a, rows_b)))
+            metrics[metric] = {"a": column_interval(rows_a, metric)[0].to_dict(),
+                               "b": column_interval(rows_b, metric)[0].to_dict(),
+                               **ratio.to_dict(), "p_unpaired": unpaired.to_dict()["p"],
+                               "change": _direction(metric, ratio)}
             failures += [{"cell": name, "metric": metric, "threshold": t.text,
                           "ratio": ratio.ratio, "low": ratio.low, "high": ratio.high}
                          for t in thresholds if t.metric == metric and t.exceeded(ratio)]
@@ -246,6 +255,16 @@ def _ratio_text(entry: dict) -> str:
                      for k in ("ratio", "low", "high", "df")), entry["reason"] or "").text()
 
 
+def _p_text(entry: dict) -> str:
+    """``2e-05 paired (Welch 0.031)``, or ``0.031 Welch``; empty without a p-value."""
+    if entry["p"] is None:
+        return ""
+    if not entry["paired"]:
+        return f"{entry['p']:.2g} Welch"
+    welch = "–" if entry["p_unpaired"] is None else f"{entry['p_unpaired']:.2g}"
+    return f"{entry['p']:.2g} paired (Welch {welch})"
+
+
 def format_text(summary: dict) -> str:
     """The terminal form of :func:`compare`'s summary."""
     lines = [f"A: {summary['a']}", f"B: {summary['b']}"]
@@ -263,7 +282,8 @@ def format_text(summary: dict) -> str:
             rows.append({"cell": cell["name"], "metric": metric,
                          "n A/B": f"{entry['a']['n']}/{entry['b']['n']}",
                          "A": _ci_text(entry["a"]), "B": _ci_text(entry["b"]),
-                         "B/A [95%]": _ratio_text(entry), "change": entry["change"] or ""})
+                         "B/A [95%]": _ratio_text(entry), "p": _p_text(entry),
+                         "change": entry["change"] or ""})
     with pd.option_context("display.width", 250, "display.max_colwidth", 80):
         lines.append(pd.DataFrame(rows).to_string(index=False))
     changes = [row for row in rows if row["change"]]
