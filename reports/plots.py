@@ -429,7 +429,7 @@ def plot_answer(path: pathlib.Path, cells, rankings: dict, highlight: bool) -> N
         for ax in axes[-1]:
             ax.set_xlabel("device time per frame (ms)")
         for ax in axes[:, 0]:
-            ax.set_ylabel("mean ΔE76 (CIELAB)")
+            ax.set_ylabel("mean ΔE76 (CIELAB units)")
         if not highlight:
             _figure_legend(fig)
         _save(fig, path)

@@ -33,8 +33,12 @@ def add_parser(subparsers) -> None:
                      help="estimator name, optionally with parameters as NAME{param=value,...}; "
                           "repeatable (see 'iblbench list estimators')")
     run.add_argument("--spp", type=spp_list, metavar="N,N,...",
-                     help="samples per pixel, comma-separated")
-    run.add_argument("--seeds", type=positive_int, help="seeds per cell, 0..N-1")
+                     help="samples per pixel, comma-separated, the same for every estimator "
+                          "(a sweep config may give estimators levels of their own, as the "
+                          "default sweep does: spp = {default = [...], NAME = [...]})")
+    run.add_argument("--seeds", type=positive_int,
+                     help="seeds per cell, 0..N-1; each seed's timed renders (--repeats) are "
+                          "all scored, so one seed already gives a cell an interval")
     run.add_argument("--first-seed", type=non_negative_int, metavar="S",
                      help="the first seed instead of 0: seeds S..S+N-1 (a seeds-only rerun)")
     run.add_argument("--frames", metavar="START:STOP[:STEP]",

@@ -235,8 +235,11 @@ def headline_budgets(curves: dict[str, list[Point]], sweep_budgets=()) -> list[f
 
 def scene_rankings(table: pd.DataFrame, metric: str = METRIC, budgets=None) -> dict[str, list[Ranking]]:
     """Per scene of ``table`` (a results table), its rankings at its headline budgets
-    (``budgets``: the same budgets for every scene instead)."""
+    (``budgets``: the same budgets for every scene instead); none for a table without times
+    or the metric."""
     out = {}
+    if TIME_COLUMN not in table or metric not in table:
+        return out
     for scene, rows in table.groupby("scene", sort=False):
         curves = {label: curve(cells, metric)
                   for label, cells in rows.groupby("estimator", sort=False)}
