@@ -353,12 +353,12 @@ def test_same_frame_with_a_new_seed_or_k_starts_a_new_history(h):
 # history, the same frame again replaces its entry, a later frame adds one.  Expected: the
 # (frame, tap) pairs of that history, taps renormalised over it.
 HISTORY_CASES = {
-    "seed changes on a later frame": ([(0, 0, 16), (1, 0, 16), (2, 1, 16)], [(2, 0.5)]),
-    "K changes on a later frame": ([(0, 0, 16), (1, 0, 16), (2, 0, 24)], [(2, 0.5)]),
-    "the frame goes back": ([(0, 0, 16), (1, 0, 16), (2, 0, 16), (1, 0, 16)], [(1, 0.5)]),
-    "the frame goes back, then on": ([(0, 0, 16), (1, 0, 16), (2, 0, 16), (1, 0, 16), (2, 0, 16)],
+    "new-seed-on-a-later-frame": ([(0, 0, 16), (1, 0, 16), (2, 1, 16)], [(2, 0.5)]),
+    "new-k-on-a-later-frame": ([(0, 0, 16), (1, 0, 16), (2, 0, 24)], [(2, 0.5)]),
+    "frame-goes-back": ([(0, 0, 16), (1, 0, 16), (2, 0, 16), (1, 0, 16)], [(1, 0.5)]),
+    "frame-goes-back-then-on": ([(0, 0, 16), (1, 0, 16), (2, 0, 16), (1, 0, 16), (2, 0, 16)],
                                      [(2, 0.5), (1, 0.3)]),
-    "the same frame again": ([(0, 0, 16), (1, 0, 16), (1, 0, 16)], [(1, 0.5), (0, 0.3)]),
+    "same-frame-again": ([(0, 0, 16), (1, 0, 16), (1, 0, 16)], [(1, 0.5), (0, 0.3)]),
 }
 
 

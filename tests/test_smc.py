@@ -402,29 +402,29 @@ def _faces_map(up: float, down: float, res: int = 8) -> np.ndarray:
 # Frame 0 of every case: a dim sky over a bright ground.  The changes, with a white Lambertian's
 # Z = ∫ Y cos⁺ dω (a +Y normal takes 0.554 of its cosine from the +Y face) and the map's
 # 1 + χ²(P_t ‖ P_{t−1}) and power ratio (faces of equal solid angle: sums of face values):
-# - "sky×100" (+Y face ×100): Z ×56 facing up, ×1 exactly facing down (no particle of theirs
+# - "sky-x100" (+Y face ×100): Z ×56 facing up, ×1 exactly facing down (no particle of theirs
 #   sees the +Y face); 1 + χ² = 19.3; power ×1.32;
-# - "sky×16" and "sky×10": Z ×8.9 and ×6.0 facing up; 1 + χ² = 1.67 and 1.25, on either side
+# - "sky-x16" and "sky-x10": Z ×9.3 and ×6.0 facing up; 1 + χ² = 1.67 and 1.25, on either side
 #   of the map rule's bound 1/reinit_map_ess = 1.5; power ×1.05 and ×1.03;
-# - "ground×10" (−Y face ×10): Z ×1 exactly facing up, ×10.0 facing down; 1 + χ² = 1.013;
+# - "ground-x10" (−Y face ×10): Z ×1 exactly facing up, ×10.0 facing down; 1 + χ² = 1.013;
 #   power ×9.85.
-RULE_MAPS = {"start": _faces_map(0.1, 30.0), "sky×100": _faces_map(10.0, 30.0),
-             "sky×16": _faces_map(1.6, 30.0), "sky×10": _faces_map(1.0, 30.0),
-             "ground×10": _faces_map(0.1, 300.0)}
+RULE_MAPS = {"start": _faces_map(0.1, 30.0), "sky-x100": _faces_map(10.0, 30.0),
+             "sky-x16": _faces_map(1.6, 30.0), "sky-x10": _faces_map(1.0, 30.0),
+             "ground-x10": _faces_map(0.1, 300.0)}
 UP, DOWN = 4, 12   # pixels facing +Y and −Y: unequal, so that a rule firing on the wrong ones shows
 OFF = 1e30         # a reinit_threshold no Z or power ratio reaches
 
 
 @pytest.mark.parametrize("params, change, reinits", [
     # Kronander's Z rule alone (the map rule off): exactly the pixels whose Z jumped
-    ({"reinit_map_ess": 0.0}, "sky×100", UP),
+    ({"reinit_map_ess": 0.0}, "sky-x100", UP),
     # the map-ESS rule alone (the Z and power rules off): every pixel past its bound, none under it
-    ({"reinit_threshold": OFF}, "sky×100", UP + DOWN), ({"reinit_threshold": OFF}, "sky×16", UP + DOWN),
-    ({"reinit_threshold": OFF}, "sky×10", 0), ({"reinit_threshold": OFF}, "ground×10", 0),
+    ({"reinit_threshold": OFF}, "sky-x100", UP + DOWN), ({"reinit_threshold": OFF}, "sky-x16", UP + DOWN),
+    ({"reinit_threshold": OFF}, "sky-x10", 0), ({"reinit_threshold": OFF}, "ground-x10", 0),
     # the power rule: every pixel, those whose Z did not move (facing up) too
-    ({"reinit_map_ess": 0.0}, "ground×10", UP + DOWN),
+    ({"reinit_map_ess": 0.0}, "ground-x10", UP + DOWN),
     # every rule off: nothing else re-initialises a pixel on these maps
-    ({"reinit_threshold": OFF, "reinit_map_ess": 0.0}, "sky×100", 0)])
+    ({"reinit_threshold": OFF, "reinit_map_ess": 0.0}, "sky-x100", 0)])
 def test_each_reinit_rule_fires_alone_on_the_change_it_is_for(compute, params, change, reinits):
     """smc's re-init rules (smc.py step 5), each with the others off, on two map changes built so
     that each rule fires on a known set of pixels (RULE_MAPS): the Z rule on the pixels whose
