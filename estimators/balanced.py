@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from iblbench.estimators.base import Setting
 from iblbench.estimators.light_pool import PoolEstimator, PoolParams
 
 
@@ -33,6 +34,7 @@ class Balanced(PoolEstimator):
 
     name = "balanced"
     Params = BalancedParams
+    settings = PoolEstimator.settings + (Setting("uniform_faces", True),)   # tests/test_lu2013.py
     kernel_files = ("balanced.cl",)
 
     def defines(self, gbuffer=None) -> dict:

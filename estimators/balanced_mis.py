@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from iblbench.estimators.base import specular_lobe_defines
+from iblbench.estimators.base import Setting, specular_lobe_defines
 from iblbench.estimators.light_pool import PoolEstimator, PoolParams
 
 
@@ -56,6 +56,7 @@ class BalancedMIS(PoolEstimator):
 
     name = "balanced_mis"
     Params = BalancedMISParams
+    settings = PoolEstimator.settings + (Setting("mis_compensation", True, says="mis_compensation"),)
     kernel_files = ("balanced_mis.cl",)
     brdf_samples = True
 

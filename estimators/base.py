@@ -1,7 +1,8 @@
 """The estimator contract of DESIGN §4: parameters, capability tags, requirements, kernels.
 
 A plugin subclasses :class:`Estimator`, sets ``name``, ``Params`` (a dataclass with documented
-defaults), ``tags``, ``requires`` and ``kernel_files``, and implements ``render``.  The optional
+defaults), ``settings`` (a :class:`Setting` off the default for every parameter), ``tags``,
+``requires`` and ``kernel_files``, and implements ``render``.  The optional
 ``sample_directions``/``pdf`` hooks feed the χ² test of ``check_estimator``.
 """
 from __future__ import annotations
@@ -24,6 +25,25 @@ class Tags:
     has_pdf: bool = False          # sample_directions/pdf hooks exist (χ² test)
     deterministic: bool = True     # same seed, same device → same image
     has_limit: bool = False        # biased but consistent: limit_map hook, its exact integral
+
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One parameter off its default, which ``check_estimator`` holds to doing something, and
+    what its docstring says it does (``conformance.check_settings_differ``,
+    ``check_setting_properties``).
+
+    ``parameter`` takes ``value``, with ``context`` the other parameters it needs or is meant
+    under (``mis_compensation`` needs ``mis = "brdf"``).  Its *base* is the same context with
+    ``parameter`` at its default: at one seed, the two render different images.  ``says`` names
+    the property the parameter's docstring states, a key of ``conformance.SETTING_PROPERTIES``
+    that checks it on the setting and its base; "" where the suite has no such check (the
+    estimator's own tests hold it: ``uniform_faces``, ``lod_bias``, smc's re-init rules)."""
+
+    parameter: str
+    value: object
+    context: dict = dataclasses.field(default_factory=dict)
+    says: str = ""
 
 
 @dataclasses.dataclass
@@ -58,6 +78,7 @@ class NoParams:
 class Estimator:
     name: ClassVar[str] = ""
     Params: ClassVar[type] = NoParams
+    settings: ClassVar[tuple[Setting, ...]] = ()   # at least one per parameter of Params
     tags: ClassVar[Tags] = Tags()
     requires: ClassVar[tuple[str, ...]] = ()
     kernel_files: ClassVar[tuple[str, ...]] = ()

@@ -28,7 +28,7 @@ import dataclasses
 import numpy as np
 import pyopencl as cl
 
-from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
+from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, specular_lobe_defines
 from iblbench.estimators.runtime.device import event_ms
 
 
@@ -107,6 +107,7 @@ class BIS(Estimator):
     __doc__ = __doc__
     name = "bis"
     Params = BISParams
+    settings = (Setting("M", 100), Setting("N", 5))
     tags = Tags(unbiased=True, temporal=False, has_pdf=False)
     requires = ("env",)
     kernel_files = ("bis.cl", "sir.cl", "lanes.cl")

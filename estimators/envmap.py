@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
+from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, specular_lobe_defines
 from iblbench.estimators.light_pool import HOOK_SPP, MAX_SPP, TICKS_PER_SAMPLE, hook_surface
 from iblbench.estimators.runtime.device import event_ms
 
@@ -180,6 +180,9 @@ class Envmap(MapSampler):
 
     name = "envmap"
     Params = EnvmapParams
+    settings = (Setting("mis", "brdf", says="mis_brdf"),
+                Setting("heuristic", "balance", {"mis": "brdf"}, says="mis_heuristic"),
+                Setting("mis_compensation", True, {"mis": "brdf"}, says="mis_compensation"))
     requires = ("cdf", "light_cdfs")
     kernel_files = ("envmap.cl", "lanes.cl")
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pyopencl.cltypes as cltypes
 
-from iblbench.estimators.base import Tags, read_estimate
+from iblbench.estimators.base import Setting, Tags, read_estimate
 from iblbench.estimators.brdf import Brdf
 from iblbench.estimators.light_pool import MAX_SPP, hook_surface
 from iblbench.estimators.runtime.device import event_ms
@@ -99,6 +99,7 @@ class Fis(Brdf):
 
     name = "fis"
     Params = FisParams
+    settings = (Setting("lod_bias", 0.0),)   # tests/test_fis.py: the filtered integral at 0-2.25
     tags = Tags(unbiased=False, has_pdf=True, has_limit=True)
     requires = ("radiance_mips",)
     kernel_files = ("fis.cl", "envmap.cl", "lanes.cl")

@@ -101,7 +101,7 @@ import weakref
 
 import numpy as np
 
-from iblbench.estimators.base import Estimator, Tags, read_estimate, visibility_defines
+from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, visibility_defines
 from iblbench.estimators.runtime.device import event_ms
 from iblbench.scenes import cubemap
 
@@ -425,6 +425,7 @@ class Havran(Estimator):
 
     name = "havran"
     Params = HavranParams
+    settings = (Setting("fir_taps", (1.0,), says="fir_taps"), Setting("fir_taps", (0.2, 0.8), says="fir_taps"))
     tags = Tags(unbiased=False, temporal=True, has_pdf=False)
     unbiased_on_static_maps = True   # "Bias bound" above: the stress battery z-tests static maps
     requires = ()

@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from iblbench.estimators.base import Estimator, Tags, read_estimate, visibility_defines
+from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, visibility_defines
 from iblbench.estimators.runtime.device import event_ms
 
 TICKS_PER_SAMPLE = 65536   # fixed point of the sample counts (light_pool.cl)
@@ -58,6 +58,7 @@ class PoolEstimator(Estimator):
     configures the shared kernels of ``kernels/light_pool_kernels.cl``."""
 
     Params = PoolParams
+    settings = (Setting("shared_sequence", False, says="shared_sequence"),)
     tags = Tags(unbiased=True, has_pdf=True)
     requires = ("cdf", "pool")
     max_spp = MAX_SPP

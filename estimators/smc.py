@@ -133,7 +133,7 @@ import math
 import numpy as np
 import pyopencl as cl
 
-from iblbench.estimators.base import Estimator, Tags, read_estimate, specular_lobe_defines
+from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, specular_lobe_defines
 from iblbench.estimators.bis import MAX_SPP, bis_chunks, run_lockstep
 from iblbench.estimators.runtime.device import event_ms
 
@@ -167,6 +167,11 @@ class SMC(Estimator):
     __doc__ = __doc__
     name = "smc"
     Params = SMCParams
+    # The re-init rules' settings: tests/test_smc.py holds each rule alone to its pixels.
+    settings = (Setting("N", 4), Setting("nu", 1.0), Setting("local_degrees", 30.0),
+                Setting("intermediates", 1), Setting("reinit_threshold", 1.01),
+                Setting("reinit_map_ess", 0.0), Setting("init_candidates", 5),
+                Setting("init_env_pick", 0.0))
     tags = Tags(unbiased=False, temporal=True, has_pdf=False)
     requires = ("cdf",)
     kernel_files = ("smc.cl", "sir.cl", "lanes.cl")

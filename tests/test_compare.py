@@ -135,13 +135,16 @@ def test_seed_only_rerun_is_not_flagged(runs, capsys):
 
 
 def _table(path, estimator, values, seeds=None, spp=64, time_budget_ms=np.nan, **columns):
-    """A hand-made run folder: one cell (sphere-sun, estimator, spp 64, frame 0)."""
+    """A hand-made run folder: one cell (sphere-sun, estimator, spp 64, frame 0); a list in
+    ``columns`` gives a column's value per seed."""
     path.mkdir()
     seeds = range(len(values)) if seeds is None else seeds
     rows = [{"scene": "sphere-sun", "estimator": estimator, "spp": spp, "frame": 0, "seed": s,
              "time_budget_ms": time_budget_ms, "estimator_version": "v1", "device": "dev",
              "protocol": "lab-reinhard-v1", "mean_delta_e76": v, "time_ms": 1.0 + 0.1 * s,
-             **columns} for s, v in zip(seeds, values)]
+             **{name: value[i] if isinstance(value, list) else value
+                for name, value in columns.items()}}
+            for i, (s, v) in enumerate(zip(seeds, values))]
     pd.DataFrame(rows).to_parquet(path / TABLE, index=False)
     return path
 
@@ -159,6 +162,44 @@ def test_threshold_needs_significance_and_size(tmp_path, capsys):
     assert status == 0
     status, out = _compare(capsys, large, a, "--fail-if", "mean_delta_e76<-5%")
     assert status == 1 and "sphere-sun uniform spp=64 frame 0: mean_delta_e76" in out.out
+
+
+# Four seeds whose values spread by 2^-10 (relative SD 8e-4): B = r·A then has a 95% interval of
+# about r·e^(±1.4e-3) (Welch, ~6 df), so every ratio below, 2% or more from 1, is significant,
+# and the point ratio is r to rounding (exactly r for r = 1.5 and 0.5: every value is binary).
+SEED_VALUES = (1.0, 1.0 + 2 ** -10, 1.0 - 2 ** -10, 1.0)
+
+
+@pytest.mark.parametrize("threshold, ratio, fails", [
+    # an increase threshold, written with and without '+': just beyond, just within, and
+    # changes the other way (a lower ΔE: an improvement), one of them beyond the threshold's size
+    ("mean_delta_e76>5%", 1.051, True), ("mean_delta_e76>+5%", 1.051, True),
+    ("mean_delta_e76>5%", 1.049, False), ("mean_delta_e76>5%", 0.949, False),
+    ("mean_delta_e76>5%", 0.98, False),
+    # a decrease threshold: the same, mirrored
+    ("mean_delta_e76<-5%", 0.949, True), ("mean_delta_e76<-5%", 0.951, False),
+    ("mean_delta_e76<-5%", 1.051, False), ("mean_delta_e76<-5%", 1.02, False),
+    # exactly at the threshold is not "more than" it
+    ("mean_delta_e76>50%", 1.5, False), ("mean_delta_e76<-50%", 0.5, False),
+    # a higher-is-better metric: the threshold is on the change, whatever its direction means
+    ("effective_ratio<-5%", 0.949, True), ("effective_ratio<-5%", 1.051, False),
+    ("effective_ratio>5%", 1.051, True), ("effective_ratio>5%", 0.949, False)])
+def test_thresholds_on_small_significant_changes_in_both_directions(tmp_path, capsys, threshold,
+                                                                    ratio, fails):
+    """A cell fails a threshold exactly when its change lies beyond it on the threshold's side:
+    B = ratio·A over four seeds of tiny spread (SEED_VALUES), so every change is significant
+    and only its size and side decide; ``change`` says worse or better by the metric's direction."""
+    metric = threshold.split("<")[0].split(">")[0]
+    sides = {side: _table(tmp_path / side, "uniform", [1.0] * 4,
+                          **{metric: [scale * v for v in SEED_VALUES]})
+             for side, scale in (("a", 1.0), ("b", ratio))}
+    status, out = _compare(capsys, sides["a"], sides["b"], "--fail-if", threshold, "--json")
+    summary = json.loads(out.out)
+    entry = summary["cells"][0]["metrics"][metric]
+    assert entry["significant"] and entry["ratio"] == pytest.approx(ratio, rel=1e-12)
+    assert status == int(fails) and len(summary["failures"]) == int(fails), out.err
+    worse = (ratio > 1) != (metric == "effective_ratio")
+    assert entry["change"] == ("worse" if worse else "better")
 
 
 def test_one_seed_is_never_significant(tmp_path, capsys):

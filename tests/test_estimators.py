@@ -5,8 +5,11 @@ import numpy as np
 import pytest
 
 from iblbench.estimators import registry
-from iblbench.estimators.base import Estimator, Tags
-from iblbench.harness.verify.conformance import check_estimator, parametrize_with_checks
+from iblbench.estimators.base import Estimator, Setting, Tags
+from iblbench.estimators.light_pool import PoolParams
+from iblbench.estimators.uniform import Uniform
+from iblbench.harness.verify.conformance import (Harness, check_estimator, check_setting_properties,
+                                                 check_settings_differ, parametrize_with_checks)
 from iblbench.scenes.errors import InputError
 
 BUILTINS = [registry.make_estimator(name) for name in registry.estimator_names()]
@@ -62,3 +65,36 @@ def test_check_estimator_rejects_a_biased_plugin_and_records_known_failures():
     assert outcome["check_white_furnace"].startswith("xfail")
     assert outcome["check_deterministic"] == "passed"
     assert outcome["check_matches_twin"].startswith("skipped: no independent NumPy twin")
+
+
+@dataclasses.dataclass(frozen=True)
+class _UnusedParams(PoolParams):
+    unused: int = 0
+
+
+class _Unused(Uniform):
+    """``uniform`` with a parameter it never reads: a setting that is silently ignored."""
+
+    name = "test-unused"
+    Params = _UnusedParams
+    settings = Uniform.settings + (Setting("unused", 1),)
+
+
+def test_settings_checks_reject_an_ignored_an_undeclared_and_an_unstated_parameter(compute):
+    """The settings checks fail where they must: a parameter that changes nothing, one with no
+    declared Setting, and a Setting that says a property the suite does not know."""
+    h = Harness(compute)
+    with pytest.raises(AssertionError, match=r"renders exactly as with the default: unused = 1$"):
+        check_settings_differ(_Unused(), h)
+
+    class Undeclared(_Unused):
+        settings = Uniform.settings
+
+    with pytest.raises(AssertionError, match="no Setting off their default .*: unused$"):
+        check_settings_differ(Undeclared(), h)
+
+    class Unknown(_Unused):
+        settings = (Setting("shared_sequence", False, says="no-such-property"),)
+
+    with pytest.raises(AssertionError, match="no property check 'no-such-property'"):
+        check_setting_properties(Unknown(), h)

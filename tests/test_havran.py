@@ -346,3 +346,35 @@ def test_same_frame_with_a_new_seed_or_k_starts_a_new_history(h):
         raw_dirs, raw_weights = est.raw_lights(cache, k, seed)
         np.testing.assert_array_equal(dirs, raw_dirs)
         np.testing.assert_array_equal(weights, raw_weights)
+
+
+# Render sequences (frame, seed, K) whose last render's history each of havran's history rules
+# decides alone (``Havran._filtered``): a new (seed, K) or a frame that goes back starts a new
+# history, the same frame again replaces its entry, a later frame adds one.  Expected: the
+# (frame, tap) pairs of that history, taps renormalised over it.
+HISTORY_CASES = {
+    "new-seed-on-a-later-frame": ([(0, 0, 16), (1, 0, 16), (2, 1, 16)], [(2, 0.5)]),
+    "new-k-on-a-later-frame": ([(0, 0, 16), (1, 0, 16), (2, 0, 24)], [(2, 0.5)]),
+    "frame-goes-back": ([(0, 0, 16), (1, 0, 16), (2, 0, 16), (1, 0, 16)], [(1, 0.5)]),
+    "frame-goes-back-then-on": ([(0, 0, 16), (1, 0, 16), (2, 0, 16), (1, 0, 16), (2, 0, 16)],
+                                     [(2, 0.5), (1, 0.3)]),
+    "same-frame-again": ([(0, 0, 16), (1, 0, 16), (1, 0, 16)], [(1, 0.5), (0, 0.3)]),
+}
+
+
+@pytest.mark.parametrize("case", HISTORY_CASES)
+def test_each_history_rule_decides_alone(h, case):
+    """Each rule where no other applies: the earlier test of a new seed or K renders it on the
+    frame just rendered, where replacing the frame's entry alone also gives that seed's raw
+    lights, so a dead (seed, K) rule passes it.  Frame t's map is smooth_map × (1 + t): the
+    lights' directions are those of every frame (one density), their weights scale with the
+    frame, and a frame or seed kept where the rule drops it changes the filtered lights."""
+    renders, history = HISTORY_CASES[case]
+    est = Havran()
+    caches = [FrameCache(h.compute, smooth_map(8) * np.float32(1 + t), frame=t) for t in range(3)]
+    for frame, seed, k in renders:
+        dirs, weights = est.lights(caches[frame], k, seed)
+    raw = {f: est.raw_lights(caches[f], k, seed) for f, _ in history}
+    taps = sum(tap for _, tap in history)
+    np.testing.assert_allclose(dirs, raw[history[0][0]][0], atol=1e-12)
+    np.testing.assert_allclose(weights, sum(tap * raw[f][1] for f, tap in history) / taps, rtol=1e-12)

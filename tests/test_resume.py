@@ -110,6 +110,82 @@ def test_a_journal_left_by_a_killed_run_is_folded_in(tmp_path, tiny_config, caps
     pd.testing.assert_frame_equal(table[DETERMINISTIC_COLUMNS], complete[DETERMINISTIC_COLUMNS])
 
 
+def _cell(seed: int, delta_e: float) -> dict:
+    """A row of one cell of a hand-made store (the key, a metric)."""
+    return {"scene": "sphere-sun", "estimator": "uniform", "spp": 4, "frame": 0, "seed": seed,
+            "time_budget_ms": None, "mean_delta_e76": delta_e}
+
+
+def _readers_agree(out: Path) -> dict:
+    """The cell key → ΔE76 that the run's resume (read_results), the report and the check read;
+    asserted equal, one row per cell each."""
+    from iblbench.harness.verify.budgets import load_results
+    from iblbench.reports.report import load_run
+
+    resume = {row_key(row): row["mean_delta_e76"] for row in read_results(out)}
+    assert len(resume) == len(read_results(out))
+    for table in (load_run(out)[0], load_results(out)):
+        rows = table.to_dict("records")
+        assert {row_key(row): row["mean_delta_e76"] for row in rows} == resume and len(rows) == len(resume)
+    return resume
+
+
+def test_journal_rows_replace_the_tables_rows_of_the_same_cell(tmp_path):
+    """read_results, and the report's and the check's readers, take a cell's row from the
+    journal where both hold it: the journal is newer (the table is the last fold)."""
+    write_results(tmp_path, [_cell(0, 1.0), _cell(1, 2.0)])
+    journal = Journal(tmp_path)
+    for row in (_cell(1, 20.0), _cell(2, 30.0)):    # cell 1 rerun, cell 2 new
+        journal.append(row)
+    journal.close()
+    assert {key[4]: value for key, value in _readers_agree(tmp_path).items()} == {
+        0: 1.0, 1: 20.0, 2: 30.0}
+
+
+def test_a_forced_rerun_killed_before_its_fold_reads_its_new_rows(tmp_path, tiny_config, capsys,
+                                                                  monkeypatch):
+    """``run(force=True)`` on a folder of finished cells, killed (no fold, no Ctrl-C handler)
+    after journalling 3 of its 8 cells: the table still holds the old rows of all 8 and the
+    journal the new rows of 3.  Resume, report and check read the new rows of those 3 and the
+    old of the other 5; a plain rerun then finds all 8 done and folds exactly those rows.  The
+    old rows are marked by a ΔE76 100 above what the renders give."""
+    from iblbench.harness.protocol import runner as runner_module
+
+    out = tmp_path / "out"
+    fresh, _ = cli_run(capsys, tiny_config, out)
+    fresh_delta_e = {row_key(row): row["mean_delta_e76"] for row in fresh.to_dict("records")}
+    write_results(out, [{**row, "mean_delta_e76": row["mean_delta_e76"] + 100}
+                        for row in fresh.to_dict("records")])
+
+    class Killed(BaseException):
+        """Stands for kill -9: the runner neither catches nor folds it."""
+
+    append = Journal.append
+
+    def append_then_die(journal, row):
+        append(journal, row)
+        if len(read_journal(out)) == 3:
+            raise Killed
+
+    monkeypatch.setattr(Journal, "append", append_then_die)
+    monkeypatch.setattr(runner_module, "FOLD_SECONDS", float("inf"))
+    config = RunConfig(out=out, scenes=("sphere-sun",), estimators=("uniform", "balanced"),
+                       spp=(4, 8), seeds=2, resolution=(16, 16), env_res=8, progress=False)
+    with pytest.raises(Killed):
+        run(dataclasses.replace(config, force=True))
+    monkeypatch.undo()
+    rerun = {row_key(row) for row in read_journal(out)}
+    assert len(rerun) == 3 and len(pd.read_parquet(out / "results.parquet")) == 8
+    read = _readers_agree(out)
+    assert read == {key: value + 100 * (key not in rerun) for key, value in fresh_delta_e.items()}
+
+    resumed = run(config)
+    assert "resumed: 8 cells already done, 0 to run" in capsys.readouterr().err
+    assert not (out / JOURNAL).exists()
+    assert {row_key(row): row["mean_delta_e76"] for row in resumed.to_dict("records")} == read
+    assert _readers_agree(out) == read
+
+
 def test_a_damaged_journal_line_before_the_last_is_an_input_error(tmp_path):
     (tmp_path / JOURNAL).write_bytes(b'{"scene": \n{"scene": "a"}\n')
     with pytest.raises(InputError, match="line 1 is damaged"):

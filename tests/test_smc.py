@@ -13,6 +13,7 @@ from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference
 from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.scenes import cubemap
+from iblbench.scenes.gbuffer import GBuffer
 
 WEIGHTS = np.array([0.05, 0.0, 0.3, 0.15, 0.0, 0.02, 0.28, 0.2], np.float32)
 
@@ -389,3 +390,58 @@ def test_smc_map_change_is_the_chi_square_of_the_map_distributions(compute, chan
             continue
         assert device == pytest.approx(expected, rel=1e-4), f"group {group}"
         assert (device > threshold) == (change == "sun-step"), f"1 + χ² = {device:.4g}"
+
+
+def _faces_map(up: float, down: float, res: int = 8) -> np.ndarray:
+    """A grey map of 0.1 with the +Y face at ``up`` and the −Y face at ``down``."""
+    env = np.full((6, res, res, 3), 0.1, np.float32)
+    env[2], env[3] = up, down
+    return env
+
+
+# Frame 0 of every case: a dim sky over a bright ground.  The changes, with a white Lambertian's
+# Z = ∫ Y cos⁺ dω (a +Y normal takes 0.554 of its cosine from the +Y face) and the map's
+# 1 + χ²(P_t ‖ P_{t−1}) and power ratio (faces of equal solid angle: sums of face values):
+# - "sky-x100" (+Y face ×100): Z ×56 facing up, ×1 exactly facing down (no particle of theirs
+#   sees the +Y face); 1 + χ² = 19.3; power ×1.32;
+# - "sky-x16" and "sky-x10": Z ×9.3 and ×6.0 facing up; 1 + χ² = 1.67 and 1.25, on either side
+#   of the map rule's bound 1/reinit_map_ess = 1.5; power ×1.05 and ×1.03;
+# - "ground-x10" (−Y face ×10): Z ×1 exactly facing up, ×10.0 facing down; 1 + χ² = 1.013;
+#   power ×9.85.
+RULE_MAPS = {"start": _faces_map(0.1, 30.0), "sky-x100": _faces_map(10.0, 30.0),
+             "sky-x16": _faces_map(1.6, 30.0), "sky-x10": _faces_map(1.0, 30.0),
+             "ground-x10": _faces_map(0.1, 300.0)}
+UP, DOWN = 4, 12   # pixels facing +Y and −Y: unequal, so that a rule firing on the wrong ones shows
+OFF = 1e30         # a reinit_threshold no Z or power ratio reaches
+
+
+@pytest.mark.parametrize("params, change, reinits", [
+    # Kronander's Z rule alone (the map rule off): exactly the pixels whose Z jumped
+    ({"reinit_map_ess": 0.0}, "sky-x100", UP),
+    # the map-ESS rule alone (the Z and power rules off): every pixel past its bound, none under it
+    ({"reinit_threshold": OFF}, "sky-x100", UP + DOWN), ({"reinit_threshold": OFF}, "sky-x16", UP + DOWN),
+    ({"reinit_threshold": OFF}, "sky-x10", 0), ({"reinit_threshold": OFF}, "ground-x10", 0),
+    # the power rule: every pixel, those whose Z did not move (facing up) too
+    ({"reinit_map_ess": 0.0}, "ground-x10", UP + DOWN),
+    # every rule off: nothing else re-initialises a pixel on these maps
+    ({"reinit_threshold": OFF, "reinit_map_ess": 0.0}, "sky-x100", 0)])
+def test_each_reinit_rule_fires_alone_on_the_change_it_is_for(compute, params, change, reinits):
+    """smc's re-init rules (smc.py step 5), each with the others off, on two map changes built so
+    that each rule fires on a known set of pixels (RULE_MAPS): the Z rule on the pixels whose
+    Z_t/Z_{t−1} leaves [1/4, 4], the map-ESS rule on every pixel when 1 + χ² > 1/reinit_map_ess
+    = 1.5, the power rule on every pixel when the map's power leaves [1/4, 4]×.  With the
+    defaults both changes re-initialise every pixel, so a test with every rule on cannot tell
+    a dead rule from a live one.  Three seeds; the Z ratios are ≥ ×6 against 4 or exactly 1, and
+    map_change's 1 + χ² is exact to 1e-4 (test above), so chance plays no part."""
+    normal = np.zeros((4, 4, 3), np.float32)
+    normal[:, :, 1] = -1.0
+    normal[0, :, 1] = 1.0
+    assert np.count_nonzero(normal[..., 1] > 0) == UP
+    gbuffer = DeviceGBuffer(compute, GBuffer.from_pixels(normal, normal, 1.0, 0.0, 1.0))
+    for seed in range(3):
+        smc = SMC(**params)
+        for frame, name in enumerate(("start", change)):
+            cache = FrameCache(compute, RULE_MAPS[name], frame=frame)
+            cache.require(SMC.requires)
+            extras = smc.render(gbuffer, cache, 8, seed).extras
+        assert extras["reinits"] == reinits, f"seed {seed}: {extras['reinits']:g} re-initialised"

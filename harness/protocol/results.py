@@ -40,7 +40,10 @@ reader never sees half a table.  While a run is going, each finished cell is app
 ``results.journal.jsonl`` (one JSON line, written to the OS before the next cell starts); the
 journal is folded into the table every ``FOLD_SECONDS``, at the end of a run, and when a run
 starts on a folder a killed run left behind.  A ``kill -9`` can cut only the line being written,
-which :func:`read_results` ignores: the cell in flight is lost, nothing else.  The journal is
+which :func:`read_results` ignores: the cell in flight is lost, nothing else.  Every reader
+(a resume, ``report``, ``check``, ``compare``: :func:`read_results`, :func:`load_table`) takes a
+cell's row from the journal where the table has one too, so a forced rerun killed before its
+fold reads as its new rows, never the old ones it replaces.  The journal is
 fsynced when it closes, not per line (an fsync per cell was 5-13 ms of a cell's ~30 ms of host
 time): a power cut, unlike a killed process, can lose the cells since the last fold (at most
 ``FOLD_SECONDS``), which a resume renders again.
@@ -146,14 +149,17 @@ def _plain(value):
 
 
 def load_table(run_dir: str | pathlib.Path, required_columns) -> pd.DataFrame:
-    """The results table of a run directory, for reading it (report, check); an
-    :class:`InputError` naming the path if it is missing, unreadable or lacks a column."""
+    """The results of a run directory, for reading them (report, check, compare): its table with
+    the journal's rows in place of the table's rows of the same cell, as :func:`read_results`
+    (a run killed before its fold, a forced rerun's new rows among them); an
+    :class:`InputError` naming the path if the table is missing, unreadable or lacks a column."""
     run_dir = pathlib.Path(run_dir)
     if not run_dir.is_dir():
         raise InputError(run_dir, "no such run directory")
     path = run_dir / TABLE
     if not path.is_file():
         raise InputError(path, "no results table; run 'iblbench run --out DIR' first")
+    journal = read_journal(run_dir)   # before the table (read_results says why)
     try:
         table = pd.read_parquet(path)
     except Exception as error:   # pyarrow raises several types for damaged files
@@ -161,7 +167,7 @@ def load_table(run_dir: str | pathlib.Path, required_columns) -> pd.DataFrame:
     missing = [column for column in required_columns if column not in table.columns]
     if missing:
         raise InputError(path, f"not an iblbench results table: missing columns {', '.join(missing)}")
-    return table
+    return results_frame(_newest_rows(table.to_dict("records"), journal)) if journal else table
 
 
 def _read_table(out_dir: pathlib.Path) -> list[dict]:
@@ -278,9 +284,18 @@ def configuration_differences(rows: list[dict], expected: dict[str, tuple[int, i
 
 def read_results(out_dir: pathlib.Path) -> list[dict]:
     """Every row in ``out_dir``: the table, then the journal's rows (a journal row replaces the
-    table's row of the same cell)."""
-    rows = {row_key(row): row for row in _read_table(out_dir)}
-    rows.update((row_key(row), row) for row in read_journal(out_dir))
+    table's row of the same cell).  The journal is read first: a reader outside a run's lock
+    that a fold overtakes between the two reads then gets the new table, which holds the rows
+    the journal had, instead of the old table without the journal (the old rows of a forced
+    rerun's cells)."""
+    journal = read_journal(out_dir)
+    return _newest_rows(_read_table(out_dir), journal)
+
+
+def _newest_rows(table_rows: list[dict], journal_rows: list[dict]) -> list[dict]:
+    """One row per cell: the journal's where it has one (it is newer than the last fold)."""
+    rows = {row_key(row): row for row in table_rows}
+    rows.update((row_key(row), row) for row in journal_rows)
     return list(rows.values())
 
 

@@ -262,7 +262,8 @@ def load_budgets(path: str | pathlib.Path) -> list[Rule]:
 
 
 def load_results(out_dir: str | pathlib.Path) -> pd.DataFrame:
-    """``DIR/results.parquet``; :class:`InputError` if it is missing, unreadable or incomplete."""
+    """``DIR/results.parquet`` with the journal's newer rows (:func:`load_table`);
+    :class:`InputError` if it is missing, unreadable or incomplete."""
     return load_table(out_dir, CELL + list(METRIC_COLUMNS))
 
 

@@ -3,6 +3,10 @@
 In the spirit of scikit-learn's ``check_estimator``: one generator yields the checks that apply
 to an estimator's tags; ``check_estimator`` runs them and ``parametrize_with_checks`` turns them
 into pytest cases.  Known failures are declared with a reason and reported as expected failures.
+Besides the tags, an estimator's declared ``settings`` drive two checks of the class (run on its
+default instance): each parameter renders differently off its default, and does what its
+docstring says (``SETTING_PROPERTIES``), checks the z-tests cannot make where every setting is
+unbiased.
 
 Statistical checks use fixed seeds (results are deterministic per device) and stated
 tolerances: z-tests at a family-wise α = 1e-3 with Šidák correction, and a χ² goodness-of-fit of
@@ -28,8 +32,9 @@ from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 from iblbench.harness.verify.fixtures import (FACE_BLOB_WIDTH, FACE_BLOBS, SUN_FACE,  # noqa: F401
                                               constant_map, face_pattern_map, fibonacci_directions,
-                                              glossy_gbuffer, grazing_gbuffer, smooth_map,
-                                              stress_maps, sun_map, white_lambertian)
+                                              glossy_gbuffer, grazing_gbuffer, same_pixels,
+                                              settings_frames, smooth_map, stress_maps, sun_map,
+                                              white_lambertian)
 
 ALPHA_Z = 1e-3
 ALPHA_CHI2 = 1e-2
@@ -513,6 +518,218 @@ def check_matches_twin(estimator, h: Harness) -> None:
     assert not failures, f"off its twin {type(estimator).twin} (|z| bound {bound:.2f}): " + "; ".join(failures)
 
 
+# ---- settings: each parameter does something, and what its docstring says -----------------------
+
+def setting_pair(cls, setting) -> tuple:
+    """(an estimator of ``setting``, one of its base: the same context, the parameter at its
+    default)."""
+    default = getattr(cls.Params(), setting.parameter)
+    return (cls(**{**setting.context, setting.parameter: setting.value}),
+            cls(**{**setting.context, setting.parameter: default}))
+
+
+def check_settings_differ(estimator, h: Harness) -> None:
+    """Every parameter of ``Params`` has a declared ``Setting`` off its default (``settings``),
+    and each setting renders, at one seed, another image than its base (the same context, the
+    parameter at its default): a parameter that is silently ignored renders its default's
+    image, which every other check passes when both are unbiased.  16 glossy pixels on
+    ``face_pattern_map`` at 8 spp; a temporal estimator renders ``settings_frames`` (a static
+    frame, a small and a large change), where state is carried and re-initialised."""
+    cls = type(estimator)
+    undeclared = sorted({f.name for f in dataclasses.fields(cls.Params)}
+                        - {setting.parameter for setting in cls.settings})
+    assert not undeclared, (f"parameters with no Setting off their default in {cls.__name__}.settings: "
+                            f"{', '.join(undeclared)}")
+    frames = settings_frames() if cls.tags.temporal else [face_pattern_map()]
+    gbuffer = DeviceGBuffer(h.compute, glossy_gbuffer(4))
+    caches = [FrameCache(h.compute, env, frame) for frame, env in enumerate(frames)]
+    for cache in caches:
+        cache.require(cls.requires)
+
+    def images(instance):
+        instance.reset()
+        return np.stack([instance.render(gbuffer, cache, 8, 3).radiance for cache in caches])
+
+    same = []
+    for setting in cls.settings:
+        assert setting.value != getattr(cls.Params(), setting.parameter), \
+            f"{setting.parameter} = {setting.value!r} is the default"
+        with_setting, base = map(images, setting_pair(cls, setting))
+        if np.array_equal(with_setting, base):
+            same.append(f"{setting.parameter} = {setting.value!r}"
+                        + (f" (with {setting.context})" if setting.context else ""))
+    assert not same, f"renders exactly as with the default: {'; '.join(same)}"
+
+
+def check_setting_properties(estimator, h: Harness) -> None:
+    """Each setting that ``says`` what it does is held to that (``SETTING_PROPERTIES``), and so
+    is its base."""
+    cls = type(estimator)
+    failures = []
+    for setting in cls.settings:
+        if not setting.says:
+            continue
+        check = SETTING_PROPERTIES.get(setting.says)
+        if check is None:
+            failures.append(f"{setting.parameter}: no property check '{setting.says}' (known: "
+                            f"{', '.join(SETTING_PROPERTIES)})")
+            continue
+        try:
+            check(cls, setting, h)
+        except AssertionError as error:
+            failures.append(f"{setting.parameter} = {setting.value!r} ({setting.says}): {error}")
+    assert not failures, "; ".join(failures)
+
+
+def says_shared_sequence(cls, setting, h: Harness) -> None:
+    """``shared_sequence`` (Lu 2013 Sec. 2.2): every pixel reads the same pool samples and BRDF
+    numbers, so 35 pixels of one normal, view and material render one value, bit for bit; off,
+    each reads its own window and they take several."""
+    gb = glossy_gbuffer(2)
+    gbuffer, cache = h.inputs(same_pixels(gb.normal[1, 1], gb.view[1, 1]), face_pattern_map())
+    for instance in setting_pair(cls, setting):
+        image = h.render(instance, gbuffer, cache, 8, 3).radiance.reshape(-1, 3)
+        values = len(np.unique(image, axis=0))
+        shared = instance.params.shared_sequence
+        assert (values == 1) == shared, (f"shared_sequence = {shared}, yet pixels of identical "
+                                         f"inputs take {values} value(s)")
+
+
+def phong_pdf(normal, view, dirs, kd: float = 0.5, ks: float = 0.3, shininess: float = 20.0):
+    """DESIGN §3's Phong sampling density of a grey material (the hooks' by default):
+    (1 − p_s)·cos⁺(n,ω)/π + p_s·(m+1)/(2π)·cos⁺(r,ω)^m, p_s = ks/(kd + ks)."""
+    n = np.asarray(normal, np.float64) / np.linalg.norm(normal)
+    v = np.asarray(view, np.float64) / np.linalg.norm(view)
+    r = 2 * (n @ v) * n - v
+    share = ks / (kd + ks)
+    return ((1 - share) * np.maximum(dirs @ n, 0) / np.pi
+            + share * (shininess + 1) / (2 * np.pi) * np.maximum(dirs @ r, 0) ** shininess)
+
+
+def says_mis_brdf(cls, setting, h: Harness) -> None:
+    """``mis = "brdf"``: half the samples from the Phong BRDF, so the pdf hook is ½ the
+    light-only (base) pdf + ½ ``phong_pdf``, within 1e-4, at 2048 directions for two surfaces."""
+    gb = glossy_gbuffer(2)
+    _, cache = h.inputs(gb, face_pattern_map())
+    cache.require(cls.requires)
+    mixed, light = setting_pair(cls, setting)
+    dirs = fibonacci_directions(2048).astype(np.float32)
+    for n, v in ((gb.normal[0, 0], gb.view[0, 0]), (gb.normal[1, 1], gb.view[1, 1])):
+        expected = 0.5 * light.pdf(cache, n, v, dirs) + 0.5 * phong_pdf(n, v, dirs)
+        np.testing.assert_allclose(mixed.pdf(cache, n, v, dirs), expected, rtol=1e-4, atol=1e-7)
+
+
+def mis_variances(normal, res: int, grid: int = 64) -> dict[str, float]:
+    """Per heuristic, the variance of the estimate of one light and one BRDF sample under MIS
+    (``envmap``'s budget at 2 spp) for a white Lambertian (ρ = 1/π, BRDF samples cos⁺/π) under
+    a unit constant map of face size ``res``, by the midpoint rule on ``grid``² cells per face
+    (texel-aligned).  The light density of Y·Ω texel weights with a point uniform in the
+    texel's face square is (Ω_t/4π)·(1 + x² + y²)^{3/2}/(2/res)² (DESIGN §3).  Each strategy k
+    contributes Var_k[w_k f/p_k] = ∫ w_k² f²/p_k dω − (∫ w_k f dω)², the weights w_k =
+    p_k^β/Σ_j p_j^β (β = 1 balance, 2 power; one sample each)."""
+    dirs = cubemap.texel_directions(grid).reshape(-1, 3)
+    omega = np.broadcast_to(cubemap.texel_solid_angles(grid), (6, grid, grid)).reshape(-1)
+    _, s, t = cubemap.direction_to_face_st(dirs)
+    _, row, col = cubemap.direction_to_texel(dirs, res)
+    x, y = 2 * s - 1, 2 * t - 1   # the face square's coordinates
+    p_light = (cubemap.texel_solid_angles(res)[row, col] / (4 * np.pi)
+               * (1 + x * x + y * y) ** 1.5 / (2.0 / res) ** 2)
+    cosine = np.maximum(dirs @ (np.asarray(normal, np.float64) / np.linalg.norm(normal)), 0)
+    f = p_brdf = cosine / np.pi
+    variances = {}
+    for heuristic, beta in (("balance", 1), ("power", 2)):
+        total = p_light ** beta + p_brdf ** beta
+        variance = 0.0
+        for p in (p_light, p_brdf):
+            w = p ** beta / total
+            second = np.divide(w * w * f * f, p, out=np.zeros_like(p), where=p > 0)
+            variance += np.sum(second * omega) - np.sum(w * f * omega) ** 2
+        variances[heuristic] = float(variance)
+    return variances
+
+
+HEURISTIC_SEEDS = 40
+
+
+def says_mis_heuristic(cls, setting, h: Harness) -> None:
+    """``heuristic``: the MIS weights are the named heuristic's, which changes the variance, not
+    the mean: 256 pixels × ``HEURISTIC_SEEDS`` seeds of a white Lambertian under a constant map
+    at 2 spp have the variance ``mis_variances`` gives for the setting's heuristic (and the
+    base's for its own), to 4 standard errors of the sample variance plus 1% (quadrature); the
+    two heuristics' variances lie 1.9× apart, many standard errors."""
+    res, normal = 8, np.array([0.3, 0.5, 0.81])
+    gbuffer, cache = h.inputs(same_pixels(normal, normal, 16, 16, 1.0, 0.0, 1.0), constant_map(1.0, res))
+    expected = mis_variances(normal, res)
+    for instance in setting_pair(cls, setting):
+        values = np.concatenate([h.render(instance, gbuffer, cache, 2, seed).radiance[..., 1].ravel()
+                                 for seed in range(HEURISTIC_SEEDS)]).astype(np.float64)
+        centred = values - values.mean()
+        variance = centred.var(ddof=1)
+        se = np.sqrt((np.mean(centred ** 4) - variance ** 2) / len(values))
+        named, other = instance.params.heuristic, {"balance": "power", "power": "balance"}
+        assert abs(expected[other[named]] - expected[named]) > 10 * se, "the fixture cannot tell them apart"
+        assert abs(variance - expected[named]) <= 4 * se + 0.01 * expected[named], (
+            f"heuristic {named!r}: variance {variance:.4f} ± {se:.4f}, expected {expected[named]:.4f} "
+            f"({other[named]} would give {expected[other[named]]:.4f})")
+
+
+def says_mis_compensation(cls, setting, h: Harness) -> None:
+    """``mis_compensation`` (``FrameCache.light_cdfs``): the light samples follow
+    max(Y − Ȳ, min(Ȳ/1000, Y))·Ω, Ȳ = Σ Y·Ω/4π, not Y·Ω.  Below the horizon of a surface seen
+    head-on the Phong density is 0 and the pdf hook is the light samples' alone; there, at each
+    texel's centre, hook(compensated)/hook(base) is w_c/Y times a constant per face (the faces'
+    shares of the budget may change), within 1e-4, on ``face_pattern_map``, where that ratio
+    itself spans orders of magnitude within a face (Y − Ȳ on a blob, Ȳ/1000 around it)."""
+    env = face_pattern_map()
+    res = env.shape[1]
+    _, cache = h.inputs(glossy_gbuffer(2), env)
+    cache.require(cls.requires)
+    normal = np.array([0.3, 0.5, 0.81])
+    dirs = cubemap.texel_directions(res).reshape(-1, 3)
+    below = dirs @ normal < 0
+    compensated, plain = (instance.pdf(cache, normal, normal, dirs.astype(np.float32)).astype(np.float64)
+                          for instance in setting_pair(cls, setting))
+    y = cubemap.luminance(env.astype(np.float64)).reshape(-1)
+    mean = np.sum(y * np.tile(cubemap.texel_solid_angles(res).reshape(-1), 6)) / (4 * np.pi)
+    weight = np.maximum(y - mean, np.minimum(mean / 1000, y))
+    faces = np.repeat(np.arange(6), res * res)
+    spans = []
+    for face in range(6):
+        where = below & (faces == face) & (plain > 0)
+        if where.sum() < 2:
+            continue
+        ratio = compensated[where] / plain[where]
+        scaled = ratio * y[where] / weight[where]
+        assert scaled.max() <= scaled.min() * (1 + 1e-4), (
+            f"face {face}: compensated/plain light pdf over w_c/Y spans "
+            f"{scaled.min():.6g}..{scaled.max():.6g}")
+        spans.append(ratio.max() / ratio.min())
+    assert max(spans, default=0) > 10, "the fixture does not tell the weights apart"
+
+
+def says_fir_taps(cls, setting, h: Harness) -> None:
+    """``fir_taps``: each frame's light weights are the taps' mean of the last frames' raw
+    weights, newest first, renormalised over the frames there are (``(1.0,)``: the raw ones):
+    on a constant map whose value changes every frame (so the lights keep their directions),
+    weights_t = Σ_j a_j raw_{t−j} / Σ_j a_j, within 1e-12."""
+    k, seed = 16, 3
+    for instance in setting_pair(cls, setting):
+        taps, raw = instance.params.fir_taps, []
+        for frame, value in enumerate((0.7, 1.4, 0.35, 2.8)):
+            cache = FrameCache(h.compute, constant_map(value), frame)
+            raw.insert(0, instance.raw_lights(cache, k, seed)[1])
+            _, weights = instance.lights(cache, k, seed)
+            used = taps[:len(raw)]
+            expected = sum(tap * past for tap, past in zip(used, raw)) / sum(used)
+            np.testing.assert_allclose(weights, expected, rtol=1e-12, err_msg=f"taps {taps}, frame {frame}")
+
+
+# What a Setting ``says``: the check of the property its parameter's docstring states.
+SETTING_PROPERTIES = {"shared_sequence": says_shared_sequence, "mis_brdf": says_mis_brdf,
+                      "mis_heuristic": says_mis_heuristic, "mis_compensation": says_mis_compensation,
+                      "fir_taps": says_fir_taps}
+
+
 def skipped_checks(estimator) -> dict[str, str]:
     """Checks that do not apply to this estimator and why (reported, not run)."""
     if getattr(type(estimator), "twin", ""):
@@ -535,6 +752,11 @@ def yield_checks(estimator) -> Iterator[Callable]:
     yield check_output_shape
     if tags.deterministic:
         yield check_deterministic
+    # Of the class, so on its default instance only (a variant would repeat them); cheap, so early.
+    if dataclasses.fields(type(estimator).Params) and estimator.params == type(estimator).Params():
+        yield check_settings_differ
+        if any(setting.says for setting in type(estimator).settings):
+            yield check_setting_properties
     yield check_stress_finite
     yield check_sample_counts
     yield check_white_furnace

@@ -96,3 +96,24 @@ def white_lambertian(size: int = 8) -> GBuffer:
     G-buffer contract wants n·view > 0)."""
     normal = fibonacci_directions(size * size).reshape(size, size, 3)
     return GBuffer.from_pixels(normal, normal, 1.0, 0.0, 1.0)
+
+
+def settings_frames(res: int = 8) -> list[np.ndarray]:
+    """Four frames on which a temporal estimator's settings show (``check_settings_differ``):
+    ``face_pattern_map``, the same again (a static frame), its +Y face 1.3× (a small change that
+    carries state) and 8× (one that re-initialises it)."""
+    still = face_pattern_map(res)
+    frames = [still, still.copy()]
+    for gain in (1.3, 8.0):
+        changed = still.copy()
+        changed[2] *= np.float32(gain)
+        frames.append(changed)
+    return frames
+
+
+def same_pixels(normal, view, rows: int = 5, cols: int = 7, kd=0.5, ks=0.3, shininess=20.0) -> GBuffer:
+    """``rows`` × ``cols`` pixels of one normal, view and material: an estimator whose pixels
+    read the same samples renders them identically."""
+    shape = (rows, cols, 3)
+    return GBuffer.from_pixels(np.broadcast_to(normal, shape), np.broadcast_to(view, shape), kd, ks,
+                               shininess)

@@ -107,7 +107,12 @@ CATALOGUE: tuple[Mutant, ...] = (
     _m("mis-brdf-lobe-axis-normal", POOL,
        "lanes3_pick(specular, b_r, b_n)", "lanes3_pick(specular, b_n, b_n)",
        ["balanced_mis"], ["shininess"]),
+    _m("pool-shared-sequence-ignored", "estimators/light_pool.py",
+       "np.int32(self.params.shared_sequence)", "np.int32(True)", ["uniform"]),
     # ---- the production baselines: envmap, brdf ----------------------------------------------------
+    _m("envmap-heuristic-swapped", "estimators/envmap.py",
+       '"MIS_POWER": int(getattr(self.params, "heuristic", "balance") == "power")',
+       '"MIS_POWER": int(getattr(self.params, "heuristic", "balance") == "balance")', ["envmap"]),
     _m("envmap-row-bin-per-face", POOL,
        "map_rows ? lanes_cdf_bin(marginal, (lane_ints_t)0, map_row)",
        "map_rows ? lanes_cdf_bin(marginal, f * res, row)", ["envmap"], ["face-pattern"]),
