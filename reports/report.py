@@ -63,8 +63,9 @@ REQUIRED_COLUMNS = ("scene", "estimator", "spp", "frame", "seed", "mean_delta_e7
                     "effective_ratio", "nonfinite", TIME, "time_ms_iqr", "time_ms_host")
 MEAN_COLUMNS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "used_samples",
                 "effective_samples", "effective_ratio", "shadow_rays")
-# Each is a cell's mean over seeds with its interval (module docstring).
-INTERVAL_COLUMNS = (*MEAN_COLUMNS, "flip", TIME, "time_ms_iqr", "time_ms_host")
+# Each is a cell's figure with its interval (module docstring).  The timed renders' IQR is not
+# among them: the time's own interval says their spread (issue 23).
+INTERVAL_COLUMNS = (*MEAN_COLUMNS, "flip", TIME, "time_ms_host")
 SHOWN_INTERVALS = (*INTERVAL_COLUMNS, "efficiency")   # efficiency: summarize derives it
 
 _TEMPLATES = jinja2.Environment(
@@ -176,7 +177,7 @@ _TABLE_COLUMNS = {   # summary column → header (with units)
     "mean_delta_e76": "mean ΔE76", "mean_delta_e2000": "mean ΔE2000", "rel_mse": "relMSE",
     "effective_ratio": "effective ratio", "effective_samples": "effective spp",
     "used_samples": "used spp", "flip": "FLIP", "time_ms": "ms/frame (device)",
-    "time_ms_iqr": "IQR ms", "time_ms_host": "ms/frame (host wall)",
+    "time_ms_host": "ms/frame (host wall)",
     "efficiency": "efficiency 1/(relMSE·s)", "shadow_rays": "shadow rays/px",
     "nonfinite": "non-finite px", "pareto_rel_mse": "Pareto (relMSE)",
     "pareto_delta_e76": "Pareto (ΔE76)",
@@ -208,10 +209,12 @@ def summary_html(cells: pd.DataFrame, columns=None) -> markupsafe.Markup:
 
 
 def summary_tables(cells: pd.DataFrame) -> dict[str, markupsafe.Markup]:
-    """Title → table: the scene's errors, then its samples and cost (ERROR_COLUMNS)."""
-    rest = [c for c in _TABLE_COLUMNS if c not in ERROR_COLUMNS and c not in KEY_COLUMNS]
+    """Title → table: the scene's errors, then its samples and cost (ERROR_COLUMNS); the seeds
+    only in the first, so that the second fits a page 800 px wide."""
+    rest = [c for c in _TABLE_COLUMNS if c not in ERROR_COLUMNS and c not in KEY_COLUMNS
+            and not (c == "shadow_rays" and c in cells and (cells[c] == 0).all())]   # no V
     return {"Errors": summary_html(cells, KEY_COLUMNS + ERROR_COLUMNS),
-            "Samples and time": summary_html(cells, list(KEY_COLUMNS) + rest)}
+            "Samples and time": summary_html(cells, ["estimator", "spp"] + rest)}
 
 
 def _dict_table(mapping: dict) -> markupsafe.Markup:
