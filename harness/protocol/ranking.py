@@ -21,8 +21,8 @@ equal-time cell of that budget is (it landed within ±10% of it).
 
 **Ranks.**  The ranked estimators are sorted by their mean error at T.  Each adjacent pair is
 *resolved* when the ratio of the two errors' means excludes 1 at 95%
-(:func:`~iblbench.harness.protocol.stats.ratio_ci`): paired over the replicates the two share
-(the same seeds and renders, which in one run they do), Welch otherwise.
+(:func:`~iblbench.harness.protocol.stats.compare_values`): paired when the two have the same
+replicates (the same seeds and renders, which in one run they do), Welch otherwise.
 
 **Headline budgets** (:func:`headline_budgets`): a sweep's own time budgets where it has them,
 else up to three round budgets (1, 2 or 5 × 10^k ms) inside the time range the scene's cells
@@ -39,7 +39,8 @@ import pandas as pd
 
 from iblbench.harness.protocol.equal_time import TOLERANCE
 from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, cell_values,
-                                             column_interval, ratio_ci, skew_corrected_ci)
+                                             column_interval, compare_values,
+                                             skew_corrected_ci)
 
 METRIC = "mean_delta_e76"
 METRIC_NAMES = {"mean_delta_e76": "ΔE76", "mean_delta_e2000": "ΔE2000", "rel_mse": "relMSE"}
@@ -187,12 +188,9 @@ def standing_at(estimator: str, points: list[Point], budget_ms: float) -> Standi
 
 
 def compare_standings(better: Standing, worse: Standing) -> RatioCI:
-    """worse / better at the budget: paired over shared replicates (at least 2), else Welch."""
-    shared = better.replicates.index.intersection(worse.replicates.index)
-    if len(shared) >= 2:
-        return ratio_ci(better.replicates[shared].to_numpy(), worse.replicates[shared].to_numpy(),
-                        paired=True)
-    return ratio_ci(better.replicates.to_numpy(), worse.replicates.to_numpy())
+    """worse / better at the budget: paired over the same replicates, else Welch
+    (:func:`~iblbench.harness.protocol.stats.compare_values`)."""
+    return compare_values(better.replicates, worse.replicates)
 
 
 def rank(curves: dict[str, list[Point]], scene: str, budget_ms: float,

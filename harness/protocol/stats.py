@@ -40,10 +40,10 @@ distribution (a steady device: the manifest's timing floor says how steady it wa
 renders no pair of order statistics reaches 95%: the interval is then the range, and its level
 (50% at 2, 75% at 3, 87.5% at 4, 93.75% at 5) is carried in :attr:`MeanCI.level`.
 
-**Two cells that share replicates** (the same seeds and repeats: two runs of one sweep, or two
-estimators of one run) are compared *paired*: the replicates are matched by (seed, render) and
-the test is on their differences, :func:`ratio_ci` with ``paired=True`` and
-:func:`difference_test`; otherwise unpaired (Welch).
+**Two cells with the same replicates** (the same seeds and repeats: two runs of one sweep, or
+two estimators of one run) are compared *paired*: the replicates are matched by (seed, render)
+and the test is on their differences, :func:`ratio_ci` with ``paired=True``
+(:func:`compare_values`); otherwise unpaired (Welch), which keeps every value of each side.
 
 **The ratio of two cells** B/A, :func:`ratio_ci`, is the delta method on the log scale.
 Unpaired, with Welch–Satterthwaite degrees of freedom::
@@ -332,15 +332,18 @@ def column_interval(rows, column: str) -> tuple[MeanCI, str]:
     return interval(values.to_numpy()), method
 
 
-def compare_cells(rows_a, rows_b, column: str) -> RatioCI:
-    """B/A of two cells' ``column`` (:func:`ratio_ci`), paired over the replicates both have
-    when they share at least two, unpaired otherwise."""
-    a, _ = cell_values(rows_a, column)
-    b, _ = cell_values(rows_b, column)
-    shared = a.index.intersection(b.index)
-    if len(shared) >= 2:
-        return ratio_ci(a[shared].to_numpy(), b[shared].to_numpy(), paired=True)
+def compare_values(a, b) -> RatioCI:
+    """B/A of two cells' values (Series indexed by replicate, :func:`cell_values`):
+    :func:`ratio_ci` paired when both hold the same replicates (at least two), unpaired
+    otherwise, where pairing a part would drop the rest's information."""
+    if len(a) >= 2 and a.index.sort_values().equals(b.index.sort_values()):
+        return ratio_ci(a.to_numpy(), b[a.index].to_numpy(), paired=True)
     return ratio_ci(a.to_numpy(), b.to_numpy())
+
+
+def compare_cells(rows_a, rows_b, column: str) -> RatioCI:
+    """B/A of two cells' ``column``: :func:`compare_values` of their :func:`cell_values`."""
+    return compare_values(cell_values(rows_a, column)[0], cell_values(rows_b, column)[0])
 
 
 def interval_text(mean: float, half_width: float, n: int, digits: int = 4) -> str:

@@ -8,8 +8,8 @@ each side's figure with its interval as the report does
 95% interval (:func:`iblbench.harness.protocol.stats.compare_cells`: delta method on
 log(ratio)).  The values compared are the cells' replicates (each scored render of each seed; a
 time: each timed render) where the rows carry them, else one value per seed.  When the two
-sides share replicates (the same seeds and repeats: a rerun of one sweep) the test is **paired**
-over them, so what a seed's renders share cancels; otherwise, and for a rerun with other seeds,
+sides have the same replicates (the same seeds and repeats: a rerun of one sweep) the test is
+**paired** over them, so what a seed's renders share cancels; otherwise, and for a rerun with other seeds,
 the sides are independent samples (Welch–Satterthwaite).  Each metric's entry gives the p-value
 of the test used and, beside it, ``p_unpaired``: Welch's on the same values.
 A change is **significant** when the interval excludes 1; it is marked ``worse`` or ``better``
