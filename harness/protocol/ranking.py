@@ -10,8 +10,9 @@ log–log (log error linear in log time), *replicate by replicate*: replicate (s
 exp((1 − w)·log e_lo(s, r) + w·log e_hi(s, r)), w = log(T / t_lo) / log(t_hi / t_lo).  The
 interval at T is then the cells' own interval (Student-t, skewness-corrected:
 :func:`~iblbench.harness.protocol.stats.skew_corrected_ci`) over those interpolated replicates,
-so it carries the two points' own spread and whatever they share.  The times are taken as the cells' medians:
-their own uncertainty (the time intervals in the tables) is not carried into the error's.
+so it carries the two points' own spread and whatever they share.  The times are taken as the
+cells' medians: their own uncertainty (the time intervals in the tables) is not carried into
+the error's.
 
 **Who is not ranked.**  An estimator whose fastest cell takes longer than T is "not reached"
 (it cannot render a frame in T at the spp measured); one whose slowest cell is faster than T is
