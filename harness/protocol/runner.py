@@ -84,6 +84,10 @@ with its budget: one outside ±10% is printed and listed in the manifest
 
 Scores.  The reference-side work of the metrics (exposure, L*a*b*, FLIP's exposure range) is
 done once per frame (:class:`iblbench.harness.protocol.metrics.Scorer`); ``metrics`` leaves metrics out.
+Render 0 is scored in full (its row's metrics, its EXR); every other planned timed render is
+scored on ΔE76, ΔE2000 and relMSE too (``Scorer.errors``), and the row keeps each render's
+values (``*_renders``): the cell's replicates, from which its intervals come
+(:mod:`iblbench.harness.protocol.stats`).  Renders added for a wide timing spread are not scored.
 """
 from __future__ import annotations
 
@@ -754,8 +758,9 @@ class Runner:
     def _render_cell(self, plan: _ScenePlan, spec, estimator, key, cells, gbuffer, cache,
                      build_ms: float, sequences: dict):
         """A cell's timed renders: (spp, the estimates of its planned renders, the scored one
-        first, every TimedRender, the key of its sequence).  An equal-time cell takes the spp calibrated for it (just before its first
-        cell); a temporal estimator renders on the instances that carry its sequence."""
+        first, every TimedRender, the key of its sequence).  An equal-time cell takes the spp
+        calibrated for it (just before its first cell); a temporal estimator renders on the
+        instances that carry its sequence."""
         _, label, spp, frame, seed, budget = key
         repeats = self.repeats[spec.label]
         budget_key = (plan.scene.name, label, budget)
