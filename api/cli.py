@@ -120,7 +120,10 @@ def main(argv=None) -> int:
         print(f"iblbench: error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as error:
-        print(f"iblbench: interrupted{f': {error}' if str(error) else ''}", file=sys.stderr)
+        try:
+            print(f"iblbench: interrupted{f': {error}' if str(error) else ''}", file=sys.stderr)
+        except OSError:   # the Ctrl-C also ended the reader of stderr (`2>&1 | tee log`)
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stderr.fileno())
         return 130
     try:
         sys.stdout.flush()   # what is still buffered meets a reader that left (`| head`) here

@@ -165,6 +165,63 @@ def test_ctrl_c_saves_the_finished_cells_and_releases_the_folder(tmp_path):
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
 
 
+def test_ctrl_c_before_the_first_cell_marks_the_manifest_interrupted(tmp_path, monkeypatch, capsys):
+    """Issue 23: a Ctrl-C in the timing floor (or a warm-up) before the first cell left the
+    manifest "running"."""
+    def interrupted(compute):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner_module, "measure_timing_floor", interrupted)
+    code, err = cli(capsys, tmp_path / "out", "--spp", "4")
+    assert code == 130 and "0 cells saved" in err, err
+    assert json.loads((tmp_path / "out" / "manifest.json").read_text())["status"] == "interrupted"
+
+
+# Stands in for the linker PoCL runs per kernel: its Nth run sends SIGINT to its process group
+# (the run's, started in a session of its own), as a Ctrl-C in the terminal does mid-link.
+FAKE_LD = """#!/bin/sh
+n=$(($(cat "$LINKS" 2>/dev/null || echo 0) + 1)); echo $n > "$LINKS"
+[ "$n" = "$SIGINT_AT_LINK" ] && kill -INT 0
+exec "$REAL_LD" "$@"
+"""
+
+
+@pytest.mark.parametrize("link, stderr_read", [(1, True), (3, False)],
+                         ids=["timing-floor", "warm-up-stderr-closed"])
+def test_ctrl_c_while_pocl_links_a_kernel_ends_interrupted_not_aborted(tmp_path, link, stderr_read):
+    """Issue 23: a Ctrl-C while PoCL compiled and linked the first kernels killed its linker
+    too; PoCL then aborted the run (exit 134; LLVM's "IO failure on output stream" where the
+    reader of stderr had died too) and left the manifest "running".  Link 1 is the timing
+    floor's kernel (before the first cell), link 3 a warm-up's, with stderr's reader gone."""
+    real_ld = shutil.which("ld")
+    if real_ld is None:
+        pytest.skip("no ld on PATH")
+    fake = tmp_path / "bin"
+    fake.mkdir()
+    (fake / "ld").write_text(FAKE_LD)
+    (fake / "ld").chmod(0o755)
+    out, links = tmp_path / "out", tmp_path / "links"
+    env = dict(subprocess_env(), PATH=f"{fake}{os.pathsep}{os.environ['PATH']}", REAL_LD=real_ld,
+               LINKS=str(links), SIGINT_AT_LINK=str(link), PYOPENCL_NO_CACHE="1",
+               POCL_CACHE_DIR=str(tmp_path / "pocl"), IBLBENCH_CACHE=str(tmp_path / "cache"))
+    process = subprocess.Popen(
+        [sys.executable, "-m", "iblbench.cli", "run", "--out", str(out), *FLAGS, "--spp", "4"],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        start_new_session=True)
+    if stderr_read:
+        stderr = process.communicate(timeout=120)[1]
+    else:
+        process.stderr.close()
+        stderr = "(closed)"
+        process.wait(timeout=120)
+    if not links.exists():
+        pytest.skip("this OpenCL driver runs no ld from PATH")
+    assert int(links.read_text()) >= link, "the run ended before that link"
+    assert process.returncode == 130, stderr
+    assert json.loads((out / "manifest.json").read_text())["status"] == "interrupted"
+    assert "Final linking" not in stderr and "IO failure" not in stderr, stderr
+
+
 REFERENCE_SCRIPT = """
 import sys
 from iblbench.estimators.runtime.device import get_compute

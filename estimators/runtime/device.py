@@ -14,12 +14,14 @@ portability test and ``iblbench doctor``.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import importlib.resources
 import json
 import os
 import pathlib
+import signal
 import time
 import warnings
 
@@ -78,9 +80,24 @@ class DeviceInfo:
         return "simulator" if self.is_simulator else "GPU" if self.is_gpu else "CPU"
 
 
+@contextlib.contextmanager
+def sigint_deferred():
+    """SIGINT blocked in the calling thread inside, and in the threads and processes started
+    meanwhile: a Ctrl-C arriving then is delivered when the block ends (as KeyboardInterrupt in
+    the main thread).  PoCL links each kernel by running ``ld`` from its worker threads, which
+    inherit the signal mask of the thread that starts them; a linker killed by the terminal's
+    SIGINT made PoCL abort the whole process (exit 134, the manifest left "running": issue 23)."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
 def all_devices() -> list[DeviceInfo]:
     try:
-        platforms = cl.get_platforms()
+        with sigint_deferred():   # PoCL starts its worker threads here (sigint_deferred)
+            platforms = cl.get_platforms()
     except cl.Error:
         return []
     devices = []

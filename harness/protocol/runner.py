@@ -519,37 +519,43 @@ class Runner:
             self._last_fold = time.monotonic()
             self.manifest["status"] = "running"   # a killed run leaves this, not a missing manifest
             write_manifest(self.out, self.manifest)
-            floors = [measure_timing_floor(self.compute)] if self.todo else []
-            self.device_ms_total, start = 0.0, time.perf_counter()
-            try:
-                with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
-                          desc=f"iblbench run on {self.compute.info.device.name.strip()}") as bar:
-                    bar.update(self.resumed)
-                    for plan in self.plans:
-                        self._run_scene(plan, gbuffers.pop(plan.scene.name, None), bar)
+            try:   # from here on a Ctrl-C, before the first cell too, ends "interrupted"
+                table = self._run_cells(gbuffers)
             except KeyboardInterrupt:
                 saved = len(self._save_interrupted())
                 raise KeyboardInterrupt(f"{saved} cells saved; rerun to resume") from None
             finally:
                 self.journal.close()
-            table = self._fold()
-            if self.todo:
-                wall_s = time.perf_counter() - start
-                self.manifest["timing"].update(
-                    wall_s=wall_s, device_s=self.device_ms_total / 1e3,
-                    wall_per_device=wall_s / max(self.device_ms_total / 1e3, 1e-9))
-                floors.append(measure_timing_floor(self.compute))
-                self.manifest["timing"]["floor"] = {
-                    "kernel": f"fma_throughput, {floors[0].median_ms:.2g} ms, "
-                              f"{floors[0].launches} launches back to back, at the run's start "
-                              "and end (harness/protocol/timing.py, \"The device's own floor\")",
-                    "groups_within": [round(f.groups_within, 3) for f in floors],
-                    "p90_over_p10": [round(f.p90_over_p10, 3) for f in floors]}
-            self._report_spread(floors)
-            if self.config.time_budget_ms:
-                self.manifest["time_budget"]["achieved"] = self._check_budgets(table)
-            self.manifest["status"] = "complete"
-            write_manifest(self.out, self.manifest)
+        return table
+
+    def _run_cells(self, gbuffers: dict):
+        """Every cell left, between two measurements of the timing floor; the manifest ends
+        "complete"; returns the table."""
+        floors = [measure_timing_floor(self.compute)] if self.todo else []
+        self.device_ms_total, start = 0.0, time.perf_counter()
+        with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
+                  desc=f"iblbench run on {self.compute.info.device.name.strip()}") as bar:
+            bar.update(self.resumed)
+            for plan in self.plans:
+                self._run_scene(plan, gbuffers.pop(plan.scene.name, None), bar)
+        table = self._fold()
+        if self.todo:
+            wall_s = time.perf_counter() - start
+            self.manifest["timing"].update(
+                wall_s=wall_s, device_s=self.device_ms_total / 1e3,
+                wall_per_device=wall_s / max(self.device_ms_total / 1e3, 1e-9))
+            floors.append(measure_timing_floor(self.compute))
+            self.manifest["timing"]["floor"] = {
+                "kernel": f"fma_throughput, {floors[0].median_ms:.2g} ms, "
+                          f"{floors[0].launches} launches back to back, at the run's start "
+                          "and end (harness/protocol/timing.py, \"The device's own floor\")",
+                "groups_within": [round(f.groups_within, 3) for f in floors],
+                "p90_over_p10": [round(f.p90_over_p10, 3) for f in floors]}
+        self._report_spread(floors)
+        if self.config.time_budget_ms:
+            self.manifest["time_budget"]["achieved"] = self._check_budgets(table)
+        self.manifest["status"] = "complete"
+        write_manifest(self.out, self.manifest)
         return table
 
     def sweep_rows(self, table):
