@@ -21,7 +21,8 @@ the same sweep configs and overrides (:mod:`iblbench.harness.protocol.sweep`), t
 ``out``, the same resumption.  It returns the rows of this sweep (the folder may also hold
 other sweeps' cells) as a pandas DataFrame: one row per (scene, estimator, spp, frame, seed),
 the columns of ``results.parquet`` (README, "Command line").  Bad input raises
-:class:`InputError`, whose one-line message names the file, argument or key.
+:class:`InputError`, whose one-line message names the file, argument (as its keyword,
+``first_seed=-1``, where the command line names a flag) or key.
 
 **Scenes** are built-in names (``iblbench list scenes``), paths of scene ``.toml`` files, or
 dicts with the keys of a scene TOML file (sections ``mesh``, ``environment``, ``material``,
@@ -38,13 +39,14 @@ is traced, such as a camera that sees no geometry, may leave the scene file behi
 """
 from __future__ import annotations
 
+import functools
 import json
 import numbers
 import os
 import pathlib
 import re
 
-from iblbench.scenes.errors import InputError
+from iblbench.scenes.errors import InputError, python_keywords
 
 __all__ = ["run", "run_config", "check", "report", "InputError"]
 
@@ -54,6 +56,17 @@ _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 _PATH_KEYS = (("mesh", "path"), ("environment", "path"))
 
 
+def _naming_keywords(function):
+    """``function`` with its messages naming the API's keywords (``first_seed=-1``), not the
+    command line's flags (``--first-seed -1``): issue 23."""
+    @functools.wraps(function)
+    def named(*args, **kwargs):
+        with python_keywords():
+            return function(*args, **kwargs)
+    return named
+
+
+@_naming_keywords
 def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None, first_seed=None,
         frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None, metrics=None,
         sanitize=None, device=None, save_inputs=False, force=False, progress=None):
@@ -152,6 +165,7 @@ def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seed
                      sweep={**sweep.to_manifest(), **(note or {})})
 
 
+@_naming_keywords
 def check(out, budgets="budgets.toml"):
     """``iblbench check``: (checks DataFrame, verdict line, exit status 0 or 1); InputError on
     bad input (:func:`iblbench.harness.verify.budgets.check`)."""
@@ -160,6 +174,7 @@ def check(out, budgets="budgets.toml"):
     return check_budgets(out, budgets)
 
 
+@_naming_keywords
 def report(out, **options) -> pathlib.Path:
     """``iblbench report``: write ``out/report/index.html`` and return its path; ``options``
     are those of :func:`iblbench.reports.report.write_report` (spp, seed, frame, pixel,

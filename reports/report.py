@@ -55,7 +55,7 @@ from iblbench.reports.frames import shown_frame
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
 from iblbench.scenes import cubemap
 from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError
+from iblbench.scenes.errors import InputError, argument
 from iblbench.scenes.imageio import read_exr
 
 REQUIRED_COLUMNS = ("scene", "estimator", "spp", "frame", "seed", "mean_delta_e76",
@@ -503,7 +503,8 @@ def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, 
     x, y = pixel
     h, w = inputs.mask.shape
     if not (0 <= x < w and 0 <= y < h) or not inputs.mask[y, x]:
-        raise InputError(None, f"--pixel {x},{y} is not a covered pixel of {scene} ({w}×{h})")
+        raise InputError(None, f"{argument('pixel', (x, y))} is not a covered pixel of {scene} "
+                               f"({w}×{h})")
     normal = inputs.normal[y, x].astype(np.float64)
     selections = pool_selections(compute(), inputs.env, frame, estimators, normal, n, seed=0)
     frames = cross_frames(normal)
@@ -631,9 +632,8 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
     table, manifest = load_run(run_dir)
     rankings = scene_rankings(table)   # equal-time cells are points of the curves too
     table, equal_time = split_equal_time(table)
-    for flag, value, column in (("--spp", spp, "spp"), ("--seed", seed, "seed"),
-                                ("--frame", frame, "frame")):
-        _require_in_run(table, flag, value, column)
+    for value, column in ((spp, "spp"), (seed, "seed"), (frame, "frame")):
+        _require_in_run(table, value, column)
     seed = int(table.seed.min()) if seed is None else seed
     report = run_dir / "report"
     try:
@@ -678,7 +678,7 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
     frames = sorted(set(rows.frame))
     frame = shown["frame"]
     if frame is not None and len(frames) > 1:
-        _require_in_run(rows, "--frame", frame, "frame", f"scene {scene}")
+        _require_in_run(rows, frame, "frame", f"scene {scene}")
     scene_frame, frame_rule = shown_frame(run_dir, scene, frames,
                                           frame if frame in frames else None)
     # the heat maps' mask and the sample picture share one read (or G-buffer trace)
@@ -759,12 +759,13 @@ def _page_context(run_dir: pathlib.Path, manifest: dict, table, scenes: list[dic
     }
 
 
-def _require_in_run(rows: pd.DataFrame, flag: str, value: int | None, column: str,
+def _require_in_run(rows: pd.DataFrame, value: int | None, column: str,
                     where: str = "the run") -> None:
-    """An InputError naming what ``rows`` hold when ``value`` is given but not among them."""
+    """An InputError naming what ``rows`` hold when ``value`` (the argument ``column``) is given
+    but not among them."""
     have = sorted(set(int(v) for v in rows[column]))
     if value is not None and value not in have:
-        raise InputError(None, f"{flag} {value} is not in {where} ({column}: "
+        raise InputError(None, f"{argument(column, value)} is not in {where} ({column}: "
                                f"{', '.join(map(str, have))})")
 
 

@@ -65,7 +65,7 @@ from typing import Callable, Sequence, Union
 import numpy as np
 
 from . import cubemap
-from .errors import InputError
+from .errors import InputError, argument
 from .imageio import read_image
 
 LAYOUTS = ("auto", "latlong", "vcross", "hcross", "faces")
@@ -238,7 +238,7 @@ def _validate_texels(paths, images: list[np.ndarray], sanitize: bool) -> int:
                 raise InputError(
                     path,
                     f"{nan.sum()} NaN, {inf.sum()} Inf{too_bright} and {negative.sum()} negative "
-                    "texels; pass --sanitize to replace them",
+                    f"texels; pass {argument('sanitize', True)} to replace them",
                 )
         return 0
     valid_max = max(float(image[np.isfinite(image) & (image <= MAX_RADIANCE)].max(initial=0.0))

@@ -7,6 +7,7 @@ Tiny sizes (16×16 pixels, 4×4 cube faces, 1 timed render) keep each run to sec
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -169,3 +170,84 @@ def test_import_is_light_and_documented():
     assert json.loads(done.stdout) == []
     assert "iblbench.run(" in iblbench.__doc__ and "scene dict" in iblbench.__doc__
     assert set(iblbench.__all__) >= {"run", "check", "report", "InputError"}
+
+
+FLAG = re.compile(r"(?<![\w-])--[a-z]")   # a command-line flag such as --first-seed
+
+
+ONE_CELL = {"scenes": "sphere-sun", "estimators": "uniform", "spp": 2, "seeds": 1} | TINY
+
+
+@pytest.fixture(scope="module")
+def one_cell(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("api-one") / "run"
+    iblbench.run(out=out, **ONE_CELL)
+    return out
+
+
+@pytest.mark.parametrize("call, arguments, named", [
+    ("run", dict(spp=0), "spp values"),
+    ("run", dict(spp=40000), "spp=40000 is above"),
+    ("run", dict(seeds=0), "seeds must be in"),
+    ("run", dict(first_seed=8388607, seeds=2), "first_seed=8388607 with seeds=2"),
+    ("run", dict(time_budget_ms=-1), "time_budget_ms must be positive"),
+    ("run", dict(scenes="park-turn", frames="100:200"), "frames='100:200' selects no frame"),
+    ("run", dict(out=Path(__file__)), "out exists and is not a directory"),
+    ("run", dict(used_out=True, resolution="20x12"), "resolution='16x16' (now 20x12)"),
+    ("run", dict(used_out=True, resolution="20x12"), "use another out, or force=True"),
+    ("run", dict(unreadable=True), "use a new out"),
+    ("run", dict(nan_sky=True), "pass sanitize=True"),
+    ("report", dict(spp=5), "spp=5 is not in the run"),
+    ("report", dict(seed=7), "seed=7 is not in the run"),
+    ("report", dict(frame=3), "frame=3 is not in the run"),
+    ("report", dict(pixel=(0, 0)), "pixel=(0, 0) is not a covered pixel"),
+    ("report", dict(no_table=True), "run iblbench.run(out=...) first"),
+    ("check", dict(no_table=True), "run iblbench.run(out=...) first"),
+])
+def test_api_errors_name_its_keywords_not_the_command_lines_flags(tmp_path, folder, one_cell, call,
+                                                                  arguments, named):
+    """Issue 23: errors raised from the Python API named flags it does not have (--first-seed,
+    --spp, --force, report's --pixel); each names the keyword instead."""
+    arguments = dict(arguments)
+    if arguments.pop("unreadable", False):
+        (tmp_path / "x").mkdir()
+        (tmp_path / "x" / TABLE).write_text("not parquet")
+    if arguments.pop("nan_sky", False):
+        np.save(tmp_path / "nan.npy", np.full((6, 4, 4, 3), np.nan, np.float32))
+        arguments["scenes"] = ball(folder, environment={"path": str(tmp_path / "nan.npy")})
+    with pytest.raises(iblbench.InputError) as caught:
+        if arguments.pop("no_table", False):
+            getattr(iblbench, call)(tmp_path)
+        elif call == "report":
+            iblbench.report(one_cell, **arguments)
+        else:
+            out = one_cell if arguments.pop("used_out", False) else tmp_path / "x"
+            iblbench.run(**(ONE_CELL | {"out": out} | arguments))
+    message = str(caught.value)
+    assert named in message and not FLAG.search(message), message
+
+
+def test_the_command_line_still_names_its_flags(tmp_path, capsys):
+    """The same errors from ``iblbench run`` and ``report`` name the flags."""
+    from iblbench.cli import main
+
+    flags = ["--scene", "sphere-sun", "--estimator", "uniform", "--seeds", "1", "--res", "16x16"]
+    assert main(["run", "--out", str(tmp_path / "x"), *flags, "--first-seed", "8388607",
+                 "--seeds", "2"]) == 2
+    assert "--first-seed 8388607 with --seeds 2" in capsys.readouterr().err
+    assert main(["report", str(tmp_path)]) == 2
+    assert "run 'iblbench run --out DIR' first" in capsys.readouterr().err
+
+
+def test_the_device_error_names_the_keyword_inside_the_api(monkeypatch):
+    """Only a simulator installed: the hint names ``device=`` from the API, --device otherwise."""
+    from iblbench.estimators.runtime import device
+    from iblbench.scenes.errors import python_keywords
+
+    simulator = type("Simulator", (), {"is_simulator": True, "label": "Oclgrind"})()
+    monkeypatch.setattr(device, "all_devices", lambda: [simulator])
+    monkeypatch.delenv(device.ENV_DEVICE, raising=False)
+    with pytest.raises(iblbench.InputError, match=r"\(--device oclgrind\)"):
+        device.choose_device()
+    with python_keywords(), pytest.raises(iblbench.InputError, match=r"\(device='oclgrind'\)"):
+        device.choose_device()

@@ -29,7 +29,7 @@ import numpy as np
 import pyopencl as cl
 
 from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError
+from iblbench.scenes.errors import InputError, argument
 
 ENV_DEVICE = "IBLBENCH_DEVICE"
 SIMULATORS = ("oclgrind",)   # platform or device names of simulators, lower case
@@ -190,7 +190,7 @@ def choose_device(spec: str | None = None) -> DeviceInfo:
             raise InputError(None, "only a simulator (Oclgrind) is installed, which runs kernels "
                                    "thousands of times slower; install a driver (Debian: "
                                    "apt-get install pocl-opencl-icd) or choose it by name "
-                                   "(--device oclgrind)")
+                                   f"({argument('device', 'oclgrind')})")
     failures = {d: build_failure(d) for d in devices}
     if all(failures.values()):
         reasons = "; ".join(f"{d.label}: {reason}" for d, reason in failures.items())

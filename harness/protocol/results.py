@@ -62,7 +62,7 @@ import pandas as pd
 from iblbench.harness.protocol.stats import RENDERS
 from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME
 from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError
+from iblbench.scenes.errors import InputError, argument, keywords_named
 
 SCHEMA_VERSION = 6
 KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed", "time_budget_ms"]
@@ -158,7 +158,8 @@ def load_table(run_dir: str | pathlib.Path, required_columns) -> pd.DataFrame:
         raise InputError(run_dir, "no such run directory")
     path = run_dir / TABLE
     if not path.is_file():
-        raise InputError(path, "no results table; run 'iblbench run --out DIR' first")
+        make = "iblbench.run(out=...)" if keywords_named() else "'iblbench run --out DIR'"
+        raise InputError(path, f"no results table; run {make} first")
     journal = read_journal(run_dir)   # before the table (read_results says why)
     try:
         table = pd.read_parquet(path)
@@ -178,7 +179,7 @@ def _read_table(out_dir: pathlib.Path) -> list[dict]:
         return pd.read_parquet(path).to_dict("records")
     except Exception as error:   # pyarrow raises several types for damaged files
         raise InputError(path, f"cannot read the existing results table ({error}); "
-                               "use a new --out") from None
+                               f"use a new {argument('out')}") from None
 
 
 _TEXT_COLUMNS = ("scene", "estimator", "estimator_params", "estimator_version", "metrics",
@@ -274,9 +275,10 @@ def configuration_differences(rows: list[dict], expected: dict[str, tuple[int, i
         new_width, new_height, new_env_res = expected[scene]
         parts = []
         if (width, height) != (new_width, new_height):
-            parts.append(f"--res {width}x{height} (now {new_width}x{new_height})")
+            parts.append(f"{argument('resolution', f'{width}x{height}')} "
+                         f"(now {new_width}x{new_height})")
         if env_res != new_env_res:
-            parts.append(f"--env-res {env_res} (now {new_env_res})")
+            parts.append(f"{argument('env_res', env_res)} (now {new_env_res})")
         if parts:
             differences.append(f"{scene} was run with {' and '.join(parts)}")
     return differences

@@ -131,7 +131,7 @@ from iblbench.harness.protocol.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, 
 from iblbench.harness.protocol.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text,
                                              parse_estimator, select_frames)
 from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError
+from iblbench.scenes.errors import InputError, argument
 from iblbench.scenes.framing import warn_about_framing
 from iblbench.scenes.gbuffer import cached_trace
 from iblbench.scenes.imageio import read_exr, write_exr
@@ -236,7 +236,7 @@ def _require_spp_within_bounds(specs, spp_of: dict) -> None:
         bound = spec.cls.max_spp
         above = [spp for spp in spp_of[spec.label] if bound is not None and spp > bound]
         if above:
-            raise InputError(None, f"--spp {max(above)} is above {spec.label}'s limit of "
+            raise InputError(None, f"{argument('spp', max(above))} is above {spec.label}'s limit of "
                                    f"{bound} samples per pixel")
 
 
@@ -278,20 +278,22 @@ class Runner:
     def __init__(self, config: RunConfig):
         for spp in tuple(config.spp) + tuple(v for _, levels in config.spp_for for v in levels):
             if spp < 1:
-                raise InputError(None, f"--spp values must be positive integers, got {spp}")
+                raise InputError(None, f"{argument('spp')} values must be positive integers, "
+                                       f"got {spp}")
         if not 1 <= config.seeds <= MAX_SEEDS:
-            raise InputError(None, f"--seeds must be in 1..{MAX_SEEDS} (every seed renders every "
+            raise InputError(None, f"{argument('seeds')} must be in 1..{MAX_SEEDS} (every seed renders every "
                                    f"cell again), got {config.seeds}")
         if not 0 <= config.first_seed <= MAX_SEED - config.seeds + 1:
-            raise InputError(None, f"--first-seed {config.first_seed} with --seeds {config.seeds}: "
-                                   f"the seeds must lie in 0..{MAX_SEED}")
+            raise InputError(None, f"{argument('first_seed', config.first_seed)} with "
+                                   f"{argument('seeds', config.seeds)}: the seeds must lie in "
+                                   f"0..{MAX_SEED}")
         for name, repeats in (("default", config.repeats),) + tuple(config.repeats_for):
             if not 1 <= repeats <= MAX_REPEATS:
-                raise InputError(None, f"--repeats ({name}) must be in 1..{MAX_REPEATS}, "
+                raise InputError(None, f"{argument('repeats')} ({name}) must be in 1..{MAX_REPEATS}, "
                                        f"got {repeats}")
         for budget in config.time_budget_ms:
             if not (math.isfinite(budget) and budget > 0):
-                raise InputError(None, f"--time-budget-ms must be positive, got {budget}")
+                raise InputError(None, f"{argument('time_budget_ms')} must be positive, got {budget}")
         if not config.spp and not config.time_budget_ms:
             raise InputError(None, "no spp and no time budget: the sweep has no cells")
         self.config = config
@@ -308,7 +310,7 @@ class Runner:
         _require_unique_names(self.scenes)
         for scene in self.scenes:
             if scene.environment.texels_fixed:
-                print(f"iblbench: --sanitize replaced {scene.environment.texels_fixed} bad texels "
+                print(f"iblbench: {argument('sanitize', True)} replaced {scene.environment.texels_fixed} bad texels "
                       f"in {scene.environment.source}", file=sys.stderr)
         self.plans = [self._plan_scene(scene) for scene in self.scenes]
         self.compute = get_compute(config.device)
@@ -316,7 +318,7 @@ class Runner:
         self.reference = Reference(self.compute)
         self.out = pathlib.Path(config.out)
         if self.out.exists() and not self.out.is_dir():
-            raise InputError(self.out, "--out exists and is not a directory")
+            raise InputError(self.out, f"{argument('out')} exists and is not a directory")
         self.params = {spec.label: spec.params_json() for spec in self.specs}
         overrides = {get_estimator_class(name).name: n for name, n in config.repeats_for}
         self.repeats = {spec.label: overrides.get(spec.cls.name, config.repeats)
@@ -333,8 +335,9 @@ class Runner:
         differences = configuration_differences(rows, configured)
         if differences and not self.config.force:
             raise InputError(self.out, f"holds results of another configuration ("
-                                       f"{'; '.join(differences)}); use another --out, or "
-                                       "--force to replace them")
+                                       f"{'; '.join(differences)}); use another "
+                                       f"{argument('out')}, or {argument('force', True)} to "
+                                       "replace them")
         if differences:   # --force: this configuration replaces the scenes' other rows
             rows = [row for row in rows if row["scene"] not in configured
                     or image_configuration(row) == configured[row["scene"]]]
@@ -354,7 +357,7 @@ class Runner:
             frames = select_frames(self.config.frames, frames_available)
             if not frames:
                 raise InputError(scene.source or scene.name,
-                                 f"--frames {frames_text(self.config.frames)} selects no frame of "
+                                 f"{argument('frames', frames_text(self.config.frames))} selects no frame of "
                                  f"scene '{scene.name}', which has {frames_available} frames")
             if max(frames) >= frames_available:
                 raise InputError(scene.source or scene.name,
