@@ -92,6 +92,34 @@ def test_a_changed_configuration_is_recomputed_not_duplicated(tmp_path, tiny_con
     assert "resumed: 4 cells already done, 0 to run" in err
 
 
+def images(out: Path) -> set[str]:
+    return {str(path.relative_to(out / "images")) for path in (out / "images").rglob("*.exr")}
+
+
+def test_force_with_one_estimator_keeps_the_others_cells_or_says_it_removed_them(
+        tmp_path, tiny_config, capsys):
+    """Issue 23: ``--force --estimator uniform`` reruns uniform's cells only; balanced's stay,
+    rows and images.  With another --res it replaces the scene's cells: balanced's rows went
+    silently and their EXRs stayed on disk; now both go, and the run says so."""
+    out = tmp_path / "out"
+    first, _ = cli_run(capsys, tiny_config, out)
+    balanced = first[first.estimator == "balanced"].reset_index(drop=True)
+    before = images(out)
+    assert len(before) == 9   # 8 cells and the reference
+    table, err = cli_run(capsys, tiny_config, out, "--estimator", "uniform", "--force")
+    assert "removed" not in err
+    pd.testing.assert_frame_equal(table[table.estimator == "balanced"].reset_index(drop=True),
+                                  balanced)   # not rerun: its timings are the first run's
+    assert images(out) == before
+    table, err = cli_run(capsys, tiny_config, out, "--estimator", "uniform", "--force",
+                         "--res", "20x12", "--spp", "4")
+    assert set(zip(table.estimator, table.spp, table.width)) == {("uniform", 4, 20)}
+    assert images(out) == {"sphere-sun/f0/reference.exr", "sphere-sun/f0/uniform_spp4_s0.exr",
+                           "sphere-sun/f0/uniform_spp4_s1.exr"}
+    assert ("--force: removed the 8 cells of another image configuration, rows, images and "
+            "saved inputs (sphere-sun was run with --res 16x16 (now 20x12))") in err
+
+
 def test_a_journal_left_by_a_killed_run_is_folded_in(tmp_path, tiny_config, capsys):
     out = tmp_path / "out"
     complete, _ = cli_run(capsys, tiny_config, out)

@@ -54,6 +54,7 @@ import json
 import math
 import os
 import pathlib
+import shutil
 import sys
 
 import numpy as np
@@ -257,6 +258,20 @@ def cell_files_intact(out_dir: pathlib.Path, row: dict) -> bool:
     except InputError:
         return False
     return True
+
+
+def remove_cells(out_dir: pathlib.Path, dropped: list[dict], kept: list[dict]) -> None:
+    """The files of the ``dropped`` rows' cells: their images, each frame's reference that no
+    ``kept`` row needs, and their scenes' saved inputs (``force`` with another image
+    configuration: issue 23, they stayed behind their rows)."""
+    for row in dropped:
+        for path in cell_files(out_dir, row):
+            path.unlink(missing_ok=True)
+    frames = {(str(row["scene"]), int(row["frame"])) for row in dropped}
+    for scene, frame in frames - {(str(row["scene"]), int(row["frame"])) for row in kept}:
+        (out_dir / "images" / scene / f"f{frame}" / "reference.exr").unlink(missing_ok=True)
+    for scene in {scene for scene, _ in frames}:
+        shutil.rmtree(out_dir / "inputs" / scene, ignore_errors=True)
 
 
 def image_configuration(row: dict) -> tuple[int, int, int] | None:

@@ -118,7 +118,8 @@ from iblbench.harness.protocol.results import (FOLD_SECONDS, REPLICATED, SCHEMA_
                                                cell_files_intact,
                                                configuration_differences, image_configuration,
                                                image_stem, prepare_out, read_manifest, read_results,
-                                               row_key, write_manifest, write_results)
+                                               remove_cells, row_key, write_manifest,
+                                               write_results)
 from iblbench.harness.protocol.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
                                                   CELL_CORRECTIONS, TOLERANCE, Calibration,
                                                   best_measured, corrected_spp, spp_limit)
@@ -338,9 +339,17 @@ class Runner:
                                        f"{'; '.join(differences)}); use another "
                                        f"{argument('out')}, or {argument('force', True)} to "
                                        "replace them")
-        if differences:   # --force: this configuration replaces the scenes' other rows
-            rows = [row for row in rows if row["scene"] not in configured
-                    or image_configuration(row) == configured[row["scene"]]]
+        if differences:   # force: this configuration replaces the scenes' other cells
+            kept, dropped = [], []
+            for row in rows:
+                same = (row["scene"] not in configured
+                        or image_configuration(row) == configured[row["scene"]])
+                (kept if same else dropped).append(row)
+            remove_cells(self.out, dropped, kept)
+            print(f"iblbench: {argument('force', True)}: removed the {len(dropped)} cells of "
+                  f"another image configuration, rows, images and saved inputs "
+                  f"({'; '.join(differences)})", file=sys.stderr)
+            rows = kept
         self.rows = {row_key(row): row for row in rows}
         self.previous_manifest = read_manifest(self.out)
         self.todo, self.cells, self.chosen = self._plan_cells()
