@@ -123,6 +123,7 @@ from iblbench.harness.protocol.results import (FOLD_SECONDS, REPLICATED, SCHEMA_
 from iblbench.harness.protocol.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
                                                   CELL_CORRECTIONS, TOLERANCE, Calibration,
                                                   best_measured, corrected_spp, spp_limit)
+from iblbench.harness.protocol.progress import BAR_FORMAT, Progress
 from iblbench.harness.protocol.provenance import git_revision, package_version
 from iblbench.harness.protocol.shadows import attach_visibility, measured_record
 from iblbench.harness.protocol.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times,
@@ -237,8 +238,8 @@ def _require_spp_within_bounds(specs, spp_of: dict) -> None:
         bound = spec.cls.max_spp
         above = [spp for spp in spp_of[spec.label] if bound is not None and spp > bound]
         if above:
-            raise InputError(None, f"{argument('spp', max(above))} is above {spec.label}'s limit of "
-                                   f"{bound} samples per pixel")
+            raise InputError(None, f"{argument('spp', max(above))} is above {spec.label}'s "
+                                   f"limit of {bound} samples per pixel")
 
 
 @contextlib.contextmanager
@@ -273,6 +274,11 @@ class _ScenePlan:
     frames: list[int]
 
 
+def _where(plan: _ScenePlan, frame: int) -> str:
+    """The progress bar's name of a frame: the scene, and the frame in a sequence."""
+    return plan.scene.name if len(plan.frames) == 1 else f"{plan.scene.name} f{frame}"
+
+
 class Runner:
     """Runs every cell of the sweep not already in ``out`` (see the module docstring)."""
 
@@ -282,19 +288,20 @@ class Runner:
                 raise InputError(None, f"{argument('spp')} values must be positive integers, "
                                        f"got {spp}")
         if not 1 <= config.seeds <= MAX_SEEDS:
-            raise InputError(None, f"{argument('seeds')} must be in 1..{MAX_SEEDS} (every seed renders every "
-                                   f"cell again), got {config.seeds}")
+            raise InputError(None, f"{argument('seeds')} must be in 1..{MAX_SEEDS} (every seed "
+                                   f"renders every cell again), got {config.seeds}")
         if not 0 <= config.first_seed <= MAX_SEED - config.seeds + 1:
             raise InputError(None, f"{argument('first_seed', config.first_seed)} with "
                                    f"{argument('seeds', config.seeds)}: the seeds must lie in "
                                    f"0..{MAX_SEED}")
         for name, repeats in (("default", config.repeats),) + tuple(config.repeats_for):
             if not 1 <= repeats <= MAX_REPEATS:
-                raise InputError(None, f"{argument('repeats')} ({name}) must be in 1..{MAX_REPEATS}, "
-                                       f"got {repeats}")
+                raise InputError(None, f"{argument('repeats')} ({name}) must be in "
+                                       f"1..{MAX_REPEATS}, got {repeats}")
         for budget in config.time_budget_ms:
             if not (math.isfinite(budget) and budget > 0):
-                raise InputError(None, f"{argument('time_budget_ms')} must be positive, got {budget}")
+                raise InputError(None, f"{argument('time_budget_ms')} must be positive, "
+                                       f"got {budget}")
         if not config.spp and not config.time_budget_ms:
             raise InputError(None, "no spp and no time budget: the sweep has no cells")
         self.config = config
@@ -311,7 +318,8 @@ class Runner:
         _require_unique_names(self.scenes)
         for scene in self.scenes:
             if scene.environment.texels_fixed:
-                print(f"iblbench: {argument('sanitize', True)} replaced {scene.environment.texels_fixed} bad texels "
+                print(f"iblbench: {argument('sanitize', True)} replaced "
+                      f"{scene.environment.texels_fixed} bad texels "
                       f"in {scene.environment.source}", file=sys.stderr)
         self.plans = [self._plan_scene(scene) for scene in self.scenes]
         self.compute = get_compute(config.device)
@@ -366,8 +374,9 @@ class Runner:
             frames = select_frames(self.config.frames, frames_available)
             if not frames:
                 raise InputError(scene.source or scene.name,
-                                 f"{argument('frames', frames_text(self.config.frames))} selects no frame of "
-                                 f"scene '{scene.name}', which has {frames_available} frames")
+                                 f"{argument('frames', frames_text(self.config.frames))} selects "
+                                 f"no frame of scene '{scene.name}', which has {frames_available} "
+                                 "frames")
             if max(frames) >= frames_available:
                 raise InputError(scene.source or scene.name,
                                  f"frame {max(frames)} selected, but scene '{scene.name}' has "
@@ -543,13 +552,14 @@ class Runner:
     def _run_cells(self, gbuffers: dict):
         """Every cell left, between two measurements of the timing floor; the manifest ends
         "complete"; returns the table."""
-        floors = [measure_timing_floor(self.compute)] if self.todo else []
-        self.device_ms_total, start = 0.0, time.perf_counter()
         with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
-                  desc=f"iblbench run on {self.compute.info.device.name.strip()}") as bar:
-            bar.update(self.resumed)
+                  bar_format=BAR_FORMAT, initial=self.resumed) as bar:
+            self.progress = Progress(bar, self.todo)
+            self.progress.stage(f"timing floor of {self.compute.info.device.name.strip()}")
+            floors = [measure_timing_floor(self.compute)] if self.todo else []
+            self.device_ms_total, start = 0.0, time.perf_counter()
             for plan in self.plans:
-                self._run_scene(plan, gbuffers.pop(plan.scene.name, None), bar)
+                self._run_scene(plan, gbuffers.pop(plan.scene.name, None))
         table = self._fold()
         if self.todo:
             wall_s = time.perf_counter() - start
@@ -659,7 +669,7 @@ class Runner:
                 self._stage(scene.name, None, "visibility", record["seconds"] * 1e3)
         return gbuffer
 
-    def _run_scene(self, plan: _ScenePlan, gbuffer, bar) -> None:
+    def _run_scene(self, plan: _ScenePlan, gbuffer) -> None:
         """``gbuffer``: the scene's, traced by :meth:`run`; None when no cell of it is left."""
         scene = plan.scene
         if not self._scene_todo(scene.name):
@@ -704,6 +714,7 @@ class Runner:
                            f"({', '.join(['upload'] + sorted(required))}) reused"})
             else:
                 cache = None   # release the previous frame's device buffers first
+                self.progress.stage("frame cache", _where(plan, frame))
                 cache = FrameCache(self.compute, env, frame)
                 cache.require(sorted(required))
                 cache_env, cache_frame = env, frame
@@ -712,7 +723,7 @@ class Runner:
                     self._stage(scene.name, frame, stage, ms)
                     self.device_ms_total += ms
             previous = plan.frames[index - 1] if index > 0 else None
-            self._run_frame(plan, device_gbuffer, warm_up, cache, built, bar, sequences,
+            self._run_frame(plan, device_gbuffer, warm_up, cache, built, sequences,
                             previous)
         if scene.environment.is_static:
             renders = sum(1 for key in self.todo if key[0] == scene.name)
@@ -733,7 +744,7 @@ class Runner:
         return renders
 
     def _run_frame(self, plan: _ScenePlan, gbuffer: DeviceGBuffer, warm_up: DeviceGBuffer,
-                   cache: FrameCache, built: dict[str, float], bar, sequences: dict,
+                   cache: FrameCache, built: dict[str, float], sequences: dict,
                    previous_frame: int | None = None) -> None:
         """Every cell of one frame; ``warm_up``: the scene's warm-up pixels; ``built``: device
         ms per product built for this frame (empty where ``cache`` was reused from an identical
@@ -741,6 +752,8 @@ class Runner:
         (flicker), None on the first.  Each cell is rendered, scored, written and journalled,
         in that order (a journalled cell is complete)."""
         images = self.out / "images" / plan.scene.name / f"f{cache.frame}"
+        where = _where(plan, cache.frame)
+        self.progress.stage("reference", where)
         reference = self._frame_reference(plan.scene.name, gbuffer, cache)
         scorer = Scorer(reference, gbuffer.gbuffer.mask, self.config.metrics)
         write_exr(images / "reference.exr", reference)
@@ -752,15 +765,19 @@ class Runner:
             build_ms = required_build_ms(built, spec.cls.requires)
             estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
             # Compiles and touches each kernel once (not timed).
+            self.progress.stage("warm-up", where, spec.label)
             warmed = spec.make().render(warm_up, cache, 1, WARMUP_SEED)
             self.device_ms_total += device_ms(warmed.timings_ms)
             for key in cells:
+                self.progress.start_cell(key)
+                self.progress.stage("rendering")
                 spp, estimates, renders, sequence_key = self._render_cell(
                     plan, spec, estimator, key, cells, gbuffer, cache, build_ms, sequences)
+                self.progress.stage("scoring")
                 row = self._score_cell(plan, spec, key, spp, estimates, renders, scorer,
                                        sequence_key, previous_frame)
                 write_exr(images / f"{image_stem(row)}.exr", estimates[0].radiance)
-                self._journal_cell(row, bar)
+                self._journal_cell(row)
 
     def _frame_reference(self, scene_name: str, gbuffer: DeviceGBuffer, cache: FrameCache):
         """The frame's exact reference, its stage timed or marked skipped (cached)."""
@@ -837,12 +854,12 @@ class Runner:
         self._previous_delta_e[sequence_key] = (frame, delta_e.astype(np.float32))
         return row
 
-    def _journal_cell(self, row: dict, bar) -> None:
+    def _journal_cell(self, row: dict) -> None:
         """The row goes to the journal (after its images: a journalled cell is complete), and
         the journal is folded into the table every FOLD_SECONDS."""
         self.journal.append(row)
         self.rows[row_key(row)] = row
-        bar.update()
+        self.progress.cell_done(row["spp"])
         if time.monotonic() - self._last_fold > FOLD_SECONDS:
             self._fold()
             self._last_fold = time.monotonic()
@@ -925,6 +942,7 @@ class Runner:
                           and (scene_name, spec.label, key[5]) not in self.chosen})
         if not budgets:
             return
+        self.progress.stage("calibrating")
         calibration = Calibration(estimator, gbuffer, cache, build_ms)
         for budget in budgets:
             fit = calibration.choose(budget)
@@ -940,6 +958,7 @@ class Runner:
                       file=sys.stderr)
         self.device_ms_total += sum(device_ms(r.stages) - build_ms for r in calibration.renders)
         estimator.reset()
+        self.progress.stage("rendering")
 
 
 def run(config: RunConfig):
