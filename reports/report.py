@@ -754,9 +754,18 @@ def _page_context(run_dir: pathlib.Path, manifest: dict, table, scenes: list[dic
         "sequences": any(s["frames"] > 1 for s in scenes),
         "manifest": _manifest_context(manifest),
         "rows": len(table),
+        "not_computed": not_computed(table),
         "colour_bar": "colour_bar.png",
         "heat_scale": HEAT_SCALE,
     }
+
+
+def not_computed(table: pd.DataFrame) -> list[str]:
+    """The metrics no row of ``table`` has a value of (the sweep's ``metrics`` left them out, as
+    the default sweep does FLIP): the page says so, where their columns would only be missing."""
+    return [name for column, name in (("mean_delta_e2000", "ΔE2000"), ("rel_mse", "relMSE"),
+                                      ("flip", "FLIP"))
+            if column not in table or table[column].isna().all()]
 
 
 def _require_in_run(rows: pd.DataFrame, value: int | None, column: str,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import html.parser
 import io
+import json
 import math
 import os
 import pathlib
@@ -577,6 +578,22 @@ def test_the_report_draws_the_previews_from_the_run_s_exrs_once(reported, tmp_pa
     redrawn = {name for name, stamp in stamps().items() if stamp != first[name]}
     assert redrawn == {"uniform_spp16_s0_de76.png", "uniform_spp4_s0.png", "uniform_spp4_s0_de76.png"}
     assert heat_scale(drawn / "uniform_spp16_s0_de76.png") == HEAT_SCALE
+
+
+def test_a_metric_the_run_left_out_is_said_not_computed(reported, tmp_path):
+    """Issue 23: a run that leaves FLIP out (the default sweep does) showed no FLIP anywhere and
+    said nothing of it; the page and the manifest now say it was not computed."""
+    out, context = reported                       # every metric computed: nothing to say
+    assert context["not_computed"] == []
+    assert "Not computed" not in (out / "report" / "index.html").read_text(encoding="utf-8")
+    left_out = tmp_path / "run"
+    run(RunConfig(out=left_out, scenes=("sphere-sun",), estimators=("uniform",), spp=(4,), seeds=1,
+                  resolution=(16, 16), env_res=8, repeats=1, metrics=("de76", "de2000", "relmse"),
+                  progress=False))
+    page = " ".join(write_report(left_out)["path"].read_text(encoding="utf-8").split())
+    assert "Not computed in this run: FLIP. The sweep's metrics left it out" in page
+    skipped = json.loads((left_out / "manifest.json").read_text())["skipped"]
+    assert [entry["stage"] for entry in skipped if "scene" not in entry] == ["flip"]
 
 
 # --- the report shows what the run has, from any working directory -------------------------------

@@ -334,6 +334,8 @@ class Runner:
                         for spec in self.specs}
         # The manifest's "stages" and "skipped": G-buffers may be traced before it is made.
         self.stages, self.skipped, self.visibility = [], [], []
+        self.skipped += [{"stage": metric, "why": "not in the sweep's metrics: its columns are NaN"}
+                         for metric in METRICS if metric not in config.metrics]
 
     def _read_state(self) -> None:
         """What ``out`` holds, read under its lock (a snapshot read before it could be stale by
