@@ -33,8 +33,10 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import json
 import pathlib
+import pickle
 import re
 
 import jinja2
@@ -432,8 +434,11 @@ class SceneInputs:
 def scene_inputs(run_dir: pathlib.Path, manifest: dict | None, scene: str, frame: int) -> SceneInputs:
     """The G-buffer and environment frame of ``scene``: the run's saved inputs
     (``inputs/<scene>/gbuffer.npz`` and ``env_f<frame>.npy``, from ``run --save-inputs``) when
-    present, else rebuilt from the scene registry at the run's resolution and env resolution."""
-    from iblbench.scenes.gbuffer import GBuffer, trace_gbuffer
+    present, else rebuilt from the scene registry at the run's resolution and env resolution,
+    the G-buffer read from the run's trace cache (``$IBLBENCH_CACHE/gbuffer``) where it is
+    still there."""
+    from iblbench.estimators.runtime.device import cache_dir
+    from iblbench.scenes.gbuffer import GBuffer, cached_trace
     from iblbench.scenes.registry import load_scene
 
     inputs = pathlib.Path(run_dir) / "inputs" / scene
@@ -449,13 +454,16 @@ def scene_inputs(run_dir: pathlib.Path, manifest: dict | None, scene: str, frame
                            f"{env_path.name})")
     config = (manifest or {}).get("config", {})
     for entry in config.get("scenes", [scene]):
+        if not str(entry).lower().endswith(".toml") and str(entry).lower() != scene.lower():
+            continue   # another built-in scene: its name says so without loading it
         loaded = load_scene(entry, sanitize=bool(config.get("sanitize")), env_res=config.get("env_res"))
         if loaded.name == scene:
             break
     else:
         raise InputError(None, f"scene '{scene}' is not in the manifest's scene list")
     width, height = config.get("resolution") or loaded.resolution
-    gbuffer = trace_gbuffer(loaded.mesh, loaded.material, loaded.camera, int(width), int(height))
+    gbuffer, _ = cached_trace(loaded.mesh, loaded.material, loaded.camera, int(width), int(height),
+                              cache_dir() / "gbuffer")
     env = np.asarray(loaded.environment.frame(frame), np.float32)
     return SceneInputs(gbuffer.normal, gbuffer.mask, env,
                        f"rebuilt from the scene registry ({loaded.source or scene}) at "
@@ -546,6 +554,68 @@ def _slug(text: str) -> str:
 
 
 # ---- the page ---------------------------------------------------------------------------------
+
+class Figures:
+    """The report's figures (:mod:`.plots`), each drawn only where the report does not hold it
+    drawn already by today's plotting code from the same data: ``figures.json`` keeps each PNG's
+    key (a hash of that code, matplotlib's version, the plot and its arguments), the PNG's
+    modification time then (None where the plot drew nothing; a PNG drawn since, by a report
+    that stopped before recording it, is drawn again) and the plot's return value.  Figures
+    were most of a report's time (issue 23); a report that picks other images (``spp``,
+    ``seed``, ``frame``, ``pixel``), or follows a run that left a scene's cells as they were,
+    draws none of its figures again."""
+
+    def __init__(self, report: pathlib.Path):
+        self.report, self.path = report, report / "figures.json"
+        try:
+            kept = json.loads(self.path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            kept = {}
+        self.kept = kept if isinstance(kept, dict) else {}
+
+    def draw(self, name: str, plot, *args, **kwargs):
+        """``plot(report / name, *args, **kwargs)``'s return value, from the figure kept or
+        drawn now."""
+        key = _figure_key(plot, args, kwargs)
+        entry, target = self.kept.get(name), self.report / name
+        if (isinstance(entry, dict) and entry.get("key") == key
+                and entry.get("mtime_ns", False) == _mtime_ns(target)):
+            return entry.get("result")
+        result = plot(target, *args, **kwargs)
+        self.kept[name] = {"key": key, "mtime_ns": _mtime_ns(target), "result": result}
+        with atomic_path(self.path) as tmp:
+            tmp.write_text(json.dumps(self.kept), encoding="utf-8")
+        return result
+
+
+def _mtime_ns(path: pathlib.Path) -> int | None:
+    """None where there is no file (a plot with nothing to draw, as plot_extras without extras)."""
+    try:
+        return path.stat().st_mtime_ns
+    except FileNotFoundError:
+        return None
+
+
+@functools.cache
+def _plotting_code() -> bytes:
+    """What draws a figure besides its data: the sources of the plots and of what they compute
+    with (the heat scale, the intervals), and matplotlib's version."""
+    import matplotlib
+
+    from iblbench.harness.protocol import stats
+    from iblbench.reports import previews
+    return b"".join(pathlib.Path(module.__file__).read_bytes()
+                    for module in (plots, previews, stats)) + matplotlib.__version__.encode()
+
+
+def _figure_key(plot, args: tuple, kwargs: dict) -> str:
+    def plain(value):   # a DataFrame as plain lists, whose pickle depends on its content only
+        return value.to_dict("split") if isinstance(value, pd.DataFrame) else value
+
+    arguments = ([plain(a) for a in args], sorted((k, plain(v)) for k, v in kwargs.items()))
+    return hashlib.sha256(_plotting_code() + plot.__name__.encode()
+                          + pickle.dumps(arguments, protocol=4)).hexdigest()
+
 
 def ray_costs(manifest: dict | None, ray_cost_ns: float | None) -> dict[str, tuple[float, int]]:
     """Per scene with visibility: (ns per shadow ray, covered pixels), the cost being
@@ -642,7 +712,8 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
         raise InputError(report, f"cannot create the report directory ({error.strerror})") from None
     cells = summarize(table)
     convergence = flatter_than_tags(table)
-    plots.write_colour_bar(report / "colour_bar.png")
+    figures = Figures(report)
+    figures.draw("colour_bar.png", plots.write_colour_bar)
     compute_holder: dict = {}
 
     def compute():
@@ -653,6 +724,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
 
     shown = {"spp": spp, "seed": seed, "frame": frame, "pixel": pixel,
              "ray_costs": ray_costs(manifest, ray_cost_ns)}
+    shown["figures"] = figures
     scenes = [_scene_section(run_dir, report, manifest, table, cells, equal_time, convergence,
                              scene, shown, compute, rankings.get(scene, []))
               for scene in dict.fromkeys(table.scene)]
@@ -674,7 +746,8 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
     scene_cells = cells[cells.scene == scene]
     rows = table[table.scene == scene]
     slug = _slug(scene)
-    figures = _scene_figures(report, scene_cells, scene, slug, shown["ray_costs"].get(scene))
+    figures = _scene_figures(shown["figures"], scene_cells, scene, slug,
+                             shown["ray_costs"].get(scene))
     frames = sorted(set(rows.frame))
     frame = shown["frame"]
     if frame is not None and len(frames) > 1:
@@ -686,9 +759,10 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
                                                scene_frame))
     grid = image_grid(run_dir, report, table, cells, scene, scene_frame, shown["seed"],
                       shown["spp"], lambda: inputs().mask)
-    per_frame = _per_frame_figure(report, rows, scene, slug, scene_frame) if len(frames) > 1 else None
+    per_frame = (_per_frame_figure(shown["figures"], rows, scene, slug, scene_frame)
+                 if len(frames) > 1 else None)
     extras = f"extras_{slug}.png"
-    extra_columns = plots.plot_extras(report / extras, rows, scene)
+    extra_columns = shown["figures"].draw(extras, plots.plot_extras, rows, scene)
     picture = _picture_section(report, inputs, table, scene, scene_frame, shown, compute)
     timed = equal_time[equal_time.scene == scene]
     return {"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
@@ -704,32 +778,33 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
             "spp": sorted(set(int(v) for v in rows.spp))}
 
 
-def _scene_figures(report: pathlib.Path, scene_cells, scene: str, slug: str,
+def _scene_figures(drawn: Figures, scene_cells, scene: str, slug: str,
                    ray_cost: tuple[float, int] | None) -> dict:
     """Error against time (Pareto front), convergence and effective samples of one scene, and
     for a scene with visibility error against time plus shadow rays at ``ray_cost``
     (ns per ray, covered pixels)."""
     figures = {"time": f"error_vs_time_{slug}.png", "spp": f"convergence_{slug}.png",
                "effective": f"effective_{slug}.png"}
-    plots.plot_error_vs_time(report / figures["time"], scene_cells, scene)
+    drawn.draw(figures["time"], plots.plot_error_vs_time, scene_cells, scene)
     if ray_cost is not None and "shadow_rays" in scene_cells:
         ns_per_ray, pixels = ray_cost
         figures["ray_cost"] = f"error_vs_time_and_rays_{slug}.png"
         figures["ns_per_ray"] = ns_per_ray
-        plots.plot_error_vs_time(report / figures["ray_cost"], with_ray_cost(scene_cells, ns_per_ray, pixels),
-                                 scene, xlabel=f"device time + shadow rays × {ns_per_ray:.3g} ns "
-                                               f"(ms per frame, {pixels} pixels)")
-    plots.plot_convergence(report / figures["spp"], scene_cells, scene)
-    plots.plot_effective(report / figures["effective"], scene_cells, scene)
+        drawn.draw(figures["ray_cost"], plots.plot_error_vs_time,
+                   with_ray_cost(scene_cells, ns_per_ray, pixels), scene,
+                   xlabel=f"device time + shadow rays × {ns_per_ray:.3g} ns (ms per frame, "
+                          f"{pixels} pixels)")
+    drawn.draw(figures["spp"], plots.plot_convergence, scene_cells, scene)
+    drawn.draw(figures["effective"], plots.plot_effective, scene_cells, scene)
     return figures
 
 
-def _per_frame_figure(report: pathlib.Path, rows, scene: str, slug: str, scene_frame: int) -> str:
+def _per_frame_figure(drawn: Figures, rows, scene: str, slug: str, scene_frame: int) -> str:
     """A sequence's error per frame."""
     data = cell_intervals(rows, ["estimator", "spp", "frame"],
                           ["mean_delta_e76", "rel_mse"]).reset_index()
     per_frame = f"per_frame_{slug}.png"
-    plots.plot_per_frame(report / per_frame, data, scene, scene_frame)
+    drawn.draw(per_frame, plots.plot_per_frame, data, scene, scene_frame)
     return per_frame
 
 

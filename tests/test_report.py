@@ -252,6 +252,29 @@ def test_sample_picture_counts_match_the_split(reported):
         assert (out / "report" / src).is_file()
 
 
+def test_inputs_rebuilt_load_only_their_scene_and_read_the_run_s_traced_g_buffer(reported, tmp_path,
+                                                                                monkeypatch):
+    """Issue 23 (report speed): rebuilding a scene's inputs loaded every scene of the run before
+    it and traced its G-buffer again, which the run had left in its trace cache."""
+    import iblbench.scenes.gbuffer
+    import iblbench.scenes.registry
+
+    out, _ = reported
+    _, manifest = load_run(out)
+    manifest = dict(manifest, config=dict(manifest["config"], scenes=["blob-sun", "sphere-sun"]))
+    loaded = []
+    load_scene = iblbench.scenes.registry.load_scene
+    monkeypatch.setattr(iblbench.scenes.registry, "load_scene",
+                        lambda entry, **kwargs: loaded.append(entry) or load_scene(entry, **kwargs))
+
+    def traced(*args):
+        raise AssertionError("traced again")
+
+    monkeypatch.setattr(iblbench.scenes.gbuffer, "trace_gbuffer", traced)
+    rebuilt = scene_inputs(tmp_path, manifest, "sphere-sun", 0)      # no inputs/ under tmp_path
+    assert loaded == ["sphere-sun"] and rebuilt.mask.sum() > 0
+
+
 def test_inputs_are_rebuilt_from_the_registry_without_saved_inputs(reported, tmp_path):
     out, _ = reported
     _, manifest = load_run(out)
@@ -594,6 +617,38 @@ def test_a_metric_the_run_left_out_is_said_not_computed(reported, tmp_path):
     assert "Not computed in this run: FLIP. The sweep's metrics left it out" in page
     skipped = json.loads((left_out / "manifest.json").read_text())["skipped"]
     assert [entry["stage"] for entry in skipped if "scene" not in entry] == ["flip"]
+
+
+def test_a_report_again_draws_only_the_figures_whose_data_changed(reported, tmp_path, monkeypatch):
+    """Issue 23 (report speed): every report drew every figure again, most of its time; one
+    that picks other images, or follows no change to the cells, draws none, and a change to a
+    cell's figures, or a figure gone, draws those again."""
+    out, _ = reported
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    drawn = []
+    for name in ("plot_error_vs_time", "plot_convergence", "plot_effective", "plot_extras",
+                 "write_colour_bar"):
+        def counted(*args, _plot=getattr(plots, name), **kwargs):
+            drawn.append(_plot.__name__)
+            return _plot(*args, **kwargs)
+        counted.__name__ = name
+        monkeypatch.setattr(plots, name, counted)
+    first = write_report(copy)
+    assert sorted(drawn) == ["plot_convergence", "plot_effective", "plot_error_vs_time",
+                             "plot_extras", "write_colour_bar"]
+    drawn.clear()
+    again = write_report(copy, seed=0, spp=SPP[0])
+    assert drawn == [] and again["scenes"][0]["figures"] == first["scenes"][0]["figures"]
+    assert again["scenes"][0]["extra_columns"] == first["scenes"][0]["extra_columns"] == ["FLIP"]
+    (copy / "report" / first["scenes"][0]["figures"]["spp"]).unlink()
+    table = pd.read_parquet(copy / "results.parquet")
+    write_report(copy)
+    assert drawn == ["plot_convergence"]
+    drawn.clear()
+    table.drop(index=0).to_parquet(copy / "results.parquet")   # a cell fewer
+    write_report(copy)
+    assert sorted(drawn) == ["plot_convergence", "plot_effective", "plot_error_vs_time", "plot_extras"]
 
 
 # --- the report shows what the run has, from any working directory -------------------------------
