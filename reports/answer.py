@@ -5,7 +5,6 @@ module only shows)."""
 from __future__ import annotations
 
 import math
-import pathlib
 
 import markupsafe
 import pandas as pd
@@ -73,14 +72,14 @@ def matrix_table(rankings: dict[str, list[Ranking]], table_html) -> markupsafe.M
     return table_html(pd.DataFrame(rows, columns=["scene", *labels]).fillna("–"), "summary matrix")
 
 
-def answer_context(report: pathlib.Path, cells, rankings: dict[str, list[Ranking]],
-                   table_html) -> dict:
+def answer_context(draw, cells, rankings: dict[str, list[Ranking]], table_html) -> dict:
     """The page's opening: the matrix, the verdicts, the share of adjacent ranks resolved and
-    the two versions of the small-multiple plot (written under ``report``)."""
+    the two versions of the small-multiple plot (drawn by ``draw(name, plot, *arguments)``,
+    the report's :meth:`~iblbench.reports.report.Figures.draw`)."""
     if not any(rankings.values()):
         return {}
     for highlight, name in ((True, PLOTS["highlight"]), (False, PLOTS["all"])):
-        plots.plot_answer(report / name, cells, rankings, highlight)
+        draw(name, plots.plot_answer, cells, rankings, highlight)
     resolved, pairs = resolved_share(rankings)
     return {"matrix": matrix_table(rankings, table_html), "plots": PLOTS,
             "resolved": resolved, "pairs": pairs,

@@ -478,9 +478,10 @@ def default_pixel(mask: np.ndarray) -> tuple[int, int]:
     return int(xs[i]), int(ys[i])
 
 
-def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, compute) -> dict:
-    """Compute and draw the sample picture of ``scene``; a dict for the template (``error``
-    says why there is none); ``scene_frame_inputs`` gives the frame's :class:`SceneInputs`."""
+def sample_picture(draw, scene_frame_inputs, table, scene, frame, spp, pixel, compute) -> dict:
+    """Compute and draw (by ``draw``, :meth:`Figures.draw`) the sample picture of ``scene``; a
+    dict for the template (``error`` says why there is none); ``scene_frame_inputs`` gives the
+    frame's :class:`SceneInputs`."""
     from iblbench.estimators.light_pool import PoolEstimator
     from iblbench.reports.sample_picture import (cross_frames, cross_image, plot_sample_picture,
                                                  pool_selections)
@@ -520,7 +521,7 @@ def sample_picture(report, scene_frame_inputs, table, scene, frame, spp, pixel, 
     panels = []
     for sel in selections:
         relative = f"sample_picture_{_slug(scene)}_{_slug(sel.estimator)}.png"
-        plot_sample_picture(pathlib.Path(report) / relative, inputs.env, normal, sel, background)
+        draw(relative, plot_sample_picture, inputs.env, normal, sel, background)
         panels.append(relative)
     return {"panels": panels, "notes": notes, "pixel": (x, y), "normal": normal, "spp": n, "source": inputs.source,
             "selections": [{"estimator": s.estimator, **s.counts,
@@ -603,9 +604,10 @@ def _plotting_code() -> bytes:
     import matplotlib
 
     from iblbench.harness.protocol import stats
-    from iblbench.reports import previews
+    from iblbench.reports import previews, sample_picture
     return b"".join(pathlib.Path(module.__file__).read_bytes()
-                    for module in (plots, previews, stats)) + matplotlib.__version__.encode()
+                    for module in (plots, previews, stats, sample_picture)) \
+        + matplotlib.__version__.encode()
 
 
 def _figure_key(plot, args: tuple, kwargs: dict) -> str:
@@ -729,7 +731,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
                              scene, shown, compute, rankings.get(scene, []))
               for scene in dict.fromkeys(table.scene)]
     context = _page_context(run_dir, manifest, table, scenes)
-    context["answer"] = answer_context(report, cells, rankings, _table_html)
+    context["answer"] = answer_context(figures.draw, cells, rankings, _table_html)
     text = _TEMPLATES.get_template("report.html.j2").render(**context)
     with atomic_path(report / "index.html") as tmp:
         tmp.write_text(text, encoding="utf-8")
@@ -763,7 +765,7 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
                  if len(frames) > 1 else None)
     extras = f"extras_{slug}.png"
     extra_columns = shown["figures"].draw(extras, plots.plot_extras, rows, scene)
-    picture = _picture_section(report, inputs, table, scene, scene_frame, shown, compute)
+    picture = _picture_section(inputs, table, scene, scene_frame, shown, compute)
     timed = equal_time[equal_time.scene == scene]
     return {"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
             "rankings": [{"budget_ms": r.budget_ms, "verdict": r.verdict(),
@@ -808,12 +810,11 @@ def _per_frame_figure(drawn: Figures, rows, scene: str, slug: str, scene_frame: 
     return per_frame
 
 
-def _picture_section(report: pathlib.Path, inputs, table, scene: str, scene_frame: int,
-                     shown: dict, compute) -> dict:
+def _picture_section(inputs, table, scene: str, scene_frame: int, shown: dict, compute) -> dict:
     """Lu 2013's sample picture, or why there is none (an error only for an asked pixel)."""
     try:
-        return sample_picture(report, inputs, table, scene, scene_frame, shown["spp"],
-                              shown["pixel"], compute)
+        return sample_picture(shown["figures"].draw, inputs, table, scene, scene_frame,
+                              shown["spp"], shown["pixel"], compute)
     except InputError as error:
         if shown["pixel"] is not None:
             raise

@@ -621,34 +621,42 @@ def test_a_metric_the_run_left_out_is_said_not_computed(reported, tmp_path):
 
 def test_a_report_again_draws_only_the_figures_whose_data_changed(reported, tmp_path, monkeypatch):
     """Issue 23 (report speed): every report drew every figure again, most of its time; one
-    that picks other images, or follows no change to the cells, draws none, and a change to a
-    cell's figures, or a figure gone, draws those again."""
+    that follows no change draws none, one with another spp only the sample pictures, and a
+    change to a scene's cells, or a figure gone, draws those again."""
+    import iblbench.reports.sample_picture
+
     out, _ = reported
     copy = tmp_path / "run"
     shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
     drawn = []
-    for name in ("plot_error_vs_time", "plot_convergence", "plot_effective", "plot_extras",
-                 "write_colour_bar"):
-        def counted(*args, _plot=getattr(plots, name), **kwargs):
+    for module, name in [(plots, name) for name in (
+            "plot_error_vs_time", "plot_convergence", "plot_effective", "plot_extras",
+            "write_colour_bar", "plot_answer")] + [(iblbench.reports.sample_picture,
+                                                   "plot_sample_picture")]:
+        def counted(*args, _plot=getattr(module, name), **kwargs):
             drawn.append(_plot.__name__)
             return _plot(*args, **kwargs)
         counted.__name__ = name
-        monkeypatch.setattr(plots, name, counted)
+        monkeypatch.setattr(module, name, counted)
+    scene_figures = ["plot_convergence", "plot_effective", "plot_error_vs_time", "plot_extras"]
     first = write_report(copy)
-    assert sorted(drawn) == ["plot_convergence", "plot_effective", "plot_error_vs_time",
-                             "plot_extras", "write_colour_bar"]
+    assert sorted(drawn) == sorted(scene_figures + ["write_colour_bar"]
+                                   + ["plot_sample_picture"] * 2)   # uniform's and balanced's
     drawn.clear()
-    again = write_report(copy, seed=0, spp=SPP[0])
+    again = write_report(copy, seed=0)
     assert drawn == [] and again["scenes"][0]["figures"] == first["scenes"][0]["figures"]
     assert again["scenes"][0]["extra_columns"] == first["scenes"][0]["extra_columns"] == ["FLIP"]
     (copy / "report" / first["scenes"][0]["figures"]["spp"]).unlink()
-    table = pd.read_parquet(copy / "results.parquet")
     write_report(copy)
     assert drawn == ["plot_convergence"]
     drawn.clear()
+    table = pd.read_parquet(copy / "results.parquet")
     table.drop(index=0).to_parquet(copy / "results.parquet")   # a cell fewer
     write_report(copy)
-    assert sorted(drawn) == ["plot_convergence", "plot_effective", "plot_error_vs_time", "plot_extras"]
+    assert sorted(drawn) == scene_figures
+    drawn.clear()
+    write_report(copy, spp=SPP[0])
+    assert drawn == ["plot_sample_picture"] * 2
 
 
 # --- the report shows what the run has, from any working directory -------------------------------
