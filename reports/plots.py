@@ -34,6 +34,12 @@ ERRORS = (("rel_mse", "relMSE (linear HDR, dimensionless)"),
           ("mean_delta_e76", "mean ΔE76 (CIELAB units)"))
 
 
+def _errors(summary) -> tuple:
+    """The ERRORS ``summary`` has a value of (a run with ``--metrics de76`` has no relMSE)."""
+    return tuple((column, label) for column, label in ERRORS
+                 if column in summary and np.isfinite(np.asarray(summary[column], float)).any())
+
+
 def pareto_front(x, y) -> np.ndarray:
     """Mask of the non-dominated points when both ``x`` and ``y`` are to be minimised.
 
@@ -168,9 +174,10 @@ def plot_error_vs_time(path: pathlib.Path, summary, scene: str,
     with their spp, error bars in time and error), the Pareto front of the means over all cells
     ringed and joined, cells behind it by their means only, not resolved, ringed in grey.
     ``xlabel`` names what ``time_ms`` holds (the report charges shadow rays into it)."""
-    styles = _styles(summary)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 6.0), layout="constrained")
-    for ax, (column, label) in zip(axes, ERRORS):
+    styles, errors = _styles(summary), _errors(summary)
+    fig, axes = plt.subplots(1, len(errors), figsize=(11, 6.0), layout="constrained",
+                             squeeze=False)
+    for ax, (column, label) in zip(axes[0], errors):
         for name in _estimators(summary):
             rows = summary[summary.estimator == name].sort_values("spp")
             _errorbar(ax, rows, "time_ms", column, styles[name], name, x_interval=True)
@@ -207,12 +214,13 @@ def _guide(ax, spp, anchor: float, slope: float, label: str) -> None:
 def plot_convergence(path: pathlib.Path, summary, scene: str) -> None:
     """Error against spp, log-log.  Mean ΔE76 (an absolute, RMSE-like error) with a slope −½
     guide; relMSE (a squared error) with a slope −1 guide, which is the −½ of √relMSE."""
-    styles = _styles(summary)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 5.6), layout="constrained")
+    styles, errors = _styles(summary), _errors(summary)
+    fig, axes = plt.subplots(1, len(errors), figsize=(11, 5.6), layout="constrained",
+                             squeeze=False)
     guides = {"mean_delta_e76": (-0.5, r"slope −½ (ideal Monte Carlo: error $\propto$ spp$^{-1/2}$)"),
               "rel_mse": (-1.0, r"slope −1 (ideal: relMSE $\propto$ spp$^{-1}$, "
                                 r"i.e. $\sqrt{\mathrm{relMSE}} \propto$ spp$^{-1/2}$)")}
-    for ax, (column, label) in zip(axes, ERRORS):
+    for ax, (column, label) in zip(axes[0], errors):
         for name in _estimators(summary):
             rows = summary[summary.estimator == name].sort_values("spp")
             _errorbar(ax, rows, "spp", column, styles[name], name)
@@ -268,12 +276,12 @@ def plot_per_frame(path: pathlib.Path, per_frame, scene: str, shown: int) -> Non
     of panels per spp (``per_frame``: one row per estimator, spp and frame), the frame ``shown``
     in the report's images marked."""
     levels = sorted({int(v) for v in per_frame.spp})
-    styles = _styles(per_frame)
-    fig, axes = plt.subplots(len(levels), 2, figsize=(11, 1.2 + 2.8 * len(levels)), sharex=True,
+    styles, errors = _styles(per_frame), _errors(per_frame)
+    fig, axes = plt.subplots(len(levels), len(errors), figsize=(11, 1.2 + 2.8 * len(levels)), sharex=True,
                              squeeze=False, layout="constrained")
     for spp, row in zip(levels, axes):
         cells = per_frame[per_frame.spp == spp]
-        for ax, (column, label) in zip(row, ERRORS):
+        for ax, (column, label) in zip(row, errors):
             for name in _estimators(per_frame):
                 rows = cells[cells.estimator == name].sort_values("frame")
                 if len(rows):

@@ -105,7 +105,10 @@ def summarize(table: pd.DataFrame) -> pd.DataFrame:
     ``pareto_rel_mse``/``pareto_delta_e76`` are :func:`~.plots.pareto_calls` over the scene's
     cells (time, error)."""
     keys = ["scene", "estimator", "spp"]
-    columns = [c for c in INTERVAL_COLUMNS if c in table and table[c].notna().any()]
+    # The errors the plots and Pareto calls read stay, NaN, where the run left them out
+    # (--metrics de76 has no relMSE); any other figure left out is dropped.
+    columns = [c for c in INTERVAL_COLUMNS if c in table
+               and (table[c].notna().any() or c in ("mean_delta_e76", "rel_mse"))]
     cells = cell_intervals(table, keys, columns)
     cells["nonfinite"] = table.groupby(keys, sort=False).nonfinite.sum()
     cells = cells.reset_index()

@@ -812,3 +812,14 @@ def test_one_seed_resolves_no_ordering():
     table = pd.DataFrame(_seed_rows("a", 16, [(1.0, 1.0)], ms=1.0)
                          + _seed_rows("b", 16, [(2.0, 2.0)], ms=1.0))
     assert summarize(table).pareto_delta_e76.tolist() == ["◆", "not resolved at 1 seeds"]
+
+
+def test_a_run_with_de76_alone_reports(tmp_path):
+    """`run --metrics de76` leaves relMSE out (NaN): the report failed on it (KeyError 'rel_mse',
+    then log-scaling an all-NaN axis); now its plots have the ΔE76 panel alone and its tables
+    show relMSE as not there."""
+    out = tmp_path / "run"
+    run(RunConfig(out=out, scenes=("sphere-sun",), estimators=("uniform", "envmap"), spp=(4, 16),
+                  seeds=1, resolution=(16, 16), env_res=8, metrics=("de76",), progress=False))
+    page = (write_report(out)["path"]).read_text(encoding="utf-8")
+    assert "error_vs_time_sphere-sun.png" in page and "convergence_sphere-sun.png" in page
