@@ -172,13 +172,12 @@ def standing_at(estimator: str, points: list[Point], budget_ms: float) -> Standi
     budget_ms = min(max(budget_ms, span[0]), span[1])   # within the tolerance of an end
     upper = next(i for i, p in enumerate(points) if p.time_ms >= budget_ms)
     lo, hi = points[max(upper - 1, 0)], points[upper]
+    if hi.time_ms == budget_ms:   # on a cell (or on an end, within the tolerance)
+        return Standing(estimator, "ranked", span, skew_corrected_ci(hi.replicates.to_numpy()),
+                        hi.replicates, (hi.spp, hi.spp))
     shared = lo.replicates.index.intersection(hi.replicates.index)
-    if hi.time_ms == budget_ms or len(shared) < 2:
-        values = hi.replicates if hi.time_ms == budget_ms else None
-        if values is None:   # the two cells share no replicates: nothing to read between
-            return Standing(estimator, "not measured", span)
-        return Standing(estimator, "ranked", span, skew_corrected_ci(values.to_numpy()), values,
-                        (hi.spp, hi.spp))
+    if len(shared) < 2:   # the two cells share no replicates: nothing to read between
+        return Standing(estimator, "not measured", span)
     w = math.log(budget_ms / lo.time_ms) / math.log(hi.time_ms / lo.time_ms)
     tiny = np.finfo(np.float64).tiny   # a replicate of error 0 stays finite in the log
     log_lo = np.log(np.maximum(lo.replicates[shared].to_numpy(), tiny))
@@ -188,19 +187,14 @@ def standing_at(estimator: str, points: list[Point], budget_ms: float) -> Standi
                     (lo.spp, hi.spp))
 
 
-def compare_standings(better: Standing, worse: Standing) -> RatioCI:
-    """worse / better at the budget: paired over the same replicates, else Welch
-    (:func:`~iblbench.harness.protocol.stats.compare_values`)."""
-    return compare_values(better.replicates, worse.replicates)
-
-
 def rank(curves: dict[str, list[Point]], scene: str, budget_ms: float,
          metric: str = METRIC) -> Ranking:
     """Every estimator's standing at ``budget_ms`` (``curves``: estimator → :func:`curve`)."""
     standings = [standing_at(label, points, budget_ms) for label, points in curves.items() if points]
     ranked = sorted((s for s in standings if s.status == "ranked"), key=lambda s: s.error.mean)
     unranked = [s for s in standings if s.status != "ranked"]
-    versus = [compare_standings(a, b) for a, b in zip(ranked, ranked[1:])]
+    # worse / better, paired where the two have the same replicates, else Welch
+    versus = [compare_values(a.replicates, b.replicates) for a, b in zip(ranked, ranked[1:])]
     return Ranking(scene, budget_ms, metric, ranked, versus, unranked)
 
 

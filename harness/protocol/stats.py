@@ -85,8 +85,8 @@ MEAN_METHOD = ("mean over the cell's scored renders (every timed render of every
 SEED_METHOD = "mean over seeds, 95% Student-t interval"
 MEDIAN_METHOD = ("median of the cell's timed renders (every seed and frame), 95% order-statistic "
                  "interval (Hettmansperger-Sheather)")
-RATIO_METHOD = ("ratio of means B/A, 95% interval by the delta method on log(ratio): paired over "
-                "the (seed, render) replicates both cells have, else Welch-Satterthwaite")
+RATIO_METHOD = ("ratio of means B/A, 95% interval by the delta method on log(ratio): paired where "
+                "both cells have the same (seed, render) replicates, else Welch-Satterthwaite")
 RENDERS = "_renders"          # a metric's per-render values: column f"{metric}{RENDERS}"
 TIME_COLUMN = "time_ms"       # the one column aggregated as a median (timing.TIME)
 
@@ -322,7 +322,8 @@ def cell_values(rows, column: str):
 def column_interval(rows, column: str) -> tuple[MeanCI, str]:
     """One cell's figure of ``column`` with its interval, and the method that made it: the time
     (``TIME_COLUMN``) as :func:`median_ci` of every timed render where the rows carry them, any
-    other figure as :func:`mean_ci` of :func:`cell_values`."""
+    other figure over :func:`cell_values`: :func:`skew_corrected_ci` of replicates,
+    :func:`mean_ci` of per-seed values."""
     if column == TIME_COLUMN:
         times = [renders_values(text) for text in rows.get(TIME_COLUMN + RENDERS, ())]
         if times and all(t.size for t in times):
@@ -340,10 +341,6 @@ def compare_values(a, b) -> RatioCI:
         return ratio_ci(a.to_numpy(), b[a.index].to_numpy(), paired=True)
     return ratio_ci(a.to_numpy(), b.to_numpy())
 
-
-def compare_cells(rows_a, rows_b, column: str) -> RatioCI:
-    """B/A of two cells' ``column``: :func:`compare_values` of their :func:`cell_values`."""
-    return compare_values(cell_values(rows_a, column)[0], cell_values(rows_b, column)[0])
 
 
 def interval_text(mean: float, half_width: float, n: int, digits: int = 4) -> str:

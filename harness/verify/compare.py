@@ -5,7 +5,7 @@
 of ``METRICS`` present in both folders (FLIP only where both runs computed it), compare takes
 each side's figure with its interval as the report does
 (:func:`iblbench.harness.protocol.stats.column_interval`) and the ratio B/A of the means with its
-95% interval (:func:`iblbench.harness.protocol.stats.compare_cells`: delta method on
+95% interval (:func:`iblbench.harness.protocol.stats.compare_values`: delta method on
 log(ratio)).  The values compared are the cells' replicates (each scored render of each seed; a
 time: each timed render) where the rows carry them, else one value per seed.  When the two
 sides have the same replicates (the same seeds and repeats: a rerun of one sweep) the test is
@@ -55,7 +55,7 @@ import pandas as pd
 
 from iblbench.harness.protocol.results import KEY_COLUMNS, json_text, load_table, read_manifest, row_key
 from iblbench.harness.protocol.stats import (LEVEL, RATIO_METHOD, MeanCI, RatioCI, cell_values,
-                                             column_interval, compare_cells, ratio_ci)
+                                             column_interval, compare_values, ratio_ci)
 from iblbench.scenes.errors import InputError
 
 METRICS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "effective_ratio", "time_ms")
@@ -209,9 +209,9 @@ def compare(dir_a, dir_b, thresholds=()) -> dict:
                     or not _comparable(rows_a[metric], rows_b[metric]):
                 continue
             compared.add(metric)
-            ratio = compare_cells(rows_a, rows_b, metric)
-            unpaired = ratio_ci(*(cell_values(rows, metric)[0].to_numpy()
-                                  for rows in (rows_a, rows_b)))
+            values_a, values_b = (cell_values(rows, metric)[0] for rows in (rows_a, rows_b))
+            ratio = compare_values(values_a, values_b)
+            unpaired = ratio_ci(values_a.to_numpy(), values_b.to_numpy())
             metrics[metric] = {"a": column_interval(rows_a, metric)[0].to_dict(),
                                "b": column_interval(rows_b, metric)[0].to_dict(),
                                **ratio.to_dict(), "p_unpaired": unpaired.to_dict()["p"],
