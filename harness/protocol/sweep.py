@@ -443,39 +443,45 @@ def frames_arg(text: str) -> tuple[int, ...] | slice | None:
         raise InputError(None, f"--frames: {error}") from None
 
 
-def parse_spp(value) -> tuple[tuple[int, ...], tuple[tuple[str, tuple[int, ...]], ...]]:
-    """The spp levels: a list, or a table ``{default = [...], NAME = [...], ...}`` whose other
-    keys are estimator names with levels of their own (so that an estimator 100× as costly a
-    sample covers the same time range as the others) → (levels, ((name, levels), ...) sorted),
-    each sorted without repeats; ValueError naming the problem."""
+def _per_estimator(value, fallback, parse, field: str, expected: str):
+    """A setting given once or per estimator: ``value``, or a table ``{default = ..., NAME =
+    ..., ...}`` whose other keys are estimator names with a value of their own → (the default,
+    ((name, its value), ...) sorted); each value through ``parse`` (None for a bad one), and a
+    bad one is a ValueError naming ``field`` (and the estimator) and what was ``expected``."""
     table = value if isinstance(value, dict) else {"default": value}
 
-    def levels(key, values) -> tuple[int, ...]:
-        if not isinstance(values, list) or not all(_positive_int(v) for v in values):
+    def checked(key, entry):
+        parsed = parse(entry)
+        if parsed is None:
             where = "" if key == "default" else f" for {key}"
-            raise ValueError(f"spp{where} must be a list of positive integers, got {values!r}")
-        return tuple(sorted(set(values)))
+            raise ValueError(f"{field}{where} must be {expected}, got {entry!r}")
+        return parsed
 
-    return levels("default", table.get("default", [])), tuple(sorted(
-        (str(key).lower(), levels(key, values)) for key, values in table.items() if key != "default"))
+    return checked("default", table.get("default", fallback)), tuple(sorted(
+        (str(key).lower(), checked(key, entry)) for key, entry in table.items() if key != "default"))
+
+
+def parse_spp(value) -> tuple[tuple[int, ...], tuple[tuple[str, tuple[int, ...]], ...]]:
+    """The spp levels: a list, or a table ``{default = [...], NAME = [...], ...}`` giving
+    estimators levels of their own (so that an estimator 100× as costly a sample covers the same
+    time range as the others) → (levels, ((name, levels), ...) sorted), each sorted without
+    repeats; ValueError naming the problem."""
+    def levels(values):
+        return (tuple(sorted(set(values))) if isinstance(values, list)
+                and all(_positive_int(v) for v in values) else None)
+
+    return _per_estimator(value, [], levels, "spp", "a list of positive integers")
 
 
 def parse_repeats(value) -> tuple[int, tuple[tuple[str, int], ...]]:
-    """Timed renders per cell: ``N``, or a table ``{default = N, NAME = M, ...}`` whose other
-    keys are estimator names with a count of their own (fewer for a slow estimator) → (N,
-    ((name, M), ...) sorted); ValueError naming the problem."""
-    table = value if isinstance(value, dict) else {"default": value}
+    """Timed renders per cell: ``N``, or a table ``{default = N, NAME = M, ...}`` giving
+    estimators a count of their own (fewer for a slow estimator) → (N, ((name, M), ...) sorted);
+    ValueError naming the problem."""
+    def count(number):
+        return int(number) if _positive_int(number) and number <= MAX_REPEATS else None
 
-    def count(key, number) -> int:
-        if not (_positive_int(number) and number <= MAX_REPEATS):
-            where = "" if key == "default" else f" for {key}"
-            raise ValueError(f"repeats{where} must be an integer in 1..{MAX_REPEATS}, "
-                             f"got {number!r}")
-        return int(number)
-
-    default = count("default", table.get("default", DEFAULT_REPEATS))
-    return default, tuple(sorted((str(key).lower(), count(key, number))
-                                 for key, number in table.items() if key != "default"))
+    return _per_estimator(value, DEFAULT_REPEATS, count, "repeats",
+                          f"an integer in 1..{MAX_REPEATS}")
 
 
 def repeats_arg(text: str) -> tuple[int, tuple[tuple[str, int], ...]]:
