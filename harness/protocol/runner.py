@@ -311,8 +311,9 @@ class Runner:
         if len(set(labels)) != len(labels):
             raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
         levels = {get_estimator_class(name).name: tuple(v) for name, v in config.spp_for}
-        self.spp = {spec.label: levels.get(spec.cls.name, tuple(config.spp)) for spec in self.specs}
-        _require_spp_within_bounds(self.specs, self.spp)
+        self.spp_levels = {spec.label: levels.get(spec.cls.name, tuple(config.spp))
+                           for spec in self.specs}
+        _require_spp_within_bounds(self.specs, self.spp_levels)
         self.scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
                        for name in config.scenes]
         _require_unique_names(self.scenes)
@@ -392,7 +393,7 @@ class Runner:
     def _variants(self, spec):
         """(spp, budget) of each cell family of ``spec``: its spp levels (``spp_for`` or the
         sweep's), then each time budget."""
-        return ([(spp, None) for spp in self.spp[spec.label]]
+        return ([(spp, None) for spp in self.spp_levels[spec.label]]
                 + [(None, float(b)) for b in self.config.time_budget_ms])
 
     def _valid(self, row: dict | None, plan: _ScenePlan, spec) -> bool:
