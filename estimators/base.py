@@ -79,7 +79,7 @@ class Estimator:
     name: ClassVar[str] = ""
     Params: ClassVar[type] = NoParams
     settings: ClassVar[tuple[Setting, ...]] = ()   # at least one per parameter of Params
-    tags: ClassVar[Tags] = Tags()
+    tags: ClassVar[Tags] = Tags()   # an instance may set its own where a parameter changes them (restir)
     requires: ClassVar[tuple[str, ...]] = ()
     kernel_files: ClassVar[tuple[str, ...]] = ()
     max_spp: ClassVar[int | None] = None   # the most spp render accepts; None: no bound

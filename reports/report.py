@@ -394,7 +394,7 @@ def bias_table(run_dir, table, cells, scene, frame, mask) -> markupsafe.Markup |
         spp = int(runs.spp.max())
         paths = [folder / f"{_image_stem(row)}.exr" for row in runs[runs.spp == spp].to_dict("records")]
         try:
-            biased = not type(_estimator(label)).tags.unbiased
+            biased = not _estimator(label).tags.unbiased
         except InputError:      # an estimator this installation lacks
             biased = False
         if not biased or not all(p.exists() for p in [folder / "reference.exr", *paths]):

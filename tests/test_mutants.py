@@ -14,7 +14,7 @@ from iblbench.harness.verify import mutants
 from iblbench.cli import main
 
 pytestmark = pytest.mark.slow
-AREAS = ("uniform", "balanced", "balanced_mis", "havran", "bis", "smc")
+AREAS = ("uniform", "balanced", "balanced_mis", "havran", "bis", "smc", "restir")
 
 
 def test_catalogue_covers_every_estimator_and_harness_part_and_applies_cleanly():

@@ -486,6 +486,44 @@ def check_temporal_consistency(estimator, h: Harness) -> None:
     assert end <= 2.0 * start + 1e-6, f"error drifts on a static map: RMS {start:.4g} → {end:.4g}"
 
 
+def switch_frames(res: int = 8) -> list[np.ndarray]:
+    """A light switching: ``smooth_map``, then a one-texel sun 1e3× its brightest texel on
+    (``sun_map``), the same again, and off (the sky alone), each a frame of its own."""
+    sky = smooth_map(res)
+    sun = sun_map(res, 1e3)
+    sun[sun != sun.max()] = sky[sun != sun.max()]
+    return [sky, sun, sun.copy(), sky.copy()]
+
+
+SEQUENCE_SEEDS = 1000
+
+
+def check_unbiased_over_frames(estimator, h: Harness) -> None:
+    """Temporal estimators tagged unbiased: the mean over seeds of every frame of a switching
+    sequence (``switch_frames``: on, static, off), each sequence rendered in order after
+    ``reset()``, is the frame's exact reference, by ``check_unbiased``'s two z-test families over
+    every frame at once (Šidák).  The one-frame z-test sees only an estimator's first frame,
+    before it carries anything; this one sees reuse across a map that changes and one that
+    does not."""
+    gbuffer = DeviceGBuffer(h.compute, glossy_gbuffer())
+    caches = [FrameCache(h.compute, env, frame) for frame, env in enumerate(switch_frames())]
+    for cache in caches:
+        cache.require(type(estimator).requires)
+    samples = np.zeros((SEQUENCE_SEEDS, len(caches), gbuffer.count, 3))
+    for seed in range(SEQUENCE_SEEDS):
+        estimator.reset()
+        for t, cache in enumerate(caches):
+            samples[seed, t] = estimator.render(gbuffer, cache, 4, seed).radiance.reshape(-1, 3)
+    failures = []
+    for t, cache in enumerate(caches):
+        test = bias_test(samples[:, t], h.reference(gbuffer, cache).reshape(-1, 3))
+        if np.abs(test.pooled_z).max() >= sidak_z(3 * len(caches)):
+            failures.append(f"frame {t}: image mean z = {np.round(test.pooled_z, 2)}")
+        if np.abs(test.pixel_z).max() >= sidak_z(test.pixel_z.size * len(caches)):
+            failures.append(f"frame {t}: pixel |z| = {np.abs(test.pixel_z).max():.2f}")
+    assert not failures, "biased over frames: " + "; ".join(failures)
+
+
 TWIN_FRAMES = 10    # rotating-sun: the init, holds (1, 7, 8) and turning frames (2-6, 9)
 # Runs of each of the 5 shading points: the MH misprint scores |z| 7.8 (6.1 at 128), the weight
 # update without γ_{t−1} 115; the check costs 1.2-4 s (smc's kernels built).
@@ -724,10 +762,26 @@ def says_fir_taps(cls, setting, h: Harness) -> None:
             np.testing.assert_allclose(weights, expected, rtol=1e-12, err_msg=f"taps {taps}, frame {frame}")
 
 
+def says_history_cap(cls, setting, h: Harness) -> None:
+    """``history_cap`` (RTXDI's M-cap): a reservoir's history counts at most history_cap × M
+    candidates, so on a static map without spatial reuse (the setting's context) every
+    reservoir's confidence settles at exactly (history_cap + 1)·M, the ``confidence`` extra in
+    units of M, after history_cap + 1 frames."""
+    gbuffer, cache = h.inputs(glossy_gbuffer(4), smooth_map())
+    cache.require(cls.requires)
+    for instance in setting_pair(cls, setting):
+        cap = instance.params.history_cap
+        instance.reset()
+        for _ in range(int(cap) + 3):
+            confidence = instance.render(gbuffer, cache, 2, 1).extras["confidence"]
+        assert confidence == cap + 1, (f"history_cap = {cap}: the confidence settles at {confidence} M, "
+                                       f"not {cap + 1} M")
+
+
 # What a Setting ``says``: the check of the property its parameter's docstring states.
 SETTING_PROPERTIES = {"shared_sequence": says_shared_sequence, "mis_brdf": says_mis_brdf,
                       "mis_heuristic": says_mis_heuristic, "mis_compensation": says_mis_compensation,
-                      "fir_taps": says_fir_taps}
+                      "fir_taps": says_fir_taps, "history_cap": says_history_cap}
 
 
 def skipped_checks(estimator) -> dict[str, str]:
@@ -747,7 +801,7 @@ def check_timing(estimator, h: Harness) -> None:
 
 def yield_checks(estimator) -> Iterator[Callable]:
     """The checks that apply to this estimator's tags, in a fixed order."""
-    tags = type(estimator).tags
+    tags = estimator.tags   # an instance's: a parameter may choose a biased mode (restir)
     yield check_constructible
     yield check_output_shape
     if tags.deterministic:
@@ -772,6 +826,8 @@ def yield_checks(estimator) -> Iterator[Callable]:
         yield check_effective_share
     if tags.temporal:
         yield check_temporal_consistency
+        if tags.unbiased:
+            yield check_unbiased_over_frames
     if "check_matches_twin" not in skipped_checks(estimator):
         yield check_matches_twin
     yield check_timing

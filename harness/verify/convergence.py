@@ -113,7 +113,7 @@ def _tags(label: str):
     from iblbench.scenes.errors import InputError
 
     try:
-        return parse_estimator(label).cls.tags
+        return parse_estimator(label).make().tags
     except InputError:
         return None
 

@@ -191,6 +191,13 @@ CATALOGUE: tuple[Mutant, ...] = (
        "pdf += q->env_pick * GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;",
        "pdf += GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;", ["smc"],
        ["constant"]),
+    # ---- restir --------------------------------------------------------------------------------
+    _m("restir-gris-weight-without-previous-target", "estimators/restir.cl",
+       "unbiased ? restir_target(&s, prev_env, res, current.w, visibility, p)",
+       "unbiased ? restir_target(&s, env, res, current.w, visibility, p)", ["restir"], ["temporal-dropout"]),
+    _m("restir-m-cap-off-by-one", "estimators/restir.cl",
+       "min(inputs[1].confidence, history_cap * current.confidence)",
+       "min(inputs[1].confidence, (history_cap + 1.0f) * current.confidence)", ["restir"]),
     # ---- the frame cache --------------------------------------------------------------------
     _m("framecache-luminance-weights-swapped", "estimators/runtime/framecache.cl",
        "return 0.2126f * x + 0.7152f * y + 0.0722f * z;",

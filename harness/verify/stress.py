@@ -584,7 +584,7 @@ def evaluate(case: StressCase, estimator, label: str, variants: list[Prepared], 
     """The row of ``estimator`` (shown as ``label``) on ``case``'s prepared variants."""
     start = time.perf_counter()
     estimator = case.configured(estimator)
-    tags = type(estimator).tags
+    tags = estimator.tags
     spp = case.spp or scale.spp
     row = _Row()
     for prepared in variants:

@@ -1,0 +1,418 @@
+/* `restir`: reservoir-based spatiotemporal importance resampling of the environment map (Bitterli
+ * et al. 2020) with generalised RIS weights (Lin et al. 2022); the algorithm, its MIS weights and
+ * its deviations are documented in restir.py.  Kernels per frame:
+ *   restir_presample        the frame's tiles of light presamples, drawn by hierarchical.cl's
+ *                           descent through the luminance pyramid (RTXDI's environment presampling);
+ *   restir_initial_temporal each pixel's initial RIS over M candidates (light candidates from one
+ *                           tile, BRDF candidates), combined with its reservoir of last frame;
+ *   restir_spatial_shade    each pixel's reservoir combined with k neighbours' (from the temporal
+ *                           pass's buffers), stored as next frame's history, and shaded.
+ * A reservoir is two float4s: (ω, W) and (c, p̂, ·, ·): its sample, its unbiased contribution
+ * weight W, its confidence c (the candidates behind it) and p̂ of its own pixel at ω under the
+ * frame's map (the next frame's p̂_{t−1}(ω), no re-evaluation under the old map). */
+/* The target p̂ = L_Y·ρ_Y·cos⁺·V (sir.cl's γ with V). */
+#define SIR_TARGET_VISIBILITY 1
+#include "sir.cl"
+#include "hierarchical.cl"
+
+#define STREAM_RESTIR_CANDIDATE 50u
+#define STREAM_RESTIR_REUSE 51u
+#define MAX_NEIGHBOURS 8
+/* RTXDI's spatial-reuse tests (its defaults): a neighbour whose normal is within acos 0.5 of the
+ * pixel's and whose depth is within 10% of it. */
+#define NORMAL_THRESHOLD 0.5f
+#define DEPTH_THRESHOLD 0.1f
+
+typedef struct {
+    vec3_t w;
+    float weight;       /* W: the unbiased contribution weight, 1/p̂-scaled */
+    float confidence;   /* c */
+    float target;       /* p̂ of the reservoir's pixel at w, this frame's map */
+} reservoir_t;
+
+/* Written through a pointer, not returned: an inlined struct return leaves an
+ * llvm.experimental.noalias.scope.decl that Oclgrind 21.10 cannot run. */
+ALWAYS_INLINE void load_reservoir(__global const float4 *sample, __global const float4 *info, int p, reservoir_t *r)
+{
+    r->w = vec3_load(sample, p);
+    r->weight = load_w(sample, p);
+    r->confidence = info[p].x;
+    r->target = info[p].y;
+}
+
+ALWAYS_INLINE void store_reservoir(__global float4 *sample, __global float4 *info, int p, reservoir_t r)
+{
+    sample[p] = (float4)(r.w.x, r.w.y, r.w.z, r.weight);
+    info[p] = (float4)(r.confidence, r.target, 0.0f, 0.0f);
+}
+
+/* p̂ without V (the biased combination's support test). */
+ALWAYS_INLINE float target_without_visibility(const shading_t *s, __global const float4 *env, int res, vec3_t w)
+{
+    float cosine = vec3_dot(s->n, w);
+    return cosine > 0.0f ? vec3_luminance(env_radiance(env, res, w)) * brdf_luminance(s, phong_lobe_power(s->r, w, s->m)) * cosine
+                         : 0.0f;
+}
+
+/* p̂ of a pixel of shading s at w under the map env (V from pixel p's mask). */
+ALWAYS_INLINE float restir_target(const shading_t *s, __global const float4 *env, int res, vec3_t w,
+                                  __global const uint *visibility, int p)
+{
+    vec3_t radiance;
+    return sir_target(s, env, res, w, phong_lobe_power(s->r, w, s->m), &radiance, visibility, p);
+}
+
+/* The frame's presamples: `tiles` × tile_size light directions by the pyramid's descent, as planes
+ * x, y, z, density (solid angle) of n = global size × POOL_LANES floats.  Slot i of the planes is
+ * draw i of presample stream 0: the tiles are consecutive runs of the one stream. */
+__kernel void restir_presample(__global const float *pyramid, const int res, const uint seed,
+                               const uint frame, __global float *presamples)
+{
+    int at = get_global_id(0) * POOL_LANES, n = get_global_size(0) * POOL_LANES;
+    lane_ints_t texel;
+    lanes_t pdf;
+    lanes3_t w = lanes_sample_light(pyramid, res, seed, frame, 0u, at + LANE_NUMBERS, &texel, &pdf);
+    vstore_lanes(w.x, 0, presamples + at);
+    vstore_lanes(w.y, 0, presamples + n + at);
+    vstore_lanes(w.z, 0, presamples + 2 * n + at);
+    vstore_lanes(pdf, 0, presamples + 3 * n + at);
+}
+
+#define SCALE_CELLS 8   /* the coarsest pyramid level of at most 8 × 8 cells a face */
+
+/* The scale of pixel p's target under the frame's map in the MIS weights (restir.py): 1/Z̃, Z̃ a
+ * deterministic stand-in for ∫p̂: over the pyramid's level of at most SCALE_CELLS² cells a face,
+ * Σ the cell's Y·Ω times ρ_Y·cos⁺ at its centre; 1/the map's power where that is 0 (every lit
+ * cell's centre below the horizon), and 0 for a black map (whose targets are all 0). */
+__kernel void restir_target_scales(__global const float4 *normal, __global const float4 *view,
+                                   __global const float4 *kd, __global const float4 *ks_m,
+                                   __global const float *pyramid, const int res, __global float *scales)
+{
+    int p = get_global_id(0);
+    shading_t s = load_shading(normal, view, kd, ks_m, p);
+    int top, levels = descent_levels(res, &top), level = 0;
+    while (level_size(res, level) > SCALE_CELLS) ++level;
+    int n = level_size(res, level), offset = 0;
+    for (int l = 0; l < level; ++l) offset += 6 * level_size(res, l) * level_size(res, l);
+    float total = 0.0f, power = 0.0f;
+    for (int f = 0; f < 6; ++f) {
+        power += pyramid[top + f];
+        for (int a = 0; a < n; ++a)
+            for (int b = 0; b < n; ++b) {
+                vec3_t w = vec3_normalize(vec3_of(face_uv_to_dir(f, (float)(2 * b + 1) / (float)n - 1.0f,
+                                                                 (float)(2 * a + 1) / (float)n - 1.0f)));
+                float cosine = vec3_dot(s.n, w);
+                if (cosine > 0.0f)
+                    total += pyramid[offset + (f * n + a) * n + b] * brdf_luminance(&s, phong_lobe_power(s.r, w, s.m)) * cosine;
+            }
+    }
+    scales[p] = total > 0.0f ? 1.0f / total : power > 0.0f ? 1.0f / power : 0.0f;
+}
+
+/* One reservoir per lane over the lanes' candidates seen so far (Bitterli Alg. 2's streaming
+ * update, each lane its own stream of candidates). */
+typedef struct {
+    lanes_t sum, target, x, y, z;
+    lane_ints_t effective;   /* candidates with a positive cosine */
+} lane_reservoirs_t;
+
+/* Stream the lanes' candidates w (where `active`) of light density pdf_light into r: RIS weight
+ * p̂/(M_L·p_L + M_B·p_B) (the balance heuristic over the two candidate strategies, Talbot 2005),
+ * kept with probability weight/sum by the uniforms u. */
+ALWAYS_INLINE void stream_candidates(lane_reservoirs_t *r, const shading_t *s, __global const float4 *env,
+                                     int res, lanes3_t w, lanes_t pdf_light, lane_ints_t active,
+                                     float light_count, float brdf_count, lanes_t u,
+                                     __global const uint *visibility, int p)
+{
+    lanes_t cosine = lanes_dot(s->n, w);
+    lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
+    lane_ints_t face, row, col;
+    lanes_texel_of(res, w, &face, &row, &col);
+    lanes3_t radiance = lanes_texel_radiance(env, (face * res + row) * res + col);
+    lanes_t luminance = 0.2126f * radiance.x + 0.7152f * radiance.y + 0.0722f * radiance.z;
+    lanes_t rho = vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * ((s->m + 2.0f) / (2.0f * IBL_PI)) * power;
+    lane_ints_t counted = active & (cosine > 0.0f);
+    lanes_t target = select((lanes_t)0.0f, luminance * rho * cosine, counted & lanes_visible(visibility, p, w));
+    lanes_t source = light_count * pdf_light
+                     + brdf_count * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
+    lanes_t weight = target / source;
+    weight = select((lanes_t)0.0f, weight, (target > 0.0f) & (source > 0.0f) & isfinite(weight));
+    r->sum += weight;
+    lane_ints_t keep = (u * r->sum < weight);
+    r->target = select(r->target, target, keep);
+    r->x = select(r->x, w.x, keep);
+    r->y = select(r->y, w.y, keep);
+    r->z = select(r->z, w.z, keep);
+    r->effective += select((lane_ints_t)0, (lane_ints_t)1, counted);
+}
+
+/* Initial RIS (Talbot 2005; Bitterli Alg. 3 with two candidate strategies): light_count
+ * candidates read uniformly from one tile of presamples (the pixel's tile, drawn each frame) and
+ * brdf_count from the Phong mixture, each weighted by stream_candidates; one is kept with
+ * probability ∝ its weight.  W = Σ weights / p̂(kept), c = M = light_count + brdf_count.
+ * *effective gets the candidates with a positive cosine. */
+ALWAYS_INLINE reservoir_t initial_reservoir(const shading_t *s, int p, __global const float4 *env, int res,
+                                            __global const float *pyramid, __global const float *presamples,
+                                            int presample_count, int tiles, int tile_size,
+                                            int light_count, int brdf_count, int chain, uint seed,
+                                            uint frame, __global const uint *visibility, int *effective)
+{
+    lane_reservoirs_t r = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f,
+                           (lane_ints_t)0};
+    philox4x32_ctr_t pick = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, (uint)chain);
+    int first = (int)(pick.v[0] & (uint)(tiles - 1)) * tile_size;
+    __global const float *planes = presamples + first;
+    for (int i = 0; i < light_count; i += POOL_LANES) {
+        lane_ints_t draw = i + LANE_NUMBERS;
+        lane_block_t xi = rng_block_lanes(seed, frame, STREAM_RESTIR_CANDIDATE, (uint)p, convert_lane_uints(draw),
+                                          (uint)(2 * chain));
+        lane_ints_t slot = convert_lane_ints(xi.v[0] & (uint)(tile_size - 1));
+        lanes3_t w = make_lanes3(GATHER(lanes_t, planes, slot), GATHER(lanes_t, planes + presample_count, slot),
+                                 GATHER(lanes_t, planes + 2 * presample_count, slot));
+        stream_candidates(&r, s, env, res, w, GATHER(lanes_t, planes + 3 * presample_count, slot),
+                          draw < light_count, (float)light_count, (float)brdf_count, lanes_unit(xi.v[1]),
+                          visibility, p);
+    }
+    vec3_t t_n, b_n, t_r, b_r;
+    direction_about_axis_basis(s->n, &t_n, &b_n);
+    direction_about_axis_basis(s->r, &t_r, &b_r);
+    for (int i = 0; i < brdf_count; i += POOL_LANES) {
+        lane_ints_t draw = i + LANE_NUMBERS, texel;
+        lanes3_t w = lanes_brdf_draw(s, t_n, b_n, t_r, b_r, seed, frame, (uint)p, chain * brdf_count + draw);
+        lane_block_t xi = rng_block_lanes(seed, frame, STREAM_RESTIR_CANDIDATE, (uint)p, convert_lane_uints(draw),
+                                          (uint)(2 * chain + 1));
+        stream_candidates(&r, s, env, res, w, lanes_light_density(pyramid, res, w, &texel), draw < brdf_count,
+                          (float)light_count, (float)brdf_count, lanes_unit(xi.v[1]), visibility, p);
+    }
+    /* The lanes' reservoirs merged: lane k with probability ∝ its sum (Bitterli Alg. 4, one target). */
+    float sums[POOL_LANES], targets[POOL_LANES], xs[POOL_LANES], ys[POOL_LANES], zs[POOL_LANES];
+    vstore_lanes(r.sum, 0, sums);
+    vstore_lanes(r.target, 0, targets);
+    vstore_lanes(r.x, 0, xs);
+    vstore_lanes(r.y, 0, ys);
+    vstore_lanes(r.z, 0, zs);
+    float total = 0.0f;
+    for (int k = 0; k < POOL_LANES; ++k) total += sums[k];
+    float threshold = rng_unit(pick.v[1]) * total, running = 0.0f;
+    int chosen = -1;
+    for (int k = 0; k < POOL_LANES; ++k) {
+        running += sums[k];
+        if (chosen < 0 && sums[k] > 0.0f && threshold < running) chosen = k;
+    }
+    if (chosen < 0)   /* rounding at the top of the sum: the last lane of positive sum */
+        for (int k = 0; k < POOL_LANES; ++k) if (sums[k] > 0.0f) chosen = k;
+    *effective = int_sum_of8(to8(r.effective));
+    reservoir_t out = {vec3(0.0f, 0.0f, 1.0f), 0.0f, (float)(light_count + brdf_count), 0.0f};
+    if (chosen >= 0 && total > 0.0f && isfinite(total)) {
+        out.w = vec3(xs[chosen], ys[chosen], zs[chosen]);
+        out.target = targets[chosen];
+        out.weight = total / out.target;
+    }
+    return out;
+}
+
+/* Resampling of n reservoirs r (their samples reused unchanged: the identity shift, exact for
+ * directions to a map at infinity, Jacobian 1) into one for domain 0.  targets[j·n + i] is
+ * p̂_j(ω_i), domain j's target at input i's sample (its diagonal the inputs' own p̂); scales[j]
+ * a positive constant of domain j (restir_target_scales).
+ *   unbiased: GRIS (Lin et al. 2022) with the generalised balance heuristic and confidence
+ *     weights c: w_i = m_i(ω_i)·p̂_0(ω_i)·W_i with
+ *     m_i(ω) = c_i s_i p̂_i(ω) / Σ_j c_j s_j p̂_j(ω), which sum to 1 wherever p̂_0 > 0, and are
+ *     0 for an input that cannot produce ω (p̂_i(ω) = 0);
+ *   biased: Bitterli Alg. 6's 1/Z combination without visibility in Z: w_i = p̂_0(ω_i)·W_i·c_i,
+ *     W = Σ w / (p̂_0(ω)·Z(ω)), Z(ω) = Σ c_j over the domains j with p̂_j(ω) > 0, where the
+ *     targets off row 0 are p̂_j without V (target_without_visibility): unbiased where no domain's
+ *     V differs from another's, biased at shadow boundaries (Bitterli §4.3: Z needs visibility
+ *     to be exact, which costs a shadow ray a neighbour).
+ * The kept sample is input i with probability w_i/Σ w (uniform u); c = Σ c_i. */
+ALWAYS_INLINE reservoir_t combine_reservoirs(const reservoir_t *r, const float *targets, const float *scales,
+                                             int n, int unbiased, float u)
+{
+    float weights[MAX_NEIGHBOURS + 1], total = 0.0f, confidence = 0.0f;
+    for (int i = 0; i < n; ++i) confidence += r[i].confidence;
+    for (int i = 0; i < n; ++i) {
+        float w = targets[i] * r[i].weight;
+        if (unbiased) {
+            float denominator = 0.0f;
+            for (int j = 0; j < n; ++j) denominator += r[j].confidence * scales[j] * targets[j * n + i];
+            w *= r[i].confidence * scales[i] * targets[i * n + i] / denominator;
+        } else {
+            w *= r[i].confidence;
+        }
+        weights[i] = w > 0.0f && isfinite(w) ? w : 0.0f;
+        total += weights[i];
+    }
+    float threshold = u * total, running = 0.0f;
+    int chosen = -1;
+    for (int i = 0; i < n; ++i) {
+        running += weights[i];
+        if (chosen < 0 && weights[i] > 0.0f && threshold < running) chosen = i;
+    }
+    if (chosen < 0)   /* rounding at the top of the sum: the last input of positive weight */
+        for (int i = 0; i < n; ++i) if (weights[i] > 0.0f) chosen = i;
+    reservoir_t out = {r[0].w, 0.0f, confidence, 0.0f};
+    if (chosen >= 0 && isfinite(total)) {
+        out.w = r[chosen].w;
+        out.target = targets[chosen];
+        float normaliser = 0.0f;   /* Z(ω) of the biased combination */
+        for (int j = 0; j < n; ++j) normaliser += targets[j * n + chosen] > 0.0f ? r[j].confidence : 0.0f;
+        float weight = total / (out.target * (unbiased ? 1.0f : normaliser));
+        out.weight = isfinite(weight) ? weight : 0.0f;
+    }
+    return out;
+}
+
+/* Pass 1: each pixel's initial reservoir of each chain, combined with that chain's history (last
+ * frame's final reservoir, its confidence capped at history_cap × this frame's M) where
+ * `temporal`.  Under GRIS the history's sample is weighed with p̂_{t−1} of this pixel under last
+ * frame's map (prev_env), so a map that changed, or switched, keeps the estimator unbiased; each
+ * domain's target scaled by the pixel's restir_target_scales under its map (`scales`, `prev_scales`).  Chain c of pixel
+ * p is slot c·n + p of the reservoir buffers (n = global size).  stats[p] gets (evaluations,
+ * effective candidates, ·, shadow rays: the evaluations with V), summed over the chains. */
+__kernel void restir_initial_temporal(__global const float4 *normal, __global const float4 *view,
+                                      __global const float4 *kd, __global const float4 *ks_m,
+                                      __global const uint *visibility, __global const float4 *env,
+                                      __global const float4 *prev_env, __global const float *pyramid,
+                                      __global const float *presamples, __global const float *scales,
+                                      __global const float *prev_scales, const int res,
+                                      const int presample_count, const int tiles, const int tile_size,
+                                      const int light_count, const int brdf_count, const int chains,
+                                      const int temporal, const float history_cap, const int unbiased,
+                                      const uint seed, const uint frame, __global const float4 *history_sample,
+                                      __global const float4 *history_info, __global float4 *out_sample,
+                                      __global float4 *out_info, __global float4 *stats)
+{
+    int p = get_global_id(0), n = get_global_size(0), effective = 0;
+    shading_t s = load_shading(normal, view, kd, ks_m, p);
+    float domain_scales[2] = {scales[p], prev_scales[p]};
+    /* The history's confidence scaled by min(1, Z̃_t/Z̃_{t−1}) (restir.py): a map that lost most of
+     * the pixel's light leaves the history few samples where the light now is. */
+    float history_share = scales[p] > 0.0f ? min(1.0f, prev_scales[p] / scales[p]) : 1.0f;
+    float evaluations = 0.0f, shadow_rays = 0.0f;
+    for (int c = 0; c < chains; ++c) {
+        int chain_effective;
+        reservoir_t current = initial_reservoir(&s, p, env, res, pyramid, presamples, presample_count, tiles,
+                                                tile_size, light_count, brdf_count, c, seed, frame, visibility,
+                                                &chain_effective);
+        effective += chain_effective;
+        evaluations += (float)(light_count + brdf_count);
+        shadow_rays += (float)(light_count + brdf_count);
+        if (temporal) {
+            reservoir_t inputs[2];
+            inputs[0] = current;
+            load_reservoir(history_sample, history_info, c * n + p, &inputs[1]);
+            inputs[1].confidence = min(inputs[1].confidence, history_cap * current.confidence) * history_share;
+            float targets[4] = {current.target, restir_target(&s, env, res, inputs[1].w, visibility, p),
+                                unbiased ? restir_target(&s, prev_env, res, current.w, visibility, p)
+                                         : target_without_visibility(&s, prev_env, res, current.w),
+                                inputs[1].target};
+            evaluations += 2.0f;
+            shadow_rays += unbiased ? 2.0f : 1.0f;
+            philox4x32_ctr_t u = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, (uint)c);
+            current = combine_reservoirs(inputs, targets, domain_scales, 2, unbiased, rng_unit(u.v[2]));
+        }
+        store_reservoir(out_sample, out_info, c * n + p, current);
+    }
+    stats[p] = (float4)(evaluations, (float)effective, 0.0f, shadow_rays);
+}
+
+/* Neighbour j of chain c of pixel p (image position `at` of a width × height image): a pixel
+ * uniform in the disc of `radius` pixels about it, clamped to the image, not p itself, covered,
+ * and passing RTXDI's normal and depth tests; -1 if none. */
+ALWAYS_INLINE int spatial_neighbour(int p, int at, int width, int height, float radius, uint seed, uint frame,
+                                    int c, int j, __global const int *pixel_at, __global const float4 *normal,
+                                    __global const float *depth)
+{
+    philox4x32_ctr_t xi = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, (uint)(1 + j), (uint)c);
+    float sine, cosine, distance = radius * sqrt(rng_unit(xi.v[0]));
+    sincos_turn(rng_unit(xi.v[1]), &sine, &cosine);
+    int x = clamp(at % width + (int)rint(distance * cosine), 0, width - 1);
+    int y = clamp(at / width + (int)rint(distance * sine), 0, height - 1);
+    int q = pixel_at[y * width + x];
+    if (q < 0 || q == p) return -1;
+    if (vec3_dot(vec3_load(normal, p), vec3_load(normal, q)) < NORMAL_THRESHOLD) return -1;
+    if (fabs(depth[q] - depth[p]) > DEPTH_THRESHOLD * depth[p]) return -1;
+    return q;
+}
+
+/* Chain c of pixel p's reservoir of pass 1 combined with up to `neighbours` neighbours' of the
+ * same chain (also of pass 1, so no pixel reads what another writes); *evaluations, *shadow_rays
+ * and *reused grow by the targets evaluated, those with V, and the neighbours found. */
+ALWAYS_INLINE reservoir_t spatial_reuse(__global const float4 *normal, __global const float4 *view,
+                                        __global const float4 *kd, __global const float4 *ks_m,
+                                        __global const uint *visibility, __global const float4 *env, int res,
+                                        int p, int n, int c, int at, __global const int *pixel_at,
+                                        __global const float *depth, int width, int height, int neighbours,
+                                        float radius, int unbiased, uint seed, uint frame,
+                                        __global const float4 *in_sample, __global const float4 *in_info,
+                                        __global const float *scales, float *evaluations, float *shadow_rays,
+                                        float *reused)
+{
+    reservoir_t inputs[MAX_NEIGHBOURS + 1];
+    int pixels[MAX_NEIGHBOURS + 1], count = 1;
+    pixels[0] = p;
+    load_reservoir(in_sample, in_info, c * n + p, &inputs[0]);
+    for (int j = 0; j < neighbours; ++j) {
+        int q = spatial_neighbour(p, at, width, height, radius, seed, frame, c, j, pixel_at, normal, depth);
+        if (q < 0) continue;
+        pixels[count] = q;
+        load_reservoir(in_sample, in_info, c * n + q, &inputs[count++]);
+    }
+    *reused += (float)(count - 1);
+    if (count == 1) return inputs[0];
+    float targets[(MAX_NEIGHBOURS + 1) * (MAX_NEIGHBOURS + 1)], domain_scales[MAX_NEIGHBOURS + 1];
+    for (int j = 0; j < count; ++j) {
+        shading_t s = load_shading(normal, view, kd, ks_m, pixels[j]);
+        domain_scales[j] = scales[pixels[j]];
+        for (int i = 0; i < count; ++i) {
+            int visible_too = unbiased || j == 0;   /* the biased Z's support tests leave V out */
+            targets[j * count + i] = i == j ? inputs[i].target
+                                   : visible_too ? restir_target(&s, env, res, inputs[i].w, visibility, pixels[j])
+                                   : target_without_visibility(&s, env, res, inputs[i].w);
+            *evaluations += i != j ? 1.0f : 0.0f;
+            *shadow_rays += i != j && visible_too ? 1.0f : 0.0f;
+        }
+    }
+    philox4x32_ctr_t u = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, (uint)c);
+    return combine_reservoirs(inputs, targets, domain_scales, count, unbiased, rng_unit(u.v[3]));
+}
+
+/* Pass 2: each chain's spatial reuse (spatial_reuse); the results are the pixel's histories for
+ * the next frame, and its estimate the chains' mean of f(ω)·W, f = L·ρ·cos⁺·V (V = 1 where
+ * p̂ > 0).  Outputs: radiance, counts (used = the chains, effective = those whose kept sample has
+ * a positive cosine), stats (evaluations of every chain with the shading, and per chain the
+ * neighbours reused and the confidence, then the shadow rays of every chain). */
+__kernel void restir_spatial_shade(__global const float4 *normal, __global const float4 *view,
+                                   __global const float4 *kd, __global const float4 *ks_m,
+                                   __global const uint *visibility, __global const float4 *env, const int res,
+                                   __global const int *pixel_index, __global const int *pixel_at,
+                                   __global const float *depth, const int width, const int height,
+                                   const int neighbours, const float radius, const int chains,
+                                   const int unbiased, const uint seed, const uint frame,
+                                   __global const float4 *in_sample, __global const float4 *in_info,
+                                   __global const float *scales, __global float4 *history_sample, __global float4 *history_info,
+                                   __global float4 *radiance, __global float2 *counts, __global float4 *stats)
+{
+    int p = get_global_id(0), n = get_global_size(0);
+    shading_t s = load_shading(normal, view, kd, ks_m, p);
+    float4 first_pass = stats[p];
+    float evaluations = first_pass.x, shadow_rays = first_pass.w, reused = 0.0f, confidence = 0.0f, effective = 0.0f;
+    vec3_t sum = vec3(0.0f, 0.0f, 0.0f);
+    for (int c = 0; c < chains; ++c) {
+        reservoir_t out = spatial_reuse(normal, view, kd, ks_m, visibility, env, res, p, n, c, pixel_index[p],
+                                        pixel_at, depth, width, height, neighbours, radius, unbiased, seed,
+                                        frame, in_sample, in_info, scales, &evaluations, &shadow_rays, &reused);
+        store_reservoir(history_sample, history_info, c * n + p, out);
+        confidence += out.confidence;
+        float cosine = vec3_dot(s.n, out.w);
+        if (out.weight > 0.0f && cosine > 0.0f) {
+            vec3_t f = vec3_mul(env_radiance(env, res, out.w), phong_value(s.kd, s.ks, s.m, phong_lobe_power(s.r, out.w, s.m)));
+            sum = vec3_add(sum, vec3_scale(f, out.weight * cosine));
+            effective += 1.0f;
+        }
+    }
+    float share = 1.0f / (float)chains;
+    radiance[p] = (float4)(sum.x * share, sum.y * share, sum.z * share, 0.0f);
+    counts[p] = (float2)((float)chains, effective);
+    stats[p] = (float4)(evaluations + (float)chains, reused * share, confidence * share, shadow_rays);
+}
