@@ -79,7 +79,7 @@ import functools
 
 import numpy as np
 
-from . import cubemap, sky
+from . import cubemap, photo_lights, sky
 from .envmap import resample_latlong
 from .imageio import read_image
 from .scene import EnvSequence
@@ -121,7 +121,13 @@ def solar_position(hour: float, latitude_deg: float = DAY_LATITUDE_DEG,
 def day_sun(index: int) -> tuple[float, float]:
     """(elevation, sky azimuth) in degrees of the sun in frame ``index`` of ``day`` (sky.py's
     azimuth convention: 0 → +Z = south, 90° → +X = east)."""
-    elevation, compass = solar_position(float(day_hours()[index]))
+    return sun_at(float(day_hours()[index]))
+
+
+def sun_at(hour: float) -> tuple[float, float]:
+    """(elevation, sky azimuth) in degrees of ``day``'s sun at solar time ``hour``: the map's
+    compass puts south at +Z, so sky azimuth = 180° − compass azimuth."""
+    elevation, compass = solar_position(hour)
     return elevation, (180.0 - compass) % 360.0
 
 
@@ -136,12 +142,18 @@ def twilight_scale(elevation_deg: float) -> float:
     return 1.0 if elevation_deg > 0 else float(10.0 ** (elevation_deg / DAY_TWILIGHT_DECADE_DEG))
 
 
-@functools.lru_cache(maxsize=256)
 def day_frame(index: int, res: int) -> np.ndarray:
     """Frame ``index`` of ``day`` as ``[6, res, res, 3]`` float32 (see the module docstring)."""
     if not 0 <= index < DAY_FRAMES:
         raise IndexError(f"day has {DAY_FRAMES} frames, asked for {index}")
-    elevation, azimuth = day_sun(index)
+    return solar_frame(float(day_hours()[index]), res)
+
+
+@functools.lru_cache(maxsize=256)
+def solar_frame(hour: float, res: int) -> np.ndarray:
+    """The sky and sun of ``day``'s solar model at solar time ``hour`` (the module docstring's
+    ``day``), read-only float32 ``[6, res, res, 3]``."""
+    elevation, azimuth = sun_at(hour)
     env = sky.sun_sky(res=res, sun_elevation_deg=max(elevation, DAY_MIN_SKY_ELEVATION_DEG),
                       sun_azimuth_deg=azimuth, turbidity=DAY_TURBIDITY, sun_luminance=0.0)
     env = env.astype(np.float64) * twilight_scale(elevation) + DAY_NIGHT_FLOOR
@@ -157,6 +169,32 @@ def day(res: int = 64) -> EnvSequence:
     return EnvSequence(DAY_FRAMES, lambda index: day_frame(int(index), int(res)),
                        source=f"builtin:day ({DAY_LATITUDE_DEG:g}°N, {DAY_DATE}, "
                               f"{DAY_START_HOUR:g}h-{DAY_END_HOUR:g}h solar time)")
+
+
+# ---- minutes ------------------------------------------------------------------------------------
+
+MINUTES_FRAMES = 24
+MINUTES_START_HOUR = 9.0   # local apparent solar time of frame 0
+MINUTES_STEP_HOURS = 1.0 / 60.0
+
+
+def minutes_hour(index: int) -> float:
+    """Solar time (hours) of frame ``index`` of ``minutes``."""
+    return MINUTES_START_HOUR + index * MINUTES_STEP_HOURS
+
+
+def minutes_frame(index: int, res: int) -> np.ndarray:
+    """Frame ``index`` of ``minutes``: ``day``'s sky and sun one minute after the last."""
+    if not 0 <= index < MINUTES_FRAMES:
+        raise IndexError(f"minutes has {MINUTES_FRAMES} frames, asked for {index}")
+    return solar_frame(minutes_hour(index), res)
+
+
+def minutes(res: int = 64) -> EnvSequence:
+    return EnvSequence(MINUTES_FRAMES, lambda index: minutes_frame(int(index), int(res)),
+                       source=f"builtin:minutes ({DAY_LATITUDE_DEG:g}°N, {DAY_DATE}, "
+                              f"{MINUTES_FRAMES} frames a minute apart from "
+                              f"{MINUTES_START_HOUR:g}h solar time)")
 
 
 # ---- moving lights ----------------------------------------------------------------------------
@@ -341,3 +379,77 @@ def turntable(path: str, res: int = 32) -> EnvSequence:
     return EnvSequence(TURNTABLE_FRAMES, lambda index: turntable_frame(str(path), int(index), int(res)),
                        source=f"turntable of {path} ({TURNTABLE_STEP_COLUMNS} columns a frame)")
 
+
+
+# ---- photographed lights: moving and switching --------------------------------------------------
+
+PHOTO_LIGHT_CAP_DEG = 15.0
+LIGHT_MOVING_FRAMES = 16
+LIGHT_MOVING_STEP_DEG = 2.0
+LIGHT_SWITCH_FRAMES = 12
+LIGHT_SWITCH_SPELL = 4         # frames on, then as many off, and so on (on first)
+
+
+def separated_light(path: str, threshold: float) -> photo_lights.SeparatedLight:
+    """The photograph at ``path`` split at luminance ``threshold`` within PHOTO_LIGHT_CAP_DEG of
+    its brightest pixel (:mod:`.photo_lights`)."""
+    return photo_lights.separate(str(path), float(threshold), PHOTO_LIGHT_CAP_DEG)
+
+
+@functools.lru_cache(maxsize=8)
+def remainder_cube(path: str, threshold: float, res: int) -> np.ndarray:
+    """The photograph without its light, as a float64 cube map."""
+    return resample_latlong(separated_light(path, threshold).remainder, res).astype(np.float64)
+
+
+def _read_only(env: np.ndarray) -> np.ndarray:
+    env = env.astype(np.float32)
+    env.flags.writeable = False
+    return env
+
+
+@functools.lru_cache(maxsize=64)
+def _light_at(path: str, threshold: float, azimuth_deg: float, res: int) -> np.ndarray:
+    light = separated_light(path, threshold)
+    return _read_only(remainder_cube(path, threshold, res)
+                      + photo_lights.light_cube(light, res, azimuth_deg))
+
+
+def light_moving_frame(path: str, threshold: float, index: int, res: int) -> np.ndarray:
+    """Frame ``index`` of ``light-moving``: the light turned by index · step over the remainder."""
+    if not 0 <= index < LIGHT_MOVING_FRAMES:
+        raise IndexError(f"light-moving has {LIGHT_MOVING_FRAMES} frames, asked for {index}")
+    return _light_at(str(path), float(threshold), index * LIGHT_MOVING_STEP_DEG, int(res))
+
+
+def light_moving(path: str, threshold: float, res: int = 32) -> EnvSequence:
+    return EnvSequence(LIGHT_MOVING_FRAMES,
+                       lambda index: light_moving_frame(path, threshold, int(index), res),
+                       source=f"light-moving of {path} (light: luminance >= {threshold:g}; "
+                              f"{LIGHT_MOVING_STEP_DEG:g}° a frame)")
+
+
+def light_switch_is_on(index: int) -> bool:
+    return (index // LIGHT_SWITCH_SPELL) % 2 == 0
+
+
+@functools.lru_cache(maxsize=8)
+def _light_off(path: str, threshold: float, res: int) -> np.ndarray:
+    return _read_only(remainder_cube(path, threshold, res))
+
+
+def light_switch_frame(path: str, threshold: float, index: int, res: int) -> np.ndarray:
+    """Frame ``index`` of ``light-switch``: the photograph's light in place, or only the
+    remainder; every on frame is one array object, and so is every off frame."""
+    if not 0 <= index < LIGHT_SWITCH_FRAMES:
+        raise IndexError(f"light-switch has {LIGHT_SWITCH_FRAMES} frames, asked for {index}")
+    key = (str(path), float(threshold))
+    return (_light_at(*key, 0.0, int(res)) if light_switch_is_on(index)
+            else _light_off(*key, int(res)))
+
+
+def light_switch(path: str, threshold: float, res: int = 32) -> EnvSequence:
+    return EnvSequence(LIGHT_SWITCH_FRAMES,
+                       lambda index: light_switch_frame(path, threshold, int(index), res),
+                       source=f"light-switch of {path} (light: luminance >= {threshold:g}; "
+                              f"{LIGHT_SWITCH_SPELL} frames on, {LIGHT_SWITCH_SPELL} off)")
