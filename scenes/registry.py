@@ -40,6 +40,12 @@ Built-in scenes lit by environment sequences (:mod:`iblbench.scenes.sequences`):
   frames, 1.41° of turn a frame), at 48 × 48 pixels with 32² cube faces by default: the short
   real-photograph sequence of the default sweep, where bis, smc and havran carry state across
   frames.
+- ``blob-minutes``: the blob-day blob under ``minutes``, ``day``'s sun one frame a minute (24
+  frames from 9:00 solar time): the smooth case for temporal reuse.
+- ``sphere-studio-moving``: sphere-studio's sphere and camera under ``light-moving`` of the
+  studio photograph (its key softbox turned 2° a frame over the room, 16 frames), 48 × 48, 32².
+- ``sphere-park-switch``: sphere-park's sphere and camera under ``light-switch`` of the park
+  photograph (its sun off in frames 4..7 of 12), 48 × 48, 32².
 
 User scene format (paths are relative to the TOML file's folder)::
 

@@ -1,6 +1,8 @@
-"""Built-in environment sequences (DESIGN §5): ``day``, ``moving-lights``, ``switch`` and
-``rotating-sun``, and ``turntable`` of a lat-long image given by its path (the built-in scene
-``park-turn`` turns the shipped photograph; scenes/registry.py names every sequence a scene uses).
+"""Built-in environment sequences (DESIGN §5): ``day``, ``minutes``, ``moving-lights``,
+``switch`` and ``rotating-sun``, and of a lat-long image given by its path ``turntable``,
+``light-moving`` and ``light-switch`` (the built-in scenes ``park-turn``, ``sphere-studio-moving``
+and ``sphere-park-switch`` use the shipped photographs; scenes/registry.py names every sequence a
+scene uses).
 
 Every sequence is an :class:`EnvSequence` whose frames are made on demand by ``make_frame(index)``
 and cached per (parameters, index), so a long sequence is never held whole and a frame asked for
@@ -34,6 +36,14 @@ Y up, azimuth 0 → +Z, 90° → +X).
     floor ``DAY_NIGHT_FLOOR`` (1e-6: an airglow/starlight night sky, ~1 mcd/m²).  The night
     frames are therefore dim (~1e-4 of the sunset sky) but finite, non-negative and never all
     zero.  Total power Σ Y·Ω spans about six orders of magnitude over the day.
+
+``minutes`` — ``day``'s sun one frame a minute: the smooth case for temporal reuse (issue 24)
+    ``MINUTES_FRAMES`` = 24 frames of ``day``'s model (:func:`solar_frame`, the same sky, sun,
+    air mass and twilight) at solar times ``MINUTES_START_HOUR`` = 9:00, 9:01, …, 9:23, June 21
+    at 45° N: the sun climbs from 47.7° to 51.6° up at sky azimuth 74.7° to 69.1° (front right
+    of the default camera), 15°·cos δ / 60 = 0.229° a frame, which at 64² faces (on +Y, near
+    its edge) is 0.19–0.21 of a texel a frame, 4.6 texels over the sequence; Σ Y·Ω grows by
+    0.05% a frame (179.8 to 181.7).  Frame 0 is ``day``'s frame 22 (3:00 + 22 · 18 h / 66).
 
 ``moving-lights`` — after Kronander et al.'s sequence of moving light sources
     ``MOVING_LIGHTS`` = 4 small bright discs (angular radius 4°, each of power 1.5 in Σ Y·Ω,
@@ -72,6 +82,26 @@ Y up, azimuth 0 → +Z, 90° → +X).
     frame) with no resampling of the source, so every frame holds the same pixels, only
     turned.  A small sun moves by about half a 32² cube texel a frame: the map changes
     smoothly, as under a camera panning beneath a fixed sky.
+
+``light-moving`` — a photograph whose light moves (issue 24)
+    The photograph's light is taken out (:mod:`.photo_lights`: the pixels at or above a
+    luminance threshold within ``PHOTO_LIGHT_CAP_DEG`` = 15° of the brightest one, filled by
+    harmonic interpolation of their surroundings) and splatted back turned by
+    ``LIGHT_MOVING_STEP_DEG`` = 2° of sky azimuth a frame, ``LIGHT_MOVING_FRAMES`` = 16 frames
+    (30° in all), over the remainder resampled once.  Σ Y·Ω is the same in every frame (the
+    splat keeps the light's power exactly; the light adds to what it passes over).  On the
+    studio photograph at threshold 0.2 (``sphere-studio-moving``): the key softbox and its glow,
+    2,404 pixels carrying 20.1 of the map's 27.9 (72%), peak texel ~2,800 at 32² over a room of
+    0.01–0.1; at 32² faces its power-weighted centre moves about 0.6 of a texel a frame, along
+    the top edge of face −X and over onto +Y near the end.
+
+``light-switch`` — a photograph whose light switches off and on (issue 24)
+    The same separation; ``LIGHT_SWITCH_FRAMES`` = 12 frames, the light on in spells of
+    ``LIGHT_SWITCH_SPELL`` = 4 (on in 0–3 and 8–11, off in 4–7).  Off frames are the remainder
+    alone, in which no texel reaches the threshold (the harmonic fill never exceeds its
+    boundary).  On frames are one array object, off frames another.  On the park photograph at
+    threshold 10 (``sphere-park-switch``): the sun, 315 pixels carrying 6.37 of the map's 9.50
+    (67%, peak texel 3,100 at 32²); off, the sky's 3.12 is left, brightest texel 9.5.
 """
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 A sweep is scenes × estimators × spp × frames × seeds at one resolution, under one error
 protocol.  ``iblbench run --config NAME|FILE`` takes a shipped config by name (``quick``,
-``default``, ``full``: ``harness/configs/NAME.toml``) or a path to a ``.toml`` file; explicit
+``default``, ``full``, ``temporal``, ``frontier``: ``harness/configs/NAME.toml``) or a path to a ``.toml`` file; explicit
 command-line flags replace the config's fields one by one.  ``iblbench run`` with no
 ``--config`` uses ``default``.
 
@@ -434,7 +434,7 @@ def _metric_names(metrics, fail) -> tuple[str, ...]:
 
 
 def load_sweep(name_or_path: str | os.PathLike) -> Sweep:
-    """A shipped config by name (quick, default, full, temporal) or a sweep .toml file."""
+    """A shipped config by name (:data:`SHIPPED`) or a sweep .toml file."""
     path, source = config_path(name_or_path)
     return parse_sweep(read_toml(path, "sweep config"), path, source)
 
