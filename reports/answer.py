@@ -107,8 +107,8 @@ def sequence_table(summary: pd.DataFrame, budget_ms: float, table_html) -> marku
             f"ΔE76 at {budget_ms:g} ms [95%]": (_figure(r.delta_e76, r.delta_e76_low,
                                                         r.delta_e76_high) if ranked else r.status),
             "flicker [95%]": _figure(r.flicker, r.flicker_low, r.flicker_high) if ranked else "",
-            "worst frame (ΔE76)": (f"{r.worst_frame} ({r.worst_delta_e76:.3g})"
-                                   if ranked and r.worst_frame is not None else "")})
+            "worst frame (ΔE76)": (f"{int(r.worst_frame)} ({r.worst_delta_e76:.3g})"
+                                   if ranked and math.isfinite(r.worst_delta_e76) else "")})
     return table_html(pd.DataFrame(rows), "summary ranking")
 
 
