@@ -454,9 +454,8 @@ def frames_arg(text: str) -> tuple[int, ...] | slice | None:
 
 
 def _per_estimator(value, fallback, parse, field: str, expected: str):
-    """A setting given once or per estimator (or per scene, for ``frames``): ``value``, or a
-    table ``{default = ..., NAME = ..., ...}`` whose other keys are names with a value of their
-    own → (the default,
+    """A setting given once or per estimator: ``value``, or a table ``{default = ..., NAME =
+    ..., ...}`` whose other keys are estimator names with a value of their own → (the default,
     ((name, its value), ...) sorted); each value through ``parse`` (None for a bad one), and a
     bad one is a ValueError naming ``field`` (and the estimator) and what was ``expected``."""
     table = value if isinstance(value, dict) else {"default": value}
@@ -476,16 +475,19 @@ def parse_scene_frames(value) -> tuple[Any, tuple[tuple[str, Any], ...]]:
     """The frames: one selection (:func:`parse_frames`) for every sequence, or a table
     ``{default = ..., SCENE = ..., ...}`` giving scenes (by name) selections of their own, so that
     one sweep can shorten a long sequence and keep a short one whole → (the default, ((scene,
-    selection), ...) sorted); ValueError naming the problem."""
-    def selection(entry):
-        try:
-            return (parse_frames(entry),)   # a tuple: "all" parses to None, which means bad here
-        except ValueError:
-            return None
+    selection), ...) sorted); ValueError naming the problem (and the scene)."""
+    table = value if isinstance(value, dict) else {"default": value}
 
-    default, own = _per_estimator(value, "all", selection, "frames",
-                                  "\"START:STOP[:STEP]\", \"all\", \"A..B\" or a list of frame indices")
-    return default[0], tuple((name, frames[0]) for name, frames in own)
+    def parsed(key, entry):
+        try:
+            return parse_frames(entry)
+        except ValueError as error:
+            if key == "default":
+                raise
+            raise ValueError(f"frames for {key}: {error}") from None
+
+    return parsed("default", table.get("default", "all")), tuple(sorted(
+        (str(key).lower(), parsed(key, entry)) for key, entry in table.items() if key != "default"))
 
 
 def parse_spp(value) -> tuple[tuple[int, ...], tuple[tuple[str, tuple[int, ...]], ...]]:
