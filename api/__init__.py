@@ -154,12 +154,14 @@ def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seed
         seeds=seeds, first_seed=first_seed, frames=frames, resolution=resolution, env_res=env_res,
         time_budget_ms=given(time_budget_ms, float), sanitize=sanitize, repeats=repeats,
         repeats_for=repeats_for, metrics=metrics,
-        spp_for=None if spp is None else ())   # spp given: the same levels for every estimator
+        spp_for=None if spp is None else (),   # spp given: the same levels for every estimator
+        frames_for=None if frames is None else ())   # frames given: the same for every scene
     return RunConfig(out=pathlib.Path(out), scenes=sweep.scenes, estimators=sweep.estimators,
                      spp=sweep.spp, seeds=sweep.seeds, first_seed=sweep.first_seed,
                      resolution=sweep.resolution,
                      device=device, save_inputs=save_inputs, sanitize=sweep.sanitize,
                      env_res=sweep.env_res, progress=progress, frames=sweep.frames,
+                     frames_for=sweep.frames_for,
                      time_budget_ms=sweep.time_budget_ms, force=force, repeats=sweep.repeats,
                      repeats_for=sweep.repeats_for, spp_for=sweep.spp_for, metrics=sweep.metrics,
                      sweep={**sweep.to_manifest(), **(note or {})})

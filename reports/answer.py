@@ -10,6 +10,7 @@ import markupsafe
 import pandas as pd
 
 from iblbench.harness.protocol.ranking import METRIC_NAMES, Ranking, resolved_share
+from iblbench.harness.protocol.sequence_answer import frame_standings, sequence_summary
 from iblbench.reports import plots
 
 PLOTS = {"highlight": "answer_top3.png", "all": "answer_all.png"}
@@ -84,3 +85,49 @@ def answer_context(draw, cells, rankings: dict[str, list[Ranking]], table_html) 
     return {"matrix": matrix_table(rankings, table_html), "plots": PLOTS,
             "resolved": resolved, "pairs": pairs,
             "verdicts": [r.verdict() for scene in rankings.values() for r in scene]}
+
+
+def _figure(mean: float, low: float, high: float) -> str:
+    if not math.isfinite(mean):
+        return "–"
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return f"{mean:.3g} (no interval)"
+    return f"{mean:.3g} [{low:.3g}, {high:.3g}]"
+
+
+def sequence_table(summary: pd.DataFrame, budget_ms: float, table_html) -> markupsafe.Markup:
+    """One budget's :func:`~iblbench.harness.protocol.sequence_answer.sequence_summary`: per
+    estimator its ΔE76 and flicker over the frames with their 95% intervals and its worst frame,
+    or why the budget does not rank it."""
+    rows = []
+    for r in summary.itertuples(index=False):
+        ranked = r.status == "ranked"
+        rows.append({
+            "estimator": r.estimator,
+            f"ΔE76 at {budget_ms:g} ms [95%]": (_figure(r.delta_e76, r.delta_e76_low,
+                                                        r.delta_e76_high) if ranked else r.status),
+            "flicker [95%]": _figure(r.flicker, r.flicker_low, r.flicker_high) if ranked else "",
+            "worst frame (ΔE76)": (f"{int(r.worst_frame)} ({r.worst_delta_e76:.3g})"
+                                   if ranked and math.isfinite(r.worst_delta_e76) else "")})
+    return table_html(pd.DataFrame(rows), "summary ranking")
+
+
+def sequence_context(draw, rows: pd.DataFrame, scene: str, slug: str,
+                     rankings: list[Ranking], table_html) -> dict | None:
+    """A sequence's error and flicker at equal time: a table per headline budget, and the
+    per-frame plot at the middle one (drawn by ``draw``); None for a single frame or a scene
+    without budgets."""
+    if rows.frame.nunique() < 2 or not rankings:
+        return None
+    tables = []
+    middle = rankings[len(rankings) // 2].budget_ms
+    plot = f"frames_at_budget_{slug}.png"
+    for ranking in rankings:
+        standings = frame_standings(rows, ranking.budget_ms)
+        tables.append({"budget_ms": ranking.budget_ms,
+                       "table": sequence_table(sequence_summary(standings), ranking.budget_ms,
+                                               table_html)})
+        if ranking.budget_ms == middle:
+            draw(plot, plots.plot_frames_at_budget, standings, scene, middle,
+                 list(dict.fromkeys(rows.estimator)))
+    return {"tables": tables, "plot": plot, "budget_ms": middle}

@@ -18,6 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
 
 from iblbench.harness.protocol.stats import MeanCI, cell_intervals, separated  # noqa: E402
 from iblbench.harness.protocol.timing import TIME  # noqa: E402
@@ -441,3 +442,33 @@ def plot_answer(path: pathlib.Path, cells, rankings: dict, highlight: bool) -> N
         if not highlight:
             _figure_legend(fig)
         _save(fig, path)
+
+
+def plot_frames_at_budget(path: pathlib.Path, standings, scene: str, budget_ms: float,
+                          estimators: list[str]) -> None:
+    """A sequence's ΔE76 and flicker per frame at one time budget (``standings``: the table of
+    :func:`iblbench.harness.protocol.sequence_answer.frame_standings`), each ranked estimator
+    with its 95% intervals, in the colours of ``estimators`` (the scene's, in order)."""
+    styles = _styles(pd.DataFrame({"estimator": estimators}))
+    shown = standings[standings.frame.notna() & (standings.status == "ranked")].rename(
+        columns={"mean": "value", "low": "value_low", "high": "value_high"})
+    panels = (("mean_delta_e76", "mean ΔE76 at the budget"),
+              ("flicker", "flicker at the budget (mean |change\nof ΔE76| from the previous frame)"))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4), sharex=True, layout="constrained")
+    for ax, (metric, label) in zip(axes, panels):
+        for name in estimators:
+            rows = shown[(shown.estimator == name) & (shown.metric == metric)].sort_values("frame")
+            if len(rows):
+                _errorbar(ax, rows, "frame", "value", styles[name], name, markersize=4)
+        ax.set_yscale("log")
+        _plain_log_axes(ax, "y")
+        means = shown[(shown.metric == metric) & (shown.value > 0)].value
+        if len(means):   # a seeds-only interval reaching 0 runs off the axis instead of squashing it
+            ax.set_ylim(bottom=means.min() / 3)
+        ax.set_ylabel(label, fontsize=10)
+        ax.set_xlabel("frame (index in the sequence)")
+        ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
+        ax.grid(True, which="both", alpha=0.3)
+    _figure_legend(fig)
+    fig.suptitle(f"{scene}: error and flicker per frame at {budget_ms:g} ms per frame")
+    _save(fig, path)

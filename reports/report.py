@@ -52,7 +52,7 @@ from iblbench.harness.protocol.results import load_table
 from iblbench.harness.protocol.stats import LEVEL, cell_intervals, interval_text, mean_ci, t_quantile
 from iblbench.harness.protocol.timing import TIME
 from iblbench.reports import plots
-from iblbench.reports.answer import answer_context, ranking_table
+from iblbench.reports.answer import answer_context, ranking_table, sequence_context
 from iblbench.reports.frames import shown_frame
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
 from iblbench.scenes import cubemap
@@ -770,12 +770,15 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
     extra_columns = shown["figures"].draw(extras, plots.plot_extras, rows, scene)
     picture = _picture_section(inputs, table, scene, scene_frame, shown, compute)
     timed = equal_time[equal_time.scene == scene]
+    sequence = sequence_context(shown["figures"].draw, pd.concat([rows, timed]), scene, slug,
+                                rankings, _table_html)
     return {"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
             "rankings": [{"budget_ms": r.budget_ms, "verdict": r.verdict(),
                           "table": ranking_table(r, _table_html)} for r in rankings],
             "bias": bias_table(run_dir, table, cells, scene, scene_frame, lambda: inputs().mask),
             "equal_time": equal_time_html(timed) if len(timed) else None,
             "figures": figures, "per_frame": per_frame, "frames": len(frames),
+            "sequence": sequence,
             "grid": grid, "picture": picture, "frame_rule": frame_rule,
             "extras": extras if extra_columns else None, "extra_columns": extra_columns,
             "convergence": [f.text() for f in convergence if f.scene == scene],

@@ -40,6 +40,12 @@ Built-in scenes lit by environment sequences (:mod:`iblbench.scenes.sequences`):
   frames, 1.41° of turn a frame), at 48 × 48 pixels with 32² cube faces by default: the short
   real-photograph sequence of the default sweep, where bis, smc and havran carry state across
   frames.
+- ``blob-minutes``: the blob-day blob under ``minutes``, ``day``'s sun one frame a minute (24
+  frames from 9:00 solar time): the smooth case for temporal reuse.
+- ``sphere-studio-moving``: sphere-studio's sphere and camera under ``light-moving`` of the
+  studio photograph (its key softbox turned 2° a frame over the room, 16 frames), 48 × 48, 32².
+- ``sphere-park-switch``: sphere-park's sphere and camera under ``light-switch`` of the park
+  photograph (its sun off in frames 4..7 of 12), 48 × 48, 32².
 
 User scene format (paths are relative to the TOML file's folder)::
 
@@ -214,6 +220,12 @@ STUDIO_MAP = "studio_small_03_1k.hdr"
 # 235 (43° up).  tests/test_photo_scenes.py checks them against the loaded cube maps.
 PARK_SUN_AZIMUTH_DEG = 144.0
 STUDIO_LIGHT_AZIMUTH_DEG = -82.8
+# The luminance at which sphere-park-switch and sphere-studio-moving take a photograph's light out
+# (scenes/photo_lights.py): the park's sun (315 pixels, 67% of Σ Y·Ω; the sky around it stays,
+# below 10), the studio's key softbox with its glow down to where the dark room begins (2,404
+# pixels, 72%; at 10 the fill kept a grey disc of luminance 7 where the box was).
+PARK_SUN_THRESHOLD = 10.0
+STUDIO_LIGHT_THRESHOLD = 0.2
 # park-turn: few frames at low resolution keep the default sweep's temporal cells cheap (bis and
 # smc at 256 spp cost seconds a frame at 128²); 32² faces also cut each frame's host resample to
 # a quarter of a 64² one (0.7 against 2.6 s: the sub-sample count per texel is capped, so 64²
@@ -287,7 +299,12 @@ _SEQUENCES: dict[str, tuple[Callable[[int], EnvSequence], int]] = {
     "torus-moving": (sequences.moving_lights, DEFAULT_ENV_RES),
     "sphere-switch": (sequences.switch, DEFAULT_ENV_RES),
     "torus-day": (sequences.day, DEFAULT_ENV_RES),
-    "park-turn": (lambda res: sequences.turntable(shipped_map(PARK_MAP), res), PARK_TURN_ENV_RES)}
+    "park-turn": (lambda res: sequences.turntable(shipped_map(PARK_MAP), res), PARK_TURN_ENV_RES),
+    "blob-minutes": (sequences.minutes, DEFAULT_ENV_RES),
+    "sphere-studio-moving": (lambda res: sequences.light_moving(
+        shipped_map(STUDIO_MAP), STUDIO_LIGHT_THRESHOLD, res), PARK_TURN_ENV_RES),
+    "sphere-park-switch": (lambda res: sequences.light_switch(
+        shipped_map(PARK_MAP), PARK_SUN_THRESHOLD, res), PARK_TURN_ENV_RES)}
 
 
 def _sequence_scene(name: str, mesh, camera: Camera, env_res: int | None,
@@ -330,9 +347,35 @@ def _park_turn(env_res: int | None) -> Scene:
                            env_res, PARK_TURN_RESOLUTION)
 
 
-# Every built-in scene: kd = 0.5, ks = 0.3, shininess = 150; 128 × 128 but park-turn (48 × 48);
-# the *-sun ones static Preetham sun + sky, the *-park and *-studio ones shipped photographs;
-# cube faces DEFAULT_ENV_RES² (park-turn: PARK_TURN_ENV_RES²) unless env_res says otherwise.
+def _blob_minutes(env_res: int | None) -> Scene:
+    """The blob-day blob and camera under ``minutes``: day's sun one frame a minute from 9:00
+    solar time (47.7° up, 75° to the right), moving 0.23° a frame (0.19-0.21 texels at 64²)."""
+    camera = Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    return _sequence_scene("blob-minutes", meshes.blob(), camera, env_res)
+
+
+def _sphere_studio_moving(env_res: int | None) -> Scene:
+    """sphere-studio's sphere and camera under ``light-moving`` of the studio photograph: its key
+    softbox and its glow taken out (20.1 of the map's 27.9 in Σ Y·Ω, 72%) and turned 2° a frame over the
+    filled room, from 60° to 90° right of the view over 16 frames; 48 × 48, 32² faces."""
+    return _sequence_scene("sphere-studio-moving", meshes.sphere(),
+                           _camera_facing_light(STUDIO_LIGHT_AZIMUTH_DEG), env_res,
+                           PARK_TURN_RESOLUTION)
+
+
+def _sphere_park_switch(env_res: int | None) -> Scene:
+    """sphere-park's sphere and camera under ``light-switch`` of the park photograph: the sun
+    (6.37 of the map's 9.50 in Σ Y·Ω, 67%) on in frames 0-3 and 8-11, off (a sky of 3.12)
+    in frames 4-7; 48 × 48, 32² faces."""
+    return _sequence_scene("sphere-park-switch", meshes.sphere(),
+                           _camera_facing_light(PARK_SUN_AZIMUTH_DEG), env_res,
+                           PARK_TURN_RESOLUTION)
+
+
+# Every built-in scene: kd = 0.5, ks = 0.3, shininess = 150; 128 × 128 but park-turn and the
+# photographed sequences (48 × 48); the *-sun ones static Preetham sun + sky, the *-park and
+# *-studio ones shipped photographs; cube faces DEFAULT_ENV_RES² (park-turn, sphere-studio-moving
+# and sphere-park-switch: PARK_TURN_ENV_RES²) unless env_res says otherwise.
 BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {
     "sphere-sun": _sphere_sun,
     "sphere-backlit": _sphere_backlit,
@@ -347,6 +390,9 @@ BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {
     "torus-day": _torus_day,
     "sphere-studio": _sphere_studio,
     "park-turn": _park_turn,
+    "blob-minutes": _blob_minutes,
+    "sphere-studio-moving": _sphere_studio_moving,
+    "sphere-park-switch": _sphere_park_switch,
 }
 
 

@@ -1,6 +1,8 @@
-"""Built-in environment sequences (DESIGN §5): ``day``, ``moving-lights``, ``switch`` and
-``rotating-sun``, and ``turntable`` of a lat-long image given by its path (the built-in scene
-``park-turn`` turns the shipped photograph; scenes/registry.py names every sequence a scene uses).
+"""Built-in environment sequences (DESIGN §5): ``day``, ``minutes``, ``moving-lights``,
+``switch`` and ``rotating-sun``, and of a lat-long image given by its path ``turntable``,
+``light-moving`` and ``light-switch`` (the built-in scenes ``park-turn``, ``sphere-studio-moving``
+and ``sphere-park-switch`` use the shipped photographs; scenes/registry.py names every sequence a
+scene uses).
 
 Every sequence is an :class:`EnvSequence` whose frames are made on demand by ``make_frame(index)``
 and cached per (parameters, index), so a long sequence is never held whole and a frame asked for
@@ -34,6 +36,14 @@ Y up, azimuth 0 → +Z, 90° → +X).
     floor ``DAY_NIGHT_FLOOR`` (1e-6: an airglow/starlight night sky, ~1 mcd/m²).  The night
     frames are therefore dim (~1e-4 of the sunset sky) but finite, non-negative and never all
     zero.  Total power Σ Y·Ω spans about six orders of magnitude over the day.
+
+``minutes`` — ``day``'s sun one frame a minute: the smooth case for temporal reuse (issue 24)
+    ``MINUTES_FRAMES`` = 24 frames of ``day``'s model (:func:`solar_frame`, the same sky, sun,
+    air mass and twilight) at solar times ``MINUTES_START_HOUR`` = 9:00, 9:01, …, 9:23, June 21
+    at 45° N: the sun climbs from 47.7° to 51.6° up at sky azimuth 74.7° to 69.1° (front right
+    of the default camera), 15°·cos δ / 60 = 0.229° a frame, which at 64² faces (on +Y, near
+    its edge) is 0.19–0.21 of a texel a frame, 4.6 texels over the sequence; Σ Y·Ω grows by
+    0.05% a frame (179.8 to 181.7).  Frame 0 is ``day``'s frame 22 (3:00 + 22 · 18 h / 66).
 
 ``moving-lights`` — after Kronander et al.'s sequence of moving light sources
     ``MOVING_LIGHTS`` = 4 small bright discs (angular radius 4°, each of power 1.5 in Σ Y·Ω,
@@ -72,6 +82,26 @@ Y up, azimuth 0 → +Z, 90° → +X).
     frame) with no resampling of the source, so every frame holds the same pixels, only
     turned.  A small sun moves by about half a 32² cube texel a frame: the map changes
     smoothly, as under a camera panning beneath a fixed sky.
+
+``light-moving`` — a photograph whose light moves (issue 24)
+    The photograph's light is taken out (:mod:`.photo_lights`: the pixels at or above a
+    luminance threshold within ``PHOTO_LIGHT_CAP_DEG`` = 15° of the brightest one, filled by
+    harmonic interpolation of their surroundings) and splatted back turned by
+    ``LIGHT_MOVING_STEP_DEG`` = 2° of sky azimuth a frame, ``LIGHT_MOVING_FRAMES`` = 16 frames
+    (30° in all), over the remainder resampled once.  Σ Y·Ω is the same in every frame (the
+    splat keeps the light's power exactly; the light adds to what it passes over).  On the
+    studio photograph at threshold 0.2 (``sphere-studio-moving``): the key softbox and its glow,
+    2,404 pixels carrying 20.1 of the map's 27.9 (72%), peak texel ~2,800 at 32² over a room of
+    0.01–0.1; at 32² faces its power-weighted centre moves about 0.6 of a texel a frame, along
+    the top edge of face −X and over onto +Y near the end.
+
+``light-switch`` — a photograph whose light switches off and on (issue 24)
+    The same separation; ``LIGHT_SWITCH_FRAMES`` = 12 frames, the light on in spells of
+    ``LIGHT_SWITCH_SPELL`` = 4 (on in 0–3 and 8–11, off in 4–7).  Off frames are the remainder
+    alone, in which no texel reaches the threshold (the harmonic fill never exceeds its
+    boundary).  On frames are one array object, off frames another.  On the park photograph at
+    threshold 10 (``sphere-park-switch``): the sun, 315 pixels carrying 6.37 of the map's 9.50
+    (67%, peak texel 3,100 at 32²); off, the sky's 3.12 is left, brightest texel 9.5.
 """
 from __future__ import annotations
 
@@ -79,7 +109,7 @@ import functools
 
 import numpy as np
 
-from . import cubemap, sky
+from . import cubemap, photo_lights, sky
 from .envmap import resample_latlong
 from .imageio import read_image
 from .scene import EnvSequence
@@ -121,7 +151,13 @@ def solar_position(hour: float, latitude_deg: float = DAY_LATITUDE_DEG,
 def day_sun(index: int) -> tuple[float, float]:
     """(elevation, sky azimuth) in degrees of the sun in frame ``index`` of ``day`` (sky.py's
     azimuth convention: 0 → +Z = south, 90° → +X = east)."""
-    elevation, compass = solar_position(float(day_hours()[index]))
+    return sun_at(float(day_hours()[index]))
+
+
+def sun_at(hour: float) -> tuple[float, float]:
+    """(elevation, sky azimuth) in degrees of ``day``'s sun at solar time ``hour``: the map's
+    compass puts south at +Z, so sky azimuth = 180° − compass azimuth."""
+    elevation, compass = solar_position(hour)
     return elevation, (180.0 - compass) % 360.0
 
 
@@ -136,12 +172,18 @@ def twilight_scale(elevation_deg: float) -> float:
     return 1.0 if elevation_deg > 0 else float(10.0 ** (elevation_deg / DAY_TWILIGHT_DECADE_DEG))
 
 
-@functools.lru_cache(maxsize=256)
 def day_frame(index: int, res: int) -> np.ndarray:
     """Frame ``index`` of ``day`` as ``[6, res, res, 3]`` float32 (see the module docstring)."""
     if not 0 <= index < DAY_FRAMES:
         raise IndexError(f"day has {DAY_FRAMES} frames, asked for {index}")
-    elevation, azimuth = day_sun(index)
+    return solar_frame(float(day_hours()[index]), res)
+
+
+@functools.lru_cache(maxsize=256)
+def solar_frame(hour: float, res: int) -> np.ndarray:
+    """The sky and sun of ``day``'s solar model at solar time ``hour`` (the module docstring's
+    ``day``), read-only float32 ``[6, res, res, 3]``."""
+    elevation, azimuth = sun_at(hour)
     env = sky.sun_sky(res=res, sun_elevation_deg=max(elevation, DAY_MIN_SKY_ELEVATION_DEG),
                       sun_azimuth_deg=azimuth, turbidity=DAY_TURBIDITY, sun_luminance=0.0)
     env = env.astype(np.float64) * twilight_scale(elevation) + DAY_NIGHT_FLOOR
@@ -157,6 +199,32 @@ def day(res: int = 64) -> EnvSequence:
     return EnvSequence(DAY_FRAMES, lambda index: day_frame(int(index), int(res)),
                        source=f"builtin:day ({DAY_LATITUDE_DEG:g}°N, {DAY_DATE}, "
                               f"{DAY_START_HOUR:g}h-{DAY_END_HOUR:g}h solar time)")
+
+
+# ---- minutes ------------------------------------------------------------------------------------
+
+MINUTES_FRAMES = 24
+MINUTES_START_HOUR = 9.0   # local apparent solar time of frame 0
+MINUTES_STEP_HOURS = 1.0 / 60.0
+
+
+def minutes_hour(index: int) -> float:
+    """Solar time (hours) of frame ``index`` of ``minutes``."""
+    return MINUTES_START_HOUR + index * MINUTES_STEP_HOURS
+
+
+def minutes_frame(index: int, res: int) -> np.ndarray:
+    """Frame ``index`` of ``minutes``: ``day``'s sky and sun one minute after the last."""
+    if not 0 <= index < MINUTES_FRAMES:
+        raise IndexError(f"minutes has {MINUTES_FRAMES} frames, asked for {index}")
+    return solar_frame(minutes_hour(index), res)
+
+
+def minutes(res: int = 64) -> EnvSequence:
+    return EnvSequence(MINUTES_FRAMES, lambda index: minutes_frame(int(index), int(res)),
+                       source=f"builtin:minutes ({DAY_LATITUDE_DEG:g}°N, {DAY_DATE}, "
+                              f"{MINUTES_FRAMES} frames a minute apart from "
+                              f"{MINUTES_START_HOUR:g}h solar time)")
 
 
 # ---- moving lights ----------------------------------------------------------------------------
@@ -341,3 +409,77 @@ def turntable(path: str, res: int = 32) -> EnvSequence:
     return EnvSequence(TURNTABLE_FRAMES, lambda index: turntable_frame(str(path), int(index), int(res)),
                        source=f"turntable of {path} ({TURNTABLE_STEP_COLUMNS} columns a frame)")
 
+
+
+# ---- photographed lights: moving and switching --------------------------------------------------
+
+PHOTO_LIGHT_CAP_DEG = 15.0
+LIGHT_MOVING_FRAMES = 16
+LIGHT_MOVING_STEP_DEG = 2.0
+LIGHT_SWITCH_FRAMES = 12
+LIGHT_SWITCH_SPELL = 4         # frames on, then as many off, and so on (on first)
+
+
+def separated_light(path: str, threshold: float) -> photo_lights.SeparatedLight:
+    """The photograph at ``path`` split at luminance ``threshold`` within PHOTO_LIGHT_CAP_DEG of
+    its brightest pixel (:mod:`.photo_lights`)."""
+    return photo_lights.separate(str(path), float(threshold), PHOTO_LIGHT_CAP_DEG)
+
+
+@functools.lru_cache(maxsize=8)
+def remainder_cube(path: str, threshold: float, res: int) -> np.ndarray:
+    """The photograph without its light, as a float64 cube map."""
+    return resample_latlong(separated_light(path, threshold).remainder, res).astype(np.float64)
+
+
+def _read_only(env: np.ndarray) -> np.ndarray:
+    env = env.astype(np.float32)
+    env.flags.writeable = False
+    return env
+
+
+@functools.lru_cache(maxsize=64)
+def _light_at(path: str, threshold: float, azimuth_deg: float, res: int) -> np.ndarray:
+    light = separated_light(path, threshold)
+    return _read_only(remainder_cube(path, threshold, res)
+                      + photo_lights.light_cube(light, res, azimuth_deg))
+
+
+def light_moving_frame(path: str, threshold: float, index: int, res: int) -> np.ndarray:
+    """Frame ``index`` of ``light-moving``: the light turned by index · step over the remainder."""
+    if not 0 <= index < LIGHT_MOVING_FRAMES:
+        raise IndexError(f"light-moving has {LIGHT_MOVING_FRAMES} frames, asked for {index}")
+    return _light_at(str(path), float(threshold), index * LIGHT_MOVING_STEP_DEG, int(res))
+
+
+def light_moving(path: str, threshold: float, res: int = 32) -> EnvSequence:
+    return EnvSequence(LIGHT_MOVING_FRAMES,
+                       lambda index: light_moving_frame(path, threshold, int(index), res),
+                       source=f"light-moving of {path} (light: luminance >= {threshold:g}; "
+                              f"{LIGHT_MOVING_STEP_DEG:g}° a frame)")
+
+
+def light_switch_is_on(index: int) -> bool:
+    return (index // LIGHT_SWITCH_SPELL) % 2 == 0
+
+
+@functools.lru_cache(maxsize=8)
+def _light_off(path: str, threshold: float, res: int) -> np.ndarray:
+    return _read_only(remainder_cube(path, threshold, res))
+
+
+def light_switch_frame(path: str, threshold: float, index: int, res: int) -> np.ndarray:
+    """Frame ``index`` of ``light-switch``: the photograph's light in place, or only the
+    remainder; every on frame is one array object, and so is every off frame."""
+    if not 0 <= index < LIGHT_SWITCH_FRAMES:
+        raise IndexError(f"light-switch has {LIGHT_SWITCH_FRAMES} frames, asked for {index}")
+    key = (str(path), float(threshold))
+    return (_light_at(*key, 0.0, int(res)) if light_switch_is_on(index)
+            else _light_off(*key, int(res)))
+
+
+def light_switch(path: str, threshold: float, res: int = 32) -> EnvSequence:
+    return EnvSequence(LIGHT_SWITCH_FRAMES,
+                       lambda index: light_switch_frame(path, threshold, int(index), res),
+                       source=f"light-switch of {path} (light: luminance >= {threshold:g}; "
+                              f"{LIGHT_SWITCH_SPELL} frames on, {LIGHT_SWITCH_SPELL} off)")

@@ -121,7 +121,8 @@ def test_moving_lights_move_smoothly_and_periodically():
 
 
 def test_sequence_scenes_are_registered():
-    for name, frames in (("blob-day", 67), ("torus-moving", 48), ("sphere-switch", 30)):
+    for name, frames in (("blob-day", 67), ("torus-moving", 48), ("sphere-switch", 30),
+                         ("blob-minutes", 24)):
         scene = registry.load_scene(name, env_res=RES)
         assert scene.environment.num_frames == frames and not scene.environment.is_static
         assert scene.environment.frame(frames - 1).shape == (6, RES, RES, 3)
@@ -327,3 +328,43 @@ def test_flicker_survives_resumption(tmp_path, capsys):
     b = pd.read_parquet(resumed / "results.parquet").set_index("frame")
     assert math.isnan(b.loc[0, "flicker"]) and b.loc[1, "flicker"] > 0
     assert b.loc[1, "flicker"] == pytest.approx(a.loc[1, "flicker"], rel=1e-6)
+
+
+# ---- minutes --------------------------------------------------------------------------------------
+
+def test_minutes_is_the_day_sun_one_minute_a_frame():
+    """Each frame's sun is the independent solar position at 9:00 + t minutes, consecutive suns
+    are 15°·cos δ / 60 apart (the sun's daily circle at one minute of hour angle), and frame 0
+    is day's frame at the same solar time (day's frame 22 is 3:00 + 22 · 18 h / 66 = 9:00)."""
+    step = math.radians(15.0 / 60.0)
+    expected = math.degrees(2 * math.asin(math.cos(math.radians(sequences.DAY_DECLINATION_DEG))
+                                          * math.sin(step / 2)))
+    suns = []
+    for index in range(sequences.MINUTES_FRAMES):
+        enu = independent_sun(9.0 + index / 60.0, sequences.DAY_LATITUDE_DEG,
+                              sequences.DAY_DECLINATION_DEG)
+        sun = sky.sun_direction(*sequences.sun_at(sequences.minutes_hour(index)))
+        assert np.allclose(sun, [enu[0], enu[2], -enu[1]], atol=1e-9)
+        suns.append(sun)
+    steps = [math.degrees(math.acos(np.clip(a @ b, -1, 1))) for a, b in zip(suns, suns[1:])]
+    assert np.allclose(steps, expected, atol=1e-5)
+    assert sequences.day_hours()[22] == pytest.approx(9.0)
+    np.testing.assert_allclose(sequences.minutes_frame(0, RES), sequences.day_frame(22, RES),
+                               rtol=1e-5)
+    up = [sequences.sun_at(sequences.minutes_hour(i))[0] for i in (0, sequences.MINUTES_FRAMES - 1)]
+    assert 45.0 < up[0] < up[1] < 55.0          # well up all the way, climbing
+    with pytest.raises(IndexError):
+        sequences.minutes_frame(sequences.MINUTES_FRAMES, RES)
+
+
+def test_minutes_frames_change_little_and_their_brightest_texel_follows_the_sun():
+    """The smooth sequence: Σ Y·Ω changes by well under 1% a frame (the sun climbs 0.2° a minute),
+    and the brightest texel of frame t is the one the sun's direction falls in."""
+    frames = [sequences.minutes_frame(i, 16) for i in range(sequences.MINUTES_FRAMES)]
+    powers = np.array([sequences.total_power(f) for f in frames])
+    assert np.all(np.abs(np.diff(powers)) / powers[:-1] < 0.002)
+    for index in (0, 12, sequences.MINUTES_FRAMES - 1):
+        luminance = cubemap.luminance(frames[index].astype(np.float64))
+        sun = sky.sun_direction(*sequences.sun_at(sequences.minutes_hour(index)))
+        texel = tuple(int(v[0]) for v in cubemap.direction_to_texel(sun[None], 16))
+        assert np.unravel_index(luminance.argmax(), luminance.shape) == texel

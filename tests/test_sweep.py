@@ -265,3 +265,67 @@ def test_frames_beyond_a_sequence_are_refused(tmp_path, capsys):
                  "--frames", "0,2", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "frame 2 selected" in err and "2 frames" in err and not out.exists()
+
+
+# ---- frames per scene (issue 24) -----------------------------------------------------------------
+
+PER_SCENE = VALID.replace('["sphere-sun"]', '["sphere-switch", "sphere-park-switch"]') + \
+    'frames = { default = "0:2", SPHERE-SWITCH = "10:12" }\n'
+
+
+def test_a_frames_table_gives_scenes_their_own_frames(tmp_path, capsys):
+    """Each scene runs its own selection or the default; the manifest records both; --frames
+    gives every scene one selection again."""
+    path = write(tmp_path, PER_SCENE)
+    sweep = load_sweep(path)
+    assert sweep.frames == slice(0, 2) and sweep.frames_for == (("sphere-switch", slice(10, 12)),)
+    out = tmp_path / "out"
+    assert main(["run", "--config", str(path), "--out", str(out), "--no-progress"]) == 0
+    table = pd.read_parquet(out / "results.parquet")
+    assert sorted(set(zip(table.scene, table.frame))) == [
+        ("sphere-park-switch", 0), ("sphere-park-switch", 1), ("sphere-switch", 10),
+        ("sphere-switch", 11)]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["config"]["frames_for"] == {"sphere-switch": "10:12"}
+    assert manifest["config"]["frames"] == "0:2"
+    flag = tmp_path / "flag"
+    assert main(["run", "--config", str(path), "--out", str(flag), "--frames", "3..4",
+                 "--no-progress"]) == 0
+    table = pd.read_parquet(flag / "results.parquet")
+    assert sorted(set(zip(table.scene, table.frame))) == [
+        ("sphere-park-switch", 3), ("sphere-park-switch", 4), ("sphere-switch", 3),
+        ("sphere-switch", 4)]
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize("frames, needle", [
+    ('{ sphere-sun = "0:2" }', "frames gives frames to scene 'sphere-sun', which scenes does not list"),
+    ('{ default = "some" }', "frames must be"),
+    ("{ sphere-switch = 3 }", "frames for sphere-switch: frames must be"),
+    ('{ sphere-switch = "0:9:0" }', "frames for sphere-switch: frames slice step must not be zero"),
+])
+def test_a_bad_frames_table_names_the_problem(tmp_path, frames, needle):
+    text = PER_SCENE.replace('{ default = "0:2", SPHERE-SWITCH = "10:12" }', frames)
+    with pytest.raises(InputError, match=needle):
+        load_sweep(write(tmp_path, text))
+
+
+def test_frontier_runs_every_estimator_on_the_sequences_at_their_own_frames():
+    """The shipped frontier sweep (issue 24): every estimator (those of the default sweep),
+    the six sequence scenes, per-estimator spp levels (equal time), and per-scene frames that
+    each scene has."""
+    from iblbench.scenes.registry import builtin_frames
+    from iblbench.harness.protocol.sweep import select_frames
+
+    frontier = load_sweep("frontier")
+    assert set(frontier.estimators) == set(load_sweep("default").estimators)
+    assert set(frontier.scenes) == {"blob-day", "blob-minutes", "sphere-switch", "park-turn",
+                                    "sphere-studio-moving", "sphere-park-switch"}
+    assert dict(frontier.spp_for)["smc"] == (1, 4, 16) and frontier.seeds == 2
+    own = dict(frontier.frames_for)
+    for scene in frontier.scenes:
+        frames = select_frames(own.get(scene, frontier.frames), builtin_frames(scene))
+        assert len(frames) >= 6 and max(frames) < builtin_frames(scene)
+        assert frames == list(range(frames[0], frames[-1] + 1))     # consecutive: flicker
+    switch = select_frames(own["sphere-switch"], builtin_frames("sphere-switch"))
+    assert switch[0] < 10 <= 19 < switch[-1]                          # both switches

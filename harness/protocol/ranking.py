@@ -44,7 +44,9 @@ from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, cell_
                                              skew_corrected_ci)
 
 METRIC = "mean_delta_e76"
-METRIC_NAMES = {"mean_delta_e76": "ΔE76", "mean_delta_e2000": "ΔE2000", "rel_mse": "relMSE"}
+FLICKER = "flicker"   # a sequence's figure from its second frame on (harness/protocol/metrics.py)
+METRIC_NAMES = {"mean_delta_e76": "ΔE76", "mean_delta_e2000": "ΔE2000", "rel_mse": "relMSE",
+                FLICKER: "flicker"}
 BUDGETS = 3                 # headline budgets per scene at most
 BUDGET_SPACING = 2.0        # headline budgets at least this factor apart
 BUDGET_REACH = 0.5          # a headline budget ranks at least this share of the estimators
@@ -150,13 +152,20 @@ def _figure(standing: Standing) -> str:
     return f"{ci.mean:.2g} [{ci.low:.2g}, {ci.high:.2g}]"
 
 
-def curve(rows: pd.DataFrame, metric: str = METRIC) -> list[Point]:
+def curve(rows: pd.DataFrame, metric: str = METRIC, frame: int | None = None) -> list[Point]:
     """An estimator's error–time curve on one scene: one :class:`Point` per cell (spp level or
-    time budget) of ``rows``, sorted by time."""
+    time budget) of ``rows``, sorted by time.  A point's time is always its cell's (every frame);
+    its replicates are ``metric``'s over the cell's frames, or of ``frame`` alone.  Flicker is
+    defined from the run's second frame of the sequence on, so its first frame is left out."""
     points = []
     for _, cell in rows.groupby(["spp", "time_budget_ms"], sort=False, dropna=False):
         time_ms = column_interval(cell, TIME_COLUMN)[0].mean
-        values, _ = cell_values(cell, metric)
+        scored = cell if frame is None else cell[cell.frame == frame]
+        if metric == FLICKER:
+            scored = scored[scored.frame != cell.frame.min()]
+        if not len(scored):
+            continue
+        values, _ = cell_values(scored, metric)
         if math.isfinite(time_ms) and values.notna().all():
             points.append(Point(int(cell.spp.iloc[0]), float(time_ms), values))
     return sorted(points, key=lambda p: (p.time_ms, p.spp))

@@ -171,6 +171,7 @@ class RunConfig:
     frames: tuple[int, ...] | slice | None = None   # None: every frame; a slice: Python slice
                                                     # semantics over each sequence's frames;
                                                     # static scenes run frame 0
+    frames_for: tuple[tuple[str, object], ...] = ()   # (scene name, its own frame selection)
     time_budget_ms: tuple[float, ...] = ()     # equal-time cells, besides the spp list
     force: bool = False                        # recompute finished cells too
     repeats: int = DEFAULT_REPEATS             # timed renders per cell (timing module)
@@ -178,6 +179,10 @@ class RunConfig:
     spp_for: tuple[tuple[str, tuple[int, ...]], ...] = ()   # (estimator name, its own spp levels)
     metrics: tuple[str, ...] = METRICS         # ΔE76 always; see harness.metrics
     sweep: dict | None = None                  # the resolved sweep and its source (manifest)
+
+    def frames_of(self, scene_name: str):
+        """The frame selection of one scene: its own (``frames_for``) or the sweep's."""
+        return dict(self.frames_for).get(scene_name.lower(), self.frames)
 
 
 def timing_seed(seed: int, repeat: int) -> int:
@@ -374,10 +379,11 @@ class Runner:
         if scene.environment.is_static:
             frames = [0]
         else:
-            frames = select_frames(self.config.frames, frames_available)
+            selection = self.config.frames_of(scene.name)
+            frames = select_frames(selection, frames_available)
             if not frames:
                 raise InputError(scene.source or scene.name,
-                                 f"{argument('frames', frames_text(self.config.frames))} selects "
+                                 f"{argument('frames', frames_text(selection))} selects "
                                  f"no frame of scene '{scene.name}', which has {frames_available} "
                                  "frames")
             if max(frames) >= frames_available:
@@ -443,6 +449,7 @@ class Runner:
                        "seeds": c.seeds, "first_seed": c.first_seed,
                        "resolution": c.resolution,
                        "frames": frames_text(c.frames),
+                       "frames_for": {n: frames_text(v) for n, v in c.frames_for},
                        "time_budget_ms": list(c.time_budget_ms), "force": c.force,
                        "repeats": c.repeats, "repeats_for": dict(c.repeats_for),
                        "metrics": list(c.metrics),

@@ -2,7 +2,7 @@
 
 A sweep is scenes × estimators × spp × frames × seeds at one resolution, under one error
 protocol.  ``iblbench run --config NAME|FILE`` takes a shipped config by name (``quick``,
-``default``, ``full``: ``harness/configs/NAME.toml``) or a path to a ``.toml`` file; explicit
+``default``, ``full``, ``temporal``, ``frontier``: ``harness/configs/NAME.toml``) or a path to a ``.toml`` file; explicit
 command-line flags replace the config's fields one by one.  ``iblbench run`` with no
 ``--config`` uses ``default``.
 
@@ -20,7 +20,9 @@ Format (every key at the top level)::
     frames = "0:67:6"                   # optional: "START:STOP[:STEP]", a Python slice of each
                                         # sequence's frames ("::6", "10:", "-5:" all work; the
                                         # default "all" is ":"); also a list [0, 5, 9] or "A..B"
-                                        # (inclusive); static environments always run frame 0
+                                        # (inclusive); static environments always run frame 0;
+                                        # or a table giving scenes (by name) their own:
+                                        # frames = { default = "all", blob-day = "30:36" }
     resolution = "128x128"              # optional: "WxH" or [W, H]; default: each scene's own
     env_res = 64                        # optional cube face resolution; default: each scene's own
     time_budget_ms = [20.0]             # optional: equal-time cells instead of the spp list
@@ -62,7 +64,7 @@ if sys.version_info >= (3, 11):
 else:   # pragma: no cover
     import tomli as tomllib
 
-SHIPPED = ("quick", "default", "full", "temporal")
+SHIPPED = ("quick", "default", "full", "temporal", "frontier")
 DEFAULT_REPEATS = 5   # timed renders per cell (harness/protocol/timing.py)
 MAX_REPEATS = 255     # the timing seeds hold the repeat in 8 bits (runner.timing_seed)
 CONFIG_PACKAGE = "iblbench.harness.configs"
@@ -183,6 +185,7 @@ class Sweep:
     seeds: int
     first_seed: int = 0
     frames: tuple[int, ...] | slice | None = None   # None: every frame; a slice: of each sequence
+    frames_for: tuple[tuple[str, Any], ...] = ()    # (scene name, its own frame selection)
     resolution: tuple[int, int] | None = None
     env_res: int | None = None
     time_budget_ms: tuple[float, ...] = ()
@@ -207,6 +210,7 @@ class Sweep:
                 "protocol": self.protocol, "scenes": list(self.scenes),
                 "estimators": list(self.estimators), "spp": list(self.spp), "seeds": self.seeds,
                 "first_seed": self.first_seed, "frames": frames_text(self.frames),
+                "frames_for": {name: frames_text(frames) for name, frames in self.frames_for},
                 "resolution": None if self.resolution is None else list(self.resolution),
                 "env_res": self.env_res, "time_budget_ms": list(self.time_budget_ms),
                 "sanitize": self.sanitize, "repeats": self.repeats,
@@ -358,7 +362,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     if type(first_seed) is not int or first_seed < 0:
         fail(f"first_seed must be a non-negative integer, got {first_seed!r}")
     try:
-        frames = parse_frames(document.get("frames", "all"))
+        frames, frames_for = parse_scene_frames(document.get("frames", "all"))
         resolution = (parse_resolution(document["resolution"]) if "resolution" in document
                       else None)
     except ValueError as error:
@@ -380,8 +384,14 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     except ValueError as error:
         fail(str(error))
     metrics = _metric_names(document.get("metrics", list(METRICS)), fail)
+    names = {Path(entry).stem.lower() if entry.lower().endswith(".toml") else entry.lower()
+             for entry in scenes}
+    for name, _ in frames_for:
+        if name not in names:
+            fail(f"frames gives frames to scene {name!r}, which scenes does not list "
+                 f"(scenes: {', '.join(sorted(names))})")
     return Sweep(scenes=scenes, estimators=tuple(labels), spp=spp, spp_for=spp_for, seeds=seeds,
-                 first_seed=first_seed, frames=frames, resolution=resolution, env_res=env_res,
+                 first_seed=first_seed, frames=frames, frames_for=frames_for, resolution=resolution, env_res=env_res,
                  time_budget_ms=tuple(float(v) for v in budgets), sanitize=sanitize,
                  repeats=repeats, repeats_for=repeats_for, metrics=metrics,
                  protocol=protocol, description=description, source=source)
@@ -424,7 +434,7 @@ def _metric_names(metrics, fail) -> tuple[str, ...]:
 
 
 def load_sweep(name_or_path: str | os.PathLike) -> Sweep:
-    """A shipped config by name (quick, default, full, temporal) or a sweep .toml file."""
+    """A shipped config by name (:data:`SHIPPED`) or a sweep .toml file."""
     path, source = config_path(name_or_path)
     return parse_sweep(read_toml(path, "sweep config"), path, source)
 
@@ -459,6 +469,25 @@ def _per_estimator(value, fallback, parse, field: str, expected: str):
 
     return checked("default", table.get("default", fallback)), tuple(sorted(
         (str(key).lower(), checked(key, entry)) for key, entry in table.items() if key != "default"))
+
+
+def parse_scene_frames(value) -> tuple[Any, tuple[tuple[str, Any], ...]]:
+    """The frames: one selection (:func:`parse_frames`) for every sequence, or a table
+    ``{default = ..., SCENE = ..., ...}`` giving scenes (by name) selections of their own, so that
+    one sweep can shorten a long sequence and keep a short one whole → (the default, ((scene,
+    selection), ...) sorted); ValueError naming the problem (and the scene)."""
+    table = value if isinstance(value, dict) else {"default": value}
+
+    def parsed(key, entry):
+        try:
+            return parse_frames(entry)
+        except ValueError as error:
+            if key == "default":
+                raise
+            raise ValueError(f"frames for {key}: {error}") from None
+
+    return parsed("default", table.get("default", "all")), tuple(sorted(
+        (str(key).lower(), parsed(key, entry)) for key, entry in table.items() if key != "default"))
 
 
 def parse_spp(value) -> tuple[tuple[int, ...], tuple[tuple[str, tuple[int, ...]], ...]]:
