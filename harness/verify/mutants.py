@@ -83,6 +83,7 @@ def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed
 
 
 COMMON, POOL = "estimators/kernels/common.cl", "estimators/kernels/light_pool.cl"
+DESCENT = "estimators/descent.cl"
 
 CATALOGUE: tuple[Mutant, ...] = (
     # ---- the light pool: uniform, balanced, balanced_mis ----------------------------------------
@@ -119,10 +120,10 @@ CATALOGUE: tuple[Mutant, ...] = (
     _m("envmap-light-jacobian-inverted", "estimators/envmap.cl",
        "*pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;",
        "*pdf = row_bin * col_bin / (q * sqrt(q)) * (float)(res * res) / 4.0f;", ["envmap"], ["sun-1e6"]),
-    _m("hierarchical-light-jacobian-inverted", "estimators/hierarchical.cl",
+    _m("hierarchical-light-jacobian-inverted", DESCENT,
        "*pdf = probability * area * sqrt(area) * (float)(res * res) / 4.0f;",
        "*pdf = probability / (area * sqrt(area)) * (float)(res * res) / 4.0f;", ["hierarchical"], ["sun-1e6"]),
-    _m("hierarchical-density-quad-transposed", "estimators/hierarchical.cl",
+    _m("hierarchical-density-quad-transposed", DESCENT,
        "descent_probability4(q, 2 * (child_row & 1) + (child_col & 1))",
        "descent_probability4(q, (child_row & 1) + 2 * (child_col & 1))",
        ['hierarchical{mis="brdf"}'], ["face-pattern"]),
