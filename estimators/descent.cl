@@ -23,16 +23,22 @@
  * them (so 1/2, 1/4, 1/4 for three of four: not equal, but the lookup recomputes the same
  * widths), so a black map still samples a valid texel with the density it is drawn from.
  *
- * The including file defines, before it includes this one, its weigher: a type
- * descent_weigher_t and
- *   weigher_at_face(g, face): the lanes' faces are chosen (a weigher may set up per face);
- *   weigh_faces(g, l, w[6]): multiplies the faces' totals w (pyramid level l) by its factors;
- *   weigh_children(g, res, l, row, col, w[4]): multiplies the sums w of the children at level l
- *     of the lanes' parents (row, col) (of the face given to weigher_at_face) by its factors.
- * A factor must be finite and ≥ 0, and positive wherever the sample's integrand may be. */
+ * The including file defines its weigher: the type descent_weigher_t before it includes this
+ * one, and the three functions declared below (anywhere in the program).  A factor must be
+ * finite and ≥ 0, and positive wherever the sample's integrand may be. */
 #ifndef IBLBENCH_DESCENT_CL
 #define IBLBENCH_DESCENT_CL
 #include "lanes.cl"
+
+/* The lanes' faces are chosen (a weigher may set up per face). */
+ALWAYS_INLINE void weigher_at_face(descent_weigher_t *g, lane_ints_t face);
+/* Multiplies the faces' totals w (pyramid level l) by the weigher's factors. */
+ALWAYS_INLINE void weigh_faces(const descent_weigher_t *g, int l, lanes_t w[6]);
+/* Multiplies the sums w of the four children at level l of the lanes' parents (row, col), of the
+ * faces given to weigher_at_face, by the weigher's factors (child k = 2a + b at (2·row + a,
+ * 2·col + b)). */
+ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, int res, int l, lane_ints_t row, lane_ints_t col,
+                                  lanes_t w[4]);
 
 #define STREAM_DESCENT 9u
 #define UNROLL __attribute__((opencl_unroll_hint))   /* loops over a choice's children: no private arrays left */

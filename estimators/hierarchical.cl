@@ -7,12 +7,12 @@
 /* descent.cl's weigher: the light weights alone, a factor 1 everywhere. */
 typedef struct { int unused; } descent_weigher_t;
 
+#include "descent.cl"
+
 ALWAYS_INLINE void weigher_at_face(descent_weigher_t *g, lane_ints_t face) {}
 ALWAYS_INLINE void weigh_faces(const descent_weigher_t *g, int l, lanes_t w[6]) {}
 ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, int res, int l, lane_ints_t row, lane_ints_t col,
                                   lanes_t w[4]) {}
-
-#include "descent.cl"
 
 #define LIGHT_PARAMS __global const float *pyramid
 #define LIGHT_ARGS pyramid
