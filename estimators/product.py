@@ -23,7 +23,7 @@ class ProductParams:
 
     ``child_weight`` (default ``"bound"``): a child's BRDF·cos factor, ``"bound"`` (an upper
     bound over the child's directions) or ``"centre"`` (its value at the child's centre
-    direction, floored at 1/64 of the bound).
+    direction, floored at 1/16 of the bound).
 
     ``light_levels`` (default 0): the choices among the children of the ``light_levels`` finest
     pyramid levels (1: the texels; 0: none) are made by the light weights alone, as

@@ -127,6 +127,15 @@ CATALOGUE: tuple[Mutant, ...] = (
        "descent_probability4(q, 2 * (child_row & 1) + (child_col & 1))",
        "descent_probability4(q, (child_row & 1) + 2 * (child_col & 1))",
        ['hierarchical{mis="brdf"}'], ["face-pattern"]),
+    # ---- product ------------------------------------------------------------------------------
+    # The density recomputes the descent for a given direction: an off-by-one loop bound there
+    # leaves out the texel level's choice (the sampler still makes it).
+    _m("product-pdf-missing-a-level", DESCENT,
+       "for (int l = levels - 2; l >= 0; --l) {\n        int n = level_size(res, l);\n"
+       "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
+       "for (int l = levels - 2; l > 0; --l) {\n        int n = level_size(res, l);\n"
+       "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
+       ["product"], ["face-pattern"]),
     # ---- shared conventions (common.cl) -----------------------------------------------------------
     _m("light-pdf-jacobian-inverted", COMMON,
        "cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area",
