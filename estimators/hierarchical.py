@@ -27,7 +27,7 @@ class Hierarchical(Envmap):
     sampler needs only the pyramid: one pass of weights and log2 R reductions, no prefix scan
     (it does not require the ``cdf`` product).
 
-    Exactness beside a 1e6:1 sun (hierarchical.cl's header).  Each choice is made in 31-bit fixed
+    Exactness beside a 1e6:1 sun (descent.cl's header).  Each choice is made in 31-bit fixed
     point: child k gets an integer width q_k = max(1, ⌊2^31·w_k/Σw⌋) for w_k > 0 (0 for w_k = 0),
     the remainder to the largest child, and a fresh Philox word per level (its top 31 bits)
     picks the bin that holds it.  A child's probability is exactly q_k/2^31, and a child of
@@ -59,7 +59,7 @@ class Hierarchical(Envmap):
 
     name = "hierarchical"
     requires = ("weight_pyramid",)
-    kernel_files = ("hierarchical.cl", "envmap.cl", "lanes.cl")
+    kernel_files = ("hierarchical.cl", "descent.cl", "envmap.cl", "lanes.cl")
 
     def _light_buffers(self, cache) -> tuple[tuple, float]:
         """((the weight pyramid,), the device ms of this render's ``sample`` stage: the

@@ -23,7 +23,7 @@ ENTRY_POINT_GROUP = "iblbench.estimators"
 # (NumPy and OpenCL with them), so that listing them, from their source, answers at once.
 _BUILTINS = {"uniform": "Uniform", "balanced": "Balanced", "balanced_mis": "BalancedMIS",
              "havran": "Havran", "bis": "BIS", "smc": "SMC", "brdf": "Brdf", "envmap": "Envmap",
-             "hierarchical": "Hierarchical", "fis": "Fis", "restir": "ReSTIR"}
+             "hierarchical": "Hierarchical", "fis": "Fis", "restir": "ReSTIR", "product": "Product"}
 _registry: dict[str, type[Estimator]] = {}
 
 

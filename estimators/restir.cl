@@ -71,7 +71,8 @@ __kernel void restir_presample(__global const float *pyramid, const int res, con
     int at = get_global_id(0) * POOL_LANES, n = get_global_size(0) * POOL_LANES;
     lane_ints_t texel;
     lanes_t pdf;
-    lanes3_t w = lanes_sample_light(pyramid, res, seed, frame, 0u, at + LANE_NUMBERS, &texel, &pdf);
+    shading_t none;   /* hierarchical's light sampler reads no shading (product's would) */
+    lanes3_t w = lanes_sample_light(pyramid, &none, res, seed, frame, 0u, at + LANE_NUMBERS, &texel, &pdf);
     vstore_lanes(w.x, 0, presamples + at);
     vstore_lanes(w.y, 0, presamples + n + at);
     vstore_lanes(w.z, 0, presamples + 2 * n + at);
@@ -181,7 +182,7 @@ ALWAYS_INLINE reservoir_t initial_reservoir(const shading_t *s, int p, __global 
         lanes3_t w = lanes_brdf_draw(s, t_n, b_n, t_r, b_r, seed, frame, (uint)p, chain * brdf_count + draw);
         lane_block_t xi = rng_block_lanes(seed, frame, STREAM_RESTIR_CANDIDATE, (uint)p, convert_lane_uints(draw),
                                           (uint)(2 * chain + 1));
-        stream_candidates(&r, s, env, res, w, lanes_light_density(pyramid, res, w, &texel), draw < brdf_count,
+        stream_candidates(&r, s, env, res, w, lanes_light_density(pyramid, s, res, w, &texel), draw < brdf_count,
                           (float)light_count, (float)brdf_count, lanes_unit(xi.v[1]), visibility, p);
     }
     /* The lanes' reservoirs merged: lane k with probability ∝ its sum (Bitterli Alg. 4, one target). */

@@ -159,7 +159,7 @@ class ReSTIR(Estimator):
                 Setting("tiles", 1), Setting("tile_size", 16))
     tags = Tags(unbiased=True, temporal=True, has_pdf=False)
     requires = ("weight_pyramid",)
-    kernel_files = ("restir.cl", "sir.cl", "hierarchical.cl", "envmap.cl", "lanes.cl")
+    kernel_files = ("restir.cl", "sir.cl", "hierarchical.cl", "descent.cl", "envmap.cl", "lanes.cl")
     max_spp = MAX_SPP
 
     def __init__(self, params=None, **overrides):

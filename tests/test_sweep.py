@@ -311,14 +311,14 @@ def test_a_bad_frames_table_names_the_problem(tmp_path, frames, needle):
 
 
 def test_frontier_runs_every_estimator_on_the_sequences_at_their_own_frames():
-    """The shipped frontier sweep (issue 24): every estimator (those of the default sweep),
-    the six sequence scenes, per-estimator spp levels (equal time), and per-scene frames that
+    """The shipped frontier sweep (issue 24): every estimator (those of the default sweep, and
+    restir and product), the six sequence scenes, per-estimator spp levels (equal time), and per-scene frames that
     each scene has."""
     from iblbench.scenes.registry import builtin_frames
     from iblbench.harness.protocol.sweep import select_frames
 
     frontier = load_sweep("frontier")
-    assert set(frontier.estimators) == set(load_sweep("default").estimators)
+    assert set(frontier.estimators) == set(load_sweep("default").estimators) | {"restir", "product"}
     assert set(frontier.scenes) == {"blob-day", "blob-minutes", "sphere-switch", "park-turn",
                                     "sphere-studio-moving", "sphere-park-switch"}
     assert dict(frontier.spp_for)["smc"] == (1, 4, 16) and frontier.seeds == 2

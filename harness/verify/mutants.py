@@ -83,6 +83,7 @@ def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed
 
 
 COMMON, POOL = "estimators/kernels/common.cl", "estimators/kernels/light_pool.cl"
+DESCENT = "estimators/descent.cl"
 
 CATALOGUE: tuple[Mutant, ...] = (
     # ---- the light pool: uniform, balanced, balanced_mis ----------------------------------------
@@ -119,13 +120,22 @@ CATALOGUE: tuple[Mutant, ...] = (
     _m("envmap-light-jacobian-inverted", "estimators/envmap.cl",
        "*pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;",
        "*pdf = row_bin * col_bin / (q * sqrt(q)) * (float)(res * res) / 4.0f;", ["envmap"], ["sun-1e6"]),
-    _m("hierarchical-light-jacobian-inverted", "estimators/hierarchical.cl",
+    _m("hierarchical-light-jacobian-inverted", DESCENT,
        "*pdf = probability * area * sqrt(area) * (float)(res * res) / 4.0f;",
        "*pdf = probability / (area * sqrt(area)) * (float)(res * res) / 4.0f;", ["hierarchical"], ["sun-1e6"]),
-    _m("hierarchical-density-quad-transposed", "estimators/hierarchical.cl",
+    _m("hierarchical-density-quad-transposed", DESCENT,
        "descent_probability4(q, 2 * (child_row & 1) + (child_col & 1))",
        "descent_probability4(q, (child_row & 1) + 2 * (child_col & 1))",
        ['hierarchical{mis="brdf"}'], ["face-pattern"]),
+    # ---- product ------------------------------------------------------------------------------
+    # The density recomputes the descent for a given direction: an off-by-one loop bound there
+    # leaves out the texel level's choice (the sampler still makes it).
+    _m("product-pdf-missing-a-level", DESCENT,
+       "for (int l = levels - 2; l >= 0; --l) {\n        int n = level_size(res, l);\n"
+       "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
+       "for (int l = levels - 2; l > 0; --l) {\n        int n = level_size(res, l);\n"
+       "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
+       ["product"], ["face-pattern"]),
     # ---- shared conventions (common.cl) -----------------------------------------------------------
     _m("light-pdf-jacobian-inverted", COMMON,
        "cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area",

@@ -501,6 +501,11 @@ CASE_NAMES = tuple(CASES)
 KNOWN_FAILURES: dict[tuple[str, str], str] = {
     ("dimming-sun", "havran"): "havran's FIR filter blends the bright frames' lights into the "
                                "dimmed one: the lag bias its docstring states (×6.6 measured)",
+    ("huge-faces", "product"): "the χ²'s quadrature (16² points per bin of 64² texels at R = 1024) "
+                               "misses product's pdf step at the pixel's horizon (texels wholly "
+                               "below it have pdf 0): the 12-25 'stray' samples of 1e5 lie within "
+                               "a texel of the horizon, each with a positive pdf that the hook "
+                               "agrees with; the z-test passes",
 }
 
 

@@ -1,0 +1,172 @@
+/* `product`: envmap.cl's kernels (budget, MIS with BRDF samples, χ² hooks) with light samples
+ * drawn by descent.cl's descent through the weight pyramid, each choice weighted by the
+ * pyramid's sums times the pixel's BRDF·cos factor over the child (hierarchical product
+ * sampling of L·ρ·cos⁺, after Clarberg et al. 2005 and Clarberg & Akenine-Möller 2008).
+ * Configured by the estimator's defines:
+ *   CHILD_WEIGHT  0: the factor's bound over the child's cone of directions; 1: its value at the
+ *                 child's centre direction, floored at CENTRE_FLOOR of that bound
+ *   LIGHT_LEVELS  L: the choices among children of pyramid level l < L (0 = texels) weigh by the
+ *                 sums alone, as hierarchical's (0: every choice, the faces' included, by the
+ *                 product)
+ *
+ * The factor F(ω) = cos⁺(n, ω)·(Y(kd)/π + Y(ks)·(m+2)/(2π)·cos⁺(r, ω)^m) is the Phong BRDF·cos
+ * of add_samples in luminance (no V: the target is map × BRDF × cos), divided by its largest
+ * value Y(kd)/π + Y(ks)·(m+2)/(2π) so that it lies in [0, 1] and a weight never exceeds the
+ * pyramid's sum (no overflow beside a 1e30 texel).  Over a child, the two cosines are bounded
+ * over a cone that holds its directions (cone_cos_bound), each separately. */
+#include "lanes.cl"
+
+#ifndef CHILD_WEIGHT
+#define CHILD_WEIGHT 0
+#endif
+#ifndef LIGHT_LEVELS
+#define LIGHT_LEVELS 0
+#endif
+
+#define CENTRE_FLOOR (1.0f / 16.0f)   /* measured: 1/64 and 1/4 gave more error (the estimator's docstring) */
+#define BOUND_MARGIN 0x1p-12f      /* above the bound's float rounding (~1e-6): no child cut by it */
+#define FACE_COS 0.577350269f      /* a face's cone about its axis: its corners are 1/√3 off it */
+#define FACE_SIN 0.816496581f
+
+/* descent.cl's weigher: the pixel's normal n, mirror direction r and normalised factor
+ * F = cos_n·(diffuse + specular·cos_r^m) (diffuse + specular = 1), and n and r in the frames of
+ * the lanes' faces (n·U, n·V, n·W of the face's direction x·U + y·V + W at face point (x, y)). */
+typedef struct {
+    vec3_t n, r;
+    float diffuse, specular, m;
+    lanes_t n_u, n_v, n_w, r_u, r_v, r_w;
+} descent_weigher_t;
+
+#include "descent.cl"
+
+ALWAYS_INLINE descent_weigher_t product_weigher(const shading_t *s)
+{
+    float diffuse = vec3_luminance(s->kd) / IBL_PI;
+    float specular = vec3_luminance(s->ks) * (s->m + 2.0f) / (2.0f * IBL_PI);
+    float largest = diffuse + specular;
+    int scaled = largest > 0.0f && isfinite(largest);   /* else the integrand is 0: cos_n alone */
+    descent_weigher_t g;
+    g.n = s->n;
+    g.r = s->r;
+    g.m = s->m;
+    g.diffuse = scaled ? diffuse / largest : 1.0f;
+    g.specular = scaled ? specular / largest : 0.0f;
+    return g;
+}
+
+/* a·U, a·V, a·W of the lanes' faces (lanes_face_direction's table). */
+ALWAYS_INLINE void lanes_face_frame(lane_ints_t face, vec3_t a, lanes_t *u, lanes_t *v, lanes_t *w)
+{
+    lanes_t sign = select((lanes_t)1.0f, (lanes_t)-1.0f, (face & 1) != 0);
+    lane_ints_t x_major = face < 2, y_major = (face == 2) | (face == 3);
+    *u = select(select(sign * a.x, (lanes_t)a.x, y_major), -sign * a.z, x_major);
+    *v = select((lanes_t)-a.y, sign * a.z, y_major);
+    *w = sign * select(select((lanes_t)a.z, (lanes_t)a.y, y_major), (lanes_t)a.x, x_major);
+}
+
+ALWAYS_INLINE void weigher_at_face(descent_weigher_t *g, lane_ints_t face)
+{
+    lanes_face_frame(face, g->n, &g->n_u, &g->n_v, &g->n_w);
+    lanes_face_frame(face, g->r, &g->r_u, &g->r_v, &g->r_w);
+}
+
+/* An upper bound of cos⁺ of the angle between a unit vector and any direction of a cone of half
+ * angle θ about an axis, from cos_a = cos α (α the vector's angle to the axis) and cos_lo ≤ cos θ
+ * ≤ cos_hi, sin θ ≤ sin_hi: 1 where the vector may lie in the cone (cos_a ≥ cos_lo), else
+ * cos(α − θ) = cos α cos θ + sin α sin θ bounded term by term (sin α ≥ 0), plus BOUND_MARGIN,
+ * in [0, 1]. */
+ALWAYS_INLINE lanes_t cone_cos_bound(lanes_t cos_a, lanes_t cos_lo, lanes_t cos_hi, lanes_t sin_hi)
+{
+    lanes_t sin_a = sqrt(max(1.0f - cos_a * cos_a, 0.0f));
+    lanes_t bound = cos_a * select(cos_lo, cos_hi, cos_a >= 0.0f) + sin_a * sin_hi + BOUND_MARGIN;
+    return select(min(max(bound, 0.0f), 1.0f), (lanes_t)1.0f, cos_a >= cos_lo);
+}
+
+/* The normalised factor of cosines cos_n, cos_r (≥ 0). */
+ALWAYS_INLINE lanes_t factor_of(const descent_weigher_t *g, lanes_t cos_n, lanes_t cos_r)
+{
+#if SPECULAR_LOBE
+    return cos_n * (g->diffuse + g->specular * phong_power_lanes(cos_r, (lanes_t)g->m));
+#else
+    return cos_n * g->diffuse;
+#endif
+}
+
+/* The factor of a child whose directions lie in a cone of half angle θ (cos_lo ≤ cos θ ≤ cos_hi,
+ * sin θ ≤ sin_hi) about its centre direction, cos_n and cos_r the cosines of that direction
+ * with n and r, by the CHILD_WEIGHT rule. */
+ALWAYS_INLINE lanes_t cone_factor(const descent_weigher_t *g, lanes_t cos_n, lanes_t cos_r, lanes_t cos_lo,
+                                  lanes_t cos_hi, lanes_t sin_hi)
+{
+    lanes_t bound = factor_of(g, cone_cos_bound(cos_n, cos_lo, cos_hi, sin_hi),
+                              cone_cos_bound(cos_r, cos_lo, cos_hi, sin_hi));
+#if CHILD_WEIGHT
+    return max(factor_of(g, max(cos_n, 0.0f), max(cos_r, 0.0f)), CENTRE_FLOOR * bound);
+#else
+    return bound;
+#endif
+}
+
+/* Faces: each face's cone is exact, half angle acos(1/√3) about its axis ±e_{f/2}. */
+ALWAYS_INLINE void weigh_faces(const descent_weigher_t *g, int l, lanes_t w[6])
+{
+    if (l < LIGHT_LEVELS)
+        return;
+    float n_axis[3] = {g->n.x, g->n.y, g->n.z}, r_axis[3] = {g->r.x, g->r.y, g->r.z};
+    UNROLL
+    for (int f = 0; f < 6; ++f) {
+        float sign = (f & 1) ? -1.0f : 1.0f;
+        w[f] *= cone_factor(g, (lanes_t)(sign * n_axis[f >> 1]), (lanes_t)(sign * r_axis[f >> 1]),
+                            (lanes_t)FACE_COS, (lanes_t)FACE_COS, (lanes_t)FACE_SIN);
+    }
+}
+
+/* A child at level l spans the texels [x0, x1) of its face (x1 = x0 + 2^l but for an odd size's
+ * last), the face square [−1 + 2·x0/R, −1 + 2·x1/R]: its centre (x, y) and half extents (hx, hy).
+ * The cone about the centre direction that holds it has half angle θ ≤ √(hx² + hy²)/√(1 + d²),
+ * d the child's least distance from the face's centre: the gnomonic map's metric is at most
+ * |dp|/√(1 + |p|²), so a straight path from the centre to a corner is no longer on the sphere.
+ * cos θ and sin θ are bounded by cos's Taylor terms (1 − t²/2 ≤ cos t ≤ 1 − t²/2 + t⁴/24) and
+ * sin t ≤ min(t, 1): no trigonometry. */
+ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, int res, int l, lane_ints_t row, lane_ints_t col,
+                                  lanes_t w[4])
+{
+    if (l < LIGHT_LEVELS)
+        return;
+    int span = 1 << l;
+    float scale = 1.0f / (float)res;
+    UNROLL
+    for (int k = 0; k < 4; ++k) {
+        lane_ints_t x0 = (2 * col + (k & 1)) * span, y0 = (2 * row + (k >> 1)) * span;
+        lane_ints_t x1 = min(x0 + span, (lane_ints_t)res), y1 = min(y0 + span, (lane_ints_t)res);
+        lanes_t x = convert_lanes(x0 + x1) * scale - 1.0f, y = convert_lanes(y0 + y1) * scale - 1.0f;
+        lanes_t hx = convert_lanes(x1 - x0) * scale, hy = convert_lanes(y1 - y0) * scale;
+        lanes_t k_centre = rsqrt(1.0f + x * x + y * y);
+        lanes_t cos_n = (g->n_u * x + g->n_v * y + g->n_w) * k_centre;
+        lanes_t cos_r = (g->r_u * x + g->r_v * y + g->r_w) * k_centre;
+        lanes_t dx = max(fabs(x) - hx, 0.0f), dy = max(fabs(y) - hy, 0.0f);
+        lanes_t t = sqrt(hx * hx + hy * hy) * rsqrt(1.0f + dx * dx + dy * dy);
+        lanes_t cos_lo = 1.0f - 0.5f * t * t;
+        w[k] *= cone_factor(g, cos_n, cos_r, cos_lo, cos_lo + t * t * t * t * (1.0f / 24.0f), min(t, 1.0f));
+    }
+}
+
+#define LIGHT_PARAMS __global const float *pyramid
+#define LIGHT_ARGS pyramid
+
+/* envmap.cl's light sampler: descent.cl's descent weighted for the pixel of shading s. */
+ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const shading_t *s, int res, uint seed, uint frame,
+                                          uint pixel, lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
+{
+    descent_weigher_t g = product_weigher(s);
+    return descent_sample(pyramid, &g, res, seed, frame, pixel, draw, texel, pdf);
+}
+
+/* envmap.cl's light density: descent.cl's, with the same weights. */
+ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const shading_t *s, int res, lanes3_t w, lane_ints_t *texel)
+{
+    descent_weigher_t g = product_weigher(s);
+    return descent_density(pyramid, &g, res, w, texel);
+}
+
+#include "envmap.cl"
