@@ -110,6 +110,21 @@ __kernel void restir_target_scales(__global const float4 *normal, __global const
     scales[p] = total > 0.0f ? 1.0f / total : power > 0.0f ? 1.0f / power : 0.0f;
 }
 
+/* The index i of the n non-negative `weights` (of sum `total`) with probability weights[i]/total
+ * by the uniform u; -1 if none is positive (rounding at the top of the sum: the last positive). */
+ALWAYS_INLINE int pick_by_weight(const float *weights, int n, float total, float u)
+{
+    float threshold = u * total, running = 0.0f;
+    int chosen = -1;
+    for (int i = 0; i < n; ++i) {
+        running += weights[i];
+        if (chosen < 0 && weights[i] > 0.0f && threshold < running) chosen = i;
+    }
+    if (chosen < 0)
+        for (int i = 0; i < n; ++i) if (weights[i] > 0.0f) chosen = i;
+    return chosen;
+}
+
 /* One reservoir per lane over the lanes' candidates seen so far (Bitterli Alg. 2's streaming
  * update, each lane its own stream of candidates). */
 typedef struct {
@@ -194,14 +209,7 @@ ALWAYS_INLINE reservoir_t initial_reservoir(const shading_t *s, int p, __global 
     vstore_lanes(r.z, 0, zs);
     float total = 0.0f;
     for (int k = 0; k < POOL_LANES; ++k) total += sums[k];
-    float threshold = rng_unit(pick.v[1]) * total, running = 0.0f;
-    int chosen = -1;
-    for (int k = 0; k < POOL_LANES; ++k) {
-        running += sums[k];
-        if (chosen < 0 && sums[k] > 0.0f && threshold < running) chosen = k;
-    }
-    if (chosen < 0)   /* rounding at the top of the sum: the last lane of positive sum */
-        for (int k = 0; k < POOL_LANES; ++k) if (sums[k] > 0.0f) chosen = k;
+    int chosen = pick_by_weight(sums, POOL_LANES, total, rng_unit(pick.v[1]));
     *effective = int_sum_of8(to8(r.effective));
     reservoir_t out = {vec3(0.0f, 0.0f, 1.0f), 0.0f, (float)(light_count + brdf_count), 0.0f};
     if (chosen >= 0 && total > 0.0f && isfinite(total)) {
@@ -243,14 +251,7 @@ ALWAYS_INLINE reservoir_t combine_reservoirs(const reservoir_t *r, const float *
         weights[i] = w > 0.0f && isfinite(w) ? w : 0.0f;
         total += weights[i];
     }
-    float threshold = u * total, running = 0.0f;
-    int chosen = -1;
-    for (int i = 0; i < n; ++i) {
-        running += weights[i];
-        if (chosen < 0 && weights[i] > 0.0f && threshold < running) chosen = i;
-    }
-    if (chosen < 0)   /* rounding at the top of the sum: the last input of positive weight */
-        for (int i = 0; i < n; ++i) if (weights[i] > 0.0f) chosen = i;
+    int chosen = pick_by_weight(weights, n, total, u);
     reservoir_t out = {r[0].w, 0.0f, confidence, 0.0f};
     if (chosen >= 0 && isfinite(total)) {
         out.w = r[chosen].w;

@@ -73,7 +73,7 @@ def test_time_for_quality_interpolates_log_log():
 
 def test_unknown_reproduction_lists_valid_names(tmp_path):
     with pytest.raises(InputError,
-                       match="unknown reproduction 'nope'; valid: lu2013, mis-compensation"):
+                       match="unknown reproduction 'nope'; valid: kronander, lu2013, mis-compensation"):
         reproduce.reproduce("nope", tmp_path)
     assert not any(tmp_path.iterdir())
 
@@ -332,3 +332,38 @@ def test_mis_compensation_end_to_end_on_tiny_images(tmp_path):
         == {label: 2 for label in pair}
     assert "relMSE ratio" in text and (tmp_path / "equal_time_ratios.png").stat().st_size > 1000
     assert (tmp_path / "summary.html").exists()
+
+
+def test_kronander_verdicts_follow_the_ratios_of_smc_over_each_estimator():
+    """SMC / estimator ΔE76 of known size per scene: above 1 everywhere holds, on one scene of
+    two partly holds, below 1 everywhere does not hold; a missing cell is not resolved."""
+    x = 1 + 0.02 * np.linspace(-1, 1, 8)
+    labels = [reproduce.parse_estimator(label).label for label, _ in reproduce.KRONANDER_PAPER_SPP]
+    mis, bis = labels[0], labels[1]
+    values = {}
+    for scene, ratio in (("a", 1.5), ("b", 0.6)):
+        values[scene, "smc"] = 3.0 * x
+        values[scene, mis] = 3.0 * x / 1.5          # beats SMC on both scenes
+        values[scene, bis] = 3.0 * x / ratio        # on a only
+    verdicts, ratios = reproduce.kronander_verdicts(values, ["a", "b"], 8)
+    assert [v.verdict for v in verdicts[:2]] == [reproduce.HOLDS, reproduce.PARTLY]
+    assert ratios["b", bis].ratio == pytest.approx(0.6)
+    assert verdicts[2].verdict == "not resolved at 8 seeds"      # no restir cells
+    values = {k: v for k, v in values.items() if k[0] == "b"}
+    assert reproduce.kronander_verdicts(values, ["b"], 8)[0][1].verdict == reproduce.FAILS
+
+
+def test_kronander_end_to_end_on_tiny_images(tmp_path):
+    summary = write_summary(tmp_path, reproduce.reproduce(
+        "kronander", tmp_path, seeds=2, progress=False, resolution=(12, 12), env_res=8,
+        scenes=("torus-moving",)))
+    text = summary.read_text()
+    verdicts = [line for line in text.splitlines() if line.startswith("| ") and "**" in line]
+    assert len(verdicts) == 4 and "Kronander" in text
+    table = pd.read_parquet(tmp_path / "results.parquet")
+    labels = {reproduce.parse_estimator(label).label: spp for label, spp in reproduce.KRONANDER_PAPER_SPP}
+    assert set(table.estimator) == set(labels) and (table.nonfinite == 0).all()
+    at_spp = table[table.time_budget_ms.isna()]
+    assert {e: set(rows.spp) for e, rows in at_spp.groupby("estimator")} == {e: {n} for e, n in labels.items()}
+    assert set(table.frame) == set(range(6))
+    assert (table[table.time_budget_ms.notna()].groupby("estimator").seed.nunique() == 2).all()

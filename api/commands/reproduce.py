@@ -13,18 +13,19 @@ and summary.html (tables, plots, and one verdict per claim: holds / partly holds
 / not resolved, with 95% intervals) beside results.parquet. lu2013: Lu, Pacanowski & Granier
 2013's Fig. 2 and 3 and claims, with the production baselines (brdf, envmap) and an equal-time
 comparison beside them. mis-compensation: Karlík et al. 2019's MIS compensation against plain
-MIS at equal time (envmap and balanced_mis). Equal-time cells run at one budget taken from the
-reproduction's own spp cells (see the summary)."""
+MIS at equal time (envmap and balanced_mis). kronander: Kronander et al.'s claim that MIS and
+BIS beat SMC at equal time on moving light, with restir and product as rows. Equal-time cells
+run at one budget taken from the reproduction's own spp cells (see the summary)."""
 
 
 def add_parser(subparsers) -> None:
     repro = subparsers.add_parser(
         "reproduce", help="re-run a paper's experiments and judge its claims (lu2013, "
-                          "mis-compensation)",
+                          "mis-compensation, kronander)",
         description=DESCRIPTION,
         parents=[rendering_flags()])
     repro.add_argument("paper", metavar="PAPER",
-                       help="which reproduction: lu2013 or mis-compensation")
+                       help="which reproduction: lu2013, mis-compensation or kronander")
     repro.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/reproduce"),
                        help="output directory (default: results/reproduce)")
     repro.add_argument("--seeds", type=positive_int, default=3,
