@@ -228,11 +228,12 @@ ALWAYS_INLINE reservoir_t initial_reservoir(const shading_t *s, int p, __global 
  *     weights c: w_i = m_i(ω_i)·p̂_0(ω_i)·W_i with
  *     m_i(ω) = c_i s_i p̂_i(ω) / Σ_j c_j s_j p̂_j(ω), which sum to 1 wherever p̂_0 > 0, and are
  *     0 for an input that cannot produce ω (p̂_i(ω) = 0);
- *   biased: Bitterli Alg. 6's 1/Z combination without visibility in Z: w_i = p̂_0(ω_i)·W_i·c_i,
- *     W = Σ w / (p̂_0(ω)·Z(ω)), Z(ω) = Σ c_j over the domains j with p̂_j(ω) > 0, where the
- *     targets off row 0 are p̂_j without V (target_without_visibility): unbiased where no domain's
- *     V differs from another's, biased at shadow boundaries (Bitterli §4.3: Z needs visibility
- *     to be exact, which costs a shadow ray a neighbour).
+ *   biased (the biased mode's spatial reuse): Bitterli Alg. 6's 1/Z combination without
+ *     visibility in Z: w_i = p̂_0(ω_i)·W_i·c_i, W = Σ w / (p̂_0(ω)·Z(ω)), Z(ω) = Σ c_j over the
+ *     domains j with p̂_j(ω) > 0, where the targets off row 0 are p̂_j without V
+ *     (target_without_visibility): unbiased where no domain's V differs from another's, biased
+ *     at shadow boundaries (Bitterli §4.3: Z needs visibility to be exact, which costs a shadow
+ *     ray a neighbour).
  * The kept sample is input i with probability w_i/Σ w (uniform u); c = Σ c_i. */
 ALWAYS_INLINE reservoir_t combine_reservoirs(const reservoir_t *r, const float *targets, const float *scales,
                                              int n, int unbiased, float u)
@@ -279,7 +280,7 @@ __kernel void restir_initial_temporal(__global const float4 *normal, __global co
                                       __global const float *prev_scales, const int res,
                                       const int presample_count, const int tiles, const int tile_size,
                                       const int light_count, const int brdf_count, const int chains,
-                                      const int temporal, const float history_cap, const int unbiased,
+                                      const int temporal, const float history_cap,
                                       const uint seed, const uint frame, __global const float4 *history_sample,
                                       __global const float4 *history_info, __global float4 *out_sample,
                                       __global float4 *out_info, __global float4 *stats)
@@ -305,13 +306,11 @@ __kernel void restir_initial_temporal(__global const float4 *normal, __global co
             load_reservoir(history_sample, history_info, c * n + p, &inputs[1]);
             inputs[1].confidence = min(inputs[1].confidence, history_cap * current.confidence) * history_share;
             float targets[4] = {current.target, restir_target(&s, env, res, inputs[1].w, visibility, p),
-                                unbiased ? restir_target(&s, prev_env, res, current.w, visibility, p)
-                                         : target_without_visibility(&s, prev_env, res, current.w),
-                                inputs[1].target};
+                                restir_target(&s, prev_env, res, current.w, visibility, p), inputs[1].target};
             evaluations += 2.0f;
-            shadow_rays += unbiased ? 2.0f : 1.0f;
+            shadow_rays += 2.0f;
             philox4x32_ctr_t u = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, (uint)c);
-            current = combine_reservoirs(inputs, targets, domain_scales, 2, unbiased, rng_unit(u.v[2]));
+            current = combine_reservoirs(inputs, targets, domain_scales, 2, 1, rng_unit(u.v[2]));
         }
         store_reservoir(out_sample, out_info, c * n + p, current);
     }

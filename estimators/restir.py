@@ -46,12 +46,8 @@ one chain's variance.  Per frame and chain:
        sphere-switch kept pixel |z| of 8 over 1000 seeds (the history's light-era samples held the
        responsibility for ~20 frames); with it, ≤ 3.0.
      Cost: p̂_t at ω' and p̂_{t−1} at ω (2 evaluations; p̂_{t−1}(ω') is stored).
-   - biased: Bitterli Alg. 6's 1/Z combination with Z counted without visibility:
-     w_i = p̂_t(ω_i)·W_i·c_i, W = Σ w / (p̂_t(kept)·Z), Z = Σ c_j over the inputs whose target
-     *without V* is positive at the kept sample (the cheap test: Bitterli §4.3 notes that the
-     exact Z needs a shadow ray per input).  Unbiased wherever the inputs' visibility agrees (no
-     masks, or no shadow boundary between neighbours); dark beside shadows, where a shadowed
-     neighbour that cannot produce the sample is counted (tests/test_restir.py).
+   Both modes reuse the history so: the temporal inputs share the pixel's V, and GRIS's weights
+   are what makes a map that changes safe.
 4. **Spatial reuse** (``neighbours`` k): k pixels uniform in a disc of ``radius`` pixels about the
    pixel (clamped to the image), kept if covered, not the pixel, and passing RTXDI's tests
    (normals within acos 0.5, depths within 10%; depth is the distance to the eye, found by least
@@ -59,6 +55,13 @@ one chain's variance.  Per frame and chain:
    3; combined as step 3 with p̂_j the target of neighbour j at frame t (its own normal, BRDF and
    visibility) and s_j its Z̃: (k+1)·k evaluations.  The result is the chain's history for frame
    t+1 (RTXDI keeps the spatially reused reservoir).
+   - biased (``unbiased = False``): Bitterli Alg. 6's 1/Z combination with Z counted without
+     visibility: w_i = p̂_t(ω_i)·W_i·c_i, W = Σ w / (p̂_t(kept)·Z), Z = Σ c_j over the inputs
+     whose target *without V* is positive at the kept sample (the cheap test: Bitterli §4.3
+     notes that the exact Z needs a shadow ray per neighbour; here k² of the (k+1)·k
+     evaluations skip V).  Unbiased wherever the neighbours' visibility agrees (no masks, or no
+     shadow boundary among them); dark beside shadows, where a shadowed neighbour that cannot
+     produce the sample is counted (tests/test_restir.py).
 5. **Shading**: f(ω)·W with f = L·ρ·cos⁺·V (RGB; V = 1 wherever p̂_t > 0): one sample a chain.
 
 Budget.  ``spp`` = chains, each shading one sample (``used`` = spp; ``effective``: the chains
@@ -81,9 +84,10 @@ conformance suite's ``check_unbiased_over_frames`` a switching map): its c, s an
 choices do not depend on the samples' values.  ``unbiased = False`` is biased beside shadows
 (Tags per instance, so the suite skips its z-tests and asks that its error falls).
 
-Open: the biased mode fails the stress battery's dimming-sun recovery (its last frame's error
-×5.3 the first's: Z counts the history's whole confidence while the history rarely samples where
-the light moved); the unbiased mode recovers (×1.5).
+The biased mode's 1/Z applied to temporal reuse too (tried first) failed the stress battery's
+dimming-sun recovery (last frame's error ×5.3 the first's: Z counted the history's whole
+confidence while the history rarely sampled where the light had gone); with GRIS's temporal
+weights in both modes it recovers.
 
 Sources.  Neither paper is in ../shared/papers: the algorithms follow Bitterli's Alg. 3
 (streaming RIS), 4 (combining reservoirs) and 6 (1/Z) and GRIS's resampling weights and
@@ -120,8 +124,8 @@ class ReSTIRParams:
     chain's reservoir per frame; ``brdf_share``: the
     share of them drawn from the BRDF (the rest from the map's presamples); ``temporal``: reuse last frame's reservoir; ``history_cap``: its confidence
     capped at this many times M (RTXDI's M-cap); ``neighbours``: pixels reused spatially, at most
-    8 (0: none); ``radius``: their disc's radius in pixels; ``unbiased``: GRIS weights (True) or
-    Bitterli's biased 1/M combination; ``tiles`` and ``tile_size``: presample tiles per frame and
+    8 (0: none); ``radius``: their disc's radius in pixels; ``unbiased``: GRIS weights in spatial
+    reuse (True) or Bitterli's 1/Z counted without visibility (biased beside shadows); ``tiles`` and ``tile_size``: presample tiles per frame and
     presamples per tile (powers of two)."""
 
     candidates: int = 8
@@ -243,7 +247,7 @@ class ReSTIR(Estimator):
             gbuffer.run(compute, kernel("restir_initial_temporal"), *surface, cache.env_buffer, previous_env,
                         pyramid.buffer, presamples, scales, previous_scales, np.int32(res), np.int32(presample_count), np.int32(p.tiles),
                         np.int32(p.tile_size), np.int32(light_count), np.int32(brdf_count), np.int32(chains),
-                        np.int32(temporal), np.float32(p.history_cap), np.int32(p.unbiased),
+                        np.int32(temporal), np.float32(p.history_cap),
                         np.uint32(seed), np.uint32(cache.frame), *history, *passed, stats),
             gbuffer.run(compute, kernel("restir_spatial_shade"), *surface, cache.env_buffer, np.int32(res),
                         pixel_index, pixel_at, depth, np.int32(gbuffer.shape[1]), np.int32(gbuffer.shape[0]),

@@ -203,8 +203,8 @@ CATALOGUE: tuple[Mutant, ...] = (
        ["constant"]),
     # ---- restir --------------------------------------------------------------------------------
     _m("restir-gris-weight-without-previous-target", "estimators/restir.cl",
-       "unbiased ? restir_target(&s, prev_env, res, current.w, visibility, p)",
-       "unbiased ? restir_target(&s, env, res, current.w, visibility, p)", ["restir"], ["temporal-dropout"]),
+       "restir_target(&s, prev_env, res, current.w, visibility, p)",
+       "restir_target(&s, env, res, current.w, visibility, p)", ["restir"], ["temporal-dropout"]),
     _m("restir-m-cap-off-by-one", "estimators/restir.cl",
        "min(inputs[1].confidence, history_cap * current.confidence)",
        "min(inputs[1].confidence, (history_cap + 1.0f) * current.confidence)", ["restir"]),
