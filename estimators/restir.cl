@@ -79,7 +79,7 @@ __kernel void restir_presample(__global const float *pyramid, const int res, con
     vstore_lanes(pdf, 0, presamples + 3 * n + at);
 }
 
-#define SCALE_CELLS 8   /* the coarsest pyramid level of at most 8 × 8 cells a face */
+#define SCALE_CELLS 2   /* the coarsest pyramid level of at most 2 × 2 cells a face */
 
 /* The scale of pixel p's target under the frame's map in the MIS weights (restir.py): 1/Z̃, Z̃ a
  * deterministic stand-in for ∫p̂: over the pyramid's level of at most SCALE_CELLS² cells a face,

@@ -143,6 +143,27 @@ evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``byt
         D 1, add_samples 18; per pixel brdf's 103 and the lod shift ½·log2(R²/4N) 20 (its
         library log2 counted as the polynomial's 16); bytes as brdf's (the mip chain, 4/3 of
         the map, taken as cache-resident like the map)
+    restir         108   288 / 352  1590 / 256
+        the mean of a default chain's 16 evaluations: 6 light candidates, 87 each (n·ω 5, lobe
+        power 41, the texel of ω 20, Y(L) 5, ρ_Y 3, p̂ 2, the source density 7, weight 1, the
+        reservoir update 3), 2 BRDF candidates, 298 (a candidate's 87, the draw 107, the light
+        density by descent 104), and 8 reuse targets, 76 (scalar p̂ as a candidate's without
+        the density); F_s is a chain's (a shaded sample's) rest: the lanes' merge 50, the
+        temporal combination 27, two neighbours found 80 (disc point, sincos_turn, normal and
+        depth tests), the spatial combination 49, the shading 82; B_s: its reservoirs, 32 B
+        each, written twice and read four times (history, own, two neighbours), and two
+        neighbours' shading, 160 B; per pixel the shading loaded in three kernels 72 and its
+        target scale over 24 coarse cells, 63 each (direction 12, n·ω 5, lobe power 41, ρ_Y 3,
+        products 2), 1512, and the power 6; bytes: the G-buffer read three times, 192, scales,
+        radiance, counts and stats out, 64 (presamples, maps and pyramid cache-resident)
+    product       1150     0 / 0     140 / 88
+        hierarchical's descent with each choice's children weighed by the pixel's BRDF·cos
+        bound over the child's cone (product.cl's weigher: per child its centre and extents 12,
+        the two cosines 10, the cone's bounds 12, two cone_cos_bound 20, the factor 10, about
+        64), four children a level over six levels and the six faces: about 1,150 a light
+        sample (hierarchical's 182 + 6 × 4 × 36 + 6 × 20 beyond), and as much for a BRDF
+        sample's density under MIS (its draw 107 less the light draw's 41); per pixel the
+        weigher's frame 30, envmap's 76, the faces' widths 34; bytes as envmap's
 
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
@@ -232,6 +253,8 @@ KERNEL_COSTS = {
     "envmap": KernelCost(115, 0, 0, 76, 88),
     "hierarchical": KernelCost(182, 0, 0, 95, 88),
     "fis": KernelCost(223, 0, 0, 123, 88),
+    "restir": KernelCost(108, 288, 352, 1590, 256),
+    "product": KernelCost(1150, 0, 0, 140, 88),
 }
 
 # Every column of perf.csv, in order, with what it means (the --help epilog and perf.html).
