@@ -288,9 +288,11 @@ __kernel void restir_initial_temporal(__global const float4 *normal, __global co
     int p = get_global_id(0), n = get_global_size(0), effective = 0;
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     float domain_scales[2] = {scales[p], prev_scales[p]};
-    /* The history's confidence scaled by min(1, Z̃_t/Z̃_{t−1}) (restir.py): a map that lost most of
-     * the pixel's light leaves the history few samples where the light now is. */
-    float history_share = scales[p] > 0.0f ? min(1.0f, prev_scales[p] / scales[p]) : 1.0f;
+    /* The history's confidence scaled by min(Z̃_t/Z̃_{t−1}, Z̃_{t−1}/Z̃_t) (restir.py): a map that
+     * lost or gained most of the pixel's light leaves the history few samples where the light now
+     * is; none where either map is black to the pixel. */
+    float history_share = scales[p] > 0.0f && prev_scales[p] > 0.0f
+                          ? min(prev_scales[p] / scales[p], scales[p] / prev_scales[p]) : 0.0f;
     float evaluations = 0.0f, shadow_rays = 0.0f;
     for (int c = 0; c < chains; ++c) {
         int chain_effective;

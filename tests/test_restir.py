@@ -21,7 +21,7 @@ pytestmark = pytest.mark.slow
 
 
 def test_unbiased_restir_passes_the_z_test_on_every_frame_of_sphere_switch(compute):
-    """1000 seeds of the 30 frames of sphere-switch (12² pixels, 8² texels a face) at 1 spp, each
+    """2000 seeds of the 30 frames of sphere-switch (12² pixels, 8² texels a face) at 1 spp, each
     sequence in order after reset(): every frame's mean, pixel by pixel and over the image, is
     its exact reference (Šidák over all frames' tests at α = 1e-3); the light comes on at
     frame 10 and goes off at frame 20."""
@@ -30,7 +30,7 @@ def test_unbiased_restir_passes_the_z_test_on_every_frame_of_sphere_switch(compu
     caches = [FrameCache(compute, scene.environment.frame(t), t) for t in range(SWITCH_FRAMES)]
     for cache in caches:
         cache.require(ReSTIR.requires)
-    estimator, seeds = ReSTIR(), 1000
+    estimator, seeds = ReSTIR(), 2000
     samples = np.zeros((seeds, len(caches), gbuffer.count, 3))
     for seed in range(seeds):
         estimator.reset()

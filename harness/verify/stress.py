@@ -28,7 +28,7 @@ One row per (case, estimator), over the case's variants (placements, sizes, fram
   frame 0: ``used`` must be the β-weighted ticks of the drawn strategies exactly, and
   ``effective`` (samples with n·ω > 0) must have the mean Σ_f N_f·q_f(n) + N_B·q_B, with q_f the
   probability that a light sample of face f lies above the pixel's horizon (texel probability
-  Y·Ω/I_f times the share of the texel's square above it, on a sub-texel grid) and q_B ≤ 1 for
+  Y·Ω/I_f times the share of the texel's square above it, ``horizon_shares``) and q_B ≤ 1 for
   the BRDF samples (so with BRDF samples only its upper side is tested): a t-test over
   ``COUNT_SEEDS`` renders of the image sum;
 - ``cache_error``: the frame cache's light-sampling products on frame 0 against their
@@ -71,7 +71,10 @@ estimator reaches its integrand, by this model (``tested_pixels``): each colour 
 pixel's integral splits exactly into texel shares (``Reference.texel_integrals``; per channel,
 since the samplers follow luminance and a channel may hide where the luminance is small: the
 red sliver of one-sample's colour-split map); a texel's expected hits over all seeds are
-seeds × (light draws of its face × Y·Ω/I_f + BRDF draws × the texel's BRDF probability), with
+seeds × (light draws of its face × Y·Ω/I_f × the share of the texel's square above the pixel's
+horizon + BRDF draws × the texel's BRDF probability: a light hit on the part of a texel below the
+horizon adds nothing, and a texel the horizon cuts to a sliver is reached as rarely as the
+sliver's share says), with
 the draws per render of the estimator's own budget split (``sample_budget``: the pool
 estimators' per-normal face split, ``havran``'s K lights split by the faces' luminance, and
 for any other estimator the smaller of one light draw per lit face and spp/2 BRDF draws).
@@ -112,7 +115,6 @@ REACH_HITS = 100       # a texel is rare when one hit there carries > 1/REACH_HI
 RARE_SHARE = 1e-3      # a pixel is z-tested when rare texels hold at most this share of it
 EXACT_RTOL = 1e-5      # the reference against a known exact value
 COUNT_SEEDS = 24       # renders of the sample-count test
-COUNT_SUBTEXELS = 8    # sub-texel grid per side for the share of a texel above a horizon
 COUNT_MAX_RES = 64     # the count test runs on maps up to this face size
 SCORING_RTOL = 1e-3    # the protocol's metrics against the independent implementation
 CACHE_RTOL = 1e-4      # the frame cache's products against their definition (float32 inputs)
@@ -168,8 +170,11 @@ class Prepared:
         integral of that channel ``[frames, n, 3, 6, B, B]``; per frame and pixel its share of
         bis's target γ = L_Y·ρ_Y·cos⁺ (Kronander Eq. 3) ``[frames, n, 6, B, B]``; per pixel a
         lower bound of the probability that one BRDF sample lands in it ``[n, 6, B, B]``; per
-        frame the light pdf's probability of it given its face, Y·Ω/I_f ``[frames, 6, B, B]``
-        (float64 from the float32 map)."""
+        frame and pixel the probability that a light sample of its face lands in it where the
+        pixel's integrand may be positive, Y·Ω/I_f times the share of the texel's square above
+        the pixel's horizon (``horizon_shares``; without a diffuse term, at most the share on the
+        lobe's side of the plane cos_r = 0 too) ``[frames, n, 6, B, B]`` (float64 from the
+        float32 map)."""
         if self._shares is None:
             g = self.variant.gbuffer
             kd, ks = g.kd[g.mask].astype(np.float64), g.ks[g.mask].astype(np.float64)
@@ -178,7 +183,11 @@ class Prepared:
             p_spec = np.divide(ks_y, kd_y + ks_y, out=np.zeros_like(ks_y), where=kd_y + ks_y > 0)
             res = self.caches[0].res
             frames = [env.astype(np.float64) for env in self.variant.frames]
-            channel_shares, target_shares, brdf = [], [], []
+            normals, views = g.normal[g.mask].astype(np.float64), g.view[g.mask].astype(np.float64)
+            mirrors = 2 * np.einsum("ij,ij->i", normals, views)[:, None] * normals - views
+            omega = cubemap.texel_solid_angles(res)
+            texel_light = [_face_shares(cubemap.luminance(env) * omega) for env in frames]   # Y·Ω/I_f
+            channel_shares, target_shares, brdf, light = [], [], [], []
             for i, table in enumerate(self.reference.texel_integrals(self.gbuffer, res)):
                 cosine, lobe = table[..., 0].astype(np.float64), table[..., 1].astype(np.float64)
                 diffuse, specular = cosine / np.pi, (m[i] + 2) / (2 * np.pi) * lobe
@@ -191,12 +200,19 @@ class Prepared:
                 # ∫ cos_r^m ≥ ∫ cos_r^m cos_n over a texel: a lower bound of the lobe's share.
                 brdf.append(_blocks((1 - p_spec[i]) / np.pi * cosine
                                     + p_spec[i] * (m[i] + 1) / (2 * np.pi) * lobe))
-            omega = cubemap.texel_solid_angles(res)
-            light = [_normalised(_blocks(cubemap.luminance(env) * omega)[:, None])[:, 0]  # per face
-                     for env in frames]
+                support = horizon_shares(res, normals[i, None])[0]
+                if kd_y[i] == 0:        # the lobe's half-space too: its share bounds the overlap's
+                    support = np.minimum(support, horizon_shares(res, mirrors[i, None])[0])
+                light.append(np.stack([_blocks(texel * support) for texel in texel_light]))
             self._shares = (np.stack(channel_shares, axis=1), np.stack(target_shares, axis=1),
-                            np.stack(brdf), np.stack(light))
+                            np.stack(brdf), np.stack(light, axis=1))
         return self._shares
+
+
+def _face_shares(values: np.ndarray) -> np.ndarray:
+    """``[6, R, R]`` over each face's sum (0 on a face whose sum is 0)."""
+    total = values.sum(axis=(1, 2), keepdims=True)
+    return np.divide(values, total, out=np.zeros_like(values), where=total > 0)
 
 
 def _normalised(blocks: np.ndarray) -> np.ndarray:
@@ -206,6 +222,37 @@ def _normalised(blocks: np.ndarray) -> np.ndarray:
 
 
 # ---- the reach model ------------------------------------------------------------------------
+
+def _uniform_sum_cdf(s: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """P(X + Y ≤ s) for independent X, Y uniform on [0, a] and [0, b] (a, b ≥ 0): the piecewise
+    quadratic (ρ(s) − ρ(s − a) − ρ(s − b) + ρ(s − a − b))/(2ab), ρ(t) = max(t, 0)², with s
+    clipped to [0, a + b] first (no cancellation of squares far from it) and each side at least
+    1e-7 of a + b (a side of 0 is the limit; both 0: a step at 0)."""
+    width = a + b
+    a, b = np.maximum(a, 1e-7 * width), np.maximum(b, 1e-7 * width)
+    t = np.clip(s, 0.0, a + b)
+    ramp = lambda x: np.maximum(x, 0.0) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cdf = (ramp(t) - ramp(t - a) - ramp(t - b) + ramp(t - a - b)) / (2 * a * b)
+    return np.where(width > 0, np.clip(cdf, 0.0, 1.0), s >= 0)
+
+
+def horizon_shares(res: int, axes: np.ndarray) -> np.ndarray:
+    """Per axis a of ``axes [n, 3]``, the share of each texel's face square whose directions have
+    a·ω > 0, ``[n, 6, R, R]``, exact: on face f, a·ω ∝ a·(xU + yV + W) is linear in the face
+    point (x, y), so over a texel it is its least value there plus two independent uniform ramps
+    (x and y are uniform on the texel's square, as every light sampler draws them), of heights
+    |a·U|·2/R and |a·V|·2/R."""
+    basis = cubemap.face_basis(np.arange(6))                              # [6, 3 (U, V, W), 3]
+    slope_x, slope_y, centre = np.moveaxis(np.einsum("nk,fjk->nfj", np.asarray(axes, np.float64), basis), -1, 0)
+    side = 2.0 / res
+    edges = np.linspace(-1.0, 1.0, res + 1)[:-1]
+    least_x = np.minimum(slope_x[..., None] * edges, slope_x[..., None] * (edges + side))   # [n, 6, R] by column
+    least_y = np.minimum(slope_y[..., None] * edges, slope_y[..., None] * (edges + side))   # by row
+    least = centre[..., None, None] + least_y[..., :, None] + least_x[..., None, :]
+    rise = lambda slope: (np.abs(slope) * side)[..., None, None]
+    return 1.0 - _uniform_sum_cdf(-least, rise(slope_x), rise(slope_y))
+
 
 @dataclasses.dataclass(frozen=True)
 class SampleBudget:
@@ -388,16 +435,6 @@ def _check_reference(row: _Row, prepared: Prepared) -> None:
     row.reference_error = max(np.nan_to_num(row.reference_error, nan=0.0), float(error))
 
 
-def horizon_shares(res: int, normals: np.ndarray) -> np.ndarray:
-    """Per normal, the share of each texel's face square whose directions have n·ω > 0,
-    ``[n, 6, R, R]``, on a COUNT_SUBTEXELS² sub-grid per texel."""
-    fine = res * COUNT_SUBTEXELS
-    dirs = cubemap.texel_directions(fine).reshape(-1, 3)
-    above = (np.asarray(normals, np.float64) @ dirs.T > 0).reshape(
-        len(normals), 6, res, COUNT_SUBTEXELS, res, COUNT_SUBTEXELS)
-    return above.mean(axis=(3, 5))
-
-
 def _counts(row: _Row, estimator, prepared: Prepared, spp: int) -> None:
     """``used`` and ``effective`` of frame 0 against their analytic values (``counts_z``)."""
     cache = prepared.caches[0]
@@ -408,8 +445,7 @@ def _counts(row: _Row, estimator, prepared: Prepared, spp: int) -> None:
     normals = prepared.variant.gbuffer.normal[mask]
     ticks = estimator.strategy_ticks(cache, normals, spp).astype(np.float64) / TICKS_PER_SAMPLE
     weight = cubemap.luminance(prepared.variant.frames[0].astype(np.float64)) * cubemap.texel_solid_angles(cache.res)
-    face = weight.sum(axis=(1, 2), keepdims=True)
-    texel = np.divide(weight, face, out=np.zeros_like(weight), where=face > 0)
+    texel = _face_shares(weight)
     above = (horizon_shares(cache.res, normals) * texel).sum(axis=(2, 3))      # q_f [n, 6]
     expected_used = ticks.sum(1)
     light = (ticks[:, :6] * above).sum(1)
