@@ -18,8 +18,12 @@ one chain's variance.  Per frame and chain:
    presamples and the pixels' target scales (step 3) are rebuilt per frame.
 2. **Initial RIS** (Talbot 2005; Bitterli Alg. 3): M = ``candidates`` candidates,
    M_B = round(``brdf_share``·M) from the Phong mixture and M_L = M − M_B read uniformly from one
-   tile (the chain's, drawn each frame), each of weight p̂/(M_L p_L + M_B p_B) (the balance
-   heuristic over the two strategies); one is kept with probability ∝ its weight;
+   tile (the chain's, drawn each frame), each of weight m_s·p̂/p_s with p_s its own strategy's
+   exact density and m_s the balance heuristic over the two strategies,
+   m_s = p̃_s/(M_L p̃_L + M_B p_B), whose light density p̃_L is the texel's share of the pyramid's
+   total times the point's Jacobian (the descent's density but for its fixed-point rounding: one
+   load, where the exact density re-descends the pyramid, which made pass 1 4× slower; the m_s
+   are a partition of unity whatever p̃_L is); one is kept with probability ∝ its weight;
    W = Σ w / p̂(kept), confidence c = M.  A candidate read from a tile has marginal density p_L
    (every presample is a draw of p_L), which is all RIS needs for E[f(Y)·W] = ∫f, although
    candidates of one tile may repeat a presample (RTXDI's argument).

@@ -143,12 +143,12 @@ evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``byt
         D 1, add_samples 18; per pixel brdf's 103 and the lod shift ½·log2(R²/4N) 20 (its
         library log2 counted as the polynomial's 16); bytes as brdf's (the mip chain, 4/3 of
         the map, taken as cache-resident like the map)
-    restir         108   288 / 352  1590 / 256
-        the mean of a default chain's 16 evaluations: 6 light candidates, 87 each (n·ω 5, lobe
-        power 41, the texel of ω 20, Y(L) 5, ρ_Y 3, p̂ 2, the source density 7, weight 1, the
-        reservoir update 3), 2 BRDF candidates, 298 (a candidate's 87, the draw 107, the light
-        density by descent 104), and 8 reuse targets, 76 (scalar p̂ as a candidate's without
-        the density); F_s is a chain's (a shaded sample's) rest: the lanes' merge 50, the
+    restir         140   288 / 352  1590 / 256
+        the mean of a default chain's 16 evaluations: 8 candidates in one block of lanes, 204
+        each (every lane draws a BRDF direction 107 beside its presample's; n·ω 5, lobe power
+        41, the texel of ω 20, Y(L) 5, ρ_Y 3, p̂ 2, the light and BRDF densities 12, the weight
+        6, the reservoir update 3), and 8 reuse targets, 76 (scalar p̂: n·ω 5, lobe power 41,
+        texel 20, Y(L) 5, ρ_Y 3, products 2); F_s is a chain's (a shaded sample's) rest: the lanes' merge 50, the
         temporal combination 27, two neighbours found 80 (disc point, sincos_turn, normal and
         depth tests), the spatial combination 49, the shading 82; B_s: its reservoirs, 32 B
         each, written twice and read four times (history, own, two neighbours), and two
@@ -253,7 +253,7 @@ KERNEL_COSTS = {
     "envmap": KernelCost(115, 0, 0, 76, 88),
     "hierarchical": KernelCost(182, 0, 0, 95, 88),
     "fis": KernelCost(223, 0, 0, 123, 88),
-    "restir": KernelCost(108, 288, 352, 1590, 256),
+    "restir": KernelCost(140, 288, 352, 1590, 256),
     "product": KernelCost(1150, 0, 0, 140, 88),
 }
 
