@@ -266,7 +266,7 @@ ALWAYS_INLINE reservoir_t combine_reservoirs(const reservoir_t *r, const float *
 }
 
 /* Pass 1: each pixel's initial reservoir of each chain, combined with that chain's history (last
- * frame's final reservoir, its confidence capped at history_cap × this frame's M) where
+ * frame's pass-1 reservoir, its confidence capped at history_cap × this frame's M) where
  * `temporal`.  Under GRIS the history's sample is weighed with p̂_{t−1} of this pixel under last
  * frame's map (prev_env), so a map that changed, or switched, keeps the estimator unbiased; each
  * domain's target scaled by the pixel's restir_target_scales under its map (`scales`, `prev_scales`).  Chain c of pixel
@@ -380,9 +380,9 @@ ALWAYS_INLINE reservoir_t spatial_reuse(__global const float4 *normal, __global 
     return combine_reservoirs(inputs, targets, domain_scales, count, unbiased, rng_unit(u.v[3]));
 }
 
-/* Pass 2: each chain's spatial reuse (spatial_reuse); the results are the pixel's histories for
- * the next frame, and its estimate the chains' mean of f(ω)·W, f = L·ρ·cos⁺·V (V = 1 where
- * p̂ > 0).  Outputs: radiance, counts (used = the chains, effective = those whose kept sample has
+/* Pass 2: each chain's spatial reuse (spatial_reuse) of pass 1's reservoirs, which are also the
+ * next frame's history (restir.py: the spatially reused ones are shaded, not kept); the pixel's
+ * estimate is the chains' mean of f(ω)·W, f = L·ρ·cos⁺·V (V = 1 where p̂ > 0).  Outputs: radiance, counts (used = the chains, effective = those whose kept sample has
  * a positive cosine), stats (evaluations of every chain with the shading, and per chain the
  * neighbours reused and the confidence, then the shadow rays of every chain). */
 __kernel void restir_spatial_shade(__global const float4 *normal, __global const float4 *view,
@@ -393,8 +393,7 @@ __kernel void restir_spatial_shade(__global const float4 *normal, __global const
                                    const int neighbours, const float radius, const int chains,
                                    const int unbiased, const uint seed, const uint frame,
                                    __global const float4 *in_sample, __global const float4 *in_info,
-                                   __global const float *scales, __global float4 *history_sample, __global float4 *history_info,
-                                   __global float4 *radiance, __global float2 *counts, __global float4 *stats)
+                                   __global const float *scales, __global float4 *radiance, __global float2 *counts, __global float4 *stats)
 {
     int p = get_global_id(0), n = get_global_size(0);
     shading_t s = load_shading(normal, view, kd, ks_m, p);
@@ -405,7 +404,6 @@ __kernel void restir_spatial_shade(__global const float4 *normal, __global const
         reservoir_t out = spatial_reuse(normal, view, kd, ks_m, visibility, env, res, p, n, c, pixel_index[p],
                                         pixel_at, depth, width, height, neighbours, radius, unbiased, seed,
                                         frame, in_sample, in_info, scales, &evaluations, &shadow_rays, &reused);
-        store_reservoir(history_sample, history_info, c * n + p, out);
         confidence += out.confidence;
         float cosine = vec3_dot(s.n, out.w);
         if (out.weight > 0.0f && cosine > 0.0f) {
