@@ -106,17 +106,17 @@ Sources.  Neither paper is in ../shared/papers: the algorithms follow Bitterli's
 (streaming RIS), 4 (combining reservoirs) and 6 (1/Z) and GRIS's resampling weights and
 confidence-weighted balance heuristic as published, without equation numbers checked here.
 
-Choices, measured (relMSE per frame over 6 seeds at 4 chains, 48², 32² faces, no reuse 0.036
-on each; frame 8 of 8 or 10):
-- ``history_cap`` 1, not RTXDI's 20.  On a static map a long history is what reuse is for
-  (sphere-studio, temporal reuse alone: 0.036 → 0.0051 at cap 20, 0.012 at cap 1), but on a
-  moving one the history's samples lag the light by about cap frames while its MIS weight
-  claims the density of last frame's target, so where the light has just arrived the history
-  takes responsibility for light it never sampled, and the rare sample that is there carries a
-  weight that the next frames reuse: at cap 20 the error grows every frame (blob-minutes, a sun
-  moving 0.2 of a texel a frame: 0.037 → 0.13; sphere-studio-moving: 0.036 → 0.39; cap 4 as
-  bad), at cap 2 it holds (0.027, 0.033), at cap 1 it falls (0.026, 0.021).  Unbiased all the
-  same: it is the variance that grows.
+Choices, measured (relMSE of the last frame over 6 seeds at 4 chains, 48², 32² faces; with no
+reuse 0.036 on blob-minutes and static sphere-studio, 0.046 on sphere-studio-moving):
+- ``history_cap`` 1, not RTXDI's 20.  Temporal reuse alone (no neighbours), caps 1 / 2 / 20:
+  static sphere-studio (frame 8) 0.0125 / 0.0079 / 0.0051: a long history is what reuse is for
+  on a still map; but blob-minutes (a sun moving 0.2 of a texel a frame, frame 10) 0.022 /
+  0.024 / 0.113 and sphere-studio-moving (frame 8) 0.032 / 0.062 / 0.387: on a moving map the
+  history's samples lag the light by about cap frames while its MIS weight claims the density
+  of last frame's target, so where the light has just arrived the history takes responsibility
+  for light it never sampled, and the rare sample that is there carries a weight that the next
+  frames reuse; at cap 20 the error grows every frame.  Unbiased all the same: it is the
+  variance that grows.
 - ``radius`` 2 pixels, not RTXDI's 30 at 1080p: at 48² a disc of 16 reaches a third of the image,
   and the neighbours' targets differ so much that spatial reuse added variance (static
   sphere-studio, spatial reuse alone: 0.044 at radius 16, 0.034 at 4, 0.025 at 2).
