@@ -132,27 +132,33 @@ typedef struct {
     lane_ints_t effective;   /* candidates with a positive cosine */
 } lane_reservoirs_t;
 
-/* Stream the lanes' candidates w (where `active`) of light density pdf_light into r: RIS weight
- * p̂/(M_L·p_L + M_B·p_B) (the balance heuristic over the two candidate strategies, Talbot 2005),
- * kept with probability weight/sum by the uniforms u. */
+/* Stream the lanes' candidates w (where `active`) into r.  Each is weighed by RIS with the
+ * balance heuristic over the two candidate strategies (Talbot 2005; Veach's weights with counts):
+ * w = m_s(ω)·p̂(ω)/p_s(ω), m_s = p̃_s / (M_L p̃_L + M_B p_B), with p_s the exact density of the
+ * candidate's own strategy (`own`: a light candidate's presample density, the BRDF's mixture pdf)
+ * and p̃_L the MIS weights' light density: the texel's share of the pyramid's total times the
+ * point's Jacobian (the density of the descent but for its fixed-point rounding, one load where
+ * the exact density re-descends the pyramid).  The m_s are a partition of unity whatever p̃_L is,
+ * so the weights stay RIS's; a candidate is kept with probability weight/sum by the uniforms u. */
 ALWAYS_INLINE void stream_candidates(lane_reservoirs_t *r, const shading_t *s, __global const float4 *env,
-                                     int res, lanes3_t w, lanes_t pdf_light, lane_ints_t active,
-                                     float light_count, float brdf_count, lanes_t u,
-                                     __global const uint *visibility, int p)
+                                     __global const float *pyramid, float inverse_total, int res, lanes3_t w,
+                                     lanes_t own, lane_ints_t is_light, lane_ints_t active, float light_count,
+                                     float brdf_count, lanes_t u, __global const uint *visibility, int p)
 {
     lanes_t cosine = lanes_dot(s->n, w);
     lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
     lane_ints_t face, row, col;
-    lanes_texel_of(res, w, &face, &row, &col);
-    lanes3_t radiance = lanes_texel_radiance(env, (face * res + row) * res + col);
+    lanes_t jacobian = lanes_texel_of(res, w, &face, &row, &col);
+    lane_ints_t texel = (face * res + row) * res + col;
+    lanes3_t radiance = lanes_texel_radiance(env, texel);
     lanes_t luminance = 0.2126f * radiance.x + 0.7152f * radiance.y + 0.0722f * radiance.z;
     lanes_t rho = vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * ((s->m + 2.0f) / (2.0f * IBL_PI)) * power;
     lane_ints_t counted = active & (cosine > 0.0f);
     lanes_t target = select((lanes_t)0.0f, luminance * rho * cosine, counted & lanes_visible(visibility, p, w));
-    lanes_t source = light_count * pdf_light
-                     + brdf_count * phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
-    lanes_t weight = target / source;
-    weight = select((lanes_t)0.0f, weight, (target > 0.0f) & (source > 0.0f) & isfinite(weight));
+    lanes_t pdf_light = GATHER(lanes_t, pyramid, texel) * inverse_total * jacobian * (float)(res * res) * 0.25f;
+    lanes_t pdf_brdf = phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
+    lanes_t weight = target * select(pdf_brdf, pdf_light, is_light) / (own * (light_count * pdf_light + brdf_count * pdf_brdf));
+    weight = select((lanes_t)0.0f, weight, (target > 0.0f) & (own > 0.0f) & isfinite(weight));
     r->sum += weight;
     lane_ints_t keep = (u * r->sum < weight);
     r->target = select(r->target, target, keep);
@@ -162,11 +168,12 @@ ALWAYS_INLINE void stream_candidates(lane_reservoirs_t *r, const shading_t *s, _
     r->effective += select((lane_ints_t)0, (lane_ints_t)1, counted);
 }
 
-/* Initial RIS (Talbot 2005; Bitterli Alg. 3 with two candidate strategies): light_count
- * candidates read uniformly from one tile of presamples (the pixel's tile, drawn each frame) and
- * brdf_count from the Phong mixture, each weighted by stream_candidates; one is kept with
- * probability ∝ its weight.  W = Σ weights / p̂(kept), c = M = light_count + brdf_count.
- * *effective gets the candidates with a positive cosine. */
+/* Initial RIS (Talbot 2005; Bitterli Alg. 3) of one chain: M = light_count + brdf_count
+ * candidates, candidate j < light_count read uniformly from one tile of presamples (the chain's,
+ * drawn each frame), the others drawn from the Phong mixture, POOL_LANES at a time (a block
+ * holds both kinds: every lane draws both directions and keeps its own), each weighted by
+ * stream_candidates; one is kept with probability ∝ its weight.  W = Σ weights / p̂(kept),
+ * c = M.  *effective gets the candidates with a positive cosine. */
 ALWAYS_INLINE reservoir_t initial_reservoir(const shading_t *s, int p, __global const float4 *env, int res,
                                             __global const float *pyramid, __global const float *presamples,
                                             int presample_count, int tiles, int tile_size,
@@ -176,28 +183,29 @@ ALWAYS_INLINE reservoir_t initial_reservoir(const shading_t *s, int p, __global 
     lane_reservoirs_t r = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f,
                            (lane_ints_t)0};
     philox4x32_ctr_t pick = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, (uint)chain);
-    int first = (int)(pick.v[0] & (uint)(tiles - 1)) * tile_size;
+    int first = (int)(pick.v[0] & (uint)(tiles - 1)) * tile_size, top, count = light_count + brdf_count;
+    descent_levels(res, &top);
+    float power = 0.0f;
+    for (int f = 0; f < 6; ++f) power += pyramid[top + f];
+    float inverse_total = power > 0.0f ? 1.0f / power : 0.0f;
     __global const float *planes = presamples + first;
-    for (int i = 0; i < light_count; i += POOL_LANES) {
-        lane_ints_t draw = i + LANE_NUMBERS;
-        lane_block_t xi = rng_block_lanes(seed, frame, STREAM_RESTIR_CANDIDATE, (uint)p, convert_lane_uints(draw),
-                                          (uint)(2 * chain));
-        lane_ints_t slot = convert_lane_ints(xi.v[0] & (uint)(tile_size - 1));
-        lanes3_t w = make_lanes3(GATHER(lanes_t, planes, slot), GATHER(lanes_t, planes + presample_count, slot),
-                                 GATHER(lanes_t, planes + 2 * presample_count, slot));
-        stream_candidates(&r, s, env, res, w, GATHER(lanes_t, planes + 3 * presample_count, slot),
-                          draw < light_count, (float)light_count, (float)brdf_count, lanes_unit(xi.v[1]),
-                          visibility, p);
-    }
     vec3_t t_n, b_n, t_r, b_r;
     direction_about_axis_basis(s->n, &t_n, &b_n);
     direction_about_axis_basis(s->r, &t_r, &b_r);
-    for (int i = 0; i < brdf_count; i += POOL_LANES) {
-        lane_ints_t draw = i + LANE_NUMBERS, texel;
-        lanes3_t w = lanes_brdf_draw(s, t_n, b_n, t_r, b_r, seed, frame, (uint)p, chain * brdf_count + draw);
+    for (int i = 0; i < count; i += POOL_LANES) {
+        lane_ints_t draw = i + LANE_NUMBERS, is_light = draw < light_count;
         lane_block_t xi = rng_block_lanes(seed, frame, STREAM_RESTIR_CANDIDATE, (uint)p, convert_lane_uints(draw),
-                                          (uint)(2 * chain + 1));
-        stream_candidates(&r, s, env, res, w, lanes_light_density(pyramid, s, res, w, &texel), draw < brdf_count,
+                                          (uint)chain);
+        lane_ints_t slot = convert_lane_ints(xi.v[0] & (uint)(tile_size - 1));
+        lanes3_t light = make_lanes3(GATHER(lanes_t, planes, slot), GATHER(lanes_t, planes + presample_count, slot),
+                                     GATHER(lanes_t, planes + 2 * presample_count, slot));
+        lanes3_t brdf = lanes_brdf_draw(s, t_n, b_n, t_r, b_r, seed, frame, (uint)p, chain * count + draw);
+        lanes3_t w = make_lanes3(select(brdf.x, light.x, is_light), select(brdf.y, light.y, is_light),
+                                 select(brdf.z, light.z, is_light));
+        lanes_t own = select(phong_mixture_pdf_lanes(s->p_spec, s->m, lanes_dot(s->n, w),
+                                                     phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m)),
+                             GATHER(lanes_t, planes + 3 * presample_count, slot), is_light);
+        stream_candidates(&r, s, env, pyramid, inverse_total, res, w, own, is_light, draw < count,
                           (float)light_count, (float)brdf_count, lanes_unit(xi.v[1]), visibility, p);
     }
     /* The lanes' reservoirs merged: lane k with probability ∝ its sum (Bitterli Alg. 4, one target). */
