@@ -13,9 +13,9 @@ import pytest
 from iblbench.estimators import registry
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
-from iblbench.estimators.product import Product
+from iblbench.estimators.product import CHILD_WEIGHTS, Product
 from iblbench.harness.protocol.sweep import parse_estimator
-from iblbench.harness.verify import conformance
+from iblbench.harness.verify import conformance, stress
 from iblbench.harness.verify.conformance import ALPHA_CHI2, chi2_sampling, sidak_alpha
 from iblbench.scenes import cubemap
 from iblbench.scenes.errors import InputError
@@ -209,6 +209,47 @@ def test_one_texel_map(compute, label):
     assert np.all(images[:, ~lit] == 0)
     z = np.abs(mean[lit] - exact[lit]) / np.maximum(se[lit], 1e-6 * exact[lit])
     assert z.max() < 4.5, f"z = {z.max():.2f} at exact {exact[lit][z.argmax()]:.4g}"
+
+
+HOT_CORNER = (4, 0, 7)   # stress's hot-texel "face-corner": face +Z, row, col of an 8² map
+
+
+def test_a_texel_the_horizon_cuts_to_a_sliver_keeps_its_whole_probability(compute):
+    """The stress battery's face-corner hot texel for pixel 6 of its quick G-buffer, whose horizon
+    leaves ~0.1% of the texel's square above it (issue 24's failure, mean 0 vs 2.4e-6, which was
+    the battery's reach model, not the sampler).  At points of that sliver (a NumPy grid over the
+    texel) each rule's density without MIS is the whole texel's, P = 1:
+    (1 + x² + y²)^{3/2}·R²/4 (no choice on the way cuts the texel's child to the fallback's equal
+    widths)."""
+    face, row, col = HOT_CORNER
+    res = 8
+    env = np.zeros((6, res, res, 3), np.float32)
+    env[HOT_CORNER] = 1e3
+    gbuffer = next(v.gbuffer for v in stress.CASES["hot-texel"].build(stress.SMALL) if v.name == "face-corner")
+    normal, view = gbuffer.normal.reshape(-1, 3)[6], gbuffer.view.reshape(-1, 3)[6]
+    u = (np.arange(128) + 0.5) / 128
+    s, t = np.meshgrid((col + u) / res, (row + u) / res, indexing="xy")
+    directions = cubemap.face_st_to_direction(face, s, t)
+    sliver = directions @ normal > 0
+    assert 0 < sliver.mean() < 0.005
+    x, y = 2 * s[sliver] - 1, 2 * t[sliver] - 1
+    exact = (1 + x * x + y * y) ** 1.5 * res ** 2 / 4
+    cache = FrameCache(compute, env)
+    cache.require(Product.requires)
+    for rule in CHILD_WEIGHTS:
+        pdf = Product(mis="none", child_weight=rule).pdf(cache, normal, view,
+                                                         directions[sliver].astype(np.float32))
+        np.testing.assert_allclose(pdf, exact, rtol=1e-5, err_msg=rule)
+
+
+@pytest.mark.parametrize("label", ["product", 'product{child_weight="centre"}', 'product{mis="none"}'])
+def test_hot_texel_stress_passes(compute, label):
+    """The stress battery's hot-texel case at the quick size (z-tests at the face corner among
+    them: |z| = 1e4 before the reach model counted light hits above the horizon only)."""
+    rows = stress.run_stress({label: parse_estimator(label).make()}, ("hot-texel",), stress.SMALL,
+                             compute, progress=False)
+    assert (rows.status == "pass").all(), rows.failures.tolist()
+    assert (rows.bias_pixels > 0).all() and (rows.nonfinite == 0).all()
 
 
 def test_parameters_and_version():
