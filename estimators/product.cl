@@ -4,7 +4,9 @@
  * sampling of L·ρ·cos⁺, after Clarberg et al. 2005 and Clarberg & Akenine-Möller 2008).
  * Configured by the estimator's defines:
  *   CHILD_WEIGHT  0: the factor's bound over the child's cone of directions; 1: its value at the
- *                 child's centre direction, floored at CENTRE_FLOOR of that bound
+ *                 child's centre direction, floored at CENTRE_FLOOR of that bound; 2: the bound
+ *                 with the lobe's term capped at its integral over the child's least solid angle
+ *                 (a bound of the child's mean factor)
  *   LIGHT_LEVELS  L: the choices among children of pyramid level l < L (0 = texels) weigh by the
  *                 sums alone, as hierarchical's (0: every choice, the faces' included, by the
  *                 product)
@@ -33,7 +35,7 @@
  * the lanes' faces (n·U, n·V, n·W of the face's direction x·U + y·V + W at face point (x, y)). */
 typedef struct {
     vec3_t n, r;
-    float diffuse, specular, m;
+    float diffuse, specular, m, lobe_integral;   /* lobe_integral: ∫ cos⁺_r^m dω = 2π/(m + 1) */
     lanes_t n_u, n_v, n_w, r_u, r_v, r_w;
 } descent_weigher_t;
 
@@ -49,6 +51,7 @@ ALWAYS_INLINE descent_weigher_t product_weigher(const shading_t *s)
     g.n = s->n;
     g.r = s->r;
     g.m = s->m;
+    g.lobe_integral = 2.0f * IBL_PI / (s->m + 1.0f);
     g.diffuse = scaled ? diffuse / largest : 1.0f;
     g.specular = scaled ? specular / largest : 0.0f;
     return g;
@@ -82,32 +85,43 @@ ALWAYS_INLINE lanes_t cone_cos_bound(lanes_t cos_a, lanes_t cos_lo, lanes_t cos_
     return select(min(max(bound, 0.0f), 1.0f), (lanes_t)1.0f, cos_a >= cos_lo);
 }
 
-/* The normalised factor of cosines cos_n, cos_r (≥ 0). */
-ALWAYS_INLINE lanes_t factor_of(const descent_weigher_t *g, lanes_t cos_n, lanes_t cos_r)
+/* The normalised factor of cos_n (≥ 0) and the lobe's value `lobe` (cos_r^m, or a stand-in). */
+ALWAYS_INLINE lanes_t factor_with_lobe(const descent_weigher_t *g, lanes_t cos_n, lanes_t lobe)
 {
 #if SPECULAR_LOBE
-    return cos_n * (g->diffuse + g->specular * phong_power_lanes(cos_r, (lanes_t)g->m));
+    return cos_n * (g->diffuse + g->specular * lobe);
 #else
     return cos_n * g->diffuse;
 #endif
 }
 
-/* The factor of a child whose directions lie in a cone of half angle θ (cos_lo ≤ cos θ ≤ cos_hi,
- * sin θ ≤ sin_hi) about its centre direction, cos_n and cos_r the cosines of that direction
- * with n and r, by the CHILD_WEIGHT rule. */
-ALWAYS_INLINE lanes_t cone_factor(const descent_weigher_t *g, lanes_t cos_n, lanes_t cos_r, lanes_t cos_lo,
-                                  lanes_t cos_hi, lanes_t sin_hi)
+/* The normalised factor of cosines cos_n, cos_r (≥ 0). */
+ALWAYS_INLINE lanes_t factor_of(const descent_weigher_t *g, lanes_t cos_n, lanes_t cos_r)
 {
-    lanes_t bound = factor_of(g, cone_cos_bound(cos_n, cos_lo, cos_hi, sin_hi),
-                              cone_cos_bound(cos_r, cos_lo, cos_hi, sin_hi));
-#if CHILD_WEIGHT
-    return max(factor_of(g, max(cos_n, 0.0f), max(cos_r, 0.0f)), CENTRE_FLOOR * bound);
+    return factor_with_lobe(g, cos_n, phong_power_lanes(cos_r, (lanes_t)g->m));
+}
+
+/* The factor of a child whose directions lie in a cone of half angle θ (cos_lo ≤ cos θ ≤ cos_hi,
+ * sin θ ≤ sin_hi) about its centre direction and whose solid angle is at least `least_omega`,
+ * cos_n and cos_r the cosines of that direction with n and r, by the CHILD_WEIGHT rule. */
+ALWAYS_INLINE lanes_t cone_factor(const descent_weigher_t *g, lanes_t cos_n, lanes_t cos_r, lanes_t cos_lo,
+                                  lanes_t cos_hi, lanes_t sin_hi, lanes_t least_omega)
+{
+    lanes_t bound_n = cone_cos_bound(cos_n, cos_lo, cos_hi, sin_hi);
+    lanes_t bound_lobe = phong_power_lanes(cone_cos_bound(cos_r, cos_lo, cos_hi, sin_hi), (lanes_t)g->m);
+#if CHILD_WEIGHT == 1
+    return max(factor_of(g, max(cos_n, 0.0f), max(cos_r, 0.0f)),
+               CENTRE_FLOOR * factor_with_lobe(g, bound_n, bound_lobe));
+#elif CHILD_WEIGHT == 2
+    /* the lobe's mean over the child is at most its integral over the child's least solid angle */
+    return factor_with_lobe(g, bound_n, min(bound_lobe, g->lobe_integral / least_omega));
 #else
-    return bound;
+    return factor_with_lobe(g, bound_n, bound_lobe);
 #endif
 }
 
-/* Faces: each face's cone is exact, half angle acos(1/√3) about its axis ±e_{f/2}. */
+/* Faces: each face's cone is exact, half angle acos(1/√3) about its axis ±e_{f/2}; its solid
+ * angle 2π/3. */
 ALWAYS_INLINE void weigh_faces(const descent_weigher_t *g, int l, lanes_t w[6])
 {
     if (l < LIGHT_LEVELS)
@@ -117,7 +131,7 @@ ALWAYS_INLINE void weigh_faces(const descent_weigher_t *g, int l, lanes_t w[6])
     for (int f = 0; f < 6; ++f) {
         float sign = (f & 1) ? -1.0f : 1.0f;
         w[f] *= cone_factor(g, (lanes_t)(sign * n_axis[f >> 1]), (lanes_t)(sign * r_axis[f >> 1]),
-                            (lanes_t)FACE_COS, (lanes_t)FACE_COS, (lanes_t)FACE_SIN);
+                            (lanes_t)FACE_COS, (lanes_t)FACE_COS, (lanes_t)FACE_SIN, (lanes_t)(2.0f * IBL_PI / 3.0f));
     }
 }
 
@@ -127,7 +141,8 @@ ALWAYS_INLINE void weigh_faces(const descent_weigher_t *g, int l, lanes_t w[6])
  * d the child's least distance from the face's centre: the gnomonic map's metric is at most
  * |dp|/√(1 + |p|²), so a straight path from the centre to a corner is no longer on the sphere.
  * cos θ and sin θ are bounded by cos's Taylor terms (1 − t²/2 ≤ cos t ≤ 1 − t²/2 + t⁴/24) and
- * sin t ≤ min(t, 1): no trigonometry. */
+ * sin t ≤ min(t, 1): no trigonometry.  Its solid angle is at least its face area 4·hx·hy times the
+ * gnomonic Jacobian (1 + x² + y²)^{-3/2} at its farthest corner. */
 ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, int res, int l, lane_ints_t row, lane_ints_t col,
                                   lanes_t w[4])
 {
@@ -147,7 +162,9 @@ ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, int res, int l, la
         lanes_t dx = max(fabs(x) - hx, 0.0f), dy = max(fabs(y) - hy, 0.0f);
         lanes_t t = sqrt(hx * hx + hy * hy) * rsqrt(1.0f + dx * dx + dy * dy);
         lanes_t cos_lo = 1.0f - 0.5f * t * t;
-        w[k] *= cone_factor(g, cos_n, cos_r, cos_lo, cos_lo + t * t * t * t * (1.0f / 24.0f), min(t, 1.0f));
+        lanes_t fx = fabs(x) + hx, fy = fabs(y) + hy, k_far = rsqrt(1.0f + fx * fx + fy * fy);
+        w[k] *= cone_factor(g, cos_n, cos_r, cos_lo, cos_lo + t * t * t * t * (1.0f / 24.0f), min(t, 1.0f),
+                            4.0f * hx * hy * k_far * k_far * k_far);
     }
 }
 

@@ -9,7 +9,7 @@ from iblbench.estimators.base import Setting
 from iblbench.estimators.envmap import HEURISTICS, MIS_MODES
 from iblbench.estimators.hierarchical import Hierarchical
 
-CHILD_WEIGHTS = ("bound", "centre")
+CHILD_WEIGHTS = ("bound", "centre", "capped")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -21,9 +21,11 @@ class ProductParams:
     ``heuristic`` (default ``"power"``): the MIS weights, ``"balance"`` or ``"power"``, as
     ``envmap``'s; unused without MIS.
 
-    ``child_weight`` (default ``"bound"``): a child's BRDF·cos factor, ``"bound"`` (an upper
-    bound over the child's directions) or ``"centre"`` (its value at the child's centre
-    direction, floored at 1/16 of the bound).
+    ``child_weight`` (default ``"capped"``): a child's BRDF·cos factor, ``"capped"`` (an upper
+    bound of its mean over the child: ``"bound"`` with the lobe's term at most the lobe's
+    integral over the child's solid angle), ``"bound"`` (an upper bound over the child's
+    directions) or ``"centre"`` (its value at the child's centre direction, floored at 1/16 of
+    the bound).
 
     ``light_levels`` (default 0): the choices among the children of the ``light_levels`` finest
     pyramid levels (1: the texels; 0: none) are made by the light weights alone, as
@@ -34,7 +36,7 @@ class ProductParams:
 
     mis: str = "brdf"
     heuristic: str = "power"
-    child_weight: str = "bound"
+    child_weight: str = "capped"
     light_levels: int = 0
 
     def __post_init__(self):
@@ -76,7 +78,7 @@ class Product(Hierarchical):
     of the L finest levels by W_k alone.
 
     Child-weight rules (F normalised by its maximum, so 0 ≤ F ≤ 1 and a weight never exceeds
-    W_k).  ``"bound"`` (default): an upper bound of F over the child.  The child's directions
+    W_k).  ``"bound"``: an upper bound of F over the child.  The child's directions
     lie in a cone about its centre direction of half angle θ ≤ √(hx² + hy²)/√(1 + d²) (hx, hy
     its half extents on the face plane, d its least distance from the face centre: the
     gnomonic map shrinks lengths by at least √(1 + |p|²)); faces use their exact cone,
@@ -88,34 +90,54 @@ class Product(Hierarchical):
     ``"centre"``: F at the child's centre direction, floored at 1/16 of the bound, so a child
     whose centre is below the horizon (or off a lobe) while part of it is not stays reachable;
     the floor 1/16 was measured against 1/64 (without MIS its heavy tail failed the 8→128 spp
-    convergence check, ratio 2.3) and 1/4 (more error).
+    convergence check, ratio 2.3) and 1/4 (more error).  ``"capped"`` (default): the bound with
+    the lobe's term cos_r^m replaced by min(its bound, (2π/(m + 1))/Ω_least): the lobe's
+    integral over the whole sphere, 2π/(m + 1), is at least its integral over the child, so
+    spread over the child's solid angle it bounds the lobe's *mean* there, and the factor,
+    bound(cos_n)·(d + s·min(·)), is an upper bound of the child's mean of F (the issue's "BRDF's
+    integral over the child", without a table: one division per child).  Ω_least is a lower
+    bound of the child's solid angle: its face area 4·hx·hy times the gnomonic Jacobian
+    (1 + x² + y²)^{-3/2} at its farthest corner (faces: 2π/3 exactly).  It is positive wherever
+    the bound is, so it cuts no child the bound keeps; it tightens only children much larger
+    than the lobe (with m = 150 at env 64: the faces and the two or three coarsest levels),
+    which the bound credited with the lobe's peak (tests/test_product.py checks it against
+    the mean on a 512² grid a face, with a purely specular m = 150 where the cap is tight).
 
     Measured (issue 24; 64×64, env_res 64, 4 seeds, PoCL on 2 shared cores; ΔE76 | relMSE |
-    device ms per frame, median of 5 repeats):
+    device ms per frame, median of 5 repeats; ``iblbench run --config cw.toml --repeats 5``,
+    the config: these scenes and estimators, ``spp = [16, 64]``, ``seeds = 4``,
+    ``resolution = "64x64"``, ``env_res = 64``, ``metrics = ["de76", "relmse"]``):
 
-    ================  =============  ===================  ===================  ===================
-    scene, 16 spp     balanced_mis   hierarchical{brdf}   product              product{centre}
-    ================  =============  ===================  ===================  ===================
-    sphere-sun        2.63|0.015|0.6 3.51|0.038|2.0       7.94|0.255|5.9       6.60|0.210|6.8
-    blob-sun          2.70|0.016|0.4 3.53|0.038|0.9       8.69|0.297|4.5       7.16|0.217|8.4
-    sphere-studio     2.47|0.033|0.6 3.95|0.089|1.6       4.94|0.226|6.9       3.52|0.193|8.4
-    ================  =============  ===================  ===================  ===================
+    ===============  ===============  ==================  ==================  ===================  ===================
+    scene, 16 spp    balanced_mis     hierarchical{brdf}  product (capped)    product{bound}       product{centre}
+    ===============  ===============  ==================  ==================  ===================  ===================
+    sphere-sun       2.10|0.013|0.6   3.50|0.038|0.9      3.56|0.039|2.4      7.94|0.248|3.3       6.61|0.200|5.0
+    blob-sun         2.18|0.015|0.6   3.55|0.039|1.6      3.68|0.041|4.6      8.66|0.288|4.4       7.16|0.218|5.3
+    sphere-studio    2.31|0.038|0.6   3.99|0.089|1.6      3.21|0.087|4.6      4.95|0.215|4.5       3.51|0.197|5.0
+    ===============  ===============  ==================  ==================  ===================  ===================
 
-    So on these scenes (shininess 150) product loses to both at equal spp and costs 3-5× the
-    device time of ``hierarchical``.  ``light_levels = 3`` changes the error by < 1%;
-    ``mis = "none"`` is worse (relMSE 0.63 on sphere-sun).  Why: for a lobe of solid angle
-    ~2π/(m+1) ≈ 0.04 sr, both rules misjudge a coarse child's share of ∫ W·F (the bound
-    credits the whole child with the lobe's peak, the centre value misses a lobe off-centre),
-    so the coarse choices send most samples to the lobe's neighbourhood and starve the diffuse
-    term, which holds most of the integral.  On the conformance fixture (m = 20, 16² pixels,
-    16 spp, 20 seeds) the ranking reverses: relative RMS error 0.135 (product) vs 0.214
-    (hierarchical with MIS) on a 1e3 sun and 0.142 vs 0.153 on face_pattern_map.
+    At 64 spp the same (relMSE, sphere-sun | blob-sun | sphere-studio): balanced_mis 0.0030 |
+    0.0036 | 0.011, hierarchical{brdf} 0.0094 | 0.0097 | 0.022, capped 0.0097 | 0.0102 |
+    0.023, bound 0.059 | 0.071 | 0.057, centre 0.048 | 0.052 | 0.052.  So ``"capped"`` cuts
+    the bound's relMSE 2.5-7× and ties ``hierarchical{mis="brdf"}`` at equal spp (within 6%;
+    ΔE76 14-20% lower on sphere-studio), at the bound's cost (time within the runs' noise), still
+    2.5-3× hierarchical's time; ``balanced_mis`` keeps 2-3× less relMSE at equal spp.  Why the
+    bound and the centre lost: for a lobe of solid angle ~2π/(m+1) ≈ 0.04 sr, both misjudge a
+    coarse child's share of ∫ W·F (the bound credits the whole child with the lobe's peak, the
+    centre value misses a lobe off-centre), so the coarse choices send most samples to the
+    lobe's neighbourhood and starve the diffuse term, which holds most of the integral.  With
+    ``"capped"`` (16 spp): ``light_levels = 3`` changes relMSE by +0.5% to +6%;
+    ``heuristic = "balance"`` lowers it 6-9% (0.036 | 0.037 | 0.082); ``mis = "none"`` raises
+    it 3-4× (0.16 | 0.17 | 0.25).  On the conformance fixture (m = 20, 16² pixels, 16 spp, 20
+    seeds) the bound beat ``hierarchical`` with MIS: relative RMS error 0.135 vs 0.214 on a 1e3
+    sun and 0.142 vs 0.153 on face_pattern_map (not re-measured with ``"capped"``).
 
     Deviations.  Clarberg et al. multiply wavelet (Haar) representations of the map and the
     BRDF and sample the product's quadtree; Clarberg & Akenine-Möller 2008 evaluate the BRDF on
     a coarse quadtree per pixel.  Here no BRDF representation is built: a factor per node
-    (bound or centre value) multiplies the map's own pyramid sums, so the coarse levels do not
-    see the BRDF's integral over the node (the cause of the losses above).  Lobe and diffuse
+    (a bound of the mean, a bound or a centre value) multiplies the map's own pyramid sums, so
+    the coarse levels see the BRDF's integral over the node only through ``"capped"``'s bound
+    of it (the bound's and the centre's losses above).  Lobe and diffuse
     share one factor in luminance; kd and ks colours enter only through the estimate.
     Otherwise as ``hierarchical`` (point on a 2^16 grid in the texel, float density of up to
     log2 R + 1 factors).
@@ -124,7 +146,7 @@ class Product(Hierarchical):
     name = "product"
     Params = ProductParams
     settings = (Setting("mis", "none"), Setting("heuristic", "balance"),
-                Setting("child_weight", "centre"), Setting("light_levels", 2))
+                Setting("child_weight", "centre"), Setting("child_weight", "bound"), Setting("light_levels", 2))
     kernel_files = ("product.cl", "descent.cl", "envmap.cl", "lanes.cl")
 
     @property

@@ -13,9 +13,9 @@ import pytest
 from iblbench.estimators import registry
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
-from iblbench.estimators.product import Product
+from iblbench.estimators.product import CHILD_WEIGHTS, Product
 from iblbench.harness.protocol.sweep import parse_estimator
-from iblbench.harness.verify import conformance
+from iblbench.harness.verify import conformance, stress
 from iblbench.harness.verify.conformance import ALPHA_CHI2, chi2_sampling, sidak_alpha
 from iblbench.scenes import cubemap
 from iblbench.scenes.errors import InputError
@@ -36,16 +36,17 @@ class Twin:
     F = cos⁺_n·(d + s·cos⁺_r^m) with d ∝ Y(kd)/π, s ∝ Y(ks)(m+2)/2π, d + s = 1; directions from
     ``cubemap.face_st_to_direction``."""
 
-    def __init__(self, normal, view, rule: str):
+    def __init__(self, normal, view, rule: str, kd: float = KD, shininess: float = SHININESS):
         self.n = normal / np.linalg.norm(normal)
         v = view / np.linalg.norm(view)
         self.r = 2 * (self.n @ v) * self.n - v
-        diffuse, specular = KD / np.pi, KS * (SHININESS + 2) / (2 * np.pi)
+        self.m = shininess
+        diffuse, specular = kd / np.pi, KS * (shininess + 2) / (2 * np.pi)
         self.d, self.s = diffuse / (diffuse + specular), specular / (diffuse + specular)
         self.rule = rule
 
     def value(self, cos_n, cos_r):
-        return np.maximum(cos_n, 0) * (self.d + self.s * np.maximum(cos_r, 0) ** SHININESS)
+        return np.maximum(cos_n, 0) * (self.d + self.s * np.maximum(cos_r, 0) ** self.m)
 
     @staticmethod
     def cone_cos_bound(cos_a, cos_lo, cos_hi, sin_hi):
@@ -53,16 +54,21 @@ class Twin:
         bound = cos_a * np.where(cos_a >= 0, cos_hi, cos_lo) + sin_a * sin_hi + MARGIN
         return np.where(cos_a >= cos_lo, 1.0, np.clip(bound, 0, 1))
 
-    def factor(self, centre, cos_lo, cos_hi, sin_hi):
-        """The rule's factor of children of unit centre directions ``centre`` [..., 3]."""
+    def factor(self, centre, cos_lo, cos_hi, sin_hi, least_omega):
+        """The rule's factor of children of unit centre directions ``centre`` [..., 3] and solid
+        angles at least ``least_omega``."""
         cos_n, cos_r = centre @ self.n, centre @ self.r
-        bound = self.value(self.cone_cos_bound(cos_n, cos_lo, cos_hi, sin_hi),
-                           self.cone_cos_bound(cos_r, cos_lo, cos_hi, sin_hi))
-        return bound if self.rule == "bound" else np.maximum(self.value(cos_n, cos_r), CENTRE_FLOOR * bound)
+        bound_n = self.cone_cos_bound(cos_n, cos_lo, cos_hi, sin_hi)
+        bound_lobe = self.cone_cos_bound(cos_r, cos_lo, cos_hi, sin_hi) ** self.m
+        if self.rule == "capped":     # the lobe's mean: at most ∫ cos_r^m = 2π/(m + 1) over the child
+            bound_lobe = np.minimum(bound_lobe, 2 * np.pi / (self.m + 1) / least_omega)
+        bound = bound_n * (self.d + self.s * bound_lobe)
+        return bound if self.rule != "centre" else np.maximum(self.value(cos_n, cos_r), CENTRE_FLOOR * bound)
 
     def level_factors(self, res: int, l: int) -> np.ndarray:
         """The factors ``[6, n, n]`` of the nodes of pyramid level l (texels 2^l wide, the last
-        of an odd size narrower), their cone's half angle θ ≤ √(hx² + hy²)/√(1 + d²)."""
+        of an odd size narrower), their cone's half angle θ ≤ √(hx² + hy²)/√(1 + d²), their
+        solid angle at least 4·hx·hy·(1 + (|x| + hx)² + (|y| + hy)²)^{-3/2}."""
         span, n = 2 ** l, -(-res // 2 ** l)
         lo = np.arange(n) * span
         hi = np.minimum(lo + span, res)
@@ -73,11 +79,12 @@ class Twin:
         dx, dy = np.maximum(np.abs(x) - hx, 0), np.maximum(np.abs(y) - hy, 0)
         t = np.sqrt(hx ** 2 + hy ** 2) / np.sqrt(1 + dx ** 2 + dy ** 2)
         cos_lo = 1 - t ** 2 / 2
-        return self.factor(dirs, cos_lo, cos_lo + t ** 4 / 24, np.minimum(t, 1))
+        least_omega = 4 * hx * hy / (1 + (np.abs(x) + hx) ** 2 + (np.abs(y) + hy) ** 2) ** 1.5
+        return self.factor(dirs, cos_lo, cos_lo + t ** 4 / 24, np.minimum(t, 1), least_omega)
 
     def face_factors(self) -> np.ndarray:
         axes = np.stack([cubemap.face_st_to_direction(f, 0.5, 0.5) for f in range(6)])
-        return self.factor(axes, 1 / np.sqrt(3), 1 / np.sqrt(3), np.sqrt(2 / 3))
+        return self.factor(axes, 1 / np.sqrt(3), 1 / np.sqrt(3), np.sqrt(2 / 3), 2 * np.pi / 3)
 
     def texel_probabilities(self, weights: np.ndarray, light_levels: int) -> tuple[np.ndarray, np.ndarray]:
         """(P(texel) ``[6, R, R]``: the product over the choices of w_k/Σ w, w = sum × factor;
@@ -114,7 +121,8 @@ def texel_probabilities(estimator, cache, normal, view) -> np.ndarray:
     return pdf.reshape(6, res, res) * (4.0 / res ** 2) / ((1 + x * x + y * y) ** 1.5)[None]
 
 
-@pytest.mark.parametrize("rule,light_levels", [("bound", 0), ("centre", 0), ("bound", 2), ("centre", 9)])
+@pytest.mark.parametrize("rule,light_levels", [("bound", 0), ("centre", 0), ("capped", 0), ("bound", 2),
+                                               ("capped", 2), ("centre", 9)])
 @pytest.mark.parametrize("env", [conformance.face_pattern_map(8), conformance.sun_map(12, 1e6)],
                          ids=["face-pattern", "sun-1e6-res12"])
 def test_texel_probabilities_match_a_numpy_descent(compute, env, rule, light_levels):
@@ -158,8 +166,32 @@ def test_the_child_bound_holds_over_the_child():
                 assert np.all(bound[face] >= worst), f"level {l}, face {face}"
 
 
+@pytest.mark.parametrize("kd,shininess", [(0.0, 150.0), (KD, SHININESS)])
+def test_the_capped_factor_bounds_the_childs_mean(kd, shininess):
+    """The capped rule's factor (NumPy twin, matched to the kernel above) is at least the mean of
+    F over the child, weighted by solid angle on a 512² grid a face, at every level of a 16²
+    face and the faces, for pixels around the sphere.  A purely specular m = 150 makes the cap
+    tight where r is near n: the mean of the lobe over a face is then ~2π/(m + 1)/Ω."""
+    res, fine = 16, 512
+    u = (np.arange(fine) + 0.5) / fine
+    s, t = np.meshgrid(u, u, indexing="xy")
+    omega = (1 + (2 * s - 1) ** 2 + (2 * t - 1) ** 2) ** -1.5
+    for normal in conformance.fibonacci_directions(12):
+        view = np.roll(normal, 1) + 0.5 * normal
+        twin = Twin(normal, view, "capped", kd, shininess)
+        for face in range(6):
+            dirs = cubemap.face_st_to_direction(face, s, t)
+            weighted = twin.value(dirs @ twin.n, dirs @ twin.r) * omega
+            for l in range(5):
+                n = res >> l if l < 4 else 1
+                factors = twin.level_factors(res, l)[face] if l < 4 else twin.face_factors()[face]
+                block = lambda a: a.reshape(n, fine // n, n, fine // n).sum(axis=(1, 3))
+                assert np.all(factors >= block(weighted) / block(omega)), f"level {l}, face {face}"
+
+
 @pytest.mark.parametrize("label", ['product{mis="none"}', 'product{mis="none",child_weight="centre"}',
-                                   'product{light_levels=2}', 'product{child_weight="centre"}'])
+                                   'product{mis="none",child_weight="bound"}', 'product{light_levels=2}',
+                                   'product{child_weight="centre"}'])
 def test_chi2_on_a_bright_sun(compute, label):
     """χ² of each variant's samples against its pdf hook for two pixels on a 1e6:1 sun map."""
     estimator = parse_estimator(label).make()
@@ -209,6 +241,48 @@ def test_one_texel_map(compute, label):
     assert np.all(images[:, ~lit] == 0)
     z = np.abs(mean[lit] - exact[lit]) / np.maximum(se[lit], 1e-6 * exact[lit])
     assert z.max() < 4.5, f"z = {z.max():.2f} at exact {exact[lit][z.argmax()]:.4g}"
+
+
+HOT_CORNER = (4, 0, 7)   # stress's hot-texel "face-corner": face +Z, row, col of an 8² map
+
+
+def test_a_texel_the_horizon_cuts_to_a_sliver_keeps_its_whole_probability(compute):
+    """The stress battery's face-corner hot texel for pixel 6 of its quick G-buffer, whose horizon
+    leaves ~0.1% of the texel's square above it (issue 24's failure, mean 0 vs 2.4e-6, which was
+    the battery's reach model, not the sampler).  At points of that sliver (a NumPy grid over the
+    texel) each rule's density without MIS is the whole texel's, P = 1:
+    (1 + x² + y²)^{3/2}·R²/4 (no choice on the way cuts the texel's child to the fallback's equal
+    widths)."""
+    face, row, col = HOT_CORNER
+    res = 8
+    env = np.zeros((6, res, res, 3), np.float32)
+    env[HOT_CORNER] = 1e3
+    gbuffer = next(v.gbuffer for v in stress.CASES["hot-texel"].build(stress.SMALL) if v.name == "face-corner")
+    normal, view = gbuffer.normal.reshape(-1, 3)[6], gbuffer.view.reshape(-1, 3)[6]
+    u = (np.arange(128) + 0.5) / 128
+    s, t = np.meshgrid((col + u) / res, (row + u) / res, indexing="xy")
+    directions = cubemap.face_st_to_direction(face, s, t)
+    sliver = directions @ normal > 0
+    assert 0 < sliver.mean() < 0.005
+    x, y = 2 * s[sliver] - 1, 2 * t[sliver] - 1
+    exact = (1 + x * x + y * y) ** 1.5 * res ** 2 / 4
+    cache = FrameCache(compute, env)
+    cache.require(Product.requires)
+    for rule in CHILD_WEIGHTS:
+        pdf = Product(mis="none", child_weight=rule).pdf(cache, normal, view,
+                                                         directions[sliver].astype(np.float32))
+        np.testing.assert_allclose(pdf, exact, rtol=1e-5, err_msg=rule)
+
+
+@pytest.mark.parametrize("label", ["product", 'product{child_weight="centre"}', 'product{child_weight="bound"}',
+                                   'product{mis="none"}'])
+def test_hot_texel_stress_passes(compute, label):
+    """The stress battery's hot-texel case at the quick size (z-tests at the face corner among
+    them: |z| = 1e4 before the reach model counted light hits above the horizon only)."""
+    rows = stress.run_stress({label: parse_estimator(label).make()}, ("hot-texel",), stress.SMALL,
+                             compute, progress=False)
+    assert (rows.status == "pass").all(), rows.failures.tolist()
+    assert (rows.bias_pixels > 0).all() and (rows.nonfinite == 0).all()
 
 
 def test_parameters_and_version():

@@ -105,6 +105,40 @@ def test_reach_model_skips_a_channel_that_few_resampled_draws_carry(compute):
     assert not tested[0, 0] and tested[0, 2]
 
 
+def test_horizon_shares_match_a_fine_grid():
+    """The exact share of each texel's face square above a plane (horizon_shares) against the
+    fraction of a 256² grid of its directions above it, for random axes and the degenerate
+    ones (a face's axis, a face's plane, an edge's)."""
+    rng = np.random.default_rng(5)
+    axes = rng.normal(size=(6, 3))
+    axes = np.vstack([axes / np.linalg.norm(axes, axis=1, keepdims=True),
+                      [[0, 0, 1], [1, 0, 0], [0, -np.sqrt(0.5), np.sqrt(0.5)]]])
+    res, fine = 4, 256
+    directions = cubemap.texel_directions(res * fine).reshape(-1, 3)
+    grid = (axes @ directions.T > 0).reshape(len(axes), 6, res, fine, res, fine).mean(axis=(3, 5))
+    assert np.abs(stress.horizon_shares(res, axes) - grid).max() < 2.0 / fine
+
+
+def test_reach_model_counts_light_hits_above_the_horizon_only(compute):
+    """hot-texel's face-corner texel (R = 8) holds all the light, and pixel 6 of the quick
+    battery's G-buffer sees it through a sliver of ~0.1% of its square (its reference 2.4e-6):
+    8 spp × 200 seeds of product (4 light draws a render, uniform in the texel's square) land ~1
+    sample there, so its mean is 0 in most seed sets.  The pixel is not z-tested (the battery
+    failed product at |z| = 1e4 when every light hit on the texel counted); a normal facing the
+    texel is."""
+    case = next(v for v in stress.CASES["hot-texel"].build(stress.SMALL) if v.name == "face-corner")
+    normal, view = case.gbuffer.normal.reshape(-1, 3)[6], case.gbuffer.view.reshape(-1, 3)[6]
+    facing = cubemap.face_st_to_direction(4, 15 / 16, 1 / 16)
+    u = (np.arange(64) + 0.5) / 64            # a grid over the texel's square: s in [7/8, 1], t in [0, 1/8]
+    directions = cubemap.face_st_to_direction(4, (7 + u) / 8, u[:, None] / 8)
+    assert 0 < np.mean(directions @ normal > 0) < 0.005
+    normals = np.array([[normal, facing]])
+    views = np.array([[view, facing]])
+    variant = stress.Variant("face-corner", GBuffer.from_pixels(normals, views, 0.5, 0.3, 20.0), case.frames)
+    tested = stress.tested_pixels(BUILTINS["product"], stress.Prepared.of(variant, compute), 0, 8, 200)
+    assert tested.tolist() == [[False] * 3, [True] * 3]
+
+
 # ---- broken estimators must fail ------------------------------------------------------------------
 
 class _NaNEstimator(Uniform):

@@ -156,14 +156,16 @@ evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``byt
         target scale over 24 coarse cells, 63 each (direction 12, n·ω 5, lobe power 41, ρ_Y 3,
         products 2), 1512, and the power 6; bytes: the G-buffer read three times, 192, scales,
         radiance, counts and stats out, 64 (presamples, maps and pyramid cache-resident)
-    product       1150     0 / 0     140 / 88
+    product       1500     0 / 0     142 / 88
         hierarchical's descent with each choice's children weighed by the pixel's BRDF·cos
         bound over the child's cone (product.cl's weigher: per child its centre and extents 12,
         the two cosines 10, the cone's bounds 12, two cone_cos_bound 20, the factor 10, about
         64), four children a level over six levels and the six faces: about 1,150 a light
-        sample (hierarchical's 182 + 6 × 4 × 36 + 6 × 20 beyond), and as much for a BRDF
-        sample's density under MIS (its draw 107 less the light draw's 41); per pixel the
-        weigher's frame 30, envmap's 76, the faces' widths 34; bytes as envmap's
+        sample (hierarchical's 182 + 6 × 4 × 36 + 6 × 20 beyond), and the default "capped"
+        rule's least solid angle and cap, 15 a child (the farthest corner 6, its Jacobian 5, the
+        area 2, the division and min 2), 360 more: about 1,500; as much for a BRDF sample's
+        density under MIS (its draw 107 less the light draw's 41); per pixel the weigher's
+        frame 30 and the lobe's integral 2, envmap's 76, the faces' widths 34; bytes as envmap's
 
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
@@ -254,7 +256,7 @@ KERNEL_COSTS = {
     "hierarchical": KernelCost(182, 0, 0, 95, 88),
     "fis": KernelCost(223, 0, 0, 123, 88),
     "restir": KernelCost(140, 288, 352, 1590, 256),
-    "product": KernelCost(1150, 0, 0, 140, 88),
+    "product": KernelCost(1500, 0, 0, 142, 88),
 }
 
 # Every column of perf.csv, in order, with what it means (the --help epilog and perf.html).

@@ -41,7 +41,7 @@ VIS_RES, OPEN_SHARE, VIS_SEED = 2, 0.75, 22   # the G-buffer's visibility masks 
 # Estimator configurations beyond each built-in's defaults that run other kernel paths.
 VARIANTS = ("balanced_mis{shared_sequence=false}", 'envmap{mis="brdf"}',
             'envmap{mis="brdf",mis_compensation=true}', 'product{child_weight="centre",light_levels=1}',
-            'product{mis="none"}', "restir{unbiased=false}")
+            'product{mis="none",child_weight="bound"}', "restir{unbiased=false}")
 # Oclgrind's checks: memory (always on), data races and API misuse.
 CHECKS = {"OCLGRIND_DATA_RACES": "1", "OCLGRIND_CHECK_API": "1"}
 # Its uninitialised-value check, where it runs: Oclgrind 21.10's checker marks any vector
