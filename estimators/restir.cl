@@ -107,7 +107,10 @@ __kernel void restir_target_scales(__global const float4 *normal, __global const
                     total += pyramid[offset + (f * n + a) * n + b] * brdf_luminance(&s, phong_lobe_power(s.r, w, s.m)) * cosine;
             }
     }
-    scales[p] = total > 0.0f ? 1.0f / total : power > 0.0f ? 1.0f / power : 0.0f;
+    /* Clamped to float's normal range: a denormal or infinite Z̃ (1e30 texels) keeps a finite,
+     * positive scale. */
+    float normaliser = total > 0.0f ? total : power;
+    scales[p] = normaliser > 0.0f ? 1.0f / clamp(normaliser, FLT_MIN, FLT_MAX) : 0.0f;
 }
 
 /* The index i of the n non-negative `weights` (of sum `total`) with probability weights[i]/total
@@ -129,7 +132,6 @@ ALWAYS_INLINE int pick_by_weight(const float *weights, int n, float total, float
  * update, each lane its own stream of candidates). */
 typedef struct {
     lanes_t sum, target, x, y, z;
-    lane_ints_t effective;   /* candidates with a positive cosine */
 } lane_reservoirs_t;
 
 /* Stream the lanes' candidates w (where `active`) into r.  Each is weighed by RIS with the
@@ -165,7 +167,6 @@ ALWAYS_INLINE void stream_candidates(lane_reservoirs_t *r, const shading_t *s, _
     r->x = select(r->x, w.x, keep);
     r->y = select(r->y, w.y, keep);
     r->z = select(r->z, w.z, keep);
-    r->effective += select((lane_ints_t)0, (lane_ints_t)1, counted);
 }
 
 /* Initial RIS (Talbot 2005; Bitterli Alg. 3) of one chain: M = light_count + brdf_count
@@ -173,15 +174,14 @@ ALWAYS_INLINE void stream_candidates(lane_reservoirs_t *r, const shading_t *s, _
  * drawn each frame), the others drawn from the Phong mixture, POOL_LANES at a time (a block
  * holds both kinds: every lane draws both directions and keeps its own), each weighted by
  * stream_candidates; one is kept with probability ∝ its weight.  W = Σ weights / p̂(kept),
- * c = M.  *effective gets the candidates with a positive cosine. */
+ * c = M. */
 ALWAYS_INLINE reservoir_t initial_reservoir(const shading_t *s, int p, __global const float4 *env, int res,
                                             __global const float *pyramid, __global const float *presamples,
                                             int presample_count, int tiles, int tile_size,
                                             int light_count, int brdf_count, int chain, uint seed,
-                                            uint frame, __global const uint *visibility, int *effective)
+                                            uint frame, __global const uint *visibility)
 {
-    lane_reservoirs_t r = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f,
-                           (lane_ints_t)0};
+    lane_reservoirs_t r = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f};
     philox4x32_ctr_t pick = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, (uint)chain);
     int first = (int)(pick.v[0] & (uint)(tiles - 1)) * tile_size, top, count = light_count + brdf_count;
     descent_levels(res, &top);
@@ -218,12 +218,12 @@ ALWAYS_INLINE reservoir_t initial_reservoir(const shading_t *s, int p, __global 
     float total = 0.0f;
     for (int k = 0; k < POOL_LANES; ++k) total += sums[k];
     int chosen = pick_by_weight(sums, POOL_LANES, total, rng_unit(pick.v[1]));
-    *effective = int_sum_of8(to8(r.effective));
     reservoir_t out = {vec3(0.0f, 0.0f, 1.0f), 0.0f, (float)(light_count + brdf_count), 0.0f};
     if (chosen >= 0 && total > 0.0f && isfinite(total)) {
         out.w = vec3(xs[chosen], ys[chosen], zs[chosen]);
         out.target = targets[chosen];
-        out.weight = total / out.target;
+        float weight = total / out.target;
+        out.weight = isfinite(weight) ? weight : 0.0f;
     }
     return out;
 }
@@ -265,9 +265,12 @@ ALWAYS_INLINE reservoir_t combine_reservoirs(const reservoir_t *r, const float *
     if (chosen >= 0 && isfinite(total)) {
         out.w = r[chosen].w;
         out.target = targets[chosen];
-        float normaliser = 0.0f;   /* Z(ω) of the biased combination */
-        for (int j = 0; j < n; ++j) normaliser += targets[j * n + chosen] > 0.0f ? r[j].confidence : 0.0f;
-        float weight = total / (out.target * (unbiased ? 1.0f : normaliser));
+        float normaliser = 1.0f;   /* Z(ω) of the biased combination */
+        if (!unbiased) {
+            normaliser = 0.0f;
+            for (int j = 0; j < n; ++j) normaliser += targets[j * n + chosen] > 0.0f ? r[j].confidence : 0.0f;
+        }
+        float weight = total / (out.target * normaliser);
         out.weight = isfinite(weight) ? weight : 0.0f;
     }
     return out;
@@ -279,7 +282,7 @@ ALWAYS_INLINE reservoir_t combine_reservoirs(const reservoir_t *r, const float *
  * frame's map (prev_env), so a map that changed, or switched, keeps the estimator unbiased; each
  * domain's target scaled by the pixel's restir_target_scales under its map (`scales`, `prev_scales`).  Chain c of pixel
  * p is slot c·n + p of the reservoir buffers (n = global size).  stats[p] gets (evaluations,
- * effective candidates, ·, shadow rays: the evaluations with V), summed over the chains. */
+ * ·, ·, shadow rays: the evaluations with V), summed over the chains. */
 __kernel void restir_initial_temporal(__global const float4 *normal, __global const float4 *view,
                                       __global const float4 *kd, __global const float4 *ks_m,
                                       __global const uint *visibility, __global const float4 *env,
@@ -293,21 +296,19 @@ __kernel void restir_initial_temporal(__global const float4 *normal, __global co
                                       __global const float4 *history_info, __global float4 *out_sample,
                                       __global float4 *out_info, __global float4 *stats)
 {
-    int p = get_global_id(0), n = get_global_size(0), effective = 0;
+    int p = get_global_id(0), n = get_global_size(0);
     shading_t s = load_shading(normal, view, kd, ks_m, p);
-    float domain_scales[2] = {scales[p], prev_scales[p]};
-    /* The history's confidence scaled by min(Z̃_t/Z̃_{t−1}, Z̃_{t−1}/Z̃_t) (restir.py): a map that
-     * lost or gained most of the pixel's light leaves the history few samples where the light now
-     * is; none where either map is black to the pixel. */
-    float history_share = scales[p] > 0.0f && prev_scales[p] > 0.0f
-                          ? min(prev_scales[p] / scales[p], scales[p] / prev_scales[p]) : 0.0f;
+    /* Last frame's scale is read only where there is a last frame (`temporal`).  The history's
+     * confidence is scaled by min(Z̃_t/Z̃_{t−1}, Z̃_{t−1}/Z̃_t) (restir.py): a map that lost or
+     * gained most of the pixel's light leaves the history few samples where the light now is;
+     * none where either map is black to the pixel. */
+    float domain_scales[2] = {scales[p], temporal ? prev_scales[p] : 0.0f};
+    float history_share = domain_scales[0] > 0.0f && domain_scales[1] > 0.0f
+                          ? min(domain_scales[1] / domain_scales[0], domain_scales[0] / domain_scales[1]) : 0.0f;
     float evaluations = 0.0f, shadow_rays = 0.0f;
     for (int c = 0; c < chains; ++c) {
-        int chain_effective;
         reservoir_t current = initial_reservoir(&s, p, env, res, pyramid, presamples, presample_count, tiles,
-                                                tile_size, light_count, brdf_count, c, seed, frame, visibility,
-                                                &chain_effective);
-        effective += chain_effective;
+                                                tile_size, light_count, brdf_count, c, seed, frame, visibility);
         evaluations += (float)(light_count + brdf_count);
         shadow_rays += (float)(light_count + brdf_count);
         if (temporal) {
@@ -324,7 +325,7 @@ __kernel void restir_initial_temporal(__global const float4 *normal, __global co
         }
         store_reservoir(out_sample, out_info, c * n + p, current);
     }
-    stats[p] = (float4)(evaluations, (float)effective, 0.0f, shadow_rays);
+    stats[p] = (float4)(evaluations, 0.0f, 0.0f, shadow_rays);
 }
 
 /* Neighbour j of chain c of pixel p (image position `at` of a width × height image): a pixel

@@ -7,14 +7,15 @@ between frames, and RTXDI's environment presampling.  Kernels ``restir.cl``.
 The target of a pixel at frame t is p̂_t = L_Y·ρ_Y·cos⁺·V (luminance of the map's radiance
 times luminance of the Phong BRDF times the cosine, times the pixel's visibility where the
 scene has masks: sir.cl's γ with V).  Each of the pixel's ``spp`` *chains* is one reservoir
-carried from frame to frame and shaded once; the chains are independent (their own random
-streams, and spatial reuse within a chain), so the frame's estimate, their mean, has 1/spp of
-one chain's variance.  Per frame and chain:
+carried from frame to frame and shaded once; the chains are independent given the frame's
+presamples (their own random streams, and spatial reuse within a chain; they share the
+presamples, and two chains pick the same tile with probability 1/``tiles``), so the frame's
+estimate, their mean, has about 1/spp of one chain's variance.  Per frame and chain:
 
 1. **Presampling** (RTXDI's environment presampling): ``tiles`` tiles of ``tile_size`` light
    directions per frame, drawn by descent through the frame's luminance pyramid (the frame
-   cache's ``weight_pyramid``, the one ``hierarchical`` builds and samples: hierarchical.cl's
-   exact fixed-point descent), each stored with its density p_L.  Only the pyramid, the
+   cache's ``weight_pyramid``, the one ``hierarchical`` builds and samples: descent.cl's exact
+   fixed-point descent), each stored with its density p_L.  Only the pyramid, the
    presamples and the pixels' target scales (step 3) are rebuilt per frame.
 2. **Initial RIS** (Talbot 2005; Bitterli Alg. 3): M = ``candidates`` candidates,
    M_B = round(``brdf_share``·M) from the Phong mixture and M_L = M − M_B read uniformly from one
@@ -55,7 +56,7 @@ one chain's variance.  Per frame and chain:
        8 at 1000 seeds without it and ≤ 3.0 with it; and where the light came on (frames 10-16)
        a pixel that sees it at grazing (n·ω = 0.04, whose coarse cell's centre is well above the
        horizon, so Z̃ overrates its light) kept 7% too little of it (|z| 6-7, light candidates
-       only), since the history (c' = 160 against M = 8) held 6% of the responsibility for the
+       only, at cap 20), since the history (c' = 160 against M = 8) held 6% of the responsibility for the
        light it never sampled; scaled both ways, ≤ 3.7.  With ``sphere-switch``'s 30 frames at
        2000 seeds, the largest pixel |z| is 0.70 of the Šidák bound (tests/test_restir.py).
      Cost: p̂_t at ω' and p̂_{t−1} at ω (2 evaluations; p̂_{t−1}(ω') is stored).
@@ -80,9 +81,10 @@ one chain's variance.  Per frame and chain:
 Budget.  ``spp`` = chains, each shading one sample (``used`` = spp; ``effective``: the chains
 whose kept sample has a positive cosine).  ``evaluations`` (per pixel, mean) counts every
 evaluation of p̂, its support test or f: spp·(M + 2 (temporal) + (k+1)k (spatial) + 1);
-``shadow_rays`` those with V (the biased mode's support tests have none).  Extras:
-``neighbours`` (mean neighbours reused a chain), ``confidence`` (mean c of the final reservoirs
-in units of M: the history a chain carries).  One chain does not converge with M: even with
+``shadow_rays`` those with V (the biased mode's neighbour targets have none).  Extras:
+``neighbours`` (mean neighbours reused a chain), ``confidence`` (mean c of the shaded reservoirs
+in units of M: the history a chain carries and its neighbours' confidence; the history alone
+where ``neighbours`` is 0).  One chain does not converge with M: even with
 M → ∞ its kept sample is distributed ∝ p̂ and f/p̂ (the map's colour over its luminance) keeps a
 variance, which is why the budget counts chains.
 
@@ -145,9 +147,10 @@ import pyopencl as cl
 from iblbench.estimators.base import Estimate, Estimator, Setting, Tags, read_estimate, specular_lobe_defines
 from iblbench.estimators.runtime.device import event_ms
 
-MAX_SPP = 1024          # reservoir chains a pixel: 2 × 32 bytes each of history, and of pass 1
+MAX_SPP = 1024          # reservoir chains a pixel: 32 bytes of each of two frames' reservoirs
 MAX_CANDIDATES = 4096
 MAX_NEIGHBOURS = 8   # restir.cl's bound of k
+MIN_TILE = 16        # presamples are drawn in whole blocks of POOL_LANES (at most 16) lanes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -205,7 +208,7 @@ class ReSTIR(Estimator):
         p = self.params
         if not 1 <= p.candidates <= MAX_CANDIDATES or not 0.0 <= p.brdf_share <= 1.0 or not p.history_cap >= 0.0 \
                 or not 0 <= p.neighbours <= MAX_NEIGHBOURS or not p.radius >= 1.0 \
-                or not _power_of_two(p.tiles) or not _power_of_two(p.tile_size):
+                or not _power_of_two(p.tiles) or not _power_of_two(p.tile_size) or p.tile_size < MIN_TILE:
             raise ValueError(f"invalid restir parameters {p}")
         self.tags = dataclasses.replace(type(self).tags, unbiased=bool(p.unbiased))
         self._buffers = {}
@@ -233,8 +236,7 @@ class ReSTIR(Estimator):
     def _pixel_maps(self, compute, gbuffer) -> tuple:
         """(each launched pixel's image index, each image position's pixel or −1, depths), on the
         device, made once per G-buffer."""
-        key = ("pixels", id(gbuffer))
-        if self._buffers.get("pixels_key") != key:
+        if self._buffers.get("pixels_of") is not gbuffer:   # held, so no later G-buffer takes its id
             index = np.concatenate([gbuffer.pixel_index, np.repeat(gbuffer.pixel_index[-1:],
                                                                    gbuffer.launch_size - gbuffer.count)])
             at = np.full(gbuffer.shape[0] * gbuffer.shape[1], -1, np.int32)
@@ -243,7 +245,7 @@ class ReSTIR(Estimator):
             depth = np.concatenate([depth, np.repeat(depth[-1:], gbuffer.launch_size - gbuffer.count)])
             self._buffers["pixel_maps"] = tuple(compute.to_device(a) for a in
                                                 (index.astype(np.int32), at, depth.astype(np.float32)))
-            self._buffers["pixels_key"] = key
+            self._buffers["pixels_of"] = gbuffer
         return self._buffers["pixel_maps"]
 
     def render(self, gbuffer, cache, spp, seed) -> Estimate:
@@ -251,7 +253,7 @@ class ReSTIR(Estimator):
             raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
         compute, p, res = cache.compute, self.params, cache.res
         light_count, brdf_count = self.candidate_split()
-        key = (id(gbuffer), gbuffer.count, res, int(seed), int(spp))
+        key = (gbuffer, res, int(seed), int(spp))   # the G-buffer itself (compared by identity), held
         temporal = p.temporal and key == self._key
         self._key = key
         n, chains = gbuffer.launch_size, int(spp)
@@ -262,7 +264,7 @@ class ReSTIR(Estimator):
         presample_count = p.tiles * p.tile_size
         presamples = buffer("presamples", 4 * 4 * presample_count)
         lanes = compute.pool_lanes
-        # Histories alternate: this frame's final reservoirs (and map, and its power) go where last
+        # Histories alternate: this frame's reservoirs (and map, and target scales) go where last
         # frame's are not.
         parity, self._parity = self._parity, 1 - self._parity
         scales, previous_scales = buffer(f"scales{parity}", n * 4), buffer(f"scales{1 - parity}", n * 4)
@@ -279,7 +281,8 @@ class ReSTIR(Estimator):
         pixel_index, pixel_at, depth = self._pixel_maps(compute, gbuffer)
         events = [
             gbuffer.run(compute, kernel("restir_initial_temporal"), *surface, cache.env_buffer, previous_env,
-                        pyramid.buffer, presamples, scales, previous_scales, np.int32(res), np.int32(presample_count), np.int32(p.tiles),
+                        pyramid.buffer, presamples, scales, previous_scales, np.int32(res),
+                        np.int32(presample_count), np.int32(p.tiles),
                         np.int32(p.tile_size), np.int32(light_count), np.int32(brdf_count), np.int32(chains),
                         np.int32(temporal), np.float32(p.history_cap),
                         np.uint32(seed), np.uint32(cache.frame), *history, *new_history, stats),
@@ -287,10 +290,11 @@ class ReSTIR(Estimator):
                         pixel_index, pixel_at, depth, np.int32(gbuffer.shape[1]), np.int32(gbuffer.shape[0]),
                         np.int32(p.neighbours), np.float32(p.radius), np.int32(chains), np.int32(p.unbiased),
                         np.uint32(seed), np.uint32(cache.frame), *new_history, scales, radiance, counts,
-                        stats),
-            # This frame's map, p̂_{t−1}'s for the next frame: a device copy.
-            cl.enqueue_copy(compute.queue, this_env, cache.env_buffer, byte_count=cache.env_buffer.size)]
-        events[-1].wait()
+                        stats)]
+        if p.temporal:   # this frame's map, p̂_{t−1}'s for the next frame: a device copy
+            events.append(cl.enqueue_copy(compute.queue, this_env, cache.env_buffer,
+                                          byte_count=cache.env_buffer.size))
+            events[-1].wait()
         st = compute.to_host(stats, (n, 4), np.float32)[:gbuffer.count]
         estimate = read_estimate(compute, gbuffer, radiance, counts, float(st[:, 0].mean()),
                                  {"sample": sum(map(event_ms, sample_events)),

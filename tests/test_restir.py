@@ -103,3 +103,52 @@ def test_eye_depths_are_distances_to_the_camera(compute):
     depths = eye_depths(DeviceGBuffer(compute, gb))
     expected = np.linalg.norm(gb.position[gb.mask] - np.asarray(scene.camera.eye), axis=1)
     np.testing.assert_allclose(depths, expected, rtol=1e-4)
+
+
+def _masked(gb, open_share=0.7, seed=3):
+    """``gb`` with random visibility masks of 2² cells a face."""
+    cells = np.random.default_rng(seed).random(gb.shape + (24,)) < open_share
+    return dataclasses.replace(gb, visibility=visibility.pack_bits(cells), visibility_res=2)
+
+
+def test_evaluations_and_shadow_rays_count_what_the_docstring_says(compute):
+    """Without neighbours: a first frame evaluates M candidates and the shading a chain, a
+    continuing one two targets more; the shadow rays are the evaluations less the shading with
+    masks, 0 without."""
+    env = smooth_map()
+    caches = [FrameCache(compute, env, t) for t in range(2)]
+    for cache in caches:
+        cache.require(ReSTIR.requires)
+    spp, m = 3, ReSTIR().params.candidates
+    for gb in (glossy_gbuffer(), _masked(glossy_gbuffer())):
+        gbuffer, estimator = DeviceGBuffer(compute, gb), ReSTIR(neighbours=0)
+        first, second = (estimator.render(gbuffer, cache, spp, 1) for cache in caches)
+        assert (first.evaluations, second.evaluations) == (spp * (m + 1), spp * (m + 3))
+        masked = gb.visibility is not None
+        assert (first.shadow_rays, second.shadow_rays) == ((spp * m, spp * (m + 2)) if masked else (0, 0))
+
+
+def test_a_new_seed_spp_or_gbuffer_starts_without_history(compute):
+    """Reuse carries over only within one (G-buffer, face size, seed, spp): after a frame of
+    another, a render equals a fresh instance's."""
+    env = smooth_map()
+    caches = [FrameCache(compute, env, t) for t in range(2)]
+    for cache in caches:
+        cache.require(ReSTIR.requires)
+    small, large = DeviceGBuffer(compute, glossy_gbuffer(4)), DeviceGBuffer(compute, glossy_gbuffer(8))
+    for before, after in (((small, 2, 1), (small, 2, 2)), ((small, 2, 1), (small, 3, 1)),
+                          ((small, 2, 1), (large, 2, 1))):
+        estimator = ReSTIR()
+        estimator.render(before[0], caches[0], before[1], before[2])
+        carried = estimator.render(after[0], caches[1], after[1], after[2]).radiance
+        fresh = ReSTIR().render(after[0], caches[1], after[1], after[2]).radiance
+        assert np.array_equal(carried, fresh)
+    estimator = ReSTIR()                                   # the same key does carry it
+    estimator.render(small, caches[0], 2, 1)
+    assert not np.array_equal(estimator.render(small, caches[1], 2, 1).radiance,
+                              ReSTIR().render(small, caches[1], 2, 1).radiance)
+
+
+def test_presample_tiles_smaller_than_a_block_of_lanes_are_refused():
+    with pytest.raises(ValueError):
+        ReSTIR(tile_size=8)

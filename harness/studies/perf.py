@@ -143,19 +143,21 @@ evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``byt
         D 1, add_samples 18; per pixel brdf's 103 and the lod shift ½·log2(R²/4N) 20 (its
         library log2 counted as the polynomial's 16); bytes as brdf's (the mip chain, 4/3 of
         the map, taken as cache-resident like the map)
-    restir         140   288 / 352  1590 / 256
-        the mean of a default chain's 16 evaluations: 8 candidates in one block of lanes, 204
-        each (every lane draws a BRDF direction 107 beside its presample's; n·ω 5, lobe power
-        41, the texel of ω 20, Y(L) 5, ρ_Y 3, p̂ 2, the light and BRDF densities 12, the weight
-        6, the reservoir update 3), and 8 reuse targets, 76 (scalar p̂: n·ω 5, lobe power 41,
-        texel 20, Y(L) 5, ρ_Y 3, products 2); F_s is a chain's (a shaded sample's) rest: the lanes' merge 50, the
-        temporal combination 27, two neighbours found 80 (disc point, sincos_turn, normal and
-        depth tests), the spatial combination 49, the shading 82; B_s: its reservoirs, 32 B
-        each, written twice and read four times (history, own, two neighbours), and two
-        neighbours' shading, 160 B; per pixel the shading loaded in three kernels 72 and its
-        target scale over 24 coarse cells, 63 each (direction 12, n·ω 5, lobe power 41, ρ_Y 3,
-        products 2), 1512, and the power 6; bytes: the G-buffer read three times, 192, scales,
-        radiance, counts and stats out, 64 (presamples, maps and pyramid cache-resident)
+    restir         137   206 / 352  1590 / 252
+        the mean of a default chain's 17 evaluations (``Estimate.evaluations``): 8 candidates in
+        one block of lanes, 204 each (every lane draws a BRDF direction 107 beside its
+        presample's; n·ω 5, lobe power 41, the texel of ω 20, Y(L) 5, ρ_Y 3, p̂ 2, the light and
+        BRDF densities 12, the weight 6, the reservoir update 3), 8 reuse targets, 76 (scalar p̂:
+        n·ω 5, lobe power 41, texel 20, Y(L) 5, ρ_Y 3, products 2), and the shading, 82 (n·ω 5,
+        lobe power 41, texel 20, phong_value 7, f·W 6, sum 3); F_s is the rest of a chain (a
+        shaded sample): the lanes' merge 50, the temporal combination 27, two neighbours found 80
+        (disc point, sincos_turn, normal and depth tests), the spatial combination 49; B_s: its
+        reservoirs, 32 B each, written once and read four times (history, own, two neighbours),
+        and two neighbours' shading, 192 B; per pixel the shading loaded in three kernels 72 and
+        its target scale over 24 coarse cells, 63 each (direction 12, n·ω 5, lobe power 41, ρ_Y
+        3, products 2), 1512, and the power 6; bytes: the G-buffer read three times, 192, the
+        scale (4) and stats (16) written and read back, radiance (16) and counts (8) out, 60
+        (presamples, maps and pyramid cache-resident)
     product       1500     0 / 0     142 / 88
         hierarchical's descent with each choice's children weighed by the pixel's BRDF·cos
         bound over the child's cone (product.cl's weigher: per child its centre and extents 12,
@@ -255,7 +257,7 @@ KERNEL_COSTS = {
     "envmap": KernelCost(115, 0, 0, 76, 88),
     "hierarchical": KernelCost(182, 0, 0, 95, 88),
     "fis": KernelCost(223, 0, 0, 123, 88),
-    "restir": KernelCost(140, 288, 352, 1590, 256),
+    "restir": KernelCost(137, 206, 352, 1590, 252),
     "product": KernelCost(1500, 0, 0, 142, 88),
 }
 
