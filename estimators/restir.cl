@@ -2,16 +2,18 @@
  * et al. 2020) with generalised RIS weights (Lin et al. 2022); the algorithm, its MIS weights and
  * its deviations are documented in restir.py.  Kernels per frame:
  *   restir_presample        the frame's tiles of light presamples, drawn by hierarchical.cl's
- *                           descent through the luminance pyramid (RTXDI's environment presampling);
- *   restir_initial_temporal each pixel's initial RIS over M candidates (light candidates from one
- *                           tile, BRDF candidates), combined with its reservoir of last frame;
- *   restir_spatial_shade    each pixel's reservoir combined with k neighbours' (from the temporal
- *                           pass's buffers), stored as next frame's history, and shaded.
+ *                           light sampler (descent.cl's descent through the luminance pyramid;
+ *                           RTXDI's environment presampling);
+ *   restir_target_scales    each pixel's MIS scale 1/Z̃ under the frame's map;
+ *   restir_initial_temporal each chain's initial RIS over M candidates (light candidates from one
+ *                           tile, BRDF candidates), combined with its reservoir of last frame: the
+ *                           result is the next frame's history;
+ *   restir_spatial_shade    each chain's reservoir combined with k neighbours' (of pass 1), and
+ *                           shaded.
  * A reservoir is two float4s: (ω, W) and (c, p̂, ·, ·): its sample, its unbiased contribution
  * weight W, its confidence c (the candidates behind it) and p̂ of its own pixel at ω under the
  * frame's map (the next frame's p̂_{t−1}(ω), no re-evaluation under the old map). */
-/* The target p̂ = L_Y·ρ_Y·cos⁺·V (sir.cl's γ with V). */
-#define SIR_TARGET_VISIBILITY 1
+/* sir.cl's map lookup and BRDF luminance (its γ with V is restir_target). */
 #include "sir.cl"
 #include "hierarchical.cl"
 
@@ -46,7 +48,7 @@ ALWAYS_INLINE void store_reservoir(__global float4 *sample, __global float4 *inf
     info[p] = (float4)(r.confidence, r.target, 0.0f, 0.0f);
 }
 
-/* p̂ without V (the biased combination's support test). */
+/* p̂ without V (the biased mode's neighbour targets). */
 ALWAYS_INLINE float target_without_visibility(const shading_t *s, __global const float4 *env, int res, vec3_t w)
 {
     float cosine = vec3_dot(s->n, w);
@@ -54,12 +56,11 @@ ALWAYS_INLINE float target_without_visibility(const shading_t *s, __global const
                          : 0.0f;
 }
 
-/* p̂ of a pixel of shading s at w under the map env (V from pixel p's mask). */
+/* p̂ = L_Y·ρ_Y·cos⁺·V of a pixel of shading s at w under the map env (V from pixel p's mask). */
 ALWAYS_INLINE float restir_target(const shading_t *s, __global const float4 *env, int res, vec3_t w,
                                   __global const uint *visibility, int p)
 {
-    vec3_t radiance;
-    return sir_target(s, env, res, w, phong_lobe_power(s->r, w, s->m), &radiance, visibility, p);
+    return visible(visibility, p, w) ? target_without_visibility(s, env, res, w) : 0.0f;
 }
 
 /* The frame's presamples: `tiles` × tile_size light directions by the pyramid's descent, as planes
