@@ -124,7 +124,7 @@ reuse 0.036 on blob-minutes and static sphere-studio, 0.046 on sphere-studio-mov
   sphere-studio, spatial reuse alone: 0.044 at radius 16, 0.034 at 4, 0.025 at 2).
 - The spatially reused reservoir is shaded but not kept (Bitterli and RTXDI keep it): kept, its
   neighbours' shared samples came back every frame as if independent (static sphere-studio,
-  radius 2, cap 20: 0.014 at frame 8 kept, 0.0083 not).
+  radius 2, cap 20: 0.015 at frame 8 kept, 0.0083 not).
 Measured with a session script over ``restir.render`` (the note of issue 24 gives the commands).
 
 Deviations.  From RTXDI: a cube map's luminance pyramid instead of its octahedral
