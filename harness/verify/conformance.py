@@ -513,10 +513,10 @@ def check_unbiased_over_frames(estimator, h: Harness) -> None:
     for seed in range(SEQUENCE_SEEDS):
         estimator.reset()
         for t, cache in enumerate(caches):
-            samples[seed, t] = estimator.render(gbuffer, cache, 4, seed).radiance.reshape(-1, 3)
+            samples[seed, t] = estimator.render(gbuffer, cache, 4, seed).radiance[gbuffer.gbuffer.mask]
     failures = []
     for t, cache in enumerate(caches):
-        test = bias_test(samples[:, t], h.reference(gbuffer, cache).reshape(-1, 3))
+        test = bias_test(samples[:, t], h.reference(gbuffer, cache)[gbuffer.gbuffer.mask])
         if np.abs(test.pooled_z).max() >= sidak_z(3 * len(caches)):
             failures.append(f"frame {t}: image mean z = {np.round(test.pooled_z, 2)}")
         if np.abs(test.pixel_z).max() >= sidak_z(test.pixel_z.size * len(caches)):
