@@ -30,12 +30,12 @@ estimate, their mean, has about 1/spp of one chain's variance.  Per frame and ch
    candidates of one tile may repeat a presample (RTXDI's argument).
 3. **Temporal reuse** (``temporal``): the chain's reservoir of frame t−1's step 3 (ω', W', c'), c'
    capped at ``history_cap``·M (RTXDI's M-cap; default 1, see "Choices"), is combined with the
-   initial one.  The geometry is
-   static, so the previous pixel is the pixel itself, and a direction to the map needs no shift
-   (identity, Jacobian 1).
+   initial one.  The geometry is static, so the previous pixel is the pixel itself, and a
+   direction to the map needs no shift (identity, Jacobian 1).
    - unbiased: GRIS's resampling weights w_i = m_i(ω_i)·p̂_t(ω_i)·W_i, W = Σ w / p̂_t(kept),
-     with the generalised balance heuristic with confidence weights: m_i(ω) = c_i s_i p̂_i(ω) / Σ_j c_j s_j p̂_j(ω), p̂_1 = p̂_t and p̂_2 = p̂_{t−1}
-     (the pixel's target under *last* frame's map, kept on the device).  The m_i sum to 1
+     with the generalised balance heuristic with confidence weights:
+     m_i(ω) = c_i s_i p̂_i(ω) / Σ_j c_j s_j p̂_j(ω), p̂_1 = p̂_t and p̂_2 = p̂_{t−1} (the pixel's
+     target under *last* frame's map, kept on the device).  The m_i sum to 1
      wherever p̂_t > 0 and m_2 = 0 wherever p̂_{t−1} = 0, so light that appears is found by the
      fresh candidates with full weight and light that vanishes gives the old sample weight 0.
      Two deterministic choices (any positive constants that do not depend on the samples keep
@@ -46,8 +46,8 @@ estimate, their mean, has about 1/spp of one chain's variance.  Per frame and ch
        densities p̂_i/∫p̂_i, not targets whose scales differ 100× across a switch.  8 × 8 cells
        (every texel of the test's 8² map) gave no better z on sphere-switch (frames 17-23, 1000
        seeds: pixel |z| ≤ 4.1 at 8², ≤ 3.9 at 4², ≤ 4.4 at 2²; the Šidák bound is 4.9) at 16× the
-       cost, which at one chain was most of a frame's.  With s_i = 1
-       the history kept 20/21 of the responsibility for the sky after a light went off while it
+       cost, which at one chain was most of a frame's.  With s_i = 1 the history kept 20/21 of
+       the responsibility for the sky after a light went off while it
        sampled the sky 0.6% of the time: sphere-switch's frame 20 was 8× too dark at some pixels
        over 400 seeds (heavy tails; unbiased in expectation);
      - the history's c' is scaled by min(Z̃_t/Z̃_{t−1}, Z̃_{t−1}/Z̃_t): a map that lost or gained
@@ -56,9 +56,10 @@ estimate, their mean, has about 1/spp of one chain's variance.  Per frame and ch
        8 at 1000 seeds without it and ≤ 3.0 with it; and where the light came on (frames 10-16)
        a pixel that sees it at grazing (n·ω = 0.04, whose coarse cell's centre is well above the
        horizon, so Z̃ overrates its light) kept 7% too little of it (|z| 6-7, light candidates
-       only, at cap 20), since the history (c' = 160 against M = 8) held 6% of the responsibility for the
-       light it never sampled; scaled both ways, ≤ 3.7.  With ``sphere-switch``'s 30 frames at
-       2000 seeds, the largest pixel |z| is 0.70 of the Šidák bound (tests/test_restir.py).
+       only, at cap 20), since the history (c' = 160 against M = 8) held 6% of the
+       responsibility for the light it never sampled; scaled both ways, ≤ 3.7.  With
+       ``sphere-switch``'s 30 frames at 2000 seeds, the largest pixel |z| is 0.70 of the Šidák
+       bound (tests/test_restir.py).
      Cost: p̂_t at ω' and p̂_{t−1} at ω (2 evaluations; p̂_{t−1}(ω') is stored).
    Both modes reuse the history so: the temporal inputs share the pixel's V, and GRIS's weights
    are what makes a map that changes safe.
