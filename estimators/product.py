@@ -30,7 +30,7 @@ class ProductParams:
     ``light_levels`` (default 0): the choices among the children of the ``light_levels`` finest
     pyramid levels (1: the texels; 0: none) are made by the light weights alone, as
     ``hierarchical``'s; the coarser ones (and the faces, unless ``light_levels`` passes the
-    pyramid's top) by the product.  At or beyond the pyramid's levels (log2 R + 1) every choice
+    pyramid's top) by the product.  At or beyond the pyramid's levels (⌈log2 R⌉ + 1) every choice
     is ``hierarchical``'s.
     """
 
@@ -127,7 +127,7 @@ class Product(Hierarchical):
     centre value misses a lobe off-centre), so the coarse choices send most samples to the
     lobe's neighbourhood and starve the diffuse term, which holds most of the integral.  With
     ``"capped"`` (16 spp): ``light_levels = 3`` changes relMSE by +0.5% to +6%;
-    ``heuristic = "balance"`` lowers it 6-9% (0.036 | 0.037 | 0.082); ``mis = "none"`` raises
+    ``heuristic = "balance"`` lowers it 6-10% (0.036 | 0.037 | 0.082); ``mis = "none"`` raises
     it 3-4× (0.16 | 0.17 | 0.25).  On the conformance fixture (m = 20, 16² pixels, 16 spp, 20
     seeds) the bound beat ``hierarchical`` with MIS: relative RMS error 0.135 vs 0.214 on a 1e3
     sun and 0.142 vs 0.153 on face_pattern_map (not re-measured with ``"capped"``).
@@ -140,7 +140,7 @@ class Product(Hierarchical):
     of it (the bound's and the centre's losses above).  Lobe and diffuse
     share one factor in luminance; kd and ks colours enter only through the estimate.
     Otherwise as ``hierarchical`` (point on a 2^16 grid in the texel, float density of up to
-    log2 R + 1 factors).
+    ⌈log2 R⌉ + 1 factors).
     """
 
     name = "product"

@@ -303,6 +303,7 @@ def test_a_frames_table_gives_scenes_their_own_frames(tmp_path, capsys):
     ('{ default = "some" }', "frames must be"),
     ("{ sphere-switch = 3 }", "frames for sphere-switch: frames must be"),
     ('{ sphere-switch = "0:9:0" }', "frames for sphere-switch: frames slice step must not be zero"),
+    ('{ sphere-switch = "0:2", SPHERE-SWITCH = [1, 2] }', "frames for sphere-switch: given twice"),
 ])
 def test_a_bad_frames_table_names_the_problem(tmp_path, frames, needle):
     text = PER_SCENE.replace('{ default = "0:2", SPHERE-SWITCH = "10:12" }', frames)

@@ -486,8 +486,13 @@ def parse_scene_frames(value) -> tuple[Any, tuple[tuple[str, Any], ...]]:
                 raise
             raise ValueError(f"frames for {key}: {error}") from None
 
+    names = [str(key).lower() for key in table if key != "default"]
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise ValueError(f"frames for {twice[0]}: given twice (scene names ignore case)")
     return parsed("default", table.get("default", "all")), tuple(sorted(
-        (str(key).lower(), parsed(key, entry)) for key, entry in table.items() if key != "default"))
+        ((str(key).lower(), parsed(key, entry)) for key, entry in table.items() if key != "default"),
+        key=lambda pair: pair[0]))
 
 
 def parse_spp(value) -> tuple[tuple[int, ...], tuple[tuple[str, tuple[int, ...]], ...]]:
