@@ -80,6 +80,16 @@ __kernel void restir_presample(__global const float *pyramid, const int res, con
     vstore_lanes(pdf, 0, presamples + 3 * n + at);
 }
 
+/* The map's luminance power Σ Y·Ω: the pyramid's six face totals. */
+ALWAYS_INLINE float map_power(__global const float *pyramid, int res)
+{
+    int top;
+    descent_levels(res, &top);
+    float power = 0.0f;
+    for (int f = 0; f < 6; ++f) power += pyramid[top + f];
+    return power;
+}
+
 #define SCALE_CELLS 2   /* the coarsest pyramid level of at most 2 × 2 cells a face */
 
 /* The scale of pixel p's target under the frame's map in the MIS weights (restir.py): 1/Z̃, Z̃ a
@@ -92,13 +102,12 @@ __kernel void restir_target_scales(__global const float4 *normal, __global const
 {
     int p = get_global_id(0);
     shading_t s = load_shading(normal, view, kd, ks_m, p);
-    int top, levels = descent_levels(res, &top), level = 0;
+    int level = 0;
     while (level_size(res, level) > SCALE_CELLS) ++level;
     int n = level_size(res, level), offset = 0;
     for (int l = 0; l < level; ++l) offset += 6 * level_size(res, l) * level_size(res, l);
-    float total = 0.0f, power = 0.0f;
+    float total = 0.0f;
     for (int f = 0; f < 6; ++f) {
-        power += pyramid[top + f];
         for (int a = 0; a < n; ++a)
             for (int b = 0; b < n; ++b) {
                 vec3_t w = vec3_normalize(vec3_of(face_uv_to_dir(f, (float)(2 * b + 1) / (float)n - 1.0f,
@@ -110,7 +119,7 @@ __kernel void restir_target_scales(__global const float4 *normal, __global const
     }
     /* Clamped to float's normal range: a denormal or infinite Z̃ (1e30 texels) keeps a finite,
      * positive scale. */
-    float normaliser = total > 0.0f ? total : power;
+    float normaliser = total > 0.0f ? total : map_power(pyramid, res);
     scales[p] = normaliser > 0.0f ? 1.0f / clamp(normaliser, FLT_MIN, FLT_MAX) : 0.0f;
 }
 
@@ -138,14 +147,15 @@ typedef struct {
 /* Stream the lanes' candidates w (where `active`) into r.  Each is weighed by RIS with the
  * balance heuristic over the two candidate strategies (Talbot 2005; Veach's weights with counts):
  * w = m_s(ω)·p̂(ω)/p_s(ω), m_s = p̃_s / (M_L p̃_L + M_B p_B), with p_s the exact density of the
- * candidate's own strategy (`own`: a light candidate's presample density, the BRDF's mixture pdf)
+ * candidate's own strategy (a light candidate's presample density `presample_pdf`, the BRDF's
+ * mixture pdf)
  * and p̃_L the MIS weights' light density: the texel's share of the pyramid's total times the
  * point's Jacobian (the density of the descent but for its fixed-point rounding, one load where
  * the exact density re-descends the pyramid).  The m_s are a partition of unity whatever p̃_L is,
  * so the weights stay RIS's; a candidate is kept with probability weight/sum by the uniforms u. */
 ALWAYS_INLINE void stream_candidates(lane_reservoirs_t *r, const shading_t *s, __global const float4 *env,
                                      __global const float *pyramid, float inverse_total, int res, lanes3_t w,
-                                     lanes_t own, lane_ints_t is_light, lane_ints_t active, float light_count,
+                                     lanes_t presample_pdf, lane_ints_t is_light, lane_ints_t active, float light_count,
                                      float brdf_count, lanes_t u, __global const uint *visibility, int p)
 {
     lanes_t cosine = lanes_dot(s->n, w);
@@ -160,6 +170,7 @@ ALWAYS_INLINE void stream_candidates(lane_reservoirs_t *r, const shading_t *s, _
     lanes_t target = select((lanes_t)0.0f, luminance * rho * cosine, counted & lanes_visible(visibility, p, w));
     lanes_t pdf_light = GATHER(lanes_t, pyramid, texel) * inverse_total * jacobian * (float)(res * res) * 0.25f;
     lanes_t pdf_brdf = phong_mixture_pdf_lanes(s->p_spec, s->m, cosine, power);
+    lanes_t own = select(pdf_brdf, presample_pdf, is_light);
     lanes_t weight = target * select(pdf_brdf, pdf_light, is_light) / (own * (light_count * pdf_light + brdf_count * pdf_brdf));
     weight = select((lanes_t)0.0f, weight, (target > 0.0f) & (own > 0.0f) & isfinite(weight));
     r->sum += weight;
@@ -179,16 +190,12 @@ ALWAYS_INLINE void stream_candidates(lane_reservoirs_t *r, const shading_t *s, _
 ALWAYS_INLINE reservoir_t initial_reservoir(const shading_t *s, int p, __global const float4 *env, int res,
                                             __global const float *pyramid, __global const float *presamples,
                                             int presample_count, int tiles, int tile_size,
-                                            int light_count, int brdf_count, int chain, uint seed,
-                                            uint frame, __global const uint *visibility)
+                                            int light_count, int brdf_count, float inverse_total, int chain,
+                                            uint seed, uint frame, __global const uint *visibility)
 {
     lane_reservoirs_t r = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f};
     philox4x32_ctr_t pick = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, (uint)chain);
-    int first = (int)(pick.v[0] & (uint)(tiles - 1)) * tile_size, top, count = light_count + brdf_count;
-    descent_levels(res, &top);
-    float power = 0.0f;
-    for (int f = 0; f < 6; ++f) power += pyramid[top + f];
-    float inverse_total = power > 0.0f ? 1.0f / power : 0.0f;
+    int first = (int)(pick.v[0] & (uint)(tiles - 1)) * tile_size, count = light_count + brdf_count;
     __global const float *planes = presamples + first;
     vec3_t t_n, b_n, t_r, b_r;
     direction_about_axis_basis(s->n, &t_n, &b_n);
@@ -203,10 +210,8 @@ ALWAYS_INLINE reservoir_t initial_reservoir(const shading_t *s, int p, __global 
         lanes3_t brdf = lanes_brdf_draw(s, t_n, b_n, t_r, b_r, seed, frame, (uint)p, chain * count + draw);
         lanes3_t w = make_lanes3(select(brdf.x, light.x, is_light), select(brdf.y, light.y, is_light),
                                  select(brdf.z, light.z, is_light));
-        lanes_t own = select(phong_mixture_pdf_lanes(s->p_spec, s->m, lanes_dot(s->n, w),
-                                                     phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m)),
-                             GATHER(lanes_t, planes + 3 * presample_count, slot), is_light);
-        stream_candidates(&r, s, env, pyramid, inverse_total, res, w, own, is_light, draw < count,
+        stream_candidates(&r, s, env, pyramid, inverse_total, res, w, GATHER(lanes_t, planes + 3 * presample_count, slot),
+                          is_light, draw < count,
                           (float)light_count, (float)brdf_count, lanes_unit(xi.v[1]), visibility, p);
     }
     /* The lanes' reservoirs merged: lane k with probability ∝ its sum (Bitterli Alg. 4, one target). */
@@ -306,10 +311,12 @@ __kernel void restir_initial_temporal(__global const float4 *normal, __global co
     float domain_scales[2] = {scales[p], temporal ? prev_scales[p] : 0.0f};
     float history_share = domain_scales[0] > 0.0f && domain_scales[1] > 0.0f
                           ? min(domain_scales[1] / domain_scales[0], domain_scales[0] / domain_scales[1]) : 0.0f;
-    float evaluations = 0.0f, shadow_rays = 0.0f;
+    float evaluations = 0.0f, shadow_rays = 0.0f, power = map_power(pyramid, res);
+    float inverse_total = power > 0.0f ? 1.0f / power : 0.0f;   /* the MIS weights' light density's */
     for (int c = 0; c < chains; ++c) {
         reservoir_t current = initial_reservoir(&s, p, env, res, pyramid, presamples, presample_count, tiles,
-                                                tile_size, light_count, brdf_count, c, seed, frame, visibility);
+                                                tile_size, light_count, brdf_count, inverse_total, c, seed, frame,
+                                                visibility);
         evaluations += (float)(light_count + brdf_count);
         shadow_rays += (float)(light_count + brdf_count);
         if (temporal) {

@@ -146,7 +146,7 @@ import numpy as np
 import pyopencl as cl
 
 from iblbench.estimators.base import Estimate, Estimator, Setting, Tags, read_estimate, specular_lobe_defines
-from iblbench.estimators.runtime.device import event_ms
+from iblbench.estimators.runtime.device import KeptBuffers, event_ms
 
 MAX_SPP = 1024          # reservoir chains a pixel: 32 bytes of each of two frames' reservoirs
 MAX_CANDIDATES = 4096
@@ -212,19 +212,13 @@ class ReSTIR(Estimator):
                 or not _power_of_two(p.tiles) or not _power_of_two(p.tile_size) or p.tile_size < MIN_TILE:
             raise ValueError(f"invalid restir parameters {p}")
         self.tags = dataclasses.replace(type(self).tags, unbiased=bool(p.unbiased))
-        self._buffers = {}
+        self._buffers = KeptBuffers()
+        self._maps_of = (None, None)   # (a G-buffer, held: no later one takes its id; its pixel maps)
         self.reset()
 
     def reset(self) -> None:
         self._key = None
         self._parity = 0
-
-    def _buffer(self, compute, name: str, nbytes: int) -> cl.Buffer:
-        """Device buffer ``name`` of at least ``nbytes``, kept across frames and resets."""
-        kept = self._buffers.get(name)
-        if kept is None or kept.size < nbytes or kept.context != compute.context:
-            kept = self._buffers[name] = compute.empty(nbytes)
-        return kept
 
     def defines(self, gbuffer=None) -> dict:
         return specular_lobe_defines(gbuffer)
@@ -237,17 +231,16 @@ class ReSTIR(Estimator):
     def _pixel_maps(self, compute, gbuffer) -> tuple:
         """(each launched pixel's image index, each image position's pixel or −1, depths), on the
         device, made once per G-buffer."""
-        if self._buffers.get("pixels_of") is not gbuffer:   # held, so no later G-buffer takes its id
+        if self._maps_of[0] is not gbuffer:
             index = np.concatenate([gbuffer.pixel_index, np.repeat(gbuffer.pixel_index[-1:],
                                                                    gbuffer.launch_size - gbuffer.count)])
             at = np.full(gbuffer.shape[0] * gbuffer.shape[1], -1, np.int32)
             at[gbuffer.pixel_index] = np.arange(gbuffer.count, dtype=np.int32)
             depth = eye_depths(gbuffer)
             depth = np.concatenate([depth, np.repeat(depth[-1:], gbuffer.launch_size - gbuffer.count)])
-            self._buffers["pixel_maps"] = tuple(compute.to_device(a) for a in
-                                                (index.astype(np.int32), at, depth.astype(np.float32)))
-            self._buffers["pixels_of"] = gbuffer
-        return self._buffers["pixel_maps"]
+            self._maps_of = (gbuffer, tuple(compute.to_device(a) for a in
+                                            (index.astype(np.int32), at, depth.astype(np.float32))))
+        return self._maps_of[1]
 
     def render(self, gbuffer, cache, spp, seed) -> Estimate:
         if not 1 <= spp <= MAX_SPP:
@@ -258,7 +251,7 @@ class ReSTIR(Estimator):
         temporal = p.temporal and key == self._key
         self._key = key
         n, chains = gbuffer.launch_size, int(spp)
-        buffer = functools.partial(self._buffer, compute)
+        buffer = functools.partial(self._buffers.get, compute)
         kernel = functools.partial(compute.kernel, self.kernel_package(), "restir.cl",
                                    defines={**self.defines(gbuffer), "BRDF_SAMPLES": 1})
         pyramid = cache.weight_pyramid(False)

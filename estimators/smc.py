@@ -131,11 +131,10 @@ import functools
 import math
 
 import numpy as np
-import pyopencl as cl
 
 from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, specular_lobe_defines
 from iblbench.estimators.bis import MAX_SPP, bis_chunks, run_lockstep
-from iblbench.estimators.runtime.device import event_ms
+from iblbench.estimators.runtime.device import KeptBuffers, event_ms
 
 MAP_CHANGE_GROUP = 64   # work items of map_change's one group (smc.cl), at most
 
@@ -186,17 +185,8 @@ class SMC(Estimator):
                 or not 0.0 <= p.reinit_map_ess <= 1.0 \
                 or not 0.0 <= p.init_env_pick <= 1.0:
             raise ValueError(f"invalid smc parameters {p}")
-        self._spare = {}
+        self._spare = KeptBuffers()
         self.reset()
-
-    def _buffer(self, compute, name: str, nbytes: int) -> cl.Buffer:
-        """The device buffer ``name`` of at least ``nbytes``, kept across frames and resets: every
-        kernel writes what it later reads of it, and fresh buffers (tens of MB of BIS scratch and
-        particles on an init frame) cost the kernels about a sixth of their time in page faults."""
-        kept = self._spare.get(name)
-        if kept is None or kept.size < nbytes or kept.context != compute.context:
-            kept = self._spare[name] = compute.empty(nbytes)
-        return kept
 
     def reset(self) -> None:
         self._key = None
@@ -222,7 +212,7 @@ class SMC(Estimator):
                                        or np.array_equal(cache.env, self._prev_host_env))
         self._prev_host_env = cache.env
         count = gbuffer.count
-        buffer = functools.partial(self._buffer, compute)
+        buffer = functools.partial(self._spare.get, compute)
         if not have_state:
             self._buffers = [buffer("particles", count * N * 16), buffer("gammas", count * N * 8),
                              buffer("scratch_p", count * N * 16), buffer("scratch_g", count * N * 8),

@@ -11,7 +11,8 @@ from iblbench.estimators.restir import ReSTIR, eye_depths
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference
-from iblbench.harness.verify.conformance import SUN_FACE, bias_test, glossy_gbuffer, same_pixels, sidak_z, smooth_map, sun_map
+from iblbench.harness.verify.conformance import (SUN_FACE, bias_test, glossy_gbuffer, same_pixels,
+                                                sequence_renders, sidak_z, smooth_map, sun_map)
 from iblbench.scenes import visibility
 from iblbench.scenes.gbuffer import trace_gbuffer
 from iblbench.scenes.registry import load_scene
@@ -30,12 +31,7 @@ def test_unbiased_restir_passes_the_z_test_on_every_frame_of_sphere_switch(compu
     caches = [FrameCache(compute, scene.environment.frame(t), t) for t in range(SWITCH_FRAMES)]
     for cache in caches:
         cache.require(ReSTIR.requires)
-    estimator, seeds = ReSTIR(), 2000
-    samples = np.zeros((seeds, len(caches), gbuffer.count, 3))
-    for seed in range(seeds):
-        estimator.reset()
-        for t, cache in enumerate(caches):
-            samples[seed, t] = estimator.render(gbuffer, cache, 1, seed).radiance[gbuffer.gbuffer.mask]
+    samples = sequence_renders(ReSTIR(), gbuffer, caches, 2000, 1)
     reference = Reference(compute, use_cache=False)
     worst = []
     for t, cache in enumerate(caches):

@@ -498,6 +498,17 @@ def switch_frames(res: int = 8) -> list[np.ndarray]:
 SEQUENCE_SEEDS = 1000
 
 
+def sequence_renders(estimator, gbuffer, caches, seeds: int, spp: int) -> np.ndarray:
+    """The covered pixels of every frame of ``caches`` for each of ``seeds`` seeds, each seed's
+    sequence rendered in order after ``reset()``: ``[seeds, frames, pixels, 3]``."""
+    samples = np.zeros((seeds, len(caches), gbuffer.count, 3))
+    for seed in range(seeds):
+        estimator.reset()
+        for t, cache in enumerate(caches):
+            samples[seed, t] = estimator.render(gbuffer, cache, spp, seed).radiance[gbuffer.gbuffer.mask]
+    return samples
+
+
 def check_unbiased_over_frames(estimator, h: Harness) -> None:
     """Temporal estimators tagged unbiased: the mean over seeds of every frame of a switching
     sequence (``switch_frames``: on, static, off), each sequence rendered in order after
@@ -509,11 +520,7 @@ def check_unbiased_over_frames(estimator, h: Harness) -> None:
     caches = [FrameCache(h.compute, env, frame) for frame, env in enumerate(switch_frames())]
     for cache in caches:
         cache.require(type(estimator).requires)
-    samples = np.zeros((SEQUENCE_SEEDS, len(caches), gbuffer.count, 3))
-    for seed in range(SEQUENCE_SEEDS):
-        estimator.reset()
-        for t, cache in enumerate(caches):
-            samples[seed, t] = estimator.render(gbuffer, cache, 4, seed).radiance[gbuffer.gbuffer.mask]
+    samples = sequence_renders(estimator, gbuffer, caches, SEQUENCE_SEEDS, 4)
     failures = []
     for t, cache in enumerate(caches):
         test = bias_test(samples[:, t], h.reference(gbuffer, cache)[gbuffer.gbuffer.mask])
