@@ -69,7 +69,8 @@ def _naming_keywords(function):
 @_naming_keywords
 def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None, first_seed=None,
         frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None, metrics=None,
-        sanitize=None, device=None, save_inputs=False, force=False, progress=None):
+        sanitize=None, device=None, save_inputs=False, force=False, progress=None, workers=None,
+        scheduler=None):
     """Run a sweep and return its results table (a pandas DataFrame); see the module docstring.
 
     Each argument left None takes its value from ``config``: a shipped sweep name (``quick``,
@@ -86,7 +87,10 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
     - ``metrics``: ``"de76,relmse"`` or a list (default: all; ΔE76 always);
     - ``out``: the output folder (required); ``force``: recompute cells ``out`` already has;
     - ``device``, ``sanitize``, ``save_inputs``: as the flags of ``iblbench run``;
-    - ``progress``: a progress bar (None: only on a terminal).
+    - ``progress``: a progress bar (None: only on a terminal);
+    - ``workers``: run the cells on a Dask LocalCluster of this many worker processes;
+      ``scheduler``: on the Dask cluster whose scheduler is at this address (neither: in this
+      process; see :mod:`iblbench.harness.protocol.distributed`).
     """
     from iblbench.harness.protocol.metrics import parse_metrics
     from iblbench.harness.protocol.runner import Runner
@@ -124,7 +128,7 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
             resolution=resolution, env_res=env_res,
             time_budget_ms=_listed(time_budget_ms), repeats=repeats, repeats_for=repeats_for,
             metrics=metrics, sanitize=sanitize, device=device, save_inputs=save_inputs,
-            force=force, progress=progress,
+            force=force, progress=progress, workers=workers, scheduler=scheduler,
             note={"overridden_by_arguments": sorted(given), "via": "iblbench.run (Python API)"}))
     except InputError as error:
         _remove(created)
@@ -138,7 +142,7 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
 def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seeds=None,
                first_seed=None, frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None,
                repeats_for=None, metrics=None, sanitize=None, device=None, save_inputs=False,
-               force=False, progress=None, note=None):
+               force=False, progress=None, workers=None, scheduler=None, note=None):
     """The :class:`~iblbench.harness.protocol.runner.RunConfig` of a sweep config (``config``, default
     ``default``) whose fields given here (not None) are replaced, values already parsed
     (``iblbench run`` and :func:`run` share it); ``note`` is added to the manifest's
@@ -164,7 +168,8 @@ def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seed
                      frames_for=sweep.frames_for,
                      time_budget_ms=sweep.time_budget_ms, force=force, repeats=sweep.repeats,
                      repeats_for=sweep.repeats_for, spp_for=sweep.spp_for, metrics=sweep.metrics,
-                     sweep={**sweep.to_manifest(), **(note or {})})
+                     sweep={**sweep.to_manifest(), **(note or {})}, workers=workers,
+                     scheduler=scheduler)
 
 
 @_naming_keywords

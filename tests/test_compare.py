@@ -9,7 +9,8 @@ import pytest
 from iblbench.cli import main
 from iblbench.harness.verify.compare import pair_estimators, parse_threshold
 from iblbench.harness.protocol.results import TABLE, read_manifest, write_manifest
-from iblbench.harness.protocol.runner import MAX_SEED, MAX_SEEDS, RunConfig, run
+from iblbench.harness.protocol.run_plan import MAX_SEED, MAX_SEEDS
+from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.scenes.errors import InputError
 
 MUTANT = "balanced{uniform_faces=true}"
@@ -44,7 +45,7 @@ def test_first_seed_offsets_the_seeds_and_is_recorded(runs):
 
 @pytest.mark.parametrize("first_seed, seeds", [(-1, 1), (MAX_SEED, 2)])
 def test_seeds_beyond_the_cell_seed_range_are_refused(tmp_path, first_seed, seeds):
-    """Cell seeds stay below the timing and calibration seeds (runner.timing_seed)."""
+    """Cell seeds stay below the timing and calibration seeds (executor.timing_seed)."""
     with pytest.raises(InputError, match=f"the seeds must lie in 0..{MAX_SEED}"):
         run(RunConfig(out=tmp_path / "run", seeds=seeds, first_seed=first_seed))
     assert not (tmp_path / "run").exists()

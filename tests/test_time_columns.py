@@ -29,7 +29,7 @@ import pyopencl as cl
 import pytest
 
 from iblbench.estimators.registry import get_estimator_class
-from iblbench.harness.protocol import runner
+from iblbench.harness.protocol import executor
 from iblbench.harness.protocol.runner import RunConfig, run
 
 ESTIMATORS = ("uniform", "balanced_mis", "bis", "smc")
@@ -98,7 +98,7 @@ def event_log(monkeypatch):
     monkeypatch.setattr(cl, "enqueue_nd_range_kernel", logged_launch)
     monkeypatch.setattr(cl, "enqueue_copy", logged_copy)
 
-    class LoggedCache(runner.FrameCache):
+    class LoggedCache(executor.FrameCache):
         def __init__(self, *args, **kwargs):
             log.phase, previous = "build", log.phase
             super().__init__(*args, **kwargs)
@@ -119,7 +119,7 @@ def event_log(monkeypatch):
             log.pool_uses.append((log.phase, log.pool_draws[key]))
             return pool
 
-    monkeypatch.setattr(runner, "FrameCache", LoggedCache)
+    monkeypatch.setattr(executor, "FrameCache", LoggedCache)
     for name in ESTIMATORS:
         cls = get_estimator_class(name)
 
@@ -135,7 +135,7 @@ def event_log(monkeypatch):
                 log.phase = previous
 
         monkeypatch.setattr(cls, "render", render)
-    timed_renders = runner.timed_renders
+    timed_renders = executor.timed_renders
 
     def logged_timed_renders(renderers, *args, **kwargs):
         log.timed.append((type(renderers[0]).name, []))
@@ -145,7 +145,7 @@ def event_log(monkeypatch):
         finally:
             log.in_timed_group = False
 
-    monkeypatch.setattr(runner, "timed_renders", logged_timed_renders)
+    monkeypatch.setattr(executor, "timed_renders", logged_timed_renders)
     return log
 
 

@@ -21,10 +21,13 @@ from iblbench.estimators.base import Estimate, Estimator, Tags
 from iblbench.estimators.registry import _registry, register
 from iblbench.harness.verify import budgets
 from iblbench.commands import run as run_command
-from iblbench.harness.protocol import runner, timing
+from iblbench.harness.protocol import executor, timing
 from iblbench.harness.protocol.equal_time import CALIBRATION_SEED, TOLERANCE, Calibration
 from iblbench.estimators.runtime.framecache import FrameCache
-from iblbench.harness.protocol.runner import TIMING_SEED, WARMUP_PIXELS, WARMUP_SEED, RunConfig, run
+from iblbench.harness.protocol.executor import WARMUP_PIXELS, WARMUP_SEED
+from iblbench.harness.protocol.run_plan import TIMING_SEED
+from iblbench.harness.protocol.runner import RunConfig, run
+from iblbench.harness.protocol.sweep import DEFAULT_REPEATS
 from iblbench.harness.protocol.timing import FLOOR_POOR, TimedRender, TimingFloor, time_columns
 from iblbench.reports.report import equal_time_cells, summarize
 from iblbench.scenes.imageio import read_exr
@@ -149,7 +152,7 @@ def known_builds(monkeypatch):
             super().__init__(*args, **kwargs)
             self.timings_ms = {"upload": BUILD}
 
-    monkeypatch.setattr(runner, "FrameCache", KnownBuild)
+    monkeypatch.setattr(executor, "FrameCache", KnownBuild)
 
 
 def tiny(out, estimators, **overrides) -> RunConfig:
@@ -411,9 +414,9 @@ def test_the_warm_up_pixels_keep_a_specular_pixel_of_a_mostly_diffuse_scene():
     ks[-1, -1] = 0.3                           # the last covered pixel alone is specular
     gbuffer = GBuffer.from_pixels(np.tile([0.0, 0.0, 1.0], (size, size, 1)), [0.0, 0.0, 1.0],
                                   0.5, ks, 20.0)
-    subset = runner.warm_up_gbuffer(gbuffer)
+    subset = executor.warm_up_gbuffer(gbuffer)
     assert subset.covered == WARMUP_PIXELS and not subset.is_diffuse and subset.mask[-1, -1]
-    assert runner.warm_up_gbuffer(dataclasses.replace(gbuffer, ks=ks * 0)).is_diffuse
+    assert executor.warm_up_gbuffer(dataclasses.replace(gbuffer, ks=ks * 0)).is_diffuse
 
 
 class Spells(Linear):
@@ -428,7 +431,7 @@ class Spells(Linear):
     def render(self, gbuffer, cache, spp, seed):
         estimate = super().render(gbuffer, cache, spp, seed)
         if seed < CALIBRATION_SEED:
-            spell = self.FACTORS[type(self).cell_renders // runner.DEFAULT_REPEATS]
+            spell = self.FACTORS[type(self).cell_renders // DEFAULT_REPEATS]
             estimate.timings_ms["shade"] *= spell
             type(self).cell_renders += 1
         return estimate

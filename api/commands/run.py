@@ -77,6 +77,16 @@ def add_parser(subparsers) -> None:
                      help="also write inputs/<scene>/gbuffer.npz and env_f<frame>.npy")
     run.add_argument("--sanitize", action="store_true",
                      help="replace NaN/Inf/negative texels in environment maps instead of refusing")
+    where = run.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=positive_int, metavar="N",
+                       help="run the cells on a Dask LocalCluster of N worker processes on this "
+                            "machine (spawned; one OpenCL context each); this process alone "
+                            "writes --out's table; default: in this process")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run the cells on the Dask cluster whose dask-scheduler is at "
+                            "ADDRESS (e.g. tcp://node1:8786); its workers need this iblbench, "
+                            "and --out and the cache (IBLBENCH_CACHE) on a filesystem they share "
+                            "(README, 'Running on a cluster')")
     add_json(run)
 
 
@@ -106,8 +116,8 @@ def run(args) -> None:
         env_res=args.env_res, time_budget_ms=args.time_budget_ms,
         sanitize=True if args.sanitize else None, repeats=args.repeats and args.repeats[0],
         repeats_for=args.repeats and args.repeats[1], metrics=metrics, device=args.device,
-        save_inputs=args.save_inputs, force=args.force,
-        progress=False if args.no_progress else None, note={"overridden_by_flags": flags}))
+        save_inputs=args.save_inputs, force=args.force, workers=args.workers,
+        scheduler=args.scheduler, progress=False if args.no_progress else None, note={"overridden_by_flags": flags}))
     table = runner.run()
     human = human_output(args)
     rows = runner.sweep_rows(table)   # --out may also hold other sweeps' cells

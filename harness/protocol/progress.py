@@ -93,7 +93,12 @@ class Progress:
     def cell_done(self, spp: int) -> None:
         """The cell started last is done, run at ``spp`` (an equal-time cell's chosen one)."""
         key, start = self._cell
-        self.measured[key[1]].append((int(spp), time.perf_counter() - start))
+        self.finished(key, spp, time.perf_counter() - start)
+
+    def finished(self, key: tuple, spp: int, seconds: float) -> None:
+        """Cell ``key`` is done, run at ``spp``, having cost the run ``seconds`` (a cluster's:
+        its worker's seconds over the number of workers)."""
+        self.measured[key[1]].append((int(spp), seconds))
         self.remaining[(key[1], key[2])] -= 1
         self.bar.set_postfix_str(left_text(*time_left(self.remaining, self.measured)),
                                  refresh=False)

@@ -25,7 +25,8 @@ Columns, in order (``COLUMNS``):
   ``time_ms_shade``, the host wall time ``time_ms_host``, ``time_repeats`` (at least the
   repeats asked for; more where the renders spread too wide) and ``time_ms_renders`` (each timed
   render's device time, as text);
-- ``device``, ``protocol``;
+- ``device`` (the OpenCL device that rendered the cell, whose times they are), ``host`` (the
+  machine it is on: a cluster's workers may be several), ``protocol``;
 - then any *extra* columns: estimator-specific per-frame scalars from ``Estimate.extras``
   (e.g. ``smc``'s ``ess``, ``reinits``, ``resample_steps``), sorted by name, NaN in the rows of
   estimators that do not report them.  They are not part of the cell key or of ``COLUMNS``
@@ -33,7 +34,7 @@ Columns, in order (``COLUMNS``):
 
 Schema versions: 1 had no schema_version, time_budget_ms, width, height, env_res or
 estimator_params column; 2 had no flicker column; 3 timed one render per cell (host wall time
-``time_ms_frame``, device stages of that one render); 4 had no shadow_rays column; 5 had no per-render columns (``*_renders``); 6 is this one.  Rows of another schema never count as finished cells.
+``time_ms_frame``, device stages of that one render); 4 had no shadow_rays column; 5 had no per-render columns (``*_renders``); 6 had no host column; 7 is this one.  Rows of another schema never count as finished cells.
 
 Storage.  ``results.parquet`` and ``results.csv`` are replaced whole, each in one rename, so a
 reader never sees half a table.  While a run is going, each finished cell is appended to
@@ -65,7 +66,7 @@ from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError, argument, keywords_named
 
-SCHEMA_VERSION = 6
+SCHEMA_VERSION = 7
 KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed", "time_budget_ms"]
 CONFIG_COLUMNS = ["width", "height", "env_res", "estimator_params", "estimator_version",
                   "schema_version", "metrics"]
@@ -76,7 +77,7 @@ METRIC_COLUMNS = [
     "used_samples", "effective_samples", "effective_ratio", "evaluations", "shadow_rays", "nonfinite",
     *REPLICATE_COLUMNS, *TIME_COLUMNS,
 ]
-COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "protocol"]
+COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "host", "protocol"]
 # Columns that are the same on every rerun of a cell on one device (renders are deterministic
 # per seed): everything but the measured times and how many renders they took (timing module).
 DETERMINISTIC_COLUMNS = [c for c in COLUMNS if not c.startswith("time_")]
@@ -184,7 +185,7 @@ def _read_table(out_dir: pathlib.Path) -> list[dict]:
 
 
 _TEXT_COLUMNS = ("scene", "estimator", "estimator_params", "estimator_version", "metrics",
-                 "device", "protocol", *REPLICATE_COLUMNS, TIME + RENDERS)
+                 "device", "host", "protocol", *REPLICATE_COLUMNS, TIME + RENDERS)
 
 
 def _is_number(value) -> bool:

@@ -92,10 +92,8 @@ values (``*_renders``): the cell's replicates, from which its intervals come
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import datetime
 import fcntl
-import math
 import os
 import pathlib
 import platform
@@ -107,120 +105,31 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from iblbench.estimators.registry import get_estimator_class
 from iblbench.estimators.runtime.device import cache_dir, get_compute
-from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
-from iblbench.estimators.runtime.framecache import PRODUCTS, FrameCache
-from iblbench.harness.protocol.metrics import METRICS, PROTOCOL, Scorer, delta_e_images, flicker
-from iblbench.estimators.runtime.reference import Reference
-from iblbench.harness.protocol.stats import RENDERS, renders_text
-from iblbench.harness.protocol.results import (FOLD_SECONDS, REPLICATED, SCHEMA_VERSION, Journal,
+from iblbench.estimators.runtime.framecache import PRODUCTS
+from iblbench.harness.protocol.executor import WARMUP_PIXELS, Executor, device_record
+from iblbench.harness.protocol.metrics import METRICS, PROTOCOL
+from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal,
                                                cell_files_intact,
                                                configuration_differences, image_configuration,
-                                               image_stem, prepare_out, read_manifest, read_results,
+                                               prepare_out, read_manifest, read_results,
                                                remove_cells, row_key, write_manifest,
                                                write_results)
-from iblbench.harness.protocol.equal_time import (CALIBRATION_REPEATS, CALIBRATION_SEED,
-                                                  CELL_CORRECTIONS, TOLERANCE, Calibration,
-                                                  best_measured, corrected_spp, spp_limit)
+from iblbench.harness.protocol.equal_time import CALIBRATION_REPEATS, TOLERANCE
 from iblbench.harness.protocol.progress import BAR_FORMAT, Progress
 from iblbench.harness.protocol.provenance import git_revision, package_version
+from iblbench.harness.protocol.run_plan import RunConfig, ScenePlan, cell_order, plan_run
 from iblbench.harness.protocol.shadows import attach_visibility, measured_record
 from iblbench.harness.protocol.timing import (EXTENSION, MEASURE, SPREAD_LIMIT, cell_times,
-                                              device_ms, host_threads_capped, required_build_ms,
-                                              time_columns, measure_timing_floor, timed_renders,
-                                              timing_floor_text, too_wide)
-from iblbench.harness.protocol.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text,
-                                             parse_estimator, select_frames)
+                                              host_threads_capped, measure_timing_floor,
+                                              timing_floor_text)
+from iblbench.harness.protocol.sweep import frames_text
 from iblbench.scenes.atomic import atomic_path
 from iblbench.scenes.errors import InputError, argument
 from iblbench.scenes.framing import warn_about_framing
 from iblbench.scenes.gbuffer import cached_trace
-from iblbench.scenes.imageio import read_exr, write_exr
-from iblbench.scenes.registry import load_scene, scene_entry
-
-DEFAULT_SCENES = ("sphere-sun",)
-DEFAULT_ESTIMATORS = ("uniform",)
-DEFAULT_SPP = (16, 64, 256)
-DEFAULT_SEEDS = 2
-WARMUP_SEED = 0xFFFFFFFF   # a seed no benchmark cell uses
-WARMUP_PIXELS = 64
-TIMING_SEED = 0x80000000   # timing renders: TIMING_SEED + 256·seed + repeat (timing_seed)
-# The largest cell seed whose timing seeds stay below the calibration seeds.
-MAX_SEED = (CALIBRATION_SEED - TIMING_SEED) // 256 - 1
-# Seeds per cell at most: a sweep plans every (cell, seed) up front, and 8,388,607 seeds took
-# 2.7 GB before the first cell (issue 23); a study needs tens, a coverage simulation hundreds.
-MAX_SEEDS = 10_000
+from iblbench.scenes.registry import scene_entry
 LOCK = ".iblbench.lock"
-
-
-@dataclasses.dataclass
-class RunConfig:
-    out: pathlib.Path
-    scenes: tuple[str, ...] = DEFAULT_SCENES
-    estimators: tuple[str, ...] = DEFAULT_ESTIMATORS   # labels: "name" or "name{param=value}"
-    spp: tuple[int, ...] = DEFAULT_SPP
-    seeds: int = DEFAULT_SEEDS
-    first_seed: int = 0        # cells use seeds first_seed .. first_seed + seeds - 1
-    resolution: tuple[int, int] | None = None
-    device: str | None = None
-    save_inputs: bool = False
-    sanitize: bool = False
-    env_res: int | None = None
-    progress: bool | None = None   # None: a bar only on a TTY
-    frames: tuple[int, ...] | slice | None = None   # None: every frame; a slice: Python slice
-                                                    # semantics over each sequence's frames;
-                                                    # static scenes run frame 0
-    frames_for: tuple[tuple[str, object], ...] = ()   # (scene name, its own frame selection)
-    time_budget_ms: tuple[float, ...] = ()     # equal-time cells, besides the spp list
-    force: bool = False                        # recompute finished cells too
-    repeats: int = DEFAULT_REPEATS             # timed renders per cell (timing module)
-    repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats): its own count
-    spp_for: tuple[tuple[str, tuple[int, ...]], ...] = ()   # (estimator name, its own spp levels)
-    metrics: tuple[str, ...] = METRICS         # ΔE76 always; see harness.metrics
-    sweep: dict | None = None                  # the resolved sweep and its source (manifest)
-
-    def frames_of(self, scene_name: str):
-        """The frame selection of one scene: its own (``frames_for``) or the sweep's."""
-        return dict(self.frames_for).get(scene_name.lower(), self.frames)
-
-
-def timing_seed(seed: int, repeat: int) -> int:
-    """The seed of timing render ``repeat`` (1..MAX_REPEATS-1) of cell seed ``seed``: above
-    every cell's seed and below the calibration and warm-up seeds, and distinct per cell seed,
-    so that no timing render reuses a light pool another render drew."""
-    return TIMING_SEED + (int(seed) << 8) + int(repeat)
-
-
-def warm_up_gbuffer(gbuffer):
-    """A G-buffer of at most ``WARMUP_PIXELS`` of ``gbuffer``'s covered pixels, specular where
-    the scene is (so the warm-up compiles the same kernel variants)."""
-    covered = np.flatnonzero(gbuffer.mask)
-    keep = covered[:WARMUP_PIXELS].copy()
-    specular = gbuffer.ks.reshape(-1, 3)[covered].max(axis=1) > 0
-    if specular.any() and not specular[:WARMUP_PIXELS].any():
-        keep[-1] = covered[np.argmax(specular)]
-    mask = np.zeros(gbuffer.mask.size, bool)
-    mask[keep] = True
-    return dataclasses.replace(gbuffer, mask=mask.reshape(gbuffer.mask.shape))
-
-
-def _device_record(compute) -> dict:
-    info = compute.info
-    return {"name": info.device.name.strip(), "platform": info.platform.name.strip(),
-            "platform_version": info.platform.version.strip(),
-            "driver": info.device.driver_version.strip(), "fp64": info.has_fp64}
-
-
-def _require_unique_names(scenes) -> None:
-    """Scene names key the results rows and the image folders, so two scenes may not share one."""
-    seen = {}
-    for scene in scenes:
-        if scene.name in seen:
-            raise InputError(scene.source or scene.name,
-                             f"scene name '{scene.name}' is also the name of "
-                             f"{seen[scene.name] or 'a built-in scene'}; rename one of the files")
-        seen[scene.name] = scene.source
 
 
 @contextlib.contextmanager
@@ -234,17 +143,6 @@ def _locked(out: pathlib.Path):
         except OSError:
             raise InputError(out, "another iblbench run is writing to this folder") from None
         yield
-
-
-def _require_spp_within_bounds(specs, spp_of: dict) -> None:
-    """Every spp of the sweep within each selected estimator's ``max_spp`` (``spp_of``: label →
-    its spp levels), checked before anything is written (a render past the bound fails mid-run)."""
-    for spec in specs:
-        bound = spec.cls.max_spp
-        above = [spp for spp in spp_of[spec.label] if bound is not None and spp > bound]
-        if above:
-            raise InputError(None, f"{argument('spp', max(above))} is above {spec.label}'s "
-                                   f"limit of {bound} samples per pixel")
 
 
 @contextlib.contextmanager
@@ -270,78 +168,35 @@ def _remove_stale_temporaries(out: pathlib.Path) -> None:
         path.unlink(missing_ok=True)
 
 
-@dataclasses.dataclass
-class _ScenePlan:
-    scene: object
-    width: int
-    height: int
-    env_res: int
-    frames: list[int]
-
-
-def _where(plan: _ScenePlan, frame: int) -> str:
-    """The progress bar's name of a frame: the scene, and the frame in a sequence."""
-    return plan.scene.name if len(plan.frames) == 1 else f"{plan.scene.name} f{frame}"
-
-
 class Runner:
     """Runs every cell of the sweep not already in ``out`` (see the module docstring)."""
 
     def __init__(self, config: RunConfig):
-        for spp in tuple(config.spp) + tuple(v for _, levels in config.spp_for for v in levels):
-            if spp < 1:
-                raise InputError(None, f"{argument('spp')} values must be positive integers, "
-                                       f"got {spp}")
-        if not 1 <= config.seeds <= MAX_SEEDS:
-            raise InputError(None, f"{argument('seeds')} must be in 1..{MAX_SEEDS} (every seed "
-                                   f"renders every cell again), got {config.seeds}")
-        if not 0 <= config.first_seed <= MAX_SEED - config.seeds + 1:
-            raise InputError(None, f"{argument('first_seed', config.first_seed)} with "
-                                   f"{argument('seeds', config.seeds)}: the seeds must lie in "
-                                   f"0..{MAX_SEED}")
-        for name, repeats in (("default", config.repeats),) + tuple(config.repeats_for):
-            if not 1 <= repeats <= MAX_REPEATS:
-                raise InputError(None, f"{argument('repeats')} ({name}) must be in "
-                                       f"1..{MAX_REPEATS}, got {repeats}")
-        for budget in config.time_budget_ms:
-            if not (math.isfinite(budget) and budget > 0):
-                raise InputError(None, f"{argument('time_budget_ms')} must be positive, "
-                                       f"got {budget}")
-        if not config.spp and not config.time_budget_ms:
-            raise InputError(None, "no spp and no time budget: the sweep has no cells")
+        self.plan = plan_run(config)
         self.config = config
         self.seeds = range(config.first_seed, config.first_seed + config.seeds)
-        self.specs = [parse_estimator(label) for label in config.estimators]
-        labels = [spec.label for spec in self.specs]
-        if len(set(labels)) != len(labels):
-            raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
-        levels = {get_estimator_class(name).name: tuple(v) for name, v in config.spp_for}
-        self.spp_levels = {spec.label: levels.get(spec.cls.name, tuple(config.spp))
-                           for spec in self.specs}
-        _require_spp_within_bounds(self.specs, self.spp_levels)
-        self.scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
-                       for name in config.scenes]
-        _require_unique_names(self.scenes)
-        for scene in self.scenes:
-            if scene.environment.texels_fixed:
+        self.specs, self.plans = self.plan.specs, self.plan.plans
+        for plan in self.plans:
+            environment = plan.scene.environment
+            if environment.texels_fixed:
                 print(f"iblbench: {argument('sanitize', True)} replaced "
-                      f"{scene.environment.texels_fixed} bad texels "
-                      f"in {scene.environment.source}", file=sys.stderr)
-        self.plans = [self._plan_scene(scene) for scene in self.scenes]
-        self.compute = get_compute(config.device)
-        self.device_name = self.compute.device_name
-        self.reference = Reference(self.compute)
+                      f"{environment.texels_fixed} bad texels in {environment.source}",
+                      file=sys.stderr)
+        self.distributed = config.scheduler is not None or config.workers is not None
+        if config.workers is not None and config.workers < 1:
+            raise InputError(None, f"{argument('workers', config.workers)}: at least one worker")
+        # In process, the run's device; on a cluster, the workers' (and this process's default
+        # device only measures the visibility masks' error for the manifest).
+        self.compute = None if self.distributed else get_compute(config.device)
+        self.devices = set() if self.distributed else {self.compute.device_name}
         self.out = pathlib.Path(config.out)
         if self.out.exists() and not self.out.is_dir():
             raise InputError(self.out, f"{argument('out')} exists and is not a directory")
-        self.params = {spec.label: spec.params_json() for spec in self.specs}
-        overrides = {get_estimator_class(name).name: n for name, n in config.repeats_for}
-        self.repeats = {spec.label: overrides.get(spec.cls.name, config.repeats)
-                        for spec in self.specs}
         # The manifest's "stages" and "skipped": G-buffers may be traced before it is made.
         self.stages, self.skipped, self.visibility = [], [], []
         self.skipped += [{"stage": metric, "why": "not in the sweep's metrics: its columns are NaN"}
                          for metric in METRICS if metric not in config.metrics]
+        self.engine, self.executor = None, None
 
     def _read_state(self) -> None:
         """What ``out`` holds, read under its lock (a snapshot read before it could be stale by
@@ -374,42 +229,23 @@ class Runner:
         self.resumed = self.total - len(self.todo)
         self.manifest = self._new_manifest()
 
-    def _plan_scene(self, scene) -> _ScenePlan:
-        frames_available = scene.environment.num_frames
-        if scene.environment.is_static:
-            frames = [0]
-        else:
-            selection = self.config.frames_of(scene.name)
-            frames = select_frames(selection, frames_available)
-            if not frames:
-                raise InputError(scene.source or scene.name,
-                                 f"{argument('frames', frames_text(selection))} selects "
-                                 f"no frame of scene '{scene.name}', which has {frames_available} "
-                                 "frames")
-            if max(frames) >= frames_available:
-                raise InputError(scene.source or scene.name,
-                                 f"frame {max(frames)} selected, but scene '{scene.name}' has "
-                                 f"{frames_available} frames (0..{frames_available - 1})")
-        width, height = self.config.resolution or scene.resolution
-        env_res = int(np.shape(scene.environment.frame(frames[0]))[1])
-        return _ScenePlan(scene, int(width), int(height), env_res, frames)
-
     # ---- planning ----------------------------------------------------------------------------
 
     def _variants(self, spec):
         """(spp, budget) of each cell family of ``spec``: its spp levels (``spp_for`` or the
         sweep's), then each time budget."""
-        return ([(spp, None) for spp in self.spp_levels[spec.label]]
+        return ([(spp, None) for spp in self.plan.spp_levels[spec.label]]
                 + [(None, float(b)) for b in self.config.time_budget_ms])
 
-    def _valid(self, row: dict | None, plan: _ScenePlan, spec) -> bool:
-        """A row made with this configuration, code and device."""
+    def _valid(self, row: dict | None, plan: ScenePlan, spec) -> bool:
+        """A row made with this configuration and code, on this run's device (a cluster: on one
+        of its workers' devices)."""
         return (row is not None and row.get("schema_version") == SCHEMA_VERSION
                 and row.get("estimator_version") == spec.cls.version()
-                and row.get("estimator_params") == self.params[spec.label]
-                and row.get("device") == self.device_name and row.get("protocol") == PROTOCOL
+                and row.get("estimator_params") == self.plan.params[spec.label]
+                and row.get("device") in self.devices and row.get("protocol") == PROTOCOL
                 and set(self.config.metrics) <= set(str(row.get("metrics")).split(","))
-                and row.get("time_repeats", 0) >= self.repeats[spec.label]
+                and row.get("time_repeats", 0) >= self.plan.repeats[spec.label]
                 and (row.get("width"), row.get("height"), row.get("env_res"))
                 == (plan.width, plan.height, plan.env_res)
                 and cell_files_intact(self.out, row))
@@ -462,8 +298,8 @@ class Runner:
                          **{p: package_version(p) for p in ("numpy", "pyopencl", "embreex",
                                                             "colour-science", "pandas")}},
             "estimator_versions": {s.label: s.cls.version() for s in self.specs},
-            "estimator_params": dict(self.params),
-            "device": _device_record(self.compute),
+            "estimator_params": dict(self.plan.params),
+            "device": self._device_manifest(),
             "sanitized": {p.scene.name: p.scene.environment.texels_fixed for p in self.plans},
             "runs": self._run_history(),
             "resumed_cells": self.resumed,
@@ -471,7 +307,7 @@ class Runner:
             "stages": self.stages,
             "skipped": self.skipped,
             "visibility": self.visibility,
-            "timing": {"measure": MEASURE, "repeats": dict(self.repeats),
+            "timing": {"measure": MEASURE, "repeats": dict(self.plan.repeats),
                        "cell": "median of the cell's timed renders after warm-up: the "
                                "estimator's repeats, more where they spread (timing.spread); "
                                "min and IQR beside it (harness/protocol/timing.py)",
@@ -536,7 +372,7 @@ class Runner:
         gbuffers = ({} if self.out.exists()
                     else {plan.scene.name: self._trace(plan) for plan in self.plans})
         prepare_out(self.out)
-        with _locked(self.out), host_threads_capped():
+        with _locked(self.out), host_threads_capped(), self._cluster():
             self._read_state()
             for plan in self.plans:
                 if plan.scene.name not in gbuffers and self._scene_todo(plan.scene.name):
@@ -559,36 +395,114 @@ class Runner:
                 self.journal.close()
         return table
 
+    @contextlib.contextmanager
+    def _cluster(self):
+        """In process: nothing.  On a cluster: the Dask client and its workers, whose devices
+        are the run's (:mod:`.distributed`, imported only here: Dask is not loaded otherwise)."""
+        if not self.distributed:
+            yield
+            return
+        from iblbench.harness.protocol.distributed import cluster
+
+        with cluster(self.config) as engine:
+            self.engine = engine
+            self.devices = engine.devices
+            yield
+
     def _run_cells(self, gbuffers: dict):
-        """Every cell left, between two measurements of the timing floor; the manifest ends
-        "complete"; returns the table."""
+        """Every cell left, in process between two measurements of the timing floor, or on the
+        cluster; the manifest ends "complete"; returns the table."""
+        self._record_skips()
+        self._save_inputs(gbuffers)
         with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
                   bar_format=BAR_FORMAT, initial=self.resumed) as bar:
             self.progress = Progress(bar, self.todo)
-            self.progress.stage(f"timing floor of {self.compute.info.device.name.strip()}")
-            floors = [measure_timing_floor(self.compute)] if self.todo else []
             self.device_ms_total, start = 0.0, time.perf_counter()
-            for plan in self.plans:
-                self._run_scene(plan, gbuffers.pop(plan.scene.name, None))
+            if self.engine is None:
+                floors, lost = self._render_here(gbuffers), []
+            else:
+                lost = self._render_on_cluster()
+                floors = [w["floor"] for w in self.engine.workers.values()] if self.todo else []
         table = self._fold()
         if self.todo:
             wall_s = time.perf_counter() - start
             self.manifest["timing"].update(
                 wall_s=wall_s, device_s=self.device_ms_total / 1e3,
                 wall_per_device=wall_s / max(self.device_ms_total / 1e3, 1e-9))
-            floors.append(measure_timing_floor(self.compute))
             self.manifest["timing"]["floor"] = {
                 "kernel": f"fma_throughput, {floors[0].median_ms:.2g} ms, "
-                          f"{floors[0].launches} launches back to back, at the run's start "
-                          "and end (harness/protocol/timing.py, \"The device's own floor\")",
+                          f"{floors[0].launches} launches back to back, "
+                          + ("at the run's start and end" if self.engine is None
+                             else "at each worker's start, in the order of manifest.workers")
+                          + " (harness/protocol/timing.py, \"The device's own floor\")",
                 "groups_within": [round(f.groups_within, 3) for f in floors],
                 "p90_over_p10": [round(f.p90_over_p10, 3) for f in floors]}
+        if self.engine is not None:
+            self.manifest["workers"] = [dict(w["record"], address=address)
+                                        for address, w in self.engine.workers.items()]
         self._report_spread(floors)
         if self.config.time_budget_ms:
             self.manifest["time_budget"]["achieved"] = self._check_budgets(table)
+        if lost:
+            self.manifest["status"] = "incomplete"
+            write_manifest(self.out, self.manifest)
+            raise InputError(self.out, f"{len(lost)} cells were lost with Dask workers that "
+                                       "died running them; rerun to resume")
         self.manifest["status"] = "complete"
         write_manifest(self.out, self.manifest)
         return table
+
+    def _render_here(self, gbuffers: dict) -> list:
+        """Every cell left, on this process's device; returns the timing floors measured at the
+        start and the end."""
+        self.progress.stage(f"timing floor of {self.compute.info.device.name.strip()}")
+        floors = [measure_timing_floor(self.compute)] if self.todo else []
+        self.executor = Executor(self.config, self.plan, self.compute, self.progress)
+        self.executor.gbuffers.update(gbuffers)
+        self.executor.chosen.update(self.chosen)
+        self.executor.render(self.todo, self._journal_cell)
+        self._merge(self.executor.drain())
+        if self.todo:
+            floors.append(measure_timing_floor(self.compute))
+        return floors
+
+    def _render_on_cluster(self) -> list:
+        """Every cell left, on the cluster's workers; returns the keys of the cells lost."""
+        workers = len(self.engine.workers)
+        self.progress.stage(f"on {workers} Dask workers")
+
+        def finished(result) -> None:
+            for row in result.rows:
+                self._journal_cell(row)
+                key = row_key(row)
+                self.progress.finished(key, row["spp"], result.seconds[key] / workers)
+            self._merge(result.records)
+
+        return self.engine.render(self.config, self.plan, self.todo, self.chosen, finished)
+
+    def _merge(self, records: dict) -> None:
+        """An executor's manifest records (Executor.drain) into the manifest."""
+        self.manifest["stages"] += records["stages"]
+        self.manifest["skipped"] += records["skipped"]
+        if self.config.time_budget_ms:
+            self.manifest["time_budget"]["calibrations"] += records["calibrations"]
+        for name, count in records["spread"].items():
+            self.manifest["timing"]["spread"][name] += count
+        self.device_ms_total += records["device_ms"]
+        for warning in records["warnings"]:
+            print(f"iblbench: {warning}", file=sys.stderr)
+
+    def _device_manifest(self) -> dict:
+        """The manifest's device: this process's, or the workers' where they share one (each
+        worker is in ``workers``)."""
+        if self.engine is None:
+            return device_record(self.compute)
+        records = [w["record"] for w in self.engine.workers.values()]
+        names = sorted({record["name"] for record in records})
+        if all(record == records[0] for record in records):
+            return records[0]
+        return {"name": "; ".join(names), "hosts": sorted({r["host"] for r in records}),
+                "several": True}
 
     def sweep_rows(self, table):
         """The rows of ``table`` (after :meth:`run`) that are cells of this sweep: ``out`` may
@@ -610,22 +524,24 @@ class Runner:
                   "care", file=sys.stderr)
 
     def _check_budgets(self, table) -> list[dict]:
-        """Each equal-time cell's time against its budget; prints those outside ±TOLERANCE."""
+        """Each equal-time cell's time against its budget, per device (a cluster's devices each
+        take the spp its first cell chose); prints those outside ±TOLERANCE."""
         timed = table[table.time_budget_ms.notna()]
         if timed.empty:
             return []
-        keys = ["scene", "estimator", "time_budget_ms"]
+        keys = ["scene", "estimator", "time_budget_ms", "device"]
         times = cell_times(timed, keys)
         spp = timed.groupby(keys, sort=False).spp.first()
         achieved = []
-        for (scene, label, budget), ms in times.items():
+        for key, ms in times.items():
+            scene, label, budget, device = key
             within = abs(ms - budget) <= TOLERANCE * budget
             achieved.append({"scene": scene, "estimator": label, "budget_ms": budget,
-                             "spp": int(spp[(scene, label, budget)]), "time_ms": ms,
+                             "device": device, "spp": int(spp[key]), "time_ms": ms,
                              "within_tolerance": bool(within)})
             if not within:
-                print(f"iblbench: {label} on {scene}: {ms:.3g} ms at {spp[(scene, label, budget)]}"
-                      f" spp against the {budget:g} ms budget ({ms / budget - 1:+.0%}), outside "
+                print(f"iblbench: {label} on {scene}: {ms:.3g} ms at {spp[key]} spp against the "
+                      f"{budget:g} ms budget ({ms / budget - 1:+.0%}) on {device}, outside "
                       f"±{TOLERANCE:.0%}", file=sys.stderr)
         return achieved
 
@@ -634,6 +550,8 @@ class Runner:
         (a second Ctrl-C meanwhile is ignored, as it would lose them); returns the table."""
         with _sigint_ignored():
             table = self._fold()
+            if self.executor is not None:
+                self._merge(self.executor.drain())
             self.manifest["status"] = "interrupted"
             write_manifest(self.out, self.manifest)
         return table
@@ -647,9 +565,12 @@ class Runner:
 
     def _scene_todo(self, name: str, frame: int | None = None) -> list[tuple]:
         return sorted((k for k in self.todo if k[0] == name and (frame is None or k[3] == frame)),
-                      key=lambda k: (k[1], k[5] is not None, k[2] or 0, k[5] or 0, k[4]))
+                      key=cell_order)
 
-    def _trace(self, plan: _ScenePlan):
+    def _stage(self, scene: str, frame, stage: str, ms: float) -> None:
+        self.stages.append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
+
+    def _trace(self, plan: ScenePlan):
         scene = plan.scene
         start = time.perf_counter()
         gbuffer, cached = cached_trace(scene.mesh, scene.material, scene.camera, plan.width,
@@ -669,7 +590,7 @@ class Runner:
             gbuffer, record = attach_visibility(scene, gbuffer, plan.env_res, cache_dir() / "visibility",
                                                 bar.update)
         if record is not None:
-            record = measured_record(self.compute, scene, gbuffer,
+            record = measured_record(self.compute or get_compute(), scene, gbuffer,
                                      scene.environment.frame(plan.frames[0]), record)
             self.visibility.append(record)
             if record.get("cached") or "skipped" in record:
@@ -679,296 +600,58 @@ class Runner:
                 self._stage(scene.name, None, "visibility", record["seconds"] * 1e3)
         return gbuffer
 
-    def _run_scene(self, plan: _ScenePlan, gbuffer) -> None:
-        """``gbuffer``: the scene's, traced by :meth:`run`; None when no cell of it is left."""
-        scene = plan.scene
-        if not self._scene_todo(scene.name):
-            self.manifest["skipped"].append({"scene": scene.name, "stage": "scene",
-                                             "why": "every cell already done (resumed)"})
-            self.manifest["stages"] += [dict(stage, resumed=True) for stage
-                                        in self.previous_manifest.get("stages", [])
-                                        if stage.get("scene") == scene.name]
-            self.visibility += [record for record in self.previous_manifest.get("visibility") or []
-                                if record.get("scene") == scene.name]   # not traced again
-            return
-        inputs = self.out / "inputs" / scene.name
-        if self.config.save_inputs:
-            gbuffer.save_npz(inputs / "gbuffer.npz")
-        device_gbuffer = DeviceGBuffer(self.compute, gbuffer)
-        warm_up = DeviceGBuffer(self.compute, warm_up_gbuffer(gbuffer))
+    def _record_skips(self) -> None:
+        """The manifest's records of what the run will not do: scenes and frames whose cells are
+        all done, products no selected estimator requires, a static map's one frame cache."""
         required = {p for spec in self.specs for p in spec.cls.requires}
-        for product in PRODUCTS:
-            if product not in required and product != "env":
-                self.manifest["skipped"].append({"scene": scene.name, "stage": product,
-                                                 "why": "no selected estimator requires it"})
-        sequences = {}   # temporal estimators: (label, spp, budget, seed) → [scored, twins...]
-        self._previous_delta_e = {}   # (label, spp, budget, seed) → (frame, ΔE76 map): flicker
-        cache, cache_env, cache_frame = None, None, None
-        for index, frame in enumerate(plan.frames):
-            if not self._scene_todo(scene.name, frame):
-                self.manifest["skipped"].append({"scene": scene.name, "frame": frame,
-                                                 "stage": "frame",
+        for plan in self.plans:
+            scene = plan.scene
+            if not self._scene_todo(scene.name):
+                self.manifest["skipped"].append({"scene": scene.name, "stage": "scene",
                                                  "why": "every cell already done (resumed)"})
+                self.manifest["stages"] += [dict(stage, resumed=True) for stage
+                                            in self.previous_manifest.get("stages", [])
+                                            if stage.get("scene") == scene.name]
+                self.visibility += [record for record
+                                    in self.previous_manifest.get("visibility") or []
+                                    if record.get("scene") == scene.name]   # not traced again
                 continue
-            env = scene.environment.frame(frame)
-            if self.config.save_inputs:
-                with atomic_path(inputs / f"env_f{frame}.npy") as tmp:
-                    np.save(tmp, np.asarray(env, np.float32))
-            if cache is not None and env is cache_env:
-                # The sequence returned the very same map as the frame the cache was built for.
-                cache.retarget(frame)
-                built = {}
+            self.manifest["skipped"] += [{"scene": scene.name, "stage": product,
+                                          "why": "no selected estimator requires it"}
+                                         for product in PRODUCTS
+                                         if product not in required and product != "env"]
+            self.manifest["skipped"] += [{"scene": scene.name, "frame": frame, "stage": "frame",
+                                          "why": "every cell already done (resumed)"}
+                                         for frame in plan.frames
+                                         if not self._scene_todo(scene.name, frame)]
+            if scene.environment.is_static:
+                renders = len(self._scene_todo(scene.name))
                 self.manifest["skipped"].append({
-                    "scene": scene.name, "frame": frame, "stage": "framecache",
-                    "why": f"environment identical to frame {cache_frame}'s: its FrameCache "
-                           f"({', '.join(['upload'] + sorted(required))}) reused"})
-            else:
-                cache = None   # release the previous frame's device buffers first
-                self.progress.stage("frame cache", _where(plan, frame))
-                cache = FrameCache(self.compute, env, frame)
-                cache.require(sorted(required))
-                cache_env, cache_frame = env, frame
-                built = {k: v for k, v in cache.timings_ms.items() if k != "pool"}
-                for stage, ms in built.items():
-                    self._stage(scene.name, frame, stage, ms)
-                    self.device_ms_total += ms
-            previous = plan.frames[index - 1] if index > 0 else None
-            self._run_frame(plan, device_gbuffer, warm_up, cache, built, sequences,
-                            previous)
-        if scene.environment.is_static:
-            renders = sum(1 for key in self.todo if key[0] == scene.name)
-            self.manifest["skipped"].append({
-                "scene": scene.name, "stage": "framecache",
-                "why": f"static environment: one FrameCache built for frame 0 and reused by "
-                       f"every estimator, spp and seed ({renders} cells)"})
+                    "scene": scene.name, "stage": "framecache",
+                    "why": f"static environment: one FrameCache built for frame 0 and reused "
+                           f"by every estimator, spp and seed ({renders} cells)"})
 
-    def _stage(self, scene: str, frame, stage: str, ms: float) -> None:
-        self.stages.append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
-
-    def _timed_renders(self, renderers, gbuffer, cache, spp: int, seeds,
-                       build_ms: float) -> list[tuple]:
-        """(estimate, TimedRender) per (renderer, seed) (:func:`timed_renders`), counted in the
-        run's device time."""
-        renders = timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
-        self.device_ms_total += sum(device_ms(e.timings_ms) for e, _ in renders)
-        return renders
-
-    def _run_frame(self, plan: _ScenePlan, gbuffer: DeviceGBuffer, warm_up: DeviceGBuffer,
-                   cache: FrameCache, built: dict[str, float], sequences: dict,
-                   previous_frame: int | None = None) -> None:
-        """Every cell of one frame; ``warm_up``: the scene's warm-up pixels; ``built``: device
-        ms per product built for this frame (empty where ``cache`` was reused from an identical
-        earlier frame); ``previous_frame``: the frame before this one in the run's frame list
-        (flicker), None on the first.  Each cell is rendered, scored, written and journalled,
-        in that order (a journalled cell is complete)."""
-        images = self.out / "images" / plan.scene.name / f"f{cache.frame}"
-        where = _where(plan, cache.frame)
-        self.progress.stage("reference", where)
-        reference = self._frame_reference(plan.scene.name, gbuffer, cache)
-        scorer = Scorer(reference, gbuffer.gbuffer.mask, self.config.metrics)
-        write_exr(images / "reference.exr", reference)
-        todo = self._scene_todo(plan.scene.name, cache.frame)
-        for spec in self.specs:
-            cells = [key for key in todo if key[1] == spec.label]
-            if not cells:
-                continue
-            build_ms = required_build_ms(built, spec.cls.requires)
-            estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
-            # Compiles and touches each kernel once (not timed).
-            self.progress.stage("warm-up", where, spec.label)
-            warmed = spec.make().render(warm_up, cache, 1, WARMUP_SEED)
-            self.device_ms_total += device_ms(warmed.timings_ms)
-            for key in cells:
-                self.progress.start_cell(key)
-                self.progress.stage("rendering")
-                spp, estimates, renders, sequence_key = self._render_cell(
-                    plan, spec, estimator, key, cells, gbuffer, cache, build_ms, sequences)
-                self.progress.stage("scoring")
-                row = self._score_cell(plan, spec, key, spp, estimates, renders, scorer,
-                                       sequence_key, previous_frame)
-                write_exr(images / f"{image_stem(row)}.exr", estimates[0].radiance)
-                self._journal_cell(row)
-
-    def _frame_reference(self, scene_name: str, gbuffer: DeviceGBuffer, cache: FrameCache):
-        """The frame's exact reference, its stage timed or marked skipped (cached)."""
-        reference = self.reference.image(gbuffer, cache)
-        if self.reference.last_ms is None:
-            self.manifest["skipped"].append({"scene": scene_name, "frame": cache.frame,
-                                             "stage": "reference", "why": "cached"})
-        else:
-            self._stage(scene_name, cache.frame, "reference", self.reference.last_ms)
-            self.device_ms_total += self.reference.last_ms
-        return reference
-
-    def _render_cell(self, plan: _ScenePlan, spec, estimator, key, cells, gbuffer, cache,
-                     build_ms: float, sequences: dict):
-        """A cell's timed renders: (spp, the estimates of its planned renders, the scored one
-        first, every TimedRender, the key of its sequence).  An equal-time cell takes the spp
-        calibrated for it (just before its first cell); a temporal estimator renders on the
-        instances that carry its sequence."""
-        _, label, spp, frame, seed, budget = key
-        repeats = self.repeats[spec.label]
-        budget_key = (plan.scene.name, label, budget)
-        if budget is not None:
-            if budget_key not in self.chosen:   # calibrated just before its cells
-                self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
-            spp = self.chosen[budget_key]
-        sequence_key = (label, key[2], budget, seed)
-        if spec.cls.tags.temporal:
-            if sequence_key not in sequences:
-                sequences[sequence_key] = [spec.make() for _ in range(repeats)]
-                for instance in sequences[sequence_key]:
-                    instance.reset()
-            renderers = sequences[sequence_key]
-        else:
-            renderers = [estimator] * repeats
-        timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
-        if budget_key in self.unverified:
-            spp, timed = self._correct_budget_cell(budget_key, spec, renderers, gbuffer,
-                                                   cache, spp, seed, build_ms, timed)
-        renders = [render for _, render in timed]
-        self._count_spread(renders, repeats)
-        # Renders added for a wide spread are timed, not scored: the replicates a row carries
-        # must not depend on the machine's noise.
-        return spp, [estimate for estimate, _ in timed[:repeats]], renders, sequence_key
-
-    def _score_cell(self, plan: _ScenePlan, spec, key, spp: int, estimates, renders,
-                    scorer: Scorer, sequence_key, previous_frame: int | None) -> dict:
-        """The cell's results row: the scored render's (``estimates[0]``) metrics against the
-        reference, every planned render's errors (the replicates), its time columns and its
-        flicker against the previous frame of its sequence."""
-        _, label, _, frame, seed, budget = key
-        estimate, mask = estimates[0], scorer.mask
-        metrics, delta_e = scorer.score(estimate)
-        others = [scorer.errors(other.radiance)[0] for other in estimates[1:]]
-        replicates = {metric + RENDERS: renders_text([metrics[metric]]
-                                                     + [errors[metric] for errors in others])
-                      if math.isfinite(metrics[metric]) else "" for metric in REPLICATED}
-        row = {
-            "scene": plan.scene.name, "estimator": label, "spp": int(spp), "frame": frame,
-            "seed": seed, "time_budget_ms": float("nan") if budget is None else budget,
-            "width": plan.width, "height": plan.height, "env_res": plan.env_res,
-            "estimator_params": self.params[label],
-            "estimator_version": spec.cls.version(), "schema_version": SCHEMA_VERSION,
-            "metrics": ",".join(self.config.metrics),
-            **metrics, **replicates, **time_columns(renders),
-            "device": self.device_name, "protocol": PROTOCOL,
-        }
-        # Estimator-specific per-frame scalars (e.g. smc's ess, reinits): extra columns
-        # after the fixed ones; they never replace a fixed column.
-        row.update({name: float(value) for name, value in estimate.extras.items()
-                    if name not in row})
-        stem = image_stem(row)
-        row["flicker"] = flicker(delta_e, self._previous_map(
-            plan, sequence_key, previous_frame, stem, mask), mask)
-        self._previous_delta_e[sequence_key] = (frame, delta_e.astype(np.float32))
-        return row
+    def _save_inputs(self, gbuffers: dict) -> None:
+        """``save_inputs``: each scene's G-buffer and each frame's map, where cells are left."""
+        if not self.config.save_inputs:
+            return
+        for plan in self.plans:
+            inputs = self.out / "inputs" / plan.scene.name
+            if plan.scene.name in gbuffers:
+                gbuffers[plan.scene.name].save_npz(inputs / "gbuffer.npz")
+            for frame in plan.frames:
+                if self._scene_todo(plan.scene.name, frame):
+                    with atomic_path(inputs / f"env_f{frame}.npy") as tmp:
+                        np.save(tmp, np.asarray(plan.scene.environment.frame(frame), np.float32))
 
     def _journal_cell(self, row: dict) -> None:
         """The row goes to the journal (after its images: a journalled cell is complete), and
         the journal is folded into the table every FOLD_SECONDS."""
         self.journal.append(row)
         self.rows[row_key(row)] = row
-        self.progress.cell_done(row["spp"])
         if time.monotonic() - self._last_fold > FOLD_SECONDS:
             self._fold()
             self._last_fold = time.monotonic()
-
-    def _cell_renders(self, spec, renderers, gbuffer, cache, spp: int, seed: int,
-                      build_ms: float) -> list[tuple]:
-        """(estimate, TimedRender) of a cell's renders, back to back before scoring: render 0
-        the scored one (seed ``seed``), one timing render per other renderer, then, for a
-        frame-by-frame estimator whose renders spread wider than ``SPREAD_LIMIT``, one more at
-        a time until they do not or there are ``EXTENSION`` × repeats (module docstring)."""
-        seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
-        timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
-        limit = (len(renderers) if spec.cls.tags.temporal
-                 else min(MAX_REPEATS, EXTENSION * len(renderers)))
-        while len(timed) < limit and too_wide([render for _, render in timed]):
-            timed += self._timed_renders(renderers[:1], gbuffer, cache, spp,
-                                         [timing_seed(seed, len(timed))], build_ms)
-        return timed
-
-    def _count_spread(self, renders, repeats: int) -> None:
-        """The run's count of cells that got more renders, and of those still too wide."""
-        counts = self.manifest["timing"]["spread"]
-        counts["cells"] += 1
-        counts["extended_cells"] += len(renders) > repeats
-        counts["wide_cells"] += too_wide(renders)
-
-    def _correct_budget_cell(self, budget_key: tuple, spec, renderers, gbuffer, cache, spp: int,
-                             seed: int, build_ms: float, timed: list) -> tuple[int, list]:
-        """The first cell of a budget this run calibrated, timed at the calibrated spp
-        (``timed``), corrected on its own time: up to ``CELL_CORRECTIONS`` steps of
-        :func:`corrected_spp` over the cell's measured spp, each rendering the cell again from
-        ``reset()`` (it is the first frame the renderers see); then the best of those spp
-        (:func:`best_measured`), rendered once more where it was not the last; the last
-        rendering is the cell, and its spp the budget's for every other cell (module docstring,
-        "Equal time")."""
-        fit = self.unverified.pop(budget_key)
-        measured = {}   # spp → the cell's median device ms there
-        for correction in range(CELL_CORRECTIONS + 2):
-            measured[spp] = float(np.median([device_ms(render.stages) for _, render in timed]))
-            fit["cell_runs"].append({"spp": spp, "median_device_ms": measured[spp]})
-            step = (corrected_spp(fit["a_ms"], measured, spp, fit["budget_ms"], spp_limit(spec.cls))
-                    if correction < CELL_CORRECTIONS else None)
-            if step is None or step in measured:
-                step = best_measured(measured, fit["budget_ms"])
-                if step == spp or correction > CELL_CORRECTIONS:
-                    break
-            for renderer in set(renderers):
-                renderer.reset()
-            spp = step
-            timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
-        fit["chosen_spp"] = self.chosen[budget_key] = spp
-        return spp, timed
-
-    def _previous_map(self, plan: _ScenePlan, sequence_key: tuple, previous_frame: int | None,
-                      stem: str, mask: np.ndarray) -> np.ndarray | None:
-        """The ΔE76 map of ``previous_frame`` for one (estimator, spp, budget, seed): from memory,
-        or, when that frame was done by an earlier (resumed) run, recomputed from its saved
-        estimate and reference EXRs; None on the first frame or when those files are gone."""
-        if previous_frame is None:
-            return None
-        kept = self._previous_delta_e.get(sequence_key)
-        if kept is not None and kept[0] == previous_frame:
-            return kept[1]
-        folder = self.out / "images" / plan.scene.name / f"f{previous_frame}"
-        try:
-            estimate = read_exr(folder / f"{stem}.exr")
-            reference = read_exr(folder / "reference.exr")
-        except InputError:
-            return None
-        if estimate.shape[:2] != mask.shape or reference.shape[:2] != mask.shape:
-            return None
-        estimate = np.where(np.isfinite(estimate), estimate, 0.0)
-        return delta_e_images(estimate, reference, mask)[0]
-
-    def _calibrate(self, spec, estimator, gbuffer, cache, cells, build_ms: float) -> None:
-        """Choose the spp of every budget of this estimator not chosen yet (module docstring);
-        ``build_ms``: the frame's build time for this estimator."""
-        scene_name = cells[0][0]
-        budgets = sorted({key[5] for key in cells if key[5] is not None
-                          and (scene_name, spec.label, key[5]) not in self.chosen})
-        if not budgets:
-            return
-        self.progress.stage("calibrating")
-        calibration = Calibration(estimator, gbuffer, cache, build_ms)
-        for budget in budgets:
-            fit = calibration.choose(budget)
-            key = (scene_name, spec.label, budget)
-            self.chosen[key] = fit["chosen_spp"]
-            entry = {"scene": scene_name, "estimator": spec.label, "frame": cache.frame,
-                     **fit, "calibrated_spp": fit["chosen_spp"], "cell_runs": []}
-            self.unverified[key] = entry
-            self.manifest["time_budget"]["calibrations"].append(entry)
-            if fit["over_budget"] and fit["chosen_spp"] == 1:
-                print(f"iblbench: {spec.label} on {scene_name}: even 1 spp takes "
-                      f"{fit['measured_ms']:.3g} ms > the {budget:g} ms budget; running 1 spp",
-                      file=sys.stderr)
-        self.device_ms_total += sum(device_ms(r.stages) - build_ms for r in calibration.renders)
-        estimator.reset()
-        self.progress.stage("rendering")
 
 
 def run(config: RunConfig):

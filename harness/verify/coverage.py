@@ -6,7 +6,7 @@ count how often it does.
 Its *truth*, the expected ΔE76 and relMSE over seeds, is the mean over ``truth_renders`` renders
 on seeds no simulated run uses.  Each simulated run renders the cell as ``iblbench run`` does
 (:mod:`iblbench.harness.protocol.runner`): ``seeds`` cell seeds, each with render 0 on the cell's
-seed and renders 1..R−1 on its timing seeds (:func:`~iblbench.harness.protocol.runner.timing_seed`),
+seed and renders 1..R−1 on its timing seeds (:func:`~iblbench.harness.protocol.executor.timing_seed`),
 each scored (:meth:`~iblbench.harness.protocol.metrics.Scorer.errors`); its interval is
 :func:`~iblbench.harness.protocol.stats.skew_corrected_ci` of those seeds × R replicates, the
 report's.
@@ -40,7 +40,7 @@ from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference
 from iblbench.harness.protocol.metrics import Scorer
-from iblbench.harness.protocol.runner import timing_seed
+from iblbench.harness.protocol.executor import timing_seed
 from iblbench.harness.protocol.stats import median_ci, skew_corrected_ci
 from iblbench.harness.protocol.sweep import parse_estimator
 from iblbench.harness.protocol.timing import (device_ms, groups_within, host_threads_capped,

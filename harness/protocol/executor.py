@@ -1,0 +1,439 @@
+"""Renders, scores and writes the cells it is given, on one device: the part of a run that does
+not care where the run's table lives or who else renders.
+
+The runner (:mod:`.runner`) plans a sweep, keeps its journal and manifest and hands cells to an
+``Executor``: in process, all of them to one executor on the run's own device; on a Dask cluster
+(:mod:`.distributed`), each unit of work to the executor of the worker that took it.  An
+executor writes the cell's images into the run's folder (through atomic renames) and gives each
+finished row to its caller; it never writes the results table, the journal or the manifest.
+Its manifest records (stages built, stages skipped, calibrations, the timing spread's counts,
+device time) are collected by :meth:`Executor.drain`.
+
+The cell's work is the runner module's docstring ("Timing", "Equal time", "Scores", "Flicker"):
+per frame a FrameCache (reused while the next frame is the same scene's same frame, or the very
+same map), the exact reference, a warm-up per estimator, then per cell its timed renders, its
+scores, its EXR and its row.  Rows name the ``host`` and the ``device`` that made them, and their
+times are that device's.
+
+An executor keeps, between calls of :meth:`Executor.render`, what does not depend on the cells:
+the scene's G-buffer on the device and the last frame's cache.  What a cell depends on comes in
+with its keys: the seed (so nothing depends on which process rendered a cell), an equal-time
+budget's chosen spp (``chosen``) and, for flicker, the ΔE76 map of the frame before the first
+one given (``maps``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+import platform
+import time
+
+import numpy as np
+
+from iblbench.estimators.runtime.device import cache_dir
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.runtime.reference import Reference
+from iblbench.harness.protocol.equal_time import (CELL_CORRECTIONS, Calibration, best_measured,
+                                                  corrected_spp, spp_limit)
+from iblbench.harness.protocol.metrics import PROTOCOL, Scorer, delta_e_images, flicker
+from iblbench.harness.protocol.results import REPLICATED, SCHEMA_VERSION, image_stem
+from iblbench.harness.protocol.run_plan import TIMING_SEED, RunConfig, RunPlan, ScenePlan, cell_order
+from iblbench.harness.protocol.shadows import attach_visibility
+from iblbench.harness.protocol.stats import RENDERS, renders_text
+from iblbench.harness.protocol.sweep import MAX_REPEATS
+from iblbench.harness.protocol.timing import (EXTENSION, device_ms, required_build_ms,
+                                              time_columns, timed_renders, too_wide)
+from iblbench.scenes.errors import InputError
+from iblbench.scenes.gbuffer import cached_trace
+from iblbench.scenes.imageio import read_exr, write_exr
+
+WARMUP_SEED = 0xFFFFFFFF   # a seed no benchmark cell uses
+WARMUP_PIXELS = 64
+
+
+def timing_seed(seed: int, repeat: int) -> int:
+    """The seed of timing render ``repeat`` (1..MAX_REPEATS-1) of cell seed ``seed``: above
+    every cell's seed and below the calibration and warm-up seeds, and distinct per cell seed,
+    so that no timing render reuses a light pool another render drew."""
+    return TIMING_SEED + (int(seed) << 8) + int(repeat)
+
+
+def warm_up_gbuffer(gbuffer):
+    """A G-buffer of at most ``WARMUP_PIXELS`` of ``gbuffer``'s covered pixels, specular where
+    the scene is (so the warm-up compiles the same kernel variants)."""
+    covered = np.flatnonzero(gbuffer.mask)
+    keep = covered[:WARMUP_PIXELS].copy()
+    specular = gbuffer.ks.reshape(-1, 3)[covered].max(axis=1) > 0
+    if specular.any() and not specular[:WARMUP_PIXELS].any():
+        keep[-1] = covered[np.argmax(specular)]
+    mask = np.zeros(gbuffer.mask.size, bool)
+    mask[keep] = True
+    return dataclasses.replace(gbuffer, mask=mask.reshape(gbuffer.mask.shape))
+
+
+def device_record(compute) -> dict:
+    """The manifest's record of a device, with the host it is on."""
+    info = compute.info
+    return {"name": info.device.name.strip(), "platform": info.platform.name.strip(),
+            "platform_version": info.platform.version.strip(),
+            "driver": info.device.driver_version.strip(), "fp64": info.has_fp64,
+            "host": platform.node()}
+
+
+def where(plan: ScenePlan, frame: int) -> str:
+    """The progress bar's name of a frame: the scene, and the frame in a sequence."""
+    return plan.scene.name if len(plan.frames) == 1 else f"{plan.scene.name} f{frame}"
+
+
+class CellClock:
+    """The progress of an executor that shows no bar (a worker's): each cell's host seconds,
+    for its client's time left (:meth:`iblbench.harness.protocol.progress.Progress.finished`)."""
+
+    def __init__(self):
+        self.seconds: dict[tuple, float] = {}
+        self._cell = None
+
+    def stage(self, stage: str, *where: str) -> None:
+        pass
+
+    def start_cell(self, key: tuple) -> None:
+        self._cell = (key, time.perf_counter())
+
+    def cell_done(self, spp: int) -> None:
+        key, start = self._cell
+        self.seconds[key] = time.perf_counter() - start
+
+
+@dataclasses.dataclass
+class _HeldCache:
+    """The frame cache an executor keeps: built for ``built_frame``, now targeted at ``frame``."""
+    scene: str
+    built_frame: int
+    frame: int
+    env: object
+    cache: FrameCache
+    built: dict[str, float]   # device ms per product built
+
+
+class Executor:
+    """Renders the cells it is given on ``compute`` (module docstring)."""
+
+    def __init__(self, config: RunConfig, plan: RunPlan, compute, progress=None):
+        self.config, self.plan, self.compute = config, plan, compute
+        self.out = pathlib.Path(config.out)
+        self.reference = Reference(compute)
+        self.device_name = compute.device_name
+        self.host = platform.node()
+        self.progress = progress or CellClock()
+        self.chosen = {}       # (scene, label, budget) → the spp chosen for it
+        self.unverified = {}   # (scene, label, budget) → its calibration, until its first cell
+        self.gbuffers = {}     # scene name → its traced G-buffer, where the caller has it
+        self._device = None    # (scene name, DeviceGBuffer, its warm-up pixels' DeviceGBuffer)
+        self._held: _HeldCache | None = None
+        self._previous_delta_e = {}   # (scene, label, spp, budget, seed) → (frame, ΔE76 map)
+        self.drain()
+
+    def drain(self) -> dict:
+        """The manifest records gathered since the last call (module docstring), and the
+        warnings for the run's terminal."""
+        records = getattr(self, "_records", None)
+        self._records = {"stages": [], "skipped": [], "calibrations": [], "warnings": [],
+                         "device_ms": 0.0,
+                         "spread": {"cells": 0, "extended_cells": 0, "wide_cells": 0}}
+        return records
+
+    def render(self, todo, on_row, maps: dict | None = None) -> dict:
+        """Render, score and write the cells ``todo`` (keys: scene, estimator, spp, frame, seed,
+        budget), scene by scene, frames in order, giving each finished row to ``on_row`` after
+        its images are written; ``maps``: the ΔE76 maps, (frame, map) by (scene, label, spp,
+        budget, seed), of the frames before ``todo``'s first ones (flicker).  Returns the ΔE76
+        map of the last frame rendered of each of those sequences."""
+        self._previous_delta_e = dict(maps or {})
+        for plan in self.plan.plans:
+            keys = [key for key in todo if key[0] == plan.scene.name]
+            if keys:
+                self._previous_delta_e = {k: v for k, v in self._previous_delta_e.items()
+                                          if k[0] == plan.scene.name}
+                self._run_scene(plan, keys, on_row)
+        return self._previous_delta_e
+
+    def _run_scene(self, plan: ScenePlan, keys: list, on_row) -> None:
+        gbuffer, warm_up = self._device_gbuffers(plan)
+        required = sorted({p for spec in self.plan.specs for p in spec.cls.requires})
+        sequences = {}   # temporal estimators: (label, spp, budget, seed) → [scored, twins...]
+        for index, frame in enumerate(plan.frames):
+            frame_keys = sorted((key for key in keys if key[3] == frame), key=cell_order)
+            if not frame_keys:
+                continue
+            cache, built = self._frame_cache(plan, frame, required)
+            previous = plan.frames[index - 1] if index > 0 else None
+            self._run_frame(plan, gbuffer, warm_up, cache, built, sequences, previous,
+                            frame_keys, on_row)
+
+    def _device_gbuffers(self, plan: ScenePlan):
+        """The scene's G-buffer and its warm-up pixels on the device, made once per scene."""
+        name = plan.scene.name
+        if self._device is None or self._device[0] != name:
+            self._device = self._held = None   # release the previous scene's buffers first
+            gbuffer = self.gbuffers.pop(name, None) or self._read_gbuffer(plan)
+            self._device = (name, DeviceGBuffer(self.compute, gbuffer),
+                            DeviceGBuffer(self.compute, warm_up_gbuffer(gbuffer)))
+        return self._device[1:]
+
+    @staticmethod
+    def _read_gbuffer(plan: ScenePlan):
+        """The scene's G-buffer and masks from the on-disk caches the client filled (traced here
+        where this machine does not share them)."""
+        scene = plan.scene
+        gbuffer, _ = cached_trace(scene.mesh, scene.material, scene.camera, plan.width,
+                                  plan.height, cache_dir() / "gbuffer")
+        return attach_visibility(scene, gbuffer, plan.env_res, cache_dir() / "visibility")[0]
+
+    def _frame_cache(self, plan: ScenePlan, frame: int, required: list[str]):
+        """(FrameCache, device ms per product built for it) of ``frame``: the one held where it
+        was built for this frame or for the very same map (the sequence returned the same
+        array: then nothing is built, and ``skipped`` says so), else built now."""
+        name, env = plan.scene.name, plan.scene.environment.frame(frame)
+        held = self._held
+        if held is not None and held.scene == name and (frame == held.built_frame
+                                                        or env is held.env):
+            if held.frame != frame:
+                held.cache.retarget(frame)
+                held.frame = frame
+                if frame != held.built_frame:
+                    self._records["skipped"].append({
+                        "scene": name, "frame": frame, "stage": "framecache",
+                        "why": f"environment identical to frame {held.built_frame}'s: its "
+                               f"FrameCache ({', '.join(['upload'] + required)}) reused"})
+            return held.cache, (held.built if frame == held.built_frame else {})
+        self._held = None   # release the previous frame's device buffers first
+        self.progress.stage("frame cache", where(plan, frame))
+        cache = FrameCache(self.compute, env, frame)
+        cache.require(required)
+        built = {k: v for k, v in cache.timings_ms.items() if k != "pool"}
+        for stage, ms in built.items():
+            self._stage(name, frame, stage, ms)
+            self._records["device_ms"] += ms
+        self._held = _HeldCache(name, frame, frame, env, cache, built)
+        return cache, built
+
+    def _stage(self, scene: str, frame, stage: str, ms: float) -> None:
+        self._records["stages"].append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
+
+    def _timed_renders(self, renderers, gbuffer, cache, spp: int, seeds,
+                       build_ms: float) -> list[tuple]:
+        """(estimate, TimedRender) per (renderer, seed) (:func:`timed_renders`), counted in the
+        run's device time."""
+        renders = timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+        self._records["device_ms"] += sum(device_ms(e.timings_ms) for e, _ in renders)
+        return renders
+
+    def _run_frame(self, plan: ScenePlan, gbuffer: DeviceGBuffer, warm_up: DeviceGBuffer,
+                   cache: FrameCache, built: dict[str, float], sequences: dict,
+                   previous_frame: int | None, todo: list, on_row) -> None:
+        """The cells ``todo`` of one frame; ``warm_up``: the scene's warm-up pixels; ``built``:
+        device ms per product built for this frame (empty where ``cache`` was reused from an
+        identical earlier frame); ``previous_frame``: the frame before this one in the run's
+        frame list (flicker), None on the first.  Each cell is rendered, scored and written, then
+        given to ``on_row`` (a row given is a complete cell)."""
+        images = self.out / "images" / plan.scene.name / f"f{cache.frame}"
+        here = where(plan, cache.frame)
+        self.progress.stage("reference", here)
+        reference = self._frame_reference(plan.scene.name, gbuffer, cache)
+        scorer = Scorer(reference, gbuffer.gbuffer.mask, self.config.metrics)
+        write_exr(images / "reference.exr", reference)
+        for spec in self.plan.specs:
+            cells = [key for key in todo if key[1] == spec.label]
+            if not cells:
+                continue
+            build_ms = required_build_ms(built, spec.cls.requires)
+            estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
+            # Compiles and touches each kernel once (not timed).
+            self.progress.stage("warm-up", here, spec.label)
+            warmed = spec.make().render(warm_up, cache, 1, WARMUP_SEED)
+            self._records["device_ms"] += device_ms(warmed.timings_ms)
+            for key in cells:
+                self.progress.start_cell(key)
+                self.progress.stage("rendering")
+                spp, estimates, renders, sequence_key = self._render_cell(
+                    plan, spec, estimator, key, cells, gbuffer, cache, build_ms, sequences)
+                self.progress.stage("scoring")
+                row = self._score_cell(plan, spec, key, spp, estimates, renders, scorer,
+                                       sequence_key, previous_frame)
+                write_exr(images / f"{image_stem(row)}.exr", estimates[0].radiance)
+                on_row(row)
+                self.progress.cell_done(row["spp"])
+
+    def _frame_reference(self, scene_name: str, gbuffer: DeviceGBuffer, cache: FrameCache):
+        """The frame's exact reference, its stage timed or marked skipped (cached)."""
+        reference = self.reference.image(gbuffer, cache)
+        if self.reference.last_ms is None:
+            self._records["skipped"].append({"scene": scene_name, "frame": cache.frame,
+                                             "stage": "reference", "why": "cached"})
+        else:
+            self._stage(scene_name, cache.frame, "reference", self.reference.last_ms)
+            self._records["device_ms"] += self.reference.last_ms
+        return reference
+
+    def _render_cell(self, plan: ScenePlan, spec, estimator, key, cells, gbuffer, cache,
+                     build_ms: float, sequences: dict):
+        """A cell's timed renders: (spp, the estimates of its planned renders, the scored one
+        first, every TimedRender, the key of its sequence).  An equal-time cell takes the spp
+        calibrated for it (just before its first cell); a temporal estimator renders on the
+        instances that carry its sequence."""
+        _, label, spp, frame, seed, budget = key
+        repeats = self.plan.repeats[spec.label]
+        budget_key = (plan.scene.name, label, budget)
+        if budget is not None:
+            if budget_key not in self.chosen:   # calibrated just before its cells
+                self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
+            spp = self.chosen[budget_key]
+        sequence_key = (plan.scene.name, label, key[2], budget, seed)
+        if spec.cls.tags.temporal:
+            if sequence_key not in sequences:
+                sequences[sequence_key] = [spec.make() for _ in range(repeats)]
+                for instance in sequences[sequence_key]:
+                    instance.reset()
+            renderers = sequences[sequence_key]
+        else:
+            renderers = [estimator] * repeats
+        timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
+        if budget_key in self.unverified:
+            spp, timed = self._correct_budget_cell(budget_key, spec, renderers, gbuffer,
+                                                   cache, spp, seed, build_ms, timed)
+        renders = [render for _, render in timed]
+        self._count_spread(renders, repeats)
+        # Renders added for a wide spread are timed, not scored: the replicates a row carries
+        # must not depend on the machine's noise.
+        return spp, [estimate for estimate, _ in timed[:repeats]], renders, sequence_key
+
+    def _score_cell(self, plan: ScenePlan, spec, key, spp: int, estimates, renders,
+                    scorer: Scorer, sequence_key, previous_frame: int | None) -> dict:
+        """The cell's results row: the scored render's (``estimates[0]``) metrics against the
+        reference, every planned render's errors (the replicates), its time columns and its
+        flicker against the previous frame of its sequence."""
+        _, label, _, frame, seed, budget = key
+        estimate, mask = estimates[0], scorer.mask
+        metrics, delta_e = scorer.score(estimate)
+        others = [scorer.errors(other.radiance)[0] for other in estimates[1:]]
+        replicates = {metric + RENDERS: renders_text([metrics[metric]]
+                                                     + [errors[metric] for errors in others])
+                      if math.isfinite(metrics[metric]) else "" for metric in REPLICATED}
+        row = {
+            "scene": plan.scene.name, "estimator": label, "spp": int(spp), "frame": frame,
+            "seed": seed, "time_budget_ms": float("nan") if budget is None else budget,
+            "width": plan.width, "height": plan.height, "env_res": plan.env_res,
+            "estimator_params": self.plan.params[label],
+            "estimator_version": spec.cls.version(), "schema_version": SCHEMA_VERSION,
+            "metrics": ",".join(self.config.metrics),
+            **metrics, **replicates, **time_columns(renders),
+            "device": self.device_name, "host": self.host, "protocol": PROTOCOL,
+        }
+        # Estimator-specific per-frame scalars (e.g. smc's ess, reinits): extra columns
+        # after the fixed ones; they never replace a fixed column.
+        row.update({name: float(value) for name, value in estimate.extras.items()
+                    if name not in row})
+        stem = image_stem(row)
+        row["flicker"] = flicker(delta_e, self._previous_map(
+            plan, sequence_key, previous_frame, stem, mask), mask)
+        self._previous_delta_e[sequence_key] = (frame, delta_e.astype(np.float32))
+        return row
+
+    def _cell_renders(self, spec, renderers, gbuffer, cache, spp: int, seed: int,
+                      build_ms: float) -> list[tuple]:
+        """(estimate, TimedRender) of a cell's renders, back to back before scoring: render 0
+        the scored one (seed ``seed``), one timing render per other renderer, then, for a
+        frame-by-frame estimator whose renders spread wider than ``SPREAD_LIMIT``, one more at
+        a time until they do not or there are ``EXTENSION`` × repeats (module docstring)."""
+        seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
+        timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+        limit = (len(renderers) if spec.cls.tags.temporal
+                 else min(MAX_REPEATS, EXTENSION * len(renderers)))
+        while len(timed) < limit and too_wide([render for _, render in timed]):
+            timed += self._timed_renders(renderers[:1], gbuffer, cache, spp,
+                                         [timing_seed(seed, len(timed))], build_ms)
+        return timed
+
+    def _count_spread(self, renders, repeats: int) -> None:
+        """The run's count of cells that got more renders, and of those still too wide."""
+        counts = self._records["spread"]
+        counts["cells"] += 1
+        counts["extended_cells"] += len(renders) > repeats
+        counts["wide_cells"] += too_wide(renders)
+
+    def _correct_budget_cell(self, budget_key: tuple, spec, renderers, gbuffer, cache, spp: int,
+                             seed: int, build_ms: float, timed: list) -> tuple[int, list]:
+        """The first cell of a budget this run calibrated, timed at the calibrated spp
+        (``timed``), corrected on its own time: up to ``CELL_CORRECTIONS`` steps of
+        :func:`corrected_spp` over the cell's measured spp, each rendering the cell again from
+        ``reset()`` (it is the first frame the renderers see); then the best of those spp
+        (:func:`best_measured`), rendered once more where it was not the last; the last
+        rendering is the cell, and its spp the budget's for every other cell (module docstring,
+        "Equal time")."""
+        fit = self.unverified.pop(budget_key)
+        measured = {}   # spp → the cell's median device ms there
+        for correction in range(CELL_CORRECTIONS + 2):
+            measured[spp] = float(np.median([device_ms(render.stages) for _, render in timed]))
+            fit["cell_runs"].append({"spp": spp, "median_device_ms": measured[spp]})
+            step = (corrected_spp(fit["a_ms"], measured, spp, fit["budget_ms"], spp_limit(spec.cls))
+                    if correction < CELL_CORRECTIONS else None)
+            if step is None or step in measured:
+                step = best_measured(measured, fit["budget_ms"])
+                if step == spp or correction > CELL_CORRECTIONS:
+                    break
+            for renderer in set(renderers):
+                renderer.reset()
+            spp = step
+            timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
+        fit["chosen_spp"] = self.chosen[budget_key] = spp
+        return spp, timed
+
+    def _previous_map(self, plan: ScenePlan, sequence_key: tuple, previous_frame: int | None,
+                      stem: str, mask: np.ndarray) -> np.ndarray | None:
+        """The ΔE76 map of ``previous_frame`` for one (estimator, spp, budget, seed): from memory,
+        or, when that frame was done by an earlier (resumed) run, recomputed from its saved
+        estimate and reference EXRs; None on the first frame or when those files are gone."""
+        if previous_frame is None:
+            return None
+        kept = self._previous_delta_e.get(sequence_key)
+        if kept is not None and kept[0] == previous_frame:
+            return kept[1]
+        folder = self.out / "images" / plan.scene.name / f"f{previous_frame}"
+        try:
+            estimate = read_exr(folder / f"{stem}.exr")
+            reference = read_exr(folder / "reference.exr")
+        except InputError:
+            return None
+        if estimate.shape[:2] != mask.shape or reference.shape[:2] != mask.shape:
+            return None
+        estimate = np.where(np.isfinite(estimate), estimate, 0.0)
+        return delta_e_images(estimate, reference, mask)[0]
+
+    def _calibrate(self, spec, estimator, gbuffer, cache, cells, build_ms: float) -> None:
+        """Choose the spp of every budget of this estimator not chosen yet (module docstring);
+        ``build_ms``: the frame's build time for this estimator."""
+        scene_name = cells[0][0]
+        budgets = sorted({key[5] for key in cells if key[5] is not None
+                          and (scene_name, spec.label, key[5]) not in self.chosen})
+        if not budgets:
+            return
+        self.progress.stage("calibrating")
+        calibration = Calibration(estimator, gbuffer, cache, build_ms)
+        for budget in budgets:
+            fit = calibration.choose(budget)
+            key = (scene_name, spec.label, budget)
+            self.chosen[key] = fit["chosen_spp"]
+            entry = {"scene": scene_name, "estimator": spec.label, "frame": cache.frame,
+                     **fit, "calibrated_spp": fit["chosen_spp"], "cell_runs": []}
+            self.unverified[key] = entry
+            self._records["calibrations"].append(entry)
+            if fit["over_budget"] and fit["chosen_spp"] == 1:
+                self._records["warnings"].append(
+                    f"{spec.label} on {scene_name}: even 1 spp takes {fit['measured_ms']:.3g} "
+                    f"ms > the {budget:g} ms budget; running 1 spp")
+        self._records["device_ms"] += sum(device_ms(r.stages) - build_ms
+                                          for r in calibration.renders)
+        estimator.reset()
+        self.progress.stage("rendering")

@@ -1,0 +1,186 @@
+"""What a run is asked to do and what it plans from that: the sweep's configuration
+(:class:`RunConfig`), each scene's image and frames (:class:`ScenePlan`) and the estimators'
+settings (:class:`RunPlan`).
+
+The client of a run (:mod:`.runner`) and every worker that renders its cells (:mod:`.executor`,
+:mod:`.distributed`) plan from the same ``RunConfig`` with :func:`plan_run`, so they agree on
+the scenes, frames, spp levels, parameters and repeats without sending scenes or estimators
+between processes.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+
+import numpy as np
+
+from iblbench.estimators.registry import get_estimator_class
+from iblbench.harness.protocol.equal_time import CALIBRATION_SEED
+from iblbench.harness.protocol.metrics import METRICS
+from iblbench.harness.protocol.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text,
+                                             parse_estimator, select_frames)
+from iblbench.scenes.errors import InputError, argument
+from iblbench.scenes.registry import load_scene
+
+DEFAULT_SCENES = ("sphere-sun",)
+DEFAULT_ESTIMATORS = ("uniform",)
+DEFAULT_SPP = (16, 64, 256)
+DEFAULT_SEEDS = 2
+TIMING_SEED = 0x80000000   # timing renders: TIMING_SEED + 256·seed + repeat (executor.timing_seed)
+# The largest cell seed whose timing seeds stay below the calibration seeds.
+MAX_SEED = (CALIBRATION_SEED - TIMING_SEED) // 256 - 1
+# Seeds per cell at most: a sweep plans every (cell, seed) up front, and 8,388,607 seeds took
+# 2.7 GB before the first cell (issue 23); a study needs tens, a coverage simulation hundreds.
+MAX_SEEDS = 10_000
+
+
+@dataclasses.dataclass
+class RunConfig:
+    out: pathlib.Path
+    scenes: tuple[str, ...] = DEFAULT_SCENES
+    estimators: tuple[str, ...] = DEFAULT_ESTIMATORS   # labels: "name" or "name{param=value}"
+    spp: tuple[int, ...] = DEFAULT_SPP
+    seeds: int = DEFAULT_SEEDS
+    first_seed: int = 0        # cells use seeds first_seed .. first_seed + seeds - 1
+    resolution: tuple[int, int] | None = None
+    device: str | None = None
+    save_inputs: bool = False
+    sanitize: bool = False
+    env_res: int | None = None
+    progress: bool | None = None   # None: a bar only on a TTY
+    frames: tuple[int, ...] | slice | None = None   # None: every frame; a slice: Python slice
+                                                    # semantics over each sequence's frames;
+                                                    # static scenes run frame 0
+    frames_for: tuple[tuple[str, object], ...] = ()   # (scene name, its own frame selection)
+    time_budget_ms: tuple[float, ...] = ()     # equal-time cells, besides the spp list
+    force: bool = False                        # recompute finished cells too
+    repeats: int = DEFAULT_REPEATS             # timed renders per cell (timing module)
+    repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats): its own count
+    spp_for: tuple[tuple[str, tuple[int, ...]], ...] = ()   # (estimator name, its own spp levels)
+    metrics: tuple[str, ...] = METRICS         # ΔE76 always; see harness.metrics
+    sweep: dict | None = None                  # the resolved sweep and its source (manifest)
+    # Where the cells run (:mod:`.distributed`); neither: in this process.
+    scheduler: str | None = None               # a running dask-scheduler's address
+    workers: int | None = None                 # a LocalCluster of this many worker processes
+
+    def frames_of(self, scene_name: str):
+        """The frame selection of one scene: its own (``frames_for``) or the sweep's."""
+        return dict(self.frames_for).get(scene_name.lower(), self.frames)
+
+
+@dataclasses.dataclass
+class ScenePlan:
+    scene: object
+    width: int
+    height: int
+    env_res: int
+    frames: list[int]
+
+
+@dataclasses.dataclass
+class RunPlan:
+    """The estimators' settings and the scenes' plans of one ``RunConfig``."""
+    specs: list                      # EstimatorSpec per label, in the config's order
+    params: dict[str, str]           # label → every parameter as sorted JSON (results rows)
+    repeats: dict[str, int]          # label → timed renders per cell
+    spp_levels: dict[str, tuple]     # label → its spp levels
+    plans: list[ScenePlan]
+
+    def scene(self, name: str) -> ScenePlan:
+        return next(plan for plan in self.plans if plan.scene.name == name)
+
+
+def plan_run(config: RunConfig) -> RunPlan:
+    """Check ``config`` (InputError, before anything is written) and plan it: its estimators,
+    their spp levels and repeats, and every scene's size and frames."""
+    _require_sound_numbers(config)
+    specs = [parse_estimator(label) for label in config.estimators]
+    labels = [spec.label for spec in specs]
+    if len(set(labels)) != len(labels):
+        raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
+    levels = {get_estimator_class(name).name: tuple(v) for name, v in config.spp_for}
+    spp_levels = {spec.label: levels.get(spec.cls.name, tuple(config.spp)) for spec in specs}
+    _require_spp_within_bounds(specs, spp_levels)
+    scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
+              for name in config.scenes]
+    _require_unique_names(scenes)
+    overrides = {get_estimator_class(name).name: n for name, n in config.repeats_for}
+    return RunPlan(specs=specs, params={spec.label: spec.params_json() for spec in specs},
+                   repeats={spec.label: overrides.get(spec.cls.name, config.repeats)
+                            for spec in specs},
+                   spp_levels=spp_levels,
+                   plans=[_plan_scene(config, scene) for scene in scenes])
+
+
+def cell_order(key: tuple):
+    """The order in which a frame's cells run: by estimator, its spp cells before its equal-time
+    ones, then spp, budget and seed (an equal-time budget is calibrated on its first cell)."""
+    return key[1], key[5] is not None, key[2] or 0, key[5] or 0, key[4]
+
+
+def _require_sound_numbers(config: RunConfig) -> None:
+    for spp in tuple(config.spp) + tuple(v for _, levels in config.spp_for for v in levels):
+        if spp < 1:
+            raise InputError(None, f"{argument('spp')} values must be positive integers, "
+                                   f"got {spp}")
+    if not 1 <= config.seeds <= MAX_SEEDS:
+        raise InputError(None, f"{argument('seeds')} must be in 1..{MAX_SEEDS} (every seed "
+                               f"renders every cell again), got {config.seeds}")
+    if not 0 <= config.first_seed <= MAX_SEED - config.seeds + 1:
+        raise InputError(None, f"{argument('first_seed', config.first_seed)} with "
+                               f"{argument('seeds', config.seeds)}: the seeds must lie in "
+                               f"0..{MAX_SEED}")
+    for name, repeats in (("default", config.repeats),) + tuple(config.repeats_for):
+        if not 1 <= repeats <= MAX_REPEATS:
+            raise InputError(None, f"{argument('repeats')} ({name}) must be in "
+                                   f"1..{MAX_REPEATS}, got {repeats}")
+    for budget in config.time_budget_ms:
+        if not (math.isfinite(budget) and budget > 0):
+            raise InputError(None, f"{argument('time_budget_ms')} must be positive, "
+                                   f"got {budget}")
+    if not config.spp and not config.time_budget_ms:
+        raise InputError(None, "no spp and no time budget: the sweep has no cells")
+
+
+def _require_unique_names(scenes) -> None:
+    """Scene names key the results rows and the image folders, so two scenes may not share one."""
+    seen = {}
+    for scene in scenes:
+        if scene.name in seen:
+            raise InputError(scene.source or scene.name,
+                             f"scene name '{scene.name}' is also the name of "
+                             f"{seen[scene.name] or 'a built-in scene'}; rename one of the files")
+        seen[scene.name] = scene.source
+
+
+def _require_spp_within_bounds(specs, spp_of: dict) -> None:
+    """Every spp of the sweep within each selected estimator's ``max_spp`` (``spp_of``: label →
+    its spp levels), checked before anything is written (a render past the bound fails mid-run)."""
+    for spec in specs:
+        bound = spec.cls.max_spp
+        above = [spp for spp in spp_of[spec.label] if bound is not None and spp > bound]
+        if above:
+            raise InputError(None, f"{argument('spp', max(above))} is above {spec.label}'s "
+                                   f"limit of {bound} samples per pixel")
+
+
+def _plan_scene(config: RunConfig, scene) -> ScenePlan:
+    frames_available = scene.environment.num_frames
+    if scene.environment.is_static:
+        frames = [0]
+    else:
+        selection = config.frames_of(scene.name)
+        frames = select_frames(selection, frames_available)
+        if not frames:
+            raise InputError(scene.source or scene.name,
+                             f"{argument('frames', frames_text(selection))} selects "
+                             f"no frame of scene '{scene.name}', which has {frames_available} "
+                             "frames")
+        if max(frames) >= frames_available:
+            raise InputError(scene.source or scene.name,
+                             f"frame {max(frames)} selected, but scene '{scene.name}' has "
+                             f"{frames_available} frames (0..{frames_available - 1})")
+    width, height = config.resolution or scene.resolution
+    env_res = int(np.shape(scene.environment.frame(frames[0]))[1])
+    return ScenePlan(scene, int(width), int(height), env_res, frames)
