@@ -233,7 +233,7 @@ def cluster(config: RunConfig):
                 resources={"GPU": 1} if gpu else None, dashboard_address=":0",
                 silence_logs=logging.ERROR))
         try:
-            client = stack.enter_context(Client(local or config.scheduler, timeout="30s"))
+            client = stack.enter_context(Client(local or config.scheduler, timeout="10s"))
         except OSError as error:
             raise InputError(None, f"{argument('scheduler', config.scheduler)}: no Dask "
                                    f"scheduler answers there ({error})") from None

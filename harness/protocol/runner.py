@@ -371,8 +371,12 @@ class Runner:
         # the scenes with cells left are traced once its state has been read under the lock.
         gbuffers = ({} if self.out.exists()
                     else {plan.scene.name: self._trace(plan) for plan in self.plans})
+        with self._cluster():   # a scheduler that does not answer leaves no --out behind
+            return self._run_locked(gbuffers)
+
+    def _run_locked(self, gbuffers: dict):
         prepare_out(self.out)
-        with _locked(self.out), host_threads_capped(), self._cluster():
+        with _locked(self.out), host_threads_capped():
             self._read_state()
             for plan in self.plans:
                 if plan.scene.name not in gbuffers and self._scene_todo(plan.scene.name):
