@@ -1,5 +1,14 @@
 """``iblbench run``: scenes × estimators × spp × frames × seeds → results table, manifest, images.
 
+The runner is a run's client and its one writer: it plans the sweep (:mod:`.run_plan`), traces
+the G-buffers, keeps the folder's lock, journal, table and manifest, and hands the cells left to
+an :class:`~iblbench.harness.protocol.executor.Executor`, which renders, scores and writes their
+images and gives back rows.  In process (the default) one executor on the run's device takes
+them all, in the order below.  With ``RunConfig.workers`` (a Dask LocalCluster) or
+``RunConfig.scheduler`` (a running dask-scheduler), the workers' executors take them unit by
+unit (:mod:`.distributed`), and their rows come back here to be journalled; the table is the
+same apart from the time columns, which are each worker's device's.
+
 The runner skips what a scene does not need (DESIGN §2): the G-buffer is traced once per scene
 (and read from its on-disk cache, :func:`iblbench.scenes.gbuffer.cached_trace`, when an earlier
 run traced the same one), a frame cache builds only the products the chosen estimators require,
@@ -8,7 +17,7 @@ and a cached reference is never recomputed.  Every skipped stage is recorded in 
 Resumption.  Before rendering, the runner plans every cell of the sweep and counts a cell as
 done when ``out`` already holds its row made with the same configuration (cell key, image size,
 cube face size, estimator parameters), the same code (``estimator_version``, ``schema_version``,
-protocol) and on the same device; it prints ``resumed: N cells already done, M to run`` and runs
+protocol) and on the run's device (a cluster's: one of its workers' devices); it prints ``resumed: N cells already done, M to run`` and runs
 only the M (``force`` runs them all).  A cell also counts as done only while its image files
 exist.  Each finished cell is appended to the results journal before the next one starts (see
 :mod:`iblbench.harness.protocol.results`), so a killed run, ``kill -9`` included, loses only the cell in
@@ -59,7 +68,8 @@ Timing (:mod:`iblbench.harness.protocol.timing` defines a cell's time).  Each ce
   never touched by a timing render.
 - More renders: a frame-by-frame estimator's cell whose renders spread wider than the timing
   module's limit gets renders R, R+1, ... (seeds :func:`timing_seed`) one at a time, up to
-  ``EXTENSION`` × R (:meth:`Runner._cell_renders`); the run says how many cells got more.
+  ``EXTENSION`` × R (:meth:`~iblbench.harness.protocol.executor.Executor._cell_renders`); the
+  run says how many cells got more.
 - Build: a frame builds its cache once (DESIGN §2), so the device time of that one build of the
   products the estimator requires counts in each of its timed renders (``time_ms_build`` is
   that one measurement); a frame that reused an identical frame's cache built nothing, and its
