@@ -248,4 +248,8 @@ def cluster(config: RunConfig):
         print(f"iblbench: {len(engine.workers)} Dask workers on "
               f"{', '.join(sorted(engine.devices))}"
               + (f"; dashboard {engine.dashboard}" if engine.dashboard else ""), file=sys.stderr)
+        if local is not None and config.workers > 1:
+            print(f"iblbench: the {config.workers} workers share this machine's device: each "
+                  "cell's time includes the others' load (times to compare come from one worker "
+                  "per device, or a run in process)", file=sys.stderr)
         yield engine

@@ -526,16 +526,20 @@ class Runner:
     def _report_spread(self, floors) -> None:
         """Says how many cells needed more timed renders, how many stayed too wide, and, only
         where it was poor, how repeatable the device itself was (``floors``: TimingFloor at the
-        start and end; the manifest and the report always have it)."""
+        start and end, or at each worker's start; the manifest and the report always have
+        it)."""
         counts = self.manifest["timing"]["spread"]
         if counts["extended_cells"] or counts["wide_cells"]:
             print(f"iblbench: timing: {counts['extended_cells']} of {counts['cells']} cells got "
                   f"more timed renders (IQR/median above {SPREAD_LIMIT:.0%}, up to {EXTENSION}x "
                   f"the repeats); {counts['wide_cells']} stayed above it", file=sys.stderr)
         if any(floor.poor for floor in floors):
+            measured = (timing_floor_text(floors) if self.engine is None else "; ".join(
+                f"{w['floor'].text()} on the worker at {address}"
+                for address, w in self.engine.workers.items()))
             print("iblbench: timing: the device itself was not repeatable (a fixed kernel "
-                  f"launched back to back: {timing_floor_text(floors)}); compare times with "
-                  "care", file=sys.stderr)
+                  f"launched back to back: {measured}); compare times with care",
+                  file=sys.stderr)
 
     def _check_budgets(self, table) -> list[dict]:
         """Each equal-time cell's time against its budget, per device (a cluster's devices each
