@@ -576,7 +576,20 @@ class Runner:
 
     def _fold(self):
         self.journal.close()
-        return write_results(self.out, list(self.rows.values()))
+        return write_results(self.out, sorted(self.rows.values(), key=self._table_order))
+
+    def _table_order(self, row: dict) -> tuple:
+        """The table's row order: the in-process run's (scenes and estimators in the sweep's
+        order, frames in order, then :func:`cell_order`), whatever order the rows came in (a
+        cluster's finish in any); rows of scenes or estimators this sweep does not name after
+        those it does, by name."""
+        scenes = {plan.scene.name: (0, i, plan.frames) for i, plan in enumerate(self.plans)}
+        labels = {spec.label: (0, i) for i, spec in enumerate(self.specs)}
+        key = row_key(row)
+        scene, frames = scenes.get(key[0], (1, key[0], []))[:2], scenes.get(key[0], (0, 0, []))[2]
+        frame = frames.index(key[3]) if key[3] in frames else len(frames) + key[3]
+        _, spp_first, spp, budget, seed = cell_order(key)
+        return scene, frame, labels.get(key[1], (1, key[1])), spp_first, spp, budget, seed
 
     def _bar_disabled(self):
         return None if self.config.progress is None else not self.config.progress
