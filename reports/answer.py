@@ -60,17 +60,26 @@ def ranking_table(ranking: Ranking, table_html) -> markupsafe.Markup:
 
 def matrix_table(rankings: dict[str, list[Ranking]], table_html) -> markupsafe.Markup:
     """Scene × budget: the winner at each headline budget, or the tie (those not resolved from
-    it), with the budget in ms; budgets in order, lowest first."""
-    width = max((len(r) for r in rankings.values()), default=0)
+    it), with the budget in ms; budgets in order, lowest first.  Rankings of several devices
+    get a row per scene and device, the device named in a column of its own."""
+    groups: dict[tuple, list[Ranking]] = {}
+    for scene, scene_rankings in rankings.items():
+        if not scene_rankings:
+            groups[(scene, None)] = []   # a row of –
+        for ranking in scene_rankings:
+            groups.setdefault((scene, ranking.device), []).append(ranking)
+    width = max((len(r) for r in groups.values()), default=0)
     labels = ["lowest budget", "middle budget", "highest budget"] if width == 3 else \
         [f"budget {i + 1}" for i in range(width)]
+    named = ["device"] if any(device is not None for _, device in groups) else []
     rows = []
-    for scene, scene_rankings in rankings.items():
-        row = {"scene": scene}
-        for label, ranking in zip(labels, scene_rankings):
+    for (scene, device), group in groups.items():
+        row = {"scene": scene, **({"device": device} if named else {})}
+        for label, ranking in zip(labels, group):
             row[label] = f"{ranking.budget_ms:g} ms: {ranking.winner}"
         rows.append(row)
-    return table_html(pd.DataFrame(rows, columns=["scene", *labels]).fillna("–"), "summary matrix")
+    return table_html(pd.DataFrame(rows, columns=["scene", *named, *labels]).fillna("–"),
+                      "summary matrix")
 
 
 def answer_context(draw, cells, rankings: dict[str, list[Ranking]], table_html) -> dict:

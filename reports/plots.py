@@ -20,7 +20,7 @@ import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from iblbench.harness.protocol.stats import MeanCI, cell_intervals, separated  # noqa: E402
+from iblbench.harness.protocol.stats import MeanCI, by_device, cell_intervals, separated  # noqa: E402
 from iblbench.harness.protocol.timing import TIME  # noqa: E402
 from iblbench.reports.previews import HEAT_CMAP, HEAT_MAX  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
@@ -162,6 +162,11 @@ def _figure_legend(fig) -> None:
             entries.setdefault(label, handle)
     fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncol=4,
                frameon=False)
+
+
+def device_name(device: str) -> str:
+    """A results row's ``device`` without its platform and driver (after " | "), for a title."""
+    return device.split(" | ")[0]
 
 
 def _positive(values) -> np.ndarray:
@@ -314,26 +319,31 @@ EXTRAS = {
 }
 
 
-def extra_cells(rows, column: str):
-    """Per (estimator, spp) of one scene's ``rows`` the mean over seeds of ``column`` and of
-    ``time_ms`` with their intervals, each seed's value the mean over the frames where the
-    column is defined (flicker is NaN on a first frame, smc's ess on an init frame); None when
-    no row has it."""
+def extra_cells(rows, column: str, time: bool = True):
+    """Per (estimator, spp) of one scene's ``rows`` the mean over seeds of ``column`` and, with
+    ``time``, of ``time_ms`` with their intervals, each seed's value the mean over the frames
+    where the column is defined (flicker is NaN on a first frame, smc's ess on an init frame);
+    None when no row has it."""
     if column not in rows or rows[column].isna().all():
         return None
     defined = rows[rows[column].notna()]
-    return cell_intervals(defined, ["estimator", "spp"], [column, TIME]).reset_index()
+    return cell_intervals(defined, ["estimator", "spp"], [column, TIME] if time else [column]) \
+        .reset_index()
 
 
 def plot_extras(path: pathlib.Path, rows, scene: str) -> list[str]:
     """FLIP, flicker, ess and reinits (``EXTRAS``, those ``rows`` have) against spp with their
-    intervals, FLIP also against device time; nothing is written when ``rows`` have none.
-    Returns the names (``EXTRAS``) of those plotted."""
-    cells = {column: extra_cells(rows, column) for column in EXTRAS}
+    intervals, FLIP also against device time (a panel per device where ``rows`` have several:
+    times are never pooled over devices); nothing is written when ``rows`` have none.  Returns
+    the names (``EXTRAS``) of those plotted."""
+    devices = by_device(rows)
+    cells = {column: extra_cells(rows, column, time=len(devices) == 1) for column in EXTRAS}
     cells = {column: c for column, c in cells.items() if c is not None}
-    panels = [(column, "spp") for column in cells]
+    panels = [(column, "spp", cells[column], None) for column in cells]
     if "flip" in cells:
-        panels.insert(1, ("flip", TIME))
+        timed = [(device, cells["flip"] if device is None else extra_cells(on, "flip"))
+                 for device, on in devices]
+        panels[1:1] = [("flip", TIME, data, device) for device, data in timed if data is not None]
     if not panels:
         return []
     styles = _styles(rows)
@@ -341,9 +351,10 @@ def plot_extras(path: pathlib.Path, rows, scene: str) -> list[str]:
     count = -(-len(panels) // columns)
     fig, axes = plt.subplots(count, columns, figsize=(11, 0.4 + 4.2 * count), squeeze=False,
                              layout="constrained")
-    for ax, (column, x) in zip(axes.flat, panels):
+    for ax, (column, x, data, device) in zip(axes.flat, panels):
         _, label, log = EXTRAS[column]
-        data = cells[column]
+        if device is not None:
+            ax.set_title(f"on {device_name(device)}", fontsize=11)
         for name in _estimators(data):
             shown = data[data.estimator == name].sort_values("spp")
             _errorbar(ax, shown, x, column, styles[name], name, x_interval=x == TIME, log=log)
@@ -394,20 +405,24 @@ def plot_answer(path: pathlib.Path, cells, rankings: dict, highlight: bool) -> N
     error) joined in spp order, the scene's headline budgets dashed.  ``highlight``: the top
     three at the scene's middle headline budget (``rankings``: scene → its
     :class:`~iblbench.harness.protocol.ranking.Ranking` list) in colour and named in the panel,
-    every other estimator grey; else every estimator in its colour, with one legend."""
-    scenes = list(dict.fromkeys(cells.scene))
-    columns = min(3, len(scenes))
-    rows = -(-len(scenes) // columns)
+    every other estimator grey; else every estimator in its colour, with one legend.  Cells of
+    several devices (a ``device`` column) get a panel per scene and device, with that device's
+    rankings (times are never compared across devices)."""
+    panels = (list(dict.fromkeys(zip(cells.scene, cells.device))) if "device" in cells
+              else [(scene, None) for scene in dict.fromkeys(cells.scene)])
+    columns = min(3, len(panels))
+    rows = -(-len(panels) // columns)
     styles = _styles(cells)
     with plt.rc_context({"font.size": 11}):   # three panels a row: a little smaller
         fig, axes = plt.subplots(rows, columns, figsize=(3.2 * columns + 0.6, 2.9 * rows + 0.9),
                                  sharex=True, sharey=True, layout="constrained", squeeze=False)
-        for ax, scene in zip(axes.flat, scenes):
-            scene_rankings = rankings.get(scene) or []
+        for ax, (scene, device) in zip(axes.flat, panels):
+            scene_rankings = [r for r in rankings.get(scene) or [] if r.device == device]
             chosen = scene_rankings[len(scene_rankings) // 2] if scene_rankings else None
             top = [s.estimator for s in chosen.ranked[:3]] if chosen is not None else []
-            for name in _estimators(cells[cells.scene == scene]):
-                summary = cells[(cells.scene == scene) & (cells.estimator == name)].sort_values("spp")
+            shown = cells[(cells.scene == scene) & ((cells.device == device) if device else True)]
+            for name in _estimators(shown):
+                summary = shown[shown.estimator == name].sort_values("spp")
                 if not highlight:
                     style, extra = styles[name], {"label": name}
                 elif name in top:   # a long label wraps at its parameters' commas
@@ -422,7 +437,8 @@ def plot_answer(path: pathlib.Path, cells, rankings: dict, highlight: bool) -> N
             for ranking in scene_rankings:
                 ax.axvline(ranking.budget_ms, color="black", ls="--",
                            lw=1.4 if ranking is chosen else 0.6, alpha=0.7, zorder=0)
-            title = scene if chosen is None else f"{scene} (top 3 at {chosen.budget_ms:g} ms)"
+            title = scene if device is None else f"{scene}\non {device_name(device)}"
+            title += "" if chosen is None else f" (top 3 at {chosen.budget_ms:g} ms)"
             ax.set_title(title, fontsize=11)
             if highlight and top:   # in rank order, in the empty fast-and-accurate corner
                 handles, labels = ax.get_legend_handles_labels()
@@ -433,7 +449,7 @@ def plot_answer(path: pathlib.Path, cells, rankings: dict, highlight: bool) -> N
             ax.set_yscale("log")
             _plain_log_axes(ax, "xy")
             ax.grid(True, which="both", alpha=0.3)
-        for ax in axes.flat[len(scenes):]:
+        for ax in axes.flat[len(panels):]:
             ax.set_visible(False)
         for ax in axes[-1]:
             ax.set_xlabel("device time per frame (ms)")

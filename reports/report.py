@@ -28,6 +28,14 @@ separate (:func:`iblbench.reports.plots.pareto_calls`); otherwise it is "not res
 seeds".  Host wall time is shown beside device time and never ranks anything.  Equal-time cells
 are tabled with their budget, the time they achieved and whether it is within ±10% of the
 budget.
+
+Several devices: a table whose rows several devices ran (a sweep spread over machines) has
+every figure of time per device (:func:`iblbench.harness.protocol.stats.by_device`), never two
+devices' times in one figure: the rankings, the samples-and-time table, the equal-time table,
+error against time (and shadow rays) and the sequences at equal time are shown once per device,
+headed by its name, and the opening matrix and plot have a row and panels per scene and device;
+the errors (the errors table, convergence, effective samples, the image captions) are pooled
+over the devices as they are for one.  A one-device table's page names no device there.
 """
 from __future__ import annotations
 
@@ -49,7 +57,8 @@ from iblbench.harness.protocol.equal_time import TOLERANCE
 from iblbench.harness.protocol.metrics import Scorer
 from iblbench.harness.protocol.ranking import scene_rankings
 from iblbench.harness.protocol.results import load_table
-from iblbench.harness.protocol.stats import LEVEL, cell_intervals, interval_text, mean_ci, t_quantile
+from iblbench.harness.protocol.stats import (LEVEL, by_device, cell_intervals, devices,
+                                             interval_text, mean_ci, t_quantile)
 from iblbench.harness.protocol.timing import TIME
 from iblbench.reports import plots
 from iblbench.reports.answer import answer_context, ranking_table, sequence_context
@@ -103,22 +112,25 @@ def summarize(table: pd.DataFrame) -> pd.DataFrame:
     ``nonfinite`` sums every row's; ``efficiency`` = 1/(relMSE·s) of the cell's figures, its
     interval from their bounds (low: both high; high: both low), so it is at least 95%;
     ``pareto_rel_mse``/``pareto_delta_e76`` are :func:`~.plots.pareto_calls` over the scene's
-    cells (time, error)."""
+    cells (time, error).  A table of several devices gets no time, efficiency or Pareto call
+    (pooled over devices: :func:`device_cells` has them per device)."""
     keys = ["scene", "estimator", "spp"]
+    several = len(devices(table)) > 1
     # The errors the plots and Pareto calls read stay, NaN, where the run left them out
     # (--metrics de76 has no relMSE); any other figure left out is dropped.
     columns = [c for c in INTERVAL_COLUMNS if c in table
-               and (table[c].notna().any() or c in ("mean_delta_e76", "rel_mse"))]
+               and (table[c].notna().any() or c in ("mean_delta_e76", "rel_mse"))
+               and not (several and c.startswith("time_"))]
     cells = cell_intervals(table, keys, columns)
     cells["nonfinite"] = table.groupby(keys, sort=False).nonfinite.sum()
     cells = cells.reset_index()
-    if "rel_mse" in cells:
+    if "rel_mse" in cells and TIME in cells:
         with np.errstate(divide="ignore", invalid="ignore"):
             cells["efficiency"] = 1e3 / (cells.rel_mse * cells[TIME])
             cells["efficiency_low"] = 1e3 / (cells.rel_mse_high * cells[f"{TIME}_high"])
             cells["efficiency_high"] = 1e3 / (cells.rel_mse_low * cells[f"{TIME}_low"])
         cells["efficiency_half"] = (cells.efficiency_high - cells.efficiency_low) / 2
-    for column in ("rel_mse", "mean_delta_e76"):
+    for column in ("rel_mse", "mean_delta_e76") if TIME in cells else ():
         name = f"pareto_{column.replace('mean_', '')}"
         cells[name] = ""
         for _, rows in cells.groupby("scene", sort=False):
@@ -129,6 +141,19 @@ def summarize(table: pd.DataFrame) -> pd.DataFrame:
     cells["_scene"] = cells.scene.map(scene_order)
     return cells.sort_values(["_scene", "_order", "spp"]).drop(columns=["_order", "_scene"]) \
         .reset_index(drop=True)
+
+
+def device_cells(table: pd.DataFrame, cells: pd.DataFrame) -> list[tuple[str | None, pd.DataFrame]]:
+    """The cells each device's figures of time are shown from: ``[(None, cells)]`` for a
+    one-device table (``cells``: :func:`summarize`'s of it), else each device's name and
+    :func:`summarize` of its rows."""
+    views = by_device(table)
+    return [(None, cells)] if len(views) == 1 else [(d, summarize(rows)) for d, rows in views]
+
+
+def on_device(rows: pd.DataFrame, device: str | None) -> pd.DataFrame:
+    """The rows of ``device``; all of them for None (a one-device table)."""
+    return rows if device is None else rows[rows.device == device]
 
 
 def split_equal_time(table: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -213,13 +238,19 @@ def summary_html(cells: pd.DataFrame, columns=None) -> markupsafe.Markup:
     return _table_html(frame, "summary")
 
 
-def summary_tables(cells: pd.DataFrame) -> dict[str, markupsafe.Markup]:
+def summary_tables(cells: pd.DataFrame, views=None) -> dict[str, markupsafe.Markup]:
     """Title → table: the scene's errors, then its samples and cost (ERROR_COLUMNS); the seeds
-    only in the first, so that the second fits a page 800 px wide."""
-    rest = [c for c in _TABLE_COLUMNS if c not in ERROR_COLUMNS and c not in KEY_COLUMNS
-            and not (c == "shadow_rays" and c in cells and (cells[c] == 0).all())]   # no V
-    return {"Errors": summary_html(cells, KEY_COLUMNS + ERROR_COLUMNS),
-            "Samples and time": summary_html(cells, ["estimator", "spp"] + rest)}
+    only in the first, so that the second fits a page 800 px wide.  ``views``
+    (:func:`device_cells`' of the scene, default ``[(None, cells)]``): the samples and cost
+    once per device, each named and with its Pareto calls, where there are several."""
+    tables = {"Errors": summary_html(cells, KEY_COLUMNS + ERROR_COLUMNS)}
+    for device, shown in views or [(None, cells)]:
+        rest = [c for c in _TABLE_COLUMNS if c not in ERROR_COLUMNS and c not in KEY_COLUMNS
+                and not (c == "shadow_rays" and c in shown and (shown[c] == 0).all())]   # no V
+        pareto = [c for c in ERROR_COLUMNS if c.startswith("pareto_")] if device else []
+        title = "Samples and time" + (f" on {device}" if device else "")
+        tables[title] = summary_html(shown, ["estimator", "spp"] + rest + pareto)
+    return tables
 
 
 def _dict_table(mapping: dict) -> markupsafe.Markup:
@@ -716,6 +747,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
     except OSError as error:
         raise InputError(report, f"cannot create the report directory ({error.strerror})") from None
     cells = summarize(table)
+    views = device_cells(table, cells)
     convergence = flatter_than_tags(table)
     figures = Figures(report)
     figures.draw("colour_bar.png", plots.write_colour_bar)
@@ -730,11 +762,13 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
     shown = {"spp": spp, "seed": seed, "frame": frame, "pixel": pixel,
              "ray_costs": ray_costs(manifest, ray_cost_ns)}
     shown["figures"] = figures
-    scenes = [_scene_section(run_dir, report, manifest, table, cells, equal_time, convergence,
-                             scene, shown, compute, rankings.get(scene, []))
+    scenes = [_scene_section(run_dir, report, manifest, table, (cells, views), equal_time,
+                             convergence, scene, shown, compute, rankings.get(scene, []))
               for scene in dict.fromkeys(table.scene)]
     context = _page_context(run_dir, manifest, table, scenes)
-    context["answer"] = answer_context(figures.draw, cells, rankings, _table_html)
+    answer_cells = cells if len(views) == 1 else pd.concat(
+        [device_cells.assign(device=device) for device, device_cells in views])
+    context["answer"] = answer_context(figures.draw, answer_cells, rankings, _table_html)
     text = _TEMPLATES.get_template("report.html.j2").render(**context)
     with atomic_path(report / "index.html") as tmp:
         tmp.write_text(text, encoding="utf-8")
@@ -746,13 +780,17 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
                    equal_time, convergence, scene: str, shown: dict, compute,
                    rankings: list) -> dict:
     """One scene's part of the page: its ranking at its headline budgets (``rankings``) first,
-    then its tables, figures, image grid, bias table and sample picture; ``shown``: the spp,
-    seed, frame and pixel asked for (None: the defaults)."""
+    then its tables, figures, image grid, bias table and sample picture; ``cells``: the
+    :func:`summarize` cells and :func:`device_cells`' views; ``shown``: the spp, seed, frame and
+    pixel asked for (None: the defaults)."""
+    cells, views = cells
     scene_cells = cells[cells.scene == scene]
     rows = table[table.scene == scene]
     slug = _slug(scene)
-    figures = _scene_figures(shown["figures"], scene_cells, scene, slug,
-                             shown["ray_costs"].get(scene))
+    figures = _scene_figures(shown["figures"], scene_cells, scene, slug)
+    views = [(i, device, shown_cells[shown_cells.scene == scene])
+             for i, (device, shown_cells) in enumerate(views)]
+    views = [view for view in views if len(view[2])]
     frames = sorted(set(rows.frame))
     frame = shown["frame"]
     if frame is not None and len(frames) > 1:
@@ -770,15 +808,14 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
     extra_columns = shown["figures"].draw(extras, plots.plot_extras, rows, scene)
     picture = _picture_section(inputs, table, scene, scene_frame, shown, compute)
     timed = equal_time[equal_time.scene == scene]
-    sequence = sequence_context(shown["figures"].draw, pd.concat([rows, timed]), scene, slug,
-                                rankings, _table_html)
-    return {"name": scene, "slug": slug, "tables": summary_tables(scene_cells),
-            "rankings": [{"budget_ms": r.budget_ms, "verdict": r.verdict(),
-                          "table": ranking_table(r, _table_html)} for r in rankings],
+    return {"name": scene, "slug": slug,
+            "tables": summary_tables(scene_cells, [(device, c) for _, device, c in views]),
+            "devices": [_device_part(shown, scene, slug, i, device, device_cells,
+                                     on_device(rows, device), on_device(timed, device),
+                                     [r for r in rankings if r.device == device])
+                        for i, device, device_cells in views],
             "bias": bias_table(run_dir, table, cells, scene, scene_frame, lambda: inputs().mask),
-            "equal_time": equal_time_html(timed) if len(timed) else None,
             "figures": figures, "per_frame": per_frame, "frames": len(frames),
-            "sequence": sequence,
             "grid": grid, "picture": picture, "frame_rule": frame_rule,
             "extras": extras if extra_columns else None, "extra_columns": extra_columns,
             "convergence": [f.text() for f in convergence if f.scene == scene],
@@ -786,13 +823,38 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
             "spp": sorted(set(int(v) for v in rows.spp))}
 
 
-def _scene_figures(drawn: Figures, scene_cells, scene: str, slug: str,
-                   ray_cost: tuple[float, int] | None) -> dict:
-    """Error against time (Pareto front), convergence and effective samples of one scene, and
-    for a scene with visibility error against time plus shadow rays at ``ray_cost``
-    (ns per ray, covered pixels)."""
-    figures = {"time": f"error_vs_time_{slug}.png", "spp": f"convergence_{slug}.png",
-               "effective": f"effective_{slug}.png"}
+def _device_part(shown: dict, scene: str, slug: str, index: int, device: str | None,
+                 scene_cells, rows, timed, rankings: list) -> dict:
+    """What one scene shows of one device's times (of every row where the table has one
+    device, ``device`` None): its rankings, equal-time table, error against time (and shadow
+    rays) and sequence at equal time; ``on`` names the device in the headings, and its figures'
+    files and titles name it (the ``index``-th device) too."""
+    title = scene if device is None else f"{scene} on {plots.device_name(device)}"
+    slug = slug if device is None else f"{slug}_device{index + 1}"
+    return {"device": device, "on": f" on {device}" if device is not None else "",
+            "rankings": [{"budget_ms": r.budget_ms, "verdict": r.verdict(),
+                          "table": ranking_table(r, _table_html)} for r in rankings],
+            "equal_time": equal_time_html(timed) if len(timed) else None,
+            "figures": _time_figures(shown["figures"], scene_cells, title, slug,
+                                     shown["ray_costs"].get(scene)),
+            "sequence": sequence_context(shown["figures"].draw, pd.concat([rows, timed]), title,
+                                         slug, rankings, _table_html)}
+
+
+def _scene_figures(drawn: Figures, scene_cells, scene: str, slug: str) -> dict:
+    """Convergence and effective samples of one scene (errors: every device's cells)."""
+    figures = {"spp": f"convergence_{slug}.png", "effective": f"effective_{slug}.png"}
+    drawn.draw(figures["spp"], plots.plot_convergence, scene_cells, scene)
+    drawn.draw(figures["effective"], plots.plot_effective, scene_cells, scene)
+    return figures
+
+
+def _time_figures(drawn: Figures, scene_cells, scene: str, slug: str,
+                  ray_cost: tuple[float, int] | None) -> dict:
+    """Error against time (Pareto front) of one scene's cells of one device, and for a scene
+    with visibility error against time plus shadow rays at ``ray_cost`` (ns per ray, covered
+    pixels)."""
+    figures = {"time": f"error_vs_time_{slug}.png"}
     drawn.draw(figures["time"], plots.plot_error_vs_time, scene_cells, scene)
     if ray_cost is not None and "shadow_rays" in scene_cells:
         ns_per_ray, pixels = ray_cost
@@ -802,8 +864,6 @@ def _scene_figures(drawn: Figures, scene_cells, scene: str, slug: str,
                    with_ray_cost(scene_cells, ns_per_ray, pixels), scene,
                    xlabel=f"device time + shadow rays × {ns_per_ray:.3g} ns (ms per frame, "
                           f"{pixels} pixels)")
-    drawn.draw(figures["spp"], plots.plot_convergence, scene_cells, scene)
-    drawn.draw(figures["effective"], plots.plot_effective, scene_cells, scene)
     return figures
 
 
@@ -835,6 +895,7 @@ def _page_context(run_dir: pathlib.Path, manifest: dict, table, scenes: list[dic
         "scenes": scenes,
         "sequences": any(s["frames"] > 1 for s in scenes),
         "manifest": _manifest_context(manifest),
+        "devices": devices(table) if len(devices(table)) > 1 else [],
         "rows": len(table),
         "not_computed": not_computed(table),
         "colour_bar": "colour_bar.png",

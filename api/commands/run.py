@@ -149,8 +149,9 @@ def terminal_summaries(table):
     per frame, build + sample + shade) as the report and ``check`` show it.  Errors are the mean
     over the cell's scored renders, the time the median of its timed renders, each with its 95%
     interval, ``mean ± half-width`` (:func:`iblbench.harness.protocol.stats.cell_intervals`);
-    ``seeds`` says how many seeds."""
-    from iblbench.harness.protocol.stats import cell_intervals, interval_text
+    ``seeds`` says how many seeds.  Where several devices ran the rows, each cell is keyed by its
+    device too (:func:`iblbench.harness.protocol.stats.time_keys`): times are per device."""
+    from iblbench.harness.protocol.stats import cell_intervals, interval_text, time_keys
     from iblbench.harness.protocol.timing import TIME
 
     shown = {TIME: TIME, "mean_delta_e76": "mean_delta_e76", "rel_mse": "rel_mse", "flip": "flip",
@@ -164,6 +165,7 @@ def terminal_summaries(table):
              "error at equal time (the spp chosen so that the device time per frame, build + "
              "sample + shade, lands within 10% of time_budget_ms):")):
         if len(rows):
+            keys = time_keys(table, keys)
             columns = [c for c in shown if c in rows and rows[c].notna().any()]
             cells = cell_intervals(rows, keys, columns)
             spp = {} if "spp" in keys else {"spp": ("spp", "first")}

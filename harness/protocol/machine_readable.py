@@ -43,6 +43,8 @@ how many values and ``method`` which; ``low``/``high`` are null without an inter
 ``metrics`` holds each of ``RUN_METRICS`` the run computed (a metric left out, NaN in every row,
 is absent); ``time_ms`` is the cell's time (:mod:`iblbench.harness.protocol.timing`).
 ``equal_time_answer`` is :mod:`iblbench.harness.protocol.ranking`'s, per scene and headline budget.
+Rows of several devices: each cell and ranking is per device and carries a ``device`` key (times
+are per device); a one-device run's document has no such key.
 
 **check**::
 
@@ -84,7 +86,7 @@ import xml.etree.ElementTree as ET
 import pandas as pd
 
 from iblbench.harness.protocol.results import METRIC_COLUMNS
-from iblbench.harness.protocol.stats import MEAN_METHOD, RENDERS, cell_intervals
+from iblbench.harness.protocol.stats import MEAN_METHOD, RENDERS, cell_intervals, time_keys
 
 RUN_METRICS = tuple(c for c in METRIC_COLUMNS
                     if c not in ("nonfinite", "time_repeats") and not c.endswith(RENDERS))
@@ -108,6 +110,7 @@ def run_summary(rows: pd.DataFrame, out, manifest: dict, rankings=None) -> dict:
         if not len(selected):
             continue
         columns = [c for c in RUN_METRICS if c in selected and selected[c].notna().any()]
+        keys = time_keys(rows, keys)   # several devices: a cell per device (times per device)
         intervals = cell_intervals(selected, keys, columns)
         for key, group in selected.groupby(keys, sort=True):
             interval = intervals.loc[key]
@@ -115,6 +118,7 @@ def run_summary(rows: pd.DataFrame, out, manifest: dict, rankings=None) -> dict:
             cells.append({
                 "scene": key[0], "estimator": key[1], "spp": int(group.spp.iloc[0]),
                 "time_budget_ms": None if pd.isna(budget) else float(budget),
+                **({"device": key[3]} if len(keys) > 3 else {}),
                 "frames": int(group.frame.nunique()), "seeds": int(interval.seeds),
                 "nonfinite": int(group.nonfinite.sum()),
                 "metrics": {c: {"mean": interval[c], "low": interval[f"{c}_low"],

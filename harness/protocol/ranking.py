@@ -29,6 +29,11 @@ replicates (the same seeds and renders, which in one run they do), Welch otherwi
 else up to three round budgets (1, 2 or 5 × 10^k ms) inside the time range the scene's cells
 covered, each ranking as many estimators as possible and at least half of them, at least 2×
 apart.
+
+**Per device.**  Times of different devices are never compared: where a table holds rows of
+several devices (:func:`~iblbench.harness.protocol.stats.by_device`), each device's cells are
+ranked on their own, at that device's headline budgets, and each :class:`Ranking` names its
+``device`` (None where the table has one device, whose rankings read as before).
 """
 from __future__ import annotations
 
@@ -39,8 +44,8 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.protocol.equal_time import TOLERANCE
-from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, cell_values,
-                                             column_interval, compare_values,
+from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, by_device,
+                                             cell_values, column_interval, compare_values,
                                              skew_corrected_ci)
 
 METRIC = "mean_delta_e76"
@@ -77,13 +82,15 @@ class Standing:
 @dataclasses.dataclass(frozen=True)
 class Ranking:
     """Every estimator of one scene at one budget: ``ranked`` best first, each adjacent pair's
-    :class:`RatioCI` (worse / better) in ``versus_next``, and the rest."""
+    :class:`RatioCI` (worse / better) in ``versus_next``, and the rest; ``device``: the device
+    whose cells these are, where the table holds several (module docstring), else None."""
     scene: str
     budget_ms: float
     metric: str
     ranked: list[Standing]
     versus_next: list[RatioCI]
     unranked: list[Standing]
+    device: str | None = None
 
     @property
     def resolved(self) -> tuple[int, int]:
@@ -106,7 +113,8 @@ class Ranking:
         """One line, e.g. ``at 5 ms/frame: balanced_mis (ΔE76 0.9 [0.8, 1.0]) ahead of envmap
         (1.7 [1.6, 1.8]); smc not reached``."""
         name = METRIC_NAMES.get(self.metric, self.metric)
-        head = f"at {self.budget_ms:g} ms/frame on {self.scene}: "
+        on = f" ({self.device})" if self.device is not None else ""
+        head = f"at {self.budget_ms:g} ms/frame on {self.scene}{on}: "
         if not self.ranked:
             text = head + "no estimator measured"
         elif len(self.ranked) == 1:
@@ -138,7 +146,8 @@ class Ranking:
             return entry
 
         ratios = list(self.versus_next) + [None]
-        return {"scene": self.scene, "budget_ms": self.budget_ms, "metric": self.metric,
+        device = {"device": self.device} if self.device is not None else {}
+        return {"scene": self.scene, **device, "budget_ms": self.budget_ms, "metric": self.metric,
                 "winner": self.winner, "verdict": self.verdict(),
                 "resolved_pairs": list(self.resolved),
                 "ranked": [standing(s, r) for s, r in zip(self.ranked, ratios)],
@@ -197,14 +206,15 @@ def standing_at(estimator: str, points: list[Point], budget_ms: float) -> Standi
 
 
 def rank(curves: dict[str, list[Point]], scene: str, budget_ms: float,
-         metric: str = METRIC) -> Ranking:
-    """Every estimator's standing at ``budget_ms`` (``curves``: estimator → :func:`curve`)."""
+         metric: str = METRIC, device: str | None = None) -> Ranking:
+    """Every estimator's standing at ``budget_ms`` (``curves``: estimator → :func:`curve`, of
+    ``device``'s cells where the table holds several devices)."""
     standings = [standing_at(label, points, budget_ms) for label, points in curves.items() if points]
     ranked = sorted((s for s in standings if s.status == "ranked"), key=lambda s: s.error.mean)
     unranked = [s for s in standings if s.status != "ranked"]
     # worse / better, paired where the two have the same replicates, else Welch
     versus = [compare_values(a.replicates, b.replicates) for a, b in zip(ranked, ranked[1:])]
-    return Ranking(scene, budget_ms, metric, ranked, versus, unranked)
+    return Ranking(scene, budget_ms, metric, ranked, versus, unranked, device)
 
 
 def round_budgets(low: float, high: float) -> list[float]:
@@ -237,17 +247,18 @@ def headline_budgets(curves: dict[str, list[Point]], sweep_budgets=()) -> list[f
 
 def scene_rankings(table: pd.DataFrame, metric: str = METRIC, budgets=None) -> dict[str, list[Ranking]]:
     """Per scene of ``table`` (a results table), its rankings at its headline budgets
-    (``budgets``: the same budgets for every scene instead); none for a table without times
-    or the metric."""
-    out = {}
+    (``budgets``: the same budgets for every scene instead), each device's in turn where the
+    table holds several (module docstring); none for a table without times or the metric."""
     if TIME_COLUMN not in table or metric not in table:
-        return out
-    for scene, rows in table.groupby("scene", sort=False):
-        curves = {label: curve(cells, metric)
-                  for label, cells in rows.groupby("estimator", sort=False)}
-        sweep = sorted(rows.time_budget_ms.dropna().unique())
-        chosen = budgets if budgets is not None else headline_budgets(curves, sweep)
-        out[scene] = [rank(curves, scene, budget, metric) for budget in chosen]
+        return {}
+    out = {scene: [] for scene in dict.fromkeys(table.scene)}
+    for device, on_device in by_device(table):
+        for scene, rows in on_device.groupby("scene", sort=False):
+            curves = {label: curve(cells, metric)
+                      for label, cells in rows.groupby("estimator", sort=False)}
+            sweep = sorted(rows.time_budget_ms.dropna().unique())
+            chosen = budgets if budgets is not None else headline_budgets(curves, sweep)
+            out[scene] += [rank(curves, scene, budget, metric, device) for budget in chosen]
     return out
 
 

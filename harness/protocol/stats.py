@@ -40,6 +40,14 @@ distribution (a steady device: the manifest's timing floor says how steady it wa
 renders no pair of order statistics reaches 95%: the interval is then the range, and its level
 (50% at 2, 75% at 3, 87.5% at 4, 93.75% at 5) is carried in :attr:`MeanCI.level`.
 
+**Times are per device.**  A table may hold rows that several devices ran (the ``device``
+column: a sweep spread over machines).  A time (``time_ms`` and every other ``time_*`` column)
+is never aggregated over rows of two devices (:func:`column_interval` refuses to), so every
+figure of time is aggregated per device: :func:`by_device` splits a table by device, and
+:func:`time_keys` adds ``device`` to an aggregation's keys, each only where the table holds
+several devices, so a one-device table is aggregated as before.  Errors do not depend on the
+device and are pooled over them.
+
 **Two cells with the same replicates** (the same seeds and repeats: two runs of one sweep, or
 two estimators of one run) are compared *paired*: the replicates are matched by (seed, render)
 and the test is on their differences, :func:`ratio_ci` with ``paired=True``
@@ -89,6 +97,7 @@ RATIO_METHOD = ("ratio of means B/A, 95% interval by the delta method on log(rat
                 "both cells have the same (seed, render) replicates, else Welch-Satterthwaite")
 RENDERS = "_renders"          # a metric's per-render values: column f"{metric}{RENDERS}"
 TIME_COLUMN = "time_ms"       # the one column aggregated as a median (timing.TIME)
+DEVICE_COLUMN = "device"      # the device that ran a row: times are aggregated per device
 
 
 def t_quantile(df: float, level: float = LEVEL) -> float:
@@ -323,7 +332,11 @@ def column_interval(rows, column: str) -> tuple[MeanCI, str]:
     """One cell's figure of ``column`` with its interval, and the method that made it: the time
     (``TIME_COLUMN``) as :func:`median_ci` of every timed render where the rows carry them, any
     other figure over :func:`cell_values`: :func:`skew_corrected_ci` of replicates,
-    :func:`mean_ci` of per-seed values."""
+    :func:`mean_ci` of per-seed values.  A time of rows from several devices is a ValueError
+    (module docstring: times are per device)."""
+    if column.startswith("time_") and len(devices(rows)) > 1:
+        raise ValueError(f"{column} of rows from several devices ({', '.join(devices(rows))}): "
+                         "times are aggregated per device")
     if column == TIME_COLUMN:
         times = [renders_values(text) for text in rows.get(TIME_COLUMN + RENDERS, ())]
         if times and all(t.size for t in times):
@@ -383,6 +396,30 @@ def cell_intervals(table, keys, columns):
              else pd.Index(list(cells), name=keys[0]))
     frame.index = index
     return frame
+
+
+def devices(table) -> list[str]:
+    """The devices that ran ``table``'s rows, in the order they first appear ([] without a
+    ``device`` column)."""
+    if DEVICE_COLUMN not in table:
+        return []
+    return list(dict.fromkeys(table[DEVICE_COLUMN].dropna()))
+
+
+def by_device(table) -> list[tuple[str | None, object]]:
+    """``table`` split by device for a figure of time: ``[(None, table)]`` where at most one
+    device ran its rows (a one-device table is shown as a whole, unnamed, as before), else
+    ``(device, its rows)`` per device in the order they first appear."""
+    names = devices(table)
+    if len(names) < 2:
+        return [(None, table)]
+    return [(name, table[table[DEVICE_COLUMN] == name]) for name in names]
+
+
+def time_keys(table, keys) -> list[str]:
+    """``keys`` with ``device`` added where several devices ran ``table``'s rows: an aggregation
+    of times by these keys never pools two devices."""
+    return [*keys, DEVICE_COLUMN] if len(devices(table)) > 1 else list(keys)
 
 
 def separated(a: MeanCI, b: MeanCI) -> bool:

@@ -36,7 +36,8 @@ each paired estimator's ``estimator_version``), device (the rows' ``device``), p
 paired estimator's ``repeats``: a row's ``time_repeats`` varies with the timing spread, so it is no protocol) or
 configuration (``width``,
 ``height``, ``env_res``).  It compares them anyway: the user decides what a difference means;
-times are only meaningful on one device.
+times are only meaningful on one device.  A cell whose rows on either side several devices ran
+has its times left uncompared (times are never pooled over devices: :mod:`iblbench.harness.protocol.stats`).
 
 Not done: correction for the many cells × metrics tested (at 95% one comparison in 20 of
 unchanged code is significant by chance; a threshold keeps those small chance changes from
@@ -55,7 +56,7 @@ import pandas as pd
 
 from iblbench.harness.protocol.results import KEY_COLUMNS, json_text, load_table, read_manifest, row_key
 from iblbench.harness.protocol.stats import (LEVEL, RATIO_METHOD, MeanCI, RatioCI, cell_values,
-                                             column_interval, compare_values, ratio_ci)
+                                             column_interval, compare_values, devices, ratio_ci)
 from iblbench.scenes.errors import InputError
 
 METRICS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "effective_ratio", "time_ms")
@@ -206,7 +207,8 @@ def compare(dir_a, dir_b, thresholds=()) -> dict:
         metrics = {}
         for metric in METRICS:
             if metric not in rows_a.columns or metric not in rows_b.columns \
-                    or not _comparable(rows_a[metric], rows_b[metric]):
+                    or not _comparable(rows_a[metric], rows_b[metric]) \
+                    or (metric.startswith("time_") and max(len(devices(r)) for r in (rows_a, rows_b)) > 1):
                 continue
             compared.add(metric)
             values_a, values_b = (cell_values(rows, metric)[0] for rows in (rows_a, rows_b))
