@@ -19,7 +19,7 @@ import pytest
 import iblbench
 from iblbench.harness.protocol.distributed import chains, sequence_key
 from iblbench.harness.protocol.results import (DETERMINISTIC_COLUMNS, KEY_COLUMNS, read_results,
-                                               row_key)
+                                               row_key, write_results)
 from iblbench.harness.protocol.run_plan import RunConfig, plan_run
 from iblbench.scenes.imageio import read_exr
 
@@ -97,18 +97,37 @@ def test_units_are_cells_and_whole_sequences_in_the_in_process_order(tmp_path):
                                                        ("uniform", 1)]
 
 
-def test_quick_on_two_workers_gives_the_in_process_table(tmp_path):
+def test_quick_on_two_workers_gives_the_in_process_table_and_report(tmp_path):
     """Acceptance: ``quick`` with ``--workers 2`` equals the in-process run in every non-timing
-    column (the seeds are the cell's, so scheduling changes nothing), and each row names its
-    host and device."""
-    here = iblbench.run(config="quick", out=tmp_path / "here", progress=False)
-    there = iblbench.run(config="quick", out=tmp_path / "there", progress=False, workers=2)
+    column (the seeds are the cell's, so scheduling changes nothing), rows in the same order,
+    each naming its host and device; given the same times, its report is the in-process one
+    (every figure byte for byte, the page up to its manifest section)."""
+    here_dir, there_dir = tmp_path / "run-in-process", tmp_path / "run-on-workers"
+    here = iblbench.run(config="quick", out=here_dir, progress=False)
+    there = iblbench.run(config="quick", out=there_dir, progress=False, workers=2)
     assert len(here) == len(there) == 192
-    assert_same_cells(tmp_path / "there", tmp_path / "here")
+    assert_same_cells(there_dir, here_dir)
     assert set(there.host) == {os.uname().nodename} and there.device.str.len().min() > 0
-    manifest = json.loads((tmp_path / "there" / "manifest.json").read_text())
+    manifest = json.loads((there_dir / "manifest.json").read_text())
     assert manifest["status"] == "complete" and len(manifest["workers"]) == 2
     assert len(manifest["timing"]["floor"]["groups_within"]) == 2   # one floor per worker
+
+    table = pd.read_parquet(here_dir / "results.parquet")
+    theirs = pd.read_parquet(there_dir / "results.parquet")
+    assert theirs[KEY_COLUMNS].equals(table[KEY_COLUMNS])          # the in-process row order
+    times = [column for column in table if column.startswith("time_")]
+    theirs[times] = table[times]
+    write_results(there_dir, theirs.to_dict("records"))
+    pages = {}
+    for name, folder in (("here", here_dir), ("there", there_dir)):
+        pages[name] = iblbench.report(folder).read_text().replace(folder.name, "RUN")
+    assert pages["there"].split("<h2>Manifest</h2>")[0] == pages["here"].split(
+        "<h2>Manifest</h2>")[0]
+    figures = sorted(p.relative_to(here_dir) for p in
+                     (here_dir / "report").rglob("*.png"))
+    assert len(figures) > 10
+    for figure in figures:
+        assert (there_dir / figure).read_bytes() == (here_dir / figure).read_bytes()
 
 
 def test_temporal_sequences_through_workers_are_bit_identical(sequence_sweep, tmp_path):
