@@ -14,7 +14,9 @@ Render every (scene, estimator, spp, frame, seed) cell of a sweep, score it agai
 reference and write results.parquet/.csv, manifest.json and images/<scene>/f<frame>/ (the EXR of
 every image; `iblbench report` draws the PNG previews and ΔE heat maps) into --out. The sweep comes from --config (default: the shipped
 'default'); each flag given replaces that field of the config. Re-running resumes: cells already
-in --out with the same configuration, code version and device are skipped."""
+in --out with the same configuration, code version and device are skipped. The cells run in this
+process, or on a Dask cluster (--workers, --scheduler) whose rows this process alone writes; every
+row names the host and device that ran it."""
 
 
 def add_parser(subparsers) -> None:
