@@ -39,7 +39,6 @@ resolution = "20x20"
 env_res = 16
 metrics = ["de76", "relmse"]
 """
-ENV = dict(os.environ, PYTHONWARNINGS="ignore")
 
 
 def sorted_rows(out: Path) -> pd.DataFrame:
@@ -60,9 +59,14 @@ def assert_same_cells(out: Path, expected: Path) -> None:
         assert np.array_equal(read_exr(out / path), read_exr(expected / path)), path
 
 
+def environment() -> dict:
+    """The subprocesses' environment, read when they start: the session's private cache."""
+    return dict(os.environ, PYTHONWARNINGS="ignore")
+
+
 def run_cli(config: Path, out: Path, *flags: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "iblbench.cli", "run", "--config", str(config),
-                             "--out", str(out), "--no-progress", *flags], env=ENV,
+                             "--out", str(out), "--no-progress", *flags], env=environment(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -187,10 +191,11 @@ def test_a_scheduler_and_two_workers_started_by_hand(sequence_sweep, tmp_path):
     address = f"tcp://127.0.0.1:{_free_port()}"
     started = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port",
                                  address.rsplit(":", 1)[1], "--dashboard-address", ":0"],
-                                env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+                                env=environment(), stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)]
     try:
         started += [subprocess.Popen([dask, "worker", address, "--nthreads", "1"],
-                                     env=ENV, cwd=tmp_path, stdout=subprocess.DEVNULL,
+                                     env=environment(), cwd=tmp_path, stdout=subprocess.DEVNULL,
                                      stderr=subprocess.DEVNULL) for _ in range(2)]
         process = run_cli(config, tmp_path / "cluster", "--scheduler", address)
         _, err = process.communicate(timeout=300)
