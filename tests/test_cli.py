@@ -27,7 +27,7 @@ RESULT_COLUMNS = {
     "scene", "estimator", "estimator_version", "spp", "frame", "seed", "mean_delta_e76",
     "mean_delta_e2000", "rel_mse", "flip", "flicker", "used_samples", "effective_samples", "effective_ratio",
     "evaluations", "shadow_rays", "nonfinite", "time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build",
-    "time_ms_sample", "time_ms_shade", "time_ms_host", "time_repeats", "device", "protocol",
+    "time_ms_sample", "time_ms_shade", "time_ms_host", "time_repeats", "device", "host", "protocol",
     "schema_version", "time_budget_ms", "width", "height", "env_res", "estimator_params", "metrics",
     "mean_delta_e76_renders", "mean_delta_e2000_renders", "rel_mse_renders", "time_ms_renders",
 }

@@ -3,6 +3,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from iblbench.harness.protocol.stats import renders_values
 from iblbench.harness.studies import reproduce
 from iblbench.reports.reproduction import summary_head, write_summary
 from iblbench.scenes.errors import InputError
@@ -326,7 +327,11 @@ def test_mis_compensation_end_to_end_on_tiny_images(tmp_path):
     at_spp = table[table.time_budget_ms.isna()]
     assert set(at_spp.spp) == {reproduce.MISC_SPP}
     budget = table.time_budget_ms.dropna().unique()
-    slowest = at_spp.groupby("estimator").time_ms.mean().max()
+    # A cell's time is the median of all its timed renders (harness/protocol/stats.py); the
+    # budget is the slowest estimator's, to two significant digits.  (The mean of the rows'
+    # medians differs from it by more than 5% on a loaded machine.)
+    slowest = max(np.median(np.concatenate([renders_values(text) for text in rows.time_ms_renders]))
+                  for _, rows in at_spp.groupby("estimator"))
     assert len(budget) == 1 and budget[0] == pytest.approx(slowest, rel=0.05)
     assert table[table.time_budget_ms.notna()].groupby("estimator").seed.nunique().to_dict() \
         == {label: 2 for label in pair}
