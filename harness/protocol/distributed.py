@@ -13,17 +13,20 @@ Dask distributed schedules; iblbench only says what a unit of work is and keeps 
   not survive a fork, and pyopencl objects do not pickle.  :class:`OpenCLWorker`, a Dask
   ``WorkerPlugin``, makes each worker's context at its start on the device ``--device`` names
   (or the worker's ``IBLBENCH_DEVICE``, or the default choice), measures its timing floor, and
-  keeps one :class:`~iblbench.harness.protocol.executor.Executor` per run.  Workers that own a
-  GPU declare the resource ``GPU=1`` (``dask-worker --resources GPU=1``; ``--workers N`` does it
-  when this machine's device is a GPU); where any worker declares it, every unit is submitted
-  with ``resources={"GPU": 1}``.  The plugin points the workers at the client's on-disk cache
+  keeps one :class:`~iblbench.harness.protocol.executor.Executor` per run, which renders one
+  unit at a time (a worker given several threads runs its units one after the other).  Workers
+  that own a GPU declare the resource ``GPU=1`` (``dask worker --resources GPU=1``); where any
+  worker declares it, every unit is submitted with ``resources={"GPU": 1}``.  A LocalCluster's
+  workers share this machine's one device and declare nothing.  The plugin points the workers at the client's on-disk cache
   (G-buffers, visibility, references, programs, each written by atomic rename under a content
   hash, so concurrent writers are safe), which must be on a filesystem they share, as the run's
   folder must be: workers write the cells' images there.
 - **One writer.** Workers return rows; only the client journals them and folds the table
   (:mod:`.results`).  A killed worker's unit is rerun by Dask on another worker; a unit that
-  kills ``distributed.scheduler.allowed-failures`` workers is lost, and the run says so at its
-  end (a rerun resumes it).  A killed client loses the units in flight.
+  kills ``distributed.scheduler.allowed-failures`` workers is lost with the rest of its chain
+  (their flicker needs it), and the run says so at its end (a rerun resumes them).  A killed
+  client loses the units in flight; with ``--scheduler``, units already running may still
+  write their images into the run's folder, which the next run replaces.
 - **Seeds and time.** A cell's seeds come from its key, so no result depends on scheduling.
   Time columns are the worker's device's, and each row names its ``host`` and ``device``.
 """
@@ -36,11 +39,12 @@ import logging
 import os
 import pathlib
 import sys
+import threading
 import uuid
 
 from distributed import WorkerPlugin
 
-from iblbench.estimators.runtime.device import cache_dir, choose_device, get_compute
+from iblbench.estimators.runtime.device import cache_dir, get_compute
 from iblbench.harness.protocol.executor import CellClock, Executor, device_record
 from iblbench.harness.protocol.run_plan import RunConfig, RunPlan, cell_order, plan_run
 from iblbench.harness.protocol.timing import host_threads_capped, measure_timing_floor
@@ -63,6 +67,7 @@ class OpenCLWorker(WorkerPlugin):
     def setup(self, worker) -> None:
         os.environ["IBLBENCH_CACHE"] = self.cache
         self.compute = get_compute(self.device)
+        self.lock = threading.Lock()   # one unit at a time on the executor and its queue
         self.floor = measure_timing_floor(self.compute)
         self.worker = {"address": worker.address, "record": device_record(self.compute),
                        "device": self.compute.device_name, "floor": self.floor}
@@ -94,17 +99,17 @@ def render_unit(run_id: str, config: RunConfig, keys: list, chosen: dict,
     from distributed import get_worker
 
     plugin = get_worker().plugins[PLUGIN]
-    executor = plugin.executor(run_id, config)
-    executor.chosen.update(chosen)
-    executor.progress = CellClock()
     rows = []
-    with host_threads_capped():
+    with plugin.lock, host_threads_capped():
+        executor = plugin.executor(run_id, config)
+        executor.chosen.update(chosen)
+        executor.progress = CellClock()
         maps = executor.render(keys, rows.append, maps)
-    budgets = {(key[0], key[1], key[5]) for key in keys if key[5] is not None}
-    return UnitResult(rows=rows, maps=maps,
-                      chosen={b: executor.chosen[b] for b in budgets if b in executor.chosen},
-                      records=executor.drain(), seconds=executor.progress.seconds,
-                      worker=plugin.worker)
+        budgets = {(key[0], key[1], key[5]) for key in keys if key[5] is not None}
+        return UnitResult(rows=rows, maps=maps,
+                          chosen={b: executor.chosen[b] for b in budgets if b in executor.chosen},
+                          records=executor.drain(), seconds=executor.progress.seconds,
+                          worker=plugin.worker)
 
 
 def _worker_record(dask_worker) -> dict:
@@ -185,28 +190,29 @@ class Cluster:
             else:   # the first chain of an uncalibrated budget calibrates it
                 waiting[budget] = []
                 submit(units, 0, {})
-        for future in finished:
-            units, index = pending.pop(future)
-            try:
-                result = future.result()
-            except KilledWorker:
-                lost += [k for unit in units[index:] for k in unit]
-                budget = (units[0][0][0], units[0][0][1], units[0][0][5])
-                if budget not in chosen and waiting.get(budget):   # another chain calibrates
-                    submit(waiting[budget].pop(0), 0, {})
-                continue
-            except BaseException:
-                for other in pending:
-                    other.cancel()
-                raise
-            self.workers.setdefault(result.worker["address"], result.worker)
-            chosen.update(result.chosen)
-            on_result(result)
-            for budget in result.chosen:
-                for other in waiting.pop(budget, []):
-                    submit(other, 0, {})
-            if index + 1 < len(units):
-                submit(units, index + 1, result.maps)
+        try:
+            for future in finished:
+                units, index = pending.pop(future)
+                try:
+                    result = future.result()
+                except KilledWorker:
+                    lost += [k for unit in units[index:] for k in unit]
+                    budget = (units[0][0][0], units[0][0][1], units[0][0][5])
+                    if budget not in chosen and waiting.get(budget):   # another chain calibrates
+                        submit(waiting[budget].pop(0), 0, {})
+                    continue
+                self.workers.setdefault(result.worker["address"], result.worker)
+                chosen.update(result.chosen)
+                on_result(result)
+                for budget in result.chosen:
+                    for other in waiting.pop(budget, []):
+                        submit(other, 0, {})
+                if index + 1 < len(units):
+                    submit(units, index + 1, result.maps)
+        except BaseException:   # an error, or Ctrl-C: nothing more is rendered for this run
+            for future in pending:
+                future.cancel()
+            raise
         return lost
 
     @property
@@ -227,11 +233,9 @@ def cluster(config: RunConfig):
     with dask.config.set(settings), contextlib.ExitStack() as stack:
         local = None
         if config.scheduler is None:
-            gpu = choose_device(config.device).is_gpu
             local = stack.enter_context(LocalCluster(
                 n_workers=config.workers, threads_per_worker=1, processes=True,
-                resources={"GPU": 1} if gpu else None, dashboard_address=":0",
-                silence_logs=logging.ERROR))
+                dashboard_address=":0", silence_logs=logging.ERROR))
         try:
             client = stack.enter_context(Client(local or config.scheduler, timeout="10s"))
         except OSError as error:
@@ -240,9 +244,10 @@ def cluster(config: RunConfig):
         try:
             client.wait_for_workers(1, timeout=WORKER_WAIT_S)
         except TimeoutError:
-            raise InputError(None, f"no worker joined the scheduler at {config.scheduler} in "
-                                   f"{WORKER_WAIT_S} s; start one with 'dask-worker "
-                                   f"{config.scheduler}'") from None
+            where = config.scheduler or "of the LocalCluster"
+            raise InputError(None, f"no worker joined the scheduler {where} in "
+                                   f"{WORKER_WAIT_S} s; start one with 'dask worker "
+                                   f"{config.scheduler or 'ADDRESS'}'") from None
         client.register_plugin(OpenCLWorker(config.device, str(cache_dir())))
         engine = Cluster(client, local)
         print(f"iblbench: {len(engine.workers)} Dask workers on "

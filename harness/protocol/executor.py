@@ -120,8 +120,11 @@ class _HeldCache:
 class Executor:
     """Renders the cells it is given on ``compute`` (module docstring)."""
 
-    def __init__(self, config: RunConfig, plan: RunPlan, compute, progress=None):
+    def __init__(self, config: RunConfig, plan: RunPlan, compute, progress=None, warn=None):
+        """``warn``: called with a warning's text as it happens (default: kept in the records
+        for :meth:`drain`, for a worker's client to print)."""
         self.config, self.plan, self.compute = config, plan, compute
+        self.warn = warn or (lambda text: self._records["warnings"].append(text))
         self.out = pathlib.Path(config.out)
         self.reference = Reference(compute)
         self.device_name = compute.device_name
@@ -430,7 +433,7 @@ class Executor:
             self.unverified[key] = entry
             self._records["calibrations"].append(entry)
             if fit["over_budget"] and fit["chosen_spp"] == 1:
-                self._records["warnings"].append(
+                self.warn(
                     f"{spec.label} on {scene_name}: even 1 spp takes {fit['measured_ms']:.3g} "
                     f"ms > the {budget:g} ms budget; running 1 spp")
         self._records["device_ms"] += sum(device_ms(r.stages) - build_ms

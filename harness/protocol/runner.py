@@ -17,12 +17,14 @@ and a cached reference is never recomputed.  Every skipped stage is recorded in 
 Resumption.  Before rendering, the runner plans every cell of the sweep and counts a cell as
 done when ``out`` already holds its row made with the same configuration (cell key, image size,
 cube face size, estimator parameters), the same code (``estimator_version``, ``schema_version``,
-protocol) and on the run's device (a cluster's: one of its workers' devices); it prints ``resumed: N cells already done, M to run`` and runs
-only the M (``force`` runs them all).  A cell also counts as done only while its image files
-exist.  Each finished cell is appended to the results journal before the next one starts (see
-:mod:`iblbench.harness.protocol.results`), so a killed run, ``kill -9`` included, loses only the cell in
-flight; Ctrl-C folds the journal into the table and marks the manifest "interrupted".  A scene
-none of whose cells is left is not even traced.
+protocol) and on the run's device (a cluster's: one of the devices of the workers there when
+it starts); it prints ``resumed: N cells already done, M to run`` and runs only the M
+(``force`` runs them all).  A cell also counts as done only while its image files exist.  Each
+finished cell is appended to the results journal as it comes back (in process, before the next
+one starts; see :mod:`iblbench.harness.protocol.results`), so a killed run, ``kill -9``
+included, loses only what is in flight: in process the cell, on a cluster the units (a temporal
+one is its whole sequence); Ctrl-C folds the journal into the table and marks the manifest
+"interrupted".  A scene none of whose cells is left is not even traced.
 
 One folder, one run at a time, one image configuration.  ``out``'s rows and manifest are read
 only under its lock (``_locked``), so a run folds back what the folder holds then, not a stale
@@ -235,7 +237,6 @@ class Runner:
         self.previous_manifest = read_manifest(self.out)
         self.todo, self.cells, self.chosen = self._plan_cells()
         self.total = len(self.cells)
-        self.unverified = {}   # (scene, label, budget) → its calibration, until its first cell
         self.resumed = self.total - len(self.todo)
         self.manifest = self._new_manifest()
 
@@ -431,15 +432,16 @@ class Runner:
         with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
                   bar_format=BAR_FORMAT, initial=self.resumed) as bar:
             self.progress = Progress(bar, self.todo)
-            self.device_ms_total, start = 0.0, time.perf_counter()
+            self.device_ms_total = 0.0
             if self.engine is None:
-                floors, lost = self._render_here(gbuffers), []
+                (floors, wall_s), lost = self._render_here(gbuffers), []
             else:
+                start = time.perf_counter()
                 lost = self._render_on_cluster()
+                wall_s = time.perf_counter() - start
                 floors = [w["floor"] for w in self.engine.workers.values()] if self.todo else []
         table = self._fold()
         if self.todo:
-            wall_s = time.perf_counter() - start
             self.manifest["timing"].update(
                 wall_s=wall_s, device_s=self.device_ms_total / 1e3,
                 wall_per_device=wall_s / max(self.device_ms_total / 1e3, 1e-9))
@@ -466,30 +468,33 @@ class Runner:
         write_manifest(self.out, self.manifest)
         return table
 
-    def _render_here(self, gbuffers: dict) -> list:
+    def _render_here(self, gbuffers: dict) -> tuple[list, float]:
         """Every cell left, on this process's device; returns the timing floors measured at the
-        start and the end."""
+        start and the end, and the wall seconds between them."""
         self.progress.stage(f"timing floor of {self.compute.info.device.name.strip()}")
         floors = [measure_timing_floor(self.compute)] if self.todo else []
-        self.executor = Executor(self.config, self.plan, self.compute, self.progress)
+        start = time.perf_counter()
+        self.executor = Executor(self.config, self.plan, self.compute, self.progress,
+                                 warn=lambda text: print(f"iblbench: {text}", file=sys.stderr))
         self.executor.gbuffers.update(gbuffers)
         self.executor.chosen.update(self.chosen)
         self.executor.render(self.todo, self._journal_cell)
         self._merge(self.executor.drain())
+        wall_s = time.perf_counter() - start
         if self.todo:
             floors.append(measure_timing_floor(self.compute))
-        return floors
+        return floors, wall_s
 
     def _render_on_cluster(self) -> list:
         """Every cell left, on the cluster's workers; returns the keys of the cells lost."""
-        workers = len(self.engine.workers)
-        self.progress.stage(f"on {workers} Dask workers")
+        self.progress.stage(f"on {len(self.engine.workers)} Dask workers")
 
         def finished(result) -> None:
             for row in result.rows:
                 self._journal_cell(row)
                 key = row_key(row)
-                self.progress.finished(key, row["spp"], result.seconds[key] / workers)
+                self.progress.finished(key, row["spp"],
+                                       result.seconds[key] / len(self.engine.workers))
             self._merge(result.records)
 
         return self.engine.render(self.config, self.plan, self.todo, self.chosen, finished)

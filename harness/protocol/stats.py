@@ -46,7 +46,8 @@ is never aggregated over rows of two devices (:func:`column_interval` refuses to
 figure of time is aggregated per device: :func:`by_device` splits a table by device, and
 :func:`time_keys` adds ``device`` to an aggregation's keys, each only where the table holds
 several devices, so a one-device table is aggregated as before.  Errors do not depend on the
-device and are pooled over them.
+device: the report pools them over devices (``run``'s tables and ``--json``, keyed by device
+where several ran, give each device's).
 
 **Two cells with the same replicates** (the same seeds and repeats: two runs of one sweep, or
 two estimators of one run) are compared *paired*: the replicates are matched by (seed, render)
