@@ -259,7 +259,7 @@ def test_kill_9_mid_run_then_resume_equals_an_uninterrupted_run(tmp_path):
         process.wait(timeout=30)
         assert process.returncode == -signal.SIGKILL
         rows = read_results(out)                        # the table and journal stay readable
-        assert done + 2 <= len(rows) < total
+        assert done + 2 <= len(rows) <= total   # on a loaded machine, maybe after the last cell
         assert len({row_key(row) for row in rows}) == len(rows)
         assert json.loads((out / "manifest.json").read_text())["status"] == "running"
         done = len(rows)

@@ -239,10 +239,14 @@ def test_a_run_records_visibility_and_shadow_rays(tmp_path):
     context = write_report(out, ray_cost_ns=250.0)
     html = context["path"].read_text()
     assert "<h3>Visibility</h3>" in html and "Error against time and shadow rays" in html
-    figures = {s["name"]: s["figures"] for s in context["scenes"]}
+    def time_figures(context):   # one device: one part of each scene holds its time figures
+        assert all(len(s["devices"]) == 1 for s in context["scenes"])
+        return {s["name"]: s["devices"][0]["figures"] for s in context["scenes"]}
+
+    figures = time_figures(context)
     assert figures["sphere-ground"]["ns_per_ray"] == 250.0 and "ray_cost" not in figures["sphere-sun"]
     assert (out / "report" / figures["sphere-ground"]["ray_cost"]).is_file()
-    default = {s["name"]: s["figures"] for s in write_report(out)["scenes"]}
+    default = time_figures(write_report(out))
     assert default["sphere-ground"]["ns_per_ray"] == pytest.approx(1e9 / record["embree_rays_per_s"])
     # A rerun resumes every cell and traces nothing: the record is carried over.
     assert _run(tmp_path, *args).returncode == 0
