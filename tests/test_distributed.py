@@ -17,10 +17,10 @@ import psutil
 import pytest
 
 import iblbench
-from iblbench.harness.protocol.distributed import chains, sequence_key
+from iblbench.harness.protocol.distributed import chains
 from iblbench.harness.protocol.results import (DETERMINISTIC_COLUMNS, KEY_COLUMNS, read_results,
                                                row_key, write_results)
-from iblbench.harness.protocol.run_plan import RunConfig, plan_run
+from iblbench.harness.protocol.run_plan import RunConfig, plan_run, sequence_key
 from iblbench.scenes.imageio import read_exr
 
 pytestmark = pytest.mark.slow

@@ -46,7 +46,8 @@ from distributed import WorkerPlugin
 
 from iblbench.estimators.runtime.device import cache_dir, get_compute
 from iblbench.harness.protocol.executor import CellClock, Executor, device_record
-from iblbench.harness.protocol.run_plan import RunConfig, RunPlan, cell_order, plan_run
+from iblbench.harness.protocol.run_plan import (RunConfig, RunPlan, cell_order, plan_run,
+                                                sequence_key)
 from iblbench.harness.protocol.timing import host_threads_capped, measure_timing_floor
 from iblbench.scenes.errors import InputError, argument
 from iblbench.scenes.registry import scene_entry
@@ -116,11 +117,6 @@ def _worker_record(dask_worker) -> dict:
     return dask_worker.plugins[PLUGIN].worker
 
 
-def sequence_key(key: tuple) -> tuple:
-    """(scene, estimator, spp, budget, seed): the cells of one chain."""
-    return key[0], key[1], key[2], key[5], key[4]
-
-
 def chains(todo, plan: RunPlan) -> list[list[list[tuple]]]:
     """The units of ``todo`` by chain (module docstring), in the in-process order: scene by
     scene, frame by frame, cells in :func:`cell_order`."""
@@ -141,13 +137,9 @@ def chains(todo, plan: RunPlan) -> list[list[list[tuple]]]:
 class Cluster:
     """A Dask client with the plugin registered on its workers, and their records."""
 
-    def __init__(self, client, local):
-        self.client, self.local = client, local
-        self.workers = {}   # address → the worker's record (UnitResult.worker)
-        self.refresh()
-
-    def refresh(self) -> None:
-        self.workers.update(self.client.run(_worker_record))
+    def __init__(self, client):
+        self.client = client
+        self.workers = client.run(_worker_record)   # address → UnitResult.worker
 
     @property
     def devices(self) -> set[str]:
@@ -249,7 +241,7 @@ def cluster(config: RunConfig):
                                    f"{WORKER_WAIT_S} s; start one with 'dask worker "
                                    f"{config.scheduler or 'ADDRESS'}'") from None
         client.register_plugin(OpenCLWorker(config.device, str(cache_dir())))
-        engine = Cluster(client, local)
+        engine = Cluster(client)
         print(f"iblbench: {len(engine.workers)} Dask workers on "
               f"{', '.join(sorted(engine.devices))}"
               + (f"; dashboard {engine.dashboard}" if engine.dashboard else ""), file=sys.stderr)

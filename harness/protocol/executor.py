@@ -39,7 +39,8 @@ from iblbench.harness.protocol.equal_time import (CELL_CORRECTIONS, Calibration,
                                                   corrected_spp, spp_limit)
 from iblbench.harness.protocol.metrics import PROTOCOL, Scorer, delta_e_images, flicker
 from iblbench.harness.protocol.results import REPLICATED, SCHEMA_VERSION, image_stem
-from iblbench.harness.protocol.run_plan import TIMING_SEED, RunConfig, RunPlan, ScenePlan, cell_order
+from iblbench.harness.protocol.run_plan import (TIMING_SEED, RunConfig, RunPlan, ScenePlan,
+                                                cell_order, sequence_key)
 from iblbench.harness.protocol.shadows import attach_visibility
 from iblbench.harness.protocol.stats import RENDERS, renders_text
 from iblbench.harness.protocol.sweep import MAX_REPEATS
@@ -260,11 +261,11 @@ class Executor:
             for key in cells:
                 self.progress.start_cell(key)
                 self.progress.stage("rendering")
-                spp, estimates, renders, sequence_key = self._render_cell(
+                spp, estimates, renders, sequence = self._render_cell(
                     plan, spec, estimator, key, cells, gbuffer, cache, build_ms, sequences)
                 self.progress.stage("scoring")
                 row = self._score_cell(plan, spec, key, spp, estimates, renders, scorer,
-                                       sequence_key, previous_frame)
+                                       sequence, previous_frame)
                 write_exr(images / f"{image_stem(row)}.exr", estimates[0].radiance)
                 on_row(row)
                 self.progress.cell_done(row["spp"])
@@ -293,13 +294,13 @@ class Executor:
             if budget_key not in self.chosen:   # calibrated just before its cells
                 self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
             spp = self.chosen[budget_key]
-        sequence_key = (plan.scene.name, label, key[2], budget, seed)
+        sequence = sequence_key(key)
         if spec.cls.tags.temporal:
-            if sequence_key not in sequences:
-                sequences[sequence_key] = [spec.make() for _ in range(repeats)]
-                for instance in sequences[sequence_key]:
+            if sequence not in sequences:
+                sequences[sequence] = [spec.make() for _ in range(repeats)]
+                for instance in sequences[sequence]:
                     instance.reset()
-            renderers = sequences[sequence_key]
+            renderers = sequences[sequence]
         else:
             renderers = [estimator] * repeats
         timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
@@ -310,10 +311,10 @@ class Executor:
         self._count_spread(renders, repeats)
         # Renders added for a wide spread are timed, not scored: the replicates a row carries
         # must not depend on the machine's noise.
-        return spp, [estimate for estimate, _ in timed[:repeats]], renders, sequence_key
+        return spp, [estimate for estimate, _ in timed[:repeats]], renders, sequence
 
     def _score_cell(self, plan: ScenePlan, spec, key, spp: int, estimates, renders,
-                    scorer: Scorer, sequence_key, previous_frame: int | None) -> dict:
+                    scorer: Scorer, sequence, previous_frame: int | None) -> dict:
         """The cell's results row: the scored render's (``estimates[0]``) metrics against the
         reference, every planned render's errors (the replicates), its time columns and its
         flicker against the previous frame of its sequence."""
@@ -340,8 +341,8 @@ class Executor:
                     if name not in row})
         stem = image_stem(row)
         row["flicker"] = flicker(delta_e, self._previous_map(
-            plan, sequence_key, previous_frame, stem, mask), mask)
-        self._previous_delta_e[sequence_key] = (frame, delta_e.astype(np.float32))
+            plan, sequence, previous_frame, stem, mask), mask)
+        self._previous_delta_e[sequence] = (frame, delta_e.astype(np.float32))
         return row
 
     def _cell_renders(self, spec, renderers, gbuffer, cache, spp: int, seed: int,
@@ -393,14 +394,14 @@ class Executor:
         fit["chosen_spp"] = self.chosen[budget_key] = spp
         return spp, timed
 
-    def _previous_map(self, plan: ScenePlan, sequence_key: tuple, previous_frame: int | None,
+    def _previous_map(self, plan: ScenePlan, sequence: tuple, previous_frame: int | None,
                       stem: str, mask: np.ndarray) -> np.ndarray | None:
         """The ΔE76 map of ``previous_frame`` for one (estimator, spp, budget, seed): from memory,
         or, when that frame was done by an earlier (resumed) run, recomputed from its saved
         estimate and reference EXRs; None on the first frame or when those files are gone."""
         if previous_frame is None:
             return None
-        kept = self._previous_delta_e.get(sequence_key)
+        kept = self._previous_delta_e.get(sequence)
         if kept is not None and kept[0] == previous_frame:
             return kept[1]
         folder = self.out / "images" / plan.scene.name / f"f{previous_frame}"

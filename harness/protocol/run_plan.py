@@ -119,6 +119,12 @@ def cell_order(key: tuple):
     return key[1], key[5] is not None, key[2] or 0, key[5] or 0, key[4]
 
 
+def sequence_key(key: tuple) -> tuple:
+    """(scene, estimator, spp, budget, seed) of a cell: its sequence over the frames, whose
+    flicker links consecutive frames and whose state a temporal estimator carries."""
+    return key[0], key[1], key[2], key[5], key[4]
+
+
 def _require_sound_numbers(config: RunConfig) -> None:
     for spp in tuple(config.spp) + tuple(v for _, levels in config.spp_for for v in levels):
         if spp < 1:
