@@ -143,11 +143,11 @@ def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seed
                first_seed=None, frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None,
                repeats_for=None, metrics=None, sanitize=None, device=None, save_inputs=False,
                force=False, progress=None, workers=None, scheduler=None, note=None):
-    """The :class:`~iblbench.harness.protocol.runner.RunConfig` of a sweep config (``config``, default
-    ``default``) whose fields given here (not None) are replaced, values already parsed
+    """The :class:`~iblbench.harness.protocol.run_plan.RunConfig` of a sweep config (``config``,
+    default ``default``) whose fields given here (not None) are replaced, values already parsed
     (``iblbench run`` and :func:`run` share it); ``note`` is added to the manifest's
     ``sweep`` record."""
-    from iblbench.harness.protocol.runner import RunConfig
+    from iblbench.harness.protocol.run_plan import RunConfig
     from iblbench.harness.protocol.sweep import load_sweep
 
     def given(values, kind):

@@ -17,10 +17,10 @@ Dask distributed schedules; iblbench only says what a unit of work is and keeps 
   unit at a time (a worker given several threads runs its units one after the other).  Workers
   that own a GPU declare the resource ``GPU=1`` (``dask worker --resources GPU=1``); where any
   worker declares it, every unit is submitted with ``resources={"GPU": 1}``.  A LocalCluster's
-  workers share this machine's one device and declare nothing.  The plugin points the workers at the client's on-disk cache
-  (G-buffers, visibility, references, programs, each written by atomic rename under a content
-  hash, so concurrent writers are safe), which must be on a filesystem they share, as the run's
-  folder must be: workers write the cells' images there.
+  workers share this machine's one device and declare nothing.  The plugin points the workers
+  at the client's on-disk cache (G-buffers, visibility, references, programs, each written by
+  atomic rename under a content hash, so concurrent writers are safe), which must be on a
+  filesystem they share, as the run's folder must be: workers write the cells' images there.
 - **One writer.** Workers return rows; only the client journals them and folds the table
   (:mod:`.results`).  A killed worker's unit is rerun by Dask on another worker; a unit that
   kills ``distributed.scheduler.allowed-failures`` workers is lost with the rest of its chain

@@ -66,7 +66,7 @@ else:   # pragma: no cover
 
 SHIPPED = ("quick", "default", "full", "temporal", "frontier")
 DEFAULT_REPEATS = 5   # timed renders per cell (harness/protocol/timing.py)
-MAX_REPEATS = 255     # the timing seeds hold the repeat in 8 bits (runner.timing_seed)
+MAX_REPEATS = 255     # the timing seeds hold the repeat in 8 bits (executor.timing_seed)
 CONFIG_PACKAGE = "iblbench.harness.configs"
 KEYS = {"protocol", "description", "scenes", "estimators", "spp", "seeds", "first_seed", "frames",
         "resolution", "env_res", "time_budget_ms", "sanitize", "repeats", "metrics"}

@@ -35,7 +35,8 @@ import pathlib
 import numpy as np
 import pandas as pd
 
-from iblbench.harness.protocol.runner import RunConfig, run
+from iblbench.harness.protocol.run_plan import RunConfig
+from iblbench.harness.protocol.runner import run
 from iblbench.harness.protocol.stats import MeanCI, RatioCI, cell_intervals, ratio_ci, separated
 from iblbench.harness.protocol.sweep import parse_estimator
 from iblbench.harness.protocol.timing import TIME
