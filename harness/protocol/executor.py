@@ -107,6 +107,12 @@ class CellClock:
         self.seconds[key] = time.perf_counter() - start
 
 
+def _new_records() -> dict:
+    """An executor's manifest records before its first cell (:meth:`Executor.drain`)."""
+    return {"stages": [], "skipped": [], "calibrations": [], "warnings": [], "device_ms": 0.0,
+            "spread": {"cells": 0, "extended_cells": 0, "wide_cells": 0}}
+
+
 @dataclasses.dataclass
 class _HeldCache:
     """The frame cache an executor keeps: built for ``built_frame``, now targeted at ``frame``."""
@@ -137,15 +143,12 @@ class Executor:
         self._device = None    # (scene name, DeviceGBuffer, its warm-up pixels' DeviceGBuffer)
         self._held: _HeldCache | None = None
         self._previous_delta_e = {}   # (scene, label, spp, budget, seed) → (frame, ΔE76 map)
-        self.drain()
+        self._records = _new_records()
 
     def drain(self) -> dict:
         """The manifest records gathered since the last call (module docstring), and the
         warnings for the run's terminal."""
-        records = getattr(self, "_records", None)
-        self._records = {"stages": [], "skipped": [], "calibrations": [], "warnings": [],
-                         "device_ms": 0.0,
-                         "spread": {"cells": 0, "extended_cells": 0, "wide_cells": 0}}
+        records, self._records = self._records, _new_records()
         return records
 
     def render(self, todo, on_row, maps: dict | None = None) -> dict:

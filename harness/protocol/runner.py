@@ -103,6 +103,7 @@ values (``*_renders``): the cell's replicates, from which its intervals come
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import datetime
 import fcntl
@@ -209,6 +210,10 @@ class Runner:
         self.skipped += [{"stage": metric, "why": "not in the sweep's metrics: its columns are NaN"}
                          for metric in METRICS if metric not in config.metrics]
         self.engine, self.executor = None, None
+        # _table_order's ranks of scenes, (scene, frame) and estimators, as the sweep plans them
+        self._ranks = ({p.scene.name: (0, i) for i, p in enumerate(self.plans)},
+                       {(p.scene.name, f): (0, j) for p in self.plans for j, f in enumerate(p.frames)},
+                       {s.label: (0, i) for i, s in enumerate(self.specs)})
 
     def _read_state(self) -> None:
         """What ``out`` holds, read under its lock (a snapshot read before it could be stale by
@@ -390,7 +395,8 @@ class Runner:
         with _locked(self.out), host_threads_capped():
             self._read_state()
             for plan in self.plans:
-                if plan.scene.name not in gbuffers and self._scene_todo(plan.scene.name):
+                if plan.scene.name not in gbuffers and any(key[0] == plan.scene.name
+                                                           for key in self.todo):
                     gbuffers[plan.scene.name] = self._trace(plan)
             if self.resumed:
                 print(f"resumed: {self.resumed} cells already done, {len(self.todo)} to run",
@@ -427,8 +433,9 @@ class Runner:
     def _run_cells(self, gbuffers: dict):
         """Every cell left, in process between two measurements of the timing floor, or on the
         cluster; the manifest ends "complete"; returns the table."""
-        self._record_skips()
-        self._save_inputs(gbuffers)
+        left = collections.Counter((key[0], key[3]) for key in self.todo)   # (scene, frame)
+        self._record_skips(left)
+        self._save_inputs(gbuffers, left)
         with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
                   bar_format=BAR_FORMAT, initial=self.resumed) as bar:
             self.progress = Progress(bar, self.todo)
@@ -588,20 +595,14 @@ class Runner:
         order, frames in order, then :func:`cell_order`), whatever order the rows came in (a
         cluster's finish in any); rows of scenes or estimators this sweep does not name after
         those it does, by name."""
-        scenes = {plan.scene.name: (0, i, plan.frames) for i, plan in enumerate(self.plans)}
-        labels = {spec.label: (0, i) for i, spec in enumerate(self.specs)}
         key = row_key(row)
-        scene, frames = scenes.get(key[0], (1, key[0], []))[:2], scenes.get(key[0], (0, 0, []))[2]
-        frame = frames.index(key[3]) if key[3] in frames else len(frames) + key[3]
         _, spp_first, spp, budget, seed = cell_order(key)
-        return scene, frame, labels.get(key[1], (1, key[1])), spp_first, spp, budget, seed
+        scenes, frames, labels = self._ranks
+        return (scenes.get(key[0], (1, key[0])), frames.get(key[:4:3], (1, key[3])),
+                labels.get(key[1], (1, key[1])), spp_first, spp, budget, seed)
 
     def _bar_disabled(self):
         return None if self.config.progress is None else not self.config.progress
-
-    def _scene_todo(self, name: str, frame: int | None = None) -> list[tuple]:
-        return sorted((k for k in self.todo if k[0] == name and (frame is None or k[3] == frame)),
-                      key=cell_order)
 
     def _stage(self, scene: str, frame, stage: str, ms: float) -> None:
         self.stages.append({"scene": scene, "frame": frame, "stage": stage, "ms": ms})
@@ -636,13 +637,15 @@ class Runner:
                 self._stage(scene.name, None, "visibility", record["seconds"] * 1e3)
         return gbuffer
 
-    def _record_skips(self) -> None:
+    def _record_skips(self, left: collections.Counter) -> None:
         """The manifest's records of what the run will not do: scenes and frames whose cells are
-        all done, products no selected estimator requires, a static map's one frame cache."""
+        all done, products no selected estimator requires, a static map's one frame cache
+        (``left``: the cells to run by (scene, frame))."""
         required = {p for spec in self.specs for p in spec.cls.requires}
         for plan in self.plans:
             scene = plan.scene
-            if not self._scene_todo(scene.name):
+            cells = sum(left[(scene.name, frame)] for frame in plan.frames)
+            if not cells:
                 self.manifest["skipped"].append({"scene": scene.name, "stage": "scene",
                                                  "why": "every cell already done (resumed)"})
                 self.manifest["stages"] += [dict(stage, resumed=True) for stage
@@ -658,17 +661,16 @@ class Runner:
                                          if product not in required and product != "env"]
             self.manifest["skipped"] += [{"scene": scene.name, "frame": frame, "stage": "frame",
                                           "why": "every cell already done (resumed)"}
-                                         for frame in plan.frames
-                                         if not self._scene_todo(scene.name, frame)]
+                                         for frame in plan.frames if not left[(scene.name, frame)]]
             if scene.environment.is_static:
-                renders = len(self._scene_todo(scene.name))
                 self.manifest["skipped"].append({
                     "scene": scene.name, "stage": "framecache",
                     "why": f"static environment: one FrameCache built for frame 0 and reused "
-                           f"by every estimator, spp and seed ({renders} cells)"})
+                           f"by every estimator, spp and seed ({cells} cells)"})
 
-    def _save_inputs(self, gbuffers: dict) -> None:
-        """``save_inputs``: each scene's G-buffer and each frame's map, where cells are left."""
+    def _save_inputs(self, gbuffers: dict, left: collections.Counter) -> None:
+        """``save_inputs``: each scene's G-buffer and each frame's map, where cells are left
+        (``left``: the cells to run by (scene, frame))."""
         if not self.config.save_inputs:
             return
         for plan in self.plans:
@@ -676,7 +678,7 @@ class Runner:
             if plan.scene.name in gbuffers:
                 gbuffers[plan.scene.name].save_npz(inputs / "gbuffer.npz")
             for frame in plan.frames:
-                if self._scene_todo(plan.scene.name, frame):
+                if left[(plan.scene.name, frame)]:
                     with atomic_path(inputs / f"env_f{frame}.npy") as tmp:
                         np.save(tmp, np.asarray(plan.scene.environment.frame(frame), np.float32))
 
