@@ -212,7 +212,8 @@ class Runner:
         self.engine, self.executor = None, None
         # _table_order's ranks of scenes, (scene, frame) and estimators, as the sweep plans them
         self._ranks = ({p.scene.name: (0, i) for i, p in enumerate(self.plans)},
-                       {(p.scene.name, f): (0, j) for p in self.plans for j, f in enumerate(p.frames)},
+                       {(p.scene.name, f): (0, j)
+                        for p in self.plans for j, f in enumerate(p.frames)},
                        {s.label: (0, i) for i, s in enumerate(self.specs)})
 
     def _read_state(self) -> None:
