@@ -97,6 +97,14 @@ class Ranking:
         """(adjacent pairs resolved, adjacent pairs)."""
         return sum(r.significant for r in self.versus_next), len(self.versus_next)
 
+    def pair(self, a: str, b: str) -> RatioCI | None:
+        """``b``'s error over ``a``'s at this budget (any two ranked estimators, adjacent or
+        not), or None where either is not ranked: the A/A control's check."""
+        standings = {s.estimator: s for s in self.ranked}
+        if a not in standings or b not in standings:
+            return None
+        return compare_values(standings[a].replicates, standings[b].replicates)
+
     @property
     def winner(self) -> str:
         """The best estimator, or "tie: a, b, …" for those not resolved from it in a chain."""
