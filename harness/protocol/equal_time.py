@@ -38,7 +38,7 @@ import math
 
 import numpy as np
 
-from iblbench.harness.protocol.timing import EXTENSION, device_ms, timed_renders, too_wide
+from iblbench.harness.protocol.timing import device_ms, robust_ms, timed_renders
 
 CALIBRATION_SEED = 0xFFFFFF00   # + repeat index: seeds no benchmark cell uses
 CALIBRATION_SPP = (1, 4, 16, 64)
@@ -52,7 +52,7 @@ CELL_CORRECTIONS = 2      # steps of corrected_spp on the first cell of a budget
 def fit_linear(runs: dict[int, list[float]]) -> tuple[float, float]:
     """Least squares of median time ≈ a + b·spp on relative error; a ≥ 0, b > 0."""
     spp = np.array(sorted(runs), float)
-    t = np.array([np.median(runs[int(s)]) for s in spp], float)
+    t = np.array([robust_ms(runs[int(s)]) for s in spp], float)
     t = np.maximum(t, 1e-6)
     (a, b), *_ = np.linalg.lstsq(np.stack([1 / t, spp / t], axis=1), np.ones_like(t), rcond=None)
     if a < 0:   # noise at low spp: a line through the origin instead
@@ -86,28 +86,22 @@ class Calibration:
         self.host: dict[int, list[float]] = {}
         self.renders = []   # every TimedRender, for the run's device-time total
 
-    def measure(self, spp: int) -> float:
-        """Time ``CALIBRATION_REPEATS`` renders at ``spp`` (once per spp) the way a cell's
-        renders are timed (:func:`~iblbench.harness.protocol.timing.timed_renders`, then one more at a
-        time while they spread too wide, up to ``EXTENSION`` times as many); their median."""
-        if spp not in self.runs:
-            renders = self._timed(spp, range(CALIBRATION_REPEATS))
-            while len(renders) < EXTENSION * CALIBRATION_REPEATS and too_wide(renders):
-                renders += self._timed(spp, [len(renders)])
-            self.renders += renders
-            self.runs[spp] = [device_ms(r.stages) for r in renders]
-            self.host[spp] = [r.host_ms for r in renders]
-        return float(np.median(self.runs[spp]))
-
-    def _timed(self, spp: int, repeats) -> list:
-        """TimedRenders at ``spp`` on the calibration seeds of ``repeats``, back to back."""
-        seeds = [CALIBRATION_SEED + repeat for repeat in repeats]
-        return [render for _, render in timed_renders(
-            [self.estimator] * len(seeds), self.gbuffer, self.cache, spp, seeds, self.build_ms)]
+    def measure(self, *spps: int) -> float:
+        """Time ``CALIBRATION_REPEATS`` renders at each of ``spps`` not timed yet, in
+        interleaved rounds (one render per spp a round, so each spp's renders fall in different
+        spells of the device, as a cell's do); the robust time of the last spp's renders."""
+        todo = [spp for spp in dict.fromkeys(spps) if spp not in self.runs]
+        for repeat in range(CALIBRATION_REPEATS):
+            for spp in todo:
+                [(_, render)] = timed_renders([self.estimator], self.gbuffer, self.cache, spp,
+                                              [CALIBRATION_SEED + repeat], self.build_ms)
+                self.renders.append(render)
+                self.runs.setdefault(spp, []).append(device_ms(render.stages))
+                self.host.setdefault(spp, []).append(render.host_ms)
+        return float(robust_ms(self.runs[spps[-1]]))
 
     def choose(self, budget_ms: float) -> dict:
-        for spp in CALIBRATION_SPP:
-            self.measure(spp)
+        self.measure(*CALIBRATION_SPP)
         a, b = fit_linear(self.runs)
         chosen = choose_spp(a, b, budget_ms, self.limit)
         for _ in range(10):   # extend the calibrated range until it brackets the choice
@@ -124,7 +118,7 @@ class Calibration:
             if step is None or step in self.runs:
                 break
             chosen = step
-        medians = {s: float(np.median(v)) for s, v in self.runs.items()}
+        medians = {s: float(robust_ms(v)) for s, v in self.runs.items()}
         chosen = best_measured(medians, budget_ms)
         return {"budget_ms": budget_ms, "build_ms": self.build_ms, "a_ms": a, "b_ms_per_spp": b,
                 "fitted_spp": fitted, "chosen_spp": chosen, "predicted_ms": a + b * chosen,

@@ -43,8 +43,7 @@ from iblbench.harness.protocol.run_plan import (TIMING_SEED, RunConfig, RunPlan,
                                                 cell_order, sequence_key)
 from iblbench.harness.protocol.shadows import attach_visibility
 from iblbench.harness.protocol.stats import RENDERS, renders_text
-from iblbench.harness.protocol.sweep import MAX_REPEATS
-from iblbench.harness.protocol.timing import (EXTENSION, device_ms, required_build_ms,
+from iblbench.harness.protocol.timing import (device_ms, required_build_ms, robust_ms,
                                               time_columns, timed_renders, too_wide)
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.gbuffer import cached_trace
@@ -94,23 +93,18 @@ class CellClock:
 
     def __init__(self):
         self.seconds: dict[tuple, float] = {}
-        self._cell = None
 
     def stage(self, stage: str, *where: str) -> None:
         pass
 
-    def start_cell(self, key: tuple) -> None:
-        self._cell = (key, time.perf_counter())
-
-    def cell_done(self, spp: int) -> None:
-        key, start = self._cell
-        self.seconds[key] = time.perf_counter() - start
+    def finished(self, key: tuple, spp: int, seconds: float) -> None:
+        self.seconds[key] = seconds
 
 
 def _new_records() -> dict:
     """An executor's manifest records before its first cell (:meth:`Executor.drain`)."""
     return {"stages": [], "skipped": [], "calibrations": [], "warnings": [], "device_ms": 0.0,
-            "spread": {"cells": 0, "extended_cells": 0, "wide_cells": 0}}
+            "spread": {"cells": 0, "wide_cells": 0}}
 
 
 @dataclasses.dataclass
@@ -122,6 +116,32 @@ class _HeldCache:
     env: object
     cache: FrameCache
     built: dict[str, float]   # device ms per product built
+
+
+@dataclasses.dataclass
+class _Cell:
+    """One cell of a frame while its renders go round: what it renders, and what it has so
+    far (every TimedRender; render 0's metrics, ΔE76 map and extras; each later render's
+    errors; the host seconds it took)."""
+    spec: object
+    key: tuple
+    spp: int
+    renderers: list
+    seeds: list[int]
+    sequence: tuple
+    build_ms: float
+    renders: list = dataclasses.field(default_factory=list)
+    metrics: dict | None = None
+    delta_e: np.ndarray | None = None
+    extras: dict = dataclasses.field(default_factory=dict)
+    errors: list = dataclasses.field(default_factory=list)
+    seconds: float = 0.0
+
+    def stem(self) -> str:
+        """The file stem of the cell's image (:func:`image_stem`)."""
+        _, label, _, _, seed, budget = self.key
+        return image_stem({"estimator": label, "spp": self.spp, "seed": seed,
+                           "time_budget_ms": math.nan if budget is None else budget})
 
 
 class Executor:
@@ -243,17 +263,20 @@ class Executor:
         """The cells ``todo`` of one frame; ``warm_up``: the scene's warm-up pixels; ``built``:
         device ms per product built for this frame (empty where ``cache`` was reused from an
         identical earlier frame); ``previous_frame``: the frame before this one in the run's
-        frame list (flicker), None on the first.  Each cell is rendered, scored and written, then
-        given to ``on_row`` (a row given is a complete cell)."""
+        frame list (flicker), None on the first.  Every estimator is warmed up (and its budgets
+        calibrated) first; then the cells' renders go in interleaved rounds (module docstring,
+        "Rounds"), each render scored as it comes; then each cell's row is given to ``on_row``
+        (a row given is a complete cell)."""
         images = self.out / "images" / plan.scene.name / f"f{cache.frame}"
         here = where(plan, cache.frame)
         self.progress.stage("reference", here)
         reference = self._frame_reference(plan.scene.name, gbuffer, cache)
         scorer = Scorer(reference, gbuffer.gbuffer.mask, self.config.metrics)
         write_exr(images / "reference.exr", reference)
+        cells = []
         for spec in self.plan.specs:
-            cells = [key for key in todo if key[1] == spec.label]
-            if not cells:
+            keys = [key for key in todo if key[1] == spec.label]
+            if not keys:
                 continue
             build_ms = required_build_ms(built, spec.cls.requires)
             estimator = spec.make()   # frame-by-frame estimators: a fresh instance per frame
@@ -261,17 +284,116 @@ class Executor:
             self.progress.stage("warm-up", here, spec.label)
             warmed = spec.make().render(warm_up, cache, 1, WARMUP_SEED)
             self._records["device_ms"] += device_ms(warmed.timings_ms)
-            for key in cells:
-                self.progress.start_cell(key)
-                self.progress.stage("rendering")
-                spp, estimates, renders, sequence = self._render_cell(
-                    plan, spec, estimator, key, cells, gbuffer, cache, build_ms, sequences)
-                self.progress.stage("scoring")
-                row = self._score_cell(plan, spec, key, spp, estimates, renders, scorer,
-                                       sequence, previous_frame)
-                write_exr(images / f"{image_stem(row)}.exr", estimates[0].radiance)
-                on_row(row)
-                self.progress.cell_done(row["spp"])
+            cells += [self._prepare_cell(plan, spec, estimator, key, keys, gbuffer, cache,
+                                         build_ms, sequences) for key in keys]
+        rounds = max(len(cell.renderers) for cell in cells)
+        for turn in range(rounds):
+            self.progress.stage(f"rendering, round {turn + 1} of {rounds}", here)
+            for cell in cells:
+                if turn < len(cell.renderers):
+                    self._render_turn(cell, turn, gbuffer, cache, scorer, images)
+        for cell in cells:
+            row = self._row(plan, cell, scorer, previous_frame)
+            on_row(row)
+            self.progress.finished(cell.key, row["spp"], cell.seconds)
+
+    def _prepare_cell(self, plan: ScenePlan, spec, estimator, key, cells, gbuffer, cache,
+                      build_ms: float, sequences: dict) -> "_Cell":
+        """A cell before its renders: its spp (an equal-time cell's, calibrated and corrected
+        before its budget's first cell), its renderers (a temporal estimator's: the instances
+        that carry its sequence) and their seeds (render 0 the scored one, the cell's seed)."""
+        _, label, spp, frame, seed, budget = key
+        repeats = self.plan.repeats[spec.label]
+        budget_key = (plan.scene.name, label, budget)
+        sequence = sequence_key(key)
+        if spec.cls.tags.temporal:
+            if sequence not in sequences:
+                sequences[sequence] = [spec.make() for _ in range(repeats)]
+                for instance in sequences[sequence]:
+                    instance.reset()
+            renderers = sequences[sequence]
+        else:
+            renderers = [estimator] * repeats
+        if budget is not None:
+            if budget_key not in self.chosen:   # calibrated just before its cells
+                self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
+            if budget_key in self.unverified:
+                self._correct_budget(budget_key, spec, renderers, gbuffer, cache, seed, build_ms)
+            spp = self.chosen[budget_key]
+        seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
+        return _Cell(spec, key, spp, renderers, seeds, sequence, build_ms)
+
+    def _render_turn(self, cell: "_Cell", turn: int, gbuffer, cache, scorer: Scorer,
+                     images: pathlib.Path) -> None:
+        """Render ``turn`` of ``cell``, timed, then scored: render 0 in full (its EXR written),
+        the others on the replicated errors (``Scorer.errors``)."""
+        start = time.perf_counter()
+        [(estimate, render)] = self._timed_renders(
+            cell.renderers[turn:turn + 1], gbuffer, cache, cell.spp, cell.seeds[turn:turn + 1],
+            cell.build_ms)
+        cell.renders.append(render)
+        if turn == 0:
+            cell.metrics, cell.delta_e = scorer.score(estimate)
+            cell.extras = dict(estimate.extras)
+            write_exr(images / f"{cell.stem()}.exr", estimate.radiance)
+        else:
+            cell.errors.append(scorer.errors(estimate.radiance)[0])
+        cell.seconds += time.perf_counter() - start
+
+    def _row(self, plan: ScenePlan, cell: "_Cell", scorer: Scorer,
+             previous_frame: int | None) -> dict:
+        """The cell's results row: the scored render's metrics against the reference, every
+        render's errors (the replicates), its time columns and its flicker against the previous
+        frame of its sequence."""
+        _, label, _, frame, seed, budget = cell.key
+        spec, metrics = cell.spec, cell.metrics
+        replicates = {metric + RENDERS: renders_text([metrics[metric]]
+                                                     + [errors[metric] for errors in cell.errors])
+                      if math.isfinite(metrics[metric]) else "" for metric in REPLICATED}
+        counts = self._records["spread"]
+        counts["cells"] += 1
+        counts["wide_cells"] += too_wide(cell.renders)
+        row = {
+            "scene": plan.scene.name, "estimator": label, "spp": int(cell.spp), "frame": frame,
+            "seed": seed, "time_budget_ms": float("nan") if budget is None else budget,
+            "width": plan.width, "height": plan.height, "env_res": plan.env_res,
+            "estimator_params": self.plan.params[label],
+            "estimator_version": spec.cls.version(), "schema_version": SCHEMA_VERSION,
+            "metrics": ",".join(self.config.metrics),
+            **metrics, **replicates, **time_columns(cell.renders),
+            "device": self.device_name, "host": self.host, "protocol": PROTOCOL,
+        }
+        # Estimator-specific per-frame scalars (e.g. smc's ess, reinits): extra columns
+        # after the fixed ones; they never replace a fixed column.
+        row.update({name: float(value) for name, value in cell.extras.items()
+                    if name not in row})
+        row["flicker"] = flicker(cell.delta_e, self._previous_map(
+            plan, cell.sequence, previous_frame, image_stem(row), scorer.mask), scorer.mask)
+        self._previous_delta_e[cell.sequence] = (frame, cell.delta_e.astype(np.float32))
+        return row
+
+    def _correct_budget(self, budget_key: tuple, spec, renderers, gbuffer, cache, seed: int,
+                        build_ms: float) -> None:
+        """Before the first cell of a budget this run calibrated: the cell's renders, back to
+        back at the calibrated spp, corrected on their own time, up to ``CELL_CORRECTIONS``
+        steps of :func:`corrected_spp` over the spp measured; the best of those
+        (:func:`best_measured`) is the budget's spp for every cell.  The renderers start from
+        ``reset()`` again after each rendering (it is the first frame they see), so the cells
+        render as if the correction had not happened (module docstring, "Equal time")."""
+        fit = self.unverified.pop(budget_key)
+        seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
+        spp, measured = self.chosen[budget_key], {}   # spp → the cell's robust device ms there
+        for correction in range(CELL_CORRECTIONS + 1):
+            timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
+            for renderer in set(renderers):
+                renderer.reset()
+            measured[spp] = robust_ms([device_ms(render.stages) for _, render in timed])
+            fit["cell_runs"].append({"spp": spp, "device_ms": measured[spp]})
+            step = corrected_spp(fit["a_ms"], measured, spp, fit["budget_ms"], spp_limit(spec.cls))
+            if step is None or step in measured:
+                break
+            spp = step
+        fit["chosen_spp"] = self.chosen[budget_key] = best_measured(measured, fit["budget_ms"])
 
     def _frame_reference(self, scene_name: str, gbuffer: DeviceGBuffer, cache: FrameCache):
         """The frame's exact reference, its stage timed or marked skipped (cached)."""
@@ -283,119 +405,6 @@ class Executor:
             self._stage(scene_name, cache.frame, "reference", self.reference.last_ms)
             self._records["device_ms"] += self.reference.last_ms
         return reference
-
-    def _render_cell(self, plan: ScenePlan, spec, estimator, key, cells, gbuffer, cache,
-                     build_ms: float, sequences: dict):
-        """A cell's timed renders: (spp, the estimates of its planned renders, the scored one
-        first, every TimedRender, the key of its sequence).  An equal-time cell takes the spp
-        calibrated for it (just before its first cell); a temporal estimator renders on the
-        instances that carry its sequence."""
-        _, label, spp, frame, seed, budget = key
-        repeats = self.plan.repeats[spec.label]
-        budget_key = (plan.scene.name, label, budget)
-        if budget is not None:
-            if budget_key not in self.chosen:   # calibrated just before its cells
-                self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
-            spp = self.chosen[budget_key]
-        sequence = sequence_key(key)
-        if spec.cls.tags.temporal:
-            if sequence not in sequences:
-                sequences[sequence] = [spec.make() for _ in range(repeats)]
-                for instance in sequences[sequence]:
-                    instance.reset()
-            renderers = sequences[sequence]
-        else:
-            renderers = [estimator] * repeats
-        timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
-        if budget_key in self.unverified:
-            spp, timed = self._correct_budget_cell(budget_key, spec, renderers, gbuffer,
-                                                   cache, spp, seed, build_ms, timed)
-        renders = [render for _, render in timed]
-        self._count_spread(renders, repeats)
-        # Renders added for a wide spread are timed, not scored: the replicates a row carries
-        # must not depend on the machine's noise.
-        return spp, [estimate for estimate, _ in timed[:repeats]], renders, sequence
-
-    def _score_cell(self, plan: ScenePlan, spec, key, spp: int, estimates, renders,
-                    scorer: Scorer, sequence, previous_frame: int | None) -> dict:
-        """The cell's results row: the scored render's (``estimates[0]``) metrics against the
-        reference, every planned render's errors (the replicates), its time columns and its
-        flicker against the previous frame of its sequence."""
-        _, label, _, frame, seed, budget = key
-        estimate, mask = estimates[0], scorer.mask
-        metrics, delta_e = scorer.score(estimate)
-        others = [scorer.errors(other.radiance)[0] for other in estimates[1:]]
-        replicates = {metric + RENDERS: renders_text([metrics[metric]]
-                                                     + [errors[metric] for errors in others])
-                      if math.isfinite(metrics[metric]) else "" for metric in REPLICATED}
-        row = {
-            "scene": plan.scene.name, "estimator": label, "spp": int(spp), "frame": frame,
-            "seed": seed, "time_budget_ms": float("nan") if budget is None else budget,
-            "width": plan.width, "height": plan.height, "env_res": plan.env_res,
-            "estimator_params": self.plan.params[label],
-            "estimator_version": spec.cls.version(), "schema_version": SCHEMA_VERSION,
-            "metrics": ",".join(self.config.metrics),
-            **metrics, **replicates, **time_columns(renders),
-            "device": self.device_name, "host": self.host, "protocol": PROTOCOL,
-        }
-        # Estimator-specific per-frame scalars (e.g. smc's ess, reinits): extra columns
-        # after the fixed ones; they never replace a fixed column.
-        row.update({name: float(value) for name, value in estimate.extras.items()
-                    if name not in row})
-        stem = image_stem(row)
-        row["flicker"] = flicker(delta_e, self._previous_map(
-            plan, sequence, previous_frame, stem, mask), mask)
-        self._previous_delta_e[sequence] = (frame, delta_e.astype(np.float32))
-        return row
-
-    def _cell_renders(self, spec, renderers, gbuffer, cache, spp: int, seed: int,
-                      build_ms: float) -> list[tuple]:
-        """(estimate, TimedRender) of a cell's renders, back to back before scoring: render 0
-        the scored one (seed ``seed``), one timing render per other renderer, then, for a
-        frame-by-frame estimator whose renders spread wider than ``SPREAD_LIMIT``, one more at
-        a time until they do not or there are ``EXTENSION`` × repeats (module docstring)."""
-        seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
-        timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)
-        limit = (len(renderers) if spec.cls.tags.temporal
-                 else min(MAX_REPEATS, EXTENSION * len(renderers)))
-        while len(timed) < limit and too_wide([render for _, render in timed]):
-            timed += self._timed_renders(renderers[:1], gbuffer, cache, spp,
-                                         [timing_seed(seed, len(timed))], build_ms)
-        return timed
-
-    def _count_spread(self, renders, repeats: int) -> None:
-        """The run's count of cells that got more renders, and of those still too wide."""
-        counts = self._records["spread"]
-        counts["cells"] += 1
-        counts["extended_cells"] += len(renders) > repeats
-        counts["wide_cells"] += too_wide(renders)
-
-    def _correct_budget_cell(self, budget_key: tuple, spec, renderers, gbuffer, cache, spp: int,
-                             seed: int, build_ms: float, timed: list) -> tuple[int, list]:
-        """The first cell of a budget this run calibrated, timed at the calibrated spp
-        (``timed``), corrected on its own time: up to ``CELL_CORRECTIONS`` steps of
-        :func:`corrected_spp` over the cell's measured spp, each rendering the cell again from
-        ``reset()`` (it is the first frame the renderers see); then the best of those spp
-        (:func:`best_measured`), rendered once more where it was not the last; the last
-        rendering is the cell, and its spp the budget's for every other cell (module docstring,
-        "Equal time")."""
-        fit = self.unverified.pop(budget_key)
-        measured = {}   # spp → the cell's median device ms there
-        for correction in range(CELL_CORRECTIONS + 2):
-            measured[spp] = float(np.median([device_ms(render.stages) for _, render in timed]))
-            fit["cell_runs"].append({"spp": spp, "median_device_ms": measured[spp]})
-            step = (corrected_spp(fit["a_ms"], measured, spp, fit["budget_ms"], spp_limit(spec.cls))
-                    if correction < CELL_CORRECTIONS else None)
-            if step is None or step in measured:
-                step = best_measured(measured, fit["budget_ms"])
-                if step == spp or correction > CELL_CORRECTIONS:
-                    break
-            for renderer in set(renderers):
-                renderer.reset()
-            spp = step
-            timed = self._cell_renders(spec, renderers, gbuffer, cache, spp, seed, build_ms)
-        fit["chosen_spp"] = self.chosen[budget_key] = spp
-        return spp, timed
 
     def _previous_map(self, plan: ScenePlan, sequence: tuple, previous_frame: int | None,
                       stem: str, mask: np.ndarray) -> np.ndarray | None:

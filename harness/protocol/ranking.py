@@ -46,7 +46,8 @@ import pandas as pd
 from iblbench.harness.protocol.equal_time import TOLERANCE
 from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, by_device,
                                              cell_values, column_interval, compare_values,
-                                             skew_corrected_ci)
+                                             render_times, t_quantile)
+from iblbench.harness.protocol.timing import robust_ms
 
 METRIC = "mean_delta_e76"
 FLICKER = "flicker"   # a sequence's figure from its second frame on (harness/protocol/metrics.py)
@@ -56,27 +57,43 @@ BUDGETS = 3                 # headline budgets per scene at most
 BUDGET_SPACING = 2.0        # headline budgets at least this factor apart
 BUDGET_REACH = 0.5          # a headline budget ranks at least this share of the estimators
 _ROUND = (1.0, 2.0, 5.0)    # round budgets: these × 10^k ms
+BOOTSTRAP = 1000            # draws of the joint bootstrap of times and replicates
+BOOTSTRAP_SEED = 20230     # fixed: a table's answer does not change from one reading to the next
 
 
 @dataclasses.dataclass(frozen=True)
 class Point:
-    """One cell of an estimator's error–time curve."""
+    """One cell of an estimator's error–time curve: its robust time, its replicates of the
+    metric, every timed render's device ms (``times``, which the bootstrap resamples) and the
+    budget it was calibrated for (None for an spp level)."""
     spp: int
     time_ms: float
     replicates: pd.Series   # the metric per (seed, render)
+    times: np.ndarray = dataclasses.field(default_factory=lambda: np.empty(0))
+    budget_ms: float | None = None
+
+    @property
+    def missed(self) -> bool:
+        """An equal-time cell whose time lies more than TOLERANCE from its budget."""
+        return (self.budget_ms is not None
+                and abs(self.time_ms - self.budget_ms) > TOLERANCE * self.budget_ms)
 
 
 @dataclasses.dataclass(frozen=True)
 class Standing:
-    """One estimator at one budget: ``status`` "ranked" (with ``error`` and the interpolated
-    ``replicates``), "not reached" or "not measured" (module docstring); ``span_ms``: its
-    curve's fastest and slowest cell; ``spp``: the two spp it was read between (ranked)."""
+    """One estimator at one budget: ``status`` "ranked" (with ``error``, the interpolated
+    ``replicates`` and the bootstrap ``draws`` of its error), "not reached" or "not measured"
+    (module docstring); ``span_ms``: its curve's fastest and slowest cell; ``spp``: the two spp
+    it was read between (ranked); ``missed``: it rests on an equal-time cell that missed its
+    budget by more than TOLERANCE."""
     estimator: str
     status: str
     span_ms: tuple[float, float]
     error: MeanCI | None = None
     replicates: pd.Series | None = None
     spp: tuple[int, int] | None = None
+    draws: np.ndarray | None = None
+    missed: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,13 +114,18 @@ class Ranking:
         """(adjacent pairs resolved, adjacent pairs)."""
         return sum(r.significant for r in self.versus_next), len(self.versus_next)
 
+    @property
+    def missed(self) -> list[str]:
+        """The ranked estimators read from an equal-time cell off its budget (module docstring)."""
+        return [s.estimator for s in self.ranked if s.missed]
+
     def pair(self, a: str, b: str) -> RatioCI | None:
         """``b``'s error over ``a``'s at this budget (any two ranked estimators, adjacent or
         not), or None where either is not ranked: the A/A control's check."""
         standings = {s.estimator: s for s in self.ranked}
         if a not in standings or b not in standings:
             return None
-        return compare_values(standings[a].replicates, standings[b].replicates)
+        return versus(standings[a], standings[b])
 
     @property
     def winner(self) -> str:
@@ -141,6 +163,9 @@ class Ranking:
             names = [s.estimator for s in self.unranked if s.status == status]
             if names:
                 text += f"; {', '.join(names)} {status}"
+        if self.missed:
+            text += (f"; off budget: {', '.join(self.missed)} (equal-time cells more than "
+                     f"{TOLERANCE:.0%} from {self.budget_ms:g} ms)")
         return text
 
     def to_dict(self) -> dict:
@@ -148,7 +173,8 @@ class Ranking:
             entry = {"estimator": s.estimator, "status": s.status,
                      "span_ms": [float(t) for t in s.span_ms]}
             if s.error is not None:
-                entry.update(error=s.error.to_dict(), spp_between=list(s.spp))
+                entry.update(error=s.error.to_dict(), spp_between=list(s.spp),
+                             off_budget=s.missed)
             if ratio is not None:
                 entry["versus_next"] = ratio.to_dict()
             return entry
@@ -157,7 +183,7 @@ class Ranking:
         device = {"device": self.device} if self.device is not None else {}
         return {"scene": self.scene, **device, "budget_ms": self.budget_ms, "metric": self.metric,
                 "winner": self.winner, "verdict": self.verdict(),
-                "resolved_pairs": list(self.resolved),
+                "resolved_pairs": list(self.resolved), "off_budget": self.missed,
                 "ranked": [standing(s, r) for s, r in zip(self.ranked, ratios)],
                 "unranked": [standing(s) for s in self.unranked]}
 
@@ -171,7 +197,7 @@ def _figure(standing: Standing) -> str:
 
 def curve(rows: pd.DataFrame, metric: str = METRIC, frame: int | None = None) -> list[Point]:
     """An estimator's error–time curve on one scene: one :class:`Point` per cell (spp level or
-    time budget) of ``rows``, sorted by time.  A point's time is always its cell's (every frame);
+    time budget) of ``rows``, sorted by spp.  A point's time is always its cell's (every frame);
     its replicates are ``metric``'s over the cell's frames, or of ``frame`` alone.  Flicker is
     defined from the run's second frame of the sequence on, so its first frame is left out."""
     points = []
@@ -183,46 +209,158 @@ def curve(rows: pd.DataFrame, metric: str = METRIC, frame: int | None = None) ->
         if not len(scored):
             continue
         values, _ = cell_values(scored, metric)
+        budget = cell.time_budget_ms.iloc[0]
         if math.isfinite(time_ms) and values.notna().all():
-            points.append(Point(int(cell.spp.iloc[0]), float(time_ms), values))
-    return sorted(points, key=lambda p: (p.time_ms, p.spp))
+            points.append(Point(int(cell.spp.iloc[0]), float(time_ms), values,
+                                render_times(cell), None if pd.isna(budget) else float(budget)))
+    return sorted(points, key=lambda p: (p.spp, p.time_ms))
 
 
-def standing_at(estimator: str, points: list[Point], budget_ms: float) -> Standing:
-    """Where ``estimator``'s curve stands at ``budget_ms`` (module docstring)."""
-    span = (points[0].time_ms, points[-1].time_ms)
-    if budget_ms * (1 + TOLERANCE) < span[0]:
+def rising(times: np.ndarray) -> np.ndarray:
+    """The least-squares non-decreasing fit of ``times`` along the last axis (a curve's times in
+    spp order: more samples never take less time), by the min–max formula of isotonic
+    regression, fit_i = max over j ≤ i of min over k ≥ i of mean(times[j..k]) (Barlow et al.
+    1972), vectorised over the leading axes (the bootstrap's draws)."""
+    times = np.asarray(times, np.float64)
+    size = times.shape[-1]
+    sums = np.concatenate([np.zeros(times.shape[:-1] + (1,)), np.cumsum(times, -1)], -1)
+    fit = np.empty_like(times)
+    for i in range(size):
+        means = [[(sums[..., k + 1] - sums[..., j]) / (k - j + 1) for k in range(i, size)]
+                 for j in range(i + 1)]
+        fit[..., i] = np.max([np.min(row, axis=0) for row in means], axis=0)
+    return fit
+
+
+class Draws:
+    """The bootstrap of one ranking (module docstring, "Uncertainty"): ``size`` resamples of the
+    replicate keys shared by every estimator (counts per key, so that estimators with the same
+    keys are resampled together: paired), and of each cell's timed renders on its own."""
+
+    def __init__(self, keys, size: int = BOOTSTRAP, seed: int = BOOTSTRAP_SEED):
+        self.keys = pd.Index(sorted(set(keys)))
+        self.rng = np.random.default_rng(seed)
+        self.size = size
+        k = len(self.keys)
+        self.counts = (self.rng.multinomial(k, np.full(k, 1.0 / k), size=size) if k
+                       else np.zeros((size, 0)))
+
+    def times(self, point: Point) -> np.ndarray:
+        """``size`` draws of the point's robust time: its timed renders resampled (its time
+        itself, without renders to resample)."""
+        if point.times.size < 2:
+            return np.full(self.size, point.time_ms)
+        picks = self.rng.integers(0, point.times.size, size=(self.size, point.times.size))
+        return robust_ms(point.times[picks], axis=1)
+
+    def means(self, values: np.ndarray, keys: pd.Index) -> np.ndarray:
+        """Per draw, the resampled mean of ``values`` ([draws, len(keys)], one column per
+        replicate key)."""
+        weights = self.counts[:, self.keys.get_indexer(keys)]
+        total = weights.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(total > 0, (weights * values).sum(axis=1) / total, np.nan)
+
+
+def standing_at(estimator: str, points: list[Point], budget_ms: float,
+                draws: Draws | None = None) -> Standing:
+    """Where ``estimator``'s curve stands at ``budget_ms`` (module docstring), with ``draws``
+    of its error from the ranking's bootstrap (one of its own where none is given)."""
+    times = rising([p.time_ms for p in points])
+    span = (float(times[0]), float(times[-1]))
+    at_end = [p for p, t in zip(points, times) if p.budget_ms == budget_ms
+              and abs(t - budget_ms) <= TOLERANCE * budget_ms and t in span]
+    if budget_ms < span[0] and not at_end:
         return Standing(estimator, "not reached", span)
-    if budget_ms > span[1] * (1 + TOLERANCE):
+    if budget_ms > span[1] and not at_end:
         return Standing(estimator, "not measured", span)
-    budget_ms = min(max(budget_ms, span[0]), span[1])   # within the tolerance of an end
-    upper = next(i for i, p in enumerate(points) if p.time_ms >= budget_ms)
-    lo, hi = points[max(upper - 1, 0)], points[upper]
-    if hi.time_ms == budget_ms:   # on a cell (or on an end, within the tolerance)
-        return Standing(estimator, "ranked", span, skew_corrected_ci(hi.replicates.to_numpy()),
-                        hi.replicates, (hi.spp, hi.spp))
-    shared = lo.replicates.index.intersection(hi.replicates.index)
-    if len(shared) < 2:   # the two cells share no replicates: nothing to read between
+    keys = points[0].replicates.index
+    for point in points[1:]:
+        keys = keys.intersection(point.replicates.index)
+    if len(keys) < 2:   # the cells share no replicates: nothing to read between
         return Standing(estimator, "not measured", span)
-    w = math.log(budget_ms / lo.time_ms) / math.log(hi.time_ms / lo.time_ms)
+    draws = draws or Draws(keys)
     tiny = np.finfo(np.float64).tiny   # a replicate of error 0 stays finite in the log
-    log_lo = np.log(np.maximum(lo.replicates[shared].to_numpy(), tiny))
-    log_hi = np.log(np.maximum(hi.replicates[shared].to_numpy(), tiny))
-    values = pd.Series(np.exp((1 - w) * log_lo + w * log_hi), index=shared)
-    return Standing(estimator, "ranked", span, skew_corrected_ci(values.to_numpy()), values,
-                    (lo.spp, hi.spp))
+    logs = np.log(np.maximum([p.replicates[keys].to_numpy() for p in points], tiny))
+    clamped = min(max(budget_ms, span[0]), span[1])   # an equal-time cell at its curve's end
+    lo, hi, w = _between(times[None, :], clamped)
+    values = np.exp((1 - w[0]) * logs[lo[0]] + w[0] * logs[hi[0]])
+    lo_d, hi_d, w_d = _between(rising(np.stack([draws.times(p) for p in points], 1)), clamped)
+    drawn = np.exp((1 - w_d[:, None]) * logs[lo_d] + w_d[:, None] * logs[hi_d])
+    error = draws.means(drawn, keys)
+    used = {int(lo[0]), int(hi[0])} if w[0] not in (0.0, 1.0) else {int(hi[0] if w[0] else lo[0])}
+    return Standing(estimator, "ranked", span,
+                    _bootstrap_ci(float(values.mean()), error, len(keys)),
+                    pd.Series(values, index=keys), (points[lo[0]].spp, points[hi[0]].spp),
+                    error, any(points[i].missed for i in used))
+
+
+def _between(times: np.ndarray, budget_ms: float):
+    """Per row of ``times`` (rising along the last axis): the indices of the two points whose
+    times bracket ``budget_ms`` and the log–log weight of the upper one, 0 or 1 on a point
+    (clamped at the ends)."""
+    size = times.shape[-1]
+    upper = np.clip((times < budget_ms).sum(axis=-1), 1, max(size - 1, 1)) if size > 1 \
+        else np.zeros(times.shape[0], int)
+    lower = np.maximum(upper - 1, 0)
+    t_lo = np.take_along_axis(times, lower[:, None], 1)[:, 0]
+    t_hi = np.take_along_axis(times, upper[:, None], 1)[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = np.where(t_hi > t_lo, np.log(budget_ms / t_lo) / np.log(t_hi / t_lo), 1.0)
+    return lower, upper, np.clip(w, 0.0, 1.0)
+
+
+def _bootstrap_ci(estimate: float, draws: np.ndarray, n: int) -> MeanCI:
+    """``estimate`` with the 95% interval of its bootstrap ``draws`` on the log scale, widened
+    for ``n`` replicates (module docstring, "Uncertainty")."""
+    low, high = _log_interval(estimate, draws, n)
+    return MeanCI(estimate, low, high, n, math.nan)
+
+
+def _log_interval(estimate: float, draws: np.ndarray, n: int) -> tuple[float, float]:
+    """The basic bootstrap interval of a positive figure on the log scale: the draws' log
+    deviations from ``estimate``, scaled by t(n − 1)/z · √(n/(n − 1)) (so that for a normal
+    mean it is the Student-t interval, not the bootstrap's narrower one), at 2.5% and 97.5%."""
+    deviations = np.log(draws[np.isfinite(draws) & (draws > 0)]) - math.log(estimate)
+    if n < 2 or not deviations.size:
+        return math.nan, math.nan
+    scale = t_quantile(n - 1) / t_quantile(math.inf) * math.sqrt(n / (n - 1))
+    low, high = np.percentile(scale * deviations, [2.5, 97.5])
+    return estimate * math.exp(low), estimate * math.exp(high)
+
+
+def versus(a: Standing, b: Standing) -> RatioCI:
+    """``b``'s error over ``a``'s with its interval from their draws of one bootstrap (paired:
+    the same replicate resamples; each one's times resampled on their own), its p-value the
+    share of centred draws beyond the observed log ratio; the replicates' own test
+    (:func:`compare_values`) where either has no draws."""
+    if a.draws is None or b.draws is None:
+        return compare_values(a.replicates, b.replicates)
+    ratio = b.error.mean / a.error.mean
+    n = min(len(a.replicates), len(b.replicates))
+    paired = a.replicates.index.sort_values().equals(b.replicates.index.sort_values())
+    drawn = b.draws / a.draws
+    low, high = _log_interval(ratio, drawn, n)
+    if not math.isfinite(low):
+        return RatioCI(ratio, math.nan, math.nan, math.nan, "n=1: no interval", paired=paired)
+    scale = t_quantile(n - 1) / t_quantile(math.inf) * math.sqrt(n / (n - 1))
+    centred = scale * (np.log(drawn[np.isfinite(drawn) & (drawn > 0)]) - math.log(ratio))
+    p = float(np.mean(np.abs(centred) >= abs(math.log(ratio)))) if ratio != 1 else 1.0
+    return RatioCI(ratio, low, high, math.nan, p=p, paired=paired)
 
 
 def rank(curves: dict[str, list[Point]], scene: str, budget_ms: float,
          metric: str = METRIC, device: str | None = None) -> Ranking:
     """Every estimator's standing at ``budget_ms`` (``curves``: estimator → :func:`curve`, of
-    ``device``'s cells where the table holds several devices)."""
-    standings = [standing_at(label, points, budget_ms) for label, points in curves.items() if points]
+    ``device``'s cells where the table holds several devices), on one bootstrap."""
+    keys = [key for points in curves.values() for p in points for key in p.replicates.index]
+    draws = Draws(keys)
+    standings = [standing_at(label, points, budget_ms, draws)
+                 for label, points in curves.items() if points]
     ranked = sorted((s for s in standings if s.status == "ranked"), key=lambda s: s.error.mean)
     unranked = [s for s in standings if s.status != "ranked"]
-    # worse / better, paired where the two have the same replicates, else Welch
-    versus = [compare_values(a.replicates, b.replicates) for a, b in zip(ranked, ranked[1:])]
-    return Ranking(scene, budget_ms, metric, ranked, versus, unranked, device)
+    return Ranking(scene, budget_ms, metric, ranked,
+                   [versus(a, b) for a, b in zip(ranked, ranked[1:])], unranked, device)
 
 
 def round_budgets(low: float, high: float) -> list[float]:

@@ -339,12 +339,19 @@ def column_interval(rows, column: str) -> tuple[MeanCI, str]:
         raise ValueError(f"{column} of rows from several devices ({', '.join(devices(rows))}): "
                          "times are aggregated per device")
     if column == TIME_COLUMN:
-        times = [renders_values(text) for text in rows.get(TIME_COLUMN + RENDERS, ())]
-        if times and all(t.size for t in times):
-            return median_ci(np.concatenate(times)), MEDIAN_METHOD
+        times = render_times(rows)
+        if times.size:
+            return median_ci(times), MEDIAN_METHOD
     values, method = cell_values(rows, column)
     interval = skew_corrected_ci if method == MEAN_METHOD else mean_ci
     return interval(values.to_numpy()), method
+
+
+def render_times(rows) -> np.ndarray:
+    """Every timed render's device ms of a cell's rows (``time_ms_renders``); empty where a row
+    lacks them (older schemas)."""
+    times = [renders_values(text) for text in rows.get(TIME_COLUMN + RENDERS, ())]
+    return np.concatenate(times) if times and all(t.size for t in times) else np.empty(0)
 
 
 def compare_values(a, b) -> RatioCI:

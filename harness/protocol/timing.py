@@ -129,7 +129,6 @@ TIME = TIME_COLUMN
 COLUMNS = ("time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build", "time_ms_sample",
            "time_ms_shade", "time_ms_host", "time_repeats", TIME + RENDERS)
 SPREAD_LIMIT = 0.15   # IQR/median a cell's timed renders should stay within
-EXTENSION = 3         # a cell with a wider spread gets renders up to EXTENSION × its repeats
 MEASURE = ("device time per frame of the stages the estimator needs: build + sample + shade "
            "(OpenCL profiling events), ms")
 
@@ -224,6 +223,12 @@ def time_columns(renders: list[TimedRender]) -> dict:
     columns["time_repeats"] = len(renders)
     columns[TIME + RENDERS] = renders_text(times)
     return columns
+
+
+def robust_ms(values, axis=None):
+    """The robust time of timed renders spread over rounds: their median, along ``axis``
+    (module docstring, "Which statistic")."""
+    return np.median(np.asarray(values, np.float64), axis=axis)
 
 
 def one_cell_time(rows, column: str = TIME) -> float:
