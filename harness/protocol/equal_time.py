@@ -8,8 +8,10 @@ budget below the build alone cannot be met by any spp.
 For one (scene, estimator) the runner times renders on the scene's first frame to run, just before
 its first equal-time cell (``CALIBRATION_REPEATS`` per spp, on seeds no cell uses, through the
 same :func:`~iblbench.harness.protocol.timing.timed_renders` as a cell's repeats) at ``CALIBRATION_SPP``,
-then at larger spp until the calibrated range brackets the choice. Each spp's median (over more
-renders where they spread too wide, as a cell's) is fitted as ``a + b·spp`` by least squares on
+then at larger spp until the calibrated range brackets the choice; the ``CALIBRATION_SPP`` are
+timed in interleaved rounds (one render of each a round), so that their line is not drawn
+through one slow spell and one fast one.  Each spp's robust time (the median,
+:func:`~iblbench.harness.protocol.timing.robust_ms`) is fitted as ``a + b·spp`` by least squares on
 relative error, and the first choice is the largest spp whose predicted time is within the budget.
 A line fitted from 1 to hundreds of spp misses by more than 10% where the cost is not quite
 linear, so the choice is then refined on measurements: the spp chosen is timed, the per-spp slope
@@ -120,7 +122,8 @@ class Calibration:
             chosen = step
         medians = {s: float(robust_ms(v)) for s, v in self.runs.items()}
         chosen = best_measured(medians, budget_ms)
-        return {"budget_ms": budget_ms, "build_ms": self.build_ms, "a_ms": a, "b_ms_per_spp": b,
+        return {"budget_ms": budget_ms, "build_ms": self.build_ms, "limit": self.limit,
+                "a_ms": a, "b_ms_per_spp": b,
                 "fitted_spp": fitted, "chosen_spp": chosen, "predicted_ms": a + b * chosen,
                 "measured_ms": medians[chosen], "over_budget": medians[chosen] > budget_ms,
                 "runs": [{"spp": s, "device_ms": self.runs[s], "host_frame_ms": self.host[s],

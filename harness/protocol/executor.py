@@ -11,8 +11,15 @@ device time) are collected by :meth:`Executor.drain`.
 
 The cell's work is the runner module's docstring ("Timing", "Equal time", "Scores", "Flicker"):
 per frame a FrameCache (reused while the next frame is the same scene's same frame, or the very
-same map), the exact reference, a warm-up per estimator, then per cell its timed renders, its
-scores, its EXR and its row.  Rows name the ``host`` and the ``device`` that made them, and their
+same map), the exact reference, a warm-up per estimator (and its budgets' calibration), then the
+cells' timed renders in interleaved rounds, each render scored as it comes (render 0's EXR
+written), then each cell's row.
+
+**Rounds** (issue 32; the timing module's "Rounds"): round r renders render r of every cell of
+the frame, so a cell's renders fall in different spells of the device.  Only the frame's cells
+go round: a frame's cells share its cache, and a temporal estimator's twins must each render
+the frame once before the next.  A cell's row is given once its last round is done, so a
+killed run loses the frame in flight.  Rows name the ``host`` and the ``device`` that made them, and their
 times are that device's.
 
 An executor keeps, between calls of :meth:`Executor.render`, what does not depend on the cells:

@@ -4,26 +4,45 @@
 **Error at a budget.**  Each estimator's cells of a scene (its spp levels and equal-time cells)
 are points of its error–time curve: the cell's time (the median of its timed renders,
 :func:`~iblbench.harness.protocol.stats.column_interval`) and its replicates of the metric (one
-value per (seed, render), :func:`~iblbench.harness.protocol.stats.cell_values`).  The error at a
-budget T is read along the curve between the two points whose times bracket T, interpolated in
-log–log (log error linear in log time), *replicate by replicate*: replicate (s, r) at T is
-exp((1 − w)·log e_lo(s, r) + w·log e_hi(s, r)), w = log(T / t_lo) / log(t_hi / t_lo).  The
-interval at T is then the cells' own interval (Student-t, skewness-corrected:
-:func:`~iblbench.harness.protocol.stats.skew_corrected_ci`) over those interpolated replicates,
-so it carries the two points' own spread and whatever they share.  The times are taken as the
-cells' medians: their own uncertainty (the time intervals in the tables) is not carried into
-the error's.
+value per (seed, render), :func:`~iblbench.harness.protocol.stats.cell_values`).  More samples
+never take less time, so the curve's times are first made to rise with spp: the least-squares
+non-decreasing fit (isotonic regression, :func:`rising`), which pools a higher-spp cell measured
+faster than a lower-spp one with it instead of reading between two cells out of order.  The
+error at a budget T is read along that curve between the two points whose times bracket T,
+interpolated in log–log (log error linear in log time), *replicate by replicate*: replicate
+(s, r) at T is exp((1 − w)·log e_lo(s, r) + w·log e_hi(s, r)), w = log(T / t_lo) / log(t_hi /
+t_lo); the error is their mean.
 
-**Who is not ranked.**  An estimator whose fastest cell takes longer than T is "not reached"
-(it cannot render a frame in T at the spp measured); one whose slowest cell is faster than T is
-"not measured" (its error at T would need more spp than the sweep ran; no extrapolation).  A
-budget within the equal-time tolerance (±10%) beyond a curve's end reads that end's cell, as an
-equal-time cell of that budget is (it landed within ±10% of it).
+**Uncertainty: times and replicates together** (issue 32).  The budget's place on a curve
+depends on measured times, which move 2× between two renders of the same work on a busy
+machine; so the interval carries their uncertainty as well as the replicates'.  One bootstrap
+per ranking (:class:`Draws`, ``BOOTSTRAP`` draws, a fixed seed so a table always reads the
+same): each draw resamples every cell's timed renders on its own (its time: their median),
+fits each curve's rising times again, and resamples the replicate keys (seed, render), the same
+resample for every estimator, so estimators with the same replicates are compared paired; the
+error at T is then read as above.  An estimator's interval, and the ratio of two estimators'
+errors, are the basic bootstrap intervals of those draws on the log scale, widened by
+t(n − 1)/z · √(n/(n − 1)) for n replicates, so that without time noise they match the Student-t
+interval rather than the bootstrap's narrower one (:func:`_log_interval`).  A ratio's p-value is
+the share of its centred draws beyond the observed log ratio.  Two estimators whose replicates
+are identical (an unchanged copy under another name) are then apart only where their times are
+apart beyond their renders' spread.  Measured on the recorded timing noise of this machine
+(:mod:`iblbench.harness.verify.timing_noise`, tests/test_timing_noise.py): the copy is called
+apart in 2–3% of verdicts (30 of 30 when the times are taken as exact), and an estimator with
+half the error at equal time is resolved in every one.
+
+**Who is not ranked.**  An estimator is placed at T only where its measured cells bracket T: one
+whose fastest cell (on the rising fit) takes longer than T is "not reached" (it cannot render a
+frame in T at the spp measured); one whose slowest cell is faster than T is "not measured" (its
+error at T would need more spp than the sweep ran; no extrapolation).  The one exception is an
+equal-time cell of budget T at its curve's end that landed within the equal-time tolerance
+(±10%) of T: it was measured for T, and is read there.
+
+**Off budget.**  A standing read from an equal-time cell whose time missed its budget by more
+than ``TOLERANCE`` is marked (``Standing.missed``), and the verdict names it ("off budget: …").
 
 **Ranks.**  The ranked estimators are sorted by their mean error at T.  Each adjacent pair is
-*resolved* when the ratio of the two errors' means excludes 1 at 95%
-(:func:`~iblbench.harness.protocol.stats.compare_values`): paired when the two have the same
-replicates (the same seeds and renders, which in one run they do), Welch otherwise.
+*resolved* when the bootstrap interval of the ratio of their errors excludes 1 (:func:`versus`).
 
 **Headline budgets** (:func:`headline_budgets`): a sweep's own time budgets where it has them,
 else up to three round budgets (1, 2 or 5 × 10^k ms) inside the time range the scene's cells

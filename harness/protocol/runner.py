@@ -68,10 +68,10 @@ Timing (:mod:`iblbench.harness.protocol.timing` defines a cell's time).  Each ce
   each), so each twin takes the same path as the scored instance (initialisation on the first
   frame, carried state later, re-initialisation where the map jumps) while the scored state is
   never touched by a timing render.
-- More renders: a frame-by-frame estimator's cell whose renders spread wider than the timing
-  module's limit gets renders R, R+1, ... (seeds :func:`timing_seed`) one at a time, up to
-  ``EXTENSION`` × R (:meth:`~iblbench.harness.protocol.executor.Executor._cell_renders`); the
-  run says how many cells got more.
+- Rounds: a frame's cells render in interleaved rounds, render r of every cell in round r
+  (:meth:`~iblbench.harness.protocol.executor.Executor._run_frame`; the timing module's
+  "Rounds"), so a cell's renders fall in different spells of the device.  On a cluster a unit
+  is one cell (or one sequence), so its renders go back to back there.
 - Build: a frame builds its cache once (DESIGN §2), so the device time of that one build of the
   products the estimator requires counts in each of its timed renders (``time_ms_build`` is
   that one measurement); a frame that reused an identical frame's cache built nothing, and its
@@ -80,26 +80,26 @@ Timing (:mod:`iblbench.harness.protocol.timing` defines a cell's time).  Each ce
 Equal time.  For each budget T in ``time_budget_ms`` and each (scene, estimator), the runner
 calibrates the estimator's cell time (build + sample + shade) against spp
 (:mod:`iblbench.harness.protocol.equal_time`), just before the first of those cells, and runs the spp it
-chose.  The first cell of each budget is then corrected on its own time, in its own context
-(after scoring and image writes, on its own seeds): while its median lies outside half of ±10%
-of T, up to ``CELL_CORRECTIONS`` times, the per-spp slope is re-estimated as the median slope
-through the cell's measured points (keeping the calibration's intercept) and the cell is
-rendered again, from ``reset()``, at the spp that predicts T.  The spp kept is the best of
-those measured (:func:`~iblbench.harness.protocol.equal_time.best_measured`), rendered once more if it
-was not the last; the last rendering is the cell, and its spp is every other cell's of that
-budget.
+chose.  The first cell of each budget is then corrected on its own time, in its own context,
+before the rounds: its renders, back to back on its own seeds, while their median lies outside
+half of ±10% of T, up to ``CELL_CORRECTIONS`` times, the per-spp slope re-estimated as the median
+slope through the cell's measured points (keeping the calibration's intercept), each time from
+``reset()``, at the spp that predicts T.  The spp kept is the best of those measured
+(:func:`~iblbench.harness.protocol.equal_time.best_measured`); every cell of the budget then
+renders at it, in the rounds.
 Those rows carry ``time_budget_ms = T`` and the chosen ``spp``; the calibration runs, fits and
 the cell's corrections (``cell_runs``) are in the manifest under ``time_budget``.  A resumed run
 reuses the spp its earlier rows chose.  At the end, each equal-time cell's time is compared
 with its budget: one outside ±10% is printed and listed in the manifest
-(``time_budget.achieved``), and the report shows the achieved time.
+(``time_budget.achieved``, with the reason), and the report shows the achieved time; the
+equal-time answer marks a verdict that rests on such a cell (:mod:`.ranking`).
 
 Scores.  The reference-side work of the metrics (exposure, L*a*b*, FLIP's exposure range) is
 done once per frame (:class:`iblbench.harness.protocol.metrics.Scorer`); ``metrics`` leaves metrics out.
 Render 0 is scored in full (its row's metrics, its EXR); every other planned timed render is
 scored on ΔE76, ΔE2000 and relMSE too (``Scorer.errors``), and the row keeps each render's
 values (``*_renders``): the cell's replicates, from which its intervals come
-(:mod:`iblbench.harness.protocol.stats`).  Renders added for a wide timing spread are not scored.
+(:mod:`iblbench.harness.protocol.stats`).
 """
 from __future__ import annotations
 
@@ -564,17 +564,22 @@ class Runner:
         keys = ["scene", "estimator", "time_budget_ms", "device"]
         times = cell_times(timed, keys)
         spp = timed.groupby(keys, sort=False).spp.first()
+        calibrated = {(c["scene"], c["estimator"], c["budget_ms"]): c
+                      for c in self.manifest["time_budget"]["calibrations"]}
         achieved = []
         for key, ms in times.items():
             scene, label, budget, device = key
             within = abs(ms - budget) <= TOLERANCE * budget
+            why = None if within else _missed_why(calibrated.get(key[:3]), int(spp[key]), ms,
+                                                 budget)
             achieved.append({"scene": scene, "estimator": label, "budget_ms": budget,
                              "device": device, "spp": int(spp[key]), "time_ms": ms,
-                             "within_tolerance": bool(within)})
+                             "within_tolerance": bool(within), "why": why})
             if not within:
                 print(f"iblbench: {label} on {scene}: {ms:.3g} ms at {spp[key]} spp against the "
                       f"{budget:g} ms budget ({ms / budget - 1:+.0%}) on {device}, outside "
-                      f"±{TOLERANCE:.0%}", file=sys.stderr)
+                      f"±{TOLERANCE:.0%}: {why}; its verdicts are marked off budget",
+                      file=sys.stderr)
         return achieved
 
     def _save_interrupted(self):
@@ -692,6 +697,18 @@ class Runner:
         if time.monotonic() - self._last_fold > FOLD_SECONDS:
             self._fold()
             self._last_fold = time.monotonic()
+
+
+def _missed_why(calibration: dict | None, spp: int, ms: float, budget: float) -> str:
+    """Why an equal-time cell missed its budget, from its calibration (None: an earlier run's)."""
+    if spp == 1 and ms > budget:
+        return "even 1 spp takes longer than the budget"
+    if calibration is None:
+        return "its spp was chosen by an earlier run"
+    if ms < budget and spp >= calibration.get("limit", spp + 1):
+        return f"{spp} spp is the most it may take"
+    return (f"calibrated at {calibration['measured_ms']:.3g} ms, its cells ran at {ms:.3g} ms: "
+            "the device's speed changed between the calibration and the cells")
 
 
 def run(config: RunConfig):

@@ -26,21 +26,28 @@ included, builds excluded; never used to rank estimators) and ``time_repeats`` t
 renders.  How the runner gets those renders without disturbing a temporal estimator's state is
 in :mod:`iblbench.harness.protocol.runner`.
 
-**More renders where they spread.**  A frame-by-frame estimator's cell whose timed renders
-spread wider than ``SPREAD_LIMIT`` (IQR/median above 15%, :func:`too_wide`) gets one more timed
-render at a time, back to back with the others, until they spread less or it has ``EXTENSION``
-× its repeats (15 at the default 5).  Its columns cover every render, ``time_repeats`` counts
-them, and the run prints how many cells got more and how many stayed above the limit (the
-manifest's ``timing.spread``).  Why: renders back to back on this VM switch between a fast and
-a slow mode in runs of several renders (below), so five renders that straddle a switch hold
-both modes and an IQR of ~40%, while a few more mostly land in one.  Simulated with two modes
-(2.9 and 4.1 ms, a switch after 8 renders on average, either mode half the time): 88% of the
-cells within 15% at 5 renders, 98% with this rule, at 5.7 renders per cell on average.  What
-it is not: a rule that stops on the statistic it reports makes a stored IQR smaller than a
-fixed count of renders would (the median is that of every render, as before), which is why
-the run says which cells it extended.  A temporal estimator's cell keeps its repeats: its
-timing renders run on twins that followed the sequence, and a further twin would have to
-render every earlier frame first.
+**Rounds** (issue 32).  A frame's cells render in interleaved rounds: round r renders render r
+of every cell of the frame, estimator after estimator, then round r + 1
+(:meth:`iblbench.harness.protocol.executor.Executor._run_frame`).  So a cell's renders lie a
+whole round apart, and fall in different spells of the device (below), not in one: its time
+samples the machine's slow and fast spells as every other cell's does, and two cells that take
+the same time get the same times, whichever spell either would have started in.  Measured on
+the A/A simulation (:mod:`iblbench.harness.verify.timing_noise`: an estimator and its unchanged
+copy, timed on the spells recorded on this machine, ranked by the real ranking): with each
+cell's renders back to back, the copy was called apart in 5 of 120 verdicts idle and 37 of 120
+beside two busy processes; in rounds, 2 and 3 of 120.  A round's renders each follow their
+scoring on the host, which the back-to-back renders did not; that costs every cell alike.  The
+rounds replace the earlier rule that gave a cell whose back-to-back renders spread wider than
+15% more renders (``SPREAD_LIMIT`` now only counts such cells, ``timing.spread.wide_cells``):
+it made a cell's renders agree within one spell, which is what the A/A check showed wrong.
+
+**Which statistic** (:func:`robust_ms`).  A cell's time is the median of its renders.  On the
+same simulation, 40 runs × 3 budgets each: the median called the copy apart in 2 (idle) and 3
+(busy) of 120 verdicts, and resolved an estimator with 12% less error at equal time in 96 and
+75 of 120; the 25% quantile 1 and 2 of 120, with 47 and 70 resolved; the minimum (Chen and
+Revels 2016, BenchmarkTools.jl) 9 and 18 of 120, above the stated 5%: the bootstrap of an
+extreme value is not a valid interval, and one lucky render moves it.  So the median: the A/A
+rate held and the best power here.
 
 **Why a repeat is one render, not a batch.**  timeit's and asv's "autorange" (a repeat is a
 batch of back-to-back renders lasting at least some 10-25 ms, its value the batch's time per
