@@ -69,7 +69,7 @@ def test_the_bar_names_scene_estimator_and_stage(tmp_path, capsys):
                   time_budget_ms=(1.0,), progress=True))
     bar = capsys.readouterr().err
     for description in ("timing floor", "sphere-sun · frame cache", "sphere-sun · reference",
-                        "sphere-sun · uniform · warm-up", "sphere-sun · uniform · rendering",
-                        "sphere-sun · uniform · calibrating", "sphere-sun · uniform · scoring"):
+                        "sphere-sun · uniform · warm-up", "sphere-sun · uniform · calibrating",
+                        "sphere-sun · rendering, round 1 of 1"):
         assert f"{description}" in bar, description
     assert "s left" in bar and "it/s" not in bar and "cell/s" not in bar

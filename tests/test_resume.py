@@ -224,12 +224,14 @@ def test_a_damaged_journal_line_before_the_last_is_an_input_error(tmp_path):
 
 
 def test_kill_9_mid_run_then_resume_equals_an_uninterrupted_run(tmp_path):
-    """SIGKILL a real ``iblbench run`` twice, each time once a few cells are in, then finish."""
+    """SIGKILL a real ``iblbench run`` twice, each time once a few cells are in, then finish.
+    A frame's cells come in together (they render in rounds), so each kill lands in a later
+    scene than the last: three scenes."""
     config = tmp_path / "sweep.toml"
-    config.write_text(TINY.replace('["sphere-sun"]', '["sphere-sun", "sphere-backlit"]')
+    config.write_text(TINY.replace('["sphere-sun"]', '["sphere-sun", "sphere-backlit", "blob-sun"]')
                       .replace('["uniform", "balanced"]', '["uniform", "balanced_mis"]')
                       .replace("[4, 8]", "[16]").replace("seeds = 2", "seeds = 3"))
-    total = 2 * 2 * 1 * 3   # cells take ~0.2-0.4 s each here, most of it HDR-FLIP
+    total = 3 * 2 * 1 * 3   # cells take ~0.2-0.4 s each here, most of it HDR-FLIP
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     env.pop("IBLBENCH_DEVICE", None)
 

@@ -178,15 +178,12 @@ def test_time_columns_are_the_sums_of_their_stages_events(tmp_path, event_log):
                        seeds=1, resolution=(16, 16), env_res=8, progress=False,
                        metrics=("de76",), repeats=3)
     table = run(config)
-    cells = []   # a cell's timed groups: its repeats, then any renders it got one at a time
+    cells = {}   # a cell's timed renders, one a round (one cell per estimator here)
     for name, renders in event_log.timed:
-        if cells and cells[-1][0] == name:
-            cells[-1][1].extend(renders)
-        else:
-            cells.append((name, list(renders)))
-    assert sorted(name for name, _ in cells) == sorted(ESTIMATORS)
+        cells.setdefault(name, []).extend(renders)
+    assert sorted(cells) == sorted(ESTIMATORS)
     assert any(logged.name in BUILD_KERNELS["cdf"] for logged in event_log.of("build"))
-    for name, renders in cells:
+    for name, renders in cells.items():
         row = table[table.estimator == name].iloc[0]
         assert row.time_repeats == len(renders) >= 3
         build = _build_ms(event_log, get_estimator_class(name).requires)

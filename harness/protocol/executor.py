@@ -395,7 +395,9 @@ class Executor:
             for renderer in set(renderers):
                 renderer.reset()
             measured[spp] = robust_ms([device_ms(render.stages) for _, render in timed])
-            fit["cell_runs"].append({"spp": spp, "device_ms": measured[spp]})
+            fit["cell_runs"].append({"spp": spp, "median_device_ms": measured[spp]})
+            if correction == CELL_CORRECTIONS:
+                break
             step = corrected_spp(fit["a_ms"], measured, spp, fit["budget_ms"], spp_limit(spec.cls))
             if step is None or step in measured:
                 break
