@@ -305,7 +305,7 @@ class Runner:
                        "frames_for": {n: frames_text(v) for n, v in c.frames_for},
                        "time_budget_ms": list(c.time_budget_ms), "force": c.force,
                        "repeats": c.repeats, "repeats_for": dict(c.repeats_for),
-                       "metrics": list(c.metrics),
+                       "metrics": list(c.metrics), "control": list(c.control),
                        "save_inputs": c.save_inputs, "sanitize": c.sanitize, "env_res": c.env_res},
             "sweep": sweep,
             "protocol": PROTOCOL,
