@@ -62,7 +62,8 @@ from iblbench.harness.protocol.stats import (LEVEL, by_device, cell_intervals, d
                                              interval_text, mean_ci, t_quantile)
 from iblbench.harness.protocol.timing import TIME
 from iblbench.reports import plots
-from iblbench.reports.answer import answer_context, ranking_table, sequence_context
+from iblbench.reports.answer import (answer_context, busy_sentence, ranking_table,
+                                     sequence_context)
 from iblbench.reports.frames import shown_frame
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
 from iblbench.scenes import cubemap
@@ -898,6 +899,7 @@ def _page_context(run_dir: pathlib.Path, manifest: dict, table, scenes: list[dic
         "scenes": scenes,
         "sequences": any(s["frames"] > 1 for s in scenes),
         "manifest": _manifest_context(manifest),
+        "busy": busy_sentence(manifest),
         "devices": devices(table) if len(devices(table)) > 1 else [],
         "rows": len(table),
         "not_computed": not_computed(table),

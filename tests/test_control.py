@@ -1,5 +1,6 @@
 """The A/A control (issue 32): ``--control NAME`` and a sweep's ``control`` run an unchanged copy
-of an estimator as ``NAME@control``, and the answer counts the verdicts that call the two apart."""
+of an estimator as ``NAME@control``, and the answer counts the verdicts that call the two apart;
+and the report's first sentence where the machine was busy during the run."""
 from __future__ import annotations
 
 import html
@@ -16,6 +17,7 @@ from iblbench.harness.protocol.control import ControlCalls, control_calls
 from iblbench.harness.protocol.ranking import scene_rankings
 from iblbench.harness.protocol.run_plan import plan_run
 from iblbench.harness.protocol.sweep import load_sweep
+from iblbench.reports.answer import busy_sentence
 from iblbench.reports.report import write_report
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.imageio import read_exr
@@ -115,11 +117,14 @@ def test_the_control_renders_the_same_images_under_another_label(control_run):
                                       read_exr(images / f"envmap-mis=brdf{stem}"))
 
 
-def test_the_manifest_records_the_control(control_run):
+def test_the_manifest_records_the_control_and_the_load(control_run):
     out, _, _ = control_run
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["config"]["control"] == [BRDF]
     assert manifest["estimator_versions"][BRDF + "@control"] == manifest["estimator_versions"][BRDF]
+    load = manifest["timing"]["load"]
+    assert load["cores"] == os.cpu_count() and len(load["load_1min"]) == 2
+    assert all(value >= 0 for value in load["load_1min"])
 
 
 def test_run_json_carries_the_control_and_a_rerun_resumes_it(control_run, cli, tmp_path):
@@ -135,9 +140,22 @@ def test_run_json_carries_the_control_and_a_rerun_resumes_it(control_run, cli, t
     assert "A/A control: " in result.stderr   # the human output, beside the JSON
 
 
-def test_the_report_shows_the_control(control_run):
-    page = html.unescape(write_report(control_run[0])["path"].read_text(encoding="utf-8"))
-    assert "<h2>A/A control</h2>" in page and f"<p>A/A control: {BRDF}@control" in page
+def test_the_report_shows_the_control_and_a_busy_machine(control_run, tmp_path):
+    """The run's manifest made idle, then busy (the machine's own load is whatever it was)."""
+    out = shutil.copytree(control_run[0], tmp_path / "out")
+
+    def page(load):
+        manifest = json.loads((out / "manifest.json").read_text())
+        manifest["timing"].update(load={"cores": 2, "load_1min": load},
+                                  floor={"groups_within": [1.0, 1.0]})
+        (out / "manifest.json").write_text(json.dumps(manifest))
+        return write_report(out)["path"].read_text(encoding="utf-8")
+
+    idle = html.unescape(page([0.5, 1.0]))
+    assert f"<p>A/A control: {BRDF}@control" in idle and "This machine" not in idle
+    busy = page([0.5, 7.0])
+    assert busy.index("This machine was busy during the run (load 7.0 on 2 cores)") < busy.index(
+        "<h2>")
 
 
 # --- counting the calls -----------------------------------------------------------------------------
@@ -173,3 +191,39 @@ def test_a_control_never_ranked_says_it_could_not_be_checked():
     table = pd.DataFrame(curve_rows("a", "s", 1.0, 1.0) + curve_rows("a@control", "s", 1.0, 1.0))
     (calls,) = control_calls(scene_rankings(table, budgets=[100.0]), table.estimator)
     assert (calls.called_apart, calls.verdicts) == (0, 0) and "could not be checked" in calls.text()
+
+
+# --- a busy machine --------------------------------------------------------------------------------
+
+
+def manifest(load=None, floor=(0.9, 0.8), cores=2):
+    timing = {"floor": {"groups_within": list(floor)}}
+    if load is not None:
+        timing["load"] = {"cores": cores, "load_1min": list(load)}
+    return {"timing": timing}
+
+
+def test_a_busy_machine_opens_the_report_with_one_plain_sentence():
+    sentence = busy_sentence(manifest(load=(3.9, 2.5)))
+    assert sentence == ("This machine was busy during the run (load 3.9 on 2 cores), so times "
+                        "are less certain than on an idle machine; the intervals include that.")
+    assert "load 6.1 on 4 cores" in busy_sentence(manifest(load=(6.1, 0.2), cores=4))
+
+
+@pytest.mark.parametrize("load, floor", [
+    ((1.2, 2.0), (0.9, 0.8)),    # the run's own load on 2 cores
+    ((3.0, 0.1), (0.9, 0.8)),    # at the bound, not above it
+    (None, (0.9, 0.8)),          # an older manifest without the load
+])
+def test_an_idle_machine_gets_no_sentence(load, floor):
+    assert busy_sentence(manifest(load=load, floor=floor)) is None
+
+
+def test_an_uneven_floor_alone_gets_the_sentence_without_a_load():
+    sentence = busy_sentence(manifest(load=None, floor=(0.9, 0.2)))
+    assert sentence.startswith("This machine ran unevenly during the run (a fixed test kernel")
+    assert "load" not in sentence
+
+
+def test_no_manifest_or_no_timing_gets_no_sentence():
+    assert busy_sentence(None) is None and busy_sentence({}) is None
