@@ -70,7 +70,7 @@ def _naming_keywords(function):
 def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None, first_seed=None,
         frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None, metrics=None,
         sanitize=None, device=None, save_inputs=False, force=False, progress=None, workers=None,
-        scheduler=None):
+        scheduler=None, control=None):
     """Run a sweep and return its results table (a pandas DataFrame); see the module docstring.
 
     Each argument left None takes its value from ``config``: a shipped sweep name (``quick``,
@@ -85,6 +85,9 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
     - ``time_budget_ms``: a number or a list (equal-time cells besides the spp list);
     - ``repeats``: timed renders per cell, an int or ``{"default": 5, "bis": 3}``;
     - ``metrics``: ``"de76,relmse"`` or a list (default: all; ΔE76 always);
+    - ``control``: an estimator label or a list of them, each run again unchanged as
+      ``LABEL@control`` (the A/A control: how often the answer calls an estimator apart from
+      itself); ``estimators`` given without it drops the config's;
     - ``out``: the output folder (required); ``force``: recompute cells ``out`` already has;
     - ``device``, ``sanitize``, ``save_inputs``: as the flags of ``iblbench run``;
     - ``progress``: a progress bar (None: only on a terminal);
@@ -101,7 +104,7 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
         ("first_seed", first_seed),
         ("frames", frames), ("resolution", resolution), ("env_res", env_res),
         ("time_budget_ms", time_budget_ms), ("repeats", repeats), ("metrics", metrics),
-        ("sanitize", sanitize)) if value is not None}
+        ("sanitize", sanitize), ("control", control)) if value is not None}
     try:
         if frames is not None:   # "all" parses to None, which would keep the config's frames
             frames = parse_frames(list(frames) if isinstance(frames, tuple) else frames) or slice(None)
@@ -129,6 +132,7 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
             time_budget_ms=_listed(time_budget_ms), repeats=repeats, repeats_for=repeats_for,
             metrics=metrics, sanitize=sanitize, device=device, save_inputs=save_inputs,
             force=force, progress=progress, workers=workers, scheduler=scheduler,
+            control=_listed(control),
             note={"overridden_by_arguments": sorted(given), "via": "iblbench.run (Python API)"}))
     except InputError as error:
         _remove(created)
@@ -142,16 +146,21 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
 def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seeds=None,
                first_seed=None, frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None,
                repeats_for=None, metrics=None, sanitize=None, device=None, save_inputs=False,
-               force=False, progress=None, workers=None, scheduler=None, note=None):
+               force=False, progress=None, workers=None, scheduler=None, control=None,
+               note=None):
     """The :class:`~iblbench.harness.protocol.run_plan.RunConfig` of a sweep config (``config``,
     default ``default``) whose fields given here (not None) are replaced, values already parsed
     (``iblbench run`` and :func:`run` share it); ``note`` is added to the manifest's
-    ``sweep`` record."""
+    ``sweep`` record.  ``estimators`` given without ``control`` drops the config's control,
+    which named the config's estimators."""
     from iblbench.harness.protocol.run_plan import RunConfig
     from iblbench.harness.protocol.sweep import load_sweep
 
     def given(values, kind):
         return None if values is None else tuple(map(kind, values))
+
+    if control is None and estimators is not None:
+        control = ()   # the config's control named the config's estimators
 
     sweep = load_sweep(config or "default").replace(
         scenes=given(scenes, str), estimators=given(estimators, str), spp=given(spp, int),
@@ -159,7 +168,8 @@ def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seed
         time_budget_ms=given(time_budget_ms, float), sanitize=sanitize, repeats=repeats,
         repeats_for=repeats_for, metrics=metrics,
         spp_for=None if spp is None else (),   # spp given: the same levels for every estimator
-        frames_for=None if frames is None else ())   # frames given: the same for every scene
+        frames_for=None if frames is None else (),   # frames given: the same for every scene
+        control=given(control, str))
     return RunConfig(out=pathlib.Path(out), scenes=sweep.scenes, estimators=sweep.estimators,
                      spp=sweep.spp, seeds=sweep.seeds, first_seed=sweep.first_seed,
                      resolution=sweep.resolution,
@@ -168,6 +178,7 @@ def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seed
                      frames_for=sweep.frames_for,
                      time_budget_ms=sweep.time_budget_ms, force=force, repeats=sweep.repeats,
                      repeats_for=sweep.repeats_for, spp_for=sweep.spp_for, metrics=sweep.metrics,
+                     control=sweep.control,
                      sweep={**sweep.to_manifest(), **(note or {})}, workers=workers,
                      scheduler=scheduler)
 

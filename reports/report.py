@@ -53,6 +53,7 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.verify.convergence import flatter_than_tags
+from iblbench.harness.protocol.control import control_calls
 from iblbench.harness.protocol.equal_time import TOLERANCE
 from iblbench.harness.protocol.metrics import Scorer
 from iblbench.harness.protocol.ranking import scene_rankings
@@ -61,7 +62,8 @@ from iblbench.harness.protocol.stats import (LEVEL, by_device, cell_intervals, d
                                              interval_text, mean_ci, t_quantile)
 from iblbench.harness.protocol.timing import TIME
 from iblbench.reports import plots
-from iblbench.reports.answer import answer_context, ranking_table, sequence_context
+from iblbench.reports.answer import (answer_context, busy_sentence, ranking_table,
+                                     sequence_context)
 from iblbench.reports.frames import shown_frame
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
 from iblbench.scenes import cubemap
@@ -737,6 +739,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
     run_dir = pathlib.Path(run_dir)
     table, manifest = load_run(run_dir)
     rankings = scene_rankings(table)   # equal-time cells are points of the curves too
+    controls = [calls.text() for calls in control_calls(rankings, table.estimator)]
     table, equal_time = split_equal_time(table)
     for value, column in ((spp, "spp"), (seed, "seed"), (frame, "frame")):
         _require_in_run(table, value, column)
@@ -769,6 +772,7 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
     answer_cells = cells if len(views) == 1 else pd.concat(
         [device_cells.assign(device=device) for device, device_cells in views])
     context["answer"] = answer_context(figures.draw, answer_cells, rankings, _table_html)
+    context["controls"] = controls
     text = _TEMPLATES.get_template("report.html.j2").render(**context)
     with atomic_path(report / "index.html") as tmp:
         tmp.write_text(text, encoding="utf-8")
@@ -895,6 +899,7 @@ def _page_context(run_dir: pathlib.Path, manifest: dict, table, scenes: list[dic
         "scenes": scenes,
         "sequences": any(s["frames"] > 1 for s in scenes),
         "manifest": _manifest_context(manifest),
+        "busy": busy_sentence(manifest),
         "devices": devices(table) if len(devices(table)) > 1 else [],
         "rows": len(table),
         "not_computed": not_computed(table),

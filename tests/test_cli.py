@@ -22,7 +22,7 @@ from iblbench.scenes.imageio import read_exr, write_exr, write_hdr
 TINY = ["--res", "16x16", "--env-res", "8", "--no-progress"]
 RUN_FLAGS = ("--scene", "--estimator", "--spp", "--seeds", "--res", "--env-res", "--out",
              "--device", "--save-inputs", "--sanitize", "--no-progress", "--repeats", "--metrics",
-             "--no-flip", "--json")
+             "--no-flip", "--json", "--control")
 RESULT_COLUMNS = {
     "scene", "estimator", "estimator_version", "spp", "frame", "seed", "mean_delta_e76",
     "mean_delta_e2000", "rel_mse", "flip", "flicker", "used_samples", "effective_samples", "effective_ratio",

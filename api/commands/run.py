@@ -34,6 +34,14 @@ def add_parser(subparsers) -> None:
     run.add_argument("--estimator", action="append", metavar="NAME",
                      help="estimator name, optionally with parameters as NAME{param=value,...}; "
                           "repeatable (see 'iblbench list estimators')")
+    run.add_argument("--control", type=sweep.labels_arg, action="append", metavar="NAME[,NAME...]",
+                     help="the A/A control: run estimator NAME (one of the run's, spelt as for "
+                          "--estimator) a second time, unchanged, as NAME@control (the same "
+                          "images at equal spp and seed, its own timings), and count the "
+                          "equal-time verdicts that call the two apart: each is a false call, "
+                          "and the stated 95%% level allows about 5%%; repeatable or "
+                          "comma-separated; --estimator without --control drops the config's "
+                          "control")
     run.add_argument("--spp", type=spp_list, metavar="N,N,...",
                      help="samples per pixel, comma-separated, the same for every estimator "
                           "(a sweep config may give estimators levels of their own, as the "
@@ -110,7 +118,7 @@ def run(args) -> None:
         ("--frames", args.frames), ("--res", args.res),
         ("--env-res", args.env_res), ("--time-budget-ms", args.time_budget_ms),
         ("--sanitize", args.sanitize), ("--repeats", args.repeats), ("--metrics", args.metrics),
-        ("--no-flip", args.no_flip)) if value]
+        ("--no-flip", args.no_flip), ("--control", args.control)) if value]
     runner = Runner(run_config(
         args.out, config=args.config, scenes=args.scene, estimators=args.estimator,
         spp=args.spp, seeds=args.seeds, first_seed=args.first_seed, frames=frames,
@@ -119,7 +127,9 @@ def run(args) -> None:
         sanitize=True if args.sanitize else None, repeats=args.repeats and args.repeats[0],
         repeats_for=args.repeats and args.repeats[1], metrics=metrics, device=args.device,
         save_inputs=args.save_inputs, force=args.force, workers=args.workers,
-        scheduler=args.scheduler, progress=False if args.no_progress else None, note={"overridden_by_flags": flags}))
+        scheduler=args.scheduler, progress=False if args.no_progress else None,
+        control=args.control and [label for labels in args.control for label in labels],
+        note={"overridden_by_flags": flags}))
     table = runner.run()
     human = human_output(args)
     rows = runner.sweep_rows(table)   # --out may also hold other sweeps' cells
@@ -132,10 +142,13 @@ def run(args) -> None:
           + (f", run on {', '.join(sorted(set(rows['device'])))}" if len(rows) and "device" in rows
              else ""),
           file=human)
+    from iblbench.harness.protocol.control import control_calls
     from iblbench.harness.protocol.ranking import rankings_text, scene_rankings
     rankings = scene_rankings(rows) if len(rows) else {}
     if any(rankings.values()):
         print(rankings_text(rankings), file=human)
+    for calls in control_calls(rankings, rows.get("estimator", ())):
+        print(calls.text(), file=human)
     from iblbench.harness.verify.convergence import flatter_than_tags
     for flag in flatter_than_tags(rows):   # issue 11: convergence flatter than the tags allow
         print(f"warning: convergence: {flag.text()}", file=sys.stderr)

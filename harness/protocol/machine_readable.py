@@ -34,7 +34,11 @@ the same ``--out`` are left out)::
                                                      "versus_next": {"ratio": 1.8, "p": 1e-6,
                                                                      "paired": true, …}}, …],
                                          "unranked": [{"estimator": "smc",
-                                                       "status": "not reached", …}]}, …]}}
+                                                       "status": "not reached", …}]}, …],
+                           "control": [{"original": "envmap",   # the A/A control (--control)
+                                        "control": "envmap@control", "called_apart": 1,
+                                        "verdicts": 3, "level": 0.05,
+                                        "text": "A/A control: envmap@control was …"}]}}
 
 A cell's figure is the one aggregation of :mod:`iblbench.harness.protocol.stats`: an error is the
 mean over the cell's replicates (each scored render of each seed) with its 95% Student-t
@@ -42,7 +46,9 @@ interval, the time the median of its timed renders with an order-statistic inter
 how many values and ``method`` which; ``low``/``high`` are null without an interval.
 ``metrics`` holds each of ``RUN_METRICS`` the run computed (a metric left out, NaN in every row,
 is absent); ``time_ms`` is the cell's time (:mod:`iblbench.harness.protocol.timing`).
-``equal_time_answer`` is :mod:`iblbench.harness.protocol.ranking`'s, per scene and headline budget.
+``equal_time_answer`` is :mod:`iblbench.harness.protocol.ranking`'s, per scene and headline budget;
+its ``control`` counts, per control of the run (none without ``--control``), the verdicts that
+called it apart from its original (:mod:`iblbench.harness.protocol.control`).
 Rows of several devices: each cell and ranking is per device and carries a ``device`` key (times
 are per device); a one-device run's document has no such key.
 
@@ -99,6 +105,7 @@ def run_summary(rows: pd.DataFrame, out, manifest: dict, rankings=None) -> dict:
     """The ``run --json`` document of a sweep's rows (module docstring); ``rankings``: the
     equal-time answer (:func:`iblbench.harness.protocol.ranking.scene_rankings`), computed here
     when not given."""
+    from iblbench.harness.protocol.control import control_calls
     from iblbench.harness.protocol.ranking import resolved_share, scene_rankings
 
     if rankings is None:
@@ -132,7 +139,9 @@ def run_summary(rows: pd.DataFrame, out, manifest: dict, rankings=None) -> dict:
             "cells_run": manifest.get("cells_to_run"), "aggregation": MEAN_METHOD, "cells": cells,
             "equal_time_answer": {
                 "resolved_pairs": list(resolved_share(rankings)),
-                "rankings": [ranking.to_dict() for scene in rankings.values() for ranking in scene]}}
+                "rankings": [ranking.to_dict() for scene in rankings.values() for ranking in scene],
+                "control": [calls.to_dict() for calls in control_calls(
+                    rankings, rows.get("estimator", ()))]}}
 
 
 # ---- check --------------------------------------------------------------------------------------

@@ -18,8 +18,9 @@ import numpy as np
 from iblbench.estimators.registry import get_estimator_class
 from iblbench.harness.protocol.equal_time import CALIBRATION_SEED
 from iblbench.harness.protocol.metrics import METRICS
-from iblbench.harness.protocol.sweep import (DEFAULT_REPEATS, MAX_REPEATS, frames_text,
-                                             parse_estimator, select_frames)
+from iblbench.harness.protocol.sweep import (CONTROL_SUFFIX, DEFAULT_REPEATS, MAX_REPEATS,
+                                             control_labels, frames_text, parse_estimator,
+                                             select_frames)
 from iblbench.scenes.errors import InputError, argument
 from iblbench.scenes.registry import load_scene
 
@@ -59,6 +60,7 @@ class RunConfig:
     repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats): its own count
     spp_for: tuple[tuple[str, tuple[int, ...]], ...] = ()   # (estimator name, its own spp levels)
     metrics: tuple[str, ...] = METRICS         # ΔE76 always; see harness.metrics
+    control: tuple[str, ...] = ()              # labels run again as LABEL@control (A/A control)
     sweep: dict | None = None                  # the resolved sweep and its source (manifest)
     # Where the cells run (:mod:`.distributed`); neither: in this process.
     scheduler: str | None = None               # a running dask-scheduler's address
@@ -81,7 +83,8 @@ class ScenePlan:
 @dataclasses.dataclass
 class RunPlan:
     """The estimators' settings and the scenes' plans of one ``RunConfig``."""
-    specs: list                      # EstimatorSpec per label, in the config's order
+    specs: list                      # EstimatorSpec per label, in the config's order, then
+                                     # the controls' (spec.control) in theirs
     params: dict[str, str]           # label → every parameter as sorted JSON (results rows)
     repeats: dict[str, int]          # label → timed renders per cell
     spp_levels: dict[str, tuple]     # label → its spp levels
@@ -95,10 +98,7 @@ def plan_run(config: RunConfig) -> RunPlan:
     """Check ``config`` (InputError, before anything is written) and plan it: its estimators,
     their spp levels and repeats, and every scene's size and frames."""
     _require_sound_numbers(config)
-    specs = [parse_estimator(label) for label in config.estimators]
-    labels = [spec.label for spec in specs]
-    if len(set(labels)) != len(labels):
-        raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
+    specs = _estimator_specs(config)
     levels = {get_estimator_class(name).name: tuple(v) for name, v in config.spp_for}
     spp_levels = {spec.label: levels.get(spec.cls.name, tuple(config.spp)) for spec in specs}
     _require_spp_within_bounds(specs, spp_levels)
@@ -111,6 +111,23 @@ def plan_run(config: RunConfig) -> RunPlan:
                             for spec in specs},
                    spp_levels=spp_levels,
                    plans=[_plan_scene(config, scene) for scene in scenes])
+
+
+def _estimator_specs(config: RunConfig) -> list:
+    """The estimators' specs, then an unchanged copy of each in ``config.control`` under its
+    control's label.  The copies run after every estimator, so that the control and its
+    original are as far apart in time as the estimators the answer compares."""
+    specs = [parse_estimator(label) for label in config.estimators]
+    labels = [spec.label for spec in specs]
+    if len(set(labels)) != len(labels):
+        raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
+    for spec in specs:
+        if spec.control:
+            raise InputError(None, f"estimator {spec.label!r}: ask for a control with "
+                                   f"{argument('control', spec.label[:-len(CONTROL_SUFFIX)])}")
+    by_label = dict(zip(labels, specs))
+    return specs + [dataclasses.replace(by_label[label], control=True)
+                    for label in control_labels(config.control, labels)]
 
 
 def cell_order(key: tuple):

@@ -305,7 +305,7 @@ class Runner:
                        "frames_for": {n: frames_text(v) for n, v in c.frames_for},
                        "time_budget_ms": list(c.time_budget_ms), "force": c.force,
                        "repeats": c.repeats, "repeats_for": dict(c.repeats_for),
-                       "metrics": list(c.metrics),
+                       "metrics": list(c.metrics), "control": list(c.control),
                        "save_inputs": c.save_inputs, "sanitize": c.sanitize, "env_res": c.env_res},
             "sweep": sweep,
             "protocol": PROTOCOL,
@@ -442,6 +442,9 @@ class Runner:
                   bar_format=BAR_FORMAT, initial=self.resumed) as bar:
             self.progress = Progress(bar, self.todo)
             self.device_ms_total = 0.0
+            # The load of this host; on a cluster the client's, not the workers' (it still
+            # tells a busy machine where --workers share it, and the floors cover the workers).
+            loads = [os.getloadavg()[0]]
             if self.engine is None:
                 (floors, wall_s), lost = self._render_here(gbuffers), []
             else:
@@ -449,6 +452,7 @@ class Runner:
                 lost = self._render_on_cluster()
                 wall_s = time.perf_counter() - start
                 floors = [w["floor"] for w in self.engine.workers.values()] if self.todo else []
+            loads.append(os.getloadavg()[0])
         table = self._fold()
         if self.todo:
             self.manifest["timing"].update(
@@ -462,6 +466,8 @@ class Runner:
                           + " (harness/protocol/timing.py, \"The device's own floor\")",
                 "groups_within": [round(f.groups_within, 3) for f in floors],
                 "p90_over_p10": [round(f.p90_over_p10, 3) for f in floors]}
+            self.manifest["timing"]["load"] = {"cores": os.cpu_count(),
+                                               "load_1min": [round(v, 2) for v in loads]}
         if self.engine is not None:
             self.manifest["workers"] = [dict(w["record"], address=address)
                                         for address, w in self.engine.workers.items()]

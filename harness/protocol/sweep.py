@@ -33,12 +33,17 @@ Format (every key at the top level)::
     metrics = ["de76", "de2000", "relmse", "flip"]   # optional: the metrics to compute (ΔE76
                                         # always; default all; leave "flip" out to save time)
     sanitize = false                    # optional: repair bad environment texels
+    control = ["envmap"]                # optional: the A/A control, an unchanged copy of each
+                                        # named estimator run beside it as NAME@control
 
 Estimator overrides are written ``name{param=value,...}``: the braces hold a TOML inline table
 of the estimator's ``Params`` fields (values are TOML scalars: ``true``, ``3``, ``0.5``,
 ``"text"``).  The canonical spelling (lower-case name, parameters sorted, TOML values) is the
 estimator's label in the results table, so ``balanced_mis`` and
-``balanced_mis{shared_sequence=false}`` are two estimators of one table.
+``balanced_mis{shared_sequence=false}`` are two estimators of one table.  A control's label is
+its estimator's with :data:`CONTROL_SUFFIX` (``envmap@control``): the same class and parameters,
+so the same images at equal spp and seed, ranked as if it were another estimator (the A/A
+control, :mod:`iblbench.harness.protocol.control`).
 
 Every problem (missing file, TOML syntax, unknown key, wrong type, unknown scene, estimator or
 parameter) is an :class:`InputError` naming the config file and the problem.
@@ -69,9 +74,10 @@ DEFAULT_REPEATS = 5   # timed renders per cell (harness/protocol/timing.py)
 MAX_REPEATS = 255     # the timing seeds hold the repeat in 8 bits (executor.timing_seed)
 CONFIG_PACKAGE = "iblbench.harness.configs"
 KEYS = {"protocol", "description", "scenes", "estimators", "spp", "seeds", "first_seed", "frames",
-        "resolution", "env_res", "time_budget_ms", "sanitize", "repeats", "metrics"}
+        "resolution", "env_res", "time_budget_ms", "sanitize", "repeats", "metrics", "control"}
 REQUIRED = ("protocol", "scenes", "estimators", "seeds")
 _NAME = re.compile(r"^\s*([A-Za-z0-9_.\-]+)\s*(?:\{(.*)\})?\s*$", re.S)
+CONTROL_SUFFIX = "@control"   # a control's label: its estimator's label and this
 
 
 # ---- estimator labels --------------------------------------------------------------------------
@@ -93,16 +99,19 @@ def toml_value(value: Any) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class EstimatorSpec:
-    """A registered estimator class with parameter overrides; ``label`` names its rows."""
+    """A registered estimator class with parameter overrides; ``label`` names its rows.
+    ``control``: the A/A control's copy, the same estimator under its own label."""
 
     cls: type
     overrides: tuple[tuple[str, Any], ...] = ()
+    control: bool = False
 
     @property
     def label(self) -> str:
-        if not self.overrides:
-            return self.cls.name
-        return self.cls.name + "{" + ",".join(f"{k}={toml_value(v)}" for k, v in self.overrides) + "}"
+        name = self.cls.name
+        if self.overrides:
+            name += "{" + ",".join(f"{k}={toml_value(v)}" for k, v in self.overrides) + "}"
+        return name + CONTROL_SUFFIX if self.control else name
 
     def make(self):
         return self.cls(**dict(self.overrides))
@@ -137,12 +146,14 @@ def _check_type(cls, name: str, field: dataclasses.Field, value: Any) -> None:
 
 
 def parse_estimator(text: str) -> EstimatorSpec:
-    """``name`` or ``name{param=value,...}`` → an :class:`EstimatorSpec` (InputError if bad)."""
+    """``name`` or ``name{param=value,...}``, either with :data:`CONTROL_SUFFIX` (a control's
+    label, as results tables hold it) → an :class:`EstimatorSpec` (InputError if bad)."""
     from iblbench.estimators.registry import get_estimator_class
 
     if not isinstance(text, str):
         raise InputError(None, f"an estimator must be a string such as 'uniform', got {text!r}")
-    match = _NAME.match(text)
+    control = text.strip().endswith(CONTROL_SUFFIX)
+    match = _NAME.match(text.strip()[:-len(CONTROL_SUFFIX)] if control else text)
     if not match:
         raise InputError(None, f"cannot read estimator {text!r}; write NAME or "
                                "NAME{param=value,...}")
@@ -165,7 +176,7 @@ def parse_estimator(text: str) -> EstimatorSpec:
             raise InputError(None, f"estimator '{cls.name}' parameter '{key}' must be a TOML "
                                    f"scalar, got {value!r}")
         _check_type(cls, key, valid[key], value)
-    spec = EstimatorSpec(cls, tuple(sorted(overrides.items())))
+    spec = EstimatorSpec(cls, tuple(sorted(overrides.items())), control)
     try:
         spec.make()
     except (TypeError, ValueError) as error:
@@ -194,6 +205,7 @@ class Sweep:
     repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats) overrides
     spp_for: tuple[tuple[str, tuple[int, ...]], ...] = ()   # (estimator name, its spp levels)
     metrics: tuple[str, ...] = METRICS
+    control: tuple[str, ...] = ()            # labels of estimators given an A/A control
     protocol: str = PROTOCOL
     description: str = ""
     source: str = ""
@@ -201,8 +213,9 @@ class Sweep:
     def replace(self, **changes) -> "Sweep":
         """A copy with the given (non-None) fields replaced, labels canonicalised."""
         changes = {k: v for k, v in changes.items() if v is not None}
-        if "estimators" in changes:
-            changes["estimators"] = tuple(parse_estimator(e).label for e in changes["estimators"])
+        for field in ("estimators", "control"):
+            if field in changes:
+                changes[field] = tuple(parse_estimator(e).label for e in changes[field])
         return dataclasses.replace(self, **changes)
 
     def to_manifest(self) -> dict:
@@ -216,7 +229,7 @@ class Sweep:
                 "sanitize": self.sanitize, "repeats": self.repeats,
                 "repeats_for": dict(self.repeats_for),
                 "spp_for": {name: list(levels) for name, levels in self.spp_for},
-                "metrics": list(self.metrics)}
+                "metrics": list(self.metrics), "control": list(self.control)}
 
 
 def config_path(name_or_path: str | os.PathLike) -> tuple[Path, str]:
@@ -384,6 +397,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     except ValueError as error:
         fail(str(error))
     metrics = _metric_names(document.get("metrics", list(METRICS)), fail)
+    control = _controls(document.get("control", []), labels, fail)
     names = {Path(entry).stem.lower() if entry.lower().endswith(".toml") else entry.lower()
              for entry in scenes}
     for name, _ in frames_for:
@@ -393,7 +407,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     return Sweep(scenes=scenes, estimators=tuple(labels), spp=spp, spp_for=spp_for, seeds=seeds,
                  first_seed=first_seed, frames=frames, frames_for=frames_for, resolution=resolution, env_res=env_res,
                  time_budget_ms=tuple(float(v) for v in budgets), sanitize=sanitize,
-                 repeats=repeats, repeats_for=repeats_for, metrics=metrics,
+                 repeats=repeats, repeats_for=repeats_for, metrics=metrics, control=control,
                  protocol=protocol, description=description, source=source)
 
 
@@ -410,6 +424,31 @@ def _estimator_labels(estimators, fail) -> list[str]:
     if len(set(labels)) != len(labels):
         fail(f"estimators lists an estimator twice: {labels}")
     return labels
+
+
+def _controls(control, labels, fail) -> tuple[str, ...]:
+    """The sweep's ``control``: a list of its estimators (:func:`control_labels`)."""
+    if not isinstance(control, list):
+        fail(f"control must be a list of estimators, got {control!r}")
+    try:
+        return control_labels(control, labels)
+    except InputError as error:
+        fail(error.problem)
+
+
+def control_labels(names, labels) -> tuple[str, ...]:
+    """The estimators given an A/A control (``names``) as canonical labels, each one of the
+    run's ``labels`` and none twice; InputError naming the first that is not."""
+    controls = []
+    for name in names:
+        label = parse_estimator(name).label
+        if label not in labels:
+            raise InputError(None, f"control {name!r} is not one of the run's estimators "
+                                   f"({', '.join(labels)})")
+        if label in controls:
+            raise InputError(None, f"control {name!r} is given twice")
+        controls.append(label)
+    return tuple(controls)
 
 
 def _time_budgets(budgets, fail) -> list:
@@ -533,6 +572,18 @@ def repeats_arg(text: str) -> tuple[int, tuple[tuple[str, int], ...]]:
         return parse_repeats(table)
     except ValueError as error:
         raise argparse.ArgumentTypeError(f"{error} (write N or N,NAME=M,...)")
+
+
+def labels_arg(text: str) -> tuple[str, ...]:
+    """``--control``: ``NAME[,NAME...]``, each an estimator label; a comma inside a label's
+    braces (``balanced{a=1,b=2}``) is the label's own."""
+    import argparse
+
+    labels = tuple(part.strip() for part in re.split(r",(?![^{]*\})", text))   # not in {}
+    if not all(labels):
+        raise argparse.ArgumentTypeError(f"expected estimator labels separated by commas, "
+                                         f"got '{text}'")
+    return labels
 
 
 def metrics_arg(text: str) -> tuple[str, ...]:
