@@ -12,36 +12,26 @@ import pandas as pd
 
 from iblbench.harness.protocol.ranking import METRIC_NAMES, Ranking, resolved_share
 from iblbench.harness.protocol.sequence_answer import frame_standings, sequence_summary
-from iblbench.harness.protocol.timing import FLOOR_POOR
 from iblbench.reports import plots
 
 PLOTS = {"highlight": "answer_top3.png", "all": "answer_all.png"}
-# A run on PoCL's CPU driver keeps about every core busy itself (a kernel runs on a thread per
-# core, and the host thread scores between renders), so a 1-minute load up to the core count may
-# be the run's own.  Above 1.5 × the cores, other work wanted at least half the machine on top of
-# it, and the run's threads waited for a core a good part of the time.  A GPU run loads the host
-# less, so there the rule errs towards silence, where host load moves device times less too.
-BUSY_LOAD = 1.5   # × cores
+# Other programs' CPU (``timing.load.others_cores``) above this share of the cores: a quarter
+# of the machine taken from the run's device threads moved its times (two busy processes on 2
+# cores took 1.0-1.3 of them; idle runs here 0.0-0.2).  Not the 1-minute load average, which lags
+# a run of seconds by a minute, nor the timing floor, which is poor now and then on an idle VM.
+BUSY_SHARE = 0.25
 
 
 def busy_sentence(manifest: dict | None) -> str | None:
-    """The page's first sentence where the machine was busy during the run (its 1-minute load at
-    the start or end of the rendering above BUSY_LOAD × its cores, ``timing.load``) or the
-    device's own timing floor was poor (``timing.floor``, FLOOR_POOR); None otherwise, and for a
-    manifest without either (an older run)."""
-    timing = (manifest or {}).get("timing") or {}
-    load, floor = timing.get("load") or {}, timing.get("floor") or {}
-    peak, cores = max(load.get("load_1min") or [0.0]), load.get("cores")
-    busy = bool(cores) and peak > BUSY_LOAD * cores
-    uneven = any(isinstance(share, (int, float)) and share < FLOOR_POOR
-                 for share in floor.get("groups_within") or [])
-    if not (busy or uneven):
+    """The page's first sentence where other programs used more than BUSY_SHARE of the cores
+    while the run rendered (``timing.load``); None otherwise, and for an older manifest."""
+    load = ((manifest or {}).get("timing") or {}).get("load") or {}
+    others, cores = load.get("others_cores"), load.get("cores")
+    if not (isinstance(others, (int, float)) and cores and others > BUSY_SHARE * cores):
         return None
-    why = ([f"load {peak:.1f} on {cores} cores"] if busy else []) + (
-        ["a fixed test kernel's speed varied from launch to launch"] if uneven else [])
-    state = "was busy" if busy else "ran unevenly"
-    return (f"This machine {state} during the run ({'; '.join(why)}), so times are less certain "
-            "than on an idle machine; the intervals include that.")
+    return (f"This machine was busy during the run (other programs used {others:.1f} of its "
+            f"{cores} cores), so times are less certain than on an idle machine; the intervals "
+            "include that.")
 
 
 def _interval(ci) -> str:

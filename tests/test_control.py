@@ -125,6 +125,7 @@ def test_the_manifest_records_the_control_and_the_load(control_run):
     load = manifest["timing"]["load"]
     assert load["cores"] == os.cpu_count() and len(load["load_1min"]) == 2
     assert all(value >= 0 for value in load["load_1min"])
+    assert 0 <= load["others_cores"] <= os.cpu_count()
 
 
 def test_run_json_carries_the_control_and_a_rerun_resumes_it(control_run, cli, tmp_path):
@@ -144,17 +145,18 @@ def test_the_report_shows_the_control_and_a_busy_machine(control_run, tmp_path):
     """The run's manifest made idle, then busy (the machine's own load is whatever it was)."""
     out = shutil.copytree(control_run[0], tmp_path / "out")
 
-    def page(load):
+    def page(others):
         manifest = json.loads((out / "manifest.json").read_text())
-        manifest["timing"].update(load={"cores": 2, "load_1min": load},
-                                  floor={"groups_within": [1.0, 1.0]})
+        manifest["timing"].update(load={"cores": 2, "load_1min": [1.0, 1.0],
+                                        "others_cores": others})
         (out / "manifest.json").write_text(json.dumps(manifest))
         return write_report(out)["path"].read_text(encoding="utf-8")
 
-    idle = html.unescape(page([0.5, 1.0]))
+    idle = html.unescape(page(0.1))
     assert f"<p>A/A control: {BRDF}@control" in idle and "This machine" not in idle
-    busy = page([0.5, 7.0])
-    assert busy.index("This machine was busy during the run (load 7.0 on 2 cores)") < busy.index(
+    busy = page(1.3)
+    assert busy.index("This machine was busy during the run (other programs used 1.3 of its 2 "
+                      "cores)") < busy.index(
         "<h2>")
 
 
@@ -196,33 +198,29 @@ def test_a_control_never_ranked_says_it_could_not_be_checked():
 # --- a busy machine --------------------------------------------------------------------------------
 
 
-def manifest(load=None, floor=(0.9, 0.8), cores=2):
-    timing = {"floor": {"groups_within": list(floor)}}
-    if load is not None:
-        timing["load"] = {"cores": cores, "load_1min": list(load)}
+def manifest(others=None, cores=2):
+    timing = {"floor": {"groups_within": [0.9, 0.2]}}
+    if others is not None:
+        timing["load"] = {"cores": cores, "load_1min": [0.5, 0.5], "others_cores": others}
     return {"timing": timing}
 
 
 def test_a_busy_machine_opens_the_report_with_one_plain_sentence():
-    sentence = busy_sentence(manifest(load=(3.9, 2.5)))
-    assert sentence == ("This machine was busy during the run (load 3.9 on 2 cores), so times "
-                        "are less certain than on an idle machine; the intervals include that.")
-    assert "load 6.1 on 4 cores" in busy_sentence(manifest(load=(6.1, 0.2), cores=4))
+    sentence = busy_sentence(manifest(others=1.2))
+    assert sentence == ("This machine was busy during the run (other programs used 1.2 of its 2 "
+                        "cores), so times are less certain than on an idle machine; the "
+                        "intervals include that.")
+    assert "used 1.3 of its 4 cores" in busy_sentence(manifest(others=1.3, cores=4))
 
 
-@pytest.mark.parametrize("load, floor", [
-    ((1.2, 2.0), (0.9, 0.8)),    # the run's own load on 2 cores
-    ((3.0, 0.1), (0.9, 0.8)),    # at the bound, not above it
-    (None, (0.9, 0.8)),          # an older manifest without the load
+@pytest.mark.parametrize("others, cores", [
+    (0.1, 2),      # idle: the run alone (a poor timing floor does not count)
+    (0.5, 2),      # at the bound, not above it
+    (0.9, 4),      # under a quarter of 4 cores
+    (None, 2),     # an older manifest without the load
 ])
-def test_an_idle_machine_gets_no_sentence(load, floor):
-    assert busy_sentence(manifest(load=load, floor=floor)) is None
-
-
-def test_an_uneven_floor_alone_gets_the_sentence_without_a_load():
-    sentence = busy_sentence(manifest(load=None, floor=(0.9, 0.2)))
-    assert sentence.startswith("This machine ran unevenly during the run (a fixed test kernel")
-    assert "load" not in sentence
+def test_an_idle_machine_gets_no_sentence(others, cores):
+    assert busy_sentence(manifest(others=others, cores=cores)) is None
 
 
 def test_no_manifest_or_no_timing_gets_no_sentence():

@@ -436,7 +436,7 @@ def resolved_share(rankings: dict[str, list[Ranking]]) -> tuple[int, int]:
 def rankings_text(rankings: dict[str, list[Ranking]]) -> str:
     """What ``iblbench run`` prints at the end: each verdict, and how many pairs resolved."""
     lines = ["equal-time answer (error read along each estimator's error-time curve; "
-             "'ahead' = resolved at 95%, paired over shared seeds and renders):"]
+             "'ahead' = resolved at 95%, times and errors resampled together):"]
     lines += ["  " + ranking.verdict() for scene in rankings.values() for ranking in scene]
     resolved, pairs = resolved_share(rankings)
     if pairs:

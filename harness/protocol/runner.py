@@ -134,7 +134,8 @@ from iblbench.harness.protocol.provenance import git_revision, package_version
 from iblbench.harness.protocol.run_plan import RunConfig, ScenePlan, cell_order, plan_run
 from iblbench.harness.protocol.shadows import attach_visibility, measured_record
 from iblbench.harness.protocol.timing import (MEASURE, SPREAD_LIMIT, cell_times,
-                                              host_threads_capped, measure_timing_floor,
+                                              cpu_snapshot, host_threads_capped,
+                                              measure_timing_floor, others_cores,
                                               timing_floor_text)
 from iblbench.harness.protocol.sweep import frames_text
 from iblbench.scenes.atomic import atomic_path
@@ -444,7 +445,7 @@ class Runner:
             self.device_ms_total = 0.0
             # The load of this host; on a cluster the client's, not the workers' (it still
             # tells a busy machine where --workers share it, and the floors cover the workers).
-            loads = [os.getloadavg()[0]]
+            loads, cpu = [os.getloadavg()[0]], cpu_snapshot()
             if self.engine is None:
                 (floors, wall_s), lost = self._render_here(gbuffers), []
             else:
@@ -453,6 +454,7 @@ class Runner:
                 wall_s = time.perf_counter() - start
                 floors = [w["floor"] for w in self.engine.workers.values()] if self.todo else []
             loads.append(os.getloadavg()[0])
+            others = others_cores(cpu, cpu_snapshot())
         table = self._fold()
         if self.todo:
             self.manifest["timing"].update(
@@ -467,7 +469,8 @@ class Runner:
                 "groups_within": [round(f.groups_within, 3) for f in floors],
                 "p90_over_p10": [round(f.p90_over_p10, 3) for f in floors]}
             self.manifest["timing"]["load"] = {"cores": os.cpu_count(),
-                                               "load_1min": [round(v, 2) for v in loads]}
+                                               "load_1min": [round(v, 2) for v in loads],
+                                               "others_cores": round(others, 3)}
         if self.engine is not None:
             self.manifest["workers"] = [dict(w["record"], address=address)
                                         for address, w in self.engine.workers.items()]

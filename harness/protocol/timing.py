@@ -127,6 +127,7 @@ import math
 import time
 
 import numpy as np
+import psutil
 import threadpoolctl
 
 from iblbench.harness.protocol.stats import RENDERS, TIME_COLUMN, cell_intervals, renders_text
@@ -249,6 +250,26 @@ def cell_times(table, keys, column: str = TIME):
     seed's mean ``column`` over its frames (a pandas Series indexed by ``keys``; the interval is
     in :func:`iblbench.harness.protocol.stats.cell_intervals`)."""
     return cell_intervals(table, keys, [column])[column]
+
+
+# ---- what else ran on the host ------------------------------------------------------------------
+
+def cpu_snapshot() -> tuple[float, float, float]:
+    """(wall s, CPU s the whole host has spent busy, CPU s this process has spent, its threads
+    and so PoCL's included), for :func:`others_cores`."""
+    host, own = psutil.cpu_times(), psutil.Process().cpu_times()
+    idle = host.idle + getattr(host, "iowait", 0.0)
+    return time.perf_counter(), sum(host) - idle, own.user + own.system
+
+
+def others_cores(start: tuple, end: tuple) -> float:
+    """The cores' worth of CPU that other processes (and, on a VM, other guests: steal time)
+    used between two :func:`cpu_snapshot`: the host's busy CPU time less this process's, over
+    the wall time.  A 1-minute load average lags a run of seconds by a minute; this does not."""
+    wall = end[0] - start[0]
+    if wall <= 0:
+        return math.nan
+    return max(0.0, ((end[1] - start[1]) - (end[2] - start[2])) / wall)
 
 
 # ---- the device's own floor (the kernel: estimators/runtime/probes.py) ---------------------------
