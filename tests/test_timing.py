@@ -458,3 +458,19 @@ def test_the_terminal_speaks_of_the_timing_floor_only_when_it_was_poor(tmp_path,
     assert ("not repeatable" in err) == said and ("p90/p10" in err) == said, err
     record = json.loads((tmp_path / "manifest.json").read_text())["timing"]["floor"]
     assert record["groups_within"] == [groups_within, groups_within]
+
+
+def test_a_cell_that_missed_its_budget_says_why():
+    """Issue 32: the run names every equal-time cell off its budget by more than 10%, and why."""
+    from iblbench.harness.protocol.runner import _missed_why
+
+    calibration = {"limit": 100, "measured_ms": 5.0, "runs": [
+        {"spp": 1, "median_device_ms": 3.0}, {"spp": 4, "median_device_ms": 5.0}]}
+    assert _missed_why(calibration, 1, 3.0, 2.0) == "even 1 spp takes longer than the budget"
+    assert _missed_why(calibration, 4, 5.0, 2.0) == (
+        "no spp fitted: its fastest in calibration, 1 spp, took 3 ms (the frame's fixed work)")
+    assert _missed_why(calibration, 100, 5.0, 10.0) == "100 spp is the most it may take"
+    assert _missed_why(calibration, 4, 7.0, 5.0) == (
+        "calibrated at 5 ms, its cells ran at 7 ms: the device's speed changed between the "
+        "calibration and the cells")
+    assert _missed_why(None, 4, 7.0, 5.0) == "its spp was chosen by an earlier run"

@@ -716,6 +716,10 @@ def _missed_why(calibration: dict | None, spp: int, ms: float, budget: float) ->
         return "its spp was chosen by an earlier run"
     if ms < budget and spp >= calibration.get("limit", spp + 1):
         return f"{spp} spp is the most it may take"
+    cheapest = min(calibration["runs"], key=lambda run: run["median_device_ms"])
+    if ms > budget and cheapest["median_device_ms"] > budget:
+        return (f"no spp fitted: its fastest in calibration, {cheapest['spp']} spp, took "
+                f"{cheapest['median_device_ms']:.3g} ms (the frame's fixed work)")
     return (f"calibrated at {calibration['measured_ms']:.3g} ms, its cells ran at {ms:.3g} ms: "
             "the device's speed changed between the calibration and the cells")
 
