@@ -296,9 +296,12 @@ class Executor:
         rounds = max(len(cell.renderers) for cell in cells)
         for turn in range(rounds):
             self.progress.stage(f"rendering, round {turn + 1} of {rounds}", here)
-            for cell in cells:
-                if turn < len(cell.renderers):
-                    self._render_turn(cell, turn, gbuffer, cache, scorer, images)
+            going = [cell for cell in cells if turn < len(cell.renderers)]
+            # The round's renders back to back, then their scores: host work between two
+            # renders made every render the first after it (timing module, "Rounds").
+            estimates = [self._render_turn(cell, turn, gbuffer, cache) for cell in going]
+            for cell, estimate in zip(going, estimates):
+                self._score_turn(cell, turn, estimate, scorer, images)
         for cell in cells:
             row = self._row(plan, cell, scorer, previous_frame)
             on_row(row)
@@ -330,15 +333,21 @@ class Executor:
         seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
         return _Cell(spec, key, spp, renderers, seeds, sequence, build_ms)
 
-    def _render_turn(self, cell: "_Cell", turn: int, gbuffer, cache, scorer: Scorer,
-                     images: pathlib.Path) -> None:
-        """Render ``turn`` of ``cell``, timed, then scored: render 0 in full (its EXR written),
-        the others on the replicated errors (``Scorer.errors``)."""
+    def _render_turn(self, cell: "_Cell", turn: int, gbuffer, cache):
+        """Render ``turn`` of ``cell``, timed; its estimate."""
         start = time.perf_counter()
         [(estimate, render)] = self._timed_renders(
             cell.renderers[turn:turn + 1], gbuffer, cache, cell.spp, cell.seeds[turn:turn + 1],
             cell.build_ms)
         cell.renders.append(render)
+        cell.seconds += time.perf_counter() - start
+        return estimate
+
+    def _score_turn(self, cell: "_Cell", turn: int, estimate, scorer: Scorer,
+                    images: pathlib.Path) -> None:
+        """Score render ``turn`` of ``cell``: render 0 in full (its EXR written), the others on
+        the replicated errors (``Scorer.errors``)."""
+        start = time.perf_counter()
         if turn == 0:
             cell.metrics, cell.delta_e = scorer.score(estimate)
             cell.extras = dict(estimate.extras)
