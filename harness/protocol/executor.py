@@ -12,15 +12,16 @@ device time) are collected by :meth:`Executor.drain`.
 The cell's work is the runner module's docstring ("Timing", "Equal time", "Scores", "Flicker"):
 per frame a FrameCache (reused while the next frame is the same scene's same frame, or the very
 same map), the exact reference, a warm-up per estimator (and its budgets' calibration), then the
-cells' timed renders in interleaved rounds, each render scored as it comes (render 0's EXR
+cells' timed renders in interleaved rounds, each round scored after its renders (render 0's EXR
 written), then each cell's row.
 
 **Rounds** (issue 32; the timing module's "Rounds"): round r renders render r of every cell of
 the frame, so a cell's renders fall in different spells of the device.  Only the frame's cells
 go round: a frame's cells share its cache, and a temporal estimator's twins must each render
-the frame once before the next.  A cell's row is given once its last round is done, so a
-killed run loses the frame in flight.  Rows name the ``host`` and the ``device`` that made them, and their
-times are that device's.
+the frame once before the next.  A round's renders run back to back and are scored after it,
+so no host work comes between two renders.  A cell's row is given once its last round is done,
+so a killed run loses the frame in flight.  Rows name the ``host`` and the ``device`` that made
+them, and their times are that device's.
 
 An executor keeps, between calls of :meth:`Executor.render`, what does not depend on the cells:
 the scene's G-buffer on the device and the last frame's cache.  What a cell depends on comes in
@@ -272,7 +273,7 @@ class Executor:
         identical earlier frame); ``previous_frame``: the frame before this one in the run's
         frame list (flicker), None on the first.  Every estimator is warmed up (and its budgets
         calibrated) first; then the cells' renders go in interleaved rounds (module docstring,
-        "Rounds"), each render scored as it comes; then each cell's row is given to ``on_row``
+        "Rounds"), each round scored after its renders; then each cell's row is given to ``on_row``
         (a row given is a complete cell)."""
         images = self.out / "images" / plan.scene.name / f"f{cache.frame}"
         here = where(plan, cache.frame)

@@ -350,18 +350,8 @@ def column_interval(rows, column: str) -> tuple[MeanCI, str]:
 def render_times(rows) -> np.ndarray:
     """Every timed render's device ms of a cell's rows (``time_ms_renders``); empty where a row
     lacks them (older schemas)."""
-    return keyed_render_times(rows)[0]
-
-
-def keyed_render_times(rows) -> tuple[np.ndarray, list[tuple[int, int]]]:
-    """Every timed render's device ms of a cell's rows and its replicate key (seed, render):
-    render r of every cell of a frame ran in round r, so the key also names when it ran.  Empty
-    where a row lacks them (older schemas)."""
     times = [renders_values(text) for text in rows.get(TIME_COLUMN + RENDERS, ())]
-    if not times or not all(t.size for t in times):
-        return np.empty(0), []
-    keys = [(int(seed), r) for seed, t in zip(rows["seed"], times) for r in range(t.size)]
-    return np.concatenate(times), keys
+    return np.concatenate(times) if times and all(t.size for t in times) else np.empty(0)
 
 
 def compare_values(a, b) -> RatioCI:
