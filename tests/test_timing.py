@@ -186,17 +186,23 @@ def test_time_columns_are_median_min_and_iqr_of_the_stage_events(tmp_path, fakes
 
 
 def test_a_frames_cells_render_in_interleaved_rounds(tmp_path, fakes, known_builds, capsys):
-    """Issue 32: render r of every cell of a frame, then render r + 1: two seeds' cells of one
-    estimator alternate (render 0 on the cell's seed, render r on its timing seed r), so each
-    cell's renders lie a round apart instead of back to back in one spell of the device."""
-    table = run(tiny(tmp_path, ("scripted_timing_test",), seeds=2, repeats=3))
+    """Issue 32: render r of every cell of a frame, then render r + 1 (render 0 on the cell's
+    seed, render r on its timing seed r), so each cell's renders lie a round apart instead of
+    back to back in one spell of the device; each round in an order of its own, so that no
+    cell always takes the round's first place."""
+    table = run(tiny(tmp_path, ("scripted_timing_test",), seeds=6, repeats=3))
     seeds = [entry[0] for entry in Scripted.log if entry[0] != WARMUP_SEED]
-    assert seeds == [0, 1, executor.timing_seed(0, 1), executor.timing_seed(1, 1),
-                     executor.timing_seed(0, 2), executor.timing_seed(1, 2)]
-    # One Scripted instance renders every cell of the frame, so the stage times go 0, 1, 2, ...
-    # over the rounds: seed 0's renders are STAGES 0, 2, 4, seed 1's 1, 3, 0.
-    times = {row.seed: row.time_ms_renders for row in table.itertuples()}
-    assert times[0] == "12.5 24.5 45.5" and times[1] == "31.5 53.5 12.5"
+    rounds = [seeds[6 * r:6 * r + 6] for r in range(3)]
+    assert sorted(rounds[0]) == list(range(6))
+    for r in (1, 2):
+        assert sorted(rounds[r]) == sorted(executor.timing_seed(s, r) for s in range(6))
+    order = [[seed if r == 0 else (seed - TIMING_SEED) // 256 for seed in rounds[r]]
+             for r in range(3)]
+    assert len({tuple(o) for o in order}) > 1
+    # One Scripted instance renders every cell of the frame: its stage times go round STAGES
+    # in render order, and each row holds the ones its renders took.
+    times = sorted(float(t) for row in table.itertuples() for t in row.time_ms_renders.split())
+    assert times == sorted([12.5, 31.5, 24.5, 53.5, 45.5] * 3 + [12.5, 31.5, 24.5])
     err = capsys.readouterr().err
     # The device's own floor, measured at the run's start and end, is in the manifest; the
     # terminal says it only where it was poor (issue 23: two lines of jargon on every run).

@@ -59,6 +59,7 @@ from iblbench.scenes.imageio import read_exr, write_exr
 
 WARMUP_SEED = 0xFFFFFFFF   # a seed no benchmark cell uses
 WARMUP_PIXELS = 64
+ROUND_ORDER_SEED = 0x5EED   # the rounds' orders (Executor._run_frame)
 
 
 def timing_seed(seed: int, repeat: int) -> int:
@@ -295,9 +296,12 @@ class Executor:
             cells += [self._prepare_cell(plan, spec, estimator, key, keys, gbuffer, cache,
                                          build_ms, sequences) for key in keys]
         rounds = max(len(cell.renderers) for cell in cells)
+        # Each round in its own order, the same in every run: a place in the round (the first
+        # render after the previous round's scores, say) then costs no cell more than another.
+        shuffle = np.random.default_rng([ROUND_ORDER_SEED, cache.frame]).permutation
         for turn in range(rounds):
             self.progress.stage(f"rendering, round {turn + 1} of {rounds}", here)
-            going = [cell for cell in cells if turn < len(cell.renderers)]
+            going = [cells[i] for i in shuffle(len(cells)) if turn < len(cells[i].renderers)]
             # The round's renders back to back, then their scores: host work between two
             # renders made every render the first after it (timing module, "Rounds").
             estimates = [self._render_turn(cell, turn, gbuffer, cache) for cell in going]
