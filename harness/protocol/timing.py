@@ -27,7 +27,7 @@ renders.  How the runner gets those renders without disturbing a temporal estima
 in :mod:`iblbench.harness.protocol.runner`.
 
 **Rounds** (issue 32).  A frame's cells render in interleaved rounds: round r renders render r
-of every cell of the frame, estimator after estimator, then round r + 1
+of every cell of the frame, in an order of its own (seeded), then round r + 1
 (:meth:`iblbench.harness.protocol.executor.Executor._run_frame`).  So a cell's renders lie a
 whole round apart, and fall in different spells of the device (below), not in one: its time
 samples the machine's slow and fast spells as every other cell's does, and two cells that take
@@ -37,7 +37,10 @@ copy, timed on the spells recorded on this machine, ranked by the real ranking):
 cell's renders back to back, the copy was called apart in 5 of 120 verdicts idle and 37 of 120
 beside two busy processes; in rounds, 2 and 3 of 120.  A round's renders run back to back and
 are scored after it: with each render scored before the next one, 603 of the default sweep's
-1,188 cells spread wider than 15% on an idle machine, with the scores after the round 247.  The
+1,188 cells spread wider than 15% on an idle machine, with the scores after the round 247.
+Each round's own order: with one fixed order (the control last in every round) a real A/A
+run called the copy apart in 40 of 119 verdicts, shuffled in 1 of 120: a place in the round
+(the first render after the scores, say) has a cost of its own.  The
 rounds replace the earlier rule that gave a cell whose back-to-back renders spread wider than
 15% more renders (``SPREAD_LIMIT`` now only counts such cells, ``timing.spread.wide_cells``):
 it made a cell's renders agree within one spell, which is what the A/A check showed wrong.
