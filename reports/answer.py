@@ -47,13 +47,13 @@ def _versus(ratio) -> str:
     if ratio is None:
         return ""
     p = f", p {ratio.p:.2g}" if math.isfinite(ratio.p) else ""
-    return f"{ratio.text()}{p} ({'paired' if ratio.paired else 'Welch'})"
+    return f"{ratio.text()}{p} ({'paired' if ratio.paired else 'unpaired'})"
 
 
 def ranking_table(ranking: Ranking, table_html) -> markupsafe.Markup:
     """One budget's ranking: the ranked estimators best first, each with its error at the budget
     and its 95% interval, its ratio to the best, the two spp it was read between, and the test
-    against the next rank (ratio next ÷ this, its interval, p, paired or Welch; resolved or not);
+    against the next rank (ratio next ÷ this, its interval, p, paired or not; resolved or not);
     then the estimators the budget does not rank, and why."""
     name = METRIC_NAMES.get(ranking.metric, ranking.metric)
     best = ranking.ranked[0].error.mean if ranking.ranked else math.nan

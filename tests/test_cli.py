@@ -303,13 +303,13 @@ def test_tiny_run_results_table(tiny_run):
     assert (table["effective_samples"] >= 0).all()
     for column in ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "time_ms", "time_ms_host"):
         assert np.isfinite(table[column]).all() and (table[column] >= 0).all(), column
-    assert (table["time_repeats"] >= 5).all()   # more where the renders spread too wide
-    # Every planned render is scored (5 repeats), the scored one first; every timed one is timed.
+    assert (table["time_repeats"] == 10).all()   # the default sweep's repeats, no more
+    # Every planned render is scored (10 repeats), the scored one first; every one is timed.
     for row in table.itertuples():
         for metric in ("mean_delta_e76", "mean_delta_e2000", "rel_mse"):
             values = [float(v) for v in getattr(row, f"{metric}_renders").split()]
-            assert len(values) == 5 and values[0] == pytest.approx(getattr(row, metric), rel=1e-6)
-            assert len(set(values)) == 5, metric   # five renders, five draws
+            assert len(values) == 10 and values[0] == pytest.approx(getattr(row, metric), rel=1e-6)
+            assert len(set(values)) == 10, metric   # ten renders, ten draws
         times = [float(v) for v in row.time_ms_renders.split()]
         assert len(times) == row.time_repeats
         assert np.median(times) == pytest.approx(row.time_ms, rel=1e-6)
@@ -349,17 +349,17 @@ def test_tiny_run_json_summary(tiny_run, cli):
         ("sphere-sun", "uniform", 4, 2), ("sphere-sun", "uniform", 16, 2)]
     for cell in summary["cells"]:
         rows = table[table.spp == cell["spp"]].sort_values("seed")
-        # Errors: every scored render of both seeds (2 × 5 replicates), a t interval over them
+        # Errors: every scored render of both seeds (2 × 10 replicates), a t interval over them
         # with Hall's skewness correction: T = √n(x̄ − μ)/s in [−q, q] after g(T) = T + aT² +
         # a²T³/3 + b, solved here by bisection.
         for metric in ("mean_delta_e76", "rel_mse"):
             values = np.concatenate([[float(v) for v in text.split()]
                                      for text in rows[f"{metric}_renders"]])
-            assert values.size == 10
+            assert values.size == 20
             figure = cell["metrics"][metric]
             assert figure["mean"] == pytest.approx(values.mean()), metric
             assert (figure["low"], figure["high"]) == pytest.approx(_hall_interval(values)), metric
-            assert figure["n"] == 10
+            assert figure["n"] == 20
         # Samples: one value per seed.
         values = rows["effective_samples"].to_numpy()
         figure = cell["metrics"]["effective_samples"]

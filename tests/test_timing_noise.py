@@ -2,7 +2,7 @@
 an estimator and its unchanged copy are called apart at the stated rate, not every time, while
 an estimator with half the error is still resolved ahead; and the rounds are what makes it so.
 
-The series in ``tests/data/`` were recorded on a 2-vCPU AMD EPYC (Debian PoCL 3.1) with
+The series in ``tests/data/`` were recorded on a 2-vCPU Intel Xeon (AVX-512; Debian PoCL 3.1) with
 ``python -m iblbench.harness.verify.timing_noise``, idle and beside two busy processes."""
 from __future__ import annotations
 

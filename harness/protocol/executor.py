@@ -303,7 +303,8 @@ class Executor:
             self.progress.stage(f"rendering, round {turn + 1} of {rounds}", here)
             going = [cells[i] for i in shuffle(len(cells)) if turn < len(cells[i].renderers)]
             # The round's renders back to back, then their scores: host work between two
-            # renders made every render the first after it (timing module, "Rounds").
+            # renders made every render the first after it (timing module, "Rounds").  After
+            # render 0 only the radiance is scored, and only it is held through the round.
             estimates = [self._render_turn(cell, turn, gbuffer, cache) for cell in going]
             for cell, estimate in zip(going, estimates):
                 self._score_turn(cell, turn, estimate, scorer, images)
@@ -346,19 +347,20 @@ class Executor:
             cell.build_ms)
         cell.renders.append(render)
         cell.seconds += time.perf_counter() - start
-        return estimate
+        return estimate if turn == 0 else estimate.radiance
 
     def _score_turn(self, cell: "_Cell", turn: int, estimate, scorer: Scorer,
                     images: pathlib.Path) -> None:
-        """Score render ``turn`` of ``cell``: render 0 in full (its EXR written), the others on
-        the replicated errors (``Scorer.errors``)."""
+        """Score render ``turn`` of ``cell`` (``estimate``: render 0's Estimate, a later
+        render's radiance): render 0 in full (its EXR written), the others on the replicated
+        errors (``Scorer.errors``)."""
         start = time.perf_counter()
         if turn == 0:
             cell.metrics, cell.delta_e = scorer.score(estimate)
             cell.extras = dict(estimate.extras)
             write_exr(images / f"{cell.stem()}.exr", estimate.radiance)
         else:
-            cell.errors.append(scorer.errors(estimate.radiance)[0])
+            cell.errors.append(scorer.errors(estimate)[0])
         cell.seconds += time.perf_counter() - start
 
     def _row(self, plan: ScenePlan, cell: "_Cell", scorer: Scorer,
@@ -465,7 +467,8 @@ class Executor:
             key = (scene_name, spec.label, budget)
             self.chosen[key] = fit["chosen_spp"]
             entry = {"scene": scene_name, "estimator": spec.label, "frame": cache.frame,
-                     **fit, "calibrated_spp": fit["chosen_spp"], "cell_runs": []}
+                     "device": self.device_name, **fit, "calibrated_spp": fit["chosen_spp"],
+                     "cell_runs": []}
             self.unverified[key] = entry
             self._records["calibrations"].append(entry)
             if fit["over_budget"] and fit["chosen_spp"] == 1:
@@ -475,4 +478,3 @@ class Executor:
         self._records["device_ms"] += sum(device_ms(r.stages) - build_ms
                                           for r in calibration.renders)
         estimator.reset()
-        self.progress.stage("rendering")

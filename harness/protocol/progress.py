@@ -13,7 +13,6 @@ per-frame work around them (frame caches, references, warm-ups, calibrations) is
 from __future__ import annotations
 
 import collections
-import time
 from typing import Iterable, Mapping
 
 import numpy as np
@@ -77,7 +76,6 @@ class Progress:
         self.remaining = collections.Counter((key[1], key[2]) for key in todo)
         self.measured: dict[str, list[tuple[int, float]]] = collections.defaultdict(list)
         self.where: tuple[str, ...] = ()
-        self._cell: tuple[tuple, float] | None = None
 
     def stage(self, stage: str, *where: str) -> None:
         """The run is at ``stage`` (reference, warm-up, rendering, ...) in ``where`` (the scene
@@ -85,15 +83,6 @@ class Progress:
         if where:
             self.where = where
         self.bar.set_description(" · ".join([*self.where, stage]))
-
-    def start_cell(self, key: tuple) -> None:
-        """Cell ``key`` starts: its time runs from here to :meth:`cell_done`."""
-        self._cell = (key, time.perf_counter())
-
-    def cell_done(self, spp: int) -> None:
-        """The cell started last is done, run at ``spp`` (an equal-time cell's chosen one)."""
-        key, start = self._cell
-        self.finished(key, spp, time.perf_counter() - start)
 
     def finished(self, key: tuple, spp: int, seconds: float) -> None:
         """Cell ``key`` is done, run at ``spp``, having cost the run ``seconds`` (a cluster's:

@@ -15,18 +15,20 @@ t_lo); the error is their mean.
 
 **Uncertainty: times and replicates together** (issue 32).  The budget's place on a curve
 depends on measured times, which move 2× between two renders of the same work on a busy
-machine; so the interval carries their uncertainty as well as the replicates'.  One bootstrap
-per ranking (:class:`Draws`, ``BOOTSTRAP`` draws, a fixed seed so a table always reads the
-same): each draw resamples every cell's timed renders on its own (its time: their median),
-fits each curve's rising times again, and resamples the replicate keys (seed, render), the same
-resample for every estimator, so estimators with the same replicates are compared paired; the
-error at T is then read as above.  An estimator's interval, and the ratio of two estimators'
-errors, are the basic bootstrap intervals of those draws on the log scale, widened by
-t(n − 1)/z · √(n/(n − 1)) for n replicates, so that without time noise they match the Student-t
-interval rather than the bootstrap's narrower one (:func:`_log_interval`).  A ratio's p-value is
-the share of its centred draws beyond the observed log ratio.  Two estimators whose replicates
-are identical (an unchanged copy under another name) are then apart only where their times are
-apart beyond their renders' spread.  Measured on the recorded timing noise of this machine
+machine; so the interval carries their uncertainty as well as the replicates'.  A bootstrap of
+``BOOTSTRAP`` draws: each draw resamples every cell's timed renders (its time: their median;
+:func:`_time_draws`, seeded by the cell), fits each curve's rising times again and reads the
+error at T as above, with each replicate key (seed, render) weighed by a Poisson(1) count seeded
+by the key (:func:`_key_weights`), so estimators with the same replicates are resampled
+together (paired), and a pair's draws do not depend on what else the table holds; a table
+always reads the same.  An estimator's interval, and the ratio of two estimators' errors, are
+the 95% percentile intervals of those draws after their log deviations from the estimate are
+widened by t(n − 1)/z · √(n/(n − 1)) for n replicates, so that without time noise they match
+the Student-t interval rather than the bootstrap's narrower one (:func:`_widened`); a ratio's
+p-value is twice the share of its widened draws on the far side of 1, so p < 0.05 exactly when
+its interval excludes 1.  Two estimators whose replicates are identical (an unchanged copy
+under another name) are then apart only where their times are apart beyond their renders'
+spread.  Measured on the recorded timing noise of this machine
 (:mod:`iblbench.harness.verify.timing_noise`, tests/test_timing_noise.py): the copy is called
 apart in 2–3% of verdicts (30 of 30 when the times are taken as exact), and an estimator with
 half the error at equal time is resolved in every one.
@@ -43,6 +45,8 @@ than ``TOLERANCE`` is marked (``Standing.missed``), and the verdict names it ("o
 
 **Ranks.**  The ranked estimators are sorted by their mean error at T.  Each adjacent pair is
 *resolved* when the bootstrap interval of the ratio of their errors excludes 1 (:func:`versus`).
+A standing is marked off budget only where it reads an equal-time cell of T itself that missed
+T; a cell calibrated for another budget is a point of the curve like any other.
 
 **Headline budgets** (:func:`headline_budgets`): a sweep's own time budgets where it has them,
 else up to three round budgets (1, 2 or 5 × 10^k ms) inside the time range the scene's cells
@@ -58,14 +62,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import zlib
 
 import numpy as np
 import pandas as pd
 
 from iblbench.harness.protocol.equal_time import TOLERANCE
 from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, by_device,
-                                             cell_values, column_interval, compare_values,
-                                             render_times, t_quantile)
+                                             cell_values, column_interval, render_times,
+                                             t_quantile)
 from iblbench.harness.protocol.timing import robust_ms
 
 METRIC = "mean_delta_e76"
@@ -251,42 +256,30 @@ def rising(times: np.ndarray) -> np.ndarray:
     return fit
 
 
-class Draws:
-    """The bootstrap of one ranking (module docstring, "Uncertainty"): ``size`` resamples of the
-    replicate keys shared by every estimator (counts per key, so that estimators with the same
-    keys are resampled together: paired), and of each cell's timed renders on its own."""
-
-    def __init__(self, keys, size: int = BOOTSTRAP, seed: int = BOOTSTRAP_SEED):
-        self.keys = pd.Index(sorted(set(keys)))
-        self.rng = np.random.default_rng(seed)
-        self.size = size
-        k = len(self.keys)
-        self.counts = (self.rng.multinomial(k, np.full(k, 1.0 / k), size=size) if k
-                       else np.zeros((size, 0)))
-
-    def times(self, point: Point) -> np.ndarray:
-        """``size`` draws of the point's robust time: its timed renders resampled (its time
-        itself, without renders to resample).  Resampling them by replicate key instead, so
-        that one round's renders go together in every cell, resolved no more pairs of the
-        default sweep (177 of 213, against 180)."""
-        if point.times.size < 2:
-            return np.full(self.size, point.time_ms)
-        picks = self.rng.integers(0, point.times.size, size=(self.size, point.times.size))
-        return robust_ms(point.times[picks], axis=1)
-
-    def means(self, values: np.ndarray, keys: pd.Index) -> np.ndarray:
-        """Per draw, the resampled mean of ``values`` ([draws, len(keys)], one column per
-        replicate key)."""
-        weights = self.counts[:, self.keys.get_indexer(keys)]
-        total = weights.sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(total > 0, (weights * values).sum(axis=1) / total, np.nan)
+def _key_weights(keys) -> np.ndarray:
+    """The bootstrap's weight of each replicate key in each draw, [BOOTSTRAP, len(keys)]:
+    Poisson(1) counts seeded by the key alone (Hanley & MacGibbon 2006), so two estimators
+    with a key in common weigh it alike in every draw (paired), whatever else the table holds."""
+    return np.stack([np.random.default_rng([BOOTSTRAP_SEED, *map(int, key)]).poisson(
+        1.0, BOOTSTRAP) for key in keys], axis=1)
 
 
-def standing_at(estimator: str, points: list[Point], budget_ms: float,
-                draws: Draws | None = None) -> Standing:
-    """Where ``estimator``'s curve stands at ``budget_ms`` (module docstring), with ``draws``
-    of its error from the ranking's bootstrap (one of its own where none is given)."""
+def _time_draws(estimator: str, point: Point) -> np.ndarray:
+    """BOOTSTRAP draws of a cell's robust time: its timed renders resampled, seeded by the cell
+    (its time itself, without renders to resample).  Resampling them by replicate key instead,
+    so that one round's renders go together in every cell, resolved no more pairs of the
+    default sweep (177 of 213, against 180)."""
+    if point.times.size < 2:
+        return np.full(BOOTSTRAP, point.time_ms)
+    cell = zlib.crc32(f"{estimator}|{point.spp}|{point.budget_ms}".encode())
+    picks = np.random.default_rng([BOOTSTRAP_SEED, cell]).integers(
+        0, point.times.size, size=(BOOTSTRAP, point.times.size))
+    return robust_ms(point.times[picks], axis=1)
+
+
+def standing_at(estimator: str, points: list[Point], budget_ms: float) -> Standing:
+    """Where ``estimator``'s curve stands at ``budget_ms`` (module docstring), with the bootstrap
+    draws of its error there."""
     times = rising([p.time_ms for p in points])
     span = (float(times[0]), float(times[-1]))
     at_end = [p for p, t in zip(points, times) if p.budget_ms == budget_ms
@@ -300,20 +293,24 @@ def standing_at(estimator: str, points: list[Point], budget_ms: float,
         keys = keys.intersection(point.replicates.index)
     if len(keys) < 2:   # the cells share no replicates: nothing to read between
         return Standing(estimator, "not measured", span)
-    draws = draws or Draws(keys)
     tiny = np.finfo(np.float64).tiny   # a replicate of error 0 stays finite in the log
     logs = np.log(np.maximum([p.replicates[keys].to_numpy() for p in points], tiny))
     clamped = min(max(budget_ms, span[0]), span[1])   # an equal-time cell at its curve's end
     lo, hi, w = _between(times[None, :], clamped)
     values = np.exp((1 - w[0]) * logs[lo[0]] + w[0] * logs[hi[0]])
-    lo_d, hi_d, w_d = _between(rising(np.stack([draws.times(p) for p in points], 1)), clamped)
+    drawn_times = rising(np.stack([_time_draws(estimator, p) for p in points], 1))
+    lo_d, hi_d, w_d = _between(drawn_times, clamped)
     drawn = np.exp((1 - w_d[:, None]) * logs[lo_d] + w_d[:, None] * logs[hi_d])
-    error = draws.means(drawn, keys)
-    used = {int(lo[0]), int(hi[0])} if w[0] not in (0.0, 1.0) else {int(hi[0] if w[0] else lo[0])}
+    weights = _key_weights(keys)
+    total = weights.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        error = np.where(total > 0, (weights * drawn).sum(axis=1) / total, np.nan)
+    used = sorted({int(lo[0]), int(hi[0])} if 0 < w[0] < 1 else {int(hi[0] if w[0] else lo[0])})
+    spp = tuple(points[i].spp for i in used)
     return Standing(estimator, "ranked", span,
                     _bootstrap_ci(float(values.mean()), error, len(keys)),
-                    pd.Series(values, index=keys), (points[lo[0]].spp, points[hi[0]].spp),
-                    error, any(points[i].missed for i in used))
+                    pd.Series(values, index=keys), spp if len(spp) == 2 else spp * 2, error,
+                    any(points[i].missed and points[i].budget_ms == budget_ms for i in used))
 
 
 def _between(times: np.ndarray, budget_ms: float):
@@ -331,52 +328,47 @@ def _between(times: np.ndarray, budget_ms: float):
     return lower, upper, np.clip(w, 0.0, 1.0)
 
 
-def _bootstrap_ci(estimate: float, draws: np.ndarray, n: int) -> MeanCI:
-    """``estimate`` with the 95% interval of its bootstrap ``draws`` on the log scale, widened
-    for ``n`` replicates (module docstring, "Uncertainty")."""
-    low, high = _log_interval(estimate, draws, n)
-    return MeanCI(estimate, low, high, n, math.nan)
-
-
-def _log_interval(estimate: float, draws: np.ndarray, n: int) -> tuple[float, float]:
-    """The basic bootstrap interval of a positive figure on the log scale: the draws' log
-    deviations from ``estimate``, scaled by t(n − 1)/z · √(n/(n − 1)) (so that for a normal
-    mean it is the Student-t interval, not the bootstrap's narrower one), at 2.5% and 97.5%."""
-    deviations = np.log(draws[np.isfinite(draws) & (draws > 0)]) - math.log(estimate)
-    if n < 2 or not deviations.size:
-        return math.nan, math.nan
+def _widened(estimate: float, draws: np.ndarray, n: int) -> np.ndarray:
+    """The finite positive ``draws`` of a figure, their log deviations from ``estimate`` scaled
+    by t(n − 1)/z · √(n/(n − 1)), so that for a normal mean the percentile interval they give is
+    the Student-t interval rather than the bootstrap's narrower one; empty for n < 2."""
+    draws = draws[np.isfinite(draws) & (draws > 0)]
+    if n < 2 or not draws.size:
+        return np.empty(0)
     scale = t_quantile(n - 1) / t_quantile(math.inf) * math.sqrt(n / (n - 1))
-    low, high = np.percentile(scale * deviations, [2.5, 97.5])
-    return estimate * math.exp(low), estimate * math.exp(high)
+    return estimate * np.exp(scale * (np.log(draws) - math.log(estimate)))
+
+
+def _bootstrap_ci(estimate: float, draws: np.ndarray, n: int) -> MeanCI:
+    """``estimate`` with the 95% percentile interval of its widened bootstrap ``draws``."""
+    widened = _widened(estimate, draws, n)
+    if not widened.size:
+        return MeanCI(estimate, math.nan, math.nan, n, math.nan)
+    low, high = np.percentile(widened, [2.5, 97.5])
+    return MeanCI(estimate, float(low), float(high), n, math.nan)
 
 
 def versus(a: Standing, b: Standing) -> RatioCI:
-    """``b``'s error over ``a``'s with its interval from their draws of one bootstrap (paired:
-    the same replicate resamples; each one's times resampled on their own), its p-value the
-    share of centred draws beyond the observed log ratio; the replicates' own test
-    (:func:`compare_values`) where either has no draws."""
-    if a.draws is None or b.draws is None:
-        return compare_values(a.replicates, b.replicates)
+    """``b``'s error over ``a``'s from their draws (paired on the replicate keys they share,
+    their times resampled each on its own): the 95% percentile interval of the widened ratio
+    draws, and its p-value from the same draws, twice the share on the far side of 1 (so p <
+    0.05 exactly when the interval excludes 1)."""
     ratio = b.error.mean / a.error.mean
     n = min(len(a.replicates), len(b.replicates))
     paired = a.replicates.index.sort_values().equals(b.replicates.index.sort_values())
-    drawn = b.draws / a.draws
-    low, high = _log_interval(ratio, drawn, n)
-    if not math.isfinite(low):
+    widened = _widened(ratio, b.draws / a.draws, n)
+    if not widened.size:
         return RatioCI(ratio, math.nan, math.nan, math.nan, "n=1: no interval", paired=paired)
-    scale = t_quantile(n - 1) / t_quantile(math.inf) * math.sqrt(n / (n - 1))
-    centred = scale * (np.log(drawn[np.isfinite(drawn) & (drawn > 0)]) - math.log(ratio))
-    p = float(np.mean(np.abs(centred) >= abs(math.log(ratio)))) if ratio != 1 else 1.0
-    return RatioCI(ratio, low, high, math.nan, p=p, paired=paired)
+    low, high = np.percentile(widened, [2.5, 97.5])
+    p = min(1.0, 2 * min(np.mean(widened <= 1), np.mean(widened >= 1)))
+    return RatioCI(ratio, float(low), float(high), math.nan, p=float(p), paired=paired)
 
 
 def rank(curves: dict[str, list[Point]], scene: str, budget_ms: float,
          metric: str = METRIC, device: str | None = None) -> Ranking:
     """Every estimator's standing at ``budget_ms`` (``curves``: estimator → :func:`curve`, of
-    ``device``'s cells where the table holds several devices), on one bootstrap."""
-    keys = [key for points in curves.values() for p in points for key in p.replicates.index]
-    draws = Draws(keys)
-    standings = [standing_at(label, points, budget_ms, draws)
+    ``device``'s cells where the table holds several devices)."""
+    standings = [standing_at(label, points, budget_ms)
                  for label, points in curves.items() if points]
     ranked = sorted((s for s in standings if s.status == "ranked"), key=lambda s: s.error.mean)
     unranked = [s for s in standings if s.status != "ranked"]
@@ -394,7 +386,8 @@ def round_budgets(low: float, high: float) -> list[float]:
 
 def headline_budgets(curves: dict[str, list[Point]], sweep_budgets=()) -> list[float]:
     """The budgets a scene's ranking is shown at (module docstring)."""
-    spans = [(points[0].time_ms, points[-1].time_ms) for points in curves.values() if points]
+    spans = [tuple(rising([p.time_ms for p in points])[[0, -1]]) for points in curves.values()
+             if points]
     if sweep_budgets:
         return sorted(float(b) for b in sweep_budgets)[:BUDGETS]
     if not spans:

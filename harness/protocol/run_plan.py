@@ -115,8 +115,8 @@ def plan_run(config: RunConfig) -> RunPlan:
 
 def _estimator_specs(config: RunConfig) -> list:
     """The estimators' specs, then an unchanged copy of each in ``config.control`` under its
-    control's label.  The copies run after every estimator, so that the control and its
-    original are as far apart in time as the estimators the answer compares."""
+    control's label (their renders share the frame's rounds with every estimator's, each
+    round in an order of its own)."""
     specs = [parse_estimator(label) for label in config.estimators]
     labels = [spec.label for spec in specs]
     if len(set(labels)) != len(labels):

@@ -107,6 +107,7 @@ import collections
 import contextlib
 import datetime
 import fcntl
+import math
 import os
 import pathlib
 import platform
@@ -326,12 +327,12 @@ class Runner:
             "skipped": self.skipped,
             "visibility": self.visibility,
             "timing": {"measure": MEASURE, "repeats": dict(self.plan.repeats),
-                       "cell": "median of the cell's timed renders after warm-up: the "
-                               "estimator's repeats, more where they spread (timing.spread); "
-                               "min and IQR beside it (harness/protocol/timing.py)",
+                       "cell": "median of the cell's timed renders after warm-up (the "
+                               "estimator's repeats); min and IQR beside it "
+                               "(harness/protocol/timing.py)",
                        "context": "BLAS and OpenMP pools at one host thread for the whole run "
-                                  "(threadpoolctl); a cell's repeats (or a calibration spp's "
-                                  "renders) back to back before scoring",
+                                  "(threadpoolctl); a round's renders (and a calibration's) "
+                                  "back to back, scored after it",
                        "pocl_affinity": os.environ.get("POCL_AFFINITY"),
                        "warm_up": f"1 spp on {WARMUP_PIXELS} pixels per frame and estimator",
                        "wall": "wall_s: host wall time from the first frame's set-up to the "
@@ -342,16 +343,17 @@ class Runner:
                        "temporal": "timing renders on repeats - 1 twin instances per "
                                    "sequence; the scored render is the real state's",
                        "rounds": "a frame's cells render in interleaved rounds, one render "
-                                 "of each cell a round, so that a cell's renders fall in "
-                                 "different spells of the device",
+                                 "of each cell a round, each round in a seeded order of its "
+                                 "own, so that a cell's renders fall in different spells of "
+                                 "the device",
                        "spread": {"rule": f"wide_cells: cells whose renders' IQR/median is "
                                           f"above {SPREAD_LIMIT:.0%}",
                                   "cells": 0, "wide_cells": 0}},
             "time_budget": ({"budgets_ms": list(c.time_budget_ms), "measure": MEASURE,
                              "model": "time = a_ms + b_ms_per_spp * spp, least squares on "
                                       "relative error over the median of "
-                                      f"{CALIBRATION_REPEATS} renders per spp (more while "
-                                      "they spread too wide), then refined on "
+                                      f"{CALIBRATION_REPEATS} renders per spp (in rounds), "
+                                      "then refined on "
                                       "renders at the chosen spp and on the budget's first "
                                       "cell (cell_runs), each step by the median slope "
                                       "through the points measured so far",
@@ -468,9 +470,10 @@ class Runner:
                           + " (harness/protocol/timing.py, \"The device's own floor\")",
                 "groups_within": [round(f.groups_within, 3) for f in floors],
                 "p90_over_p10": [round(f.p90_over_p10, 3) for f in floors]}
-            self.manifest["timing"]["load"] = {"cores": os.cpu_count(),
-                                               "load_1min": [round(v, 2) for v in loads],
-                                               "others_cores": round(others, 3)}
+            # A --scheduler run's cells ran on other hosts: this one's CPU says nothing of them.
+            self.manifest["timing"]["load"] = {
+                "cores": os.cpu_count(), "load_1min": [round(v, 2) for v in loads],
+                "others_cores": None if self.config.scheduler else round(others, 3)}
         if self.engine is not None:
             self.manifest["workers"] = [dict(w["record"], address=address)
                                         for address, w in self.engine.workers.items()]
@@ -573,21 +576,20 @@ class Runner:
         keys = ["scene", "estimator", "time_budget_ms", "device"]
         times = cell_times(timed, keys)
         spp = timed.groupby(keys, sort=False).spp.first()
-        calibrated = {(c["scene"], c["estimator"], c["budget_ms"]): c
+        calibrated = {(c["scene"], c["estimator"], c["budget_ms"], c.get("device")): c
                       for c in self.manifest["time_budget"]["calibrations"]}
         achieved = []
         for key, ms in times.items():
             scene, label, budget, device = key
             within = abs(ms - budget) <= TOLERANCE * budget
-            why = None if within else _missed_why(calibrated.get(key[:3]), int(spp[key]), ms,
-                                                 budget)
+            why = None if within else _missed_why(calibrated.get(key), int(spp[key]), ms, budget)
             achieved.append({"scene": scene, "estimator": label, "budget_ms": budget,
                              "device": device, "spp": int(spp[key]), "time_ms": ms,
                              "within_tolerance": bool(within), "why": why})
             if not within:
                 print(f"iblbench: {label} on {scene}: {ms:.3g} ms at {spp[key]} spp against the "
                       f"{budget:g} ms budget ({ms / budget - 1:+.0%}) on {device}, outside "
-                      f"±{TOLERANCE:.0%}: {why}; its verdicts are marked off budget",
+                      f"±{TOLERANCE:.0%}: {why}; a verdict that reads it says so",
                       file=sys.stderr)
         return achieved
 
@@ -709,7 +711,10 @@ class Runner:
 
 
 def _missed_why(calibration: dict | None, spp: int, ms: float, budget: float) -> str:
-    """Why an equal-time cell missed its budget, from its calibration (None: an earlier run's)."""
+    """Why an equal-time cell missed its budget, from its calibration (None: an earlier run's
+    or another device's)."""
+    if not math.isfinite(ms):
+        return "no time was measured"
     if spp == 1 and ms > budget:
         return "even 1 spp takes longer than the budget"
     if calibration is None:

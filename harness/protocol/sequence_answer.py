@@ -9,9 +9,9 @@ budget, log–log between the two cells whose times bracket it (:func:`ranking.s
   render) for ΔE76 (:func:`ranking.curve` with ``frame``);
 - **flicker** (the mean |change of the per-pixel ΔE76 map| from the previous frame of the run,
   :func:`iblbench.harness.protocol.metrics.flicker`) is scored on render 0 only, so its
-  replicates are the seeds (its interval is the ranking's, Hall's skewness-corrected t over
-  them; with one seed a budget between two cells is "not measured", as the ranking reads a
-  budget only from replicates both cells share, at least two), and it is undefined on the run's
+  replicates are the seeds (its interval is the ranking's bootstrap over them and the cells'
+  times; with one seed a budget is "not measured", as the ranking reads a budget only from
+  replicates every cell of the curve shares, at least two), and it is undefined on the run's
   first frame;
 - **over the frames**: ΔE76 as the ranking has it (each replicate the mean over the frames) and
   flicker as each seed's mean over the frames from the second on; and the worst frame, the one

@@ -68,8 +68,8 @@ IQR/median ≤ 15%, by renders per repeat 1/2/4/8/16: sphere-sun ``uniform`` 16 
 batches, alternated processes, 4 pairs at load 4-8): 87/57/59/54% of the cells had their first
 5 repeats within 15% with single renders, 50/54/50/51% with batches; the batches took 1.8x the
 device time in the least loaded pair (17.3 against 9.6 s), about as much as single renders with
-their extension in the others.  So a cell's repeats stay single renders, back to back and as
-close in time as they can be.
+their extension in the others.  So a repeat stays a single render (since issue 32 each in a
+round of its own, "Rounds" above).
 
 **Context.**  The device is the CPU (PoCL) shared with the host, so a render's device time
 depends on what host threads do while it runs.  The host's own work (scoring, image writes)
@@ -78,8 +78,8 @@ spinning: 1.5 ms of CPU for a 100 ms render); the one host thread that ran besid
 OpenBLAS's worker, which spins ~0.1 s after a NumPy matrix product (host scoring) and takes a
 core from PoCL's two workers.  So a run holds :func:`host_threads_capped` (BLAS and OpenMP
 pools at one thread, threadpoolctl) around everything it renders, warm-up and calibration
-included, and a group of timed renders (a cell's repeats, each calibration spp) runs back to
-back in :func:`timed_renders`, with no pause before it.  PoCL's worker threads are not pinned
+included, and a round's renders (and a calibration's) run back to back in
+:func:`timed_renders`, with no pause before them and their scores after them.  PoCL's worker threads are not pinned
 (the manifest records ``POCL_AFFINITY``): pinned one per core (``POCL_AFFINITY=1``), the median
 render fell from 5.5-8.5 to 3.8-4.1 ms (sphere-sun, balanced, 256 spp) and from 4.3-5.3 to
 2.9-3.4 ms (blob-sun, uniform, 256 spp) at load 6 (3 interleaved pairs of processes, 60
@@ -126,6 +126,7 @@ are the cell's own draws of its time (issue 23).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
@@ -259,17 +260,27 @@ def cell_times(table, keys, column: str = TIME):
 # ---- what else ran on the host ------------------------------------------------------------------
 
 def cpu_snapshot() -> tuple[float, float, float]:
-    """(wall s, CPU s the whole host has spent busy, CPU s this process has spent, its threads
-    and so PoCL's included), for :func:`others_cores`."""
-    host, own = psutil.cpu_times(), psutil.Process().cpu_times()
-    idle = host.idle + getattr(host, "iowait", 0.0)
-    return time.perf_counter(), sum(host) - idle, own.user + own.system
+    """(wall s, CPU s the whole host has spent busy, CPU s this process and its children have
+    spent: its threads, PoCL's, and a LocalCluster's worker processes), for
+    :func:`others_cores`."""
+    host, me = psutil.cpu_times(), psutil.Process()
+    # guest time is in user time already (Linux); iowait is idle
+    busy = (sum(host) - host.idle - getattr(host, "iowait", 0.0) - getattr(host, "guest", 0.0)
+            - getattr(host, "guest_nice", 0.0))
+    own = me.cpu_times()
+    spent = own.user + own.system + own.children_user + own.children_system
+    for child in me.children(recursive=True):
+        with contextlib.suppress(psutil.Error):   # it may end while we look
+            times = child.cpu_times()
+            spent += times.user + times.system
+    return time.perf_counter(), busy, spent
 
 
 def others_cores(start: tuple, end: tuple) -> float:
-    """The cores' worth of CPU that other processes (and, on a VM, other guests: steal time)
-    used between two :func:`cpu_snapshot`: the host's busy CPU time less this process's, over
-    the wall time.  A 1-minute load average lags a run of seconds by a minute; this does not."""
+    """The cores' worth of CPU that other programs (and, on a VM, other guests: steal time)
+    used between two :func:`cpu_snapshot`: the host's busy CPU time less this process tree's,
+    over the wall time.  A 1-minute load average lags a run of seconds by a minute; this does
+    not."""
     wall = end[0] - start[0]
     if wall <= 0:
         return math.nan

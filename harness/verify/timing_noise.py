@@ -2,9 +2,9 @@
 (issue 32).
 
 **Recording** (:func:`record`, ``python -m iblbench.harness.verify.timing_noise OUT.txt``):
-the timing floor's kernel (``fma_throughput``, about 3 ms) launched one at a time, each after a
-little host work, as a round's renders follow their scoring; the device ms of each launch in
-order.  Its slow and fast spells, tens to hundreds of launches long, are the machine's, not a
+the timing floor's kernel (``fma_throughput``, sized to at least 3 ms: 10 ms idle here)
+launched one at a time, each after a little host work (a NumPy product); the device ms of each
+launch in order.  Its slow and fast spells, tens to hundreds of launches long, are the machine's, not a
 kernel's (:mod:`iblbench.harness.protocol.timing`, "The device's own floor").  Two recordings
 of this 2-vCPU machine ship in ``tests/data/``: one idle and one beside two busy processes.
 
@@ -13,7 +13,9 @@ unchanged copy ``a copy`` (the same error replicates, bit for bit, as a renamed 
 and ``b`` (half ``a``'s error at equal time), each at four spp levels over 2 seeds × 5 renders,
 whose renders take their true time times the recorded series' relative speed at the moment
 they run, in the run's order: interleaved rounds (one render of every cell a round, as the
-executor renders a frame) or each cell's renders back to back.  The table goes through the real
+executor renders a frame) or each cell's renders back to back.  It models no cost of a place
+in the round, so its rounds keep one order; real runs showed one, and the executor orders each
+round anew (:mod:`iblbench.harness.protocol.timing`, "Rounds").  The table goes through the real
 ranking (:func:`iblbench.harness.protocol.ranking.scene_rankings`), and the simulation counts how
 often the copy was called apart from ``a`` (the A/A rate, which should be the stated 5%) and
 how often ``b`` was resolved ahead of ``a`` (power).
