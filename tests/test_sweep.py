@@ -82,7 +82,7 @@ def test_default_and_full_parse():
     assert names == set(estimator_names())
     assert 'envmap{mis="brdf",mis_compensation=true}' in default.estimators
     assert {"sphere-park", "park-turn"} <= set(default.scenes)
-    assert default.repeats == 5 and default.repeats_for == () and default.seeds == 2
+    assert default.repeats == 10 and default.repeats_for == () and default.seeds == 2
     # Issue 23: each estimator's spp levels span about the same time (bis and smc fewer spp,
     # uniform and balanced more), so that every curve reaches the budgets the report ranks at.
     levels = dict(default.spp_for)
