@@ -34,8 +34,8 @@ samples the machine's slow and fast spells as every other cell's does, and two c
 the same time get the same times, whichever spell either would have started in.  Measured on
 the A/A simulation (:mod:`iblbench.harness.verify.timing_noise`: an estimator and its unchanged
 copy, timed on the spells recorded on this machine, ranked by the real ranking): with each
-cell's renders back to back, the copy was called apart in 5 of 120 verdicts idle and 37 of 120
-beside two busy processes; in rounds, 2 and 3 of 120.  A round's renders run back to back and
+cell's renders back to back, the copy was called apart in 5 of 120 verdicts idle and 35 of 120
+beside two busy processes; in rounds, 2 and 4 of 120.  A round's renders run back to back and
 are scored after it: with each render scored before the next one, 603 of the default sweep's
 1,188 cells spread wider than 15% on an idle machine, with the scores after the round 247.
 Each round's own order: with one fixed order (the control last in every round) a real A/A
@@ -46,12 +46,12 @@ rounds replace the earlier rule that gave a cell whose back-to-back renders spre
 it made a cell's renders agree within one spell, which is what the A/A check showed wrong.
 
 **Which statistic** (:func:`robust_ms`).  A cell's time is the median of its renders.  On the
-same simulation, 40 runs × 3 budgets each: the median called the copy apart in 2 (idle) and 3
-(busy) of 120 verdicts, and resolved an estimator with 12% less error at equal time in 96 and
-75 of 120; the 25% quantile 1 and 2 of 120, with 47 and 70 resolved; the minimum (Chen and
-Revels 2016, BenchmarkTools.jl) 9 and 18 of 120, above the stated 5%: the bootstrap of an
-extreme value is not a valid interval, and one lucky render moves it.  So the median: the A/A
-rate held and the best power here.
+same simulation, 40 runs × 3 budgets each, idle and busy, each statistic both the cell's time
+and its bootstrap's: the median called the copy apart in 2 and 4 of 120 verdicts, and resolved
+an estimator with 12% less error at equal time in 94 and 72 of 120; the 25% quantile 1 and 3 of
+120, with 45 and 66 resolved; the minimum (Chen and Revels 2016, BenchmarkTools.jl) 7 and 16 of
+120, above the stated 5%: the bootstrap of an extreme value is not a valid interval, and one
+lucky render moves it.  So the median: the A/A rate held and the best power here.
 
 **Why a repeat is one render, not a batch.**  timeit's and asv's "autorange" (a repeat is a
 batch of back-to-back renders lasting at least some 10-25 ms, its value the batch's time per
