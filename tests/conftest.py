@@ -1,4 +1,8 @@
-"""Shared fixtures: one OpenCL context for the session, and a private reference cache."""
+"""Shared fixtures: one OpenCL context for the session, a private reference cache, and SIGINT
+as a terminal leaves it."""
+import signal
+import warnings
+
 import pytest
 
 from iblbench.estimators.runtime.device import get_compute
@@ -23,3 +27,19 @@ def private_cache(tmp_path_factory):
 @pytest.fixture(scope="session")
 def compute():
     return get_compute()
+
+
+@pytest.fixture(autouse=True)
+def sigint_as_a_terminal_leaves_it(request):
+    """A test that left SIGINT blocked or ignored in this worker would hand that on to every
+    process a later test starts, and a Ctrl-C test's run would never see its Ctrl-C (three
+    failed so in one clean-clone ``make test``): restore it after each test, and say which one
+    left it."""
+    yield
+    blocked = signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    handler = signal.getsignal(signal.SIGINT)
+    if blocked or handler is not signal.default_int_handler:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        warnings.warn(f"{request.node.nodeid} left SIGINT "
+                      f"{'blocked' if blocked else f'handled by {handler!r}'}; restored")
