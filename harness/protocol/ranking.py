@@ -88,12 +88,13 @@ BOOTSTRAP_SEED = 20230     # fixed: a table's answer does not change from one re
 @dataclasses.dataclass(frozen=True)
 class Point:
     """One cell of an estimator's error–time curve: its robust time, its replicates of the
-    metric, every timed render's device ms (``times``, which the bootstrap resamples) and the
-    budget it was calibrated for (None for an spp level)."""
+    metric, the bootstrap's draws of its time (:func:`_time_draws`, made once per cell, whatever
+    budgets the curve is read at) and the budget it was calibrated for (None for an spp
+    level)."""
     spp: int
     time_ms: float
     replicates: pd.Series   # the metric per (seed, render)
-    times: np.ndarray = dataclasses.field(default_factory=lambda: np.empty(0))
+    time_draws: np.ndarray
     budget_ms: float | None = None
 
     @property
@@ -233,10 +234,12 @@ def curve(rows: pd.DataFrame, metric: str = METRIC, frame: int | None = None) ->
         if not len(scored):
             continue
         values, _ = cell_values(scored, metric)
-        budget = cell.time_budget_ms.iloc[0]
+        spp, budget = int(cell.spp.iloc[0]), cell.time_budget_ms.iloc[0]
+        budget = None if pd.isna(budget) else float(budget)
         if math.isfinite(time_ms) and values.notna().all():
-            points.append(Point(int(cell.spp.iloc[0]), float(time_ms), values,
-                                render_times(cell), None if pd.isna(budget) else float(budget)))
+            draws = _time_draws(f"{cell.estimator.iloc[0]}|{spp}|{budget}", render_times(cell),
+                                float(time_ms))
+            points.append(Point(spp, float(time_ms), values, draws, budget))
     return sorted(points, key=lambda p: (p.spp, p.time_ms))
 
 
@@ -264,17 +267,16 @@ def _key_weights(keys) -> np.ndarray:
         1.0, BOOTSTRAP) for key in keys], axis=1)
 
 
-def _time_draws(estimator: str, point: Point) -> np.ndarray:
-    """BOOTSTRAP draws of a cell's robust time: its timed renders resampled, seeded by the cell
-    (its time itself, without renders to resample).  Resampling them by replicate key instead,
-    so that one round's renders go together in every cell, resolved no more pairs of the
-    default sweep (177 of 213, against 180)."""
-    if point.times.size < 2:
-        return np.full(BOOTSTRAP, point.time_ms)
-    cell = zlib.crc32(f"{estimator}|{point.spp}|{point.budget_ms}".encode())
-    picks = np.random.default_rng([BOOTSTRAP_SEED, cell]).integers(
-        0, point.times.size, size=(BOOTSTRAP, point.times.size))
-    return robust_ms(point.times[picks], axis=1)
+def _time_draws(cell: str, times: np.ndarray, time_ms: float) -> np.ndarray:
+    """BOOTSTRAP draws of a cell's robust time: its timed render ``times`` resampled, seeded by
+    the ``cell`` ("estimator|spp|budget"); its ``time_ms`` itself, without renders to resample.
+    Resampling them by replicate key instead, so that one round's renders go together in every
+    cell, resolved no more pairs of the default sweep (177 of 213, against 180)."""
+    if times.size < 2:
+        return np.full(BOOTSTRAP, time_ms)
+    picks = np.random.default_rng([BOOTSTRAP_SEED, zlib.crc32(cell.encode())]).integers(
+        0, times.size, size=(BOOTSTRAP, times.size))
+    return robust_ms(times[picks], axis=1)
 
 
 def standing_at(estimator: str, points: list[Point], budget_ms: float) -> Standing:
@@ -296,16 +298,13 @@ def standing_at(estimator: str, points: list[Point], budget_ms: float) -> Standi
     tiny = np.finfo(np.float64).tiny   # a replicate of error 0 stays finite in the log
     logs = np.log(np.maximum([p.replicates[keys].to_numpy() for p in points], tiny))
     clamped = min(max(budget_ms, span[0]), span[1])   # an equal-time cell at its curve's end
-    lo, hi, w = _between(times[None, :], clamped)
-    values = np.exp((1 - w[0]) * logs[lo[0]] + w[0] * logs[hi[0]])
-    drawn_times = rising(np.stack([_time_draws(estimator, p) for p in points], 1))
-    lo_d, hi_d, w_d = _between(drawn_times, clamped)
-    drawn = np.exp((1 - w_d[:, None]) * logs[lo_d] + w_d[:, None] * logs[hi_d])
+    (lo,), (hi,), (w,), (values,) = _read(logs, times[None, :], clamped)
+    drawn = _read(logs, rising(np.stack([p.time_draws for p in points], 1)), clamped)[3]
     weights = _key_weights(keys)
     total = weights.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         error = np.where(total > 0, (weights * drawn).sum(axis=1) / total, np.nan)
-    used = sorted({int(lo[0]), int(hi[0])} if 0 < w[0] < 1 else {int(hi[0] if w[0] else lo[0])})
+    used = sorted({int(lo), int(hi)} if 0 < w < 1 else {int(hi if w else lo)})
     spp = tuple(points[i].spp for i in used)
     return Standing(estimator, "ranked", span,
                     _bootstrap_ci(float(values.mean()), error, len(keys)),
@@ -326,6 +325,13 @@ def _between(times: np.ndarray, budget_ms: float):
     with np.errstate(invalid="ignore", divide="ignore"):
         w = np.where(t_hi > t_lo, np.log(budget_ms / t_lo) / np.log(t_hi / t_lo), 1.0)
     return lower, upper, np.clip(w, 0.0, 1.0)
+
+
+def _read(logs: np.ndarray, times: np.ndarray, budget_ms: float):
+    """Per row of ``times`` (:func:`_between`): the bracketing indices, the weight and the
+    replicates read at ``budget_ms`` log–log from ``logs`` (the points' log replicates)."""
+    lower, upper, w = _between(times, budget_ms)
+    return lower, upper, w, np.exp((1 - w[:, None]) * logs[lower] + w[:, None] * logs[upper])
 
 
 def _widened(estimate: float, draws: np.ndarray, n: int) -> np.ndarray:
