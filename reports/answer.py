@@ -17,8 +17,9 @@ from iblbench.reports import plots
 PLOTS = {"highlight": "answer_top3.png", "all": "answer_all.png"}
 # Other programs' CPU (``timing.load.others_cores``) above this share of the cores: a quarter
 # of the machine taken from the run's device threads moved its times (two busy processes on 2
-# cores took 1.0-1.3 of them; idle runs here 0.0-0.2).  Not the 1-minute load average, which lags
-# a run of seconds by a minute, nor the timing floor, which is poor now and then on an idle VM.
+# cores took 1.0-1.3 of them; idle runs here 0.0-0.02).  Not the 1-minute load average, which
+# lags a run of seconds by a minute, nor the timing floor, which is poor now and then on an
+# idle VM.
 BUSY_SHARE = 0.25
 
 

@@ -67,8 +67,9 @@ def add_parser(subparsers) -> None:
     run.add_argument("--repeats", type=sweep.repeats_arg, metavar="N[,NAME=M...]",
                      help=f"timed renders per cell after warm-up (default: the sweep's; "
                           f"{sweep.DEFAULT_REPEATS} where it gives none, 10 in the shipped "
-                          "default sweep), each in a round of the frame's cells; a cell's time is the median of their "
-                          "device times (build+sample+shade), with min and IQR beside it; "
+                          "default sweep), each in a round of the frame's cells; a cell's "
+                          "time is the median of their device times (build+sample+shade), "
+                          "with min and IQR beside it; "
                           "NAME=M gives estimator NAME M of its own (e.g. 5,smc=3)")
     metrics = run.add_mutually_exclusive_group()
     metrics.add_argument("--metrics", type=sweep.metrics_arg, metavar="M[,M...]",

@@ -21,7 +21,8 @@ until the measured time lies within half of ``TOLERANCE`` of the budget (so that
 noise keeps them within it) (:func:`corrected_spp`). The spp run is then chosen among the
 measured ones (:func:`best_measured`). The runner takes up to ``CELL_CORRECTIONS`` more such
 steps on the time of the budget's first cell (its renders back to back on its own seeds, before
-the frame's rounds), and again ends on the best of the cell's measured spp (:mod:`iblbench.harness.protocol.runner`, "Equal time"). Whether the
+the frame's rounds), and again ends on the best of the cell's measured spp
+(:mod:`iblbench.harness.protocol.runner`, "Equal time"). Whether the
 cells then landed within ``TOLERANCE`` is checked on the cells themselves (the runner's
 ``time_budget.achieved``).
 

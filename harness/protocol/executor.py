@@ -330,13 +330,13 @@ class Executor:
             renderers = sequences[sequence]
         else:
             renderers = [estimator] * repeats
+        seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
         if budget is not None:
             if budget_key not in self.chosen:   # calibrated just before its cells
                 self._calibrate(spec, estimator, gbuffer, cache, cells, build_ms)
             if budget_key in self.unverified:
-                self._correct_budget(budget_key, spec, renderers, gbuffer, cache, seed, build_ms)
+                self._correct_budget(budget_key, spec, renderers, gbuffer, cache, seeds, build_ms)
             spp = self.chosen[budget_key]
-        seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
         return _Cell(spec, key, spp, renderers, seeds, sequence, build_ms)
 
     def _render_turn(self, cell: "_Cell", turn: int, gbuffer, cache):
@@ -391,11 +391,11 @@ class Executor:
         row.update({name: float(value) for name, value in cell.extras.items()
                     if name not in row})
         row["flicker"] = flicker(cell.delta_e, self._previous_map(
-            plan, cell.sequence, previous_frame, image_stem(row), scorer.mask), scorer.mask)
+            plan, cell.sequence, previous_frame, cell.stem(), scorer.mask), scorer.mask)
         self._previous_delta_e[cell.sequence] = (frame, cell.delta_e.astype(np.float32))
         return row
 
-    def _correct_budget(self, budget_key: tuple, spec, renderers, gbuffer, cache, seed: int,
+    def _correct_budget(self, budget_key: tuple, spec, renderers, gbuffer, cache, seeds: list,
                         build_ms: float) -> None:
         """Before the first cell of a budget this run calibrated: the cell's renders, back to
         back at the calibrated spp, corrected on their own time, up to ``CELL_CORRECTIONS``
@@ -404,7 +404,6 @@ class Executor:
         ``reset()`` again after each rendering (it is the first frame they see), so the cells
         render as if the correction had not happened (module docstring, "Equal time")."""
         fit = self.unverified.pop(budget_key)
-        seeds = [seed] + [timing_seed(seed, r) for r in range(1, len(renderers))]
         spp, measured = self.chosen[budget_key], {}   # spp → the cell's robust device ms there
         for correction in range(CELL_CORRECTIONS + 1):
             timed = self._timed_renders(renderers, gbuffer, cache, spp, seeds, build_ms)

@@ -79,7 +79,8 @@ OpenBLAS's worker, which spins ~0.1 s after a NumPy matrix product (host scoring
 core from PoCL's two workers.  So a run holds :func:`host_threads_capped` (BLAS and OpenMP
 pools at one thread, threadpoolctl) around everything it renders, warm-up and calibration
 included, and a round's renders (and a calibration's) run back to back in
-:func:`timed_renders`, with no pause before them and their scores after them.  PoCL's worker threads are not pinned
+:func:`timed_renders`, with no pause before them and their scores after them.  PoCL's worker
+threads are not pinned
 (the manifest records ``POCL_AFFINITY``): pinned one per core (``POCL_AFFINITY=1``), the median
 render fell from 5.5-8.5 to 3.8-4.1 ms (sphere-sun, balanced, 256 spp) and from 4.3-5.3 to
 2.9-3.4 ms (blob-sun, uniform, 256 spp) at load 6 (3 interleaved pairs of processes, 60

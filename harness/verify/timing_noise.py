@@ -4,9 +4,10 @@
 **Recording** (:func:`record`, ``python -m iblbench.harness.verify.timing_noise OUT.txt``):
 the timing floor's kernel (``fma_throughput``, sized to at least 3 ms: 10 ms idle here)
 launched one at a time, each after a little host work (a NumPy product); the device ms of each
-launch in order.  Its slow and fast spells, tens to hundreds of launches long, are the machine's, not a
-kernel's (:mod:`iblbench.harness.protocol.timing`, "The device's own floor").  Two recordings
-of this 2-vCPU machine ship in ``tests/data/``: one idle and one beside two busy processes.
+launch in order.  Its slow and fast spells, tens to hundreds of launches long, are the
+machine's, not a kernel's (:mod:`iblbench.harness.protocol.timing`, "The device's own
+floor").  Two recordings of this 2-vCPU machine ship in ``tests/data/``: one idle and one
+beside two busy processes.
 
 **The simulated A/A check** (:func:`simulate`): a sweep of three estimators, ``a``, its
 unchanged copy ``a copy`` (the same error replicates, bit for bit, as a renamed plugin renders)
