@@ -96,10 +96,11 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
 
 """
     settings = {name: value for name, value in locals().items() if name not in ("out", "config")}
+    from iblbench.harness.protocol.run_config import SWEEP_FIELDS
     from iblbench.harness.protocol.runner import Runner
 
     given = sorted(name for name, value in settings.items()
-                   if value is not None and name in _sweep_fields())
+                   if value is not None and name in SWEEP_FIELDS)
     settings = _parsed(settings)
     out = pathlib.Path(out)
     entries, written, created = ((None, [], {}) if scenes is None
@@ -115,12 +116,6 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
             raise InputError(labels[error.source], error.problem) from None
         raise
     return runner.sweep_rows(runner.run()).reset_index(drop=True)
-
-
-def _sweep_fields() -> tuple[str, ...]:
-    from iblbench.harness.protocol.run_config import SWEEP_FIELDS
-
-    return SWEEP_FIELDS
 
 
 def _parsed(settings: dict) -> dict:

@@ -29,9 +29,9 @@ MAX_REPEATS = 255     # the timing seeds hold the repeat in 8 bits (executor.tim
 
 
 def setting(default=dataclasses.MISSING, *, flag: str | None = None, help: str | None = None,
-            python: str | None = None, kw_only: bool = False):
+            python: str | None = None):
     """A field of a run's configuration with what the CLI and the API say about it."""
-    return dataclasses.field(default=default, kw_only=kw_only,
+    return dataclasses.field(default=default,
                              metadata={"flag": flag, "help": help, "python": python})
 
 
@@ -122,45 +122,45 @@ class SweepSettings:
                "apart from itself); ``estimators`` given without it drops the config's")
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, kw_only=True)   # out has no default: keywords only
 class RunConfig(SweepSettings):
     """A sweep's settings and where and how this run renders them."""
 
     out: pathlib.Path = setting(
-        kw_only=True, flag="--out", help="output directory (default: results/latest)",
+        flag="--out", help="output directory (default: results/latest)",
         python="the output folder (required)")
     device: str | None = setting(
-        None, kw_only=True, flag="--device",
+        None, flag="--device",
         python="an OpenCL platform/device substring, as ``iblbench run --device``")
     save_inputs: bool = setting(
-        False, kw_only=True, flag="--save-inputs",
+        False, flag="--save-inputs",
         help="also write inputs/<scene>/gbuffer.npz and env_f<frame>.npy",
         python="also write ``inputs/<scene>/gbuffer.npz`` and ``env_f<frame>.npy``")
     progress: bool | None = setting(
-        None, kw_only=True, flag="--no-progress",
+        None, flag="--no-progress",
         python="a progress bar (None: only on a terminal)")
     force: bool = setting(
-        False, kw_only=True, flag="--force",
+        False, flag="--force",
         help="recompute the selected cells even where --out already has them, and "
              "replace the results of another --res or --env-res there (without it, "
              "a run refuses an --out made with another of those)",
         python="recompute cells ``out`` already has")
     # Where the cells run (:mod:`.distributed`); neither: in this process.
     workers: int | None = setting(
-        None, kw_only=True, flag="--workers",
+        None, flag="--workers",
         help="run the cells on a Dask LocalCluster of N worker processes on this "
              "machine (spawned; one OpenCL context each); this process alone "
              "writes --out's table; default: in this process",
         python="run the cells on a Dask LocalCluster of this many worker processes")
     scheduler: str | None = setting(
-        None, kw_only=True, flag="--scheduler",
+        None, flag="--scheduler",
         help="run the cells on the Dask cluster whose dask-scheduler is at "
              "ADDRESS (e.g. tcp://node1:8786); its workers need this iblbench, "
              "and --out and the cache (IBLBENCH_CACHE) on a filesystem they share "
              "(README, 'Running on a cluster')",
         python="run the cells on the Dask cluster whose scheduler is at this address "
                "(see :mod:`iblbench.harness.protocol.distributed`)")
-    sweep: dict | None = setting(None, kw_only=True)   # the resolved sweep and its source
+    sweep: dict | None = setting(None)   # the resolved sweep and its source
 
     def frames_of(self, scene_name: str):
         """The frame selection of one scene: its own (``frames_for``) or the sweep's."""
