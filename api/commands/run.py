@@ -74,14 +74,14 @@ def run_settings(args) -> tuple[dict, list[str]]:
     from iblbench.harness.protocol.sweep import load_sweep
 
     settings = {name: _flag_value(args, name) for name in config_keywords() if flag_of(name)}
-    flags = [flag_of(name) for name in SWEEP_FIELDS
+    if args.no_flip:   # --metrics excludes it
+        settings["metrics"] = tuple(m for m in load_sweep(args.config or "default").metrics
+                                    if m != "flip")
+    flags = [("--no-flip" if name == "metrics" and args.no_flip else flag_of(name))
+             for name in SWEEP_FIELDS
              if name in settings and settings[name] is not None and settings[name] is not False]
     # "all" parses to None, which Sweep.replace would ignore: spell it as the full slice.
     settings["frames"] = None if args.frames is None else (frames_arg(args.frames) or slice(None))
-    if args.no_flip:
-        flags.append("--no-flip")
-        settings["metrics"] = tuple(m for m in load_sweep(args.config or "default").metrics
-                                    if m != "flip")
     settings["sanitize"] = True if args.sanitize else None   # not given: the sweep's
     settings["repeats"], settings["repeats_for"] = args.repeats or (None, None)
     settings["control"] = args.control and [label for labels in args.control for label in labels]
