@@ -77,7 +77,8 @@ def _keywords_of_run_config(function):
     if set(keywords) != set(api_fields()):
         raise TypeError(f"{function.__name__}'s keywords differ from RunConfig's: "
                         f"{sorted(set(keywords) ^ set(api_fields()))}")
-    function.__doc__ += "\n".join("    " + line for line in keyword_lines(keywords)) + "\n"
+    if function.__doc__ is not None:   # None under python -OO
+        function.__doc__ += "\n".join("    " + line for line in keyword_lines(keywords)) + "\n"
     return function
 
 
