@@ -40,6 +40,7 @@ is traced, such as a camera that sees no geometry, may leave the scene file behi
 from __future__ import annotations
 
 import functools
+import inspect
 import json
 import numbers
 import os
@@ -66,7 +67,23 @@ def _naming_keywords(function):
     return named
 
 
+def _keywords_of_run_config(function):
+    """``function`` (:func:`run`) checked against :class:`RunConfig`'s fields: each of its
+    keywords but ``config`` is a field the API documents, and each such field is a keyword of
+    it (a mismatch fails ``import iblbench``); its docstring ends with their descriptions."""
+    from iblbench.harness.protocol.run_config import api_fields, keyword_lines
+
+    keywords = [name for name in inspect.signature(function).parameters if name != "config"]
+    if set(keywords) != set(api_fields()):
+        raise TypeError(f"{function.__name__}'s keywords differ from RunConfig's: "
+                        f"{sorted(set(keywords) ^ set(api_fields()))}")
+    if function.__doc__ is not None:   # None under python -OO
+        function.__doc__ += "\n".join("    " + line for line in keyword_lines(keywords)) + "\n"
+    return function
+
+
 @_naming_keywords
+@_keywords_of_run_config
 def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None, first_seed=None,
         frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None, metrics=None,
         sanitize=None, device=None, save_inputs=False, force=False, progress=None, workers=None,
@@ -75,65 +92,24 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
 
     Each argument left None takes its value from ``config``: a shipped sweep name (``quick``,
     ``default``, ``full``, ``temporal``) or a sweep ``.toml`` file (default ``default``), as
-    the flags of ``iblbench run`` do.
+    the flags of ``iblbench run`` do.  The keywords are the fields of
+    :class:`~iblbench.harness.protocol.run_config.RunConfig`:
 
-    - ``scenes``: a built-in name, a scene ``.toml`` path or a scene dict, or a list of them;
-    - ``estimators``: names, optionally with parameters (``"balanced{uniform_faces=true}"``);
-    - ``spp``: an int or a list; ``seeds``: how many (seeds 0..N-1, or from ``first_seed``);
-    - ``frames``: ``"START:STOP[:STEP]"``, ``"all"``, ``"A..B"`` or a list of frame indices;
-    - ``resolution``: ``"WxH"`` or ``(W, H)``; ``env_res``: the cube face size;
-    - ``time_budget_ms``: a number or a list (equal-time cells besides the spp list);
-    - ``repeats``: timed renders per cell, an int or ``{"default": 5, "bis": 3}``;
-    - ``metrics``: ``"de76,relmse"`` or a list (default: all; ΔE76 always);
-    - ``control``: an estimator label or a list of them, each run again unchanged as
-      ``LABEL@control`` (the A/A control: how often the answer calls an estimator apart from
-      itself); ``estimators`` given without it drops the config's;
-    - ``out``: the output folder (required); ``force``: recompute cells ``out`` already has;
-    - ``device``, ``sanitize``, ``save_inputs``: as the flags of ``iblbench run``;
-    - ``progress``: a progress bar (None: only on a terminal);
-    - ``workers``: run the cells on a Dask LocalCluster of this many worker processes;
-      ``scheduler``: on the Dask cluster whose scheduler is at this address (neither: in this
-      process; see :mod:`iblbench.harness.protocol.distributed`).
-    """
-    from iblbench.harness.protocol.metrics import parse_metrics
+"""
+    settings = {name: value for name, value in locals().items() if name not in ("out", "config")}
+    from iblbench.harness.protocol.run_config import SWEEP_FIELDS
     from iblbench.harness.protocol.runner import Runner
-    from iblbench.harness.protocol.sweep import check_env_res, parse_frames, parse_repeats, parse_resolution
 
-    given = {name: value for name, value in (
-        ("scenes", scenes), ("estimators", estimators), ("spp", spp), ("seeds", seeds),
-        ("first_seed", first_seed),
-        ("frames", frames), ("resolution", resolution), ("env_res", env_res),
-        ("time_budget_ms", time_budget_ms), ("repeats", repeats), ("metrics", metrics),
-        ("sanitize", sanitize), ("control", control)) if value is not None}
-    try:
-        if frames is not None:   # "all" parses to None, which would keep the config's frames
-            frames = parse_frames(list(frames) if isinstance(frames, tuple) else frames) or slice(None)
-        if resolution is not None:
-            resolution = parse_resolution(list(resolution) if isinstance(resolution, tuple)
-                                          else resolution)
-        if env_res is not None:
-            env_res = check_env_res(env_res)
-        repeats, repeats_for = parse_repeats(repeats) if repeats is not None else (None, None)
-        if metrics is not None:
-            metrics = parse_metrics(metrics if isinstance(metrics, str) else ",".join(metrics))
-    except ValueError as error:
-        raise InputError(None, str(error)) from None
-    spp = _whole_numbers("spp", _listed(spp))
-    seeds, first_seed = (None if value is None else _whole_numbers(name, [value])[0]
-                         for name, value in (("seeds", seeds), ("first_seed", first_seed)))
+    given = sorted(name for name, value in settings.items()
+                   if value is not None and name in SWEEP_FIELDS)
+    settings = _parsed(settings)
     out = pathlib.Path(out)
     entries, written, created = ((None, [], {}) if scenes is None
                                  else _scene_entries(_listed(scenes), out, force))
     try:
         runner = Runner(run_config(
-            out, config=config, scenes=entries, estimators=_listed(estimators),
-            spp=spp, seeds=seeds, first_seed=first_seed, frames=frames,
-            resolution=resolution, env_res=env_res,
-            time_budget_ms=_listed(time_budget_ms), repeats=repeats, repeats_for=repeats_for,
-            metrics=metrics, sanitize=sanitize, device=device, save_inputs=save_inputs,
-            force=force, progress=progress, workers=workers, scheduler=scheduler,
-            control=_listed(control),
-            note={"overridden_by_arguments": sorted(given), "via": "iblbench.run (Python API)"}))
+            out, config=config, **(settings | {"scenes": entries}),
+            note={"overridden_by_arguments": given, "via": "iblbench.run (Python API)"}))
     except InputError as error:
         _remove(created)
         labels = {str(path): f"scene dict {path.stem!r}" for path in written}
@@ -143,44 +119,85 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
     return runner.sweep_rows(runner.run()).reset_index(drop=True)
 
 
-def run_config(out, *, config=None, scenes=None, estimators=None, spp=None, seeds=None,
-               first_seed=None, frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None,
-               repeats_for=None, metrics=None, sanitize=None, device=None, save_inputs=False,
-               force=False, progress=None, workers=None, scheduler=None, control=None,
-               note=None):
-    """The :class:`~iblbench.harness.protocol.run_plan.RunConfig` of a sweep config (``config``,
-    default ``default``) whose fields given here (not None) are replaced, values already parsed
-    (``iblbench run`` and :func:`run` share it); ``note`` is added to the manifest's
-    ``sweep`` record.  ``estimators`` given without ``control`` drops the config's control,
-    which named the config's estimators."""
-    from iblbench.harness.protocol.run_plan import RunConfig
+def _parsed(settings: dict) -> dict:
+    """:func:`run`'s values as :func:`run_config` takes them (InputError if bad): frames,
+    resolution, env_res and metrics parsed as a sweep file's are, ``repeats`` split into its
+    default and ``repeats_for``, numbers checked whole, a single value as a list of one."""
+    from iblbench.harness.protocol.metrics import parse_metrics
+    from iblbench.harness.protocol.sweep import (check_env_res, parse_frames, parse_repeats,
+                                                 parse_resolution)
+
+    def listed(value):   # a tuple of the API means a list, not a sweep file's value
+        return list(value) if isinstance(value, tuple) else value
+
+    parsers = {
+        # "all" parses to None, which would keep the config's frames: the full slice instead
+        "frames": lambda value: parse_frames(listed(value)) or slice(None),
+        "resolution": lambda value: parse_resolution(listed(value)),
+        "env_res": check_env_res,
+        "metrics": lambda value: parse_metrics(value if isinstance(value, str)
+                                               else ",".join(value))}
+    settings = dict(settings)
+    try:
+        for name, parse in parsers.items():
+            if settings[name] is not None:
+                settings[name] = parse(settings[name])
+        settings["repeats"], settings["repeats_for"] = (
+            parse_repeats(settings["repeats"]) if settings["repeats"] is not None else (None, None))
+    except ValueError as error:
+        raise InputError(None, str(error)) from None
+    settings["spp"] = _whole_numbers("spp", _listed(settings["spp"]))
+    for name in ("seeds", "first_seed"):
+        if settings[name] is not None:
+            settings[name] = _whole_numbers(name, [settings[name]])[0]
+    for name in ("estimators", "time_budget_ms", "control"):
+        settings[name] = _listed(settings[name])
+    return settings
+
+
+def run_config(out, *, config=None, note=None, **settings):
+    """The :class:`~iblbench.harness.protocol.run_config.RunConfig` of a sweep config
+    (``config``, default ``default``) whose fields given here (not None) are replaced, values
+    already parsed (``iblbench run`` and :func:`run` share it); ``note`` is added to the
+    manifest's ``sweep`` record.  ``estimators`` given without ``control`` drops the config's
+    control, which named the config's estimators; ``spp`` and ``frames`` given replace the
+    config's levels and frames of each estimator and scene too."""
+    from iblbench.harness.protocol.run_config import (SWEEP_FIELDS, RunConfig, config_keywords,
+                                                      element_type)
     from iblbench.harness.protocol.sweep import load_sweep
 
-    def given(values, kind):
-        return None if values is None else tuple(map(kind, values))
-
-    if control is None and estimators is not None:
-        control = ()   # the config's control named the config's estimators
-
+    unknown = sorted(set(settings) - set(config_keywords()))
+    if unknown:
+        raise TypeError(f"run_config() got an unexpected keyword argument {unknown[0]!r}")
+    if settings.get("control") is None and settings.get("estimators") is not None:
+        settings["control"] = ()   # the config's control named the config's estimators
+    for name in ("spp", "frames"):   # given: the same for every estimator or scene
+        if settings.get(name) is not None:
+            settings[f"{name}_for"] = ()
+    for name, values in settings.items():
+        kind = element_type(name)
+        if kind is not None and values is not None:
+            settings[name] = tuple(map(kind, values))
     sweep = load_sweep(config or "default").replace(
-        scenes=given(scenes, str), estimators=given(estimators, str), spp=given(spp, int),
-        seeds=seeds, first_seed=first_seed, frames=frames, resolution=resolution, env_res=env_res,
-        time_budget_ms=given(time_budget_ms, float), sanitize=sanitize, repeats=repeats,
-        repeats_for=repeats_for, metrics=metrics,
-        spp_for=None if spp is None else (),   # spp given: the same levels for every estimator
-        frames_for=None if frames is None else (),   # frames given: the same for every scene
-        control=given(control, str))
-    return RunConfig(out=pathlib.Path(out), scenes=sweep.scenes, estimators=sweep.estimators,
-                     spp=sweep.spp, seeds=sweep.seeds, first_seed=sweep.first_seed,
-                     resolution=sweep.resolution,
-                     device=device, save_inputs=save_inputs, sanitize=sweep.sanitize,
-                     env_res=sweep.env_res, progress=progress, frames=sweep.frames,
-                     frames_for=sweep.frames_for,
-                     time_budget_ms=sweep.time_budget_ms, force=force, repeats=sweep.repeats,
-                     repeats_for=sweep.repeats_for, spp_for=sweep.spp_for, metrics=sweep.metrics,
-                     control=sweep.control,
-                     sweep={**sweep.to_manifest(), **(note or {})}, workers=workers,
-                     scheduler=scheduler)
+        **{name: settings.pop(name) for name in SWEEP_FIELDS if name in settings})
+    return RunConfig(out=pathlib.Path(out), **{name: getattr(sweep, name) for name in SWEEP_FIELDS},
+                     **settings, sweep={**sweep.to_manifest(), **(note or {})})
+
+
+def _run_config_signature() -> inspect.Signature:
+    """:func:`run_config`'s signature as ``help`` shows it: ``out``, then its keywords."""
+    from iblbench.harness.protocol.run_config import config_keywords, keyword_default
+
+    keyword = inspect.Parameter.KEYWORD_ONLY
+    return inspect.Signature(
+        [inspect.Parameter("out", inspect.Parameter.POSITIONAL_OR_KEYWORD),
+         inspect.Parameter("config", keyword, default=None),
+         *(inspect.Parameter(name, keyword, default=keyword_default(name))
+           for name in config_keywords()),
+         inspect.Parameter("note", keyword, default=None)])
+
+
+run_config.__signature__ = _run_config_signature()
 
 
 @_naming_keywords

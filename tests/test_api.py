@@ -172,6 +172,80 @@ def test_import_is_light_and_documented():
     assert set(iblbench.__all__) >= {"run", "check", "report", "InputError"}
 
 
+# run_config's keywords before RunConfig's fields were read from one definition (issue 33).
+RUN_CONFIG_KEYWORDS = {
+    "out", "config", "scenes", "estimators", "spp", "seeds", "first_seed", "frames", "resolution",
+    "env_res", "time_budget_ms", "repeats", "repeats_for", "metrics", "sanitize", "device",
+    "save_inputs", "force", "progress", "workers", "scheduler", "control", "note"}
+
+
+def test_run_config_keeps_its_keywords_and_refuses_others(tmp_path):
+    import inspect
+
+    parameters = inspect.signature(iblbench.run_config).parameters
+    assert set(parameters) == RUN_CONFIG_KEYWORDS
+    assert parameters["save_inputs"].default is False and parameters["force"].default is False
+    assert parameters["seeds"].default is None   # None: the sweep config's
+    with pytest.raises(TypeError, match="spp_levels"):
+        iblbench.run_config(tmp_path, spp_levels=[4])
+
+
+def test_runs_keywords_are_checked_against_the_fields():
+    """A keyword of ``run`` that is no documented field of RunConfig, or a field that ``run``
+    lacks, fails at definition (so at ``import iblbench``); each field is in its docstring."""
+    from iblbench import _keywords_of_run_config
+    from iblbench.harness.protocol.run_config import api_fields
+
+    names = [name for name in inspect_parameters(iblbench.run) if name != "config"]
+    for keywords in (names + ["spp_levels"], [n for n in names if n != "control"]):
+        function = eval(f"lambda *, {', '.join(keywords)}: None")
+        function.__doc__ = ""
+        with pytest.raises(TypeError, match="spp_levels|control"):
+            _keywords_of_run_config(function)
+    assert all(f"``{name}``: " in iblbench.run.__doc__ for name in api_fields())
+
+
+def inspect_parameters(function) -> list[str]:
+    import inspect
+
+    return list(inspect.signature(function).parameters)
+
+
+def test_the_flags_and_the_keywords_give_one_config(tmp_path):
+    """``iblbench run``'s flags and run_config's keywords of the same values give equal
+    RunConfigs, every field away from its default."""
+    import dataclasses
+
+    from iblbench.cli import build_parser
+    from iblbench.commands.run import run_settings
+    from iblbench.harness.protocol.run_config import RunConfig
+
+    args = build_parser().parse_args([
+        "run", "--config", "quick", "--scene", "sphere-switch", "--estimator", "uniform",
+        "--estimator", "envmap", "--control", "envmap", "--spp", "4,8", "--seeds", "3",
+        "--first-seed", "5", "--frames", "1:3", "--res", "16x8", "--env-res", "8",
+        "--time-budget-ms", "5,7", "--repeats", "3,envmap=2", "--metrics", "de76,relmse",
+        "--force", "--out", str(tmp_path), "--save-inputs", "--sanitize", "--workers", "2",
+        "--device", "cpu", "--no-progress"])
+    settings, flags = run_settings(args)
+    from_flags = iblbench.run_config(args.out, config="quick", **settings, note={})
+    from_keywords = iblbench.run_config(
+        tmp_path, config="quick", scenes=["sphere-switch"], estimators=["uniform", "envmap"],
+        control=["envmap"], spp=[4, 8], seeds=3, first_seed=5, frames=slice(1, 3),
+        resolution=(16, 8), env_res=8, time_budget_ms=[5, 7], repeats=3,
+        repeats_for=(("envmap", 2),), metrics=("de76", "relmse"), force=True, save_inputs=True,
+        sanitize=True, workers=2, device="cpu", progress=False, note={})
+    assert from_flags == from_keywords
+    defaults = RunConfig(out=tmp_path / "elsewhere")
+    same = [field.name for field in dataclasses.fields(RunConfig)
+            if getattr(from_flags, field.name) == getattr(defaults, field.name)]
+    # the per-name fields have no flag; --scheduler excludes --workers
+    assert same == ["frames_for", "spp_for", "scheduler"], same
+    assert flags == ["--scene", "--estimator", "--spp", "--seeds", "--first-seed", "--frames",
+                     "--res", "--env-res", "--time-budget-ms", "--sanitize", "--repeats",
+                     "--metrics", "--control"]
+
+
 FLAG = re.compile(r"(?<![\w-])--[a-z]")   # a command-line flag such as --first-seed
 
 

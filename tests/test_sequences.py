@@ -14,7 +14,8 @@ import trimesh
 from iblbench.estimators.runtime import framecache
 from iblbench.cli import main
 from iblbench.harness.protocol.metrics import delta_e_images
-from iblbench.harness.protocol.sweep import frames_arg, parse_frames, select_frames
+from iblbench.commands.common import frames_arg
+from iblbench.harness.protocol.sweep import parse_frames, select_frames
 from iblbench.scenes import cubemap, registry, sequences, sky
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.gbuffer import trace_gbuffer

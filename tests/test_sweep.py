@@ -11,7 +11,8 @@ import pytest
 import trimesh
 
 from iblbench.cli import main
-from iblbench.harness.protocol.sweep import load_sweep, parse_estimator, repeats_arg
+from iblbench.commands.common import repeats_arg
+from iblbench.harness.protocol.sweep import load_sweep, parse_estimator
 from iblbench.scenes.errors import InputError
 
 VALID = """\

@@ -1,11 +1,14 @@
 """What several commands share: the parent parsers of the shared flags (``--device``, and
-``--no-progress`` for the rendering commands), the argument types, ``--json`` and where a
-command's human-readable output goes."""
+``--no-progress`` for the rendering commands), the argument types (the command line's
+spellings of values, parsed by the harness's sweep parsers: :mod:`iblbench.harness.protocol.sweep`),
+``--json`` and where a command's human-readable output goes."""
 from __future__ import annotations
 
 import argparse
 import functools
+import math
 import pathlib
+import re
 import sys
 
 
@@ -77,6 +80,70 @@ def positive_float(text: str) -> float:
 
 def non_negative_int(text: str) -> int:
     return 0 if text.strip() == "0" else positive_int(text)
+
+
+def frames_arg(text: str) -> tuple[int, ...] | slice | None:
+    """``--frames``: ``START:STOP[:STEP]`` (a Python slice), ``all``, ``A..B`` (inclusive) or
+    ``N,N,...``; a bad spec is an InputError (the CLI prints it on one line and exits 2)."""
+    from iblbench.harness.protocol.sweep import parse_frames
+    from iblbench.scenes.errors import InputError
+
+    value = text.strip()
+    if re.fullmatch(r"\d+(\s*,\s*\d+)*", value):
+        value = [int(part) for part in value.split(",")]
+    try:
+        return parse_frames(value)
+    except ValueError as error:
+        raise InputError(None, f"--frames: {error}") from None
+
+
+def repeats_arg(text: str) -> tuple[int, tuple[tuple[str, int], ...]]:
+    """``--repeats``: ``N`` or ``N,NAME=M,...`` (``parse_repeats``)."""
+    from iblbench.harness.protocol.sweep import parse_repeats
+
+    table = {}
+    for part in text.split(","):
+        key, _, number = part.rpartition("=")
+        try:
+            table[key.strip() or "default"] = int(number)
+        except ValueError:
+            table[key.strip() or "default"] = number.strip()
+    try:
+        return parse_repeats(table)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"{error} (write N or N,NAME=M,...)")
+
+
+def labels_arg(text: str) -> tuple[str, ...]:
+    """``--control``: ``NAME[,NAME...]``, each an estimator label; a comma inside a label's
+    braces (``balanced{a=1,b=2}``) is the label's own."""
+    labels = tuple(part.strip() for part in re.split(r",(?![^{]*\})", text))   # not in {}
+    if not all(labels):
+        raise argparse.ArgumentTypeError(f"expected estimator labels separated by commas, "
+                                         f"got '{text}'")
+    return labels
+
+
+def metrics_arg(text: str) -> tuple[str, ...]:
+    """``--metrics``: comma-separated metric names (harness.metrics)."""
+    from iblbench.harness.protocol.metrics import parse_metrics
+
+    try:
+        return parse_metrics(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error))
+
+
+def budgets_arg(text: str) -> tuple[float, ...]:
+    """``--time-budget-ms``: ``T`` or ``T,T,...`` milliseconds, each positive."""
+    try:
+        values = tuple(float(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        values = ()
+    if not values or not all(math.isfinite(v) and v > 0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected positive milliseconds such as 20 or 5,20, "
+                                         f"got '{text}'")
+    return values
 
 
 def pixel(text: str) -> tuple[int, int]:

@@ -4,8 +4,9 @@ from __future__ import annotations
 import pathlib
 import sys
 
-from iblbench.commands.common import (add_json, env_res, human_output, non_negative_int,
-                                      positive_int, print_json, rendering_flags, resolution,
+from iblbench.commands.common import (add_json, budgets_arg, env_res, frames_arg, human_output,
+                                      labels_arg, metrics_arg, non_negative_int, positive_int,
+                                      print_json, rendering_flags, repeats_arg, resolution,
                                       spp_list)
 
 
@@ -20,86 +21,72 @@ row names the host and device that ran it."""
 
 
 def add_parser(subparsers) -> None:
-    from iblbench.harness.protocol import sweep
+    from iblbench.harness.protocol.run_config import flag_help, flag_of
 
     run = subparsers.add_parser(
         "run", help="benchmark estimators on scenes and write results, manifest and images",
         description=DESCRIPTION,
         parents=[rendering_flags()])
+
+    def setting(group, name, **options):
+        """The flag of RunConfig field ``name``, with its help text."""
+        group.add_argument(flag_of(name), help=flag_help(name), **options)
+
     run.add_argument("--config", metavar="NAME|FILE",
                      help="sweep config: a shipped one (quick, default, full, temporal) or a .toml file "
                           "(default: default; format: the docstring of iblbench.harness.sweep)")
-    run.add_argument("--scene", action="append", metavar="NAME|FILE",
-                     help="built-in scene name or a scene .toml file; repeatable")
-    run.add_argument("--estimator", action="append", metavar="NAME",
-                     help="estimator name, optionally with parameters as NAME{param=value,...}; "
-                          "repeatable (see 'iblbench list estimators')")
-    run.add_argument("--control", type=sweep.labels_arg, action="append", metavar="NAME[,NAME...]",
-                     help="the A/A control: run estimator NAME (one of the run's, spelt as for "
-                          "--estimator) a second time, unchanged, as NAME@control (the same "
-                          "images at equal spp and seed, its own timings), and count the "
-                          "equal-time verdicts that call the two apart: each is a false call, "
-                          "and the stated 95%% level allows about 5%%; repeatable or "
-                          "comma-separated; --estimator without --control drops the config's "
-                          "control")
-    run.add_argument("--spp", type=spp_list, metavar="N,N,...",
-                     help="samples per pixel, comma-separated, the same for every estimator "
-                          "(a sweep config may give estimators levels of their own, as the "
-                          "default sweep does: spp = {default = [...], NAME = [...]})")
-    run.add_argument("--seeds", type=positive_int,
-                     help="seeds per cell, 0..N-1; each seed's timed renders (--repeats) are "
-                          "all scored, so one seed already gives a cell an interval")
-    run.add_argument("--first-seed", type=non_negative_int, metavar="S",
-                     help="the first seed instead of 0: seeds S..S+N-1 (a seeds-only rerun)")
-    run.add_argument("--frames", metavar="START:STOP[:STEP]",
-                     help="frames of environment sequences, a Python slice of each sequence's "
-                          "frames such as 0:67:6 or ::4 (default: all; also all, A..B inclusive "
-                          "or N,N,...; write --frames=-5: for a negative start); static scenes "
-                          "run frame 0")
-    run.add_argument("--res", type=resolution, metavar="WxH",
-                     help="image resolution (default: the scene's own)")
-    run.add_argument("--env-res", type=env_res, metavar="R",
-                     help="cube face resolution for built-in skies and resampled maps")
-    run.add_argument("--time-budget-ms", type=sweep.budgets_arg, metavar="T[,T...]",
-                     help="equal-time cells besides the spp list: per (scene, estimator), the spp "
-                          "whose calibrated device time per frame (build+sample+shade) lands "
-                          "within 10%% of T ms; the run says where it cannot")
-    run.add_argument("--repeats", type=sweep.repeats_arg, metavar="N[,NAME=M...]",
-                     help=f"timed renders per cell after warm-up (default: the sweep's; "
-                          f"{sweep.DEFAULT_REPEATS} where it gives none, 10 in the shipped "
-                          "default sweep), each in a round of the frame's cells; a cell's "
-                          "time is the median of their device times (build+sample+shade), "
-                          "with min and IQR beside it; "
-                          "NAME=M gives estimator NAME M of its own (e.g. 5,smc=3)")
+    setting(run, "scenes", action="append", metavar="NAME|FILE")
+    setting(run, "estimators", action="append", metavar="NAME")
+    setting(run, "control", type=labels_arg, action="append", metavar="NAME[,NAME...]")
+    setting(run, "spp", type=spp_list, metavar="N,N,...")
+    setting(run, "seeds", type=positive_int)
+    setting(run, "first_seed", type=non_negative_int, metavar="S")
+    setting(run, "frames", metavar="START:STOP[:STEP]")
+    setting(run, "resolution", type=resolution, metavar="WxH")
+    setting(run, "env_res", type=env_res, metavar="R")
+    setting(run, "time_budget_ms", type=budgets_arg, metavar="T[,T...]")
+    setting(run, "repeats", type=repeats_arg, metavar="N[,NAME=M...]")
     metrics = run.add_mutually_exclusive_group()
-    metrics.add_argument("--metrics", type=sweep.metrics_arg, metavar="M[,M...]",
-                         help=f"metrics to compute, of {','.join(sweep.METRICS)} (default: the "
-                              "sweep's own: de76,de2000,relmse for the shipped default, which leaves "
-                              "the slow FLIP out, all four for full; de76 always: heat maps and "
-                              "flicker use it); one left out is NaN")
+    setting(metrics, "metrics", type=metrics_arg, metavar="M[,M...]")
     metrics.add_argument("--no-flip", action="store_true",
                          help="leave HDR-FLIP out (the slowest metric)")
-    run.add_argument("--force", action="store_true",
-                     help="recompute the selected cells even where --out already has them, and "
-                          "replace the results of another --res or --env-res there (without it, "
-                          "a run refuses an --out made with another of those)")
-    run.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/latest"),
-                     help="output directory (default: results/latest)")
-    run.add_argument("--save-inputs", action="store_true",
-                     help="also write inputs/<scene>/gbuffer.npz and env_f<frame>.npy")
-    run.add_argument("--sanitize", action="store_true",
-                     help="replace NaN/Inf/negative texels in environment maps instead of refusing")
+    setting(run, "force", action="store_true")
+    setting(run, "out", type=pathlib.Path, default=pathlib.Path("results/latest"))
+    setting(run, "save_inputs", action="store_true")
+    setting(run, "sanitize", action="store_true")
     where = run.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=positive_int, metavar="N",
-                       help="run the cells on a Dask LocalCluster of N worker processes on this "
-                            "machine (spawned; one OpenCL context each); this process alone "
-                            "writes --out's table; default: in this process")
-    where.add_argument("--scheduler", metavar="ADDRESS",
-                       help="run the cells on the Dask cluster whose dask-scheduler is at "
-                            "ADDRESS (e.g. tcp://node1:8786); its workers need this iblbench, "
-                            "and --out and the cache (IBLBENCH_CACHE) on a filesystem they share "
-                            "(README, 'Running on a cluster')")
+    setting(where, "workers", type=positive_int, metavar="N")
+    setting(where, "scheduler", metavar="ADDRESS")
     add_json(run)
+
+
+def _flag_value(args, name: str):
+    """The value of RunConfig field ``name``'s flag in ``args``."""
+    from iblbench.harness.protocol.run_config import flag_of
+
+    return getattr(args, flag_of(name).lstrip("-").replace("-", "_"))
+
+
+def run_settings(args) -> tuple[dict, list[str]]:
+    """:func:`iblbench.run_config`'s keywords from the flags, and the sweep's flags given (the
+    manifest's ``overridden_by_flags``)."""
+    from iblbench.harness.protocol.run_config import SWEEP_FIELDS, config_keywords, flag_of
+    from iblbench.harness.protocol.sweep import load_sweep
+
+    settings = {name: _flag_value(args, name) for name in config_keywords() if flag_of(name)}
+    if args.no_flip:   # --metrics excludes it
+        settings["metrics"] = tuple(m for m in load_sweep(args.config or "default").metrics
+                                    if m != "flip")
+    flags = [("--no-flip" if name == "metrics" and args.no_flip else flag_of(name))
+             for name in SWEEP_FIELDS
+             if name in settings and settings[name] is not None and settings[name] is not False]
+    # "all" parses to None, which Sweep.replace would ignore: spell it as the full slice.
+    settings["frames"] = None if args.frames is None else (frames_arg(args.frames) or slice(None))
+    settings["sanitize"] = True if args.sanitize else None   # not given: the sweep's
+    settings["repeats"], settings["repeats_for"] = args.repeats or (None, None)
+    settings["control"] = args.control and [label for labels in args.control for label in labels]
+    settings["progress"] = False if args.no_progress else None
+    return settings, flags
 
 
 def run(args) -> None:
@@ -107,31 +94,10 @@ def run(args) -> None:
     from iblbench.harness.protocol.machine_readable import run_summary
     from iblbench.harness.protocol.results import read_manifest
     from iblbench.harness.protocol.runner import Runner
-    from iblbench.harness.protocol.sweep import frames_arg, load_sweep
 
-    # "all" parses to None, which Sweep.replace would ignore: spell it as the full slice.
-    frames = None if args.frames is None else (frames_arg(args.frames) or slice(None))
-    metrics = args.metrics
-    if args.no_flip:
-        metrics = tuple(m for m in load_sweep(args.config or "default").metrics if m != "flip")
-    flags = [flag for flag, value in (
-        ("--scene", args.scene), ("--estimator", args.estimator), ("--spp", args.spp),
-        ("--seeds", args.seeds), ("--first-seed", args.first_seed is not None),
-        ("--frames", args.frames), ("--res", args.res),
-        ("--env-res", args.env_res), ("--time-budget-ms", args.time_budget_ms),
-        ("--sanitize", args.sanitize), ("--repeats", args.repeats), ("--metrics", args.metrics),
-        ("--no-flip", args.no_flip), ("--control", args.control)) if value]
-    runner = Runner(run_config(
-        args.out, config=args.config, scenes=args.scene, estimators=args.estimator,
-        spp=args.spp, seeds=args.seeds, first_seed=args.first_seed, frames=frames,
-        resolution=args.res,
-        env_res=args.env_res, time_budget_ms=args.time_budget_ms,
-        sanitize=True if args.sanitize else None, repeats=args.repeats and args.repeats[0],
-        repeats_for=args.repeats and args.repeats[1], metrics=metrics, device=args.device,
-        save_inputs=args.save_inputs, force=args.force, workers=args.workers,
-        scheduler=args.scheduler, progress=False if args.no_progress else None,
-        control=args.control and [label for labels in args.control for label in labels],
-        note={"overridden_by_flags": flags}))
+    settings, flags = run_settings(args)
+    runner = Runner(run_config(args.out, config=args.config, **settings,
+                               note={"overridden_by_flags": flags}))
     table = runner.run()
     human = human_output(args)
     rows = runner.sweep_rows(table)   # --out may also hold other sweeps' cells

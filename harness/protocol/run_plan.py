@@ -1,5 +1,5 @@
-"""What a run is asked to do and what it plans from that: the sweep's configuration
-(:class:`RunConfig`), each scene's image and frames (:class:`ScenePlan`) and the estimators'
+"""What a run plans from what it is asked to do (:class:`RunConfig`, defined in
+:mod:`.run_config`): each scene's image and frames (:class:`ScenePlan`) and the estimators'
 settings (:class:`RunPlan`).
 
 The client of a run (:mod:`.runner`) and every worker that renders its cells (:mod:`.executor`,
@@ -11,64 +11,23 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import pathlib
 
 import numpy as np
 
 from iblbench.estimators.registry import get_estimator_class
 from iblbench.harness.protocol.equal_time import CALIBRATION_SEED
-from iblbench.harness.protocol.metrics import METRICS
-from iblbench.harness.protocol.sweep import (CONTROL_SUFFIX, DEFAULT_REPEATS, MAX_REPEATS,
-                                             control_labels, frames_text, parse_estimator,
-                                             select_frames)
+from iblbench.harness.protocol.run_config import MAX_REPEATS, RunConfig
+from iblbench.harness.protocol.sweep import (CONTROL_SUFFIX, control_labels, frames_text,
+                                             parse_estimator, select_frames)
 from iblbench.scenes.errors import InputError, argument
 from iblbench.scenes.registry import load_scene
 
-DEFAULT_SCENES = ("sphere-sun",)
-DEFAULT_ESTIMATORS = ("uniform",)
-DEFAULT_SPP = (16, 64, 256)
-DEFAULT_SEEDS = 2
 TIMING_SEED = 0x80000000   # timing renders: TIMING_SEED + 256·seed + repeat (executor.timing_seed)
 # The largest cell seed whose timing seeds stay below the calibration seeds.
 MAX_SEED = (CALIBRATION_SEED - TIMING_SEED) // 256 - 1
 # Seeds per cell at most: a sweep plans every (cell, seed) up front, and 8,388,607 seeds took
 # 2.7 GB before the first cell (issue 23); a study needs tens, a coverage simulation hundreds.
 MAX_SEEDS = 10_000
-
-
-@dataclasses.dataclass
-class RunConfig:
-    out: pathlib.Path
-    scenes: tuple[str, ...] = DEFAULT_SCENES
-    estimators: tuple[str, ...] = DEFAULT_ESTIMATORS   # labels: "name" or "name{param=value}"
-    spp: tuple[int, ...] = DEFAULT_SPP
-    seeds: int = DEFAULT_SEEDS
-    first_seed: int = 0        # cells use seeds first_seed .. first_seed + seeds - 1
-    resolution: tuple[int, int] | None = None
-    device: str | None = None
-    save_inputs: bool = False
-    sanitize: bool = False
-    env_res: int | None = None
-    progress: bool | None = None   # None: a bar only on a TTY
-    frames: tuple[int, ...] | slice | None = None   # None: every frame; a slice: Python slice
-                                                    # semantics over each sequence's frames;
-                                                    # static scenes run frame 0
-    frames_for: tuple[tuple[str, object], ...] = ()   # (scene name, its own frame selection)
-    time_budget_ms: tuple[float, ...] = ()     # equal-time cells, besides the spp list
-    force: bool = False                        # recompute finished cells too
-    repeats: int = DEFAULT_REPEATS             # timed renders per cell (timing module)
-    repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats): its own count
-    spp_for: tuple[tuple[str, tuple[int, ...]], ...] = ()   # (estimator name, its own spp levels)
-    metrics: tuple[str, ...] = METRICS         # ΔE76 always; see harness.metrics
-    control: tuple[str, ...] = ()              # labels run again as LABEL@control (A/A control)
-    sweep: dict | None = None                  # the resolved sweep and its source (manifest)
-    # Where the cells run (:mod:`.distributed`); neither: in this process.
-    scheduler: str | None = None               # a running dask-scheduler's address
-    workers: int | None = None                 # a LocalCluster of this many worker processes
-
-    def frames_of(self, scene_name: str):
-        """The frame selection of one scene: its own (``frames_for``) or the sweep's."""
-        return dict(self.frames_for).get(scene_name.lower(), self.frames)
 
 
 @dataclasses.dataclass

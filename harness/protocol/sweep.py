@@ -61,6 +61,8 @@ from pathlib import Path
 from typing import Any
 
 from iblbench.harness.protocol.metrics import METRICS, PROTOCOL, parse_metrics
+from iblbench.harness.protocol.run_config import (DEFAULT_REPEATS, MAX_REPEATS, SWEEP_FIELDS,
+                                                  SweepSettings)
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.tomlfile import read_toml
 
@@ -70,11 +72,9 @@ else:   # pragma: no cover
     import tomli as tomllib
 
 SHIPPED = ("quick", "default", "full", "temporal", "frontier")
-DEFAULT_REPEATS = 5   # timed renders per cell (harness/protocol/timing.py)
-MAX_REPEATS = 255     # the timing seeds hold the repeat in 8 bits (executor.timing_seed)
 CONFIG_PACKAGE = "iblbench.harness.configs"
-KEYS = {"protocol", "description", "scenes", "estimators", "spp", "seeds", "first_seed", "frames",
-        "resolution", "env_res", "time_budget_ms", "sanitize", "repeats", "metrics", "control"}
+# A sweep file's keys: its settings, a per-name one (``spp_for``) given in its own (``spp``).
+KEYS = {"protocol", "description", *(name for name in SWEEP_FIELDS if not name.endswith("_for"))}
 REQUIRED = ("protocol", "scenes", "estimators", "seeds")
 _NAME = re.compile(r"^\s*([A-Za-z0-9_.\-]+)\s*(?:\{(.*)\})?\s*$", re.S)
 CONTROL_SUFFIX = "@control"   # a control's label: its estimator's label and this
@@ -187,25 +187,9 @@ def parse_estimator(text: str) -> EstimatorSpec:
 # ---- the sweep ---------------------------------------------------------------------------------
 
 @dataclasses.dataclass(frozen=True)
-class Sweep:
-    """A resolved sweep; ``source`` says where it came from."""
+class Sweep(SweepSettings):
+    """A resolved sweep (its cells: :class:`SweepSettings`); ``source`` says where it came from."""
 
-    scenes: tuple[str, ...]
-    estimators: tuple[str, ...]              # canonical labels
-    spp: tuple[int, ...]
-    seeds: int
-    first_seed: int = 0
-    frames: tuple[int, ...] | slice | None = None   # None: every frame; a slice: of each sequence
-    frames_for: tuple[tuple[str, Any], ...] = ()    # (scene name, its own frame selection)
-    resolution: tuple[int, int] | None = None
-    env_res: int | None = None
-    time_budget_ms: tuple[float, ...] = ()
-    sanitize: bool = False
-    repeats: int = DEFAULT_REPEATS
-    repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats) overrides
-    spp_for: tuple[tuple[str, tuple[int, ...]], ...] = ()   # (estimator name, its spp levels)
-    metrics: tuple[str, ...] = METRICS
-    control: tuple[str, ...] = ()            # labels of estimators given an A/A control
     protocol: str = PROTOCOL
     description: str = ""
     source: str = ""
@@ -219,17 +203,20 @@ class Sweep:
         return dataclasses.replace(self, **changes)
 
     def to_manifest(self) -> dict:
+        """The manifest's ``sweep`` record: where the sweep came from, then every setting."""
         return {"source": self.source, "description": self.description,
-                "protocol": self.protocol, "scenes": list(self.scenes),
-                "estimators": list(self.estimators), "spp": list(self.spp), "seeds": self.seeds,
-                "first_seed": self.first_seed, "frames": frames_text(self.frames),
-                "frames_for": {name: frames_text(frames) for name, frames in self.frames_for},
-                "resolution": None if self.resolution is None else list(self.resolution),
-                "env_res": self.env_res, "time_budget_ms": list(self.time_budget_ms),
-                "sanitize": self.sanitize, "repeats": self.repeats,
-                "repeats_for": dict(self.repeats_for),
-                "spp_for": {name: list(levels) for name, levels in self.spp_for},
-                "metrics": list(self.metrics), "control": list(self.control)}
+                "protocol": self.protocol,
+                **{name: _manifest_value(name, getattr(self, name)) for name in SWEEP_FIELDS}}
+
+
+def _manifest_value(name: str, value):
+    """A setting as the manifest spells it: frames as :func:`frames_text`, a per-name setting
+    (``spp_for``: ((name, value), ...)) as a table, tuples as lists."""
+    if name == "frames":
+        return frames_text(value)
+    if name.endswith("_for"):
+        return {key: _manifest_value(name[:-len("_for")], entry) for key, entry in value}
+    return list(value) if isinstance(value, tuple) else value
 
 
 def config_path(name_or_path: str | os.PathLike) -> tuple[Path, str]:
@@ -478,20 +465,6 @@ def load_sweep(name_or_path: str | os.PathLike) -> Sweep:
     return parse_sweep(read_toml(path, "sweep config"), path, source)
 
 
-# ---- command-line values -----------------------------------------------------------------------
-
-def frames_arg(text: str) -> tuple[int, ...] | slice | None:
-    """``--frames``: ``START:STOP[:STEP]`` (a Python slice), ``all``, ``A..B`` (inclusive) or
-    ``N,N,...``; a bad spec is an InputError (the CLI prints it on one line and exits 2)."""
-    value: Any = text.strip()
-    if re.fullmatch(r"\d+(\s*,\s*\d+)*", value):
-        value = [int(part) for part in value.split(",")]
-    try:
-        return parse_frames(value)
-    except ValueError as error:
-        raise InputError(None, f"--frames: {error}") from None
-
-
 def _per_estimator(value, fallback, parse, field: str, expected: str):
     """A setting given once or per estimator: ``value``, or a table ``{default = ..., NAME =
     ..., ...}`` whose other keys are estimator names with a value of their own → (the default,
@@ -555,56 +528,3 @@ def parse_repeats(value) -> tuple[int, tuple[tuple[str, int], ...]]:
 
     return _per_estimator(value, DEFAULT_REPEATS, count, "repeats",
                           f"an integer in 1..{MAX_REPEATS}")
-
-
-def repeats_arg(text: str) -> tuple[int, tuple[tuple[str, int], ...]]:
-    """``--repeats``: ``N`` or ``N,NAME=M,...`` (``parse_repeats``)."""
-    import argparse
-
-    table = {}
-    for part in text.split(","):
-        key, _, number = part.rpartition("=")
-        try:
-            table[key.strip() or "default"] = int(number)
-        except ValueError:
-            table[key.strip() or "default"] = number.strip()
-    try:
-        return parse_repeats(table)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(f"{error} (write N or N,NAME=M,...)")
-
-
-def labels_arg(text: str) -> tuple[str, ...]:
-    """``--control``: ``NAME[,NAME...]``, each an estimator label; a comma inside a label's
-    braces (``balanced{a=1,b=2}``) is the label's own."""
-    import argparse
-
-    labels = tuple(part.strip() for part in re.split(r",(?![^{]*\})", text))   # not in {}
-    if not all(labels):
-        raise argparse.ArgumentTypeError(f"expected estimator labels separated by commas, "
-                                         f"got '{text}'")
-    return labels
-
-
-def metrics_arg(text: str) -> tuple[str, ...]:
-    """``--metrics``: comma-separated metric names (harness.metrics)."""
-    import argparse
-
-    try:
-        return parse_metrics(text)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error))
-
-
-def budgets_arg(text: str) -> tuple[float, ...]:
-    """``--time-budget-ms``: ``T`` or ``T,T,...`` milliseconds, each positive."""
-    import argparse
-
-    try:
-        values = tuple(float(part) for part in text.split(",") if part.strip())
-    except ValueError:
-        values = ()
-    if not values or not all(math.isfinite(v) and v > 0 for v in values):
-        raise argparse.ArgumentTypeError(f"expected positive milliseconds such as 20 or 5,20, "
-                                         f"got '{text}'")
-    return values
