@@ -200,6 +200,27 @@ class SMC(Estimator):
     def particles(self, spp: int) -> int:
         return self.params.N or int(spp)
 
+    def _map_tables(self, cache, defines, buffer, changed: bool):
+        """The map proposal's alias tables (sir.cl), the map's power and, where the map
+        ``changed`` since last frame, its change, built on the device.  The texels alternate
+        between two buffers: last frame's are γ_{t−1}'s map."""
+        compute, res = cache.compute, cache.res
+        alias = buffer("alias", (6 * res + 6 * res * res) * 8)
+        parity, self._texel_parity = self._texel_parity, 1 - self._texel_parity
+        texels = buffer(f"texels{parity}", 6 * res * res * 16)
+        prev_texels = buffer(f"texels{1 - parity}", 6 * res * res * 16)
+        pair_probability, map_power = buffer("pair_probability", 6 * res * 4), buffer("map_power", 12)
+        table_events = [
+            compute.run(compute.kernel(self.kernel_package(), "smc.cl", "map_alias_pairs", defines), 1,
+                        cache.marginal, cache.face_integral_buffer, alias, pair_probability, map_power),
+            compute.run(compute.kernel(self.kernel_package(), "smc.cl", "map_alias_columns", defines),
+                        6 * res, cache.env_buffer, cache.conditional, pair_probability, alias, texels)]
+        if changed:
+            change = compute.kernel(self.kernel_package(), "smc.cl", "map_change", defines)
+            group = compute.fitting_group(change, MAP_CHANGE_GROUP)   # one group, the whole launch
+            table_events.append(compute.run(change, group, texels, prev_texels, map_power, group=group))
+        return texels, prev_texels, alias, map_power, table_events
+
     def render(self, gbuffer, cache, spp, seed):
         if not 1 <= spp <= MAX_SPP:
             raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
@@ -224,23 +245,8 @@ class SMC(Estimator):
         stats = buffer("stats", count * 16)
         rays = buffer("rays", count * 4)
         defines = {**self.defines(gbuffer), "ENV_RES": cache.res, "MAP_CHANGE_GROUP": MAP_CHANGE_GROUP}
-        # The map proposal's alias tables (sir.cl), the map's power and its change, built on the
-        # device.  The texels alternate between two buffers: last frame's are γ_{t−1}'s map.
-        res = cache.res
-        alias = buffer("alias", (6 * res + 6 * res * res) * 8)
-        parity, self._texel_parity = self._texel_parity, 1 - self._texel_parity
-        texels = buffer(f"texels{parity}", 6 * res * res * 16)
-        prev_texels = buffer(f"texels{1 - parity}", 6 * res * res * 16)
-        pair_probability, map_power = buffer("pair_probability", 6 * res * 4), buffer("map_power", 12)
-        table_events = [
-            compute.run(compute.kernel(self.kernel_package(), "smc.cl", "map_alias_pairs", defines), 1,
-                        cache.marginal, cache.face_integral_buffer, alias, pair_probability, map_power),
-            compute.run(compute.kernel(self.kernel_package(), "smc.cl", "map_alias_columns", defines),
-                        6 * res, cache.env_buffer, cache.conditional, pair_probability, alias, texels)]
-        if have_state and not static_frame:
-            change = compute.kernel(self.kernel_package(), "smc.cl", "map_change", defines)
-            group = compute.fitting_group(change, MAP_CHANGE_GROUP)   # one group, the whole launch
-            table_events.append(compute.run(change, group, texels, prev_texels, map_power, group=group))
+        texels, prev_texels, alias, map_power, table_events = self._map_tables(
+            cache, defines, buffer, changed=have_state and not static_frame)
         events = []
         if have_state:
             flags = buffer("flags", count * 4)
