@@ -379,3 +379,29 @@ def test_a_planted_cycle_is_caught(graph):
     assert ["iblbench.harness.protocol.runner", "iblbench.harness.protocol.timing"] in [
         [m for m in c if m in ("iblbench.harness.protocol.runner", "iblbench.harness.protocol.timing")]
         for c in cycles(planted)]
+
+
+MAX_FUNCTION_LINES = 80   # ARCHITECTURE.md's invariant: a longer function is split
+
+
+def long_functions(paths) -> list[str]:
+    """'path: name (N lines)' for every function (or method) over MAX_FUNCTION_LINES."""
+    found = []
+    for path in paths:
+        for node in ast.walk(ast.parse(pathlib.Path(path).read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES:
+                    found.append(f"{path}: {node.name} ({lines} lines)")
+    return found
+
+
+def test_no_function_is_over_80_lines():
+    assert long_functions(module_files().values()) == []
+
+
+def test_a_planted_long_function_is_caught(tmp_path):
+    body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES))
+    (tmp_path / "long.py").write_text(f"def long():\n{body}\n\ndef short():\n    return 1\n")
+    assert long_functions([tmp_path / "long.py"]) == [
+        f"{tmp_path / 'long.py'}: long ({MAX_FUNCTION_LINES + 1} lines)"]
