@@ -84,7 +84,8 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
     - ``resolution``: ``"WxH"`` or ``(W, H)``; ``env_res``: the cube face size;
     - ``time_budget_ms``: a number or a list (equal-time cells besides the spp list);
     - ``repeats``: timed renders per cell, an int or ``{"default": 5, "bis": 3}``;
-    - ``metrics``: ``"de76,relmse"`` or a list (default: all; ΔE76 always);
+    - ``metrics``: ``"de76,relmse"`` or a list (default: the registry's default ones,
+      :mod:`iblbench.harness.protocol.metric`; ΔE76 always);
     - ``control``: an estimator label or a list of them, each run again unchanged as
       ``LABEL@control`` (the A/A control: how often the answer calls an estimator apart from
       itself); ``estimators`` given without it drops the config's;
@@ -95,7 +96,7 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
       ``scheduler``: on the Dask cluster whose scheduler is at this address (neither: in this
       process; see :mod:`iblbench.harness.protocol.distributed`).
     """
-    from iblbench.harness.protocol.metrics import parse_metrics
+    from iblbench.harness.protocol.metric import parse_metrics
     from iblbench.harness.protocol.runner import Runner
     from iblbench.harness.protocol.sweep import check_env_res, parse_frames, parse_repeats, parse_resolution
 

@@ -21,6 +21,7 @@ row names the host and device that ran it."""
 
 def add_parser(subparsers) -> None:
     from iblbench.harness.protocol import sweep
+    from iblbench.harness.protocol.metric import names as metric_names
 
     run = subparsers.add_parser(
         "run", help="benchmark estimators on scenes and write results, manifest and images",
@@ -73,7 +74,7 @@ def add_parser(subparsers) -> None:
                           "NAME=M gives estimator NAME M of its own (e.g. 5,smc=3)")
     metrics = run.add_mutually_exclusive_group()
     metrics.add_argument("--metrics", type=sweep.metrics_arg, metavar="M[,M...]",
-                         help=f"metrics to compute, of {','.join(sweep.METRICS)} (default: the "
+                         help=f"metrics to compute, of {','.join(metric_names())} (default: the "
                               "sweep's own: de76,de2000,relmse for the shipped default, which leaves "
                               "the slow FLIP out, all four for full; de76 always: heat maps and "
                               "flicker use it); one left out is NaN")
@@ -168,10 +169,12 @@ def terminal_summaries(table):
     interval, ``mean ± half-width`` (:func:`iblbench.harness.protocol.stats.cell_intervals`);
     ``seeds`` says how many seeds.  Where several devices ran the rows, each cell is keyed by its
     device too (:func:`iblbench.harness.protocol.stats.time_keys`): times are per device."""
+    from iblbench.harness.protocol.metric import registered
     from iblbench.harness.protocol.stats import cell_intervals, interval_text, time_keys
     from iblbench.harness.protocol.timing import TIME
 
-    shown = {TIME: TIME, "mean_delta_e76": "mean_delta_e76", "rel_mse": "rel_mse", "flip": "flip",
+    shown = {TIME: TIME, **{metric.column: metric.column for metric in registered()
+                            if metric.in_run_summary},
              "effective_samples": "effective", "used_samples": "used"}
     summaries = []
     for keys, rows, title in (

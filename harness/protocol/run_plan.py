@@ -17,7 +17,7 @@ import numpy as np
 
 from iblbench.estimators.registry import get_estimator_class
 from iblbench.harness.protocol.equal_time import CALIBRATION_SEED
-from iblbench.harness.protocol.metrics import METRICS
+from iblbench.harness.protocol.metric import default_names
 from iblbench.harness.protocol.sweep import (CONTROL_SUFFIX, DEFAULT_REPEATS, MAX_REPEATS,
                                              control_labels, frames_text, parse_estimator,
                                              select_frames)
@@ -59,7 +59,7 @@ class RunConfig:
     repeats: int = DEFAULT_REPEATS             # timed renders per cell (timing module)
     repeats_for: tuple[tuple[str, int], ...] = ()   # (estimator name, repeats): its own count
     spp_for: tuple[tuple[str, tuple[int, ...]], ...] = ()   # (estimator name, its own spp levels)
-    metrics: tuple[str, ...] = METRICS         # ΔE76 always; see harness.metrics
+    metrics: tuple[str, ...] = default_names()   # ΔE76 always; see harness.protocol.metric
     control: tuple[str, ...] = ()              # labels run again as LABEL@control (A/A control)
     sweep: dict | None = None                  # the resolved sweep and its source (manifest)
     # Where the cells run (:mod:`.distributed`); neither: in this process.
