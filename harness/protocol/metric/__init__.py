@@ -20,8 +20,7 @@ import importlib
 import pkgutil
 from typing import Callable
 
-from iblbench.harness.protocol.stats import RENDERS
-
+RENDERS = "_renders"      # a metric's per-render values: column f"{column}{RENDERS}"
 LIMITS = ("max", "min")   # the bounds a budgets file may set: max_<column>, min_<column>
 
 
@@ -99,5 +98,5 @@ def parse_metrics(text: str) -> tuple[str, ...]:
     return tuple(metric.name for metric in registered() if metric.name in asked or metric.always)
 
 
-__all__ = ["LIMITS", "Metric", "columns", "default_names", "labels", "names", "parse_metrics",
+__all__ = ["LIMITS", "RENDERS", "Metric", "columns", "default_names", "labels", "names", "parse_metrics",
            "registered", "replicated_columns"]
