@@ -123,7 +123,7 @@ def _parsed(settings: dict) -> dict:
     """:func:`run`'s values as :func:`run_config` takes them (InputError if bad): frames,
     resolution, env_res and metrics parsed as a sweep file's are, ``repeats`` split into its
     default and ``repeats_for``, numbers checked whole, a single value as a list of one."""
-    from iblbench.harness.protocol.metrics import parse_metrics
+    from iblbench.harness.protocol.metric import parse_metrics
     from iblbench.harness.protocol.sweep import (check_env_res, parse_frames, parse_repeats,
                                                  parse_resolution)
 

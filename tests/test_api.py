@@ -146,7 +146,7 @@ def test_a_typo_in_a_dict_under_a_name_out_already_has_is_reported_as_the_typo(s
 
 def test_bad_arguments_are_input_errors(tmp_path):
     for arguments, needle in ((dict(resolution="16by16"), "resolution"),
-                              (dict(metrics=["de76", "psnr"]), "psnr"),
+                              (dict(metrics=["de76", "de99"]), "de99"),
                               (dict(spp=0), "spp"), (dict(estimators="unifrom"), "unifrom"),
                               (dict(scenes=[3.5]), "a scene must be"),
                               # issue 23: spp=[16.5] ran as 16; "16,64" and seeds="2" raised

@@ -51,7 +51,6 @@ ALLOWED = {
     "iblbench.estimators": ESTIMATORS,
     "iblbench.harness.protocol": PROTOCOL,
     "iblbench.harness.verify": VERIFY,
-    "iblbench.harness.verify.twins": VERIFY,
     "iblbench.harness.studies": STUDIES,
     "iblbench.harness": HARNESS,
     "iblbench.reports": REPORTS,
@@ -176,14 +175,22 @@ def rule_breaks(graph: dict[str, set[str]], packages, allowed=ALLOWED) -> list[s
     breaks = []
     for module, targets in sorted(graph.items()):
         package = package_of(module, packages)
-        if package not in allowed:
+        rule = rule_of(package, allowed)
+        if rule is None:
             breaks.append(f"{module}: package {package} has no rule in ALLOWED")
             continue
         for target in sorted(targets):
             banned = package_of(target, packages)
-            if not allows(allowed[package], banned):
+            if not allows(allowed[rule], banned):
                 breaks.append(f"{module} imports {target} ({package} may not import {banned})")
     return breaks
+
+
+def rule_of(package: str, allowed) -> str | None:
+    """The allow-list a package follows: its own, or its nearest parent's (a subpackage stays in
+    its parent's layer).  The top package ``iblbench`` (api/) lends its rule to no folder, so a
+    new top-level folder needs a rule of its own."""
+    return package_of(package, [p for p in allowed if p != "iblbench" or package == "iblbench"])
 
 
 def include_breaks(graph: dict[str, set[str]], root: pathlib.Path = ROOT,
@@ -198,13 +205,14 @@ def include_breaks(graph: dict[str, set[str]], root: pathlib.Path = ROOT,
 
     breaks = []
     for path, included in sorted(graph.items()):
-        if package(path) not in allowed:
+        rule = rule_of(package(path), allowed)
+        if rule is None:
             breaks.append(f"{path}: package {package(path)} has no rule in ALLOWED")
             continue
         breaks += [f"{path} includes {target} ({package(path)} may not import "
                    f"{package(target)})"
                    for target in sorted(included)
-                   if not allows(allowed[package(path)], package(target))]
+                   if not allows(allowed[rule], package(target))]
     return breaks
 
 

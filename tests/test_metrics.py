@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from iblbench.estimators.base import Estimate
-from iblbench.harness.protocol import metrics
+from iblbench.harness.protocol import metric, metrics
 
 
 def cie_lightness(y):
@@ -186,12 +186,36 @@ def test_a_scorer_evaluates_flip_once_per_estimate_and_its_range_once(monkeypatc
     assert fake.calls == ["range", "image", "image", "image"]
     # Left out, FLIP is never evaluated and scores NaN; so is ΔE2000.
     fake.calls.clear()
-    row, _ = metrics.score(estimate, reference, mask, metrics.parse_metrics("relmse"))
+    row, _ = metrics.score(estimate, reference, mask, metric.parse_metrics("relmse"))
     assert fake.calls == [] and np.isnan(row["flip"]) and np.isnan(row["mean_delta_e2000"])
     assert np.isfinite(row["mean_delta_e76"]) and np.isfinite(row["rel_mse"])
 
 
 def test_parse_metrics_keeps_de76_and_names_the_valid_ones():
-    assert metrics.parse_metrics("flip, DE2000") == ("de76", "de2000", "flip")
-    with pytest.raises(ValueError, match="unknown metric 'psnr'; valid: de76,de2000,relmse,flip"):
-        metrics.parse_metrics("de76,psnr")
+    assert metric.parse_metrics("flip, DE2000") == ("de76", "de2000", "flip")
+    with pytest.raises(ValueError, match="unknown metric 'de99'; valid: de76,de2000,relmse,flip"):
+        metric.parse_metrics("de76,de99")
+
+
+def test_the_default_metrics_and_their_columns_are_the_four_of_the_protocol():
+    assert metric.default_names() == ("de76", "de2000", "relmse", "flip")
+    assert metric.columns()[:4] == ["mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip"]
+    assert metric.replicated_columns()[:3] == ("mean_delta_e76", "mean_delta_e2000", "rel_mse")
+
+
+def test_every_registered_metric_reaches_the_table_the_flags_compare_and_budgets():
+    """What reads the registry: a metric registered is a column (and a replicate column where
+    it has replicates), a --metrics name, a compare metric and a budgets limit."""
+    from iblbench.harness.protocol.results import COLUMNS
+    from iblbench.harness.verify.budgets import DERIVED_METRICS, LIMIT_KEYS
+    from iblbench.harness.verify.compare import HIGHER_IS_BETTER, METRICS
+
+    for descriptor in metric.registered():
+        assert descriptor.column in COLUMNS and descriptor.column in METRICS
+        assert (descriptor.column + "_renders" in COLUMNS) == descriptor.replicated
+        assert metric.parse_metrics(descriptor.name) == tuple(
+            m.name for m in metric.registered() if m.always or m is descriptor)
+        assert (descriptor.column in HIGHER_IS_BETTER) != descriptor.lower_is_better
+        for kind in ("max", "min"):
+            assert (f"{kind}_{descriptor.column}" in LIMIT_KEYS) == (kind in descriptor.budget_limits)
+        assert (descriptor.column in DERIVED_METRICS) == descriptor.derive_budget

@@ -174,7 +174,7 @@ def test_relative_scene_files_are_found_from_the_config_folder(tmp_path):
     (lambda t: t + 'sanitize = "yes"\n', "sanitize must be true or false"),
     (lambda t: t + "repeats = 0\n", "repeats must be an integer in 1..255"),
     (lambda t: t + "repeats = { smc = 1.5 }\n", "repeats for smc must be an integer in 1..255"),
-    (lambda t: t + 'metrics = ["de76", "psnr"]\n', "unknown metric 'psnr'"),
+    (lambda t: t + 'metrics = ["de76", "de99"]\n', "unknown metric 'de99'"),
     (lambda t: t.replace('["sphere-sun"]', '["no-such-scene"]'), "unknown scene 'no-such-scene'"),
     (lambda t: t.replace('["sphere-sun"]', '["missing.toml"]'), "not found"),
     (lambda t: t.replace('["sphere-sun"]', "[]"), "scenes must be a non-empty list"),

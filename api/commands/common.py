@@ -125,8 +125,8 @@ def labels_arg(text: str) -> tuple[str, ...]:
 
 
 def metrics_arg(text: str) -> tuple[str, ...]:
-    """``--metrics``: comma-separated metric names (harness.metrics)."""
-    from iblbench.harness.protocol.metrics import parse_metrics
+    """``--metrics``: comma-separated metric names (harness.protocol.metric)."""
+    from iblbench.harness.protocol.metric import parse_metrics
 
     try:
         return parse_metrics(text)

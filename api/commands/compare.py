@@ -8,19 +8,21 @@ from iblbench.commands.common import add_json
 
 DESCRIPTION = """\
 Compare run folders A and B per cell (scene, estimator, spp or time budget, frame): for
-mean_delta_e76, mean_delta_e2000, rel_mse, flip, effective_ratio and time_ms, the mean over
+{metrics}, effective_ratio and time_ms, the mean over
 seeds on each side and the ratio B/A with its 95%% interval (delta method on log, Welch df); a
 change is significant when the interval excludes 1. Says when A and B differ in code, device,
-protocol or configuration. An estimator label with parameters (balanced{uniform_faces=true}) is
+protocol or configuration. An estimator label with parameters (balanced{{uniform_faces=true}}) is
 paired with the other side's label of the same base name when no equal label exists. Exit 0, 1
 when a cell has a significant change beyond a --fail-if threshold, 2 on bad input."""
 
 
 def add_parser(subparsers) -> None:
+    from iblbench.harness.protocol.metric import columns
+
     compare = subparsers.add_parser(
         "compare", help="compare two run folders cell by cell: ratios B/A with 95%% intervals "
                         "over seeds; exit 1 on a significant change beyond a --fail-if",
-        description=DESCRIPTION)
+        description=DESCRIPTION.format(metrics=", ".join(columns())))
     compare.add_argument("a", type=pathlib.Path, metavar="A", help="the baseline run folder")
     compare.add_argument("b", type=pathlib.Path, metavar="B", help="the run folder compared with A")
     compare.add_argument("--fail-if", action="append", default=[], metavar="METRIC>P%%",

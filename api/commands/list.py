@@ -1,4 +1,4 @@
-"""``iblbench list devices | estimators | scenes``."""
+"""``iblbench list devices | estimators | metrics | scenes``."""
 from __future__ import annotations
 
 import re
@@ -7,14 +7,16 @@ from iblbench.commands.common import device_flags
 
 
 DESCRIPTION = """\
-List OpenCL devices (and the one chosen), registered estimators, or built-in scenes."""
+List OpenCL devices (and the one chosen), registered estimators, registered metrics (each
+with its results column, unit and direction, and whether a sweep that names none computes it),
+or built-in scenes."""
 
 
 def add_parser(subparsers) -> None:
-    listing = subparsers.add_parser("list", help="list devices, estimators or scenes",
+    listing = subparsers.add_parser("list", help="list devices, estimators, metrics or scenes",
                                   description=DESCRIPTION,
                                   parents=[device_flags()])
-    listing.add_argument("what", choices=("devices", "estimators", "scenes"))
+    listing.add_argument("what", choices=("devices", "estimators", "metrics", "scenes"))
 
 
 def run(args) -> None:
@@ -35,6 +37,16 @@ def run(args) -> None:
 
         for name, docstring in estimator_docstrings().items():
             print(_listing_line(name, summary(docstring, name)))
+    elif args.what == "metrics":
+        from iblbench.harness.protocol.metric import registered
+
+        for metric in registered():
+            unit = f" in {metric.unit}" if metric.unit else ""
+            better = "lower" if metric.lower_is_better else "higher"
+            when = "always" if metric.always else "by default" if metric.default else "when named"
+            print(_listing_line(metric.name, f"{metric.label}{unit}, {better} is better; column "
+                                             f"{metric.column}; computed {when}. "
+                                             f"{summary(metric.description, metric.label)}"))
     else:
         from iblbench.scenes.registry import BUILTIN_SCENES, builtin_frames, scene_names
 

@@ -134,10 +134,12 @@ def terminal_summaries(table):
     interval, ``mean ± half-width`` (:func:`iblbench.harness.protocol.stats.cell_intervals`);
     ``seeds`` says how many seeds.  Where several devices ran the rows, each cell is keyed by its
     device too (:func:`iblbench.harness.protocol.stats.time_keys`): times are per device."""
+    from iblbench.harness.protocol.metric import registered
     from iblbench.harness.protocol.stats import cell_intervals, interval_text, time_keys
     from iblbench.harness.protocol.timing import TIME
 
-    shown = {TIME: TIME, "mean_delta_e76": "mean_delta_e76", "rel_mse": "rel_mse", "flip": "flip",
+    shown = {TIME: TIME, **{metric.column: metric.column for metric in registered()
+                            if metric.in_run_summary},
              "effective_samples": "effective", "used_samples": "used"}
     summaries = []
     for keys, rows, title in (

@@ -6,9 +6,10 @@
 Plus relMSE in linear HDR, mean((x−r)²/(r²+0.01)), flicker between consecutive frames (:func:`flicker`), HDR-FLIP (NVIDIA's flip-evaluator, where
 installed; NaN otherwise) as a mean over covered pixels, and the sample counts.
 
-Which metrics a run computes is ``METRICS`` or a subset (``iblbench run --metrics``); ΔE76 is
-always computed (heat maps, flicker and the budgets use it), and a metric left out is NaN in its
-column.  Everything that depends on the reference alone (its exposure, its L*a*b*, FLIP's
+Which metrics there are, and which a run computes where it names none, is the registry's
+(:mod:`iblbench.harness.protocol.metric`, one descriptor per metric; ``iblbench run --metrics``
+picks a subset); ΔE76 is always computed (heat maps, flicker and the budgets use it), and a metric
+left out is NaN in its column.  Everything that depends on the reference alone (its exposure, its L*a*b*, FLIP's
 exposure range) is computed once per reference by a :class:`Scorer`, which the runner keeps per
 (scene, frame), and each estimate is then scored with one FLIP evaluation.
 
@@ -43,12 +44,10 @@ import math
 
 import numpy as np
 
+from iblbench.harness.protocol import metric as registry
 from iblbench.scenes.cubemap import luminance
 
 PROTOCOL = "lab-reinhard-v1"
-METRICS = ("de76", "de2000", "relmse", "flip")
-METRIC_COLUMNS = {"de76": "mean_delta_e76", "de2000": "mean_delta_e2000", "relmse": "rel_mse",
-                  "flip": "flip"}
 _LOG_EPSILON = 1e-6   # keeps black pixels out of log(0) in the log-average
 _SRGB_TO_XYZ = np.array([[0.4124, 0.3576, 0.1805],   # IEC 61966-2-1, as printed
                          [0.2126, 0.7152, 0.0722],
@@ -59,16 +58,6 @@ _LAB_EPSILON, _LAB_KAPPA = 216 / 24389, 24389 / 27
 _25_POW_7 = 25.0 ** 7
 _COS = {d: math.cos(math.radians(d)) for d in (6, 30, 63)}   # T's phase shifts
 _SIN = {d: math.sin(math.radians(d)) for d in (6, 30, 63)}
-
-
-def parse_metrics(text: str) -> tuple[str, ...]:
-    """``de76,de2000,relmse,flip`` (any subset, any order) → the metrics in ``METRICS`` order,
-    ΔE76 always included; ValueError naming the valid ones for an unknown name."""
-    names = {part.strip().lower() for part in text.split(",") if part.strip()}
-    unknown = sorted(names - set(METRICS))
-    if unknown:
-        raise ValueError(f"unknown metric {unknown[0]!r}; valid: {','.join(METRICS)}")
-    return tuple(m for m in METRICS if m in names or m == "de76")
 
 
 @functools.lru_cache(maxsize=None)
@@ -182,9 +171,9 @@ class Scorer:
     """Scores estimates against one reference (one scene and frame); what depends on the
     reference alone is computed once, here or on first use."""
 
-    def __init__(self, reference: np.ndarray, mask: np.ndarray, metrics=METRICS):
+    def __init__(self, reference: np.ndarray, mask: np.ndarray, metrics=None):
         self.reference, self.mask = reference, mask
-        self.metrics = tuple(metrics)
+        self.metrics = registry.default_names() if metrics is None else tuple(metrics)
         self.k = exposure(reference, mask)
         self._reference_lab = None
         self._flip_range = None
@@ -242,31 +231,31 @@ class Scorer:
                                      "HDR", applyMagma=False, parameters=parameters)[0]
         return float(error_map[..., 0][self.mask].mean())
 
+    def _scores(self, image: "ScoredImage", replicated: bool) -> dict[str, float]:
+        """Column → value of the registered metrics that are (or are not) ``replicated``; NaN for
+        one this Scorer leaves out."""
+        return {metric.column: float(metric.score(image)) if metric.name in self.metrics
+                else float("nan") for metric in registry.registered()
+                if metric.replicated == replicated}
+
     def errors(self, radiance: np.ndarray) -> tuple[dict[str, float], np.ndarray]:
-        """ΔE76, ΔE2000 and relMSE of one image (NaN for a metric left out), and its ΔE76 image:
-        what every timed render of a cell is scored on (its replicates; FLIP, at ~0.5 s an
-        image, only on the scored render).  Non-finite values are scored as black, so one NaN
-        cannot hide the rest of the image's error."""
-        radiance = np.where(np.isfinite(radiance), radiance, 0.0)
-        de76, de2000 = self.delta_e_images(radiance)
-        mask, nan = self.mask, float("nan")
-        return {"mean_delta_e76": float(de76[mask].mean()),
-                "mean_delta_e2000": float(de2000[mask].mean()) if de2000 is not None else nan,
-                "rel_mse": (rel_mse(radiance, self.reference, mask) if "relmse" in self.metrics
-                            else nan)}, de76
+        """The replicated metrics of one image (ΔE76, ΔE2000, relMSE, ...; NaN for a metric left
+        out), and its ΔE76 image: what every timed render of a cell is scored on (its
+        replicates; FLIP, at ~0.5 s an image, only on the scored render)."""
+        image = ScoredImage(self, radiance)
+        return self._scores(image, replicated=True), image.delta_e[0]
 
     def score(self, estimate) -> tuple[dict, np.ndarray]:
-        """One results row's metrics for an :class:`Estimate` (:meth:`errors`, FLIP and the
+        """One results row's metrics for an :class:`Estimate` (every registered metric, the
         sample counts; non-finite values are counted in ``nonfinite``), and the ΔE76 image for a
         heat map."""
         mask = self.mask
-        errors, de76 = self.errors(estimate.radiance)
+        image = ScoredImage(self, estimate.radiance)
         used = float(estimate.used[mask].mean()) if mask.any() else 0.0
         effective = float(estimate.effective[mask].mean()) if mask.any() else 0.0
         row = {
-            **errors,
-            "flip": (self.flip(np.where(np.isfinite(estimate.radiance), estimate.radiance, 0.0))
-                     if "flip" in self.metrics else float("nan")),
+            **self._scores(image, replicated=True),
+            **self._scores(image, replicated=False),
             "flicker": float("nan"),   # set by the runner, which knows the previous frame
             "used_samples": used,
             "effective_samples": effective,
@@ -275,10 +264,30 @@ class Scorer:
             "shadow_rays": estimate.shadow_rays,
             "nonfinite": estimate.nonfinite,
         }
-        return row, de76
+        return row, image.delta_e[0]
+
+
+class ScoredImage:
+    """One estimate as a metric's ``score`` sees it: its radiance with non-finite values as black
+    (so one NaN cannot hide the rest of the image's error), the :class:`Scorer` of its reference,
+    and its ΔE76 and ΔE2000 images, computed once for every metric that reads them."""
+
+    def __init__(self, scorer: Scorer, radiance: np.ndarray):
+        self.scorer = scorer
+        self.radiance = np.where(np.isfinite(radiance), radiance, 0.0)
+        self.reference, self.mask = scorer.reference, scorer.mask
+        self._delta_e = None
+
+    @property
+    def delta_e(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`Scorer.delta_e_images` of the image."""
+        if self._delta_e is None:
+            self._delta_e = self.scorer.delta_e_images(self.radiance)
+        return self._delta_e
 
 
 def score(estimate, reference: np.ndarray, mask: np.ndarray,
-          metrics=METRICS) -> tuple[dict, np.ndarray]:
-    """:meth:`Scorer.score` against ``reference`` (a runner keeps one Scorer per frame)."""
+          metrics=None) -> tuple[dict, np.ndarray]:
+    """:meth:`Scorer.score` against ``reference`` (a runner keeps one Scorer per frame;
+    ``metrics``: the registry's default ones where None)."""
     return Scorer(reference, mask, metrics).score(estimate)

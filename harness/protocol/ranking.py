@@ -68,6 +68,7 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.protocol.equal_time import TOLERANCE
+from iblbench.harness.protocol.metric import labels
 from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, by_device,
                                              cell_values, column_interval, render_times,
                                              t_quantile)
@@ -75,8 +76,7 @@ from iblbench.harness.protocol.timing import robust_ms
 
 METRIC = "mean_delta_e76"
 FLICKER = "flicker"   # a sequence's figure from its second frame on (harness/protocol/metrics.py)
-METRIC_NAMES = {"mean_delta_e76": "ΔE76", "mean_delta_e2000": "ΔE2000", "rel_mse": "relMSE",
-                FLICKER: "flicker"}
+METRIC_NAMES = {**labels(), FLICKER: "flicker"}
 BUDGETS = 3                 # headline budgets per scene at most
 BUDGET_SPACING = 2.0        # headline budgets at least this factor apart
 BUDGET_REACH = 0.5          # a headline budget ranks at least this share of the estimators

@@ -10,13 +10,15 @@ Columns, in order (``COLUMNS``):
   ``estimator_params`` (every parameter as sorted JSON), ``estimator_version`` (hash of the
   estimator's sources), ``schema_version`` (``SCHEMA_VERSION``), ``metrics`` (the metrics
   computed, e.g. ``de76,de2000,relmse,flip``; ``run --metrics``);
-- metrics: ``mean_delta_e76`` … ``nonfinite`` (NaN for a metric the run left out); ``shadow_rays``
+- metrics: each registered metric's column, in the registry's order (``mean_delta_e76``,
+  ``mean_delta_e2000``, ``rel_mse``, ``flip``, ...: :mod:`iblbench.harness.protocol.metric`; NaN
+  for a metric the run left out), then ``flicker`` … ``nonfinite`` (``ROW_STATISTICS``); ``shadow_rays``
   is the visibility queries per covered pixel (0 in a scene without visibility); ``flicker``
   is the mean over covered pixels of |ΔE76(est_t, ref_t) − ΔE76(est_p, ref_p)|,
   p the frame before t in the run's frame list, for the same (scene, estimator, spp, seed,
   time_budget_ms); NaN on the first frame of the list (and so for a static scene);
-- replicates: ``mean_delta_e76_renders``, ``mean_delta_e2000_renders``, ``rel_mse_renders``: the
-  metric of each of the cell's planned timed renders, render 0 (the scored one) first, as text
+- replicates: ``mean_delta_e76_renders``, ``mean_delta_e2000_renders``, ``rel_mse_renders`` (the
+  ``_renders`` column of each metric the registry marks replicated): the metric of each of the cell's planned timed renders, render 0 (the scored one) first, as text
   (:func:`iblbench.harness.protocol.stats.renders_text`; empty for a metric left out): the
   replicates a cell's interval is made of (:mod:`iblbench.harness.protocol.stats`);
 - times (:mod:`iblbench.harness.protocol.timing`, the one definition): ``time_ms`` (the cell's device
@@ -61,6 +63,7 @@ import sys
 import numpy as np
 import pandas as pd
 
+from iblbench.harness.protocol.metric import columns as metric_columns, replicated_columns
 from iblbench.harness.protocol.stats import RENDERS
 from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME
 from iblbench.scenes.atomic import atomic_path
@@ -70,13 +73,13 @@ SCHEMA_VERSION = 7
 KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed", "time_budget_ms"]
 CONFIG_COLUMNS = ["width", "height", "env_res", "estimator_params", "estimator_version",
                   "schema_version", "metrics"]
-REPLICATED = ("mean_delta_e76", "mean_delta_e2000", "rel_mse")   # scored on every planned render
-REPLICATE_COLUMNS = [metric + RENDERS for metric in REPLICATED]
-METRIC_COLUMNS = [
-    "mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "flicker",
-    "used_samples", "effective_samples", "effective_ratio", "evaluations", "shadow_rays", "nonfinite",
-    *REPLICATE_COLUMNS, *TIME_COLUMNS,
-]
+REPLICATED = replicated_columns()   # scored on every planned render
+REPLICATE_COLUMNS = [column + RENDERS for column in REPLICATED]
+# What a row holds besides its metrics: flicker (from the ΔE76 maps of consecutive frames) and
+# what the estimate reports of its samples.
+ROW_STATISTICS = ["flicker", "used_samples", "effective_samples", "effective_ratio", "evaluations",
+                  "shadow_rays", "nonfinite"]
+METRIC_COLUMNS = [*metric_columns(), *ROW_STATISTICS, *REPLICATE_COLUMNS, *TIME_COLUMNS]
 COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "host", "protocol"]
 # Columns that are the same on every rerun of a cell on one device (renders are deterministic
 # per seed): everything but the measured times and how many renders they took (timing module).

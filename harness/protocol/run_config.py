@@ -18,7 +18,7 @@ import textwrap
 import typing
 from typing import Any
 
-from iblbench.harness.protocol.metrics import METRICS
+from iblbench.harness.protocol.metric import default_names, names
 
 DEFAULT_SCENES = ("sphere-sun",)
 DEFAULT_ESTIMATORS = ("uniform",)
@@ -101,13 +101,14 @@ class SweepSettings:
         python='timed renders per cell, an int or ``{"default": 5, "bis": 3}``')
     repeats_for: tuple[tuple[str, int], ...] = setting(())   # (estimator name, its repeats)
     spp_for: tuple[tuple[str, tuple[int, ...]], ...] = setting(())   # (name, its spp levels)
-    metrics: tuple[str, ...] = setting(   # ΔE76 always; see harness.protocol.metrics
-        METRICS, flag="--metrics",
-        help=f"metrics to compute, of {','.join(METRICS)} (default: the "
+    metrics: tuple[str, ...] = setting(   # ΔE76 always; see harness.protocol.metric
+        default_names(), flag="--metrics",
+        help=f"metrics to compute, of {','.join(names())} (default: the "
              "sweep's own: de76,de2000,relmse for the shipped default, which leaves "
              "the slow FLIP out, all four for full; de76 always: heat maps and "
              "flicker use it); one left out is NaN",
-        python='``"de76,relmse"`` or a list (default: all; ΔE76 always)')
+        python='``"de76,relmse"`` or a list (default: the registry\'s default ones, '
+               ':mod:`iblbench.harness.protocol.metric`; ΔE76 always)')
     control: tuple[str, ...] = setting(   # labels run again as LABEL@control (A/A control)
         (), flag="--control",
         help="the A/A control: run estimator NAME (one of the run's, spelt as for "

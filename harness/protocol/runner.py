@@ -122,7 +122,8 @@ from tqdm import tqdm
 from iblbench.estimators.runtime.device import cache_dir, get_compute
 from iblbench.estimators.runtime.framecache import PRODUCTS
 from iblbench.harness.protocol.executor import WARMUP_PIXELS, Executor, device_record
-from iblbench.harness.protocol.metrics import METRICS, PROTOCOL
+from iblbench.harness.protocol.metric import default_names
+from iblbench.harness.protocol.metrics import PROTOCOL
 from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal,
                                                cell_files_intact,
                                                configuration_differences, image_configuration,
@@ -210,7 +211,7 @@ class Runner:
         # The manifest's "stages" and "skipped": G-buffers may be traced before it is made.
         self.stages, self.skipped, self.visibility = [], [], []
         self.skipped += [{"stage": metric, "why": "not in the sweep's metrics: its columns are NaN"}
-                         for metric in METRICS if metric not in config.metrics]
+                         for metric in default_names() if metric not in config.metrics]
         self.engine, self.executor = None, None
         # _table_order's ranks of scenes, (scene, frame) and estimators, as the sweep plans them
         self._ranks = ({p.scene.name: (0, i) for i, p in enumerate(self.plans)},

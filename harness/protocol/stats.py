@@ -88,6 +88,8 @@ import math
 import numpy as np
 from scipy import stats as _scipy_stats
 
+from iblbench.harness.protocol.metric import RENDERS
+
 LEVEL = 0.95
 MEAN_METHOD = ("mean over the cell's scored renders (every timed render of every seed), 95% "
                "Student-t interval with Hall's (1992) skewness correction")
@@ -96,7 +98,6 @@ MEDIAN_METHOD = ("median of the cell's timed renders (every seed and frame), 95%
                  "interval (Hettmansperger-Sheather)")
 RATIO_METHOD = ("ratio of means B/A, 95% interval by the delta method on log(ratio): paired where "
                 "both cells have the same (seed, render) replicates, else Welch-Satterthwaite")
-RENDERS = "_renders"          # a metric's per-render values: column f"{metric}{RENDERS}"
 TIME_COLUMN = "time_ms"       # the one column aggregated as a median (timing.TIME)
 DEVICE_COLUMN = "device"      # the device that ran a row: times are aggregated per device
 

@@ -31,7 +31,8 @@ Format (every key at the top level)::
                                         # with counts of its own for slow estimators:
                                         # repeats = { default = 5, bis = 3, smc = 3 }
     metrics = ["de76", "de2000", "relmse", "flip"]   # optional: the metrics to compute (ΔE76
-                                        # always; default all; leave "flip" out to save time)
+                                        # always; default: the registry's default ones,
+                                        # harness/protocol/metric; leave "flip" out to save time)
     sanitize = false                    # optional: repair bad environment texels
     control = ["envmap"]                # optional: the A/A control, an unchanged copy of each
                                         # named estimator run beside it as NAME@control
@@ -60,7 +61,8 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
-from iblbench.harness.protocol.metrics import METRICS, PROTOCOL, parse_metrics
+from iblbench.harness.protocol.metric import default_names, names, parse_metrics
+from iblbench.harness.protocol.metrics import PROTOCOL
 from iblbench.harness.protocol.run_config import (DEFAULT_REPEATS, MAX_REPEATS, SWEEP_FIELDS,
                                                   SweepSettings)
 from iblbench.scenes.errors import InputError
@@ -383,7 +385,7 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
         repeats, repeats_for = parse_repeats(document.get("repeats", DEFAULT_REPEATS))
     except ValueError as error:
         fail(str(error))
-    metrics = _metric_names(document.get("metrics", list(METRICS)), fail)
+    metrics = _metric_names(document.get("metrics", list(default_names())), fail)
     control = _controls(document.get("control", []), labels, fail)
     names = {Path(entry).stem.lower() if entry.lower().endswith(".toml") else entry.lower()
              for entry in scenes}
@@ -452,7 +454,7 @@ def _time_budgets(budgets, fail) -> list:
 def _metric_names(metrics, fail) -> tuple[str, ...]:
     """The sweep's ``metrics``: a list of metric names."""
     if not isinstance(metrics, list) or not all(isinstance(m, str) for m in metrics):
-        fail(f"metrics must be a list of metric names ({', '.join(METRICS)}), got {metrics!r}")
+        fail(f"metrics must be a list of metric names ({', '.join(names())}), got {metrics!r}")
     try:
         return parse_metrics(",".join(metrics))
     except ValueError as error:

@@ -22,9 +22,10 @@ DESIGN §6) by scene glob, estimator glob and spp, and sets limits on them::
     nonfinite = 0                # NaN/Inf pixels, summed over the cell's frames and seeds, <= 0
     max_time_ratio = { baseline = "uniform", metric = "time_ms", max = 3.0 }
 
-Limits. ``max_<metric>`` and ``min_<metric>`` work for every quality metric of the table
-(mean_delta_e76, mean_delta_e2000, rel_mse, flip, used_samples, effective_samples,
-effective_ratio, evaluations); ``nonfinite = N`` bounds the total count of non-finite pixels
+Limits. ``max_<metric>`` and ``min_<metric>`` work for every metric whose descriptor allows them
+(:mod:`iblbench.harness.protocol.metric`: mean_delta_e76, mean_delta_e2000, rel_mse, flip, ...)
+and for flicker, used_samples, effective_samples, effective_ratio, evaluations and shadow_rays; a
+metric the run did not compute is NaN, and fails; ``nonfinite = N`` bounds the total count of non-finite pixels
 (use 0); ``max_time_ratio`` bounds ``time(metric of the cell) / time(metric of the baseline
 cell)`` (times as below), where the baseline cell is the named estimator on the same scene and spp *in the same
 results table* (``metric`` is one of the time columns: time_ms, the cell's device time per
@@ -91,7 +92,8 @@ import textwrap
 import numpy as np
 import pandas as pd
 
-from iblbench.harness.protocol.results import METRIC_COLUMNS, load_table, read_manifest
+from iblbench.harness.protocol.metric import LIMITS, registered
+from iblbench.harness.protocol.results import METRIC_COLUMNS, ROW_STATISTICS, load_table, read_manifest
 from iblbench.harness.protocol.stats import mean_ci
 from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME, one_cell_time
 from iblbench.scenes.atomic import atomic_path
@@ -100,9 +102,11 @@ from iblbench.scenes.tomlfile import read_toml
 
 CELL = ["scene", "estimator", "spp"]
 TIME_METRICS = tuple(column for column in TIME_COLUMNS if column.startswith("time_ms"))
-QUALITY_METRICS = tuple(column for column in METRIC_COLUMNS
-                        if column not in TIME_COLUMNS and column != "nonfinite")
-LIMIT_KEYS = tuple([f"max_{m}" for m in QUALITY_METRICS] + [f"min_{m}" for m in QUALITY_METRICS]
+ROW_LIMITED = tuple(column for column in ROW_STATISTICS if column != "nonfinite")   # a sum, below
+QUALITY_METRICS = tuple([metric.column for metric in registered()] + list(ROW_LIMITED))
+LIMIT_KEYS = tuple([f"{kind}_{column}" for kind in LIMITS
+                    for column in [metric.column for metric in registered()
+                                   if kind in metric.budget_limits] + list(ROW_LIMITED)]
                    + ["nonfinite", "max_time_ratio"])
 RULE_KEYS = ("name", "scene", "estimator", "spp") + LIMIT_KEYS
 TIME_RATIO_KEYS = ("baseline", "metric", "max")
@@ -263,8 +267,12 @@ def load_budgets(path: str | pathlib.Path) -> list[Rule]:
 
 def load_results(out_dir: str | pathlib.Path) -> pd.DataFrame:
     """``DIR/results.parquet`` with the journal's newer rows (:func:`load_table`);
-    :class:`InputError` if it is missing, unreadable or incomplete."""
-    return load_table(out_dir, CELL + list(METRIC_COLUMNS))
+    :class:`InputError` if it is missing, unreadable or incomplete.  The columns of a metric
+    outside the default sweep may be absent (a table made before it was registered): NaN."""
+    optional = {column for metric in registered() if not metric.default
+                for column in (metric.column, metric.renders_column) if column}
+    table = load_table(out_dir, CELL + [c for c in METRIC_COLUMNS if c not in optional])
+    return table.reindex(columns=[*table.columns, *sorted(optional - set(table.columns))])
 
 
 # --- evaluating ----------------------------------------------------------------------------------
@@ -443,8 +451,8 @@ def check(out_dir: str | pathlib.Path, budgets: str | pathlib.Path) -> tuple[pd.
 
 MIN_SEEDS = 8          # issue 11: a 2-seed budget passed or failed at random
 DEFAULT_SE_MULTIPLE = 3.0
-DERIVED_METRICS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "flicker",
-                   "effective_ratio", "evaluations")
+DERIVED_METRICS = tuple([metric.column for metric in registered() if metric.derive_budget]
+                       + ["flicker", "effective_ratio", "evaluations"])
 TIME_BASELINE = "uniform"
 TIME_METRIC = "time_ms_shade"
 # The time ratio's margin.  Under load the ratio of one cell swings: sphere-sun balanced_mis at
@@ -464,7 +472,7 @@ BUDGETS_HEADER = """\
 # Each cell's value is the mean over seeds of each seed's mean over its frames; the measured
 # mean, its standard error (se) and 95% Student-t interval are in the comment of each bound.
 # Both sides are bounded:
-# - ΔE76, ΔE2000, relMSE, FLIP, flicker, effective ratio, evaluations:
+# - {metrics}, flicker, effective ratio, evaluations:
 #   mean ± {k:g}·se ± {margin:g}·mean (the se covers a rerun's seed noise, the margin stated
 #   changes of the sample streams), lower bounds at least 0, the effective ratio at most 1;
 #   rounded outward to 4 significant digits;
@@ -595,7 +603,9 @@ def derive_budgets(out_dir: str | pathlib.Path, margin: float,
         seeds=configuration.seeds,
         revision=manifest.get("git_revision", "unknown"),
         device=device.get("name", "unknown") if isinstance(device, dict) else device,
-        baseline=TIME_BASELINE, time_metric=TIME_METRIC, time_factor=TIME_FACTOR),
+        baseline=TIME_BASELINE, time_metric=TIME_METRIC, time_factor=TIME_FACTOR,
+        metrics=", ".join(metric.label for metric in registered() if metric.derive_budget
+                          and (metric.default or table[metric.column].notna().any()))),
         "[configuration]"]
     text += [f"{key} = {json.dumps(value)}"
              for key, value in dataclasses.asdict(configuration).items()]

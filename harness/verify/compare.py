@@ -2,7 +2,9 @@
 
 **Cells.**  A cell is (scene, estimator, spp or time budget, frame), as in the results table
 (:func:`iblbench.harness.protocol.results.row_key` without the seed).  In each cell and for each metric
-of ``METRICS`` present in both folders (FLIP only where both runs computed it), compare takes
+of ``METRICS`` (every registered metric's column, :mod:`iblbench.harness.protocol.metric`, then
+``effective_ratio`` and ``time_ms``) present in both folders (FLIP only where both runs computed
+it), compare takes
 each side's figure with its interval as the report does
 (:func:`iblbench.harness.protocol.stats.column_interval`) and the ratio B/A of the means with its
 95% interval (:func:`iblbench.harness.protocol.stats.compare_values`: delta method on
@@ -13,7 +15,7 @@ sides have the same replicates (the same seeds and repeats: a rerun of one sweep
 the sides are independent samples (Welch–Satterthwaite).  Each metric's entry gives the p-value
 of the test used and, beside it, ``p_unpaired``: Welch's on the same values.
 A change is **significant** when the interval excludes 1; it is marked ``worse`` or ``better``
-by the metric's direction (higher is better only for ``effective_ratio``).  A cell with one
+by the metric's direction (its descriptor's; ``effective_ratio``: higher is better).  A cell with one
 value on either side has no interval and is never significant ("n=1").
 
 **Pairing estimators.**  Labels carry parameter overrides (``balanced{uniform_faces=true}``).
@@ -54,13 +56,15 @@ import sys
 
 import pandas as pd
 
+from iblbench.harness.protocol.metric import registered
 from iblbench.harness.protocol.results import KEY_COLUMNS, json_text, load_table, read_manifest, row_key
 from iblbench.harness.protocol.stats import (LEVEL, RATIO_METHOD, MeanCI, RatioCI, cell_values,
                                              column_interval, compare_values, devices, ratio_ci)
 from iblbench.scenes.errors import InputError
 
-METRICS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "effective_ratio", "time_ms")
-HIGHER_IS_BETTER = frozenset({"effective_ratio"})
+METRICS = (*(metric.column for metric in registered()), "effective_ratio", "time_ms")
+HIGHER_IS_BETTER = frozenset({"effective_ratio", *(metric.column for metric in registered()
+                                                    if not metric.lower_is_better)})
 REQUIRED_COLUMNS = KEY_COLUMNS + ["estimator_version", "device", "protocol"]
 # (what differs, row column): values compared between the two folders.
 DIFFERENCE_COLUMNS = (("device", "device"), ("protocol", "protocol"),

@@ -51,10 +51,11 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.verify.conformance import MIN_ERROR_FALL_8_TO_128
+from iblbench.harness.protocol.metric import labels
 from iblbench.harness.protocol.stats import RatioCI, ratio_ci
 
 # Error column → (name in messages, its power of an RMS-like error).
-METRICS = {"rel_mse": ("relMSE", 2)}
+METRICS = {"rel_mse": (labels()["rel_mse"], 2)}
 FLATTEST_RMS_SLOPE = -math.log(MIN_ERROR_FALL_8_TO_128) / math.log(16)
 
 

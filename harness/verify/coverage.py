@@ -39,6 +39,7 @@ from iblbench.estimators.runtime.device import cache_dir
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference
+from iblbench.harness.protocol.metric import labels
 from iblbench.harness.protocol.metrics import Scorer
 from iblbench.harness.protocol.executor import timing_seed
 from iblbench.harness.protocol.stats import median_ci, skew_corrected_ci
@@ -49,7 +50,7 @@ from iblbench.scenes.gbuffer import cached_trace
 from iblbench.scenes.registry import load_scene
 
 TRUTH_SEED = 0x40000000   # truth renders: seeds above every simulated run's cell seeds
-METRICS = (("mean_delta_e76", "ΔE76"), ("rel_mse", "relMSE"))
+METRICS = tuple((column, labels()[column]) for column in ("mean_delta_e76", "rel_mse"))
 
 
 @dataclasses.dataclass
