@@ -108,3 +108,10 @@ def test_headline_budgets_are_round_spaced_and_rank_most_estimators():
     assert 2 <= len(budgets) <= 3 and all(3.0 <= b <= 25 for b in budgets)   # a, b, c rank
     assert all(b2 / b1 >= 2 for b1, b2 in zip(budgets, budgets[1:]))
     assert headline_budgets(curves, sweep_budgets=[8.0, 2.0]) == [2.0, 8.0]
+
+
+def test_a_higher_is_better_metric_is_refused_not_ranked_upside_down():
+    """PSNR rises with time: read as an error, the ranking would put the worst first."""
+    rows = pd.DataFrame(cell("a", 16, [1.0] * 3, [[4.0] * 3] * 2)).assign(psnr=30.0)
+    with pytest.raises(ValueError, match="higher-is-better"):
+        curve(rows, "psnr")

@@ -68,7 +68,7 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.protocol.equal_time import TOLERANCE
-from iblbench.harness.protocol.metric import labels
+from iblbench.harness.protocol.metric import labels, registered
 from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, by_device,
                                              cell_values, column_interval, render_times,
                                              t_quantile)
@@ -77,6 +77,7 @@ from iblbench.harness.protocol.timing import robust_ms
 METRIC = "mean_delta_e76"
 FLICKER = "flicker"   # a sequence's figure from its second frame on (harness/protocol/metrics.py)
 METRIC_NAMES = {**labels(), FLICKER: "flicker"}
+HIGHER_IS_BETTER = {m.column for m in registered() if not m.lower_is_better}   # PSNR: not rankable
 BUDGETS = 3                 # headline budgets per scene at most
 BUDGET_SPACING = 2.0        # headline budgets at least this factor apart
 BUDGET_REACH = 0.5          # a headline budget ranks at least this share of the estimators
@@ -225,6 +226,9 @@ def curve(rows: pd.DataFrame, metric: str = METRIC, frame: int | None = None) ->
     time budget) of ``rows``, sorted by spp.  A point's time is always its cell's (every frame);
     its replicates are ``metric``'s over the cell's frames, or of ``frame`` alone.  Flicker is
     defined from the run's second frame of the sequence on, so its first frame is left out."""
+    if metric in HIGHER_IS_BETTER:   # the curve is read in log-log space as an error falling with time
+        raise ValueError(f"the equal-time ranking reads errors (lower is better); "
+                         f"{metric} is higher-is-better")
     points = []
     for _, cell in rows.groupby(["spp", "time_budget_ms"], sort=False, dropna=False):
         time_ms = column_interval(cell, TIME_COLUMN)[0].mean
