@@ -42,7 +42,7 @@ def run(args) -> int:
     if args.list:
         for m in chosen:
             waits = f"  (expected to survive until: {m.expect_killed_after})" if m.expect_killed_after else ""
-            print(f"{m.name:48s} {m.path}{waits}")
+            print(f"{m.name:48s} {m.where}{waits}")
         return 0
     width = max(len(m.name) for m in chosen)
 
