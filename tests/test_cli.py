@@ -508,7 +508,7 @@ def test_docstrings_read_from_source_are_the_classes_own():
     read = registry.estimator_docstrings()
     assert list(read) == registry.estimator_names()
     for name, docstring in read.items():
-        assert docstring == registry.get_estimator_class(name).__doc__, name
+        assert docstring == (registry.get_estimator_class(name).__doc__ or ""), name
 
 
 def test_version(cli):
