@@ -11,6 +11,7 @@ installed with ``pip install --target`` into a temporary folder that the command
 never see it."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import subprocess
@@ -23,7 +24,9 @@ import pytest
 
 from iblbench.estimators.runtime.device import all_devices
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(
+    importlib.util.find_spec("setuptools") is None,
+    reason="setuptools is not installed (the test extra has it): pip cannot build the plugin offline")]
 NAME = "hemisphere"
 MUTANT = "hemisphere-density-without-two-pi"
 TINY = ["--scene", "sphere-sun", "--res", "16x16", "--env-res", "8"]
