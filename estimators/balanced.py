@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from iblbench.estimators.base import Setting
+from iblbench.estimators.base import KernelCost, Setting, SweepPart
 from iblbench.estimators.light_pool import PoolEstimator, PoolParams
 
 
@@ -33,6 +33,10 @@ class Balanced(PoolEstimator):
     """
 
     name = "balanced"
+    sweep = SweepPart(("balanced",), spp=(64, 256, 1024, 4096), order=2)
+    cost = KernelCost(65, 0, 0, 214, 88, derivation="""\
+        uniform's samples; per pixel + F_f(n)·I_f of Eq. 3, 6 faces × 18 (4 corners × 4: n·c
+        with c = (±1, ±1, ±1) folds to 2 adds), and the split of split_ticks over weights 30""")
     Params = BalancedParams
     settings = PoolEstimator.settings + (Setting("uniform_faces", True),)   # tests/test_lu2013.py
     kernel_files = ("balanced.cl",)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from iblbench.estimators.base import Setting, specular_lobe_defines
+from iblbench.estimators.base import KernelCost, Setting, SweepPart, specular_lobe_defines
 from iblbench.estimators.light_pool import PoolEstimator, PoolParams
 
 
@@ -55,6 +55,13 @@ class BalancedMIS(PoolEstimator):
     """
 
     name = "balanced_mis"
+    sweep = SweepPart(("balanced_mis",), spp=(16, 64, 256, 1024), order=3)
+    portability_variants = ("balanced_mis{shared_sequence=false}",)
+    cost = KernelCost(110, 0, 0, 246, 88, derivation="""\
+        the mean of a light sample, 72 (+ t_6·phong_mixture_pdf 7 in D), and a BRDF sample of
+        the shared sequence, 148 (cos θ from the shared log2 ξ: exp2 half 19; direction 31 in
+        the per-pixel bases; lobe power 41; n·ω 5; mixture pdf 5; light_pdf 26; D 3; add_samples
+        18); per pixel balanced's 214 + the bases about n and r 26 + pdf factors 6""")
     Params = BalancedMISParams
     settings = PoolEstimator.settings + (Setting("mis_compensation", True, says="mis_compensation"),)
     kernel_files = ("balanced_mis.cl",)

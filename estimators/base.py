@@ -4,6 +4,15 @@ A plugin subclasses :class:`Estimator`, sets ``name``, ``Params`` (a dataclass w
 defaults), ``settings`` (a :class:`Setting` off the default for every parameter), ``tags``,
 ``requires`` and ``kernel_files``, and implements ``render``.  The optional
 ``sample_directions``/``pdf`` hooks feed the χ² test of ``check_estimator``.
+
+What the harness keeps about an estimator it reads from the class too (each optional, with the
+default below): ``cost`` (a :class:`KernelCost`, for ``iblbench perf``'s FLOP and roofline
+figures), ``perf_budget`` (its (spp, repeats) there), ``extra_columns`` (the labels of its
+``Estimate.extras``), ``portability_variants`` (configurations that ``iblbench doctor`` runs
+besides the defaults), ``sweep`` (its part in the default sweep, a :class:`SweepPart`) and
+``mutants`` (its own bugs for ``iblbench selftest``, in files of its own package).
+``portability_variants``, ``sweep`` and ``mutants`` name the class's own configurations and
+files, so a subclass does not inherit them (:func:`own`).
 """
 from __future__ import annotations
 
@@ -71,6 +80,67 @@ class Estimate:
 
 
 @dataclasses.dataclass(frozen=True)
+class KernelCost:
+    """Analytic FLOPs and DRAM bytes of an estimator's shading kernel, per integrand evaluation,
+    per sample and per pixel: an estimate, counted by reading the kernel by the rules of
+    ``iblbench.harness.studies.perf``'s docstring; ``derivation`` says how (perf.html shows it)."""
+
+    flops_per_eval: float
+    flops_per_sample: float
+    bytes_per_sample: float
+    flops_per_pixel: float
+    bytes_per_pixel: float
+    derivation: str = ""
+
+    def per_sample(self, spp: int, evaluations: float) -> tuple[float, float]:
+        """(FLOPs, bytes) per sample of a render at ``spp`` with ``evaluations`` per pixel."""
+        flops = self.flops_per_sample + (self.flops_per_eval * evaluations + self.flops_per_pixel) / spp
+        return flops, self.bytes_per_sample + self.bytes_per_pixel / spp
+
+
+@dataclasses.dataclass(frozen=True)
+class ExtraColumn:
+    """How the report shows one ``Estimate.extras`` column: ``label`` names it in titles,
+    ``axis`` labels its plot's axis, ``log`` draws that axis logarithmic."""
+
+    label: str
+    axis: str
+    log: bool = True
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepPart:
+    """An estimator's part in the default sweep (``estimators = "declared"`` in a sweep file):
+    its ``labels`` (``name`` or ``name{param=value,...}``) at its ``spp`` levels (None: the
+    sweep's default levels); ``order`` places them in the sweep's list (lower first, ties by
+    name), which orders the results table and the report's colours."""
+
+    labels: tuple[str, ...]
+    spp: tuple[int, ...] | None = None
+    order: float = float("inf")
+
+
+@dataclasses.dataclass(frozen=True)
+class Mutant:
+    """One realistic bug in the estimator's own files, for ``iblbench selftest``
+    (:mod:`iblbench.harness.verify.mutants`): ``old`` → ``new`` (each occurring exactly once) in
+    ``path``, relative to the folder of the package that holds the estimator's module (so a
+    plugin names its own files).  ``estimators``: the configurations whose checks must reject
+    it, as a sweep names them (default: the estimator itself); ``stress``: the stress cases that
+    guard the broken code; ``budgets``: whether the quick sweep's error budgets apply;
+    ``expect_killed_after``: the check still to land that will catch it (it may survive)."""
+
+    name: str
+    path: str
+    old: str | tuple[str, ...]   # a tuple: several places of one bug, replaced pairwise with new
+    new: str | tuple[str, ...]
+    estimators: tuple[str, ...] = ()
+    stress: tuple[str, ...] = ()
+    budgets: bool = False
+    expect_killed_after: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
 class NoParams:
     """This estimator has no parameters."""
 
@@ -83,6 +153,16 @@ class Estimator:
     requires: ClassVar[tuple[str, ...]] = ()
     kernel_files: ClassVar[tuple[str, ...]] = ()
     max_spp: ClassVar[int | None] = None   # the most spp render accepts; None: no bound
+    cost: ClassVar[KernelCost | None] = None   # None: perf gives no FLOP or roofline figures
+    perf_budget: ClassVar[tuple[int, int] | None] = None   # (spp, repeats) in perf; None: its defaults
+    extra_columns: ClassVar[dict[str, ExtraColumn]] = {}   # Estimate.extras key -> how it is shown
+    # Not inherited (:func:`own`): labels (``name{param=value}``) of the estimator's configurations
+    # that run kernel paths its defaults do not, for the portability set (``iblbench doctor``);
+    portability_variants: ClassVar[tuple[str, ...]] = ()
+    # its part in the default sweep (None: it takes none);
+    sweep: ClassVar[SweepPart | None] = None
+    # and its own mutants (:class:`Mutant`).
+    mutants: ClassVar[tuple[Mutant, ...]] = ()
 
     def __init__(self, params=None, **overrides):
         base = params if params is not None else self.Params()
@@ -137,6 +217,13 @@ def estimator_version(cls: type) -> str:
         digest.update(inspect.getsource(mips).encode())
         digest.update(kernel_path("iblbench.estimators.runtime", "mips.cl").read_bytes())
     return digest.hexdigest()[:12]
+
+
+def own(cls: type, attribute: str):
+    """``cls``'s own declaration of ``attribute`` (its class body's), or :class:`Estimator`'s
+    default: for declarations a subclass must not inherit (``portability_variants``, ``sweep``,
+    ``mutants``: they name its base's configurations and files)."""
+    return vars(cls).get(attribute, getattr(Estimator, attribute))
 
 
 def specular_lobe_defines(gbuffer) -> dict:

@@ -28,7 +28,8 @@ import dataclasses
 import numpy as np
 import pyopencl as cl
 
-from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, specular_lobe_defines
+from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Setting, SweepPart, Tags,
+                                      read_estimate, specular_lobe_defines)
 from iblbench.estimators.runtime.device import event_ms
 
 
@@ -106,11 +107,38 @@ def bis_chunks(compute, kernel, count: int, M: int, N: int, empty=None):
 class BIS(Estimator):
     __doc__ = __doc__
     name = "bis"
+    sweep = SweepPart(("bis",), spp=(1, 4, 16), order=5)
+    # perf: at Kronander's N = 20 (M = 400) with 3 repeats, unless --spp / --repeats say
+    # otherwise: M + N = 21 candidates a resampled sample make spp 64 take seconds a frame at
+    # 256² on a 2-core CPU (spp 16: about 0.8 s for bis, 1.9 s for smc).
+    perf_budget = (20, 3)
+    cost = KernelCost(183, 3, 0, 50, 88, derivation="""\
+        F_e is a candidate, 183: uniforms 3, stratum 2, sample_phong_direction 104 (both polar
+        cosines, ξ^{1/(m+1)} 35 and √ξ, the direction 68), lobe power 41, q 10 (n·ω 5, mixture
+        pdf 5), γ = L_Y ρ_Y cos 20 (texel lookup 10, Y(L) 5, ρ_Y 3, products 2), γ/q 1, and as
+        it leaves its lane the total (fp64) and the bound 2 (its f/γ is dead: no candidate
+        ratio); F_s is a resampled one's excess: regenerated in 16-lane vectors, 181 (the
+        candidate's 181 before its lane's sums, less q 10, γ/q 1 and ×cos 1, which nothing reads
+        there, + f/γ 12), its systematic position 2 and f/γ sums 3: 186 = 183 + 3; per pixel
+        shading 24, hoisted factors 19 (11 before the candidates, the 8 that f/γ needs again
+        before the regeneration), the resampling uniform, Σw/N and Ẑ 3, output 4""")
     Params = BISParams
     settings = (Setting("M", 100), Setting("N", 5))
     tags = Tags(unbiased=True, temporal=False, has_pdf=False)
     requires = ("env",)
     kernel_files = ("bis.cl", "sir.cl", "lanes.cl")
+    mutants = (   # for iblbench selftest (harness/verify/mutants.py)
+        Mutant("bis-resampling-fixed-variate", "sir.cl",
+               "float u = lane_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;",
+               "float u = 0.5f;", estimators=('bis{M=2,N=1}',), stress=("one-sample",)),
+        Mutant("bis-target-without-cosine", "sir.cl",
+               "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y * cosine, counted);",
+               "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y, counted);",
+               stress=("constant",)),
+        Mutant("bis-normaliser-over-n-not-m", "sir.cl",
+               "return positive ? (float)(total / (acc_t)M) : 0.0f;",
+               "return positive ? (float)(total / (acc_t)N) : 0.0f;", stress=("constant",)),
+    )
     max_spp = MAX_SPP
 
     def __init__(self, params=None, **overrides):

@@ -1,6 +1,7 @@
 """``brdf``: Phong BRDF sampling only, the classic baseline for glossy surfaces under smooth maps."""
 from __future__ import annotations
 
+from iblbench.estimators.base import KernelCost, SweepPart
 from iblbench.estimators.envmap import MapSampler
 
 
@@ -24,5 +25,12 @@ class Brdf(MapSampler):
     """
 
     name = "brdf"
+    sweep = SweepPart(("brdf",), order=7)
+    cost = KernelCost(174, 0, 0, 103, 88, derivation="""\
+        a BRDF sample drawn per pixel (estimators/envmap.cl without light samples), 174:
+        uniforms 3, sincos_turn 24, √ξ 1, log2 ξ 16 and the exp2 half 19 of ξ^{1/(m+1)}, the
+        direction 31 in the per-pixel bases, lobe power 41, n·ω 5, mixture pdf 5, texel lookup
+        10, D 1, add_samples 18; per pixel shading 24, the bases about n and r 26, hoisted
+        factors 6, the 16-lane sums out 47; bytes as uniform's""")
     kernel_files = ("brdf.cl", "envmap.cl", "lanes.cl")
     light_samples = False

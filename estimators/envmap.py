@@ -6,7 +6,8 @@ import dataclasses
 
 import numpy as np
 
-from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, specular_lobe_defines
+from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Setting, SweepPart, Tags,
+                                      read_estimate, specular_lobe_defines)
 from iblbench.estimators.light_pool import HOOK_SPP, MAX_SPP, TICKS_PER_SAMPLE, hook_surface
 from iblbench.estimators.runtime.device import event_ms
 
@@ -179,12 +180,29 @@ class Envmap(MapSampler):
     """
 
     name = "envmap"
+    sweep = SweepPart(("envmap", 'envmap{mis="brdf"}', 'envmap{mis="brdf",mis_compensation=true}'),
+                      order=8)
+    portability_variants = ('envmap{mis="brdf"}', 'envmap{mis="brdf",mis_compensation=true}')
+    cost = KernelCost(115, 0, 0, 76, 88, derivation="""\
+        the default, light samples only: a light sample of the map's 2-D distribution, 115: its
+        point and pdf 38 (as sample_face's), the face direction normalised 12, lobe power 41,
+        n·ω 5, D 1, add_samples 18; per pixel shading 24, hoisted factors 5, sums out 47""")
     Params = EnvmapParams
     settings = (Setting("mis", "brdf", says="mis_brdf"),
                 Setting("heuristic", "balance", {"mis": "brdf"}, says="mis_heuristic"),
                 Setting("mis_compensation", True, {"mis": "brdf"}, says="mis_compensation"))
     requires = ("cdf", "light_cdfs")
     kernel_files = ("envmap.cl", "lanes.cl")
+    mutants = (   # for iblbench selftest (harness/verify/mutants.py)
+        # A mutant of this file spells its text in two pieces, so the file holds it whole once.
+        Mutant("envmap-heuristic-swapped", "envmap.py",
+               '"MIS_POWER": int(getattr(self.params, "heuristic", ' '"balance") == "power")',
+               '"MIS_POWER": int(getattr(self.params, "heuristic", "balance") == "balance")'),
+        Mutant("envmap-light-jacobian-inverted", "envmap.cl",
+               "*pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;",
+               "*pdf = row_bin * col_bin / (q * sqrt(q)) * (float)(res * res) / 4.0f;",
+               stress=("sun-1e6",)),
+    )
 
     @property
     def brdf_samples(self) -> bool:

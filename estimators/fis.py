@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pyopencl.cltypes as cltypes
 
-from iblbench.estimators.base import Setting, Tags, read_estimate
+from iblbench.estimators.base import KernelCost, Setting, SweepPart, Tags, read_estimate
 from iblbench.estimators.brdf import Brdf
 from iblbench.estimators.light_pool import MAX_SPP, hook_surface
 from iblbench.estimators.runtime.device import event_ms
@@ -98,6 +98,15 @@ class Fis(Brdf):
     """
 
     name = "fis"
+    sweep = SweepPart(("fis",), order=10)
+    cost = KernelCost(223, 0, 0, 123, 88, derivation="""\
+        a filtered BRDF sample, 223: its Hammersley point 2 and lobe rescale 5, brdf's draw
+        after the uniforms 91 (sincos_turn 24, √ξ 1, ξ^{1/(m+1)} 35, direction 31), lobe power
+        41, n·ω 5, mixture pdf 5, the texel of ω and its area_per_solid_angle 20, the lod of Eq.
+        13 26 (log2 16, the clamps, bias, floor and share 10), the blend of two levels 9, D 1,
+        add_samples 18; per pixel brdf's 103 and the lod shift ½·log2(R²/4N) 20 (its library
+        log2 counted as the polynomial's 16); bytes as brdf's (the mip chain, 4/3 of the map,
+        taken as cache-resident like the map)""")
     Params = FisParams
     settings = (Setting("lod_bias", 0.0),)   # tests/test_fis.py: the filtered integral at 0-2.25
     tags = Tags(unbiased=False, has_pdf=True, has_limit=True)

@@ -101,7 +101,8 @@ import weakref
 
 import numpy as np
 
-from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, visibility_defines
+from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Setting, SweepPart, Tags,
+                                      read_estimate, visibility_defines)
 from iblbench.estimators.runtime.device import event_ms
 from iblbench.scenes import cubemap
 
@@ -424,6 +425,11 @@ class Havran(Estimator):
     FIR-filtered trajectories and power and per-normal culling; K = spp lights."""
 
     name = "havran"
+    sweep = SweepPart(("havran",), order=4)
+    cost = KernelCost(57, 5, 0, 17, 92, derivation="""\
+        a light above the horizon: lobe power 41, phong_value 7, ×W, ×cos 6, sum 3; per light
+        n·ω 5, culled or not; per pixel the reflection 12 and hoisted factors 5; bytes: 64 in,
+        radiance float4, counts float2 and evaluations out""")
     Params = HavranParams
     settings = (Setting("fir_taps", (1.0,), says="fir_taps"), Setting("fir_taps", (0.2, 0.8), says="fir_taps"))
     tags = Tags(unbiased=False, temporal=True, has_pdf=False)
@@ -431,6 +437,31 @@ class Havran(Estimator):
     requires = ()
     max_spp = MAX_K
     kernel_files = ("havran.cl",)
+    mutants = (   # for iblbench selftest (harness/verify/mutants.py)
+        Mutant("havran-lobe-axis-normal", "havran.cl",
+               "float3 r = reflect_view(n, view[p].xyz);",
+               "float3 r = n;", stress=("shininess",)),
+        # The renderer places and filters its lights on the device (havran.cl); EqualAreaMap.sample
+        # and fir_filter are the tests' NumPy twins, so the mutants change the kernels' side.
+        # (A mutant of this file spells its text in two pieces: the file holds it whole once.)
+        Mutant("havran-fir-not-renormalised", "havran.py",
+               "compute.to_device((a / a.sum())" ".astype(acc))",
+               "compute.to_device(a.astype(acc))", stress=("static-sequence",)),
+        Mutant("havran-pdf-blend-row0-only", "havran.cl",
+               "acc_t width = (1 - t) * col_prob[(cdf0 - col_cdf) + j] + t * col_prob[(cdf1 - col_cdf) + j];",
+               "acc_t width = col_prob[(cdf0 - col_cdf) + j];",
+               stress=("hot-texel", "black-faces")),
+        Mutant("havran-pdf-of-own-row-not-blend", "havran.cl",
+               "acc_t pdf = row_prob[i] * nz * width * nphi",
+               "acc_t pdf = row_prob[i] * nz * col_prob[i * nphi + j] * nphi",
+               stress=("hot-texel", "black-faces")),
+        Mutant("havran-weight-without-k", "havran.cl",
+               "acc_t scale = pdf * count;",
+               "acc_t scale = pdf * max(count - 1, 1);", stress=("constant",)),
+        Mutant("havran-culling-keeps-backfacing", "havran.cl",
+               "        if (c <= 0.0f)\n            continue;",
+               "        if (c < -0.5f)\n            continue;", stress=("constant",)),
+    )
 
     def __init__(self, params=None, **overrides):
         super().__init__(params, **overrides)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from iblbench.estimators.base import KernelCost, Mutant, SweepPart
 from iblbench.estimators.envmap import Envmap
 
 
@@ -58,8 +59,28 @@ class Hierarchical(Envmap):
     """
 
     name = "hierarchical"
+    sweep = SweepPart(("hierarchical",), order=9)
+    cost = KernelCost(182, 0, 0, 95, 88, derivation="""\
+        the default, light samples only: a light sample by descent through the weight pyramid,
+        at the default env 64 (six levels below the faces; 14 more or fewer per level): per
+        level the children's total 3, 2^31/total 1, four shares and their clamps 8, the
+        probability and its product 2 (the integer widths and the pick are not counted), 84; the
+        face's probability 1, the point in the texel 12 (a grid cell's centre, 6 per
+        coordinate), its pdf 8, the face direction normalised 12, lobe power 41, n·ω 5, D 1,
+        add_samples 18; per pixel envmap's 76 and the faces' widths 19 (their total 5,
+        2^31/total 1, six shares and clamps 12, hoisted: the same for every sample)""")
     requires = ("weight_pyramid",)
     kernel_files = ("hierarchical.cl", "descent.cl", "envmap.cl", "lanes.cl")
+    mutants = (   # for iblbench selftest (harness/verify/mutants.py)
+        Mutant("hierarchical-light-jacobian-inverted", "descent.cl",
+               "*pdf = probability * area * sqrt(area) * (float)(res * res) / 4.0f;",
+               "*pdf = probability / (area * sqrt(area)) * (float)(res * res) / 4.0f;",
+               stress=("sun-1e6",)),
+        Mutant("hierarchical-density-quad-transposed", "descent.cl",
+               "descent_probability4(q, 2 * (child_row & 1) + (child_col & 1))",
+               "descent_probability4(q, (child_row & 1) + 2 * (child_col & 1))",
+               estimators=('hierarchical{mis="brdf"}',), stress=("face-pattern",)),
+    )
 
     def _light_buffers(self, cache) -> tuple[tuple, float]:
         """((the weight pyramid,), the device ms of this render's ``sample`` stage: the

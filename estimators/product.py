@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from iblbench.estimators.base import Setting
+from iblbench.estimators.base import KernelCost, Mutant, Setting, SweepPart
 from iblbench.estimators.envmap import HEURISTICS, MIS_MODES
 from iblbench.estimators.hierarchical import Hierarchical
 
@@ -144,10 +144,33 @@ class Product(Hierarchical):
     """
 
     name = "product"
+    sweep = SweepPart(("product",), spp=(4, 16, 64, 256), order=12)
+    portability_variants = ('product{child_weight="centre",light_levels=1}',
+                            'product{mis="none",child_weight="bound"}')
+    cost = KernelCost(1500, 0, 0, 142, 88, derivation="""\
+        hierarchical's descent with each choice's children weighed by the pixel's BRDF·cos bound
+        over the child's cone (product.cl's weigher: per child its centre and extents 12, the
+        two cosines 10, the cone's bounds 12, two cone_cos_bound 20, the factor 10, about 64),
+        four children a level over six levels and the six faces: about 1,150 a light sample
+        (hierarchical's 182 + 6 × 4 × 36 + 6 × 20 beyond), and the default "capped" rule's least
+        solid angle and cap, 15 a child (the farthest corner 6, its Jacobian 5, the area 2, the
+        division and min 2), 360 more: about 1,500; as much for a BRDF sample's density under
+        MIS (its draw 107 less the light draw's 41); per pixel the weigher's frame 30 and the
+        lobe's integral 2, envmap's 76, the faces' widths 34; bytes as envmap's""")
     Params = ProductParams
     settings = (Setting("mis", "none"), Setting("heuristic", "balance"),
                 Setting("child_weight", "centre"), Setting("child_weight", "bound"), Setting("light_levels", 2))
     kernel_files = ("product.cl", "descent.cl", "envmap.cl", "lanes.cl")
+    mutants = (   # for iblbench selftest (harness/verify/mutants.py)
+        # The density recomputes the descent for a given direction: an off-by-one loop bound there
+        # leaves out the texel level's choice (the sampler still makes it).
+        Mutant("product-pdf-missing-a-level", "descent.cl",
+               "for (int l = levels - 2; l >= 0; --l) {\n        int n = level_size(res, l);\n"
+               "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
+               "for (int l = levels - 2; l > 0; --l) {\n        int n = level_size(res, l);\n"
+               "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
+               stress=("face-pattern",)),
+    )
 
     @property
     def compensated(self) -> bool:

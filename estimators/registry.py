@@ -1,16 +1,18 @@
-"""Name → estimator class registry (case-insensitive), with third-party entry points.
+"""Name → estimator class registry (case-insensitive), filled from entry points.
 
-Built-ins register here; plugins declare an entry point in the group ``iblbench.estimators``
-whose object is an :class:`~iblbench.estimators.base.Estimator` subclass.
+Every estimator, built-in or third-party, is an entry point in the group ``iblbench.estimators``
+whose object is an :class:`~iblbench.estimators.base.Estimator` subclass: the built-ins are
+iblbench's own (``pyproject.toml``), a plugin's are its package's.  They are imported on first
+use (NumPy and OpenCL with them), so that listing them, from their source, answers at once.
 """
 from __future__ import annotations
 
 import ast
 import functools
-import importlib
+import importlib.util
 import warnings
-from importlib.metadata import entry_points
-from importlib.resources import files
+from importlib.metadata import EntryPoint, entry_points
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from iblbench.scenes.errors import InputError
@@ -19,11 +21,7 @@ if TYPE_CHECKING:
     from iblbench.estimators.base import Estimator
 
 ENTRY_POINT_GROUP = "iblbench.estimators"
-# Built-in estimators: module of iblbench.estimators -> class. They are imported on first use
-# (NumPy and OpenCL with them), so that listing them, from their source, answers at once.
-_BUILTINS = {"uniform": "Uniform", "balanced": "Balanced", "balanced_mis": "BalancedMIS",
-             "havran": "Havran", "bis": "BIS", "smc": "SMC", "brdf": "Brdf", "envmap": "Envmap",
-             "hierarchical": "Hierarchical", "fis": "Fis", "restir": "ReSTIR", "product": "Product"}
+DISTRIBUTION = "iblbench"   # the distribution whose entry points are the built-ins
 _registry: dict[str, type[Estimator]] = {}
 
 
@@ -37,41 +35,88 @@ def register(cls: type[Estimator]) -> type[Estimator]:
     return cls
 
 
+def is_builtin(entry: EntryPoint) -> bool:
+    return entry.dist is not None and entry.dist.name == DISTRIBUTION
+
+
+@functools.lru_cache(maxsize=1)
+def _entry_points() -> tuple[EntryPoint, ...]:
+    """The group's entry points, the built-ins first, each in its distribution's order."""
+    return tuple(sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: not is_builtin(e)))
+
+
+def builtin_names() -> list[str]:
+    """The built-in estimators' names, in ``pyproject.toml``'s order (read from metadata: nothing
+    is imported)."""
+    return [entry.name.lower() for entry in _entry_points() if is_builtin(entry)]
+
+
+def _class_source(entry: EntryPoint) -> tuple[str, str | None] | None:
+    """(name, docstring) of an entry point's class read from its module's source without running
+    it (a class body's ``__doc__ = __doc__`` is the module's docstring), or None where the source
+    does not define the class itself (then it must be loaded)."""
+    spec = importlib.util.find_spec(entry.module)   # imports the parent packages only
+    if spec is None or not spec.origin or not spec.origin.endswith(".py"):
+        return None
+    tree = ast.parse(Path(spec.origin).read_text("utf-8"))
+    node = next((n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == entry.attr),
+                None)
+    if node is None:
+        return None
+    assigned = {target.id: statement.value for statement in node.body
+                if isinstance(statement, ast.Assign) for target in statement.targets
+                if isinstance(target, ast.Name)}
+    name = assigned.get("name")
+    if not (isinstance(name, ast.Constant) and isinstance(name.value, str)):
+        return None
+    own = ast.get_docstring(node, clean=False)
+    module_doc = isinstance(assigned.get("__doc__"), ast.Name) and assigned["__doc__"].id == "__doc__"
+    return name.value.lower(), own or (ast.get_docstring(tree, clean=False) if module_doc else None)
+
+
 def estimator_docstrings() -> dict[str, str]:
-    """Name -> class docstring of every estimator, sorted by name. The built-ins' are read from
-    their source without importing them (a class body's ``__doc__ = __doc__`` is the module's
-    docstring); plugins and classes registered at run time are loaded."""
-    docs = {}
-    for module, class_name in _BUILTINS.items():
-        tree = ast.parse(files("iblbench.estimators").joinpath(f"{module}.py").read_text("utf-8"))
-        node = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == class_name)
-        assigned = {target.id: statement.value for statement in node.body
-                    if isinstance(statement, ast.Assign) for target in statement.targets
-                    if isinstance(target, ast.Name)}
-        own = ast.get_docstring(node, clean=False)
-        module_doc = isinstance(assigned.get("__doc__"), ast.Name) and assigned["__doc__"].id == "__doc__"
-        docs[assigned["name"].value.lower()] = own or (ast.get_docstring(tree, clean=False)
-                                                       if module_doc else None) or ""
-    if _registry or any(True for _ in entry_points(group=ENTRY_POINT_GROUP)):
-        docs.update((name, get_estimator_class(name).__doc__ or "") for name in estimator_names())
+    """Name -> class docstring of every estimator, sorted by name, read from the source without
+    importing it where it can be (:func:`_class_source`); classes registered at run time and
+    entry points whose class is defined elsewhere are loaded."""
+    docs = {name: cls.__doc__ or "" for name, cls in _registry.items()}
+    for entry in _entry_points():
+        read = _class_source(entry)
+        if read is None:
+            cls = _load(entry)
+            read = (cls.name.lower(), cls.__doc__) if cls is not None else None
+        if read is not None:
+            docs.setdefault(read[0], read[1] or "")
     return dict(sorted(docs.items()))
+
+
+def _load(entry: EntryPoint) -> type[Estimator] | None:
+    """Register an entry point's class; a broken plugin warns and is skipped."""
+    try:
+        return register(entry.load())
+    except Exception as error:   # one broken plugin must not disable the others
+        if is_builtin(entry):
+            raise
+        warnings.warn(f"iblbench: skipping estimator plugin '{entry.name}' ({entry.value}): "
+                      f"{error}", stacklevel=3)
+        return None
 
 
 @functools.lru_cache(maxsize=1)
 def _load_all() -> None:
-    for module, class_name in _BUILTINS.items():
-        register(getattr(importlib.import_module(f"iblbench.estimators.{module}"), class_name))
-    for entry in entry_points(group=ENTRY_POINT_GROUP):
-        try:
-            register(entry.load())
-        except Exception as error:   # one broken plugin must not disable the others
-            warnings.warn(f"iblbench: skipping estimator plugin '{entry.name}' ({entry.value}): "
-                          f"{error}", stacklevel=2)
+    for entry in _entry_points():
+        _load(entry)
 
 
 def estimator_names() -> list[str]:
     _load_all()
     return sorted(_registry)
+
+
+def estimator_classes() -> list[type[Estimator]]:
+    """Every registered class in registration order: the built-ins in ``pyproject.toml``'s
+    order, then the plugins', then any registered at run time."""
+    _load_all()
+    return list(_registry.values())
 
 
 def get_estimator_class(name: str) -> type[Estimator]:

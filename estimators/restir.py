@@ -145,7 +145,8 @@ import functools
 import numpy as np
 import pyopencl as cl
 
-from iblbench.estimators.base import Estimate, Estimator, Setting, Tags, read_estimate, specular_lobe_defines
+from iblbench.estimators.base import (Estimate, Estimator, KernelCost, Mutant, Setting, SweepPart,
+                                      Tags, read_estimate, specular_lobe_defines)
 from iblbench.estimators.runtime.device import KeptBuffers, event_ms
 
 MAX_SPP = 1024          # reservoir chains a pixel: 32 bytes of each of two frames' reservoirs
@@ -194,6 +195,23 @@ def eye_depths(gbuffer) -> np.ndarray:
 class ReSTIR(Estimator):
     __doc__ = __doc__
     name = "restir"
+    sweep = SweepPart(("restir",), spp=(1, 4, 16, 64), order=11)
+    portability_variants = ("restir{unbiased=false}",)
+    cost = KernelCost(137, 206, 352, 1590, 252, derivation="""\
+        the mean of a default chain's 17 evaluations (``Estimate.evaluations``): 8 candidates in
+        one block of lanes, 204 each (every lane draws a BRDF direction 107 beside its
+        presample's; n·ω 5, lobe power 41, the texel of ω 20, Y(L) 5, ρ_Y 3, p̂ 2, the light and
+        BRDF densities 12, the weight 6, the reservoir update 3), 8 reuse targets, 76 (scalar
+        p̂: n·ω 5, lobe power 41, texel 20, Y(L) 5, ρ_Y 3, products 2), and the shading, 82 (n·ω
+        5, lobe power 41, texel 20, phong_value 7, f·W 6, sum 3); F_s is the rest of a chain (a
+        shaded sample): the lanes' merge 50, the temporal combination 27, two neighbours found
+        80 (disc point, sincos_turn, normal and depth tests), the spatial combination 49; B_s:
+        its reservoirs, 32 B each, written once and read four times (history, own, two
+        neighbours), and two neighbours' shading, 192 B; per pixel the shading loaded in three
+        kernels 72 and its target scale over 24 coarse cells, 63 each (direction 12, n·ω 5, lobe
+        power 41, ρ_Y 3, products 2), 1512, and the power 6; bytes: the G-buffer read three
+        times, 192, the scale (4) and stats (16) written and read back, radiance (16) and counts
+        (8) out, 60 (presamples, maps and pyramid cache-resident)""")
     Params = ReSTIRParams
     settings = (Setting("candidates", 2), Setting("brdf_share", 0.0), Setting("temporal", False),
                 Setting("history_cap", 20.0, {"neighbours": 0}, says="history_cap"),
@@ -202,6 +220,15 @@ class ReSTIR(Estimator):
     tags = Tags(unbiased=True, temporal=True, has_pdf=False)
     requires = ("weight_pyramid",)
     kernel_files = ("restir.cl", "sir.cl", "hierarchical.cl", "descent.cl", "envmap.cl", "lanes.cl")
+    mutants = (   # for iblbench selftest (harness/verify/mutants.py)
+        Mutant("restir-gris-weight-without-previous-target", "restir.cl",
+               "restir_target(&s, prev_env, res, current.w, visibility, p)",
+               "restir_target(&s, env, res, current.w, visibility, p)",
+               stress=("temporal-dropout",)),
+        Mutant("restir-m-cap-off-by-one", "restir.cl",
+               "min(inputs[1].confidence, history_cap * current.confidence)",
+               "min(inputs[1].confidence, (history_cap + 1.0f) * current.confidence)"),
+    )
     max_spp = MAX_SPP
 
     def __init__(self, params=None, **overrides):

@@ -132,7 +132,8 @@ import math
 
 import numpy as np
 
-from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, specular_lobe_defines
+from iblbench.estimators.base import (Estimator, ExtraColumn, KernelCost, Mutant, Setting,
+                                      SweepPart, Tags, read_estimate, specular_lobe_defines)
 from iblbench.estimators.bis import MAX_SPP, bis_chunks, run_lockstep
 from iblbench.estimators.runtime.device import KeptBuffers, event_ms
 
@@ -165,6 +166,26 @@ class SMCParams:
 class SMC(Estimator):
     __doc__ = __doc__
     name = "smc"
+    sweep = SweepPart(("smc",), spp=(1, 4, 16), order=6)
+    extra_columns = {
+        "ess": ExtraColumn("smc's ESS", "smc: smallest ESS before resampling\n(particles, mean over "
+                                        "carried pixels)"),
+        "reinits": ExtraColumn("smc's re-inits", "smc: pixels re-initialised per frame", log=False)}
+    perf_budget = (20, 3)   # as bis's (estimators/bis.py)
+    cost = KernelCost(176, 45, 24, 58, 140, derivation="""\
+        the first frame's smc_init (BIS with M = 20 N, the first half of the candidates from the
+        map); F_e is a candidate, 176: a 16-lane block takes one strategy, the BRDF's draw 107
+        (uniforms 3, both cosines 36, direction 68) or a map draw 28, half each 67.5, stratum 2,
+        the texel of ω and its area_per_solid_angle 20, lobe power 41, n·ω 5, q 9 (mixture pdf 5
+        × (1 − env_pick), + env_pick × the texel's .w × area 3), γ's other 10, γ/q 1, f/γ 12, as
+        it leaves its lane the total and bound 2 and the w·f/γ sums 6 (175.5); F_s is a
+        resampled one's excess, 45: regenerated in blocks that mix both strategies, so both
+        draws 135, stratum 2, texel 10, lobe power 41, n·ω 5, γ 10, f/γ 12 (215: q is dead
+        there), its position 2 and sums 3, the effective count 1: 221 = 176 + 45; per sample the
+        particle (ω, W) and gammas written, 24 B; per pixel shading 24, hoisted factors 20
+        (bis's + 1 − env_pick), the stratified pick 3, the resampling 3, the candidate ratio
+        Σw·f/γ / Σw 3, 1/N 1, the estimate 3, stats 1; bytes: 64 in, its list entry 4, state,
+        carried estimate, radiance, counts and stats out (72)""")
     Params = SMCParams
     # The re-init rules' settings: tests/test_smc.py holds each rule alone to its pixels.
     settings = (Setting("N", 4), Setting("nu", 1.0), Setting("local_degrees", 30.0),
@@ -174,6 +195,25 @@ class SMC(Estimator):
     tags = Tags(unbiased=False, temporal=True, has_pdf=False)
     requires = ("cdf",)
     kernel_files = ("smc.cl", "sir.cl", "lanes.cl")
+    mutants = (   # for iblbench selftest (harness/verify/mutants.py)
+        Mutant("smc-weight-update-without-previous-target", "smc.cl",
+               "exp(log(g.y / g.x) / (float)steps)",
+               "exp(log(g.y) / (float)steps)", stress=("temporal-dropout",)),
+        Mutant("smc-mh-acceptance-inverted-proposal", "smc.cl",
+               "ratio = (pi_new * q_old) / (pi_old * q_new);",
+               "ratio = (pi_new * q_new) / (pi_old * q_old);", stress=("temporal-dropout",)),
+        Mutant("smc-reinit-threshold-one-sided", "smc.cl",
+               "if (!(ratio <= threshold && ratio >= 1.0f / threshold)) reinit = 1;",
+               "if (!(ratio <= threshold)) reinit = 1;",
+               stress=("temporal-dropout", "dimming-sun")),
+        Mutant("smc-estimate-without-normaliser", "smc.cl",
+               "estimate = z * ratio;",
+               "estimate = ratio;", stress=("smooth-rotation",)),
+        Mutant("smc-init-proposal-pdf-without-map-share", "sir.cl",
+               "pdf += q->env_pick * GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;",
+               "pdf += GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;",
+               stress=("constant",)),
+    )
     twin = "iblbench.harness.verify.twins.ghosh2006"   # its NumPy twin (conformance.check_matches_twin)
     max_spp = MAX_SPP   # N particles (bis's bound: its init is bis)
 

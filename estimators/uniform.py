@@ -1,6 +1,7 @@
 """``uniform``: Lu 2013's baseline light sampling with μ_f = 1/6 of the samples per face."""
 from __future__ import annotations
 
+from iblbench.estimators.base import KernelCost, SweepPart
 from iblbench.estimators.light_pool import PoolEstimator
 
 
@@ -15,4 +16,11 @@ class Uniform(PoolEstimator):
     """
 
     name = "uniform"
+    sweep = SweepPart(("uniform",), spp=(64, 256, 1024, 4096), order=1)
+    cost = KernelCost(65, 0, 0, 88, 88, derivation="""\
+        a light sample: lobe power 41 (r·ω 5, max, phong_power 35), n·ω 5, D = t_f·pdf 1,
+        add_samples 18 (β/D·cos 2, lobe 1, 3 × (kd/π + ks·lobe 2, ×L, ×weight, +=)); per pixel:
+        shading 24 (reflection 12, Y(kd), Y(ks) 10, lobe choice 2), the face split 12 (μ_f = 1/6
+        folds), hoisted factors 5, the 16-lane sums out 47; bytes: 64 in, 24 out (radiance,
+        used, effective, evaluations)""")
     kernel_files = ("uniform.cl",)

@@ -28,7 +28,7 @@ def write_outputs(out: pathlib.Path, table, roofline: Roofline, context: dict) -
         autoescape=jinja2.select_autoescape(["html", "j2"]), trim_blocks=True, lstrip_blocks=True)
     page = templates.get_template("perf.html.j2").render(
         title="iblbench perf", summary=as_html(perf.shown_table(table)), table=as_html(table),
-        columns=perf.COLUMNS, roofline=roofline, costs=perf.KERNEL_COSTS, method=perf.__doc__,
+        columns=perf.COLUMNS, roofline=roofline, method=perf.__doc__,
         floor_rtol=perf.FLOOR_RTOL, floor_atol=perf.FLOOR_ATOL, **context)
     with atomic_path(html) as tmp:
         tmp.write_text(page, encoding="utf-8")

@@ -308,14 +308,13 @@ def plot_per_frame(path: pathlib.Path, per_frame, scene: str, shown: int) -> Non
 
 
 # Per-frame scalars a run may hold beside the errors (column → name, axis label, log axis):
-# each is plotted where any row has it, against spp, and FLIP, an error, against time too.
+# each is plotted where any row has it, against spp, and FLIP, an error, against time too; after
+# them the estimators' own extra columns, as the run's manifest describes them
+# (``extra_columns``, from each estimator's declaration).
 EXTRAS = {
     "flip": ("FLIP", "HDR-FLIP (mean over covered pixels, 0–1)", True),
     "flicker": ("flicker", "flicker: mean |change of ΔE76| between\nconsecutive frames "
                            "(CIELAB units)", True),
-    "ess": ("smc's ESS", "smc: smallest ESS before resampling\n(particles, mean over carried "
-                         "pixels)", True),
-    "reinits": ("smc's re-inits", "smc: pixels re-initialised per frame", False),
 }
 
 
@@ -331,13 +330,17 @@ def extra_cells(rows, column: str, time: bool = True):
         .reset_index()
 
 
-def plot_extras(path: pathlib.Path, rows, scene: str) -> list[str]:
-    """FLIP, flicker, ess and reinits (``EXTRAS``, those ``rows`` have) against spp with their
-    intervals, FLIP also against device time (a panel per device where ``rows`` have several:
-    times are never pooled over devices); nothing is written when ``rows`` have none.  Returns
-    the names (``EXTRAS``) of those plotted."""
+def plot_extras(path: pathlib.Path, rows, scene: str,
+                estimator_extras: dict | None = None) -> list[str]:
+    """FLIP, flicker (``EXTRAS``) and the estimators' extra columns (``estimator_extras``: the
+    manifest's ``extra_columns``, column → its label, axis and log), those ``rows`` have, against
+    spp with their intervals, FLIP also against device time (a panel per device where ``rows``
+    have several: times are never pooled over devices); nothing is written when ``rows`` have
+    none.  Returns the names of those plotted."""
+    described = {**EXTRAS, **{column: (extra["label"], extra["axis"], extra["log"])
+                              for column, extra in (estimator_extras or {}).items()}}
     devices = by_device(rows)
-    cells = {column: extra_cells(rows, column, time=len(devices) == 1) for column in EXTRAS}
+    cells = {column: extra_cells(rows, column, time=len(devices) == 1) for column in described}
     cells = {column: c for column, c in cells.items() if c is not None}
     panels = [(column, "spp", cells[column], None) for column in cells]
     if "flip" in cells:
@@ -352,7 +355,7 @@ def plot_extras(path: pathlib.Path, rows, scene: str) -> list[str]:
     fig, axes = plt.subplots(count, columns, figsize=(11, 0.4 + 4.2 * count), squeeze=False,
                              layout="constrained")
     for ax, (column, x, data, device) in zip(axes.flat, panels):
-        _, label, log = EXTRAS[column]
+        _, label, log = described[column]
         if device is not None:
             ax.set_title(f"on {device_name(device)}", fontsize=11)
         for name in _estimators(data):
@@ -373,7 +376,7 @@ def plot_extras(path: pathlib.Path, rows, scene: str) -> list[str]:
         _legend(ax)
     for ax in axes.flat[len(panels):]:
         ax.remove()
-    names = [EXTRAS[column][0] for column in cells]
+    names = [described[column][0] for column in cells]
     fig.suptitle(f"{scene}: {', '.join(names)} (mean over seeds, 95% intervals)")
     _save(fig, path)
     return names

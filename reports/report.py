@@ -809,7 +809,8 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, manifest: dict, 
     per_frame = (_per_frame_figure(shown["figures"], rows, scene, slug, scene_frame)
                  if len(frames) > 1 else None)
     extras = f"extras_{slug}.png"
-    extra_columns = shown["figures"].draw(extras, plots.plot_extras, rows, scene)
+    extra_columns = shown["figures"].draw(extras, plots.plot_extras, rows, scene,
+                                          (manifest or {}).get("extra_columns"))
     picture = _picture_section(inputs, table, scene, scene_frame, shown, compute)
     timed = equal_time[equal_time.scene == scene]
     return {"name": scene, "slug": slug,

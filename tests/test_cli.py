@@ -490,11 +490,15 @@ def test_list_scenes_gives_frames_and_description():
 
 
 def test_list_estimators_imports_no_estimator_nor_opencl():
-    """Listing reads the built-ins' docstrings from their source: no kernel module nor OpenCL
-    is loaded (they were most of the time of a ``list``)."""
-    from iblbench.estimators.registry import _BUILTINS
+    """Listing reads the estimators' docstrings from their source, the built-ins' and any
+    installed plugin's: no estimator module nor OpenCL is loaded (they were most of the time of
+    a ``list``)."""
+    from importlib.metadata import entry_points
 
-    modules = tuple(f"iblbench.estimators.{module}" for module in _BUILTINS)
+    from iblbench.estimators.registry import ENTRY_POINT_GROUP
+
+    modules = tuple(entry.module for entry in entry_points(group=ENTRY_POINT_GROUP))
+    assert "iblbench.estimators.uniform" in modules
     assert modules_imported_by(["list", "estimators"], ("pyopencl", *modules)) == []
 
 
@@ -504,7 +508,7 @@ def test_docstrings_read_from_source_are_the_classes_own():
     read = registry.estimator_docstrings()
     assert list(read) == registry.estimator_names()
     for name, docstring in read.items():
-        assert docstring == registry.get_estimator_class(name).__doc__, name
+        assert docstring == (registry.get_estimator_class(name).__doc__ or ""), name
 
 
 def test_version(cli):

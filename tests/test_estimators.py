@@ -12,7 +12,7 @@ from iblbench.harness.verify.conformance import (Harness, check_estimator, check
                                                  check_settings_differ, parametrize_with_checks)
 from iblbench.scenes.errors import InputError
 
-BUILTINS = [registry.make_estimator(name) for name in registry.estimator_names()]
+BUILTINS = [registry.make_estimator(name) for name in registry.builtin_names()]
 
 
 @parametrize_with_checks(BUILTINS)

@@ -58,7 +58,8 @@ def test_extras_are_plotted_with_error_bars_only_where_present(monkeypatch, tmp_
     table = _rows({"flip": lambda spp, frame, seed: (0.2 + 0.1 * seed) / spp,
                    "flicker": lambda spp, frame, seed: math.nan,           # a static scene's
                    "ess": lambda spp, frame, seed: math.nan if frame == 0 else spp / 2 + seed})
-    assert plots.plot_extras(tmp_path / "x.png", table, "s") == ["FLIP", "smc's ESS"]
+    ess = {"ess": {"label": "smc's ESS", "axis": "ESS", "log": True}}   # as a manifest has it
+    assert plots.plot_extras(tmp_path / "x.png", table, "s", ess) == ["FLIP", "smc's ESS"]
     (figure,) = figures
     axes = [ax for ax in figure.axes if ax.has_data()]
     assert len(axes) == 3                                  # FLIP/spp, FLIP/time, ESS/spp
@@ -73,7 +74,7 @@ def test_extras_are_plotted_with_error_bars_only_where_present(monkeypatch, tmp_
     np.testing.assert_allclose(flip_bars[0], [[4, 0.0625 - half], [4, 0.0625 + half]])
     assert _bars(axes[1])[0].has_xerr                       # time has its interval too
     assert plots.plot_extras(tmp_path / "y.png", table[["estimator", "spp", "frame", "seed",
-                                                        "time_ms"]], "s") == []
+                                                        "time_ms"]], "s", ess) == []
     assert len(figures) == 1 and not (tmp_path / "y.png").exists()   # no empty plot
 
 

@@ -15,7 +15,7 @@ from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 
 pytestmark = pytest.mark.slow   # about 2 minutes: conftest schedules it first
-BUILTINS = {name: registry.make_estimator(name) for name in registry.estimator_names()}
+BUILTINS = {name: registry.make_estimator(name) for name in registry.builtin_names()}
 
 
 @pytest.fixture(scope="module")

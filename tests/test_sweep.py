@@ -75,20 +75,27 @@ def test_quick_is_the_documented_sweep():
     assert quick.protocol == "lab-reinhard-v1" and quick.source == "shipped:quick"
 
 
+# The default sweep's estimators and their spp levels, as harness/configs/default.toml listed them
+# before each estimator declared its own part (Estimator.sweep): the declarations must give the
+# very same cells, in the same order (the table's rows, the report's colours).
+DEFAULT_ESTIMATORS = ["uniform", "balanced", "balanced_mis", "havran", "bis", "smc", "brdf", "envmap",
+                      'envmap{mis="brdf"}', 'envmap{mis="brdf",mis_compensation=true}',
+                      "hierarchical", "fis", "restir", "product"]
+DEFAULT_SPP = {"uniform": (64, 256, 1024, 4096), "balanced": (64, 256, 1024, 4096),
+               "balanced_mis": (16, 64, 256, 1024), "bis": (1, 4, 16), "smc": (1, 4, 16),
+               "restir": (1, 4, 16, 64), "product": (4, 16, 64, 256)}
+
+
 def test_default_and_full_parse():
     default = load_sweep("default")
-    # Every estimator, a real photograph and a short sequence (issue 12).
-    from iblbench.estimators.registry import estimator_names
-    names = {label.split("{")[0] for label in default.estimators}
-    assert names == set(estimator_names())
-    assert 'envmap{mis="brdf",mis_compensation=true}' in default.estimators
+    # The built-ins' declarations give today's cells; an installed plugin may add its own.
+    from iblbench.estimators.registry import builtin_names
+    builtin = [label for label in default.estimators if label.split("{")[0] in builtin_names()]
+    assert builtin == DEFAULT_ESTIMATORS
+    assert {name: v for name, v in default.spp_for if name in builtin_names()} == DEFAULT_SPP
+    assert default.spp == (8, 32, 128, 512)
     assert {"sphere-park", "park-turn"} <= set(default.scenes)
     assert default.repeats == 10 and default.repeats_for == () and default.seeds == 2
-    # Issue 23: each estimator's spp levels span about the same time (bis and smc fewer spp,
-    # uniform and balanced more), so that every curve reaches the budgets the report ranks at.
-    levels = dict(default.spp_for)
-    assert default.spp == (8, 32, 128, 512) and levels["bis"] == levels["smc"] == (1, 4, 16)
-    assert min(levels["uniform"]) > max(default.spp) / 16 and set(levels) < set(estimator_names())
     full = load_sweep("full")
     assert "balanced_mis{shared_sequence=false}" in full.estimators
     assert "balanced_mis" in full.estimators and full.seeds == 8
@@ -320,7 +327,7 @@ def test_frontier_runs_every_estimator_on_the_sequences_at_their_own_frames():
     from iblbench.harness.protocol.sweep import select_frames
 
     frontier = load_sweep("frontier")
-    assert set(frontier.estimators) == set(load_sweep("default").estimators) | {"restir", "product"}
+    assert set(frontier.estimators) == set(DEFAULT_ESTIMATORS) | {"restir", "product"}
     assert set(frontier.scenes) == {"blob-day", "blob-minutes", "sphere-switch", "park-turn",
                                     "sphere-studio-moving", "sphere-park-switch"}
     assert dict(frontier.spp_for)["smc"] == (1, 4, 16) and frontier.seeds == 2

@@ -81,5 +81,7 @@ def _listing_line(name: str, text: str) -> str:
     import textwrap
 
     width = max(shutil.get_terminal_size().columns, _NAME_WIDTH + 30)
+    if not text:   # a plugin without a docstring is listed all the same
+        return name
     return textwrap.fill(text, width, initial_indent=f"{name:{_NAME_WIDTH - 1}s} ", break_on_hyphens=False,
                          subsequent_indent=" " * _NAME_WIDTH)

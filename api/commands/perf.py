@@ -32,15 +32,16 @@ def add_parser(subparsers) -> None:
                       help="estimator name, optionally NAME{param=value,...}; repeatable "
                            "(default: every registered estimator)")
     perf.add_argument("--spp", type=positive_int, metavar="N",
-                      help="samples per pixel of every estimator and the floor (default: 64; "
-                           "bis and smc 20, Kronander's N, with M = 400 candidates)")
+                      help="samples per pixel of every estimator and the floor (default: 64, or an "
+                           "estimator's own perf_budget: bis and smc 20, Kronander's N, with "
+                           "M = 400 candidates)")
     perf.add_argument("--res", type=resolution, metavar="WxH",
                       help="image resolution (default: 256x256)")
     perf.add_argument("--env-res", type=env_res, metavar="R",
                       help="cube face resolution (default: 64)")
     perf.add_argument("--repeats", type=positive_int, metavar="N",
-                      help="timed renders per estimator after one warm-up (default: 5; bis "
-                           "and smc 3)")
+                      help="timed renders per estimator after one warm-up (default: 5, or an "
+                           "estimator's own perf_budget: bis and smc 3)")
     perf.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/perf"),
                       help="output directory for perf.csv and perf.html (default: results/perf)")
 

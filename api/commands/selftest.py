@@ -8,8 +8,9 @@ from iblbench.scenes.errors import InputError
 
 
 SELFTEST_DESCRIPTION = """\
-Apply each mutant of the project's catalogue of realistic bugs (harness/mutants.py) to a
-temporary copy of the sources and run the check layers on it: the conformance suite
+Apply each mutant of the project's catalogue of realistic bugs (harness/verify/mutants.py,
+and each registered estimator's own, a plugin's included) to a temporary copy of the sources
+and run the check layers on it: the conformance suite
 (check_estimator), the stress battery at its quick size (the cases that guard the broken
 code) and the error budgets of the quick sweep (budgets.toml, in a source checkout). By
 default each mutant stops at the first layer that rejects it; --all-layers runs every layer,
@@ -42,7 +43,7 @@ def run(args) -> int:
     if args.list:
         for m in chosen:
             waits = f"  (expected to survive until: {m.expect_killed_after})" if m.expect_killed_after else ""
-            print(f"{m.name:48s} {m.path}{waits}")
+            print(f"{m.name:48s} {m.where}{waits}")
         return 0
     width = max(len(m.name) for m in chosen)
 

@@ -12,7 +12,10 @@ Format (every key at the top level)::
     description = "what this sweep is"  # optional, recorded in the manifest
     scenes = ["sphere-sun", "my/scene.toml"]   # required: built-in names or scene .toml files
                                         # (relative paths: from this file's folder)
-    estimators = ["uniform", "balanced_mis{shared_sequence=false}"]   # required
+    estimators = ["uniform", "balanced_mis{shared_sequence=false}"]   # required; or "declared":
+                                        # each registered estimator's own ``sweep`` labels
+                                        # (``Estimator.sweep``, in their ``order``), each at its
+                                        # own spp levels unless the spp table names it
     spp = [16, 64, 256]                 # required unless time_budget_ms is given
     seeds = 2                           # required: seeds 0..N-1
     first_seed = 0                      # optional: seeds first_seed..first_seed+N-1 instead
@@ -80,6 +83,7 @@ KEYS = {"protocol", "description", *(name for name in SWEEP_FIELDS if not name.e
 REQUIRED = ("protocol", "scenes", "estimators", "seeds")
 _NAME = re.compile(r"^\s*([A-Za-z0-9_.\-]+)\s*(?:\{(.*)\})?\s*$", re.S)
 CONTROL_SUFFIX = "@control"   # a control's label: its estimator's label and this
+DECLARED = "declared"   # estimators = "declared": the estimators' own sweep declarations
 
 
 # ---- estimator labels --------------------------------------------------------------------------
@@ -352,11 +356,14 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
     scenes = tuple(_scene(entry, path.parent, path) for entry in scenes)
     if len(set(scenes)) != len(scenes):
         fail(f"scenes lists a scene twice: {list(scenes)}")
-    labels = _estimator_labels(document["estimators"], fail)
+    declared = document["estimators"] == DECLARED
+    labels = _estimator_labels(declared_labels() if declared else document["estimators"], fail)
     try:
         spp, spp_for = parse_spp(document.get("spp", []))
     except ValueError as error:
         fail(str(error))
+    if declared:
+        spp_for = tuple(sorted({**declared_spp(), **dict(spp_for)}.items()))
     seeds = document["seeds"]
     if not _positive_int(seeds):
         fail(f"seeds must be a positive integer (seeds 0..N-1), got {seeds!r}")
@@ -398,6 +405,28 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
                  time_budget_ms=tuple(float(v) for v in budgets), sanitize=sanitize,
                  repeats=repeats, repeats_for=repeats_for, metrics=metrics, control=control,
                  protocol=protocol, description=description, source=source)
+
+
+def _declared_parts() -> list:
+    """(class, its SweepPart) of every registered estimator that takes part in the default
+    sweep, in the parts' order (ties by name)."""
+    from iblbench.estimators.base import own
+    from iblbench.estimators.registry import estimator_classes
+
+    parts = [(cls, own(cls, "sweep")) for cls in estimator_classes()]
+    return sorted(((cls, part) for cls, part in parts if part is not None),
+                  key=lambda pair: (pair[1].order, pair[0].name))
+
+
+def declared_labels() -> list[str]:
+    """The labels of ``estimators = "declared"``: each estimator's own ``sweep`` labels."""
+    return [label for _, part in _declared_parts() for label in part.labels]
+
+
+def declared_spp() -> dict[str, tuple[int, ...]]:
+    """Name -> the spp levels its ``sweep`` declares, of those that declare their own."""
+    return {cls.name: tuple(sorted(set(part.spp))) for cls, part in _declared_parts()
+            if part.spp is not None}
 
 
 def _estimator_labels(estimators, fail) -> list[str]:

@@ -32,15 +32,14 @@ buffers much larger than the last-level cache) its bandwidth, counted as bytes r
 written (STREAM's convention; a CPU's write-allocate reads are not counted).  Both run on the
 estimators' own context and queue, as the median of ``repeats`` launches after a warm-up (the
 FMA launch sized to take at least ``ROOF_MIN_MS``, the copy buffers ``copy_size``).  An estimator's shading kernel (its ``shade`` stage) then
-reaches ``gflops`` = FLOPs/s and ``gbytes_per_s`` = bytes/s by the counts of ``KERNEL_COSTS``,
+reaches ``gflops`` = FLOPs/s and ``gbytes_per_s`` = bytes/s by the counts of its ``cost``,
 and its roofline fraction is achieved / attainable with attainable = min(peak FLOP rate,
 intensity × peak bandwidth), i.e. max(gflops / peak_gflops, gbytes_per_s / peak_gbps).
 
-FLOP and byte counts (``KERNEL_COSTS``) are estimates, counted by reading the kernels as they
-are as of this revision (``estimators/*.cl``, ``estimators/kernels/*.cl``), rounded, good to
+FLOP and byte counts (each estimator's ``cost``) are estimates, counted by reading the kernels as
+they are as of this revision (``estimators/*.cl``, ``estimators/kernels/*.cl``), rounded, good to
 perhaps ±30%; they must be re-derived whenever a shading kernel changes (nothing checks them
-against the kernels; ``tests/test_perf.py`` only holds the table below and ``KERNEL_COSTS`` to
-each other).  FLOPs, counted per work item as the source reads after the compiler's exact
+against the kernels).  FLOPs, counted per work item as the source reads after the compiler's exact
 simplifications:
 - an add, subtract, multiply, divide, sqrt, min, max, floor or ceil is one, a·b + c two (fused
   or not); compares, selects, sign flips, fabs, int ↔ float conversions and all integer work
@@ -71,103 +70,10 @@ blocks' write-backs do reach DRAM on a CPU; not counted.)  At large faces the
 random texel reads of balanced_mis, bis and smc, balanced_mis's CDF reads and smc's alias-table
 reads also reach DRAM and the byte counts are lower bounds.  Per sample, at spp samples and E
 evaluations per pixel: ``flops_per_sample`` = F_s + (F_e·E + F_p)/spp and ``bytes_per_sample``
-= B_s + B_p/spp.  The rows, F_e per evaluation, F_s / B_s per sample, F_p / B_p per pixel:
-
-    estimator      F_e   F_s / B_s   F_p / B_p
-    uniform         65     0 / 0      88 / 88
-        a light sample: lobe power 41 (r·ω 5, max, phong_power 35), n·ω 5, D = t_f·pdf 1,
-        add_samples 18 (β/D·cos 2, lobe 1, 3 × (kd/π + ks·lobe 2, ×L, ×weight, +=)); per pixel:
-        shading 24 (reflection 12, Y(kd), Y(ks) 10, lobe choice 2), the face split 12 (μ_f = 1/6
-        folds), hoisted factors 5, the 16-lane sums out 47; bytes: 64 in, 24 out (radiance,
-        used, effective, evaluations)
-    balanced        65     0 / 0     214 / 88
-        uniform's samples; per pixel + F_f(n)·I_f of Eq. 3, 6 faces × 18 (4 corners × 4: n·c
-        with c = (±1, ±1, ±1) folds to 2 adds), and the split of split_ticks over weights 30
-    balanced_mis   110     0 / 0     246 / 88
-        the mean of a light sample, 72 (+ t_6·phong_mixture_pdf 7 in D), and a BRDF sample of
-        the shared sequence, 148 (cos θ from the shared log2 ξ: exp2 half 19; direction 31 in
-        the per-pixel bases; lobe power 41; n·ω 5; mixture pdf 5; light_pdf 26; D 3;
-        add_samples 18); per pixel balanced's 214 + the bases about n and r 26 + pdf factors 6
-    havran          57     5 / 0      17 / 92
-        a light above the horizon: lobe power 41, phong_value 7, ×W, ×cos 6, sum 3; per light
-        n·ω 5, culled or not; per pixel the reflection 12 and hoisted factors 5; bytes: 64 in,
-        radiance float4, counts float2 and evaluations out
-    bis            183     3 / 0      50 / 88
-        F_e is a candidate, 183: uniforms 3, stratum 2, sample_phong_direction 104 (both polar
-        cosines, ξ^{1/(m+1)} 35 and √ξ, the direction 68), lobe power 41, q 10 (n·ω 5, mixture
-        pdf 5), γ = L_Y ρ_Y cos 20 (texel lookup 10, Y(L) 5, ρ_Y 3, products 2), γ/q 1, and as it
-        leaves its lane the total (fp64) and the bound 2 (its f/γ is dead: no candidate ratio);
-        F_s is a resampled one's excess: regenerated in 16-lane vectors, 181 (the candidate's
-        181 before its lane's sums, less q 10, γ/q 1 and ×cos 1, which nothing reads there, +
-        f/γ 12), its systematic position 2 and f/γ sums 3: 186 = 183 + 3; per pixel shading 24,
-        hoisted factors 19 (11 before the candidates, the 8 that f/γ needs again before the
-        regeneration), the resampling uniform, Σw/N and Ẑ 3, output 4
-    smc            176    45 / 24     58 / 140
-        the first frame's smc_init (BIS with M = 20 N, the first half of the candidates from
-        the map); F_e is a candidate, 176: a 16-lane block takes one strategy, the BRDF's
-        draw 107 (uniforms 3, both cosines 36, direction 68) or a map draw 28, half each
-        67.5, stratum 2, the texel of ω and its area_per_solid_angle 20, lobe power 41, n·ω 5,
-        q 9 (mixture pdf 5 × (1 − env_pick), + env_pick × the texel's .w × area 3), γ's other
-        10, γ/q 1, f/γ 12, as it leaves its lane the total and bound 2 and the w·f/γ sums 6
-        (175.5); F_s is a resampled one's excess, 45: regenerated in blocks that mix both
-        strategies, so both draws 135, stratum 2, texel 10, lobe power 41, n·ω 5, γ 10, f/γ 12
-        (215: q is dead there), its position 2 and sums 3, the effective count 1: 221 = 176 +
-        45; per sample the particle (ω, W) and gammas written, 24 B; per pixel shading 24,
-        hoisted factors 20 (bis's + 1 − env_pick), the stratified pick 3, the resampling 3, the
-        candidate ratio Σw·f/γ / Σw 3, 1/N 1, the estimate 3, stats 1; bytes: 64 in, its list
-        entry 4, state, carried estimate, radiance, counts and stats out (72)
-    brdf           174     0 / 0     103 / 88
-        a BRDF sample drawn per pixel (estimators/envmap.cl without light samples), 174:
-        uniforms 3, sincos_turn 24, √ξ 1, log2 ξ 16 and the exp2 half 19 of ξ^{1/(m+1)},
-        the direction 31 in the per-pixel bases, lobe power 41, n·ω 5, mixture pdf 5, texel
-        lookup 10, D 1, add_samples 18; per pixel shading 24, the bases about n and r 26,
-        hoisted factors 6, the 16-lane sums out 47; bytes as uniform's
-    envmap         115     0 / 0      76 / 88
-        the default, light samples only: a light sample of the map's 2-D distribution, 115: its
-        point and pdf 38 (as sample_face's), the face direction normalised 12, lobe power 41,
-        n·ω 5, D 1, add_samples 18; per pixel shading 24, hoisted factors 5, sums out 47
-    hierarchical   182     0 / 0      95 / 88
-        the default, light samples only: a light sample by descent through the weight pyramid,
-        at the default env 64 (six levels below the faces; 14 more or fewer per level): per
-        level the children's total 3, 2^31/total 1, four shares and their clamps 8, the
-        probability and its product 2 (the integer widths and the pick are not counted), 84;
-        the face's probability 1, the point in the texel 12 (a grid cell's centre, 6 per
-        coordinate), its pdf 8, the face direction normalised 12, lobe power 41, n·ω 5, D 1,
-        add_samples 18; per pixel envmap's 76 and the faces' widths 19 (their total 5,
-        2^31/total 1, six shares and clamps 12, hoisted: the same for every sample)
-    fis            223     0 / 0     123 / 88
-        a filtered BRDF sample, 223: its Hammersley point 2 and lobe rescale 5, brdf's draw
-        after the uniforms 91 (sincos_turn 24, √ξ 1, ξ^{1/(m+1)} 35, direction 31), lobe power
-        41, n·ω 5, mixture pdf 5, the texel of ω and its area_per_solid_angle 20, the lod of
-        Eq. 13 26 (log2 16, the clamps, bias, floor and share 10), the blend of two levels 9,
-        D 1, add_samples 18; per pixel brdf's 103 and the lod shift ½·log2(R²/4N) 20 (its
-        library log2 counted as the polynomial's 16); bytes as brdf's (the mip chain, 4/3 of
-        the map, taken as cache-resident like the map)
-    restir         137   206 / 352  1590 / 252
-        the mean of a default chain's 17 evaluations (``Estimate.evaluations``): 8 candidates in
-        one block of lanes, 204 each (every lane draws a BRDF direction 107 beside its
-        presample's; n·ω 5, lobe power 41, the texel of ω 20, Y(L) 5, ρ_Y 3, p̂ 2, the light and
-        BRDF densities 12, the weight 6, the reservoir update 3), 8 reuse targets, 76 (scalar p̂:
-        n·ω 5, lobe power 41, texel 20, Y(L) 5, ρ_Y 3, products 2), and the shading, 82 (n·ω 5,
-        lobe power 41, texel 20, phong_value 7, f·W 6, sum 3); F_s is the rest of a chain (a
-        shaded sample): the lanes' merge 50, the temporal combination 27, two neighbours found 80
-        (disc point, sincos_turn, normal and depth tests), the spatial combination 49; B_s: its
-        reservoirs, 32 B each, written once and read four times (history, own, two neighbours),
-        and two neighbours' shading, 192 B; per pixel the shading loaded in three kernels 72 and
-        its target scale over 24 coarse cells, 63 each (direction 12, n·ω 5, lobe power 41, ρ_Y
-        3, products 2), 1512, and the power 6; bytes: the G-buffer read three times, 192, the
-        scale (4) and stats (16) written and read back, radiance (16) and counts (8) out, 60
-        (presamples, maps and pyramid cache-resident)
-    product       1500     0 / 0     142 / 88
-        hierarchical's descent with each choice's children weighed by the pixel's BRDF·cos
-        bound over the child's cone (product.cl's weigher: per child its centre and extents 12,
-        the two cosines 10, the cone's bounds 12, two cone_cos_bound 20, the factor 10, about
-        64), four children a level over six levels and the six faces: about 1,150 a light
-        sample (hierarchical's 182 + 6 × 4 × 36 + 6 × 20 beyond), and the default "capped"
-        rule's least solid angle and cap, 15 a child (the farthest corner 6, its Jacobian 5, the
-        area 2, the division and min 2), 360 more: about 1,500; as much for a BRDF sample's
-        density under MIS (its draw 107 less the light draw's 41); per pixel the weigher's
-        frame 30 and the lobe's integral 2, envmap's 76, the faces' widths 34; bytes as envmap's
+= B_s + B_p/spp, with F_e per evaluation, F_s / B_s per sample and F_p / B_p per pixel the
+fields of the estimator's ``cost`` (a ``KernelCost``, declared on its class beside its kernel,
+with its derivation; perf.html lists those of the estimators measured).  An estimator that
+declares none gets NaN FLOP, byte and roofline figures.
 
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
@@ -206,11 +112,6 @@ DEFAULT_RESOLUTION = (256, 256)
 DEFAULT_ENV_RES = 64
 DEFAULT_SPP = 64
 DEFAULT_REPEATS = 5
-# bis and smc evaluate M + N = 21 candidates per resampled sample (M = 20 N), so spp 64 would
-# take seconds per frame at 256² on a 2-core CPU (spp 16: about 0.8 s and 1.9 s): they run at
-# Kronander's N = 20 (M = 400) with 3 repeats unless --spp / --repeats are given, which keeps a
-# default run near a minute there (the run prints the spp and repeats of every row).
-SLOW_DEFAULTS = {"bis": (20, 3), "smc": (20, 3)}
 FLOOR = "numpy-floor"
 FLOOR_SEED = 0xFFFFFF80        # a seed no benchmark cell uses
 WARMUP_SEED = 0xFFFFFFFF
@@ -228,38 +129,6 @@ def cdf_build_bytes(res: int) -> int:
     CPU's write-allocate reads (the copy roofline does not count them either)."""
     return 6 * (res * res * (16 + 8) + res * 8)
 
-
-@dataclasses.dataclass(frozen=True)
-class KernelCost:
-    """Analytic FLOPs and DRAM bytes of an estimator's shading kernel, per integrand evaluation,
-    per sample and per pixel (an estimate: module docstring)."""
-
-    flops_per_eval: float
-    flops_per_sample: float
-    bytes_per_sample: float
-    flops_per_pixel: float
-    bytes_per_pixel: float
-
-    def per_sample(self, spp: int, evaluations: float) -> tuple[float, float]:
-        """(FLOPs, bytes) per sample of a render at ``spp`` with ``evaluations`` per pixel."""
-        flops = self.flops_per_sample + (self.flops_per_eval * evaluations + self.flops_per_pixel) / spp
-        return flops, self.bytes_per_sample + self.bytes_per_pixel / spp
-
-
-KERNEL_COSTS = {
-    "uniform": KernelCost(65, 0, 0, 88, 88),
-    "balanced": KernelCost(65, 0, 0, 214, 88),
-    "balanced_mis": KernelCost(110, 0, 0, 246, 88),
-    "havran": KernelCost(57, 5, 0, 17, 92),
-    "bis": KernelCost(183, 3, 0, 50, 88),
-    "smc": KernelCost(176, 45, 24, 58, 140),
-    "brdf": KernelCost(174, 0, 0, 103, 88),
-    "envmap": KernelCost(115, 0, 0, 76, 88),
-    "hierarchical": KernelCost(182, 0, 0, 95, 88),
-    "fis": KernelCost(223, 0, 0, 123, 88),
-    "restir": KernelCost(137, 206, 352, 1590, 252),
-    "product": KernelCost(1500, 0, 0, 142, 88),
-}
 
 # Every column of perf.csv, in order, with what it means (the --help epilog and perf.html).
 COLUMNS = {
@@ -498,10 +367,10 @@ class PerfConfig:
     out: pathlib.Path
     scenes: tuple[str, ...] = DEFAULT_SCENES
     estimators: tuple[str, ...] = ()        # labels; () is every registered estimator
-    spp: int | None = None                  # None: DEFAULT_SPP, SLOW_DEFAULTS for bis and smc
+    spp: int | None = None                  # None: the estimator's perf_budget, else DEFAULT_SPP
     resolution: tuple[int, int] = DEFAULT_RESOLUTION
     env_res: int = DEFAULT_ENV_RES
-    repeats: int | None = None              # None: DEFAULT_REPEATS, SLOW_DEFAULTS for bis and smc
+    repeats: int | None = None              # None: its perf_budget, else DEFAULT_REPEATS
     device: str | None = None
 
 
@@ -514,9 +383,10 @@ def command_line(config: PerfConfig) -> str:
     return " ".join(words + [f"--device '{config.device}'"] * bool(config.device) + [f"--out {config.out}"])
 
 
-def _budget(config: PerfConfig, name: str) -> tuple[int, int]:
-    """(spp, repeats) of an estimator: the flags, else the defaults (SLOW_DEFAULTS for bis, smc)."""
-    spp, repeats = SLOW_DEFAULTS.get(name, (DEFAULT_SPP, DEFAULT_REPEATS))
+def _budget(config: PerfConfig, cls) -> tuple[int, int]:
+    """(spp, repeats) of an estimator class: the flags, else its ``perf_budget``, else the
+    defaults."""
+    spp, repeats = cls.perf_budget or (DEFAULT_SPP, DEFAULT_REPEATS)
     return config.spp or spp, config.repeats or repeats
 
 
@@ -540,7 +410,7 @@ def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
            "render_ms": render_ms, "host_ms": spread(cell.host)[0],
            "msamples_per_s": samples / (render_ms * 1e3),
            "mevals_per_s": pixels * cell.evaluations / (render_ms * 1e3)}
-    cost = KERNEL_COSTS.get(getattr(cell.estimator, "name", ""))
+    cost = type(cell.estimator).cost
     flops = nbytes = gflops = gbps = math.nan
     if cost is not None:
         flops, nbytes = cost.per_sample(cell.spp, cell.evaluations)
@@ -558,7 +428,9 @@ def _floor_row(scene: str, spp: int, evaluations: int, pixels: int, times: list,
                difference: float, roofline: Roofline, device: str) -> dict:
     """The floor's row: ``evaluations`` pool entries read per pixel; host times ``times``."""
     median, low, iqr = spread(times)
-    flops, nbytes = KERNEL_COSTS["uniform"].per_sample(spp, evaluations)
+    from iblbench.estimators.uniform import Uniform
+
+    flops, nbytes = Uniform.cost.per_sample(spp, evaluations)
     row = {column: math.nan for column in COLUMNS}
     row.update({"scene": scene, "estimator": FLOOR, "estimator_version": "", "spp": spp,
                 "repeats": len(times),
@@ -607,7 +479,7 @@ def run_perf(config: PerfConfig, log=print):
         device_gbuffer = DeviceGBuffer(compute, gbuffer)
         cells = []
         for spec in specs:
-            spp, repeats = _budget(config, spec.cls.name)
+            spp, repeats = _budget(config, spec.cls)
             cells.append((_Cell(spec.label, spec.make(), spp), repeats))
         for cell, _ in cells:
             cell.render(compute, device_gbuffer, env, WARMUP_SEED, timed=False)
@@ -674,7 +546,17 @@ def run_study(config: PerfConfig) -> PerfStudy:
         floors = [measure_timing_floor(compute)]
         table, roofline = run_perf(config)
         floors.append(measure_timing_floor(compute))
-    return PerfStudy(table, roofline, floors, time.perf_counter() - start, command_line(config))
+    return PerfStudy(table, roofline, floors, time.perf_counter() - start, command_line(config),
+                     measured_costs(table))
+
+
+def measured_costs(table) -> dict:
+    """Label -> the ``cost`` declared by the estimator of each row of ``table`` that has one."""
+    from iblbench.harness.protocol.sweep import parse_estimator
+
+    labels = dict.fromkeys(label for label in table.estimator if label != FLOOR)
+    costs = {label: parse_estimator(label).cls.cost for label in labels}
+    return {label: cost for label, cost in costs.items() if cost is not None}
 
 
 @dataclasses.dataclass
@@ -687,9 +569,10 @@ class PerfStudy:
     floors: list
     seconds: float
     command: str
+    costs: dict    # label -> KernelCost of each estimator measured that declares one
 
     def context(self) -> dict:
-        """The page's header (:func:`iblbench.reports.perf.write_outputs`)."""
+        """The page's header and cost table (:func:`iblbench.reports.perf.write_outputs`)."""
         return {"device": self.table.device.iloc[0], "command": self.command,
                 "seconds": f"{self.seconds:.0f}", "timing_floor": timing_floor_text(self.floors),
-                "timing_floor_ms": f"{self.floors[0].median_ms:.2g}"}
+                "timing_floor_ms": f"{self.floors[0].median_ms:.2g}", "costs": self.costs}

@@ -86,8 +86,10 @@ def _case_problems(outcome: portability.Outcome, baseline: dict | None) -> list[
 
 
 def diagnose(spec: str | None = None, verbose: bool = False,
-             progress: Callable[[str], None] = lambda text: None) -> list[DeviceReport]:
-    """A report per OpenCL device (those matching ``spec``, else every one).  The default device
+             progress: Callable[[str], None] = lambda text: None,
+             cases: list[str] | None = None) -> list[DeviceReport]:
+    """A report per OpenCL device (those matching ``spec``, else every one), on ``cases`` (by
+    default every case of the portability set, ``portability.cases()``).  The default device
     runs first, and its arrays are the other devices' baseline, on the same fp64 path as theirs
     (a device without cl_khr_fp64 against the default device's float path); with no default
     device (none that builds, or only a simulator) the devices are held to the twins alone."""
@@ -98,6 +100,7 @@ def diagnose(spec: str | None = None, verbose: bool = False,
         default = choose_device()
     except InputError:
         default = None
+    cases = portability.cases() if cases is None else cases
     devices = sorted(all_devices(), key=lambda d: default is None or d.key != default.key)
     if spec:
         devices = [d for d in devices if spec.lower() in d.label.lower()]
@@ -107,7 +110,7 @@ def diagnose(spec: str | None = None, verbose: bool = False,
         """The default device's arrays of every case on the fp64 or the float path."""
         if fp64 not in baselines:
             baselines[fp64] = {}
-            for case in portability.cases():
+            for case in cases:
                 progress(f"baseline on {default.device.name.strip()}: {case}")
                 outcome = portability.run_case(default.label, case, fp64=fp64)
                 if outcome.arrays is not None:
@@ -126,7 +129,7 @@ def diagnose(spec: str | None = None, verbose: bool = False,
         compared = default is not None and info.key != default.key and (
             default.has_fp64 or not info.has_fp64)
         problems, logs = [], []
-        for case in portability.cases():
+        for case in cases:
             progress(f"{info.kind} {info.device.name.strip()}: {case}")
             outcome = portability.run_case(info.label, case, checks, verbose=verbose)
             logs.append(outcome.build_logs)
@@ -134,5 +137,5 @@ def diagnose(spec: str | None = None, verbose: bool = False,
                 baselines.setdefault(info.has_fp64, {})[case] = outcome.arrays   # its own path
             problems += _case_problems(outcome, baseline(info.has_fp64).get(case) if compared else None)
         reports.append(DeviceReport(info.label, info.kind, problems, time.perf_counter() - start,
-                                    len(portability.cases()), "\n".join(filter(None, logs))))
+                                    len(cases), "\n".join(filter(None, logs))))
     return reports

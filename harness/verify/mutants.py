@@ -3,12 +3,13 @@ temporary copy of the sources, and the check layers that must reject them.
 
 A :class:`Mutant` replaces one exact piece of text (it must occur exactly once, so a catalogue
 entry that no longer matches the code fails loudly instead of testing nothing) in one file of
-the installed ``iblbench`` packages: a kernel (``.cl``) or a Python module.  :func:`run_mutant`
-copies the four packages into a temporary folder, applies the mutation there and runs the
-layers in a fresh interpreter whose ``PYTHONPATH`` puts the copy first, with its own reference
-cache, so that neither the imports nor the kernel and reference caches of this process see
-the bug.  (A plugin's subclass can load its own kernel files, but a bug in a shared include such
-as ``common.cl`` or in a Python module needs the whole copy.)
+the installed ``iblbench`` packages or of a plugin's package: a kernel (``.cl``) or a Python
+module.  The catalogue is this module's mutants of the shared kernels and the harness and each
+registered estimator's own (``Estimator.mutants``, declared beside it, in files of its own
+package).  :func:`run_mutant` copies the four packages (and the plugin's, for its mutants) into
+a temporary folder, applies the mutation there and runs the layers in a fresh interpreter whose
+``PYTHONPATH`` puts the copy first, with its own reference cache, so that neither the imports
+nor the kernel and reference caches of this process see the bug.
 
 Layers, in order (``run_mutant`` stops at the first that rejects unless asked for all):
 
@@ -30,6 +31,7 @@ import concurrent.futures
 import contextlib
 import dataclasses
 import importlib
+import importlib.util
 import json
 import os
 import pathlib
@@ -47,13 +49,13 @@ RESULT_TAG = "MUTANT-RESULT "
 
 @dataclasses.dataclass(frozen=True)
 class Mutant:
-    """One realistic bug: ``old`` → ``new`` in ``path`` (``estimators/...``, ``harness/...``,
-    relative to the ``iblbench`` namespace).  ``estimators``: the built-ins whose conformance
-    and stress rows run, as a sweep names them (``name`` or ``name{param=value,...}``: a
-    configuration where the bug shows, such as bis with M = 2 candidates per sample); ``stress``:
-    the stress cases that guard the broken code;
-    ``budgets``: whether the budgets layer applies (the quick sweep runs uniform, balanced and
-    balanced_mis)."""
+    """One realistic bug: ``old`` → ``new`` in ``path``, relative to the folder of the top-level
+    package ``package`` (``estimators/...``, ``harness/...`` in ``iblbench``; a plugin's own
+    files in its package).  ``estimators``: the estimators whose conformance and stress rows
+    run, as a sweep names them (``name`` or ``name{param=value,...}``: a configuration where the
+    bug shows, such as bis with M = 2 candidates per sample); ``stress``: the stress cases that
+    guard the broken code; ``budgets``: whether the budgets layer applies (the quick sweep runs
+    uniform, balanced and balanced_mis)."""
 
     name: str
     path: str
@@ -63,19 +65,35 @@ class Mutant:
     stress: tuple[str, ...] = ()
     budgets: bool = False
     expect_killed_after: str = ""
+    package: str = "iblbench"
+
+    @classmethod
+    def declared(cls, estimator: type, mutant) -> "Mutant":
+        """The catalogue's entry for an estimator class's own ``mutant``
+        (:class:`iblbench.estimators.base.Mutant`): its path from the package that holds the
+        class's module, its estimators the class itself unless it names others."""
+        package = estimator.__module__.rpartition(".")[0]
+        top, _, below = package.partition(".")
+        return cls(mutant.name, "/".join(filter(None, [*below.split("."), mutant.path])),
+                   mutant.old, mutant.new, tuple(mutant.estimators) or (estimator.name,),
+                   tuple(mutant.stress), mutant.budgets, mutant.expect_killed_after, top)
+
+    @property
+    def where(self) -> str:
+        """``path``, with its package where that is not iblbench (``selftest --list``)."""
+        return self.path if self.package == "iblbench" else f"{self.package}/{self.path}"
 
     def apply(self, root: pathlib.Path) -> None:
-        target = root / "iblbench" / self.path
+        target = root / self.package / self.path
         text = target.read_text(encoding="utf-8")
         olds, news = ((self.old,), (self.new,)) if isinstance(self.old, str) else (self.old, self.new)
         for old, new in zip(olds, news, strict=True):
             count = text.count(old)
             if count != 1:
                 raise ValueError(f"mutant {self.name}: the text to replace occurs {count} times "
-                                 f"in {self.path} (must be once): {old!r}")
+                                 f"in {self.where} (must be once): {old!r}")
             text = text.replace(old, new)
         target.write_text(text, encoding="utf-8")
-
 
 
 def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed_after=""):
@@ -83,9 +101,10 @@ def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed
 
 
 COMMON, POOL = "estimators/kernels/common.cl", "estimators/kernels/light_pool.cl"
-DESCENT = "estimators/descent.cl"
 
-CATALOGUE: tuple[Mutant, ...] = (
+# The shared kernels' and the harness's mutants; each estimator's own are declared beside it
+# (``Estimator.mutants``) and :func:`catalogue` collects them.
+HARNESS_MUTANTS: tuple[Mutant, ...] = (
     # ---- the light pool: uniform, balanced, balanced_mis ----------------------------------------
     _m("pool-effective-counts-every-sample", POOL,
        "acc->effective += select((lane_ints_t)0, beta, counts);",
@@ -110,32 +129,10 @@ CATALOGUE: tuple[Mutant, ...] = (
        ["balanced_mis"], ["shininess"]),
     _m("pool-shared-sequence-ignored", "estimators/light_pool.py",
        "np.int32(self.params.shared_sequence)", "np.int32(True)", ["uniform"]),
-    # ---- the production baselines: envmap, brdf ----------------------------------------------------
-    _m("envmap-heuristic-swapped", "estimators/envmap.py",
-       '"MIS_POWER": int(getattr(self.params, "heuristic", "balance") == "power")',
-       '"MIS_POWER": int(getattr(self.params, "heuristic", "balance") == "balance")', ["envmap"]),
+    # ---- envmap's map rows in the shared lanes code -----------------------------------------------
     _m("envmap-row-bin-per-face", POOL,
        "map_rows ? lanes_cdf_bin(marginal, (lane_ints_t)0, map_row)",
        "map_rows ? lanes_cdf_bin(marginal, f * res, row)", ["envmap"], ["face-pattern"]),
-    _m("envmap-light-jacobian-inverted", "estimators/envmap.cl",
-       "*pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;",
-       "*pdf = row_bin * col_bin / (q * sqrt(q)) * (float)(res * res) / 4.0f;", ["envmap"], ["sun-1e6"]),
-    _m("hierarchical-light-jacobian-inverted", DESCENT,
-       "*pdf = probability * area * sqrt(area) * (float)(res * res) / 4.0f;",
-       "*pdf = probability / (area * sqrt(area)) * (float)(res * res) / 4.0f;", ["hierarchical"], ["sun-1e6"]),
-    _m("hierarchical-density-quad-transposed", DESCENT,
-       "descent_probability4(q, 2 * (child_row & 1) + (child_col & 1))",
-       "descent_probability4(q, (child_row & 1) + 2 * (child_col & 1))",
-       ['hierarchical{mis="brdf"}'], ["face-pattern"]),
-    # ---- product ------------------------------------------------------------------------------
-    # The density recomputes the descent for a given direction: an off-by-one loop bound there
-    # leaves out the texel level's choice (the sampler still makes it).
-    _m("product-pdf-missing-a-level", DESCENT,
-       "for (int l = levels - 2; l >= 0; --l) {\n        int n = level_size(res, l);\n"
-       "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
-       "for (int l = levels - 2; l > 0; --l) {\n        int n = level_size(res, l);\n"
-       "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
-       ["product"], ["face-pattern"]),
     # ---- shared conventions (common.cl) -----------------------------------------------------------
     _m("light-pdf-jacobian-inverted", COMMON,
        "cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area",
@@ -154,60 +151,6 @@ CATALOGUE: tuple[Mutant, ...] = (
        "float cos_theta = specular ? phong_power(xi_cos, 1.0f / (m + 1.0f)) : sqrt(xi_cos);",
        "float cos_theta = specular ? phong_power(xi_cos, 1.0f / (m + 1.0f)) : xi_cos;",
        ["balanced_mis"], ["shininess"]),
-    # ---- havran --------------------------------------------------------------------------------
-    _m("havran-lobe-axis-normal", "estimators/havran.cl",
-       "float3 r = reflect_view(n, view[p].xyz);", "float3 r = n;", ["havran"], ["shininess"]),
-    # The renderer places and filters its lights on the device (havran.cl); EqualAreaMap.sample
-    # and fir_filter are the tests' NumPy twins, so the mutants change the kernels' side.
-    _m("havran-fir-not-renormalised", "estimators/havran.py",
-       "compute.to_device((a / a.sum()).astype(acc))", "compute.to_device(a.astype(acc))",
-       ["havran"], ["static-sequence"]),
-    _m("havran-pdf-blend-row0-only", "estimators/havran.cl",
-       "acc_t width = (1 - t) * col_prob[(cdf0 - col_cdf) + j] + t * col_prob[(cdf1 - col_cdf) + j];",
-       "acc_t width = col_prob[(cdf0 - col_cdf) + j];", ["havran"], ["hot-texel", "black-faces"]),
-    _m("havran-pdf-of-own-row-not-blend", "estimators/havran.cl",
-       "acc_t pdf = row_prob[i] * nz * width * nphi",
-       "acc_t pdf = row_prob[i] * nz * col_prob[i * nphi + j] * nphi", ["havran"],
-       ["hot-texel", "black-faces"]),
-    _m("havran-weight-without-k", "estimators/havran.cl",
-       "acc_t scale = pdf * count;",
-       "acc_t scale = pdf * max(count - 1, 1);", ["havran"], ["constant"]),
-    _m("havran-culling-keeps-backfacing", "estimators/havran.cl",
-       "        if (c <= 0.0f)\n            continue;",
-       "        if (c < -0.5f)\n            continue;", ["havran"], ["constant"]),
-    # ---- bis (sir.cl) ----------------------------------------------------------------------------
-    _m("bis-resampling-fixed-variate", "estimators/sir.cl",
-       "float u = lane_uniform4(seed, frame, STREAM_SIR_RESAMPLE, pixel, 0u, 0u).x;",
-       "float u = 0.5f;", ["bis{M=2,N=1}"], ["one-sample"]),
-    _m("bis-target-without-cosine", "estimators/sir.cl",
-       "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y * cosine, counted);",
-       "lanes_t gamma = select((lanes_t)0.0f, radiance_y * rho_y, counted);", ["bis"], ["constant"]),
-    _m("bis-normaliser-over-n-not-m", "estimators/sir.cl",
-       "return positive ? (float)(total / (acc_t)M) : 0.0f;",
-       "return positive ? (float)(total / (acc_t)N) : 0.0f;", ["bis"], ["constant"]),
-    # ---- smc -----------------------------------------------------------------------------------
-    _m("smc-weight-update-without-previous-target", "estimators/smc.cl",
-       "exp(log(g.y / g.x) / (float)steps)", "exp(log(g.y) / (float)steps)", ["smc"],
-       ["temporal-dropout"]),
-    _m("smc-mh-acceptance-inverted-proposal", "estimators/smc.cl",
-       "ratio = (pi_new * q_old) / (pi_old * q_new);", "ratio = (pi_new * q_new) / (pi_old * q_old);",
-       ["smc"], ["temporal-dropout"]),
-    _m("smc-reinit-threshold-one-sided", "estimators/smc.cl",
-       "if (!(ratio <= threshold && ratio >= 1.0f / threshold)) reinit = 1;",
-       "if (!(ratio <= threshold)) reinit = 1;", ["smc"], ["temporal-dropout", "dimming-sun"]),
-    _m("smc-estimate-without-normaliser", "estimators/smc.cl",
-       "estimate = z * ratio;", "estimate = ratio;", ["smc"], ["smooth-rotation"]),
-    _m("smc-init-proposal-pdf-without-map-share", "estimators/sir.cl",
-       "pdf += q->env_pick * GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;",
-       "pdf += GATHER(lanes_t, (__global const float *)q->texels + 3, 4 * texel) * area;", ["smc"],
-       ["constant"]),
-    # ---- restir --------------------------------------------------------------------------------
-    _m("restir-gris-weight-without-previous-target", "estimators/restir.cl",
-       "restir_target(&s, prev_env, res, current.w, visibility, p)",
-       "restir_target(&s, env, res, current.w, visibility, p)", ["restir"], ["temporal-dropout"]),
-    _m("restir-m-cap-off-by-one", "estimators/restir.cl",
-       "min(inputs[1].confidence, history_cap * current.confidence)",
-       "min(inputs[1].confidence, (history_cap + 1.0f) * current.confidence)", ["restir"]),
     # ---- the frame cache --------------------------------------------------------------------
     _m("framecache-luminance-weights-swapped", "estimators/runtime/framecache.cl",
        "return 0.2126f * x + 0.7152f * y + 0.0722f * z;",
@@ -275,11 +218,19 @@ CATALOGUE: tuple[Mutant, ...] = (
 )
 
 
-def catalogue(names=None) -> list[Mutant]:
-    """The catalogue, or the named mutants of it (ValueError naming an unknown one)."""
-    by_name = {m.name: m for m in CATALOGUE}
+def catalogue(names=None, plugins: bool = True) -> list[Mutant]:
+    """The catalogue: :data:`HARNESS_MUTANTS` and every registered estimator's own mutants (only
+    the built-ins' without ``plugins``), or the named mutants of it (ValueError naming an unknown
+    one)."""
+    from iblbench.estimators.base import own
+    from iblbench.estimators.registry import builtin_names, estimator_classes
+
+    chosen = [cls for cls in estimator_classes() if plugins or cls.name in builtin_names()]
+    every = [*HARNESS_MUTANTS, *(Mutant.declared(cls, mutant) for cls in chosen
+                                 for mutant in own(cls, "mutants"))]
+    by_name = {m.name: m for m in every}
     if not names:
-        return list(CATALOGUE)
+        return every
     unknown = [n for n in names if n not in by_name]
     if unknown:
         raise ValueError(f"unknown mutant(s) {', '.join(unknown)}; known: {', '.join(by_name)}")
@@ -312,8 +263,9 @@ def budgets_file() -> pathlib.Path | None:
     return path if path.is_file() else None
 
 
-def copy_sources(folder: pathlib.Path) -> pathlib.Path:
-    """Copy the installed ``iblbench`` packages into ``folder/iblbench``; returns ``folder``.
+def copy_sources(folder: pathlib.Path, packages=()) -> pathlib.Path:
+    """Copy the installed ``iblbench`` packages into ``folder/iblbench``, and each other
+    top-level package of ``packages`` (a plugin's) into ``folder``; returns ``folder``.
     The top-level package (the Python API) comes too: on ``PYTHONPATH`` first, the copy must
     be a regular package, or an installed one would shadow it."""
     (folder / "iblbench").mkdir(parents=True)
@@ -330,7 +282,19 @@ def copy_sources(folder: pathlib.Path) -> pathlib.Path:
         source = pathlib.Path(importlib.import_module(f"iblbench.{package}").__file__).parent
         shutil.copytree(source, folder / "iblbench" / package,
                         ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    for package in set(packages) - {"iblbench"}:
+        shutil.copytree(_package_folder(package), folder / package,
+                        ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     return folder
+
+
+def _package_folder(package: str) -> pathlib.Path:
+    """The folder of an installed top-level package (found without importing it)."""
+    spec = importlib.util.find_spec(package)
+    if spec is None or not spec.submodule_search_locations:
+        raise ValueError(f"{package!r} is not an installed package (a mutant's files must be "
+                         f"in a package, with its estimator's module)")
+    return pathlib.Path(next(iter(spec.submodule_search_locations)))
 
 
 def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout: float = 600.0,
@@ -354,7 +318,7 @@ def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout:
                 shutil.rmtree(workspace)
             workspace.mkdir(parents=True)
             tmp = str(workspace)
-        root = copy_sources(pathlib.Path(tmp))
+        root = copy_sources(pathlib.Path(tmp), [mutant.package])
         mutant.apply(root)
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
                    IBLBENCH_CACHE=str(cache or root / "cache"), IBLBENCH_CHI2_PLOTS=str(root / "chi2"))

@@ -38,10 +38,6 @@ SPP = 4
 SUN_RATIO = 50.0  # the sun texel's luminance over the sky's
 PDF_DIRECTIONS = 64
 VIS_RES, OPEN_SHARE, VIS_SEED = 2, 0.75, 22   # the G-buffer's visibility masks (inputs)
-# Estimator configurations beyond each built-in's defaults that run other kernel paths.
-VARIANTS = ("balanced_mis{shared_sequence=false}", 'envmap{mis="brdf"}',
-            'envmap{mis="brdf",mis_compensation=true}', 'product{child_weight="centre",light_levels=1}',
-            'product{mis="none",child_weight="bound"}', "restir{unbiased=false}")
 # Oclgrind's checks: memory (always on), data races and API misuse.
 CHECKS = {"OCLGRIND_DATA_RACES": "1", "OCLGRIND_CHECK_API": "1"}
 # Its uninitialised-value check, where it runs: Oclgrind 21.10's checker marks any vector
@@ -62,13 +58,23 @@ _REPORT = re.compile(r"^(Invalid (read|write)|.*data race|Work-(group|item) dive
 MASKED = "+visibility"
 
 
+def variants() -> list[str]:
+    """The configurations beyond each registered estimator's defaults that run other kernel
+    paths: each class's own ``portability_variants``."""
+    from iblbench.estimators.base import own
+    from iblbench.estimators.registry import estimator_names, get_estimator_class
+
+    return [label for name in estimator_names()
+            for label in own(get_estimator_class(name), "portability_variants")]
+
+
 def cases() -> list[str]:
     """Every case of the set: the reference, the frame-cache products, the light pdf, the perf
-    probes, each registered estimator with its defaults, :data:`VARIANTS`, and the reference and
-    each estimator again with visibility masks (``MASKED``)."""
+    probes, each registered estimator with its defaults, its :func:`variants`, and the reference
+    and each estimator again with visibility masks (``MASKED``)."""
     from iblbench.estimators.registry import estimator_names
 
-    return ["reference", "products", "light_pdf", "probes", *estimator_names(), *VARIANTS,
+    return ["reference", "products", "light_pdf", "probes", *estimator_names(), *variants(),
             *(name + MASKED for name in ("reference", *estimator_names()))]
 
 
