@@ -15,6 +15,12 @@ frame's images, A left and B right of a divider moved by a slider; a toggle that
 reference on both sides; a click zooms on the crop around the point) and Lu 2013 Fig. 1/2's
 sample picture (:mod:`.sample_picture`); then the run's manifest.
 
+The report reads only the run folder: its table, manifest and EXRs, and the inputs the run saved
+for the sample picture (:mod:`iblbench.harness.protocol.report_inputs`); it loads no scene, traces
+nothing and opens no device.  This module assembles the page (Jinja) from :mod:`.tables` (the
+tables), :mod:`.images` (the image grid, the bias table, the sample picture) and
+:mod:`.figures` (the figure cache), with a progress bar of its stages on stderr.
+
 Aggregation: a cell is (scene, estimator, spp).  Each seed's metrics are first averaged over the
 frames, then the cell's value is the mean over seeds with its 95% Student-t interval
 (:func:`iblbench.harness.protocol.stats.cell_intervals`, the one aggregation ``iblbench run`` prints too),
@@ -79,14 +85,14 @@ def write_report(run_dir, *, spp: int | None = None, seed: int | None = None,
     (``path`` is the page).  ``spp``/``seed``/``frame`` pick the images shown (default: the
     largest spp every estimator ran, the run's first seed, each sequence's median-luminance frame
     (:mod:`.frames`); one the run
-    lacks is an InputError) and ``pixel`` (x, y) the sample picture's pixel (default: the covered
-    pixel nearest the centre); ``ray_cost_ns`` the cost of a shadow ray in the error against
+    lacks is an InputError; the sample picture is the run's, at the spp it saved, and left out
+    with a note for another) and ``pixel`` (x, y) the sample picture's pixel (default: the
+    covered pixel nearest the centre); ``ray_cost_ns`` the cost of a shadow ray in the error against
     time-plus-rays plot of scenes with visibility (default: the Embree rate their trace measured);
     ``progress``: a bar of its stages on stderr (None: where stderr is a terminal)."""
     run_dir = pathlib.Path(run_dir)
     table, manifest = load_run(run_dir)
-    names = list(dict.fromkeys(table.scene))
-    bar = tqdm(total=len(names) + 2, unit="step", file=sys.stderr, leave=False,
+    bar = tqdm(total=table.scene.nunique() + 2, unit="step", file=sys.stderr, leave=False,
                disable=None if progress is None else not progress)
     with bar:
         return _write_page(run_dir, table, manifest, (spp, seed, frame, pixel, ray_cost_ns), bar)

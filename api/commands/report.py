@@ -18,8 +18,9 @@ def add_parser(subparsers) -> None:
         description=DESCRIPTION)
     report.add_argument("dir", type=pathlib.Path, metavar="DIR", help="an 'iblbench run' --out")
     report.add_argument("--spp", type=positive_int, metavar="N",
-                        help="spp of the image grid and sample picture (default: the largest "
-                             "spp every estimator of the scene ran)")
+                        help="spp of the image grid (default: the largest spp every estimator "
+                             "of the scene ran; the sample picture is drawn at the spp the run "
+                             "saved it at, that default)")
     report.add_argument("--seed", type=int, help="seed of the images shown (default: the run's "
                                                  "first; one the run lacks is an error)")
     report.add_argument("--frame", type=int, help="frame of the images shown (default: each "

@@ -328,8 +328,12 @@ class Executor:
                            for instance in [spec.make()] if isinstance(instance, PoolEstimator)}
         pooled = {label: instance for label, instance in pool_estimators.items()
                   if instance.params.shared_sequence}
-        spp = picture_spp({label: set(levels) for label, levels in self.plan.spp_levels.items()},
-                          pooled)
+        levels = {label: set(spp) for label, spp in self.plan.spp_levels.items() if spp}
+        if not levels:   # an equal-time run: its cells' spp are the ones its budgets chose
+            for (scene, label, _), spp in self.chosen.items():
+                if scene == plan.scene.name:
+                    levels.setdefault(label, set()).add(spp)
+        spp = picture_spp(levels, pooled)
         if spp is None:
             return
         normal = gbuffer.normal.astype(np.float64)

@@ -41,8 +41,8 @@ def pool_path(run_dir: pathlib.Path, scene: str, frame: int) -> pathlib.Path:
 
 def picture_spp(levels: dict[str, set[int]], pool_labels) -> int | None:
     """The spp of the sample picture: the largest spp every estimator ran (``levels``: label →
-    its spp), or, where they share none, the largest of each pool estimator's own (the spp the
-    image grid shows each: :func:`shown_spp`); None without a pool estimator."""
+    its spp), or, where they share none, the largest of the pool estimators' own (the spp the
+    image grid shows each: :func:`shown_spp`); None without a pool estimator among them."""
     shown = shown_spp(levels)
     return max((shown[label] for label in pool_labels if label in shown), default=None)
 
