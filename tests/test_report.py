@@ -268,17 +268,38 @@ def test_the_run_saves_the_g_buffer_s_normals_and_mask_and_the_frame_s_map(repor
     assert picture.ticks["uniform"].shape == (*mask.shape, 7)
 
 
-def test_a_run_folder_without_saved_inputs_reports_without_its_sample_picture(reported, tmp_path,
-                                                                              monkeypatch):
-    """A run folder made before runs saved the report's inputs still gets its page: the sample
-    picture left out with a note, the heat maps over the reference's non-black pixels; and the
-    report opens no device and loads no scene."""
+def _refuse_scenes_and_devices(monkeypatch) -> None:
+    """Loading a scene, tracing a G-buffer or opening a device fails the test."""
+    import iblbench.estimators.runtime.device
+    import iblbench.scenes.gbuffer
     import iblbench.scenes.registry
 
     def refused(*args, **kwargs):
-        raise AssertionError("the report loaded a scene")
+        raise AssertionError("the report loaded a scene, traced or opened a device")
 
-    monkeypatch.setattr(iblbench.scenes.registry, "load_scene", refused)
+    for module, name in ((iblbench.scenes.registry, "load_scene"),
+                         (iblbench.scenes.gbuffer, "cached_trace"),
+                         (iblbench.scenes.gbuffer, "trace_gbuffer"),
+                         (iblbench.estimators.runtime.device, "get_compute")):
+        monkeypatch.setattr(module, name, refused)
+
+
+def test_the_report_reads_only_the_run_folder(reported, tmp_path, monkeypatch):
+    """Issue 33: the sample picture comes from the run folder, with no scene, trace or device."""
+    _refuse_scenes_and_devices(monkeypatch)
+    out, first = reported
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    picture = write_report(copy)["scenes"][0]["picture"]
+    assert "saved by the run" in picture["source"]
+    assert picture["selections"] == first["scenes"][0]["picture"]["selections"]
+
+
+def test_a_run_folder_without_saved_inputs_reports_without_its_sample_picture(reported, tmp_path,
+                                                                              monkeypatch):
+    """A run folder made before runs saved the report's inputs still gets its page: the sample
+    picture left out with a note, the heat maps over the reference's non-black pixels."""
+    _refuse_scenes_and_devices(monkeypatch)
     out, _ = reported
     copy = tmp_path / "run"
     shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report", "inputs"))
