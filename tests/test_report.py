@@ -708,8 +708,8 @@ def test_a_sequence_scene_without_the_frame_is_an_error(reported, tmp_path, caps
 
 
 def test_a_user_scene_run_reports_from_another_working_directory(tmp_path, monkeypatch):
-    """The sample picture's inputs are
-    read from the run folder whatever the working directory of ``report``."""
+    """A user scene's sample picture is read from the run folder, whatever the working directory
+    of ``report`` (it reloads no scene file)."""
     import trimesh
 
     folder = tmp_path / "made-here" / "scene"
