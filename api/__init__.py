@@ -213,7 +213,7 @@ def check(out, budgets="budgets.toml"):
 def report(out, **options) -> pathlib.Path:
     """``iblbench report``: write ``out/report/index.html`` and return its path; ``options``
     are those of :func:`iblbench.reports.report.write_report` (spp, seed, frame, pixel,
-    device)."""
+    ray_cost_ns, progress)."""
     from iblbench.reports.report import write_report
 
     return pathlib.Path(write_report(out, **options)["path"])

@@ -11,7 +11,8 @@ import markupsafe
 import pandas as pd
 
 from iblbench.harness.protocol.ranking import METRIC_NAMES, Ranking, resolved_share
-from iblbench.harness.protocol.sequence_answer import frame_standings, sequence_summary
+from iblbench.harness.protocol.sequence_answer import (frame_curves, frame_standings,
+                                                       sequence_summary)
 from iblbench.reports import plots
 
 PLOTS = {"highlight": "answer_top3.png", "all": "answer_all.png"}
@@ -104,7 +105,7 @@ def matrix_table(rankings: dict[str, list[Ranking]], table_html) -> markupsafe.M
 def answer_context(draw, cells, rankings: dict[str, list[Ranking]], table_html) -> dict:
     """The page's opening: the matrix, the verdicts, the share of adjacent ranks resolved and
     the two versions of the small-multiple plot (drawn by ``draw(name, plot, *arguments)``,
-    the report's :meth:`~iblbench.reports.report.Figures.draw`)."""
+    the report's :meth:`~iblbench.reports.figures.Figures.draw`)."""
     if not any(rankings.values()):
         return {}
     for highlight, name in ((True, PLOTS["highlight"]), (False, PLOTS["all"])):
@@ -150,8 +151,9 @@ def sequence_context(draw, rows: pd.DataFrame, scene: str, slug: str,
     tables = []
     middle = rankings[len(rankings) // 2].budget_ms
     plot = f"frames_at_budget_{slug}.png"
+    curves = frame_curves(rows)   # every budget reads the same curves
     for ranking in rankings:
-        standings = frame_standings(rows, ranking.budget_ms)
+        standings = frame_standings(rows, ranking.budget_ms, curves)
         tables.append({"budget_ms": ranking.budget_ms,
                        "table": sequence_table(sequence_summary(standings), ranking.budget_ms,
                                                table_html)})

@@ -10,7 +10,7 @@ just-noticeable ΔE76 is about 2.3: Mahy, Van Eycken and Oosterlinck 1994; JND_D
 HEAT_MAX above any pixel we have measured.  Uncovered pixels (ΔE 0) are black like errors at or
 below HEAT_MIN.  Each heat map carries its scale (HEAT_SCALE) in a PNG text chunk (HEAT_TAG), so
 a report redraws maps drawn on another scale by an older version.  ``iblbench report`` draws
-these PNGs from the run's EXRs (:class:`iblbench.reports.report.FramePreviews`); the run writes
+these PNGs from the run's EXRs (:class:`iblbench.reports.images.FramePreviews`); the run writes
 none.
 """
 from __future__ import annotations

@@ -1,11 +1,10 @@
 """Lu 2013 Fig. 1/2's sample picture: for one pixel, the unfolded cube map with the shared
 light-sample pool drawn as not selected (red), selected (yellow) and effective (green).
 
-Nothing here re-implements sampling.  The pool is the one the estimators read,
-``FrameCache.light_pool(pool_size(spp), seed)``, copied back from the device
-(:func:`iblbench.estimators.runtime.pool_reads.pool_reads`); the per-face split
-N_f(n) for the pixel's normal comes from the estimator's own ``split_strategies`` kernel
-(``PoolEstimator.strategy_ticks``).  With the shared sequence (the pool estimators' default) a
+Nothing here re-implements sampling, and nothing here opens a device: the run saved, per frame,
+the pool the estimators read, ``FrameCache.light_pool(pool_size(spp), seed)``, and every pixel's
+per-face split N_f(n) from the estimator's own ``split_strategies`` kernel
+(:mod:`iblbench.harness.protocol.report_inputs`).  With the shared sequence (the pool estimators' default) a
 pixel reads the first ⌈N_f(n)⌉ pool entries of face f, so those are "selected"; the rest of the
 pool is "not selected"; a selected sample is "effective" when cos = n·ω > 0 (DESIGN §3).
 For ``balanced_mis`` the picture shows its light half (N_s/2 light samples split by Eq. 3); its
@@ -23,8 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib import patheffects  # noqa: E402
 
-from iblbench.estimators.light_pool import TICKS_PER_SAMPLE, PoolEstimator  # noqa: E402
-from iblbench.estimators.runtime.pool_reads import PoolRead, pool_reads  # noqa: E402
+from iblbench.harness.protocol.report_inputs import PoolPicture  # noqa: E402
 from iblbench.reports.previews import srgb_encode  # noqa: E402
 from iblbench.scenes import cubemap  # noqa: E402
 from iblbench.scenes.atomic import atomic_path  # noqa: E402
@@ -48,11 +46,12 @@ class PoolSelection:
     selected: np.ndarray         # [6·per_face] bool
     effective: np.ndarray        # [6·per_face] bool: selected and n·ω > 0
     valid: np.ndarray            # [6·per_face] bool: entry of a face with light (others unused)
+    ticks_per_sample: int        # the split's fixed point
 
     @property
     def n_f(self) -> np.ndarray:
         """N_f(n) per face, fractional (the last sample's β is its fraction, Eq. 5)."""
-        return self.ticks[:6] / TICKS_PER_SAMPLE
+        return self.ticks[:6] / self.ticks_per_sample
 
     @property
     def counts(self) -> dict[str, int]:
@@ -60,34 +59,26 @@ class PoolSelection:
                 "effective": int(self.effective.sum())}
 
 
-def pool_selections(compute, env: np.ndarray, frame: int, estimators: dict, normal: np.ndarray,
-                    spp: int, seed: int = 0) -> list[PoolSelection]:
-    """The pool a render of each of ``estimators`` (name → a pool estimator instance with its
-    parameters) at (``spp``, ``seed``) reads, and which entries a pixel with ``normal`` selects,
-    through the estimators' own pool and split kernels
-    (:func:`iblbench.estimators.runtime.pool_reads.pool_reads`)."""
-    for estimator in estimators.values():
-        if not isinstance(estimator, PoolEstimator):
-            raise TypeError(f"{getattr(estimator, 'name', estimator)} does not read a light-sample pool")
-        if not estimator.params.shared_sequence:
-            raise ValueError("with shared_sequence=false each pixel reads from its own hashed pool "
-                             "offset; the picture shows the shared-sequence read only")
-    normal = np.asarray(normal, np.float64)
-    normal = normal / np.linalg.norm(normal)
-    reads = pool_reads(compute, env, frame, estimators, normal, spp, seed)
-    return [_selection(label, spp, read, normal) for label, read in reads.items()]
+def pool_selections(picture: PoolPicture, pixel: tuple[int, int],
+                    normal: np.ndarray) -> list[PoolSelection]:
+    """Which entries of the frame's saved pool (``picture``) the pixel ``(x, y)`` with the unit
+    ``normal`` selects, for each estimator the run saved its split of."""
+    x, y = pixel
+    return [_selection(label, picture, ticks[y, x], normal)
+            for label, ticks in picture.ticks.items()]
 
 
-def _selection(label: str, spp: int, read: PoolRead, normal: np.ndarray) -> PoolSelection:
-    per_face, ticks = read.per_face, read.ticks
-    draws = np.minimum(-(-ticks[:6] // TICKS_PER_SAMPLE), per_face)
+def _selection(label: str, picture: PoolPicture, ticks: np.ndarray,
+               normal: np.ndarray) -> PoolSelection:
+    per_face, unit = picture.per_face, picture.ticks_per_sample
+    draws = np.minimum(-(-ticks[:6] // unit), per_face)
     face = np.repeat(np.arange(6), per_face)
     index = np.tile(np.arange(per_face), 6)
-    valid = np.repeat(read.face_integrals > 0, per_face)
+    valid = np.repeat(picture.face_integrals > 0, per_face)
     selected = valid & (index < draws[face])
-    directions = read.directions
-    effective = selected & (directions @ normal > 0)
-    return PoolSelection(label, spp, ticks, draws, directions, face, selected, effective, valid)
+    effective = selected & (picture.directions @ normal > 0)
+    return PoolSelection(label, picture.spp, ticks, draws, picture.directions, face, selected,
+                         effective, valid, unit)
 
 
 # ---- the unfolded cube (a cross seen from the centre of the cube) -----------------------------

@@ -40,7 +40,10 @@ PROTOCOL = ESTIMATORS | {"iblbench.harness.protocol"}
 VERIFY = PROTOCOL | {"iblbench.harness.verify"}
 STUDIES = VERIFY | {"iblbench.harness.studies"}
 HARNESS = STUDIES | {"iblbench.harness"}   # harness/ itself: shims over the layers below
-REPORTS = HARNESS | {"iblbench.reports"}
+# The report reads only the run folder: the harness (its results store, statistics and
+# rankings), and of the scenes only the modules that load, trace and open nothing.
+REPORTS = {"iblbench.harness", "iblbench.reports", "iblbench.scenes.errors",
+           "iblbench.scenes.atomic", "iblbench.scenes.imageio", "iblbench.scenes.cubemap"}
 API = {"iblbench"}   # the package `iblbench` is api/; it may import every package
 # Package -> the packages its modules (and its .cl kernels) may import.  A package that holds
 # no module (configs, templates, data) needs none.
@@ -181,7 +184,7 @@ def rule_breaks(graph: dict[str, set[str]], packages, allowed=ALLOWED) -> list[s
             continue
         for target in sorted(targets):
             banned = package_of(target, packages)
-            if not allows(allowed[rule], banned):
+            if not (allows(allowed[rule], banned) or allows(allowed[rule], target)):
                 breaks.append(f"{module} imports {target} ({package} may not import {banned})")
     return breaks
 
@@ -322,6 +325,10 @@ def test_no_import_cycles_between_files(graph):
     ("iblbench.harness.protocol.runner", "    import_module('iblbench.harness.verify.stress')"),
     ("iblbench.estimators.registry", "    __import__('iblbench.harness.protocol.runner')"),
     ("iblbench.harness.studies.perf", "    import_module(f'iblbench.reports.{name}')"),
+    ("iblbench.reports.report", "    from iblbench.estimators.runtime.device import get_compute"),
+    ("iblbench.reports.sample_picture", "from iblbench.estimators.light_pool import PoolEstimator"),
+    ("iblbench.reports.report", "from iblbench.scenes.registry import load_scene"),
+    ("iblbench.reports.report", "from iblbench.scenes import gbuffer"),
 ])
 def test_a_planted_import_running_back_up_is_caught(graph, module, planted):
     planted_graph = {name: set(targets) for name, targets in graph.items()}

@@ -27,8 +27,10 @@ from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.reports import plots
 from iblbench.reports.plots import pareto_front
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
-from iblbench.reports.report import (default_pixel, load_run, scene_inputs, summarize, summary_html,
-                                     write_report)
+from iblbench.harness.protocol.report_inputs import read_pool_picture, read_surface
+from iblbench.reports.images import default_pixel
+from iblbench.reports.report import write_report
+from iblbench.reports.tables import load_run, summarize, summary_html
 from iblbench.scenes import cubemap
 from iblbench.scenes.errors import InputError
 from iblbench.scenes.gbuffer import GBuffer
@@ -252,39 +254,60 @@ def test_sample_picture_counts_match_the_split(reported):
         assert (out / "report" / src).is_file()
 
 
-def test_inputs_rebuilt_load_only_their_scene_and_read_the_run_s_traced_g_buffer(reported, tmp_path,
-                                                                                monkeypatch):
-    """Issue 23 (report speed): rebuilding a scene's inputs loaded every scene of the run before
-    it and traced its G-buffer again, which the run had left in its trace cache."""
+def test_the_run_saves_the_g_buffer_s_normals_and_mask_and_the_frame_s_map(reported):
+    """Issue 33: the report reads the picture's inputs from the run folder; they are the
+    G-buffer and environment ``run --save-inputs`` saves in full."""
+    out, _ = reported
+    gbuffer = GBuffer.load_npz(out / "inputs" / "sphere-sun" / "gbuffer.npz")
+    normal, mask = read_surface(out, "sphere-sun")
+    np.testing.assert_array_equal(mask, gbuffer.mask)
+    np.testing.assert_array_equal(normal, gbuffer.normal)
+    picture = read_pool_picture(out, "sphere-sun", 0)
+    np.testing.assert_array_equal(picture.env, np.load(out / "inputs" / "sphere-sun" / "env_f0.npy"))
+    assert picture.spp == max(SPP) and list(picture.ticks) == list(ESTIMATORS)
+    assert picture.ticks["uniform"].shape == (*mask.shape, 7)
+
+
+def _refuse_scenes_and_devices(monkeypatch) -> None:
+    """Loading a scene, tracing a G-buffer or opening a device fails the test."""
+    import iblbench.estimators.runtime.device
     import iblbench.scenes.gbuffer
     import iblbench.scenes.registry
 
+    def refused(*args, **kwargs):
+        raise AssertionError("the report loaded a scene, traced or opened a device")
+
+    for module, name in ((iblbench.scenes.registry, "load_scene"),
+                         (iblbench.scenes.gbuffer, "cached_trace"),
+                         (iblbench.scenes.gbuffer, "trace_gbuffer"),
+                         (iblbench.estimators.runtime.device, "get_compute")):
+        monkeypatch.setattr(module, name, refused)
+
+
+def test_the_report_reads_only_the_run_folder(reported, tmp_path, monkeypatch):
+    """Issue 33: the sample picture comes from the run folder, with no scene, trace or device."""
+    _refuse_scenes_and_devices(monkeypatch)
+    out, first = reported
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
+    picture = write_report(copy)["scenes"][0]["picture"]
+    assert "saved by the run" in picture["source"]
+    assert picture["selections"] == first["scenes"][0]["picture"]["selections"]
+
+
+def test_a_run_folder_without_saved_inputs_reports_without_its_sample_picture(reported, tmp_path,
+                                                                              monkeypatch):
+    """A run folder made before runs saved the report's inputs still gets its page: the sample
+    picture left out with a note, the heat maps over the reference's non-black pixels."""
+    _refuse_scenes_and_devices(monkeypatch)
     out, _ = reported
-    _, manifest = load_run(out)
-    manifest = dict(manifest, config=dict(manifest["config"], scenes=["blob-sun", "sphere-sun"]))
-    loaded = []
-    load_scene = iblbench.scenes.registry.load_scene
-    monkeypatch.setattr(iblbench.scenes.registry, "load_scene",
-                        lambda entry, **kwargs: loaded.append(entry) or load_scene(entry, **kwargs))
-
-    def traced(*args):
-        raise AssertionError("traced again")
-
-    monkeypatch.setattr(iblbench.scenes.gbuffer, "trace_gbuffer", traced)
-    rebuilt = scene_inputs(tmp_path, manifest, "sphere-sun", 0)      # no inputs/ under tmp_path
-    assert loaded == ["sphere-sun"] and rebuilt.mask.sum() > 0
-
-
-def test_inputs_are_rebuilt_from_the_registry_without_saved_inputs(reported, tmp_path):
-    out, _ = reported
-    _, manifest = load_run(out)
-    rebuilt = scene_inputs(tmp_path, manifest, "sphere-sun", 0)      # no inputs/ under tmp_path
-    assert "rebuilt from the scene registry" in rebuilt.source
-    saved = scene_inputs(out, manifest, "sphere-sun", 0)
-    assert "saved by the run" in saved.source
-    np.testing.assert_array_equal(rebuilt.mask, saved.mask)
-    np.testing.assert_allclose(rebuilt.normal, saved.normal, atol=1e-6)
-    np.testing.assert_allclose(rebuilt.env, saved.env, rtol=1e-6)
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report", "inputs"))
+    context = write_report(copy)
+    assert "the run folder holds no inputs for it" in context["scenes"][0]["picture"]["error"]
+    page = (copy / "report" / "index.html").read_text(encoding="utf-8")
+    assert page.count("No sample picture: the run folder holds no inputs") == 1
+    assert (copy / "report" / "images" / "sphere-sun" / "f0" / "uniform_spp16_s0_de76.png").is_file()
 
 
 def _cli_error(capsys, *argv) -> str:
@@ -624,8 +647,9 @@ def test_a_metric_the_run_left_out_is_said_not_computed(reported, tmp_path):
 
 def test_a_report_again_draws_only_the_figures_whose_data_changed(reported, tmp_path, monkeypatch):
     """Issue 23 (report speed): every report drew every figure again, most of its time; one
-    that follows no change draws none, one with another spp only the sample pictures, and a
-    change to a scene's cells, or a figure gone, draws those again."""
+    that follows no change draws none, nor one with another spp (the run saved the sample
+    picture's pool at one spp: issue 33), and a change to a scene's cells, or a figure gone,
+    draws those again."""
     import iblbench.reports.sample_picture
 
     out, _ = reported
@@ -658,8 +682,8 @@ def test_a_report_again_draws_only_the_figures_whose_data_changed(reported, tmp_
     write_report(copy)
     assert sorted(drawn) == scene_figures
     drawn.clear()
-    write_report(copy, spp=SPP[0])
-    assert drawn == ["plot_sample_picture"] * 2
+    other = write_report(copy, spp=SPP[0])
+    assert drawn == [] and "saved the pool at 16 spp only" in other["scenes"][0]["picture"]["error"]
 
 
 # --- the report shows what the run has, from any working directory -------------------------------
@@ -684,8 +708,8 @@ def test_a_sequence_scene_without_the_frame_is_an_error(reported, tmp_path, caps
 
 
 def test_a_user_scene_run_reports_from_another_working_directory(tmp_path, monkeypatch):
-    """The manifest names the scene TOML by an absolute path, so the sample picture's inputs are
-    rebuilt from the same file whatever the working directory of ``report``."""
+    """A user scene's sample picture is read from the run folder, whatever the working directory
+    of ``report`` (it reloads no scene file)."""
     import trimesh
 
     folder = tmp_path / "made-here" / "scene"
@@ -703,10 +727,9 @@ def test_a_user_scene_run_reports_from_another_working_directory(tmp_path, monke
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)
-    _, manifest = load_run(out)
-    inputs = scene_inputs(out, manifest, "ball", 0)
-    assert "rebuilt from the scene registry" in inputs.source
-    assert inputs.mask.shape == (12, 12) and inputs.mask.any()
+    picture = write_report(out)["scenes"][0]["picture"]
+    assert "saved by the run" in picture["source"] and len(picture["panels"]) == 1
+    assert read_surface(out, "ball")[1].shape == (12, 12)
 
 
 # --- intervals over seeds (issue 11) ---------------------------------------------------------------

@@ -21,7 +21,8 @@ from iblbench.harness.protocol.machine_readable import run_summary
 from iblbench.harness.protocol.ranking import scene_rankings
 from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.harness.protocol.stats import cell_intervals, column_interval, time_keys
-from iblbench.reports.report import device_cells, summarize, write_report
+from iblbench.reports.report import write_report
+from iblbench.reports.tables import device_cells, summarize
 
 SLOW = "Slow CPU"
 FACTOR = 10.0

@@ -148,7 +148,7 @@ def _readers_agree(out: Path) -> dict:
     """The cell key → ΔE76 that the run's resume (read_results), the report and the check read;
     asserted equal, one row per cell each."""
     from iblbench.harness.verify.budgets import load_results
-    from iblbench.reports.report import load_run
+    from iblbench.reports.tables import load_run
 
     resume = {row_key(row): row["mean_delta_e76"] for row in read_results(out)}
     assert len(resume) == len(read_results(out))

@@ -29,7 +29,7 @@ from iblbench.harness.protocol.run_plan import TIMING_SEED
 from iblbench.harness.protocol.runner import RunConfig, run
 from iblbench.harness.protocol.sweep import DEFAULT_REPEATS
 from iblbench.harness.protocol.timing import FLOOR_POOR, TimedRender, TimingFloor, time_columns
-from iblbench.reports.report import equal_time_cells, summarize
+from iblbench.reports.tables import equal_time_cells, summarize
 from iblbench.scenes.imageio import read_exr
 
 BUILD = 0.5                                               # upload ms of every frame's build

@@ -255,7 +255,7 @@ def test_a_run_records_visibility_and_shadow_rays(tmp_path):
 
 def test_ray_cost_adds_each_cells_shadow_rays_to_its_time_and_interval():
     import pandas as pd
-    from iblbench.reports.report import with_ray_cost
+    from iblbench.reports.tables import with_ray_cost
     cells = pd.DataFrame({"shadow_rays": [10.0, 0.0], "time_ms": [2.0, 3.0], "time_ms_low": [1.5, 2.5],
                           "time_ms_high": [2.5, 3.5]})
     charged = with_ray_cost(cells, ns_per_ray=1000.0, pixels=100)    # 10 × 100 × 1 µs = 1 ms

@@ -41,11 +41,16 @@ import numpy as np
 
 from iblbench.estimators.runtime.device import cache_dir
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.light_pool import TICKS_PER_SAMPLE, PoolEstimator
 from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.runtime.pool_reads import pool_reads
 from iblbench.estimators.runtime.reference import Reference
 from iblbench.harness.protocol.equal_time import (CELL_CORRECTIONS, Calibration, best_measured,
                                                   corrected_spp, spp_limit)
 from iblbench.harness.protocol.metrics import PROTOCOL, Scorer, delta_e_images, flicker
+from iblbench.harness.protocol.report_inputs import (SEED as PICTURE_SEED, PoolPicture,
+                                                     picture_spp, write_pool_picture,
+                                                     write_surface)
 from iblbench.harness.protocol.results import REPLICATED, SCHEMA_VERSION, image_stem
 from iblbench.harness.protocol.run_plan import (TIMING_SEED, RunConfig, RunPlan, ScenePlan,
                                                 cell_order, sequence_key)
@@ -197,6 +202,7 @@ class Executor:
 
     def _run_scene(self, plan: ScenePlan, keys: list, on_row) -> None:
         gbuffer, warm_up = self._device_gbuffers(plan)
+        write_surface(self.out, plan.scene.name, gbuffer.gbuffer.normal, gbuffer.gbuffer.mask)
         required = sorted({p for spec in self.plan.specs for p in spec.cls.requires})
         sequences = {}   # temporal estimators: (label, spp, budget, seed) → [scored, twins...]
         for index, frame in enumerate(plan.frames):
@@ -312,6 +318,34 @@ class Executor:
             row = self._row(plan, cell, scorer, previous_frame)
             on_row(row)
             self.progress.finished(cell.key, row["spp"], cell.seconds)
+        self._save_pool_picture(plan, gbuffer.gbuffer, cache)
+
+    def _save_pool_picture(self, plan: ScenePlan, gbuffer, cache: FrameCache) -> None:
+        """The frame's sample-picture inputs for the report (:mod:`.report_inputs`): the pool
+        of the shared-sequence pool estimators at the picture's spp and every pixel's split;
+        after the frame's cells, so that building its pool times no cell."""
+        pool_estimators = {spec.label: instance for spec in self.plan.specs
+                           for instance in [spec.make()] if isinstance(instance, PoolEstimator)}
+        pooled = {label: instance for label, instance in pool_estimators.items()
+                  if instance.params.shared_sequence}
+        levels = {label: set(spp) for label, spp in self.plan.spp_levels.items() if spp}
+        if not levels:   # an equal-time run: its cells' spp are the ones its budgets chose
+            for (scene, label, _), spp in self.chosen.items():
+                if scene == plan.scene.name:
+                    levels.setdefault(label, set()).add(spp)
+        spp = picture_spp(levels, pooled)
+        if spp is None:
+            return
+        normal = gbuffer.normal.astype(np.float64)
+        length = np.linalg.norm(normal, axis=-1, keepdims=True)
+        normal = np.divide(normal, length, out=np.zeros_like(normal), where=length > 0)
+        reads = pool_reads(cache, pooled, normal.reshape(-1, 3), spp, PICTURE_SEED)
+        first = next(iter(reads.values()))
+        write_pool_picture(self.out, plan.scene.name, cache.frame, PoolPicture(
+            np.asarray(plan.scene.environment.frame(cache.frame), np.float32), spp,
+            first.directions, first.per_face, first.face_integrals, TICKS_PER_SAMPLE,
+            {label: read.ticks.reshape(*normal.shape[:2], 7) for label, read in reads.items()},
+            tuple(label for label in pool_estimators if label not in pooled)))
 
     def _prepare_cell(self, plan: ScenePlan, spec, estimator, key, cells, gbuffer, cache,
                       build_ms: float, sequences: dict) -> "_Cell":

@@ -221,17 +221,20 @@ def _figure(standing: Standing) -> str:
     return f"{ci.mean:.2g} [{ci.low:.2g}, {ci.high:.2g}]"
 
 
-def curve(rows: pd.DataFrame, metric: str = METRIC, frame: int | None = None) -> list[Point]:
+def curve(rows: pd.DataFrame, metric: str = METRIC, frame: int | None = None,
+          times: dict | None = None) -> list[Point]:
     """An estimator's error–time curve on one scene: one :class:`Point` per cell (spp level or
     time budget) of ``rows``, sorted by spp.  A point's time is always its cell's (every frame);
     its replicates are ``metric``'s over the cell's frames, or of ``frame`` alone.  Flicker is
-    defined from the run's second frame of the sequence on, so its first frame is left out."""
+    defined from the run's second frame of the sequence on, so its first frame is left out.
+    ``times``: the cells' times and their draws kept by cell between calls on the same rows
+    (a sequence's curves, one per frame and metric, share them)."""
+    times = {} if times is None else times
     if metric in HIGHER_IS_BETTER:   # the curve is read in log-log space as an error falling with time
         raise ValueError(f"the equal-time ranking reads errors (lower is better); "
                          f"{metric} is higher-is-better")
     points = []
     for _, cell in rows.groupby(["spp", "time_budget_ms"], sort=False, dropna=False):
-        time_ms = column_interval(cell, TIME_COLUMN)[0].mean
         scored = cell if frame is None else cell[cell.frame == frame]
         if metric == FLICKER:
             scored = scored[scored.frame != cell.frame.min()]
@@ -240,9 +243,13 @@ def curve(rows: pd.DataFrame, metric: str = METRIC, frame: int | None = None) ->
         values, _ = cell_values(scored, metric)
         spp, budget = int(cell.spp.iloc[0]), cell.time_budget_ms.iloc[0]
         budget = None if pd.isna(budget) else float(budget)
+        name = f"{cell.estimator.iloc[0]}|{spp}|{budget}"
+        if name not in times:
+            time_ms = column_interval(cell, TIME_COLUMN)[0].mean
+            times[name] = (time_ms, _time_draws(name, render_times(cell), float(time_ms))
+                           if math.isfinite(time_ms) else None)
+        time_ms, draws = times[name]
         if math.isfinite(time_ms) and values.notna().all():
-            draws = _time_draws(f"{cell.estimator.iloc[0]}|{spp}|{budget}", render_times(cell),
-                                float(time_ms))
             points.append(Point(spp, float(time_ms), values, draws, budget))
     return sorted(points, key=lambda p: (p.spp, p.time_ms))
 

@@ -43,20 +43,30 @@ def _row(estimator: str, frame, metric: str, points, budget_ms: float) -> dict:
             "mean": ci.mean, "low": ci.low, "high": ci.high}
 
 
-def frame_standings(rows: pd.DataFrame, budget_ms: float) -> pd.DataFrame:
-    """One scene's ``rows`` (a results table's) read at ``budget_ms``: a row per estimator,
-    frame (``None``: over the frames) and metric (ΔE76, flicker) with ``status`` ("ranked", or
-    why not) and the figure's ``mean``, ``low`` and ``high`` (module docstring)."""
+def frame_curves(rows: pd.DataFrame) -> list[tuple]:
+    """One scene's ``rows`` (a results table's) as curves: (estimator, frame (``None``: over the
+    frames), metric (ΔE76, flicker), its :func:`ranking.curve`), which every budget reads."""
     out = []
     frames = sorted(int(f) for f in rows.frame.unique())
     for estimator, cells in rows.groupby("estimator", sort=False):
+        times = {}   # the cells' times: the same in every frame's curve
         for metric in (METRIC, FLICKER):
             if metric not in cells:
                 continue
-            out.append(_row(estimator, None, metric, curve(cells, metric), budget_ms))
             shown = frames[1:] if metric == FLICKER else frames
-            out += [_row(estimator, f, metric, curve(cells, metric, f), budget_ms) for f in shown]
-    return pd.DataFrame(out, columns=list(COLUMNS))
+            out += [(estimator, frame, metric, curve(cells, metric, frame, times))
+                    for frame in [None, *shown]]
+    return out
+
+
+def frame_standings(rows: pd.DataFrame, budget_ms: float, curves: list | None = None) -> pd.DataFrame:
+    """One scene's ``rows`` (a results table's) read at ``budget_ms``: a row per estimator,
+    frame (``None``: over the frames) and metric (ΔE76, flicker) with ``status`` ("ranked", or
+    why not) and the figure's ``mean``, ``low`` and ``high`` (module docstring); ``curves``:
+    :func:`frame_curves` of ``rows``, made once for several budgets."""
+    curves = frame_curves(rows) if curves is None else curves
+    return pd.DataFrame([_row(estimator, frame, metric, points, budget_ms)
+                         for estimator, frame, metric, points in curves], columns=list(COLUMNS))
 
 
 def sequence_summary(standings: pd.DataFrame) -> pd.DataFrame:
