@@ -20,13 +20,13 @@
 the same sweep configs and overrides (:mod:`iblbench.harness.protocol.sweep`), the same files in
 ``out``, the same resumption.  It returns the rows of this sweep (the folder may also hold
 other sweeps' cells) as a pandas DataFrame: one row per (scene, estimator, spp, frame, seed),
-the columns of ``results.parquet`` (README, "Command line").  Bad input raises
+the columns of ``results.parquet`` (docs/results.md).  Bad input raises
 :class:`InputError`, whose one-line message names the file, argument (as its keyword,
 ``first_seed=-1``, where the command line names a flag) or key.
 
 **Scenes** are built-in names (``iblbench list scenes``), paths of scene ``.toml`` files, or
 dicts with the keys of a scene TOML file (sections ``mesh``, ``environment``, ``material``,
-``camera``, ``render``; format in :mod:`iblbench.scenes.registry` and the README), plus an
+``camera``, ``render``; format in :mod:`iblbench.scenes.registry` and docs/scenes.md), plus an
 optional ``name`` (default: the mesh file's stem; it names the rows and image folders, so two
 scenes of one run need two names, and a built-in scene's name is refused).  Relative paths in a
 dict (``mesh.path``, ``environment.path``) are taken from the current working directory.  A
@@ -47,7 +47,7 @@ import os
 import pathlib
 import re
 
-from iblbench.scenes.errors import InputError, python_keywords
+from iblbench.foundation.errors import InputError, python_keywords
 
 __all__ = ["run", "run_config", "check", "report", "InputError"]
 
@@ -203,8 +203,8 @@ run_config.__signature__ = _run_config_signature()
 @_naming_keywords
 def check(out, budgets="budgets.toml"):
     """``iblbench check``: (checks DataFrame, verdict line, exit status 0 or 1); InputError on
-    bad input (:func:`iblbench.harness.verify.budgets.check`)."""
-    from iblbench.harness.verify.budgets import check as check_budgets
+    bad input (:func:`iblbench.harness.protocol.budgets.check`)."""
+    from iblbench.harness.protocol.budgets import check as check_budgets
 
     return check_budgets(out, budgets)
 
@@ -338,7 +338,7 @@ def _toml_value(value, key: str, where: str) -> str:
 
 
 def _write_scene(path: pathlib.Path, text: str) -> None:
-    from iblbench.scenes.atomic import atomic_path
+    from iblbench.foundation.atomic import atomic_path
 
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:

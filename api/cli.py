@@ -13,7 +13,7 @@ import importlib
 import os
 import sys
 
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 DESCRIPTION = """\
 iblbench: comparative benchmarks of Monte Carlo estimators for image-based lighting.
@@ -24,7 +24,7 @@ EPILOG = """\
 examples:
   iblbench run                                   the default sweep: every estimator, 6 scenes (792 cells, minutes)
   iblbench run --scene sphere-sun --estimator uniform --spp 16,256 --seeds 2 --out runs/a
-  iblbench run --scene my/scene.toml --sanitize  a user scene (see README for the TOML format)
+  iblbench run --scene my/scene.toml --sanitize  a user scene (the TOML format: docs/scenes.md)
   iblbench reproduce lu2013 --out runs/lu2013    Lu 2013's figures and claims, with verdicts
   iblbench reproduce mis-compensation            Karlík et al. 2019's equal-time claim
   iblbench report runs/a                         runs/a/report/index.html (open it from disk)
@@ -39,7 +39,7 @@ examples:
   iblbench check runs/a --json --junit check.xml JSON summary on stdout, JUnit XML for CI
 
 machine-readable output: --json on run, check, compare and stress prints one JSON document on
-  stdout (the tables then go to stderr); the schemas are in the README and in
+  stdout (the tables then go to stderr); the schemas are in docs/results.md and in
   iblbench.harness.machine_readable
 
 Python API (a notebook; returns the results table as a pandas DataFrame):

@@ -209,7 +209,7 @@ def estimator_version(cls: type) -> str:
             digest.update(inspect.getsource(inspect.getmodule(klass)).encode())
     for filename in cls.kernel_files:
         digest.update(kernel_path(cls.kernel_package(), filename).read_bytes())
-    for shared in sorted(kernel_path("iblbench.estimators", "kernels").glob("*.cl")):
+    for shared in sorted(kernel_path("iblbench.estimators.runtime", "kernels").glob("*.cl")):
         digest.update(shared.read_bytes())
     if cls.requires:
         digest.update(inspect.getsource(framecache).encode())

@@ -15,7 +15,7 @@ from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 if TYPE_CHECKING:
     from iblbench.estimators.base import Estimator

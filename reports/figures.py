@@ -11,7 +11,7 @@ import pickle
 import pandas as pd
 
 from iblbench.reports import plots
-from iblbench.scenes.atomic import atomic_path
+from iblbench.foundation.atomic import atomic_path
 
 class Figures:
     """The report's figures (:mod:`.plots`), each drawn only where the report does not hold it

@@ -16,7 +16,7 @@ import pathlib
 import numpy as np
 
 from iblbench.scenes.cubemap import luminance
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 from iblbench.scenes.imageio import read_exr
 
 

@@ -19,7 +19,7 @@ from iblbench.reports.figures import slugify
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
 from iblbench.reports.tables import intervals, table_html
 from iblbench.scenes import cubemap
-from iblbench.scenes.errors import InputError, argument
+from iblbench.foundation.errors import InputError, argument
 from iblbench.scenes.imageio import read_exr
 
 def choose_spp(table: pd.DataFrame, scene: str, frame: int, seed: int, spp: int | None) -> dict:

@@ -14,7 +14,7 @@ def write_outputs(out: pathlib.Path, table, roofline: Roofline, context: dict) -
     import markupsafe
 
     from iblbench.harness.protocol.results import write_table
-    from iblbench.scenes.atomic import atomic_path
+    from iblbench.foundation.atomic import atomic_path
 
     csv, html = out / "perf.csv", out / "perf.html"
     write_table(table, csv)

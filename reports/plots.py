@@ -23,7 +23,7 @@ import pandas as pd  # noqa: E402
 from iblbench.harness.protocol.stats import MeanCI, by_device, cell_intervals, separated  # noqa: E402
 from iblbench.harness.protocol.timing import TIME  # noqa: E402
 from iblbench.reports.previews import HEAT_CMAP, HEAT_MAX  # noqa: E402
-from iblbench.scenes.atomic import atomic_path  # noqa: E402
+from iblbench.foundation.atomic import atomic_path  # noqa: E402
 
 DPI = 100
 # Text that stays about 10 px or more where a page 800 px wide scales a figure 11 inches wide

@@ -20,7 +20,7 @@ import numpy as np
 from PIL import Image, PngImagePlugin
 
 from iblbench.harness.protocol.metrics import tonemap
-from iblbench.scenes.atomic import atomic_path
+from iblbench.foundation.atomic import atomic_path
 
 HEAT_MIN = 0.1     # ΔE76 at the bottom (black) of the heat maps' log scale; less is shown as it
 HEAT_MAX = 100.0   # ΔE76 at the top (pale yellow); more is shown as it

@@ -70,8 +70,8 @@ from iblbench.reports.tables import (device_cells, equal_time_html, load_run, ma
                                      not_computed, number, on_device, ray_costs,
                                      split_equal_time, summarize, summary_tables, table_html,
                                      with_ray_cost)
-from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError, argument
+from iblbench.foundation.atomic import atomic_path
+from iblbench.foundation.errors import InputError, argument
 
 _TEMPLATES = jinja2.Environment(
     loader=jinja2.PackageLoader("iblbench.reports", "templates"),

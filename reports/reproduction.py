@@ -12,7 +12,7 @@ import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
 from iblbench.harness.protocol.stats import interval_text  # noqa: E402
-from iblbench.scenes.atomic import atomic_path  # noqa: E402
+from iblbench.foundation.atomic import atomic_path  # noqa: E402
 
 _TEMPLATES = jinja2.Environment(
     loader=jinja2.PackageLoader("iblbench.reports", "templates"),

@@ -25,7 +25,7 @@ from matplotlib import patheffects  # noqa: E402
 from iblbench.harness.protocol.report_inputs import PoolPicture  # noqa: E402
 from iblbench.reports.previews import srgb_encode  # noqa: E402
 from iblbench.scenes import cubemap  # noqa: E402
-from iblbench.scenes.atomic import atomic_path  # noqa: E402
+from iblbench.foundation.atomic import atomic_path  # noqa: E402
 
 COLOURS = {"not selected": "#e02020", "selected": "#ffd400", "effective": "#20c020"}
 NORMAL_COLOUR = "#00e5ff"

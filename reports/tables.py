@@ -17,7 +17,7 @@ from iblbench.harness.protocol.stats import (by_device, cell_intervals, devices,
                                              mean_ci)
 from iblbench.harness.protocol.timing import TIME
 from iblbench.reports import plots
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 REQUIRED_COLUMNS = ("scene", "estimator", "spp", "frame", "seed", "mean_delta_e76",
                     "mean_delta_e2000", "rel_mse", "used_samples", "effective_samples",

@@ -1,4 +1,4 @@
-"""Cube-map conventions of DESIGN §3, shared with ``estimators/kernels/common.cl``.
+"""Cube-map conventions of DESIGN §3, shared with ``estimators/runtime/kernels/common.cl``.
 
 - Face order +X, -X, +Y, -Y, +Z, -Z; Y is up.
 - Face coordinates follow the OpenGL table: ``ma`` is the major axis and ``(sc, tc)``

@@ -65,7 +65,7 @@ from typing import Callable, Sequence, Union
 import numpy as np
 
 from . import cubemap
-from .errors import InputError, argument
+from iblbench.foundation.errors import InputError, argument
 from .imageio import read_image
 
 LAYOUTS = ("auto", "latlong", "vcross", "hcross", "faces")

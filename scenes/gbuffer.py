@@ -36,7 +36,7 @@ import zipfile
 
 import numpy as np
 
-from iblbench.scenes.atomic import atomic_path
+from iblbench.foundation.atomic import atomic_path
 
 GBUFFER_ARRAYS = ("mask", "position", "normal", "view", "kd", "ks", "shininess")
 MIN_COS_VIEW = 1e-3

@@ -31,8 +31,8 @@ from typing import Callable
 import numpy as np
 import OpenEXR
 
-from .atomic import atomic_path
-from .errors import InputError
+from iblbench.foundation.atomic import atomic_path
+from iblbench.foundation.errors import InputError
 
 _HDR_FORMAT = b"32-bit_rle_rgbe"
 _HDR_RESOLUTION = re.compile(rb"-Y (\d+) \+X (\d+)")

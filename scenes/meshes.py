@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from iblbench.foundation.errors import InputError
 
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".stl", ".off")
 # Larger coordinates overflow trimesh's vertex merging (it rounds x·1e8 to int64) and lose

@@ -103,9 +103,9 @@ import numpy as np
 
 from . import meshes, sequences, sky
 from .envmap import LAYOUTS, MAX_RES, load_environment
-from .errors import InputError
+from iblbench.foundation.errors import InputError
 from .scene import Camera, EnvSequence, Material, Scene
-from .tomlfile import read_toml
+from iblbench.foundation.tomlfile import read_toml
 from .visibility import check_resolution
 
 DEFAULT_ENV_RES = 64

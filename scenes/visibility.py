@@ -38,7 +38,7 @@ from typing import Callable
 import numpy as np
 
 from iblbench.scenes import cubemap
-from iblbench.scenes.atomic import atomic_path
+from iblbench.foundation.atomic import atomic_path
 
 RAYS_PER_CELL_SIDE = 2
 OFFSET_SCALE = 1e-4

@@ -316,7 +316,7 @@ def test_the_command_line_still_names_its_flags(tmp_path, capsys):
 def test_the_device_error_names_the_keyword_inside_the_api(monkeypatch):
     """Only a simulator installed: the hint names ``device=`` from the API, --device otherwise."""
     from iblbench.estimators.runtime import device
-    from iblbench.scenes.errors import python_keywords
+    from iblbench.foundation.errors import python_keywords
 
     simulator = type("Simulator", (), {"is_simulator": True, "label": "Oclgrind"})()
     monkeypatch.setattr(device, "all_devices", lambda: [simulator])

@@ -14,7 +14,7 @@ from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import CDF_ONE, FrameCache
 from iblbench.harness.protocol.sweep import parse_estimator
 from iblbench.scenes import cubemap
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 SUN_RES = 16
 

@@ -19,7 +19,7 @@ import pandas as pd
 import pytest
 
 from iblbench import cli
-from iblbench.harness.verify.budgets import (LIMIT_KEYS, configuration_differences, evaluate,
+from iblbench.harness.protocol.budgets import (LIMIT_KEYS, configuration_differences, evaluate,
                                              load_budgets, read_budgets)
 from iblbench.harness.protocol.results import COLUMNS, write_results
 from iblbench.harness.protocol.sweep import load_sweep

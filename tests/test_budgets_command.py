@@ -132,7 +132,7 @@ def test_budgets_from_a_real_run_pass_check_on_it(tmp_path):
 
 def test_run_command_names_the_python_api_for_an_api_run(tmp_path):
     """A run made by iblbench.run has no command line: the header must not claim one."""
-    from iblbench.harness.verify.budgets import run_command
+    from iblbench.harness.protocol.budgets import run_command
 
     api_run = {"sweep": {"source": "shipped:default", "via": "iblbench.run (Python API)",
                          "overridden_by_arguments": ["scenes", "spp"]}}

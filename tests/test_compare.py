@@ -7,11 +7,11 @@ import pandas as pd
 import pytest
 
 from iblbench.cli import main
-from iblbench.harness.verify.compare import pair_estimators, parse_threshold
+from iblbench.harness.protocol.compare import pair_estimators, parse_threshold
 from iblbench.harness.protocol.results import TABLE, read_manifest, write_manifest
 from iblbench.harness.protocol.run_plan import MAX_SEED, MAX_SEEDS
 from iblbench.harness.protocol.runner import RunConfig, run
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 MUTANT = "balanced{uniform_faces=true}"
 SCENES = ("sphere-backlit",)

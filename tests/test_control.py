@@ -19,7 +19,7 @@ from iblbench.harness.protocol.run_plan import plan_run
 from iblbench.harness.protocol.sweep import load_sweep
 from iblbench.reports.answer import busy_sentence
 from iblbench.reports.report import write_report
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 from iblbench.scenes.imageio import read_exr
 from test_cli import TINY, assert_input_error, cache, cli  # noqa: F401 (fixtures)
 from test_ranking import cell

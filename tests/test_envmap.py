@@ -16,7 +16,7 @@ import trimesh
 
 from iblbench.scenes import cubemap
 from iblbench.scenes.envmap import BLACK_LEVEL, default_latlong_res, load_environment, resample_latlong
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 from iblbench.scenes.imageio import write_exr, write_hdr
 
 FACE_FILES = ("px", "nx", "py", "ny", "pz", "nz")

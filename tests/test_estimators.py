@@ -10,7 +10,7 @@ from iblbench.estimators.light_pool import PoolParams
 from iblbench.estimators.uniform import Uniform
 from iblbench.harness.verify.conformance import (Harness, check_estimator, check_setting_properties,
                                                  check_settings_differ, parametrize_with_checks)
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 BUILTINS = [registry.make_estimator(name) for name in registry.builtin_names()]
 

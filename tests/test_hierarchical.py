@@ -16,7 +16,7 @@ from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.harness.protocol.sweep import parse_estimator
 from iblbench.scenes import cubemap
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 from test_brdf_envmap import SUN_RES, numpy_weights
 from test_mips import numpy_chain

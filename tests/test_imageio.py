@@ -5,7 +5,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 from iblbench.scenes.imageio import read_exr, read_hdr, read_image, write_exr, write_hdr
 
 
@@ -165,7 +165,7 @@ def test_atomic_writes_leave_readable_files_and_no_temporaries(tmp_path):
     import os
     import stat
 
-    from iblbench.scenes.atomic import atomic_path
+    from iblbench.foundation.atomic import atomic_path
 
     target = tmp_path / "sub" / "result.txt"
     with atomic_path(target) as tmp:

@@ -207,8 +207,8 @@ def test_every_registered_metric_reaches_the_table_the_flags_compare_and_budgets
     """What reads the registry: a metric registered is a column (and a replicate column where
     it has replicates), a --metrics name, a compare metric and a budgets limit."""
     from iblbench.harness.protocol.results import COLUMNS
-    from iblbench.harness.verify.budgets import DERIVED_METRICS, LIMIT_KEYS
-    from iblbench.harness.verify.compare import HIGHER_IS_BETTER, METRICS
+    from iblbench.harness.protocol.budgets import DERIVED_METRICS, LIMIT_KEYS
+    from iblbench.harness.protocol.compare import HIGHER_IS_BETTER, METRICS
 
     for descriptor in metric.registered():
         assert descriptor.column in COLUMNS and descriptor.column in METRICS

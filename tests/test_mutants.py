@@ -36,7 +36,7 @@ def test_catalogue_covers_every_estimator_and_harness_part_and_applies_cleanly()
 
 def test_a_null_mutation_survives_every_layer():
     """The layers do not reject correct code: a mutation that changes nothing passes them."""
-    null = mutants.Mutant("null", "estimators/kernels/common.cl", "#define IBL_PI", "#define IBL_PI",
+    null = mutants.Mutant("null", "estimators/runtime/kernels/common.cl", "#define IBL_PI", "#define IBL_PI",
                           ("uniform",), ("constant",))
     outcome = mutants.run_mutant(null, all_layers=True)
     assert not outcome.error, outcome.error

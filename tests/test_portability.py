@@ -105,7 +105,7 @@ def test_doctor_names_the_case_and_how_far_off_it_is():
 
 def test_a_simulator_alone_is_not_chosen_by_default(monkeypatch):
     from iblbench.estimators.runtime import device
-    from iblbench.scenes.errors import InputError
+    from iblbench.foundation.errors import InputError
 
     simulators = [d for d in all_devices() if d.is_simulator]
     monkeypatch.setattr(device, "all_devices", lambda: simulators)

@@ -18,7 +18,7 @@ from iblbench.harness.protocol.sweep import parse_estimator
 from iblbench.harness.verify import conformance, stress
 from iblbench.harness.verify.conformance import ALPHA_CHI2, chi2_sampling, sidak_alpha
 from iblbench.scenes import cubemap
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 from test_brdf_envmap import numpy_weights
 from test_hierarchical import ONE

@@ -32,7 +32,7 @@ from iblbench.reports.images import default_pixel
 from iblbench.reports.report import write_report
 from iblbench.reports.tables import load_run, summarize, summary_html
 from iblbench.scenes import cubemap
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 from iblbench.scenes.gbuffer import GBuffer
 from iblbench.scenes.imageio import read_exr
 

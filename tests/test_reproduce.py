@@ -6,7 +6,7 @@ import pytest
 from iblbench.harness.protocol.stats import renders_values
 from iblbench.harness.studies import reproduce
 from iblbench.reports.reproduction import summary_head, write_summary
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 
 def with_intervals(cells: pd.DataFrame, half: float = 0.0, seeds: int = 8) -> pd.DataFrame:

@@ -22,7 +22,7 @@ from iblbench.cli import main
 from iblbench.harness.protocol.results import (DETERMINISTIC_COLUMNS, JOURNAL, Journal,
                                                read_journal, read_results, row_key, write_results)
 from iblbench.harness.protocol.runner import RunConfig, run
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 TINY = """\
 protocol = "lab-reinhard-v1"
@@ -147,7 +147,7 @@ def _cell(seed: int, delta_e: float) -> dict:
 def _readers_agree(out: Path) -> dict:
     """The cell key → ΔE76 that the run's resume (read_results), the report and the check read;
     asserted equal, one row per cell each."""
-    from iblbench.harness.verify.budgets import load_results
+    from iblbench.harness.protocol.budgets import load_results
     from iblbench.reports.tables import load_run
 
     resume = {row_key(row): row["mean_delta_e76"] for row in read_results(out)}

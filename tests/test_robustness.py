@@ -21,7 +21,7 @@ from iblbench.harness.protocol import runner as runner_module
 from iblbench.cli import EXIT_DISK_FULL, main
 from iblbench.harness.protocol.results import JOURNAL, read_journal, read_results
 from iblbench.harness.protocol.runner import LOCK, RunConfig, Runner, _locked, run
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 SMALL = dict(scenes=("sphere-sun",), estimators=("uniform",), seeds=1, resolution=(16, 16),
              env_res=8, repeats=1, metrics=("de76",), progress=False)

@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from iblbench.harness.protocol.runner import RunConfig, run
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 
 def tiny(out, **overrides):

@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from iblbench.scenes import cubemap, gbuffer, meshes, registry, sky
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 from iblbench.scenes.scene import Camera, Material
 
 # --- G-buffer ----------------------------------------------------------------------------------

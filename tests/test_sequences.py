@@ -17,7 +17,7 @@ from iblbench.harness.protocol.metrics import delta_e_images
 from iblbench.commands.common import frames_arg
 from iblbench.harness.protocol.sweep import parse_frames, select_frames
 from iblbench.scenes import cubemap, registry, sequences, sky
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 from iblbench.scenes.gbuffer import trace_gbuffer
 from iblbench.scenes.imageio import read_exr, write_exr
 

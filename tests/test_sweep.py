@@ -13,7 +13,7 @@ import trimesh
 from iblbench.cli import main
 from iblbench.commands.common import repeats_arg
 from iblbench.harness.protocol.sweep import load_sweep, parse_estimator
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 VALID = """\
 protocol = "lab-reinhard-v1"

@@ -19,7 +19,7 @@ import trimesh
 
 from iblbench.estimators.base import Estimate, Estimator, Tags
 from iblbench.estimators.registry import _registry, register
-from iblbench.harness.verify import budgets
+from iblbench.harness.protocol import budgets
 from iblbench.commands import run as run_command
 from iblbench.harness.protocol import executor, timing
 from iblbench.harness.protocol.equal_time import CALIBRATION_SEED, TOLERANCE, Calibration

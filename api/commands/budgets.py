@@ -9,7 +9,7 @@ from iblbench.commands.common import add_run_dir
 DESCRIPTION = """\
 Write a fresh budgets file for `check` from DIR's equal-spp cells: each bound is the measured
 mean over seeds ± K standard errors ± MARGIN × the mean, on both sides, with the run's
-configuration and the measured values in it (format and bound shapes in harness/budgets.py).
+configuration and the measured values in it (format and bound shapes in harness/protocol/budgets.py).
 Exit 2 on fewer than 8 seeds per cell."""
 
 
@@ -33,8 +33,8 @@ DEFAULT_OUTPUT = pathlib.Path("budgets.toml")
 
 
 def run(args) -> None:
-    from iblbench.harness.verify.budgets import write_budgets
-    from iblbench.scenes.errors import InputError
+    from iblbench.harness.protocol.budgets import write_budgets
+    from iblbench.foundation.errors import InputError
 
     output = args.output or DEFAULT_OUTPUT
     if args.output is None and output.exists():   # from the repository root: the committed file

@@ -4,13 +4,13 @@ from __future__ import annotations
 import pathlib
 
 from iblbench.commands.common import add_json, add_run_dir, human_output, print_json
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 
 DESCRIPTION = """\
 Check DIR/results.parquet against the rules of a budgets file (per scene glob, estimator glob
 and spp: max mean ΔE76, max relMSE, min effective ratio, nonfinite == 0, max time ratio to a
-baseline estimator of the same run; format in harness/budgets.py). Prints every rule x cell with
+baseline estimator of the same run; format in harness/protocol/budgets.py). Prints every rule x cell with
 value, budget and PASS/FAIL, then a verdict. A missing cell fails. Exit 0 all pass, 1 any fails,
 2 bad input."""
 
@@ -31,9 +31,9 @@ def add_parser(subparsers) -> None:
 def run(args) -> int:
     import pandas as pd
 
-    from iblbench.harness.verify.budgets import check, rule_name
+    from iblbench.harness.protocol.budgets import check, rule_name
     from iblbench.harness.protocol.machine_readable import check_summary, junit_xml
-    from iblbench.scenes.atomic import atomic_path
+    from iblbench.foundation.atomic import atomic_path
 
     checks, verdict, status = check(args.dir, args.budgets)
     human = human_output(args)

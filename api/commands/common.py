@@ -86,7 +86,7 @@ def frames_arg(text: str) -> tuple[int, ...] | slice | None:
     """``--frames``: ``START:STOP[:STEP]`` (a Python slice), ``all``, ``A..B`` (inclusive) or
     ``N,N,...``; a bad spec is an InputError (the CLI prints it on one line and exits 2)."""
     from iblbench.harness.protocol.sweep import parse_frames
-    from iblbench.scenes.errors import InputError
+    from iblbench.foundation.errors import InputError
 
     value = text.strip()
     if re.fullmatch(r"\d+(\s*,\s*\d+)*", value):
@@ -163,8 +163,8 @@ def add_run_dir(parser) -> None:
 def add_json(parser) -> None:
     parser.add_argument("--json", action="store_true",
                         help="print a machine-readable summary (one JSON document) on stdout; "
-                             "the human-readable output goes to stderr (schema: README, "
-                             "'Machine-readable output')")
+                             "the human-readable output goes to stderr (schema: "
+                             "docs/results.md)")
 
 
 def human_output(args):

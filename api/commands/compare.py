@@ -1,4 +1,4 @@
-"""``iblbench compare`` (:mod:`iblbench.harness.verify.compare`)."""
+"""``iblbench compare`` (:mod:`iblbench.harness.protocol.compare`)."""
 from __future__ import annotations
 
 import pathlib
@@ -33,6 +33,6 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
-    from iblbench.harness.verify.compare import run_command
+    from iblbench.harness.protocol.compare import run_command
 
     return run_command(args.a, args.b, args.fail_if, as_json=args.json)

@@ -16,8 +16,8 @@ device's measured FMA and copy roofline and the fraction of it each shading kern
 (from analytic FLOP and byte counts per sample, estimates), and the speed-up over a
 single-threaded NumPy implementation of Lu 2013's shared-pool shading on the same inputs (the
 floor every kernel must beat; it must also agree with the uniform kernel on the same pool).
-Prints a table and writes perf.csv and perf.html into --out. The method and the counts are in
-harness/perf.py. Exit 0, or 2 on bad input."""
+Prints a table and writes perf.csv and perf.html into --out. The method is in
+harness/studies/perf.py, the counts are each estimator's cost declaration. Exit 0, or 2 on bad input."""
 
 
 def add_parser(subparsers) -> None:
@@ -60,7 +60,7 @@ def run(args) -> None:
     from iblbench.harness.protocol.results import prepare_out
     from iblbench.harness.studies import perf
     from iblbench.reports.perf import write_outputs
-    from iblbench.scenes.errors import InputError
+    from iblbench.foundation.errors import InputError
 
     config = perf.PerfConfig(
         out=args.out, scenes=tuple(args.scene or perf.DEFAULT_SCENES),

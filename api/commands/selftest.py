@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 
 from iblbench.commands.common import positive_int
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 
 SELFTEST_DESCRIPTION = """\

@@ -7,7 +7,7 @@ import pathlib
 
 from iblbench.commands.common import (LazyDescriptionFormatter, add_json, human_output, print_json,
                                       rendering_flags)
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 
 def add_parser(subparsers) -> None:
@@ -110,7 +110,7 @@ def _write_outputs(out: pathlib.Path, table, scale, device: str, seconds: float)
     (:func:`iblbench.reports.report.stress_html`) in ``out``, each written atomically."""
     from iblbench.harness.verify import stress
     from iblbench.reports.report import stress_html
-    from iblbench.scenes.atomic import atomic_path
+    from iblbench.foundation.atomic import atomic_path
 
     paths = stress.write_tables(out, table) + [out / "stress.html"]
     cases, context = stress.html_context(table, scale, device, seconds)

@@ -28,8 +28,8 @@ import warnings
 import numpy as np
 import pyopencl as cl
 
-from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError, argument
+from iblbench.foundation.atomic import atomic_path
+from iblbench.foundation.errors import InputError, argument
 
 ENV_DEVICE = "IBLBENCH_DEVICE"
 SIMULATORS = ("oclgrind",)   # platform or device names of simulators, lower case
@@ -209,7 +209,7 @@ class Compute:
     """A context and a profiling queue on one device, with a program cache for ``.cl`` files.
 
     Programs are built once per (files, defines) from package data with ``-I`` include
-    directories (``estimators/kernels`` and pyopencl's Random123 headers) and ``-D`` options.
+    directories (``estimators/runtime/kernels`` and pyopencl's Random123 headers) and ``-D`` options.
     ``pool_lanes`` (``-DPOOL_LANES``), the width of the explicit vectors in which the estimators
     run a pixel's samples (light_pool.cl), comes from the device: 16 where its preferred float
     vector width is 16 (AVX-512), else 8 (a generic CPU target warned of an ABI change for every
@@ -310,7 +310,7 @@ def kernel_path(package: str, filename: str) -> pathlib.Path:
 @functools.lru_cache(maxsize=1)
 def include_dirs() -> tuple[str, ...]:
     import pyopencl
-    return (str(kernel_path("iblbench.estimators", "kernels")),
+    return (str(kernel_path("iblbench.estimators.runtime", "kernels")),
             os.path.join(os.path.dirname(pyopencl.__file__), "cl"))
 
 

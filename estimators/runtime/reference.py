@@ -12,7 +12,7 @@ import pyopencl as cl
 
 from iblbench.estimators.runtime.device import Compute, cache_dir, event_ms, kernel_path
 from iblbench.scenes import cubemap
-from iblbench.scenes.atomic import atomic_path
+from iblbench.foundation.atomic import atomic_path
 
 # Quadrature points per lobe width for the specular quadrature (see reference.cl); part of the cache key.
 DEFAULT_DENSITY = 4
@@ -111,7 +111,7 @@ class Reference:
     def _key(self, gbuffer, env: np.ndarray) -> str:
         digest = hashlib.sha256()
         digest.update(kernel_path("iblbench.estimators.runtime", "reference.cl").read_bytes())
-        digest.update(kernel_path("iblbench.estimators", "kernels/common.cl").read_bytes())
+        digest.update(kernel_path("iblbench.estimators.runtime", "kernels/common.cl").read_bytes())
         digest.update(pathlib.Path(__file__).read_bytes())   # the host-side texel tables
         fp64 = self.compute.info.has_fp64 and self.compute.fp64   # the path Compute builds
         digest.update(f"density={self.density} fp64={fp64}".encode())

@@ -49,7 +49,7 @@ from iblbench.harness.protocol.executor import CellClock, Executor, device_recor
 from iblbench.harness.protocol.run_plan import (RunConfig, RunPlan, cell_order, plan_run,
                                                 sequence_key)
 from iblbench.harness.protocol.timing import host_threads_capped, measure_timing_floor
-from iblbench.scenes.errors import InputError, argument
+from iblbench.foundation.errors import InputError, argument
 from iblbench.scenes.registry import scene_entry
 
 PLUGIN = "iblbench-opencl"

@@ -58,7 +58,7 @@ from iblbench.harness.protocol.shadows import attach_visibility
 from iblbench.harness.protocol.stats import RENDERS, renders_text
 from iblbench.harness.protocol.timing import (device_ms, required_build_ms, robust_ms,
                                               time_columns, timed_renders, too_wide)
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 from iblbench.scenes.gbuffer import cached_trace
 from iblbench.scenes.imageio import read_exr, write_exr
 

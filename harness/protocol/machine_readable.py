@@ -156,7 +156,7 @@ def _value(text: str):
 
 
 def rule_outcomes(checks: pd.DataFrame) -> list[dict]:
-    """The rows of :func:`iblbench.harness.verify.budgets.evaluate` grouped by rule, in file order."""
+    """The rows of :func:`iblbench.harness.protocol.budgets.evaluate` grouped by rule, in file order."""
     rules = []
     for name, group in checks.groupby("rule", sort=False):
         results = set(group.result)

@@ -25,8 +25,8 @@ import pathlib
 
 import numpy as np
 
-from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.atomic import atomic_path
+from iblbench.foundation.errors import InputError
 
 SEED = 0   # the sample picture's pool is seed 0's, whatever seeds the run has
 

@@ -66,8 +66,8 @@ import pandas as pd
 from iblbench.harness.protocol.metric import columns as metric_columns, replicated_columns
 from iblbench.harness.protocol.stats import RENDERS
 from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME
-from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError, argument, keywords_named
+from iblbench.foundation.atomic import atomic_path
+from iblbench.foundation.errors import InputError, argument, keywords_named
 
 SCHEMA_VERSION = 7
 KEY_COLUMNS = ["scene", "estimator", "spp", "frame", "seed", "time_budget_ms"]

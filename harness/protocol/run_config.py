@@ -158,7 +158,7 @@ class RunConfig(SweepSettings):
         help="run the cells on the Dask cluster whose dask-scheduler is at "
              "ADDRESS (e.g. tcp://node1:8786); its workers need this iblbench, "
              "and --out and the cache (IBLBENCH_CACHE) on a filesystem they share "
-             "(README, 'Running on a cluster')",
+             "(docs/user-guide.md, 'Running on a cluster')",
         python="run the cells on the Dask cluster whose scheduler is at this address "
                "(see :mod:`iblbench.harness.protocol.distributed`)")
     sweep: dict | None = setting(None)   # the resolved sweep and its source

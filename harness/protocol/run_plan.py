@@ -19,7 +19,7 @@ from iblbench.harness.protocol.equal_time import CALIBRATION_SEED
 from iblbench.harness.protocol.run_config import MAX_REPEATS, RunConfig
 from iblbench.harness.protocol.sweep import (CONTROL_SUFFIX, control_labels, frames_text,
                                              parse_estimator, select_frames)
-from iblbench.scenes.errors import InputError, argument
+from iblbench.foundation.errors import InputError, argument
 from iblbench.scenes.registry import load_scene
 
 TIMING_SEED = 0x80000000   # timing renders: TIMING_SEED + 256·seed + repeat (executor.timing_seed)

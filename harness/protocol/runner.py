@@ -141,8 +141,8 @@ from iblbench.harness.protocol.timing import (MEASURE, SPREAD_LIMIT, cell_times,
                                               measure_timing_floor, others_cores,
                                               timing_floor_text)
 from iblbench.harness.protocol.sweep import frames_text
-from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError, argument
+from iblbench.foundation.atomic import atomic_path
+from iblbench.foundation.errors import InputError, argument
 from iblbench.scenes.framing import warn_about_framing
 from iblbench.scenes.gbuffer import cached_trace
 from iblbench.scenes.registry import scene_entry

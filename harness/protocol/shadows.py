@@ -7,7 +7,7 @@ import time
 
 from iblbench.harness.protocol.visibility_error import visibility_error
 from iblbench.scenes import visibility
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 
 def attach_visibility(scene, gbuffer, env_res: int, folder, progress=None) -> tuple[object, dict | None]:

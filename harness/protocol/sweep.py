@@ -68,8 +68,8 @@ from iblbench.harness.protocol.metric import default_names, names, parse_metrics
 from iblbench.harness.protocol.metrics import PROTOCOL
 from iblbench.harness.protocol.run_config import (DEFAULT_REPEATS, MAX_REPEATS, SWEEP_FIELDS,
                                                   SweepSettings)
-from iblbench.scenes.errors import InputError
-from iblbench.scenes.tomlfile import read_toml
+from iblbench.foundation.errors import InputError
+from iblbench.foundation.tomlfile import read_toml
 
 if sys.version_info >= (3, 11):
     import tomllib

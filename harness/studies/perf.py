@@ -37,7 +37,7 @@ and its roofline fraction is achieved / attainable with attainable = min(peak FL
 intensity × peak bandwidth), i.e. max(gflops / peak_gflops, gbytes_per_s / peak_gbps).
 
 FLOP and byte counts (each estimator's ``cost``) are estimates, counted by reading the kernels as
-they are as of this revision (``estimators/*.cl``, ``estimators/kernels/*.cl``), rounded, good to
+they are as of this revision (``estimators/*.cl``, ``estimators/runtime/kernels/*.cl``), rounded, good to
 perhaps ±30%; they must be re-derived whenever a shading kernel changes (nothing checks them
 against the kernels).  FLOPs, counted per work item as the source reads after the compiler's exact
 simplifications:
@@ -105,7 +105,7 @@ from iblbench.estimators.runtime.probes import (FMA_ITEMS, CopyProbe, copy_size,
                                                 run_copy, run_fma)
 from iblbench.harness.protocol.timing import (measure_timing_floor, required_build_ms, spread,
                                               timing_floor_text)
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 DEFAULT_SCENES = ("sphere-sun", "blob-sun")
 DEFAULT_RESOLUTION = (256, 256)

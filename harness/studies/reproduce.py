@@ -40,7 +40,7 @@ from iblbench.harness.protocol.runner import run
 from iblbench.harness.protocol.stats import MeanCI, RatioCI, cell_intervals, ratio_ci, separated
 from iblbench.harness.protocol.sweep import parse_estimator
 from iblbench.harness.protocol.timing import TIME
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 HOLDS, PARTLY, FAILS = "holds", "partly holds", "does not hold"
 TIMES = (TIME, "time_ms_build", "time_ms_sample", "time_ms_shade")

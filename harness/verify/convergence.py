@@ -111,7 +111,7 @@ class Flag:
 def _tags(label: str):
     """The tags of the estimator a results label names; None where it is not registered here."""
     from iblbench.harness.protocol.sweep import parse_estimator
-    from iblbench.scenes.errors import InputError
+    from iblbench.foundation.errors import InputError
 
     try:
         return parse_estimator(label).make().tags

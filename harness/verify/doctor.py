@@ -94,7 +94,7 @@ def diagnose(spec: str | None = None, verbose: bool = False,
     (a device without cl_khr_fp64 against the default device's float path); with no default
     device (none that builds, or only a simulator) the devices are held to the twins alone."""
     from iblbench.estimators.runtime.device import all_devices, build_failure, choose_device
-    from iblbench.scenes.errors import InputError
+    from iblbench.foundation.errors import InputError
 
     try:
         default = choose_device()

@@ -30,7 +30,6 @@ from __future__ import annotations
 import concurrent.futures
 import contextlib
 import dataclasses
-import importlib
 import importlib.util
 import json
 import os
@@ -42,7 +41,7 @@ import sys
 import tempfile
 import time
 
-PACKAGES = ("estimators", "harness", "scenes", "reports")
+PACKAGES = ("foundation", "scenes", "estimators", "harness", "reports")
 LAYERS = ("conformance", "stress", "budgets")
 RESULT_TAG = "MUTANT-RESULT "
 
@@ -100,7 +99,7 @@ def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed
     return Mutant(name, path, old, new, tuple(estimators), tuple(stress), budgets, expect_killed_after)
 
 
-COMMON, POOL = "estimators/kernels/common.cl", "estimators/kernels/light_pool.cl"
+COMMON, POOL = "estimators/runtime/kernels/common.cl", "estimators/runtime/kernels/light_pool.cl"
 
 # The shared kernels' and the harness's mutants; each estimator's own are declared beside it
 # (``Estimator.mutants``) and :func:`catalogue` collects them.
@@ -258,8 +257,7 @@ class Outcome:
 
 def budgets_file() -> pathlib.Path | None:
     """The repository's budgets.toml beside the packages (a source checkout), or None."""
-    root = pathlib.Path(importlib.import_module("iblbench.harness").__file__).resolve().parents[1]
-    path = root / "budgets.toml"
+    path = _package_folder("iblbench.harness").resolve().parent / "budgets.toml"
     return path if path.is_file() else None
 
 
@@ -269,7 +267,7 @@ def copy_sources(folder: pathlib.Path, packages=()) -> pathlib.Path:
     The top-level package (the Python API) comes too: on ``PYTHONPATH`` first, the copy must
     be a regular package, or an installed one would shadow it."""
     (folder / "iblbench").mkdir(parents=True)
-    api = pathlib.Path(importlib.import_module("iblbench").__file__).parent
+    api = _package_folder("iblbench")
     for entry in api.iterdir():          # the API: __init__, cli and commands/
         if entry.name in PACKAGES or entry.name == "__pycache__":
             continue
@@ -279,8 +277,7 @@ def copy_sources(folder: pathlib.Path, packages=()) -> pathlib.Path:
         elif entry.suffix == ".py":
             shutil.copy(entry, folder / "iblbench")
     for package in PACKAGES:
-        source = pathlib.Path(importlib.import_module(f"iblbench.{package}").__file__).parent
-        shutil.copytree(source, folder / "iblbench" / package,
+        shutil.copytree(_package_folder(f"iblbench.{package}"), folder / "iblbench" / package,
                         ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     for package in set(packages) - {"iblbench"}:
         shutil.copytree(_package_folder(package), folder / package,
@@ -289,7 +286,8 @@ def copy_sources(folder: pathlib.Path, packages=()) -> pathlib.Path:
 
 
 def _package_folder(package: str) -> pathlib.Path:
-    """The folder of an installed top-level package (found without importing it)."""
+    """The folder of an installed package, found without importing it: the mutants copy files,
+    so the API above the harness is located, never imported."""
     spec = importlib.util.find_spec(package)
     if spec is None or not spec.submodule_search_locations:
         raise ValueError(f"{package!r} is not an installed package (a mutant's files must be "
@@ -402,7 +400,7 @@ def _stress(mutant: Mutant, compute) -> str:
 
 
 def _budgets(budgets: str) -> str:
-    from iblbench.harness.verify import budgets as budget_check
+    from iblbench.harness.protocol import budgets as budget_check
 
     if budgets == "-":
         return ""

@@ -96,9 +96,9 @@ from iblbench.harness.protocol.metric import LIMITS, registered
 from iblbench.harness.protocol.results import METRIC_COLUMNS, ROW_STATISTICS, load_table, read_manifest
 from iblbench.harness.protocol.stats import mean_ci
 from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME, one_cell_time
-from iblbench.scenes.atomic import atomic_path
-from iblbench.scenes.errors import InputError
-from iblbench.scenes.tomlfile import read_toml
+from iblbench.foundation.atomic import atomic_path
+from iblbench.foundation.errors import InputError
+from iblbench.foundation.tomlfile import read_toml
 
 CELL = ["scene", "estimator", "spp"]
 TIME_METRICS = tuple(column for column in TIME_COLUMNS if column.startswith("time_ms"))
@@ -462,7 +462,7 @@ TIME_FACTOR = 5.0
 USED_SLACK = 0.01      # used samples in [spp − 1%, spp]: an analytic bound, not a measured one
 
 BUDGETS_HEADER = """\
-# Error budgets made on {date} (harness/verify/budgets.py; checked by `iblbench check DIR --budgets
+# Error budgets made on {date} (harness/protocol/budgets.py; checked by `iblbench check DIR --budgets
 # FILE`). Do not edit by hand: remake them with these two commands, the sweep into a fresh folder
 #   {run_command}
 #   iblbench budgets {dir} --margin {margin:g} --se-multiple {k:g} --output {output}

@@ -60,7 +60,7 @@ from iblbench.harness.protocol.metric import registered
 from iblbench.harness.protocol.results import KEY_COLUMNS, json_text, load_table, read_manifest, row_key
 from iblbench.harness.protocol.stats import (LEVEL, RATIO_METHOD, MeanCI, RatioCI, cell_values,
                                              column_interval, compare_values, devices, ratio_ci)
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 METRICS = (*(metric.column for metric in registered()), "effective_ratio", "time_ms")
 HIGHER_IS_BETTER = frozenset({"effective_ratio", *(metric.column for metric in registered()

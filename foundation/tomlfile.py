@@ -4,7 +4,7 @@ from __future__ import annotations
 import os
 import sys
 
-from iblbench.scenes.errors import InputError
+from iblbench.foundation.errors import InputError
 
 if sys.version_info >= (3, 11):
     import tomllib
