@@ -30,7 +30,7 @@ class BalancedMIS(PoolEstimator):
 
     Budget: N_f(n) = μ_f(n) N_s/2 light samples of face f (μ_f of Eq. 3) and N_b = N_s/2 BRDF
     samples, each strategy's last sample weighted by β = frac(N) (Eq. 5).  BRDF sampling is the
-    energy-conserving Phong of DESIGN §3: lobe by luminance weight, cosine-weighted diffuse lobe,
+    energy-conserving Phong of ARCHITECTURE.md §Conventions: lobe by luminance weight, cosine-weighted diffuse lobe,
     cos^m lobe about r; its pdf p_B is the mixture pdf, counting the specular lobe's mass below
     the surface (those samples get a zero integrand).
 

@@ -1,4 +1,4 @@
-"""The estimator contract of DESIGN §4: parameters, capability tags, requirements, kernels.
+"""The estimator contract of ARCHITECTURE.md §Estimator contract: parameters, capability tags, requirements, kernels.
 
 A plugin subclasses :class:`Estimator`, sets ``name``, ``Params`` (a dataclass with documented
 defaults), ``settings`` (a :class:`Setting` off the default for every parameter), ``tags``,
@@ -228,7 +228,7 @@ def own(cls: type, attribute: str):
 
 def specular_lobe_defines(gbuffer) -> dict:
     """Kernel defines of an estimator that samples the Phong BRDF: an all-diffuse G-buffer
-    compiles the specular-lobe sampling branch out (DESIGN §2), and the G-buffer's own
+    compiles the specular-lobe sampling branch out (ARCHITECTURE.md §Data flow), and the G-buffer's own
     (:func:`visibility_defines`)."""
     lobe = {"SPECULAR_LOBE": 0} if gbuffer is not None and gbuffer.is_diffuse else {}
     return {**visibility_defines(gbuffer), **lobe}

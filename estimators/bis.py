@@ -2,7 +2,7 @@
 
 Sampling-importance-resampling per pixel (kernels ``sir.cl`` + ``bis.cl``):
 
-1. M candidates ω_i from the Phong BRDF mixture p_B (DESIGN §3, ``sample_phong``);
+1. M candidates ω_i from the Phong BRDF mixture p_B (ARCHITECTURE.md §Conventions, ``sample_phong``);
 2. weights w_i = γ(ω_i)/p_B(ω_i) with the target γ = L_Y·ρ_Y·cos⁺ (Kronander Eq. 3: luminance
    of the radiance times luminance of the BRDF times the cosine);
 3. N samples resampled from the candidates by **systematic** resampling (one uniform u, the

@@ -6,7 +6,7 @@ from iblbench.estimators.envmap import MapSampler
 
 
 class Brdf(MapSampler):
-    """Importance sampling of the energy-conserving Phong BRDF alone (DESIGN §3; Lafortune and
+    """Importance sampling of the energy-conserving Phong BRDF alone (ARCHITECTURE.md §Conventions; Lafortune and
     Willems 1994; pbrt-v4's BSDF sampling in a path tracer without light sampling).
 
     The lobe is chosen by luminance weight, p_s = Y(ks)/(Y(kd) + Y(ks)); the diffuse lobe is
@@ -20,7 +20,7 @@ class Brdf(MapSampler):
     lobe wherever its own term is positive).  It never reads the map's CDFs: its only per-frame
     product is the uploaded map.
 
-    Deviations: none from DESIGN §3; it shares ``envmap``'s kernel (``envmap.cl`` without light
+    Deviations: none from ARCHITECTURE.md §Conventions; it shares ``envmap``'s kernel (``envmap.cl`` without light
     samples), so its BRDF draws are ``envmap``'s with MIS.
     """
 

@@ -18,7 +18,7 @@
  * sun leaves every lit texel reachable), and a texel's probability P is the product of its
  * choices' q/2^31, which the density (descent_density) recomputes from the same pyramid words
  * and factors in the same order.  The density in solid angle is P·(1+x²+y²)^{3/2}/a_texel,
- * a_texel = (2/R)² (DESIGN §3).  Children of zero total (an all-black map, or past an odd size's
+ * a_texel = (2/R)² (ARCHITECTURE.md §Conventions).  Children of zero total (an all-black map, or past an odd size's
  * edge) fall back to widths 2^31/N for each child that exists, the remainder to the first of
  * them (so 1/2, 1/4, 1/4 for three of four: not equal, but the lookup recomputes the same
  * widths), so a black map still samples a valid texel with the density it is drawn from.

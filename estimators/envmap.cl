@@ -1,7 +1,7 @@
 /* `envmap` (and, with LIGHT_SAMPLES = 0, `brdf`): the production samplers.  Light samples come from
  * one 2-D distribution over the whole cube map, a marginal over its 6·R rows (faces and rows,
  * face-major) and a conditional over columns, both fixed-point CDFs (FrameCache.map_marginal and
- * light_cdfs), as pbrt-v4's ImageInfiniteLight samples its one image; BRDF samples are DESIGN §3's
+ * light_cdfs), as pbrt-v4's ImageInfiniteLight samples its one image; BRDF samples are ARCHITECTURE.md §Conventions's
  * Phong sampling; the two combine by MIS.  Configured by the estimator's defines:
  *   LIGHT_SAMPLES  1: light samples (0: none, the `brdf` estimator)
  *   BRDF_SAMPLES   1: BRDF samples (half the budget when LIGHT_SAMPLES is 1)
@@ -57,7 +57,7 @@ ALWAYS_INLINE lanes_t mis_denominator(lanes_t own, lanes_t other)
  * row by the marginal over all 6·R rows, the column by that row's conditional, the point in the
  * texel by the variates' position inside their bins (lanes_sample_face's arithmetic).  *texel
  * gets the texel and *pdf the density in solid angle, P(row)·P(col | row)·(1+x²+y²)^{3/2}/a_texel
- * (DESIGN §3 with the map's rows for μ_f·P(row | f)). */
+ * (ARCHITECTURE.md §Conventions with the map's rows for μ_f·P(row | f)). */
 ALWAYS_INLINE lanes3_t lanes_sample_map(__global const cdf_word_t *marginal,
                                         __global const cdf_word_t *conditional, int res,
                                         lane_block_t xi, lane_ints_t *texel, lanes_t *pdf)

@@ -155,7 +155,7 @@ class Envmap(MapSampler):
     columns (the ``cdf`` product's, or the compensated ones), both the fixed-point CDFs of
     issue 6, so every texel of positive weight keeps a positive, relatively exact probability
     next to a 1e6:1 sun.  A sample picks a row, a column, and a point uniform in the texel's face
-    square; its density is P(row)·P(col | row)·(1+x²+y²)^{3/2}/a_texel (DESIGN §3).  No
+    square; its density is P(row)·P(col | row)·(1+x²+y²)^{3/2}/a_texel (ARCHITECTURE.md §Conventions).  No
     per-normal balancing: the distribution is the same for every pixel.
 
     Budget and MIS.  Without MIS all N_s samples are light samples (Eq. 4 of Lu 2013 with one
@@ -173,7 +173,7 @@ class Envmap(MapSampler):
     the estimate is unbiased even where the BRDF density is zero, and a black or constant map
     needs no special case).  Mitsuba 3 and pbrt-v4 use it only under MIS; so does this.
 
-    Deviations from pbrt-v4: a cube map with nearest lookup and Y·Ω weights (DESIGN §3) where
+    Deviations from pbrt-v4: a cube map with nearest lookup and Y·Ω weights (ARCHITECTURE.md §Conventions) where
     pbrt-v4 samples an equal-area octahedral image by its bilinearly filtered channel average;
     a budget split N_s/2 + N_s/2 where a path tracer takes one light and one BSDF sample per
     vertex (the same at N_s = 2); no visibility (none in this benchmark).

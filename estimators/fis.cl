@@ -1,6 +1,6 @@
 /* `fis`: filtered importance sampling (Colbert and Křivánek, GPU Gems 3 ch. 20; the choices and
  * deviations are in estimators/fis.py).  N = spp Phong BRDF samples per pixel from a Hammersley
- * set (Eq. 10) with a per-pixel Cranley–Patterson rotation, mapped by DESIGN §3's mixture
+ * set (Eq. 10) with a per-pixel Cranley–Patterson rotation, mapped by ARCHITECTURE.md §Conventions's mixture
  * sampling (Eq. 7-9 for the specular lobe); each sample reads the radiance mip chain at the
  * level of Eq. 11-13 plus the chapter's bias, linearly between the two nearest levels and at the
  * nearest texel within each, and is weighted by ρ·cos/(N·p) (Eq. 2).  envmap.cl without light
@@ -41,7 +41,7 @@ ALWAYS_INLINE hammersley_t hammersley_set(uint seed, uint frame, uint pixel, int
  * falls (specular below p_s) and, rescaled to [0, 1) within that lobe's share, is the polar
  * variate (Eq. 7: cos θ = ξ^{1/(m+1)} about r; the diffuse lobe's cos θ = √ξ about n); ξ2 =
  * Φ2(i) ⊕ shift is the azimuth (Eq. 8).  One uniform for the lobe and the angle keeps the set's
- * stratification in ξ1 (DESIGN §3's mixture, exactly: given the lobe, the rescaled ξ1 is uniform). */
+ * stratification in ξ1 (ARCHITECTURE.md §Conventions's mixture, exactly: given the lobe, the rescaled ξ1 is uniform). */
 ALWAYS_INLINE lanes3_t lanes_hammersley_direction(const shading_t *s, vec3_t t_n, vec3_t b_n, vec3_t t_r,
                                                   vec3_t b_r, hammersley_t h, lane_ints_t draw)
 {

@@ -40,13 +40,13 @@ class Fis(Brdf):
     shifted modulo 1 by a Philox pair keyed by (seed, frame, pixel), in 32-bit fixed point so
     each rotated point alone is exactly uniform.  The chapter shares one fixed set between all
     pixels (shader constants) and lets the filter hide its aliasing; here the rotation makes
-    the seeds independent (DESIGN §4: a seed is a sample of the error) and makes the mean over
+    the seeds independent (ARCHITECTURE.md §Estimator contract: a seed is a sample of the error) and makes the mean over
     seeds exactly the filtered integral I_N = ∫ L_lod(ω) ρ cos⁺ dω of the lod function at N, so
     the bias is a deterministic function of N (tests/test_fis.py checks it by quadrature).
     Per pixel, not per frame: a shared rotation keeps the chapter's duplicated highlights
     (Fig. 20-5a) as an error correlated across pixels; per pixel it is noise.
 
-    Directions (Sec. 20.2.3): DESIGN §3's Phong mixture.  ξ1 = i/N ⊕ shift picks the lobe by
+    Directions (Sec. 20.2.3): ARCHITECTURE.md §Conventions's Phong mixture.  ξ1 = i/N ⊕ shift picks the lobe by
     where it falls (specular below p_s = Y(ks)/(Y(kd) + Y(ks))) and, rescaled within that
     lobe's share, is the polar variate: cos θ = ξ^{1/(m+1)} about r (Eq. 7) or √ξ about n;
     ξ2 = Φ2(i) ⊕ shift is the azimuth 2πξ2 (Eq. 8); Eq. 9 and the basis of Duff et al. 2017
@@ -57,8 +57,8 @@ class Fis(Brdf):
       Ω_p = d(u)/(w·h), w·h = R² (one face), d(u) = 4/(1+u²+v²)^{3/2}               (Eq. 12)
       lod = max(½·log2(Ω_s/Ω_p), 0) + lod_bias, lod_bias = 1                         (Eq. 13)
     where (u, v) ∈ [−1, 1]² is ω's point on its face plane: d(u)/R² is the level-0 texel's
-    solid angle at ω to first order ((2/R)² times DESIGN §3's dω/dA), not the exact texel Ω
-    of DESIGN §3 (they differ by O(1/R²)); the chapter's d(u) (Eq. 14) is its dual-paraboloid
+    solid angle at ω to first order ((2/R)² times ARCHITECTURE.md §Conventions's dω/dA), not the exact texel Ω
+    of ARCHITECTURE.md §Conventions (they differ by O(1/R²)); the chapter's d(u) (Eq. 14) is its dual-paraboloid
     map's.  The +1: the chapter adds 1 "to the calculated mipmap level defined by Equation 13",
     whose max(…, 0) clamp comes first; read so, every sample reads level 1 or coarser, and the
     bias does not vanish as N grows (others put the +1 inside the clamp, e.g. Filament's
@@ -69,7 +69,7 @@ class Fis(Brdf):
     Lookup: linear between the two levels around lod (⌊lod⌋ and ⌊lod⌋ + 1) and the nearest
     texel within each (OpenGL's GL_NEAREST_MIPMAP_LINEAR; the chapter's tex2Dlod takes its
     filter from a sampler state it does not give; a GPU's mipmapped sampler is usually
-    trilinear).  Nearest within a level keeps DESIGN §3's piecewise-constant map: at lod 0 a
+    trilinear).  Nearest within a level keeps ARCHITECTURE.md §Conventions's piecewise-constant map: at lod 0 a
     sample reads exactly what the reference integrates, and every level is constant over blocks
     of 2^l × 2^l level-0 texels.
 
@@ -79,7 +79,7 @@ class Fis(Brdf):
     averages the children a parent has.  No filtering across cube edges: a texel at a face edge
     averages its own face only, so coarse levels show the seams Sec. 20.4.1 describes for cube
     maps.  The chapter's remedy, a scaled dual-paraboloid map (b = 1.2, Table 20-2), is not
-    followed: DESIGN §3 fixes the cube map.
+    followed: ARCHITECTURE.md §Conventions fixes the cube map.
 
     Bias and limit (``tags.unbiased = False``, ``tags.has_limit``): the mean over seeds at N is
     I_N, which differs from the exact integral.  As N grows, ½·log2(Ω_s/Ω_p) → −∞ wherever

@@ -49,7 +49,7 @@ map is exact and is what the weights use:
 with m_i the row probability, c the column probabilities per row, t the blend.
 
 **Lights.**  Light k: ω_k from point k, weight (L(ω_k)/p(ω_k))/K with L the cube-map texel of
-ω_k (nearest lookup, DESIGN §3).  **FIR filter**: per light, a causal low-pass filter over the
+ω_k (nearest lookup, ARCHITECTURE.md §Conventions).  **FIR filter**: per light, a causal low-pass filter over the
 sequence's last ``len(fir_taps)`` frames: direction normalize(Σ a_j ω_k(t−j)), weight
 Σ a_j W_k(t−j).  The taps are per frame of the sequence, not per render: a frame t−j the run
 did not render (``--frames`` with a step, the first frames of a sequence) has no lights and no

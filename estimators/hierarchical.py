@@ -21,7 +21,7 @@ class Hierarchical(Envmap):
     each coarser level the sums of 2×2 children, the 1×1 level each face's total I_f.  A sample
     picks a face with probability ∝ I_f, then at every level one of the four children of the
     texel picked so far in proportion to their sums, down to a texel, and a point uniform in the
-    texel's face square; its density is P(texel)·(1+x²+y²)^{3/2}/a_texel (DESIGN §3), P(texel)
+    texel's face square; its density is P(texel)·(1+x²+y²)^{3/2}/a_texel (ARCHITECTURE.md §Conventions), P(texel)
     the product of the choices' probabilities, which the density lookup (MIS weights, χ² hook)
     recomputes from the same pyramid, so it is the density sampled (to float rounding: the
     product of the choices' q/2^31 is formed in float, ~1e-6 relative).  Per frame the
@@ -47,7 +47,7 @@ class Hierarchical(Envmap):
     point); the six faces are chosen first by their totals; each choice among the four children
     is one 4-way choice with a fresh random word (Falcor picks a column and then a row
     with one 2-D sample rescaled at every level; Mitsuba 3 a row then a column, likewise).  From
-    Mitsuba 3: piecewise-constant texels (DESIGN §3's nearest lookup) instead of its bilinear
+    Mitsuba 3: piecewise-constant texels (ARCHITECTURE.md §Conventions's nearest lookup) instead of its bilinear
     patches.  The point in the texel is the centre of a cell of a 2^16 × 2^16 grid over it (one
     32-bit word for both coordinates; ``envmap`` has 63-bit variates): the cosine and the BRDF
     are integrated over the texel by that grid's midpoint rule instead of exactly, an error of

@@ -69,7 +69,7 @@ ALWAYS_INLINE words2_t lane_words2(uint seed, uint frame, uint stream, uint pixe
 
 /* ---- the map: nearest texel, and common.cl's sample_face in scalars -------------------------- */
 
-/* The texel that holds direction w (nearest lookup, DESIGN §3). */
+/* The texel that holds direction w (nearest lookup, ARCHITECTURE.md §Conventions). */
 ALWAYS_INLINE int lane_texel(vec3_t w, int res)
 {
     float s, t;

@@ -55,7 +55,7 @@ class Product(Hierarchical):
     """Per-pixel product importance sampling of L·ρ·cos⁺ by descent through the weight pyramid
     (in the spirit of Clarberg, Jarosz, Akenine-Möller & Jensen 2005, "Wavelet importance
     sampling", and Clarberg & Akenine-Möller 2008, "Practical product importance sampling for
-    direct illumination"; neither paper is in ../shared/papers, so no equation is cited: the
+    direct illumination"; neither paper is in the papers of ARCHITECTURE.md §Papers, so no equation is cited: the
     method follows issue 24's description, and these notes say where it departs from what those
     papers are known for), with Phong BRDF samples under MIS (``envmap``'s budget, heuristics
     and χ² hooks: envmap.cl's kernels with this light sampler, product.cl).

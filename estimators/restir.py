@@ -105,7 +105,7 @@ dimming-sun recovery (last frame's error ×5.3 the first's: Z counted the histor
 confidence while the history rarely sampled where the light had gone); with GRIS's temporal
 weights in both modes it recovers.
 
-Sources.  Neither paper is in ../shared/papers: the algorithms follow Bitterli's Alg. 3
+Sources.  Neither paper is in the papers of ARCHITECTURE.md §Papers: the algorithms follow Bitterli's Alg. 3
 (streaming RIS), 4 (combining reservoirs) and 6 (1/Z) and GRIS's resampling weights and
 confidence-weighted balance heuristic as published, without equation numbers checked here.
 

@@ -44,7 +44,7 @@
 #define STREAM_SIR_CANDIDATE 20u
 #define STREAM_SIR_RESAMPLE 21u
 
-/* Nearest-texel radiance of the map in direction w (DESIGN §3: piecewise constant). */
+/* Nearest-texel radiance of the map in direction w (ARCHITECTURE.md §Conventions: piecewise constant). */
 ALWAYS_INLINE vec3_t env_radiance(__global const float4 *env, int res, vec3_t w)
 {
     return vec3_load(env, lane_texel(w, res));
@@ -81,7 +81,7 @@ ALWAYS_INLINE vec3_t sir_ratio(const shading_t *s, vec3_t radiance, float power)
  * P(f, row) ∝ max(I_f, 0)·P(row|f) (the frame cache's face integrals I_f and marginal CDFs), then
  * the column from that pair's table of R slots, P(col|f, row) (its conditional CDF), and a point
  * uniform in the texel's face square.  That is the distribution of "face f with probability
- * μ_f = I_f/Σ I, then sample_face" (DESIGN §3's light pdf), drawn with two loads where the CDFs
+ * μ_f = I_f/Σ I, then sample_face" (ARCHITECTURE.md §Conventions's light pdf), drawn with two loads where the CDFs
  * need two binary searches of dependent loads.
  * The tables are exact in integers: every slot holds ALIAS_ONE (2^40) of mass, a bin's mass is
  * its CDF width scaled to n·ALIAS_ONE over the table (rounded down, at least 1 where the width is
@@ -151,7 +151,7 @@ ALWAYS_INLINE vec3_t map_sample(const sir_proposal_t *q, int res, words2_t point
                                         -1.0f + 2.0f * ((float)(pair - face * res) + y) / (float)res));
 }
 
-/* The map's density at ω: P(texel of ω)·(R²/4)·(1 + u² + v²)^{3/2} (DESIGN §3's light pdf). */
+/* The map's density at ω: P(texel of ω)·(R²/4)·(1 + u² + v²)^{3/2} (ARCHITECTURE.md §Conventions's light pdf). */
 ALWAYS_INLINE float map_pdf(const sir_proposal_t *q, int res, vec3_t w)
 {
     float s, t;

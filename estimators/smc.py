@@ -25,7 +25,7 @@ Per pixel, N weighted particles {ω_i, W_i} (W normalised) approximate the targe
    δ = ``local_degrees`` about ω (symmetric: q(ω→ω') = q(ω'→ω)), accepted with
    a = min(1, π_k(ω')/π_k(ω)); or an *independent* move from the map (face f with probability
    μ_f = I_f/Σ I, then a texel by frame t's CDFs and a point uniform in it: density
-   μ_{f(ω)}·pdf_L(ω|f(ω)) of DESIGN §3, drawn by two alias tables built from those CDFs each
+   μ_{f(ω)}·pdf_L(ω|f(ω)) of ARCHITECTURE.md §Conventions, drawn by two alias tables built from those CDFs each
    frame (``sir.cl``; an exact, O(1) draw of the same distribution, not the CDFs' inversion); the
    BRDF on an all-black map) or from the BRDF (p_B, the Phong mixture), accepted with
    a = min(1, π_k(ω')·q(ω) / (π_k(ω)·q(ω'))).  (Kronander's Eq. 6 prints q(ω→ω') in both
@@ -45,7 +45,7 @@ Per pixel, N weighted particles {ω_i, W_i} (W normalised) approximate the targe
    - *power*: the map's total luminance power Σ_f I_f jumps by more than the same threshold
      between frames.  A small light switching on changes Z by less than ×4 (or not at all) at
      pixels none of whose particles sees it, and Eq. 5 alone never notices it there.
-   - *shape*: the map's light distribution P (texel probabilities ∝ Y·Ω, DESIGN §3) changed so
+   - *shape*: the map's light distribution P (texel probabilities ∝ Y·Ω, ARCHITECTURE.md §Conventions) changed so
      much that 1 + χ²(P_t ‖ P_{t−1}) = Σ_x P_t(x)²/P_{t−1}(x) > 1/``reinit_map_ess`` (+∞ where a
      black texel lit up).  Why: §6.3 assumes γ_t ≈ γ_{t−1}.  Light that moves to where γ_{t−1}
      was dim reaches Eq. 8 only through rare, huge weights, so Z_t mostly misses it, while

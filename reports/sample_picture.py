@@ -6,7 +6,7 @@ the pool the estimators read, ``FrameCache.light_pool(pool_size(spp), seed)``, a
 per-face split N_f(n) from the estimator's own ``split_strategies`` kernel
 (:mod:`iblbench.harness.protocol.report_inputs`).  With the shared sequence (the pool estimators' default) a
 pixel reads the first ⌈N_f(n)⌉ pool entries of face f, so those are "selected"; the rest of the
-pool is "not selected"; a selected sample is "effective" when cos = n·ω > 0 (DESIGN §3).
+pool is "not selected"; a selected sample is "effective" when cos = n·ω > 0 (ARCHITECTURE.md §Conventions).
 For ``balanced_mis`` the picture shows its light half (N_s/2 light samples split by Eq. 3); its
 N_s/2 BRDF samples are drawn per pixel, not from the pool, and are not shown.
 """

@@ -1,4 +1,4 @@
-"""Cube-map conventions of DESIGN §3, shared with ``estimators/runtime/kernels/common.cl``.
+"""Cube-map conventions of ARCHITECTURE.md §Conventions, shared with ``estimators/runtime/kernels/common.cl``.
 
 - Face order +X, -X, +Y, -Y, +Z, -Z; Y is up.
 - Face coordinates follow the OpenGL table: ``ma`` is the major axis and ``(sc, tc)``
@@ -114,7 +114,7 @@ def face_luminance_integrals(env: np.ndarray) -> np.ndarray:
 
 
 class MapSampler:
-    """A cube map's radiance lookup (nearest texel) and its luminance sampler (DESIGN §3)."""
+    """A cube map's radiance lookup (nearest texel) and its luminance sampler (ARCHITECTURE.md §Conventions)."""
 
     def __init__(self, env):
         self.env = np.asarray(env, np.float64)

@@ -9,7 +9,7 @@ import numpy as np
 
 @dataclasses.dataclass(frozen=True)
 class Material:
-    """Energy-conserving (Lafortune) Phong of DESIGN §3: ρ = kd/π + ks·(m+2)/(2π)·cos^m."""
+    """Energy-conserving (Lafortune) Phong of ARCHITECTURE.md §Conventions: ρ = kd/π + ks·(m+2)/(2π)·cos^m."""
 
     kd: tuple[float, float, float] = (0.5, 0.5, 0.5)
     ks: tuple[float, float, float] = (0.3, 0.3, 0.3)

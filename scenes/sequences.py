@@ -1,4 +1,4 @@
-"""Built-in environment sequences (DESIGN §5): ``day``, ``minutes``, ``moving-lights``,
+"""Built-in environment sequences (ARCHITECTURE.md §Scenes and bad input): ``day``, ``minutes``, ``moving-lights``,
 ``switch`` and ``rotating-sun``, and of a lat-long image given by its path ``turntable``,
 ``light-moving`` and ``light-switch`` (the built-in scenes ``park-turn``, ``sphere-studio-moving``
 and ``sphere-park-switch`` use the shipped photographs; scenes/registry.py names every sequence a
@@ -7,7 +7,7 @@ scene uses).
 Every sequence is an :class:`EnvSequence` whose frames are made on demand by ``make_frame(index)``
 and cached per (parameters, index), so a long sequence is never held whole and a frame asked for
 twice is made once.  A frame that repeats an earlier one is returned as the *same* array object,
-which lets the runner reuse that frame's FrameCache (DESIGN §2: a static environment builds its
+which lets the runner reuse that frame's FrameCache (ARCHITECTURE.md §Data flow: a static environment builds its
 FrameCache once).  Units and coordinates are those of :mod:`iblbench.scenes.sky` (1.0 = 1 kcd/m²,
 Y up, azimuth 0 → +Z, 90° → +X).
 

@@ -6,7 +6,7 @@ Hanrahan 2003, per-vertex visibility cube maps), per covered pixel:
 
 - a cube of Rv × Rv cells per face (Rv = ``visibility_res``, a power of two that divides the
   environment's face resolution R, so that every texel lies in one cell), with the cube map's
-  face order and (s, t) convention (DESIGN §3); cell (face, row, col) holds the directions whose
+  face order and (s, t) convention (ARCHITECTURE.md §Conventions); cell (face, row, col) holds the directions whose
   texel, at resolution Rv, is (face, row, col): row = ⌊t·Rv⌋, col = ⌊s·Rv⌋;
 - one bit per cell, bit b = (face·Rv + row)·Rv + col of word b // 32 (bit b % 32) of the pixel's
   ``words(Rv)`` = ⌈6·Rv²/32⌉ uint32 words: 6·Rv² bits per covered pixel (Rv = 16: 192 bytes).

@@ -119,7 +119,7 @@ def test_mis_variants_pass_the_conformance_suite(compute, label):
 
 
 def test_brdf_pdf_is_the_phong_mixture(compute):
-    """``brdf``'s pdf hook against the mixture pdf of DESIGN §3 written out in NumPy."""
+    """``brdf``'s pdf hook against the mixture pdf of ARCHITECTURE.md §Conventions written out in NumPy."""
     estimator = registry.make_estimator("brdf")
     cache = FrameCache(compute, conformance.smooth_map(8))
     normal, view = np.array([0.2, 0.9, 0.1]), np.array([0.6, 0.5, -0.3])

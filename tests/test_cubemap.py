@@ -1,4 +1,4 @@
-"""The cube-map conventions of DESIGN §3, in Python and in OpenCL's common.cl."""
+"""The cube-map conventions of ARCHITECTURE.md §Conventions, in Python and in OpenCL's common.cl."""
 import numpy as np
 import pyopencl as cl
 import pytest

@@ -1,4 +1,4 @@
-"""Fuzzing ``iblbench run`` with corrupt user scenes (DESIGN §5, issue 6 "input robustness").
+"""Fuzzing ``iblbench run`` with corrupt user scenes (ARCHITECTURE.md §Scenes and bad input, issue 6 "input robustness").
 
 Tiny valid inputs (lat-long EXRs, Radiance HDRs, six face EXRs, a 320-triangle ball as OBJ and
 PLY, a scene TOML naming them) are mutated with a seeded RNG, so every run sees the same

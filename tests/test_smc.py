@@ -257,7 +257,7 @@ def _map_tables(compute, cache, power=None):
 @pytest.mark.parametrize("sun", [1e6, 10.0])
 def test_smc_map_alias_tables_realise_the_light_pdf(compute, sun):
     """The map proposal's alias tables (sir.cl, built by smc.cl's map_alias_pairs and
-    map_alias_columns) against DESIGN §3's light distribution computed in NumPy from the frame
+    map_alias_columns) against ARCHITECTURE.md §Conventions's light distribution computed in NumPy from the frame
     cache's CDF widths and face integrals: every texel's stored P·R²/4 matches within 1e-5
     relative (the tables' integer masses are 2^40 per slot), black texels and faces get exactly
     0 and every lit texel a positive share, beside a sun 1e6× the sky too; and 2^18 draws
@@ -352,7 +352,7 @@ def test_smc_follows_a_turning_sun_at_the_error_of_an_init(compute):
 @pytest.mark.parametrize("change", ["turn", "sun-step", "lit-where-black"])
 def test_smc_map_change_is_the_chi_square_of_the_map_distributions(compute, change):
     """map_change's 1 + χ²(P_t ‖ P_{t−1}) = Σ P_t²/P_{t−1} (smc.py step 5) against NumPy's from
-    the maps' Y·Ω (DESIGN §3's light distribution), within 1e-4 relative (the tables' texel
+    the maps' Y·Ω (ARCHITECTURE.md §Conventions's light distribution), within 1e-4 relative (the tables' texel
     probabilities are within 1e-5 of it): on face_pattern_map turned by 10° (nearest texel;
     χ² 0.02), under the re-init bound 1/reinit_map_ess; a sun stepping one texel
     (_turning_sun_frames; χ² 2.1e3), far over it; and +∞ where a texel black last frame is lit

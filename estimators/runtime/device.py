@@ -1,6 +1,6 @@
 """OpenCL device selection and the per-context program cache.
 
-Preference (DESIGN §7): a GPU first, then the fastest CPU platform, among the devices that can
+Preference (ARCHITECTURE.md §Devices and portability): a GPU first, then the fastest CPU platform, among the devices that can
 build a kernel, and never a simulator unless asked for by name.  Two CPU platforms are common
 here — Debian's PoCL (LLVM host-CPU target) and the pip ``pocl-binary-distribution`` (generic
 target) — and both report the same platform name, so CPU platforms are ranked by a short

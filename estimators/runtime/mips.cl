@@ -1,6 +1,6 @@
 /* The frame cache's mip products (harness/mips.py): one 2×2 reduction over the six faces of a
  * cube map, run level by level.  A level of face size n holds [6, n, n] texels of CHANNELS
- * floats (face-major, rows downward, as the map: DESIGN §3) at a float offset of one buffer that
+ * floats (face-major, rows downward, as the map: ARCHITECTURE.md §Conventions) at a float offset of one buffer that
  * holds every level.  Its parent level has size ⌈n/2⌉: parent (row, col) covers the children
  * (2·row + a, 2·col + b), a, b ∈ {0, 1}, that exist (an odd n leaves the last parents two or one
  * children).  Defines:

@@ -4,7 +4,7 @@
 Layout (one definition, read by every sampler of a chain): level 0 is the finest, of the map's
 face size R; level l has size n_l = ⌈R / 2^l⌉ (:func:`level_sizes`), down to 1×1.  Every level
 lies in one float32 buffer, level after level from the finest, level l's texels ``[6, n_l, n_l,
-channels]`` (face-major, rows downward: DESIGN §3) from float offset ``offsets[l]``
+channels]`` (face-major, rows downward: ARCHITECTURE.md §Conventions) from float offset ``offsets[l]``
 (:func:`level_offsets`).  A parent texel covers the 2×2 children (2·row + a, 2·col + b) that
 exist: an odd size leaves the last row and column of parents with fewer children.
 

@@ -1,4 +1,4 @@
-/* Exact reference of DESIGN §3: Σ_texels L_t ∫_texel ρ cos⁺ dω for the piecewise-constant map.
+/* Exact reference of ARCHITECTURE.md §Conventions: Σ_texels L_t ∫_texel ρ cos⁺ dω for the piecewise-constant map.
  *
  * Diffuse part: exact.  ∫_texel cos⁺ dω = n · Φ_t for a texel wholly above the horizon, with
  * Φ_t = ∫_texel ω dω its vector irradiance (Lambert/Arvo polygon formula, precomputed in float64

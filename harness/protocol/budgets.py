@@ -2,7 +2,7 @@
 
 A budgets file is TOML with the ``[configuration]`` the budgets were made for and one
 ``[[rule]]`` table per rule. A rule picks cells of the results table (``DIR/results.parquet``,
-DESIGN §6) by scene glob, estimator glob and spp, and sets limits on them::
+ARCHITECTURE.md §Results and units of work) by scene glob, estimator glob and spp, and sets limits on them::
 
     [configuration]              # required: what the budgets were measured on
     width = 48                   # the image size and cube face size of every row (``--res``,

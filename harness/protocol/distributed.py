@@ -4,7 +4,7 @@ Dask distributed schedules; iblbench only says what a unit of work is and keeps 
 
 - **Units.** A frame-by-frame estimator's unit is one cell (scene, estimator, spp, frame, seed,
   budget).  A temporal estimator's is the whole frame sequence of one (scene, estimator, spp,
-  budget, seed): its state never leaves one worker (DESIGN §6).  The cells of one sequence key
+  budget, seed): its state never leaves one worker (ARCHITECTURE.md §Results and units of work).  The cells of one sequence key
   form a *chain*, submitted one unit after the other, so that the client can hand a frame's ΔE76
   map to the next frame's cell (flicker is then the in-process value, bit for bit).  Chains run
   side by side; an equal-time budget's chains wait for its first one, which calibrates the spp

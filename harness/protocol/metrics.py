@@ -1,4 +1,4 @@
-"""Scores of one estimate against its reference: protocol ``lab-reinhard-v1`` of DESIGN §3.
+"""Scores of one estimate against its reference: protocol ``lab-reinhard-v1`` of ARCHITECTURE.md §Conventions.
 
 1. Exposure k = 0.18 / log-average luminance of the reference over covered pixels, applied to both.
 2. Reinhard L/(1+L) on luminance, colour scaled by the same ratio.
@@ -16,7 +16,7 @@ exposure range) is computed once per reference by a :class:`Scorer`, which the r
 flip-evaluator is imported on first use, so importing this module (the CLI does, for
 ``PROTOCOL``) costs nothing.
 
-Colour science in NumPy (:func:`to_lab`, :func:`lab_differences`; a deviation from DESIGN §3,
+Colour science in NumPy (:func:`to_lab`, :func:`lab_differences`; a deviation from ARCHITECTURE.md §Conventions,
 which names colour-science): colour-science 0.4's ``RGB_to_XYZ``, ``XYZ_to_Lab`` and
 ``delta_E`` spent ~7.5 ms of host time per 128² estimate in input checks, domain scaling and
 temporaries, about a third of a warm run's host time per cell (issue 10).  The same formulas

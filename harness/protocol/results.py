@@ -1,4 +1,4 @@
-"""The tidy results table of DESIGN §6, its crash-safe journal, and the run manifest.
+"""The tidy results table of ARCHITECTURE.md §Results and units of work, its crash-safe journal, and the run manifest.
 
 Columns, in order (``COLUMNS``):
 

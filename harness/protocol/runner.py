@@ -9,7 +9,7 @@ them all, in the order below.  With ``RunConfig.workers`` (a Dask LocalCluster) 
 unit (:mod:`.distributed`), and their rows come back here to be journalled; the table is the
 same apart from the time columns, which are each worker's device's.
 
-The runner skips what a scene does not need (DESIGN §2): the G-buffer is traced once per scene
+The runner skips what a scene does not need (ARCHITECTURE.md §Data flow): the G-buffer is traced once per scene
 (and read from its on-disk cache, :func:`iblbench.scenes.gbuffer.cached_trace`, when an earlier
 run traced the same one), a frame cache builds only the products the chosen estimators require,
 and a cached reference is never recomputed.  Every skipped stage is recorded in the manifest.
@@ -35,7 +35,7 @@ The unit of work is a property of the estimator's ``Tags.temporal``.  A frame-by
 resumes cell by cell.  A temporal estimator carries state from frame to frame, so its unit of
 work and of resumption is the whole frame sequence of one (scene, estimator, spp, seed): unless
 every frame of that sequence is done, all of them are run again, in order, on one instance that
-starts from ``reset()`` (DESIGN §6).
+starts from ``reset()`` (ARCHITECTURE.md §Results and units of work).
 
 Frames.  The frames run are ``RunConfig.frames`` (a Python slice of each sequence's frames, a
 list, or all); a static scene runs frame 0.  Each frame gets its own FrameCache, built on the
@@ -72,7 +72,7 @@ Timing (:mod:`iblbench.harness.protocol.timing` defines a cell's time).  Each ce
   (:meth:`~iblbench.harness.protocol.executor.Executor._run_frame`; the timing module's
   "Rounds"), so a cell's renders fall in different spells of the device.  On a cluster a unit
   is one cell (or one sequence), so its renders go back to back there.
-- Build: a frame builds its cache once (DESIGN §2), so the device time of that one build of the
+- Build: a frame builds its cache once (ARCHITECTURE.md §Data flow), so the device time of that one build of the
   products the estimator requires counts in each of its timed renders (``time_ms_build`` is
   that one measurement); a frame that reused an identical frame's cache built nothing, and its
   build is 0.

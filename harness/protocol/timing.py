@@ -1,4 +1,4 @@
-"""The one definition of a cell's time (DESIGN §3 "Timing"), shared by the runner, equal-time
+"""The one definition of a cell's time (ARCHITECTURE.md §Timing convention), shared by the runner, equal-time
 calibration, the terminal summary, ``iblbench check``, the report and ``reproduce``.
 
 **A render's time** is the device time of the stages its estimator needs for one frame, from

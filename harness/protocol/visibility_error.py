@@ -62,7 +62,7 @@ def shadow_ray_estimate(mesh, camera, gbuffer, env: np.ndarray, only: np.ndarray
         pdf = 0.5 * light.pdf(w) + 0.5 / (4.0 * np.pi)
         normal, view, m = flat(gbuffer.normal), flat(gbuffer.view), flat(gbuffer.shininess)
         mirror = 2.0 * np.sum(normal * view, -1, keepdims=True) * normal - view
-        lobe = np.maximum(np.sum(mirror * w, -1, keepdims=True), 0.0) ** m        # Phong, DESIGN §3
+        lobe = np.maximum(np.sum(mirror * w, -1, keepdims=True), 0.0) ** m        # Phong, ARCHITECTURE.md §Conventions
         rho = flat(gbuffer.kd) / np.pi + flat(gbuffer.ks) * (m + 2.0) / (2.0 * np.pi) * lobe
         f = light.radiance(w) * rho * np.maximum(np.sum(normal * w, -1, keepdims=True), 0.0)
         free = visibility.unoccluded(scene, np.repeat(origins[keep][first:first + PIXELS_PER_BATCH],

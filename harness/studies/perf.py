@@ -4,7 +4,7 @@ NumPy floor, measured side by side in one run.
 Per (scene, estimator) it renders one frame ``repeats`` times after one untimed warm-up render,
 interleaved in rounds (round r renders every estimator once, then the NumPy floor, so slow
 drifts of a shared machine hit them all alike), and reports the median, min and IQR of each
-device stage (OpenCL profiling events, DESIGN §3 "Timing"):
+device stage (OpenCL profiling events, ARCHITECTURE.md §Timing convention):
 
 - ``build``: the per-frame FrameCache products the estimator requires (the map's upload and,
   where required, the CDFs), from ``FrameCache.timings_ms``; every repeat builds a fresh cache,
@@ -78,7 +78,7 @@ declares none gets NaN FLOP, byte and roofline figures.
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
 ⌈N_f⌉ entries of each lit face's pool, N_f = N_s/6, with the fractional last weight β of
-Eq. 5, shaded with DESIGN §3's Phong BRDF.  It reads the same inputs as the kernels: the
+Eq. 5, shaded with ARCHITECTURE.md §Conventions's Phong BRDF.  It reads the same inputs as the kernels: the
 G-buffer, and a light-sample pool drawn on the device by the FrameCache and read back
 (directions, pdf_L and radiance).  It is the fastest NumPy formulation found, on one host thread
 (BLAS capped to one by ``host_threads_capped``), in float32 as the kernels do, over blocks of

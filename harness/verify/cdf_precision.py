@@ -1,7 +1,7 @@
 """Exact precision audit of the device-built light CDFs (issue 6).
 
 For a map, compare the probability the light sampler *actually* gives each texel with the exact
-float64 probability Y·Ω / I_f (DESIGN §3), and measure what a pure light sampler (``uniform``,
+float64 probability Y·Ω / I_f (ARCHITECTURE.md §Conventions), and measure what a pure light sampler (``uniform``,
 ``balanced``) loses where the two disagree.  Everything is computed analytically from the CDFs the
 device built (:meth:`FrameCache.host_cdfs`), no sampling:
 

@@ -1,4 +1,4 @@
-"""``check_estimator``: the conformance suite every estimator passes (DESIGN §4).
+"""``check_estimator``: the conformance suite every estimator passes (ARCHITECTURE.md §Estimator contract).
 
 In the spirit of scikit-learn's ``check_estimator``: one generator yields the checks that apply
 to an estimator's tags; ``check_estimator`` runs them and ``parametrize_with_checks`` turns them
@@ -641,7 +641,7 @@ def says_shared_sequence(cls, setting, h: Harness) -> None:
 
 
 def phong_pdf(normal, view, dirs, kd: float = 0.5, ks: float = 0.3, shininess: float = 20.0):
-    """DESIGN §3's Phong sampling density of a grey material (the hooks' by default):
+    """ARCHITECTURE.md §Conventions's Phong sampling density of a grey material (the hooks' by default):
     (1 − p_s)·cos⁺(n,ω)/π + p_s·(m+1)/(2π)·cos⁺(r,ω)^m, p_s = ks/(kd + ks)."""
     n = np.asarray(normal, np.float64) / np.linalg.norm(normal)
     v = np.asarray(view, np.float64) / np.linalg.norm(view)
@@ -669,7 +669,7 @@ def mis_variances(normal, res: int, grid: int = 64) -> dict[str, float]:
     (``envmap``'s budget at 2 spp) for a white Lambertian (ρ = 1/π, BRDF samples cos⁺/π) under
     a unit constant map of face size ``res``, by the midpoint rule on ``grid``² cells per face
     (texel-aligned).  The light density of Y·Ω texel weights with a point uniform in the
-    texel's face square is (Ω_t/4π)·(1 + x² + y²)^{3/2}/(2/res)² (DESIGN §3).  Each strategy k
+    texel's face square is (Ω_t/4π)·(1 + x² + y²)^{3/2}/(2/res)² (ARCHITECTURE.md §Conventions).  Each strategy k
     contributes Var_k[w_k f/p_k] = ∫ w_k² f²/p_k dω − (∫ w_k f dω)², the weights w_k =
     p_k^β/Σ_j p_j^β (β = 1 balance, 2 power; one sample each)."""
     dirs = cubemap.texel_directions(grid).reshape(-1, 3)

@@ -4,7 +4,7 @@ devices (``iblbench doctor``, tests/test_portability.py).
 One *case* renders one thing on 16 pixels (a glossy G-buffer over the whole sphere) lit by a
 4×4-texel-per-face map with a sun: ``reference`` (the exact reference), ``products`` (the frame
 cache's CDFs, face integrals, light pool and both mip pyramids, plain and compensated),
-``light_pdf`` (the map's light pdf, DESIGN §3, at :data:`PDF_DIRECTIONS` directions, by
+``light_pdf`` (the map's light pdf, ARCHITECTURE.md §Conventions, at :data:`PDF_DIRECTIONS` directions, by
 ``envmap``'s pdf hook), ``probes`` (``iblbench perf``'s FMA and copy kernels), or an estimator
 label such as ``envmap{mis="brdf"}`` at 4 spp; a name ending in ``+visibility`` (the reference and
 each estimator's defaults) renders the G-buffer with visibility masks of 2² cells a face, three

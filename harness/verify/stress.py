@@ -32,7 +32,7 @@ One row per (case, estimator), over the case's variants (placements, sizes, fram
   the BRDF samples (so with BRDF samples only its upper side is tested): a t-test over
   ``COUNT_SEEDS`` renders of the image sum;
 - ``cache_error``: the frame cache's light-sampling products on frame 0 against their
-  definition (DESIGN §3), computed in NumPy from the map: the face integrals I_f = Σ Y·Ω and
+  definition (ARCHITECTURE.md §Conventions), computed in NumPy from the map: the face integrals I_f = Σ Y·Ω and
   each texel's probability given its face, Y·Ω/I_f, from the fixed-point CDFs (largest relative
   deviation; a texel of zero luminance must have probability exactly 0);
 - ``chi2_p`` also holds, for ``havran``, the χ² of its map's sampler on each variant's frame 0:
@@ -481,7 +481,7 @@ def _t_as_z(values: np.ndarray, floor: float) -> float:
 
 
 def protocol_delta_e76(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """ΔE76 of protocol lab-reinhard-v1 (DESIGN §3) per pixel ``[n, 3]`` → ``[n]``, written from its
+    """ΔE76 of protocol lab-reinhard-v1 (ARCHITECTURE.md §Conventions) per pixel ``[n, 3]`` → ``[n]``, written from its
     definition: exposure 0.18 over the reference's log-average luminance (ε = 1e-6), Reinhard on
     luminance, linear sRGB → XYZ (IEC 61966-2-1 matrix) → L*a*b* with the D65 white."""
     weights = np.array([0.2126, 0.7152, 0.0722])

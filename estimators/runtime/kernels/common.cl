@@ -1,4 +1,4 @@
-/* Shared conventions of DESIGN §3: cube map, light pdf, Phong BRDF, Philox RNG, CDF search.
+/* Shared conventions of ARCHITECTURE.md §Conventions: cube map, light pdf, Phong BRDF, Philox RNG, CDF search.
  * The Python twin of the cube-map functions is iblbench.scenes.cubemap; tests pin that they agree. */
 #ifndef IBLBENCH_COMMON_CL
 #define IBLBENCH_COMMON_CL
@@ -248,7 +248,7 @@ inline float cdf_bin_position(__global const cdf_word_t *cdf, int i, cdf_word_t 
 
 /* Sample face `face` from the 2-D fixed-point point u (63-bit coordinates in [0, CDF_ONE)) by its
  * marginal (rows) and conditional (columns | row) CDFs; the position of u inside the chosen bins
- * is the point in the texel's face square.  Returns pdf_L(ω|f) in solid angle (DESIGN §3):
+ * is the point in the texel's face square.  Returns pdf_L(ω|f) in solid angle (ARCHITECTURE.md §Conventions):
  * P(texel|f) · (1+u²+v²)^{3/2} / a_texel with a_texel = (2/R)².  *texel gets the texel index. */
 /* sample_face once its texel (row, col) is chosen from the face's marginal `rows` and conditional
  * `cols` by the point (ux, uy): the face-plane point (*x, *y) and pdf_L(ω|f).  Shared with the
@@ -539,7 +539,7 @@ inline float phong_pdf(float3 n, float3 r, float p_spec, float m, float3 w)
     return phong_mixture_pdf(p_spec, m, dot(n, w), power);
 }
 
-/* A direction drawn from the Phong BRDF (DESIGN §3): the lobe by luminance weight (xi_lobe), the
+/* A direction drawn from the Phong BRDF (ARCHITECTURE.md §Conventions): the lobe by luminance weight (xi_lobe), the
  * diffuse lobe cosine-weighted (cos θ = √ξ), the specular lobe ∝ cos^m about r
  * (cos θ = ξ^{1/(m+1)}).  Both cosines are computed and one selected (no branch). */
 ALWAYS_INLINE vec3_t sample_phong_direction(vec3_t n, vec3_t r, float p_spec, float m, float xi_cos,

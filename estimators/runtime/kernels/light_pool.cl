@@ -375,7 +375,7 @@ ALWAYS_INLINE lanes_t lanes_light_pdf_rows(__global const cdf_word_t *marginal,
     return p_texel * area * (float)(res * res) / 4.0f;
 }
 
-/* lanes_light_pdf_rows with one marginal CDF per face (DESIGN §3's light pdf). */
+/* lanes_light_pdf_rows with one marginal CDF per face (ARCHITECTURE.md §Conventions's light pdf). */
 ALWAYS_INLINE lanes_t lanes_light_pdf(__global const cdf_word_t *marginal,
                                       __global const cdf_word_t *conditional, int res, lanes3_t w,
                                       lane_ints_t *face, lane_ints_t *texel)

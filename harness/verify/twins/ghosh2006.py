@@ -5,7 +5,7 @@ independent shading points, the oracle that ``smc`` (estimators/smc.cl) is check
 Written from the papers, not from the kernel: Kronander et al. §5-6 (their Eq. 3-8, the form
 in which ``smc`` implements Ghosh's sampler; equation numbers below are Kronander's) and the
 SMC-sampler construction Ghosh et al. take from Del Moral, Doucet & Jasra 2006.  Ghosh's paper
-itself is not among the project's papers (shared/papers holds only Kronander's account of it).
+itself is not among the project's papers (ARCHITECTURE.md §Papers lists only Kronander's account of it).
 Where ``smc`` deliberately deviates from the papers (its docstring, estimators/smc.py), the twin
 follows the documented deviation, from the docstring's words, and says so below.
 
@@ -41,7 +41,7 @@ BRDF, map first) instead of drawing it with probability ν (its documented devia
 does the same by default, ``random_kinds=True`` draws it as Ghosh do; a static frame's fresh
 estimates need the fixed counts).  The map proposal is frame t's: face f with μ_f = I_f/Σ I,
 texel ∝ Y·Ω on the face, a point uniform in the texel's face square, density
-μ_f P(texel|f) (1+x²+y²)^{3/2}/a_texel (DESIGN §3); the BRDF proposal is the Phong mixture.
+μ_f P(texel|f) (1+x²+y²)^{3/2}/a_texel (ARCHITECTURE.md §Conventions); the BRDF proposal is the Phong mixture.
 
 Errata and ambiguities of the printed papers (Kronander et al.'s text of Ghosh's method):
 1. Eq. 6 prints q(ω→ω') in both numerator and denominator, so the proposal cancels and an
@@ -86,7 +86,7 @@ LUMA = np.array([0.2126, 0.7152, 0.0722])
 @dataclasses.dataclass
 class Shading:
     """Shading points: ``normal``, ``view`` ``[C, 3]`` (unit), ``kd``, ``ks`` ``[C, 3]``,
-    ``m`` ``[C]`` (Phong, DESIGN §3)."""
+    ``m`` ``[C]`` (Phong, ARCHITECTURE.md §Conventions)."""
 
     normal: np.ndarray
     view: np.ndarray

@@ -3,7 +3,7 @@
 tests/test_reference_twin.py holds it to closed forms and to the kernel; `iblbench doctor`
 compares each device's reference with it.
 
-The twin integrates DESIGN §3's reference, Σ_texels L_t ∫_texel ρ cos⁺ dω with Lafortune Phong
+The twin integrates ARCHITECTURE.md §Conventions's reference, Σ_texels L_t ∫_texel ρ cos⁺ dω with Lafortune Phong
 ρ = kd/π + ks·(m+2)/(2π)·max(0, r·ω)^m, its own way and shares no code with reference.cl or
 reference.py (no Lambert/Arvo polygon formula, no sub-cell midpoint rule, no lobe cutoff of
 theirs, its own cube-face table written from the OpenGL convention):
