@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.protocol.equal_time import TOLERANCE
+from iblbench.harness.protocol.metric import registered
 from iblbench.harness.protocol.results import load_table
 from iblbench.harness.protocol.stats import (by_device, cell_intervals, devices, interval_text,
                                              mean_ci)
@@ -24,13 +25,18 @@ REQUIRED_COLUMNS = ("scene", "estimator", "spp", "frame", "seed", "mean_delta_e7
                     "effective_ratio", "nonfinite", TIME, "time_ms_iqr", "time_ms_host")
 
 
-MEAN_COLUMNS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "used_samples",
-                "effective_samples", "effective_ratio", "shadow_rays")
+def metric_header(metric) -> str:
+    """A metric's column header: a ``mean_`` column is a mean of per-pixel differences."""
+    return f"mean {metric.label}" if metric.column.startswith("mean_") else metric.label
+
+
+METRICS = {metric.column: metric_header(metric) for metric in registered()}   # column → header
+SAMPLE_COLUMNS = ("used_samples", "effective_samples", "effective_ratio", "shadow_rays")
 
 
 # Each is a cell's figure with its interval (module docstring).  The timed renders' IQR is not
-# among them: the time's own interval says their spread (issue 23).
-INTERVAL_COLUMNS = (*MEAN_COLUMNS, "flip", TIME, "time_ms_host")
+# among them: the time's own interval says their spread.
+INTERVAL_COLUMNS = (*METRICS, *SAMPLE_COLUMNS, TIME, "time_ms_host")
 
 
 SHOWN_INTERVALS = (*INTERVAL_COLUMNS, "efficiency")   # efficiency: summarize derives it
@@ -123,9 +129,9 @@ def equal_time_cells(rows: pd.DataFrame) -> pd.DataFrame:
     time per frame (means over seeds of the means over frames, with their intervals, as in
     :func:`summarize`) and whether the achieved time is within ±TOLERANCE of the budget."""
     keys = ["time_budget_ms", "estimator", "spp"]
-    columns = [c for c in ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip",
-                           "effective_samples", "effective_ratio", TIME)
-               if c in rows and (c != "flip" or rows[c].notna().any())]   # FLIP where computed
+    columns = [c for c in (*METRICS, "effective_samples", "effective_ratio", TIME)
+               if c in rows and (c not in METRICS or rows[c].notna().any()
+                                 or c in ("mean_delta_e76", "rel_mse"))]   # a metric where computed
     cells = cell_intervals(rows, keys, columns).reset_index()
     cells["within"] = (cells[TIME] - cells.time_budget_ms).abs() <= TOLERANCE * cells.time_budget_ms
     return cells.sort_values(["time_budget_ms", "rel_mse"])
@@ -137,8 +143,7 @@ def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
         "budget (ms/frame)": cells.time_budget_ms, "estimator": cells.estimator,
         "spp run": cells.spp, "seeds": cells.seeds,
         **{header: intervals(cells, column) for column, header in (
-            ("mean_delta_e76", "mean ΔE76"), ("mean_delta_e2000", "mean ΔE2000"),
-            ("rel_mse", "relMSE"), ("flip", "FLIP"), ("effective_samples", "effective spp"),
+            *METRICS.items(), ("effective_samples", "effective spp"),
             ("effective_ratio", "effective ratio"), (TIME, "achieved ms/frame (device)"))
            if column in cells},
         f"within ±{TOLERANCE:.0%}": cells.within.map({True: "yes", False: "NO"})})
@@ -153,10 +158,9 @@ def intervals(cells: pd.DataFrame, column: str) -> list[str]:
 
 
 _TABLE_COLUMNS = {   # summary column → header (with units)
-    "estimator": "estimator", "spp": "spp", "seeds": "seeds",
-    "mean_delta_e76": "mean ΔE76", "mean_delta_e2000": "mean ΔE2000", "rel_mse": "relMSE",
+    "estimator": "estimator", "spp": "spp", "seeds": "seeds", **METRICS,
     "effective_ratio": "effective ratio", "effective_samples": "effective spp",
-    "used_samples": "used spp", "flip": "FLIP", "time_ms": "ms/frame (device)",
+    "used_samples": "used spp", "time_ms": "ms/frame (device)",
     "time_ms_host": "ms/frame (host wall)",
     "efficiency": "efficiency 1/(relMSE·s)", "shadow_rays": "shadow rays/px",
     "nonfinite": "non-finite px", "pareto_rel_mse": "Pareto (relMSE)",
@@ -174,8 +178,7 @@ def number(value) -> str:
 
 # The summary of a scene in two tables, so that neither runs off a page 1280 px wide: the
 # errors, then samples and cost (where a column not named here goes too).
-ERROR_COLUMNS = ("mean_delta_e76", "mean_delta_e2000", "rel_mse", "flip", "nonfinite",
-                 "pareto_rel_mse", "pareto_delta_e76")
+ERROR_COLUMNS = (*METRICS, "nonfinite", "pareto_rel_mse", "pareto_delta_e76")
 
 
 KEY_COLUMNS = ("estimator", "spp", "seeds")
@@ -305,9 +308,8 @@ def manifest_tables(manifest: dict | None) -> dict | None:
 def not_computed(table: pd.DataFrame) -> list[str]:
     """The metrics no row of ``table`` has a value of (the sweep's ``metrics`` left them out, as
     the default sweep does FLIP): the page says so, where their columns would only be missing."""
-    return [name for column, name in (("mean_delta_e2000", "ΔE2000"), ("rel_mse", "relMSE"),
-                                      ("flip", "FLIP"))
-            if column not in table or table[column].isna().all()]
+    return [metric.label for metric in registered() if metric.default and not metric.always
+            and (metric.column not in table or table[metric.column].isna().all())]
 
 
 __all__ = ["load_run", "summarize", "device_cells", "on_device", "split_equal_time",

@@ -30,7 +30,7 @@ from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, wr
 from iblbench.harness.protocol.report_inputs import read_pool_picture, read_surface
 from iblbench.reports.images import default_pixel
 from iblbench.reports.report import write_report
-from iblbench.reports.tables import load_run, summarize, summary_html
+from iblbench.reports.tables import load_run, not_computed, summarize, summary_html
 from iblbench.scenes import cubemap
 from iblbench.foundation.errors import InputError
 from iblbench.scenes.gbuffer import GBuffer
@@ -849,3 +849,17 @@ def test_a_run_with_de76_alone_reports(tmp_path):
                   seeds=1, resolution=(16, 16), env_res=8, metrics=("de76",), progress=False))
     page = (write_report(out)["path"]).read_text(encoding="utf-8")
     assert "error_vs_time_sphere-sun.png" in page and "convergence_sphere-sun.png" in page
+
+
+def test_a_metric_outside_the_default_sweep_shows_in_the_tables_from_its_descriptor(tmp_path):
+    """PSNR, known only to the metric registry, gets its column (mean over seeds 30, 31, 32 →
+    31) under its descriptor's label; a default metric the rows lack is said not computed."""
+    rows = _seed_rows("a", 16, KNOWN, ms=2.0)
+    for row in rows:
+        row["psnr"] = 30.0 + row["seed"]
+    table = pd.DataFrame(rows)
+    page = _Page()
+    page.feed(str(summary_html(summarize(table))))
+    header, cells = page.tables[0]["rows"]
+    assert dict(zip(header, cells))["PSNR"].startswith("31")
+    assert not_computed(table) == ["FLIP"]
