@@ -159,7 +159,7 @@ def bias_table(run_dir, table, cells, scene, frame, mask) -> markupsafe.Markup |
         spp = int(runs.spp.max())
         paths = [folder / f"{image_stem(row)}.exr" for row in runs[runs.spp == spp].to_dict("records")]
         try:
-            biased = not _estimator_class(label).tags.unbiased
+            biased = not _estimator(label).tags.unbiased
         except InputError:      # an estimator this installation lacks
             biased = False
         if not biased or not all(p.exists() for p in [folder / "reference.exr", *paths]):
@@ -191,10 +191,11 @@ def bias_table(run_dir, table, cells, scene, frame, mask) -> markupsafe.Markup |
     return table_html(pd.DataFrame(shown), "summary") if shown else None
 
 
-def _estimator_class(label: str):
-    """The estimator class of a results label (``name`` or ``name{param=value,...}``), for its
-    tags: the class, not an instance (nothing is built)."""
-    return parse_estimator(label).cls
+def _estimator(label: str):
+    """The estimator of a results label (``name`` or ``name{param=value,...}``), for its tags:
+    an instance, whose parameters may change them (``restir{unbiased=false}``); building one
+    opens no device."""
+    return parse_estimator(label).make()
 
 
 def default_pixel(mask: np.ndarray) -> tuple[int, int]:

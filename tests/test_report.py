@@ -863,3 +863,11 @@ def test_a_metric_outside_the_default_sweep_shows_in_the_tables_from_its_descrip
     header, cells = page.tables[0]["rows"]
     assert dict(zip(header, cells))["PSNR"].startswith("31")
     assert not_computed(table) == ["FLIP"]
+
+
+def test_the_bias_table_reads_the_instances_tags_not_the_classs():
+    """restir is tagged unbiased, restir{unbiased=false} biased: the bias table must list the
+    second (an instance's tags, as the conformance suite reads them)."""
+    from iblbench.reports.images import _estimator
+
+    assert _estimator("restir").tags.unbiased and not _estimator("restir{unbiased=false}").tags.unbiased

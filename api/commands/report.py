@@ -24,7 +24,8 @@ def add_parser(subparsers) -> None:
     report.add_argument("--seed", type=int, help="seed of the images shown (default: the run's "
                                                  "first; one the run lacks is an error)")
     report.add_argument("--frame", type=int, help="frame of the images shown (default: each "
-                                                  "scene's first; one the run lacks is an error)")
+                                                  "scene's median-luminance frame; one the run "
+                                                  "lacks is an error)")
     report.add_argument("--pixel", type=pixel, metavar="X,Y",
                         help="pixel of the sample picture (default: the covered pixel nearest "
                              "the image centre)")
