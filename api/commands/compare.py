@@ -9,7 +9,7 @@ from iblbench.commands.common import add_json
 DESCRIPTION = """\
 Compare run folders A and B per cell (scene, estimator, spp or time budget, frame): for
 {metrics}, effective_ratio and time_ms, the mean over
-seeds on each side and the ratio B/A with its 95%% interval (delta method on log, Welch df); a
+seeds on each side and the ratio B/A with its 95% interval (delta method on log, Welch df); a
 change is significant when the interval excludes 1. Says when A and B differ in code, device,
 protocol or configuration. An estimator label with parameters (balanced{{uniform_faces=true}}) is
 paired with the other side's label of the same base name when no equal label exists. Exit 0, 1
