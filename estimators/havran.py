@@ -328,7 +328,7 @@ class DeviceEqualAreaMap:
         self.nz, self.nphi = grid_shape(res)
         lookup, offsets, texels = _device_tables(compute, res)
         cells = self.nz * self.nphi
-        self.acc = np.dtype(np.float64 if compute.info.has_fp64 else np.float32)
+        self.acc = np.dtype(np.float64 if compute.doubles else np.float32)
         width = self.acc.itemsize
         mean, value, mass = compute.empty(4 * cells), compute.empty(4 * cells), compute.empty(width * cells)
         row_mass, row_prob, row_cdf = (compute.empty(width * self.nz) for _ in range(3))
@@ -482,7 +482,7 @@ class Havran(Estimator):
     def _points_buffer(self, compute, k: int, seed: int):
         """The rotated relaxed points on the device, uploaded once per (context, K, seed)."""
         if self._points is None or self._points[:3] != (compute, k, seed):
-            acc = np.float64 if compute.info.has_fp64 else np.float32
+            acc = np.float64 if compute.doubles else np.float32
             points = (relaxed_points(k) + seed_shift(seed)) % 1.0
             self._points = (compute, k, seed, compute.to_device(points.astype(acc)))
         return self._points[3]
@@ -499,11 +499,11 @@ class Havran(Estimator):
         return envmap.build_ms + event_ms(event)
 
     def _acc_buffers(self, compute, k: int, slots: int = 1):
-        width = 8 if compute.info.has_fp64 else 4
+        width = 8 if compute.doubles else 4
         return compute.empty(slots * k * 4 * width), compute.empty(slots * k * 4 * width)
 
     def _to_host(self, compute, buffer, k: int) -> np.ndarray:
-        acc = np.float64 if compute.info.has_fp64 else np.float32
+        acc = np.float64 if compute.doubles else np.float32
         return compute.to_host(buffer, (k, 4), acc)[:, :3].astype(np.float64)
 
     def raw_lights(self, cache, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -529,7 +529,7 @@ class Havran(Estimator):
         rings = self._ring[2:]
         ms = self._place(cache, k, seed, *rings, frame % len(taps))
         a = np.asarray([taps[frame - f] for f in self._history], np.float64)
-        acc = np.float64 if compute.info.has_fp64 else np.float32
+        acc = np.float64 if compute.doubles else np.float32
         slots = compute.to_device(np.asarray([f % len(taps) for f in self._history], np.int32))
         outputs = self._acc_buffers(compute, k) + (compute.empty(k * 16), compute.empty(k * 16))
         event = compute.run(self._kernel(compute, "filter_lights"), k, *rings, np.int32(k), slots,

@@ -9,6 +9,7 @@ import sys
 import numpy as np
 import pytest
 
+from iblbench.estimators.registry import estimator_names
 from iblbench.harness.verify import portability
 from iblbench.estimators.runtime.device import Compute, all_devices, choose_device, get_compute
 
@@ -35,6 +36,18 @@ def test_both_lane_widths_give_the_same_images(compute, case):
     """Compute.pool_lanes: 16 lanes (AVX-512) and 8 (every other device) on the default device."""
     wide, narrow = (portability.render(Compute(compute.info, lanes=lanes), case) for lanes in (16, 8))
     assert portability.differences(narrow, wide) == {}
+
+
+@pytest.mark.parametrize("case", ["reference", "products", *estimator_names()])
+def test_the_float_path_gives_the_double_paths_images(compute, case):
+    """A device without cl_khr_fp64 runs the float path (``Compute(fp64=False)``); ``doctor``
+    compares such a device against it, so on this device it must agree with the double path
+    within FLOAT_RTOL: every registered estimator (a new one is covered), the reference and the
+    frame cache's products.  (havran sized its accumulators by the device, not by the path
+    built, and was off by a factor of about 500.)"""
+    double = portability.render(compute, case)
+    single = portability.render(Compute(compute.info, fp64=False), case)
+    assert portability.differences(single, double, exact_integers=False) == {}
 
 
 @pytest.mark.parametrize("case", portability.UNINITIALIZED_CASES)

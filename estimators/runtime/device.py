@@ -235,6 +235,12 @@ class Compute:
         self._group_limits: dict[int, int] = {}
 
     @property
+    def doubles(self) -> bool:
+        """Whether the kernels this builds accumulate in double (``HAVE_FP64``): the device has
+        cl_khr_fp64 and this is not the float path.  A host buffer a kernel accumulates into is
+        sized by this, never by the device alone."""
+        return self.info.has_fp64 and self.fp64
+
     def device_name(self) -> str:
         return self.info.short_name
 
@@ -246,7 +252,7 @@ class Compute:
             options = [f"-I{kernel_path(package, filename).parent}"] + [f"-I{d}" for d in include_dirs()]
             options += [f"-D{name}={value}" for name, value in sorted((defines or {}).items())]
             options.append(f"-DPOOL_LANES={self.pool_lanes}")
-            if self.info.has_fp64 and self.fp64:
+            if self.doubles:
                 options.append("-DHAVE_FP64=1")
             # The compiler's warnings (PoCL prints hundreds for vector-typed helpers) are kept, not
             # shown: `iblbench doctor --verbose` prints them.

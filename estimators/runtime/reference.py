@@ -113,7 +113,7 @@ class Reference:
         digest.update(kernel_path("iblbench.estimators.runtime", "reference.cl").read_bytes())
         digest.update(kernel_path("iblbench.estimators.runtime", "kernels/common.cl").read_bytes())
         digest.update(pathlib.Path(__file__).read_bytes())   # the host-side texel tables
-        fp64 = self.compute.info.has_fp64 and self.compute.fp64   # the path Compute builds
+        fp64 = self.compute.doubles   # the path Compute builds
         digest.update(f"density={self.density} fp64={fp64}".encode())
         g = gbuffer.gbuffer
         masks = () if g.visibility is None else (g.visibility[g.mask],)
