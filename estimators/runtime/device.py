@@ -241,6 +241,7 @@ class Compute:
         sized by this, never by the device alone."""
         return self.info.has_fp64 and self.fp64
 
+    @property
     def device_name(self) -> str:
         return self.info.short_name
 
