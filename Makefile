@@ -46,7 +46,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # bench: under 10 minutes on a 2-core CPU from a clean clone, about 5 CPU-minutes in all;
-# docs/measurements.md gives each part's time.  The default sweep covers every estimator, the
+# docs/measurements.md gives each part's time.  The default sweep covers every estimator that declares a part of it, the
 # real-photograph scene sphere-park and the short sequence park-turn.
 # perf: throughput against the roofline and the NumPy floor (about a minute here; bis and smc run
 # at spp 20, Kronander's N = 20 with M = 400 candidates, with 3 repeats by default).

@@ -46,8 +46,8 @@ def _entry_points() -> tuple[EntryPoint, ...]:
 
 
 def builtin_names() -> list[str]:
-    """The built-in estimators' names, in ``pyproject.toml``'s order (read from metadata: nothing
-    is imported)."""
+    """The built-in estimators' names, in the installed metadata's order, which is alphabetical
+    (setuptools sorts the group); read from metadata: nothing is imported."""
     return [entry.name.lower() for entry in _entry_points() if is_builtin(entry)]
 
 
@@ -113,8 +113,8 @@ def estimator_names() -> list[str]:
 
 
 def estimator_classes() -> list[type[Estimator]]:
-    """Every registered class in registration order: the built-ins in ``pyproject.toml``'s
-    order, then the plugins', then any registered at run time."""
+    """Every registered class in registration order: the built-ins in the installed
+    metadata's (alphabetical) order, then the plugins', then any registered at run time."""
     _load_all()
     return list(_registry.values())
 

@@ -404,3 +404,18 @@ def test_a_planted_long_function_is_caught(tmp_path):
     (tmp_path / "long.py").write_text(f"def long():\n{body}\n\ndef short():\n    return 1\n")
     assert long_functions([tmp_path / "long.py"]) == [
         f"{tmp_path / 'long.py'}: long ({MAX_FUNCTION_LINES + 1} lines)"]
+
+
+def test_importing_the_report_loads_no_device_estimator_or_tracer():
+    """The allow-lists see direct imports; this sees the chain: the report's modules, imported
+    in a fresh interpreter, bring in no OpenCL, no estimator and no G-buffer tracer."""
+    import subprocess
+    import sys as interpreter
+
+    probe = ("import sys, iblbench.reports.report, iblbench.reports.images\n"
+             "print(sorted(m for m in sys.modules if m == 'pyopencl' or m == 'embreex'\n"
+             "             or m.startswith(('iblbench.estimators', 'iblbench.scenes.gbuffer'))))")
+    done = subprocess.run([interpreter.executable, "-c", probe], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"

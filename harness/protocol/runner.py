@@ -320,9 +320,11 @@ class Runner:
                                                             "colour-science", "pandas")}},
             "estimator_versions": {s.label: s.cls.version() for s in self.specs},
             "estimator_params": dict(self.plan.params),
-            # How the report shows each estimator's extra columns (Estimator.extra_columns).
-            "extra_columns": {column: dataclasses.asdict(extra) for s in self.specs
-                              for column, extra in s.cls.extra_columns.items()},
+            # How the report shows each estimator's extra columns (Estimator.extra_columns):
+            # the folder's earlier runs' too, whose rows stay in the table.
+            "extra_columns": {**self.previous_manifest.get("extra_columns", {}),
+                              **{column: dataclasses.asdict(extra) for s in self.specs
+                                 for column, extra in s.cls.extra_columns.items()}},
             "device": self._device_manifest(),
             "sanitized": {p.scene.name: p.scene.environment.texels_fixed for p in self.plans},
             "runs": self._run_history(),

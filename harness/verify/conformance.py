@@ -30,6 +30,7 @@ from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
+from iblbench.harness.verify.convergence import MIN_ERROR_FALL_8_TO_128
 from iblbench.harness.verify.fixtures import (FACE_BLOB_WIDTH, FACE_BLOBS, SUN_FACE,  # noqa: F401
                                               constant_map, face_pattern_map, fibonacci_directions,
                                               glossy_gbuffer, grazing_gbuffer, same_pixels,
@@ -272,9 +273,6 @@ def check_unbiased(estimator, h: Harness) -> None:
     assert not failures, "biased: " + "; ".join(failures)
 
 
-# The least fall of the RMS error over 16× the samples (8 → 128 spp) that the convergence checks
-# accept (ideal 4 = √16); harness/verify/convergence.py flags benchmark cells by the same bound.
-MIN_ERROR_FALL_8_TO_128 = 2.5
 
 
 def _rms_errors(estimator, h: Harness, gbuffer, cache, targets, spps) -> np.ndarray:

@@ -50,10 +50,13 @@ import math
 import numpy as np
 import pandas as pd
 
-from iblbench.harness.verify.conformance import MIN_ERROR_FALL_8_TO_128
 from iblbench.harness.protocol.metric import labels
 from iblbench.harness.protocol.stats import RatioCI, ratio_ci
 
+# The least fall of the RMS error over 16× the samples (8 → 128 spp) that the convergence checks
+# accept (ideal 4 = √16): the conformance suite's and the benchmark cells' bound.  It lives here,
+# not in the conformance suite, so that the report, which flags cells, loads no device.
+MIN_ERROR_FALL_8_TO_128 = 2.5
 # Error column → (name in messages, its power of an RMS-like error).
 METRICS = {"rel_mse": (labels()["rel_mse"], 2)}
 FLATTEST_RMS_SLOPE = -math.log(MIN_ERROR_FALL_8_TO_128) / math.log(16)
