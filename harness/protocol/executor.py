@@ -314,16 +314,19 @@ class Executor:
             estimates = [self._render_turn(cell, turn, gbuffer, cache) for cell in going]
             for cell, estimate in zip(going, estimates):
                 self._score_turn(cell, turn, estimate, scorer, images)
+        # Before the rows: a run stopped between the two redoes the frame, so no journalled
+        # frame is left without its picture.
+        self._save_pool_picture(plan, gbuffer.gbuffer, cache)
         for cell in cells:
             row = self._row(plan, cell, scorer, previous_frame)
             on_row(row)
             self.progress.finished(cell.key, row["spp"], cell.seconds)
-        self._save_pool_picture(plan, gbuffer.gbuffer, cache)
 
     def _save_pool_picture(self, plan: ScenePlan, gbuffer, cache: FrameCache) -> None:
         """The frame's sample-picture inputs for the report (:mod:`.report_inputs`): the pool
         of the shared-sequence pool estimators at the picture's spp and every pixel's split;
-        after the frame's cells, so that building its pool times no cell."""
+        after the frame's renders, so that building its pool times no cell, and before its rows
+        are handed on."""
         pool_estimators = {spec.label: instance for spec in self.plan.specs
                            for instance in [spec.make()] if isinstance(instance, PoolEstimator)}
         pooled = {label: instance for label, instance in pool_estimators.items()

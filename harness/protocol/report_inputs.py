@@ -11,7 +11,7 @@ run folder (no scene, tracer, device or estimator):
   estimator's split of every pixel (``ticks`` int32 ``[estimators, H, W, 7]``: six faces, then
   the BRDF, in ``ticks_per_sample``), the estimators named in ``labels`` (``interleaved``: the
   pool estimators left out, whose pixels read the pool at hashed offsets).  Written once per
-  frame, after its cells (its pool, built then, moves no cell's time).
+  frame, after its renders and before its rows (its pool, built then, moves no cell's time).
 
 The executor writes them (:mod:`.executor`); a run folder made before has none, and its report
 leaves the sample pictures out.  The ΔE76 maps are not saved: the report scores the run's EXRs
