@@ -13,7 +13,7 @@ from iblbench.harness.protocol.metrics import Scorer
 from iblbench.harness.protocol.report_inputs import pool_path, read_pool_picture, shown_spp
 from iblbench.harness.protocol.results import image_stem
 from iblbench.harness.protocol.stats import LEVEL, interval_text, mean_ci, t_quantile
-from iblbench.harness.protocol.sweep import parse_estimator
+from iblbench.harness.protocol.sweep import estimator_tags
 from iblbench.reports import sample_picture
 from iblbench.reports.figures import slugify
 from iblbench.reports.previews import HEAT_SCALE, heat_scale, write_heat_map, write_preview
@@ -158,10 +158,8 @@ def bias_table(run_dir, table, cells, scene, frame, mask) -> markupsafe.Markup |
     for label, runs in rows.groupby("estimator", sort=False):
         spp = int(runs.spp.max())
         paths = [folder / f"{image_stem(row)}.exr" for row in runs[runs.spp == spp].to_dict("records")]
-        try:
-            biased = not _estimator(label).tags.unbiased
-        except InputError:      # an estimator this installation lacks
-            biased = False
+        tags = estimator_tags(label)   # None: an estimator this installation lacks
+        biased = tags is not None and not tags.unbiased
         if not biased or not all(p.exists() for p in [folder / "reference.exr", *paths]):
             continue
         n = len(paths)
@@ -189,13 +187,6 @@ def bias_table(run_dir, table, cells, scene, frame, mask) -> markupsafe.Markup |
                       "relMSE of the bias": interval_text(bias, bias_half, n),
                       "relMSE": intervals(cell, "rel_mse")[0]})
     return table_html(pd.DataFrame(shown), "summary") if shown else None
-
-
-def _estimator(label: str):
-    """The estimator of a results label (``name`` or ``name{param=value,...}``), for its tags:
-    an instance, whose parameters may change them (``restir{unbiased=false}``); building one
-    opens no device."""
-    return parse_estimator(label).make()
 
 
 def default_pixel(mask: np.ndarray) -> tuple[int, int]:

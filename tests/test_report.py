@@ -868,6 +868,6 @@ def test_a_metric_outside_the_default_sweep_shows_in_the_tables_from_its_descrip
 def test_the_bias_table_reads_the_instances_tags_not_the_classs():
     """restir is tagged unbiased, restir{unbiased=false} biased: the bias table must list the
     second (an instance's tags, as the conformance suite reads them)."""
-    from iblbench.reports.images import _estimator
+    from iblbench.harness.protocol.sweep import estimator_tags
 
-    assert _estimator("restir").tags.unbiased and not _estimator("restir{unbiased=false}").tags.unbiased
+    assert estimator_tags("restir").unbiased and not estimator_tags("restir{unbiased=false}").unbiased

@@ -56,15 +56,14 @@ import sys
 
 import pandas as pd
 
-from iblbench.harness.protocol.metric import registered
+from iblbench.harness.protocol.metric import columns, higher_is_better
 from iblbench.harness.protocol.results import KEY_COLUMNS, json_text, load_table, read_manifest, row_key
 from iblbench.harness.protocol.stats import (LEVEL, RATIO_METHOD, MeanCI, RatioCI, cell_values,
                                              column_interval, compare_values, devices, ratio_ci)
 from iblbench.foundation.errors import InputError
 
-METRICS = (*(metric.column for metric in registered()), "effective_ratio", "time_ms")
-HIGHER_IS_BETTER = frozenset({"effective_ratio", *(metric.column for metric in registered()
-                                                    if not metric.lower_is_better)})
+METRICS = (*columns(), "effective_ratio", "time_ms")
+HIGHER_IS_BETTER = frozenset({"effective_ratio", *higher_is_better()})
 REQUIRED_COLUMNS = KEY_COLUMNS + ["estimator_version", "device", "protocol"]
 # (what differs, row column): values compared between the two folders.
 DIFFERENCE_COLUMNS = (("device", "device"), ("protocol", "protocol"),

@@ -68,7 +68,7 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.protocol.equal_time import TOLERANCE
-from iblbench.harness.protocol.metric import labels, registered
+from iblbench.harness.protocol.metric import higher_is_better, labels
 from iblbench.harness.protocol.stats import (TIME_COLUMN, MeanCI, RatioCI, by_device,
                                              cell_values, column_interval, render_times,
                                              t_quantile)
@@ -77,7 +77,6 @@ from iblbench.harness.protocol.timing import robust_ms
 METRIC = "mean_delta_e76"
 FLICKER = "flicker"   # a sequence's figure from its second frame on (harness/protocol/metrics.py)
 METRIC_NAMES = {**labels(), FLICKER: "flicker"}
-HIGHER_IS_BETTER = {m.column for m in registered() if not m.lower_is_better}   # PSNR: not rankable
 BUDGETS = 3                 # headline budgets per scene at most
 BUDGET_SPACING = 2.0        # headline budgets at least this factor apart
 BUDGET_REACH = 0.5          # a headline budget ranks at least this share of the estimators
@@ -230,7 +229,7 @@ def curve(rows: pd.DataFrame, metric: str = METRIC, frame: int | None = None,
     ``times``: the cells' times and their draws kept by cell between calls on the same rows
     (a sequence's curves, one per frame and metric, share them)."""
     times = {} if times is None else times
-    if metric in HIGHER_IS_BETTER:   # the curve is read in log-log space as an error falling with time
+    if metric in higher_is_better():   # the curve is read in log-log space as an error falling with time
         raise ValueError(f"the equal-time ranking reads errors (lower is better); "
                          f"{metric} is higher-is-better")
     points = []

@@ -190,6 +190,16 @@ def parse_estimator(text: str) -> EstimatorSpec:
     return spec
 
 
+def estimator_tags(label: str):
+    """The tags of the estimator a results label names, an instance's (a parameter may change
+    them: ``restir{unbiased=false}`` is biased; building one opens no device); None where this
+    installation lacks the estimator."""
+    try:
+        return parse_estimator(label).make().tags
+    except InputError:
+        return None
+
+
 # ---- the sweep ---------------------------------------------------------------------------------
 
 @dataclasses.dataclass(frozen=True)

@@ -52,6 +52,7 @@ import pandas as pd
 
 from iblbench.harness.protocol.metric import labels
 from iblbench.harness.protocol.stats import RatioCI, ratio_ci
+from iblbench.harness.protocol.sweep import estimator_tags
 
 # The least fall of the RMS error over 16× the samples (8 → 128 spp) that the convergence checks
 # accept (ideal 4 = √16): the conformance suite's and the benchmark cells' bound.  It lives here,
@@ -111,17 +112,6 @@ class Flag:
                 f"{self.allowed.slope:+.2f}, ideal {self.allowed.ideal:+.2f})")
 
 
-def _tags(label: str):
-    """The tags of the estimator a results label names; None where it is not registered here."""
-    from iblbench.harness.protocol.sweep import parse_estimator
-    from iblbench.foundation.errors import InputError
-
-    try:
-        return parse_estimator(label).make().tags
-    except InputError:
-        return None
-
-
 def flatter_than_tags(table: pd.DataFrame) -> list[Flag]:
     """Every (scene, estimator, consecutive spp levels, metric) of a results table whose error
     falls less than the estimator's tags allow, by the interval test of the module docstring."""
@@ -130,7 +120,7 @@ def flatter_than_tags(table: pd.DataFrame) -> list[Flag]:
     metrics = [m for m in METRICS if m in table]
     flags = []
     for (scene, label), rows in table.groupby(["scene", "estimator"], sort=False):
-        tags = _tags(label)
+        tags = estimator_tags(label)
         if tags is None:
             continue
         sequence = rows.frame.nunique() > 1

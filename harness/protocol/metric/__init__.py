@@ -88,6 +88,11 @@ def replicated_columns() -> tuple[str, ...]:
     return tuple(metric.column for metric in registered() if metric.replicated)
 
 
+def higher_is_better() -> frozenset[str]:
+    """The columns of the metrics whose larger value is the better one (PSNR)."""
+    return frozenset(metric.column for metric in registered() if not metric.lower_is_better)
+
+
 def labels() -> dict[str, str]:
     """Column → label."""
     return {metric.column: metric.label for metric in registered()}
