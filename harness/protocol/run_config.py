@@ -8,7 +8,9 @@ text) and ``python`` (the keyword's line in :func:`iblbench.run`'s docstring; No
 has no such keyword).  The sweep (:mod:`.sweep`), the API (:func:`iblbench.run_config`) and the
 CLI (:mod:`iblbench.commands.run`) read their fields from here.
 
-Light to import (the CLI builds its parser from it): no NumPy, no estimator, no scene.
+Light to import (the CLI builds its parser from it): no estimator, no scene.  The metrics
+field's default and help read the metric registry, whose modules import the scoring module,
+so NumPy comes with it (about 0.06 s of ``import iblbench`` here).
 """
 from __future__ import annotations
 
