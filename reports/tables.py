@@ -266,9 +266,11 @@ def _visibility_table(manifest: dict) -> markupsafe.Markup | None:
         for error in record.get("geometric_error") or [{}]:
             rows.append({**base, "Rv": error.get("visibility_res", "–") if error else "–",
                          "masked − shadow rays (Σ Y, relative)": error.get("relative_difference", "–"),
+                         "± (95%)": error.get("interval", "–"),
                          "per pixel p90": error.get("pixel_difference_p90", "–"),
-                         "shadow rays' std. error": error.get("relative_standard_error", "–"),
-                         "pixels × samples": f"{error['pixels']} × {error['samples']}" if error else "–"})
+                         "its noise floor": error.get("pixel_noise_p90", "–"),
+                         "pixels × samples": (f"{error['pixels']} of {error['covered']} × {error['samples']}"
+                                              if error else "–")})
     return table_html(pd.DataFrame(rows), "summary") if rows else None
 
 

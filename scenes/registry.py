@@ -11,7 +11,7 @@ Built-in scenes (static Preetham sun + sky, kd = 0.5, ks = 0.3, shininess = 150,
   scale and normal variety.
 - ``torus-sun``: a torus seen from above; inner faces point down and back at the tube.
 
-Built-in scenes with occlusion (visibility on, 16² cells a face: :mod:`iblbench.scenes.visibility`):
+Built-in scenes with occlusion (visibility on, 32² cells a face: :mod:`iblbench.scenes.visibility`):
 
 - ``sphere-ground``: the sphere resting on a ground plane under the sun and sky: a contact
   shadow, and the ground hiding the lower hemisphere.
@@ -82,8 +82,9 @@ User scene format (paths are relative to the TOML file's folder)::
     width = 128                     # each side at most 16384
     height = 128
     visibility = true               # optional (default false): shadows, V(x, ω) traced by Embree
-    visibility_res = 16             # optional (default 16): cells per cube-face side of the
-                                    # visibility masks, a power of two dividing the face size
+    visibility_res = 32             # optional (default 32, or the largest power of two below
+                                    # it dividing the face size): cells per cube-face side of
+                                    # the visibility masks, a power of two dividing the face size
 
 Unknown sections or keys are errors (they are usually typos).  Every problem is an ``InputError``
 naming the TOML file, or the referenced file when that file is the problem.
@@ -106,7 +107,7 @@ from .envmap import LAYOUTS, MAX_RES, load_environment
 from iblbench.foundation.errors import InputError
 from .scene import Camera, EnvSequence, Material, Scene
 from iblbench.foundation.tomlfile import read_toml
-from .visibility import check_resolution
+from .visibility import check_resolution, default_resolution
 
 DEFAULT_ENV_RES = 64
 # Bounds that only a corrupt or mistyped scene file exceeds; past them a run would exhaust memory
@@ -182,20 +183,16 @@ def _blob_sun(env_res: int | None) -> Scene:
     return _sun_sky_scene("blob-sun", meshes.blob(), camera, env_res)
 
 
-BUILTIN_VISIBILITY_RES = 16
-
-
 def _builtin_visibility_res(env_res: int | None) -> int:
-    """A built-in scene's Rv: 16, or under ``--env-res`` R the largest power of two up to 16 that
-    divides R (a user scene's visibility_res must divide its faces itself)."""
-    side = env_res or DEFAULT_ENV_RES
-    return max(r for r in (1, 2, 4, 8, BUILTIN_VISIBILITY_RES) if side % r == 0)
+    """A built-in scene's Rv: :func:`.visibility.default_resolution` of its faces (32 at the
+    default face size; under ``--env-res`` R at most R)."""
+    return default_resolution(env_res or DEFAULT_ENV_RES)
 
 
 def _sphere_ground(env_res: int | None) -> Scene:
     """The sphere resting on a ground plane under the default sun-and-sky, seen from above the
     front: the sphere's contact shadow on the ground (sharp from the sun, soft from the sky), and
-    the ground occluding the sphere's lower hemisphere.  Visibility on (16² cells a face)."""
+    the ground occluding the sphere's lower hemisphere.  Visibility on (32² cells a face)."""
     camera = Camera(eye=(0.0, 2.0, 4.2), target=(0.0, -0.6, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
     scene = _sun_sky_scene("sphere-ground", meshes.on_ground(meshes.sphere()), camera, env_res)
     return dataclasses.replace(scene, visibility=True, visibility_res=_builtin_visibility_res(env_res))
@@ -273,7 +270,7 @@ def _sphere_park(env_res: int | None) -> Scene:
 def _park_ground(env_res: int | None) -> Scene:
     """sphere-park's sphere resting on a ground plane, camera raised to see its shadow: the park's
     low sun casts a long shadow, the ground hides the photographed grass below the horizon.
-    Visibility on (16² cells a face)."""
+    Visibility on (32² cells a face)."""
     camera = _camera_facing_light(PARK_SUN_AZIMUTH_DEG)
     eye = np.array(camera.eye) * 1.4 + (0.0, 2.0, 0.0)
     camera = dataclasses.replace(camera, eye=tuple(eye), target=(0.0, -0.6, 0.0))
@@ -323,7 +320,7 @@ def _blob_day(env_res: int | None) -> Scene:
 
 def _torus_day(env_res: int | None) -> Scene:
     """The torus seen from above under ``day``: the ring's inner side is shadowed by the tube
-    across it as the sun moves.  Visibility on (16² cells a face)."""
+    across it as the sun moves.  Visibility on (32² cells a face)."""
     camera = Camera(eye=(0.0, 3.2, 1.8), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
     return dataclasses.replace(_sequence_scene("torus-day", meshes.torus(), camera, env_res),
                                visibility=True, visibility_res=_builtin_visibility_res(env_res))
@@ -554,10 +551,12 @@ def _toml_scene(path: Path, sanitize: bool, env_res: int | None) -> Scene:
     resolution = tuple(render.positive_int(k, MAX_IMAGE_SIDE) if render.has(k) else 128
                        for k in ("width", "height"))
     visibility = render.boolean("visibility") if render.has("visibility") else False
-    visibility_res = render.positive_int("visibility_res", MAX_RES) if render.has("visibility_res") else 16
+    face = environment.frame(0).shape[1]
+    visibility_res = (render.positive_int("visibility_res", MAX_RES) if render.has("visibility_res")
+                      else default_resolution(face))
     if visibility:
         try:
-            check_resolution(visibility_res, environment.frame(0).shape[1], "render.visibility_res")
+            check_resolution(visibility_res, face, "render.visibility_res")
         except ValueError as error:
             render.fail(str(error))
     return Scene(path.stem, mesh, material, camera, environment, resolution, source=os.fspath(path),

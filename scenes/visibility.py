@@ -9,16 +9,24 @@ Hanrahan 2003, per-vertex visibility cube maps), per covered pixel:
   face order and (s, t) convention (ARCHITECTURE.md §Conventions); cell (face, row, col) holds the directions whose
   texel, at resolution Rv, is (face, row, col): row = ⌊t·Rv⌋, col = ⌊s·Rv⌋;
 - one bit per cell, bit b = (face·Rv + row)·Rv + col of word b // 32 (bit b % 32) of the pixel's
-  ``words(Rv)`` = ⌈6·Rv²/32⌉ uint32 words: 6·Rv² bits per covered pixel (Rv = 16: 192 bytes).
+  ``words(Rv)`` = ⌈6·Rv²/32⌉ uint32 words: 6·Rv² bits per covered pixel (Rv = 32, the built-in
+  scenes' default: 768 bytes).
 
-How a cell's bit is made (``RAYS_PER_CELL_SIDE`` = 2): four Embree occlusion rays per cell,
-through the centres of its 2 × 2 sub-cells, from x offset along the triangle's geometric normal
-(turned to the camera's side) by ``OFFSET_SCALE`` × the mesh's bounding-box diagonal (so the ray
-does not hit the triangle it starts on); the bit is 1 when at least two of the four leave the
-scene (a majority, ties counted visible).  Cells wholly below the shading normal's horizon (all
-four corners have n·ω ≤ 0) are not traced and hold 0: the integrand ρ·cos⁺ is 0 there, so their
-bit never changes an image.  How close this V is to true geometric visibility is measured, not
-assumed (:mod:`iblbench.harness.protocol.visibility_error`).
+How a cell's bit is made: one Embree occlusion ray through the cell's centre, from x offset
+along the triangle's geometric normal (turned to the camera's side) by ``OFFSET_SCALE`` × the
+mesh's bounding-box diagonal (so the ray does not hit the triangle it starts on); the bit is
+that ray's answer, 1 where it leaves the scene.  No rule combines rays, so none can lean one
+way (issue 34: the earlier majority of four rays, a 2–2 tie counted visible, made the masked
+reference 0.5% brighter than real shadows on ``park-ground`` at Rv 16, 1.3% at Rv 8).  Why one
+ray per cell at twice the resolution and not a fraction of four rays per cell: with the same
+rays traced, what is left after the tie is the cell's size, not how its rays are combined.  On
+``park-ground`` (whole image, against real shadow rays, ±0.05%) every per-cell value at Rv 16 (the
+fraction of 4 or of 9 rays, the majority of 9, one ray) is +0.25% too bright, and one ray per
+cell at Rv 32 (the same 6·32² rays a pixel) is +0.08%, at Rv 64 0.00%
+(docs/scenes.md, "Shadows").  Cells wholly below the shading normal's horizon (all four corners
+have n·ω ≤ 0) are not traced and hold 0: the integrand ρ·cos⁺ is 0 there, so their bit never
+changes an image.  How close this V is to true geometric visibility is measured, not assumed
+(:mod:`iblbench.harness.protocol.visibility_error`).
 
 Cache.  :func:`cached_visibility` keeps masks on disk (``<folder>/<key>.npz``, written
 atomically), keyed by a hash of this module's source, the mesh's vertices and faces, the camera,
@@ -40,14 +48,20 @@ import numpy as np
 from iblbench.scenes import cubemap
 from iblbench.foundation.atomic import atomic_path
 
-RAYS_PER_CELL_SIDE = 2
 OFFSET_SCALE = 1e-4
-PIXELS_PER_BATCH = 64   # pixels traced per Embree call: about 0.4 M rays at Rv = 16
+DEFAULT_RES = 32        # the same 6·32² rays a pixel as the earlier 16² cells of four rays each
+PIXELS_PER_BATCH = 64   # pixels traced per Embree call: about 0.4 M rays at Rv = 32
 
 
 def words(vis_res: int) -> int:
     """uint32 words of one pixel's mask."""
     return -(-6 * vis_res * vis_res // 32)
+
+
+def default_resolution(env_res: int) -> int:
+    """Rv where a scene names none: DEFAULT_RES, or the largest power of two below it that divides
+    the face resolution ``env_res``."""
+    return max(r for r in (1 << i for i in range(DEFAULT_RES.bit_length())) if env_res % r == 0)
 
 
 def check_resolution(vis_res: int, env_res: int, where: str = "visibility_res") -> None:
@@ -72,16 +86,12 @@ class TraceStats:
 
 
 def cell_rays(vis_res: int) -> tuple[np.ndarray, np.ndarray]:
-    """The unit ray directions of every cell ``[6·Rv², k, 3]`` (k = RAYS_PER_CELL_SIDE², sub-cell
-    centres) and each cell's four corner directions ``[6·Rv², 4, 3]``, cells in bit order."""
-    k = RAYS_PER_CELL_SIDE
-    sub = (np.arange(k) + 0.5) / k
+    """The unit direction through every cell's centre ``[6·Rv², 3]`` and each cell's four corner
+    directions ``[6·Rv², 4, 3]``, cells in bit order."""
     cells = np.arange(vis_res)
     face, row, col = np.meshgrid(np.arange(6), cells, cells, indexing="ij")
     face, row, col = (a.reshape(-1, 1) for a in (face, row, col))
-    ts, ss = np.meshgrid(sub, sub, indexing="ij")
-    rays = cubemap.face_st_to_direction(face, (col + ss.reshape(1, -1)) / vis_res,
-                                        (row + ts.reshape(1, -1)) / vis_res)
+    rays = cubemap.face_st_to_direction(face[:, 0], (col[:, 0] + 0.5) / vis_res, (row[:, 0] + 0.5) / vis_res)
     corner_s = np.array([0.0, 1.0, 0.0, 1.0])
     corner_t = np.array([0.0, 0.0, 1.0, 1.0])
     corners = cubemap.face_st_to_direction(face, (col + corner_s) / vis_res, (row + corner_t) / vis_res)
@@ -107,6 +117,13 @@ def cell_of(directions: np.ndarray, vis_res: int) -> np.ndarray:
     """The bit index of the cell that holds each direction ``[..., 3]``."""
     face, row, col = cubemap.direction_to_texel(directions, vis_res)
     return (face * vis_res + row) * vis_res + col
+
+
+def cell_answers(scene, origins: np.ndarray, directions: np.ndarray, vis_res: int) -> np.ndarray:
+    """V under masks of ``vis_res`` along ``directions`` ``[N, 3]`` from ``origins`` ``[N, 3]``:
+    the answer of the ray through the centre of each direction's cell, as a traced mask holds it
+    wherever n·ω > 0 (there the cell is above the horizon, so traced)."""
+    return unoccluded(scene, origins, cell_rays(vis_res)[0][cell_of(directions, vis_res)])
 
 
 def occlusion_scene(mesh):
@@ -152,7 +169,6 @@ def trace_visibility(mesh, camera, normals: np.ndarray, width: int, height: int,
     ``only``: a boolean ``[H, W]`` of the pixels to trace (the others stay 0); None for all.
     ``progress`` is called with the pixels traced since its last call."""
     rays, corners = cell_rays(vis_res)
-    k = rays.shape[1]
     origins, covered = offset_points(mesh, camera, width, height)
     if only is not None:
         keep = np.asarray(only).reshape(-1)[covered]
@@ -165,10 +181,9 @@ def trace_visibility(mesh, camera, normals: np.ndarray, width: int, height: int,
         n = shading[first:first + PIXELS_PER_BATCH]
         above = (np.einsum("pj,ckj->pck", n, corners) > 0).any(axis=-1)    # [P, cells]
         pixel, cell = np.nonzero(above)
-        ray_origins = np.repeat(origins[first + pixel], k, axis=0)
-        free = unoccluded(scene, ray_origins, rays[cell].reshape(-1, 3)).reshape(-1, k)
+        ray_origins = origins[first + pixel]
         bits = np.zeros(above.shape, bool)
-        bits[pixel, cell] = 2 * free.sum(axis=1) >= k
+        bits[pixel, cell] = unoccluded(scene, ray_origins, rays[cell])
         masks[covered[first:first + PIXELS_PER_BATCH]] = pack_bits(bits)
         traced += len(ray_origins)
         if progress is not None:

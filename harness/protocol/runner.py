@@ -652,8 +652,7 @@ class Runner:
             gbuffer, record = attach_visibility(scene, gbuffer, plan.env_res, cache_dir() / "visibility",
                                                 bar.update)
         if record is not None:
-            record = measured_record(self.compute or get_compute(), scene, gbuffer,
-                                     scene.environment.frame(plan.frames[0]), record)
+            record = measured_record(scene, gbuffer, scene.environment.frame(plan.frames[0]), record)
             self.visibility.append(record)
             if record.get("cached") or "skipped" in record:
                 self.skipped.append({"scene": scene.name, "stage": "visibility",

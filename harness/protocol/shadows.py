@@ -35,15 +35,14 @@ def attach_visibility(scene, gbuffer, env_res: int, folder, progress=None) -> tu
     record.update(cached=cached, seconds=round(time.perf_counter() - start, 3),
                   rays=stats.rays, trace_seconds=round(stats.seconds, 3),
                   embree_rays_per_s=round(stats.rays_per_second),
-                  bytes_per_pixel=4 * visibility.words(scene.visibility_res),
-                  rays_per_cell=visibility.RAYS_PER_CELL_SIDE ** 2)
+                  bytes_per_pixel=4 * visibility.words(scene.visibility_res))
     return dataclasses.replace(gbuffer, visibility=masks, visibility_res=scene.visibility_res), record
 
 
-def measured_record(compute, scene, gbuffer, env, record: dict) -> dict:
+def measured_record(scene, gbuffer, env, record: dict) -> dict:
     """``record`` with ``geometric_error`` where the scene's masks were traced or read: the
     masked reference against real shadow rays under ``env`` (a frame of the scene) at Rv/2, Rv
     and 2·Rv (:mod:`.visibility_error`)."""
     if gbuffer.visibility is None:
         return record
-    return dict(record, geometric_error=visibility_error(compute, scene, gbuffer, env))
+    return dict(record, geometric_error=visibility_error(scene, gbuffer, env))
