@@ -139,3 +139,23 @@ def test_a_simulator_alone_is_not_chosen_by_default(monkeypatch):
         device.choose_device()
     assert device.choose_device(OCLGRIND).is_simulator
 
+
+def test_doctor_without_fp64_holds_the_default_devices_float_path_to_its_double_path(monkeypatch):
+    """``iblbench doctor --no-fp64`` on the default device alone: its float path against its own
+    double path, so a float-path bug fails it (here a planted 1% on cosine's float-path arrays;
+    havran's sizing once gave 500×)."""
+    from iblbench.harness.verify import doctor
+
+    real_run_case = portability.run_case
+
+    def cosine_off_on_the_float_path(device, case, *args, fp64=True, **kwargs):
+        outcome = real_run_case(device, case, *args, fp64=fp64, **kwargs)
+        if case == "cosine" and not fp64:
+            outcome.arrays = {name: array * 1.01 for name, array in outcome.arrays.items()}
+        return outcome
+
+    monkeypatch.setattr(portability, "run_case", cosine_off_on_the_float_path)
+    [report] = doctor.diagnose(choose_device().label, cases=["havran", "cosine"], fp64=False)
+    assert report.label.endswith("(float path)")
+    assert len(report.problems) == 1 and report.problems[0].startswith("cosine: "), report.problems
+    assert "arrays differ from the default device's" in report.problems[0]
