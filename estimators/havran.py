@@ -83,7 +83,7 @@ device buffers: nothing of a frame goes back to the host (the relaxed, rotated p
 uploaded once per sequence, the filter's history is a device ring of the last
 ``len(fir_taps)`` frames' lights, slot frame mod ``len(fir_taps)``).  Their arithmetic is that
 of the NumPy twins, :class:`EqualAreaMap` (its ``sample`` and ``radiance``) and
-:func:`fir_filter`, in acc_t (float64 where the device has it) without multiply-add
+:func:`fir_filter`, in acc_t (:func:`acc_type`) without multiply-add
 contraction; the tests hold the device lights to those twins.  Only libm's cos and sin (a few ulps) and the texel lookup of a
 direction within rounding of a texel edge can differ, so the lights are those of the NumPy
 path to ~1e-15 and the estimator is statistically unchanged.
@@ -314,6 +314,13 @@ class EqualAreaMap:
         return self.env[face, row, col].astype(np.float64)
 
 
+def acc_type(compute) -> np.dtype:
+    """havran.cl's acc_t on ``compute``: double where its kernels are built with doubles
+    (``Compute.doubles``: the device has them and this is not the float path), else float.  The
+    buffers the kernels accumulate into are sized by it and read back as it."""
+    return np.dtype(np.float64 if compute.doubles else np.float32)
+
+
 class DeviceEqualAreaMap:
     """The frame's map on the device: the arrays of :class:`EqualAreaMap` (row_prob, row_cdf,
     col_prob, col_cdf) as acc_t buffers (``buffers``), equal to the NumPy build up to float
@@ -328,7 +335,7 @@ class DeviceEqualAreaMap:
         self.nz, self.nphi = grid_shape(res)
         lookup, offsets, texels = _device_tables(compute, res)
         cells = self.nz * self.nphi
-        self.acc = np.dtype(np.float64 if compute.doubles else np.float32)
+        self.acc = acc_type(compute)
         width = self.acc.itemsize
         mean, value, mass = compute.empty(4 * cells), compute.empty(4 * cells), compute.empty(width * cells)
         row_mass, row_prob, row_cdf = (compute.empty(width * self.nz) for _ in range(3))
@@ -461,6 +468,11 @@ class Havran(Estimator):
         Mutant("havran-culling-keeps-backfacing", "havran.cl",
                "        if (c <= 0.0f)\n            continue;",
                "        if (c < -0.5f)\n            continue;", stress=("constant",)),
+        # acc_t by the device alone: at fp64=False on a device with doubles the kernels write
+        # floats into buffers read as doubles (check_float_path, off by about 500×).
+        Mutant("havran-acc-type-by-device", "havran.py",
+               "np.float64 if compute." "doubles else np.float32",
+               "np.float64 if compute.info.has_fp64 else np.float32"),
     )
 
     def __init__(self, params=None, **overrides):
@@ -482,9 +494,8 @@ class Havran(Estimator):
     def _points_buffer(self, compute, k: int, seed: int):
         """The rotated relaxed points on the device, uploaded once per (context, K, seed)."""
         if self._points is None or self._points[:3] != (compute, k, seed):
-            acc = np.float64 if compute.doubles else np.float32
             points = (relaxed_points(k) + seed_shift(seed)) % 1.0
-            self._points = (compute, k, seed, compute.to_device(points.astype(acc)))
+            self._points = (compute, k, seed, compute.to_device(points.astype(acc_type(compute))))
         return self._points[3]
 
     def _place(self, cache, k: int, seed: int, directions, weights, slot: int) -> float:
@@ -499,12 +510,11 @@ class Havran(Estimator):
         return envmap.build_ms + event_ms(event)
 
     def _acc_buffers(self, compute, k: int, slots: int = 1):
-        width = 8 if compute.doubles else 4
+        width = acc_type(compute).itemsize
         return compute.empty(slots * k * 4 * width), compute.empty(slots * k * 4 * width)
 
     def _to_host(self, compute, buffer, k: int) -> np.ndarray:
-        acc = np.float64 if compute.doubles else np.float32
-        return compute.to_host(buffer, (k, 4), acc)[:, :3].astype(np.float64)
+        return compute.to_host(buffer, (k, 4), acc_type(compute))[:, :3].astype(np.float64)
 
     def raw_lights(self, cache, k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
         """This frame's unfiltered lights, host copies (tests): directions ``[k, 3]`` and weights
@@ -529,7 +539,7 @@ class Havran(Estimator):
         rings = self._ring[2:]
         ms = self._place(cache, k, seed, *rings, frame % len(taps))
         a = np.asarray([taps[frame - f] for f in self._history], np.float64)
-        acc = np.float64 if compute.doubles else np.float32
+        acc = acc_type(compute)
         slots = compute.to_device(np.asarray([f % len(taps) for f in self._history], np.int32))
         outputs = self._acc_buffers(compute, k) + (compute.empty(k * 16), compute.empty(k * 16))
         event = compute.run(self._kernel(compute, "filter_lights"), k, *rings, np.int32(k), slots,

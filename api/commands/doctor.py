@@ -27,6 +27,11 @@ def add_parser(subparsers) -> None:
                              "(the default device still runs: it is the baseline)")
     doctor.add_argument("--verbose", action="store_true",
                         help="also print the compilers' output (warnings), which is silent otherwise")
+    doctor.add_argument("--no-fp64", dest="fp64", action="store_false",
+                        help="run every device on the float path, as a device without cl_khr_fp64 "
+                             "does (single-precision sums where the kernels otherwise accumulate in "
+                             "double), and hold each, the default device too, to the default "
+                             "device's double path")
 
 
 def run(args) -> int:
@@ -36,7 +41,7 @@ def run(args) -> int:
         if sys.stderr.isatty():
             print(f"\r\033[K{text}", end="", file=sys.stderr, flush=True)
 
-    reports = diagnose(args.device, args.verbose, progress)
+    reports = diagnose(args.device, args.verbose, progress, fp64=args.fp64)
     progress("")
     for report in reports:
         if args.verbose and report.build_logs:

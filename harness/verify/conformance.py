@@ -113,6 +113,21 @@ def check_sample_counts(estimator, h: Harness) -> None:
         assert np.all(est.effective >= 0), "effective must be non-negative"
 
 
+def check_float_path(estimator, h: Harness) -> None:
+    """A device without cl_khr_fp64 runs the float path (``Compute(fp64=False)``: single-precision
+    sums where the kernels accumulate in double), and ``iblbench doctor`` holds such a device to
+    it; on the portability set's inputs it gives the double path's arrays within
+    ``portability.FLOAT_RTOL``, every frame of a temporal estimator included.  (havran once sized
+    its accumulators by the device, not by the path built, and was off by about 500×.)"""
+    from iblbench.harness.verify import portability
+
+    arrays = {path: portability.render_estimator(compute, type(estimator)(estimator.params))
+              for path, compute in (("double", h.compute), ("float", portability.float_path(h.compute)))}
+    off = portability.differences(arrays["float"], arrays["double"], exact_integers=False)
+    assert not off, "the float path is off the double path: " + ", ".join(
+        f"{name} by {value:.2g} (relative)" for name, value in sorted(off.items()))
+
+
 EFFECTIVE_SEEDS = 40          # renders whose effective shares are averaged per pixel
 EFFECTIVE_SPP = 64
 EFFECTIVE_GRID = 128          # pdf points per cube face side for the mass above the horizon
@@ -818,6 +833,7 @@ def yield_checks(estimator) -> Iterator[Callable]:
             yield check_setting_properties
     yield check_stress_finite
     yield check_sample_counts
+    yield check_float_path
     yield check_white_furnace
     if tags.unbiased:
         yield check_unbiased

@@ -87,12 +87,16 @@ def _case_problems(outcome: portability.Outcome, baseline: dict | None) -> list[
 
 def diagnose(spec: str | None = None, verbose: bool = False,
              progress: Callable[[str], None] = lambda text: None,
-             cases: list[str] | None = None) -> list[DeviceReport]:
+             cases: list[str] | None = None, fp64: bool = True) -> list[DeviceReport]:
     """A report per OpenCL device (those matching ``spec``, else every one), on ``cases`` (by
     default every case of the portability set, ``portability.cases()``).  The default device
     runs first, and its arrays are the other devices' baseline, on the same fp64 path as theirs
     (a device without cl_khr_fp64 against the default device's float path); with no default
-    device (none that builds, or only a simulator) the devices are held to the twins alone."""
+    device (none that builds, or only a simulator) the devices are held to the twins alone.
+
+    ``fp64=False``: every device runs the float path, as one without cl_khr_fp64 does, and
+    each, the default device too, is held to the default device's own path (its double path
+    where it has fp64)."""
     from iblbench.estimators.runtime.device import all_devices, build_failure, choose_device
     from iblbench.foundation.errors import InputError
 
@@ -106,16 +110,26 @@ def diagnose(spec: str | None = None, verbose: bool = False,
         devices = [d for d in devices if spec.lower() in d.label.lower()]
     baselines: dict[bool, dict] = {}
 
-    def baseline(fp64: bool) -> dict:
+    def baseline(doubles: bool) -> dict:
         """The default device's arrays of every case on the fp64 or the float path."""
-        if fp64 not in baselines:
-            baselines[fp64] = {}
+        if doubles not in baselines:
+            baselines[doubles] = {}
             for case in cases:
                 progress(f"baseline on {default.device.name.strip()}: {case}")
-                outcome = portability.run_case(default.label, case, fp64=fp64)
+                outcome = portability.run_case(default.label, case, fp64=doubles)
                 if outcome.arrays is not None:
-                    baselines[fp64][case] = outcome.arrays
-        return baselines[fp64]
+                    baselines[doubles][case] = outcome.arrays
+        return baselines[doubles]
+
+    def baseline_path(info) -> bool | None:
+        """The fp64 path of the default device's arrays that ``info``'s are held to; None: none."""
+        if default is None:
+            return None
+        if not fp64:
+            return default.has_fp64
+        if info.key == default.key or (info.has_fp64 and not default.has_fp64):
+            return None
+        return info.has_fp64
 
     reports = []
     for info in devices:
@@ -126,16 +140,16 @@ def diagnose(spec: str | None = None, verbose: bool = False,
                                         time.perf_counter() - start, 0))
             continue
         checks = portability.CHECKS if info.is_simulator else None
-        compared = default is not None and info.key != default.key and (
-            default.has_fp64 or not info.has_fp64)
+        held_to = baseline_path(info)
         problems, logs = [], []
         for case in cases:
             progress(f"{info.kind} {info.device.name.strip()}: {case}")
-            outcome = portability.run_case(info.label, case, checks, verbose=verbose)
+            outcome = portability.run_case(info.label, case, checks, verbose=verbose, fp64=fp64)
             logs.append(outcome.build_logs)
             if default is not None and info.key == default.key and outcome.arrays is not None:
-                baselines.setdefault(info.has_fp64, {})[case] = outcome.arrays   # its own path
-            problems += _case_problems(outcome, baseline(info.has_fp64).get(case) if compared else None)
-        reports.append(DeviceReport(info.label, info.kind, problems, time.perf_counter() - start,
+                baselines.setdefault(info.has_fp64 and fp64, {})[case] = outcome.arrays   # its own path
+            problems += _case_problems(outcome, None if held_to is None else baseline(held_to).get(case))
+        label = info.label if fp64 else f"{info.label} (float path)"
+        reports.append(DeviceReport(label, info.kind, problems, time.perf_counter() - start,
                                     len(cases), "\n".join(filter(None, logs))))
     return reports

@@ -23,6 +23,7 @@ to an ``.npz`` file and the parent reads Oclgrind's reports from its standard er
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import pathlib
 import re
@@ -56,6 +57,7 @@ _REPORT = re.compile(r"^(Invalid (read|write)|.*data race|Work-(group|item) dive
 
 
 MASKED = "+visibility"
+OWN_CASES = ("reference", "products", "light_pdf", "probes")   # the cases that are no estimator
 
 
 def variants() -> list[str]:
@@ -74,7 +76,7 @@ def cases() -> list[str]:
     and each estimator again with visibility masks (``MASKED``)."""
     from iblbench.estimators.registry import estimator_names
 
-    return ["reference", "products", "light_pdf", "probes", *estimator_names(), *variants(),
+    return [*OWN_CASES, *estimator_names(), *variants(),
             *(name + MASKED for name in ("reference", *estimator_names()))]
 
 
@@ -86,11 +88,11 @@ def split_case(case: str) -> tuple[str, bool]:
 def inputs(masked: bool = False):
     """(G-buffer, first map, turned map) of every case; ``masked``: the G-buffer carries
     visibility masks of VIS_RES² cells a face, OPEN_SHARE of them open (random, seeded)."""
-    from iblbench.harness.verify import conformance
+    from iblbench.harness.verify import fixtures
     from iblbench.scenes import visibility
 
-    env = conformance.sun_map(ENV_RES, SUN_RATIO)
-    gbuffer = conformance.glossy_gbuffer(SIZE)
+    env = fixtures.sun_map(ENV_RES, SUN_RATIO)
+    gbuffer = fixtures.glossy_gbuffer(SIZE)
     if masked:
         cells = np.random.default_rng(VIS_SEED).random(gbuffer.shape + (6 * VIS_RES * VIS_RES,)) < OPEN_SHARE
         gbuffer = dataclasses.replace(gbuffer, visibility=visibility.pack_bits(cells), visibility_res=VIS_RES)
@@ -99,7 +101,7 @@ def inputs(masked: bool = False):
 
 def pdf_directions() -> np.ndarray:
     """The ``light_pdf`` case's directions, spread over the sphere, float32 ``[n, 3]``."""
-    from iblbench.harness.verify.conformance import fibonacci_directions
+    from iblbench.harness.verify.fixtures import fibonacci_directions
 
     return fibonacci_directions(PDF_DIRECTIONS).astype(np.float32)
 
@@ -112,7 +114,9 @@ def render(compute, case: str) -> dict[str, np.ndarray]:
     from iblbench.harness.protocol.sweep import parse_estimator
 
     case, masked = split_case(case)
-    gbuffer, env, turned = inputs(masked)
+    if case not in OWN_CASES:
+        return render_estimator(compute, parse_estimator(case).make(), masked)
+    gbuffer, env, _ = inputs(masked)
     pixels = DeviceGBuffer(compute, gbuffer)
     cache = FrameCache(compute, env)
     if case == "reference":
@@ -125,14 +129,25 @@ def render(compute, case: str) -> dict[str, np.ndarray]:
         copied = probes.run_copy(compute, np.arange(64, dtype=np.float32))[0]
         lanes = probes.run_fma(compute, 16, 5, b=1.0)[0]   # [items, chains, the device's width]
         return {"fma": lanes[..., 0], "copy": copied}
-    if case == "light_pdf":
-        light_only = parse_estimator("envmap").make()
-        cache.require(type(light_only).requires)
-        return {"light_pdf": light_only.pdf(cache, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.6, 0.8]),
-                                            pdf_directions())}
-    estimator = parse_estimator(case).make()
+    light_only = parse_estimator("envmap").make()   # the light_pdf case
+    cache.require(type(light_only).requires)
+    return {"light_pdf": light_only.pdf(cache, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.6, 0.8]),
+                                        pdf_directions())}
+
+
+def render_estimator(compute, estimator, masked: bool = False) -> dict[str, np.ndarray]:
+    """An estimator's arrays on the set's inputs (``masked``: with visibility masks), frame by
+    frame: its radiance, used and effective counts and evaluations; a temporal one's on two
+    frames (the map turned on the second)."""
+    from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+    from iblbench.estimators.runtime.framecache import FrameCache
+
+    gbuffer, env, turned = inputs(masked)
+    pixels = DeviceGBuffer(compute, gbuffer)
+    frames = [FrameCache(compute, env)]
+    if type(estimator).tags.temporal:
+        frames.append(FrameCache(compute, turned, frame=1))
     out = {}
-    frames = [cache, FrameCache(compute, turned, frame=1)] if type(estimator).tags.temporal else [cache]
     for frame, frame_cache in enumerate(frames):
         frame_cache.require(type(estimator).requires)
         estimate = estimator.render(pixels, frame_cache, SPP, 0)
@@ -140,6 +155,15 @@ def render(compute, case: str) -> dict[str, np.ndarray]:
                     f"f{frame}_effective": estimate.effective,
                     f"f{frame}_evaluations": np.float64(estimate.evaluations)})
     return out
+
+
+@functools.lru_cache(maxsize=None)
+def float_path(compute):
+    """The float path (``fp64=False``), which a device without cl_khr_fp64 runs, on
+    ``compute``'s device and lane width: one per ``compute``, so its programs build once."""
+    from iblbench.estimators.runtime.device import Compute
+
+    return Compute(compute.info, fp64=False, lanes=compute.pool_lanes)
 
 
 def _products(compute, cache) -> dict[str, np.ndarray]:
