@@ -11,7 +11,8 @@
  * of the lobe to float cancellation at m = 1e4).  Where the lobe's own plane r·ω = 0 cuts the
  * texel for m < 2 the lobe's slope jumps: sub-cells there are no wider than KINK_CELL_RADIANS
  * (up to MAX_CELLS a side).  Measured against tests/test_reference_twin.py's independent
- * quadrature: ≤ 1.5e-5 relative for m from 1 to 1e4 at R = 2, 8, 16, grazing views.  At m = 0
+ * quadratures, at reference.py's density of 8: ≤ 3e-6 relative for m from 1 to 1e4 at R = 2, 8,
+ * 16, grazing views, and 2e-5 for a texel lit alone on the lobe's flank (2e-4 at 4).  At m = 0
  * the lobe is the half-space r·ω > 0: exact, by clipping the texel to both planes.
  * Texels whose bounding cap keeps the lobe below LOBE_CUTOFF of its peak are skipped: their
  * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
