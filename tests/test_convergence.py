@@ -53,7 +53,8 @@ def test_a_flat_error_of_an_unbiased_estimator_is_not_converging_at_every_step()
     assert [(f.metric, f.spp_low, f.spp_high) for f in flags] == [("rel_mse", 16, 64),
                                                                   ("rel_mse", 64, 256)]
     assert all(f.not_converging and f.ratio.low > f.allowed_ratio for f in flags)
-    assert re.match(r"uniform on s: not converging: relMSE 0\.12\d* → 0\.12\d* from 16 to 64 spp, ×",
+    assert re.match(r"uniform on s: not converging: relMSE 0\.12\d* → 0\.12\d* from 16 to 64 "
+                    r"spp, ×",
                     flags[0].text())
 
 

@@ -171,21 +171,29 @@ def nested_gauss_texel(normal, r, m: float, face: int, row: int, col: int, res: 
     return total
 
 
-# The issue-34 case: one lit texel on the flank of a lobe of m = 3000 (its cos^m at the texel's
-# nearest point ~3e-3 of the peak), Rv = 2.  The reference was 2.0e-4 off there with 4 points
-# per lobe width; with reference.py's DEFAULT_DENSITY of 8, 1.7e-5.
-FLANK = dict(normal=(0.6081649, -0.4466223, 0.65625), view=(0.9142780, -0.1085260, 0.3902791),
-             kd=0.2, ks=0.8, m=3000.0, res=8, texel=(4, 7, 5), vis_res=2)
+# One pixel lit by one texel, where the reference's texel error is not hidden under the rest of
+# the map (issue 34).  The lobe's flank: m = 3000, the texel's nearest cos^m ~3e-3 of the peak,
+# Rv = 2; the reference was 2.0e-4 off with 4 points per lobe width, 1.7e-5 with reference.py's 8.
+# The horizon at a grazing view (n·v = 0.034), m = 20, the texel cut by the horizon: 3.9e-3 off
+# while rows wholly below the horizon were in the rule's cells, 2.7e-5 since lobe_cells cuts them.
+LIT_ALONE = {
+    "lobe flank": dict(normal=(0.6081649, -0.4466223, 0.65625), m=3000.0, texel=(4, 7, 5),
+                       view=(0.9142780, -0.1085260, 0.3902791), res=8, vis_res=2),
+    "grazing horizon": dict(normal=(-0.5659814, 0.1396740, -0.8125), m=20.0, texel=(2, 3, 6),
+                            view=(-0.7053292, -0.6209019, 0.3420403), res=8, vis_res=2),
+}
 
 
-def test_one_lit_texel_on_the_lobe_flank_matches_a_nested_quadrature(compute):
-    """The masked reference of one pixel lit by one texel (its cell the only open one) against
-    (kd/π·∫cos⁺ + ks·(m+2)/(2π)·∫lobe·cos⁺)·L of ``nested_gauss_texel``, to ``RTOL``; the
-    nested rule converged (doubling its pieces moves it < 1e-12) and the twin on it to 1e-9."""
-    face, row, col = FLANK["texel"]
-    res, vis_res = FLANK["res"], FLANK["vis_res"]
-    gbuffer = GBuffer.from_pixels(np.array([[FLANK["normal"]]]), FLANK["view"], FLANK["kd"],
-                                  FLANK["ks"], FLANK["m"])
+@pytest.mark.parametrize("case", LIT_ALONE)
+def test_one_lit_texel_matches_a_nested_quadrature(compute, case):
+    """The masked reference of one pixel (kd = 0.2, ks = 0.8) lit by one texel (its cell the only
+    open one) against (kd/π·∫cos⁺ + ks·(m+2)/(2π)·∫lobe·cos⁺)·L of ``nested_gauss_texel``, to
+    ``RTOL``; the nested rule converged (doubling its pieces moves it < 1e-12) and the twin on it
+    to 1e-9."""
+    lit = LIT_ALONE[case]
+    face, row, col = lit["texel"]
+    res, vis_res, m = lit["res"], lit["vis_res"], lit["m"]
+    gbuffer = GBuffer.from_pixels(np.array([[lit["normal"]]]), lit["view"], 0.2, 0.8, m)
     cell = (face * vis_res + row * vis_res // res) * vis_res + col * vis_res // res
     gbuffer = with_masks(gbuffer, np.arange(6 * vis_res ** 2)[None, None] == cell, vis_res)
     env = np.zeros((6, res, res, 3), np.float32)
@@ -194,12 +202,12 @@ def test_one_lit_texel_on_the_lobe_flank_matches_a_nested_quadrature(compute):
     normal, view = gbuffer.normal[0, 0].astype(np.float64), gbuffer.view[0, 0].astype(np.float64)
     r = 2 * (normal @ view) * normal - view
     r /= np.linalg.norm(r)
-    coarse, fine = (nested_gauss_texel(normal, r, FLANK["m"], face, row, col, res, cells, order)
+    coarse, fine = (nested_gauss_texel(normal, r, m, face, row, col, res, cells, order)
                     for cells, order in ((16, 12), (32, 16)))
     assert np.abs(coarse - fine).max() <= 1e-12 * fine.max()
     cosine, lobe = fine
     kd, ks = gbuffer.kd[0, 0].astype(np.float64), gbuffer.ks[0, 0].astype(np.float64)   # as stored
-    diffuse, specular = kd / np.pi * cosine, ks * (FLANK["m"] + 2) / (2 * np.pi) * lobe
+    diffuse, specular = kd / np.pi * cosine, ks * (m + 2) / (2 * np.pi) * lobe
     assert np.all(specular > diffuse / 2)   # the lobe's share is one the test can see
     expected = (diffuse + specular) * env[face, row, col]
 

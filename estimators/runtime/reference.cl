@@ -7,12 +7,14 @@
  * cut down to the box that holds the lobe (specular_integral), REF_DENSITY points per lobe width
  * 1/√m and none sparser than 1/CELL_RADIANS a radian (the cosines curve on a scale of 1 rad
  * however wide the lobe), with the horizon integrated exactly (each row of points spans only its
- * part above the horizon) and sin²(r, ω) formed as a sum of squares (1 − cos² would lose ~m·1e-7
- * of the lobe to float cancellation at m = 1e4).  Where the lobe's own plane r·ω = 0 cuts the
+ * part above the horizon, and rows wholly below it are left out of the cells) and sin²(r, ω)
+ * formed as a sum of squares (1 − cos² would lose ~m·1e-7 of the lobe to float cancellation at
+ * m = 1e4).  Where the lobe's own plane r·ω = 0 cuts the
  * texel for m < 2 the lobe's slope jumps: sub-cells there are no wider than KINK_CELL_RADIANS
  * (up to MAX_CELLS a side).  Measured against tests/test_reference_twin.py's independent
  * quadratures, at reference.py's density of 8: ≤ 3e-6 relative for m from 1 to 1e4 at R = 2, 8,
- * 16, grazing views, and 2e-5 for a texel lit alone on the lobe's flank (2e-4 at 4).  At m = 0
+ * 16, grazing views; a texel lit alone: 2e-5 on the lobe's flank at m = 3000 (2e-4 at density 4),
+ * 3e-5 cut by the horizon at a grazing view at m = 20 (4e-3 with the rows below it).  At m = 0
  * the lobe is the half-space r·ω > 0: exact, by clipping the texel to both planes.
  * Texels whose bounding cap keeps the lobe below LOBE_CUTOFF of its peak are skipped: their
  * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
@@ -190,8 +192,9 @@ inline face_forms_t face_forms(float3 n, float3 r, float2 cut, int face)
     return forms;
 }
 
-/* A texel's square on its face, cut down to the lobe's box (face_forms), in the coordinates of
- * the rule: s inner, t outer, (u, v) or (v, u), s the face axis along which n·ω changes faster.
+/* A texel's square on its face, cut down to the lobe's box (face_forms) and to the rows that
+ * reach above the horizon, in the coordinates of the rule: s inner, t outer, (u, v) or (v, u), s
+ * the face axis along which n·ω changes faster.
  * Sub-cells per side follow points_per_radian over the side's angular length (face-plane
  * length / √q at its point nearest the face centre bounds it), and none wider than
  * KINK_CELL_RADIANS where the lobe's own plane r·ω = 0 cuts the texel for m < 2 (the lobe's
@@ -214,6 +217,18 @@ inline int lobe_cells(face_forms_t forms, float density, int row, int col, int r
         u_hi = min(u_hi, centre_u + half_box);
         v_lo = max(v_lo, centre_v - half_box);
         v_hi = min(v_hi, centre_v + half_box);
+    }
+    /* Rows wholly below the horizon n·ω = 0 are cut off: the integral over a row falls to 0
+     * where the horizon leaves the row and stays 0 beyond, a kink inside a cell that the 2-point
+     * rule misses by up to 4e-3 of a grazing texel's lobe (issue 34). */
+    if (s_is_v(forms)) {
+        float above = forms.n.x + max(forms.n.z * v_lo, forms.n.z * v_hi);   /* row's top, less n.y·u */
+        if (forms.n.y > 0.0f) u_lo = max(u_lo, -above / forms.n.y);
+        if (forms.n.y < 0.0f) u_hi = min(u_hi, -above / forms.n.y);
+    } else {
+        float above = forms.n.x + max(forms.n.y * u_lo, forms.n.y * u_hi);
+        if (forms.n.z > 0.0f) v_lo = max(v_lo, -above / forms.n.z);
+        if (forms.n.z < 0.0f) v_hi = min(v_hi, -above / forms.n.z);
     }
     if (u_lo >= u_hi || v_lo >= v_hi) return 0;
     float nearest_u = max(0.0f, max(u_lo, -u_hi)), nearest_v = max(0.0f, max(v_lo, -v_hi));

@@ -159,7 +159,8 @@ class Flag:
         name = METRICS[self.metric][0]
         return (f"{self.estimator} on {self.scene}: {self.verdict}: {name} {self.low:.3g} → "
                 f"{self.high:.3g} from {self.spp_low} to {self.spp_high} spp, "
-                f"×{self.ratio.text()}; its tags ({self.allowed.why}) allow at most ×{self.allowed_ratio:.3g} (slope "
+                f"×{self.ratio.text()}; its tags ({self.allowed.why}) allow at most "
+                f"×{self.allowed_ratio:.3g} (slope "
                 f"{self.allowed.slope:+.2f}, ideal {self.allowed.ideal:+.2f})")
 
 

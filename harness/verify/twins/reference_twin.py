@@ -186,6 +186,7 @@ def twin_image(gbuffer: GBuffer, env: np.ndarray, order: int = GAUSS_ORDER) -> n
             cosine, lobe = cosine * open_texels, lobe * open_texels
         diffuse = np.einsum("frc,frck->k", cosine, env)
         specular = np.einsum("frc,frck->k", lobe, env)
-        kd, ks = gbuffer.kd[index].astype(np.float64), gbuffer.ks[index].astype(np.float64)   # not float32 products
+        # float64 kd and ks: a float32 array times a Python float stays float32 (3e-8 off)
+        kd, ks = gbuffer.kd[index].astype(np.float64), gbuffer.ks[index].astype(np.float64)
         out[index] = kd / np.pi * diffuse + ks * (m + 2) / (2 * np.pi) * specular
     return out
