@@ -173,14 +173,19 @@ def nested_gauss_texel(normal, r, m: float, face: int, row: int, col: int, res: 
 
 # One pixel lit by one texel, where the reference's texel error is not hidden under the rest of
 # the map (issue 34).  The lobe's flank: m = 3000, the texel's nearest cos^m ~3e-3 of the peak,
-# Rv = 2; the reference was 2.0e-4 off with 4 points per lobe width, 1.7e-5 with reference.py's 8.
-# The horizon at a grazing view (n·v = 0.034), m = 20, the texel cut by the horizon: 3.9e-3 off
-# while rows wholly below the horizon were in the rule's cells, 2.7e-5 since lobe_cells cuts them.
+# Rv = 2; the reference was 2.0e-4 off with 4 points per lobe width, 1.4e-5 with reference.py's 8.
+# The horizon at grazing views (n·v ≈ 0.03), m = 20, the texel cut by it: 3.9e-3 off while rows
+# wholly below the horizon were in the rule's cells, 1.8e-6 since lobe_cells cuts them; the
+# second, 3.6e-4 off at the kink where the horizon enters the rows, 5.6e-5 with reference.cl's
+# HORIZON_DENSITY.
 LIT_ALONE = {
     "lobe flank": dict(normal=(0.6081649, -0.4466223, 0.65625), m=3000.0, texel=(4, 7, 5),
                        view=(0.9142780, -0.1085260, 0.3902791), res=8, vis_res=2),
     "grazing horizon": dict(normal=(-0.5659814, 0.1396740, -0.8125), m=20.0, texel=(2, 3, 6),
                             view=(-0.7053292, -0.6209019, 0.3420403), res=8, vis_res=2),
+    "grazing horizon, R = 16": dict(normal=(0.7471854, -0.5487158, -0.375), m=20.0,
+                                    texel=(4, 14, 7), view=(0.0135431, 0.5289572, -0.8485404),
+                                    res=16, vis_res=2),
 }
 
 
