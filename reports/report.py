@@ -7,13 +7,14 @@ script, the compare viewer's, and its stylesheet are inline).
 
 Contents, per scene: the summary (estimator × spp) in two tables, errors and samples/time, error
 against time with the Pareto front, convergence against spp (with a warning where it is flatter
-than the estimator's tags allow, :mod:`iblbench.harness.verify.convergence`), effective samples against
-spp, FLIP, flicker and smc's ess/reinits where the run has them, error per frame at every spp
-(sequences only), an image grid (reference, each estimator at one spp, ΔE76 heat maps on the
-shared log scale of :mod:`.previews` with its colour bar), a compare viewer (any two of the
-frame's images, A left and B right of a divider moved by a slider; a toggle that shows the
-reference on both sides; a click zooms on the crop around the point) and Lu 2013 Fig. 1/2's
-sample picture (:mod:`.sample_picture`); then the run's manifest.
+than the estimator's tags allow, and a note where it looks so but the seeds cannot tell,
+:mod:`iblbench.harness.verify.convergence`), effective samples against spp, FLIP, flicker and
+smc's ess/reinits where the run has them, error per frame at every spp (sequences only), an
+image grid (reference, each estimator at one spp, ΔE76 heat maps on the shared log scale of
+:mod:`.previews` with its colour bar), a compare viewer (any two of the frame's images, A left
+and B right of a divider moved by a slider; a toggle that shows the reference on both sides; a
+click zooms on the crop around the point) and Lu 2013 Fig. 1/2's sample picture
+(:mod:`.sample_picture`); then the run's manifest.
 
 The report reads only the run folder: its table, manifest and EXRs, and the inputs the run saved
 for the sample picture (:mod:`iblbench.harness.protocol.report_inputs`); it loads no scene, traces
@@ -186,7 +187,9 @@ def _scene_section(run_dir: pathlib.Path, report: pathlib.Path, table, cells,
             "figures": figures, "per_frame": per_frame, "frames": len(frames),
             "grid": grid, "picture": picture, "frame_rule": frame_rule,
             "extras": extras if extra_columns else None, "extra_columns": extra_columns,
-            "convergence": [f.text() for f in convergence if f.scene == scene],
+            "convergence": [f.text() for f in convergence if f.scene == scene and f.not_converging],
+            "convergence_unresolved": [f.text() for f in convergence
+                                       if f.scene == scene and not f.not_converging],
             "estimators": list(dict.fromkeys(rows.estimator)),
             "spp": sorted(set(int(v) for v in rows.spp))}
 

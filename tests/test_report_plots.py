@@ -147,21 +147,32 @@ def test_the_report_of_a_sequence_plots_the_extras_and_every_spp_per_frame(smc_s
 
 def test_the_report_warns_where_convergence_is_flatter_than_the_tags_allow(smc_sequence, tmp_path):
     # uniform (unbiased) with a relMSE that does not fall from 4 to 16 spp (seeds 0.1 and 0.1001
-    # at both): flagged on the page, under the convergence plot.
+    # at both): not converging, a warning on the page under the convergence plot.  smc (which
+    # may level off on a sequence, not rise) rising ×1.18 with seeds ×3 apart: not resolved at
+    # 2 seeds, a note.
     out, _ = smc_sequence
     copy = tmp_path / "run"
     shutil.copytree(out, copy, ignore=shutil.ignore_patterns("report"))
     table = pd.read_parquet(copy / "results.parquet")
     flat = table.estimator == "uniform"
     table.loc[flat, "rel_mse"] = 0.1 + 1e-4 * table.loc[flat, "seed"]
+    rising = table.estimator == "smc"
+    spread = {(4, 0): 0.1, (4, 1): 0.3, (16, 0): 0.35, (16, 1): 0.12}
+    table.loc[rising, "rel_mse"] = [spread[spp, seed] for spp, seed in
+                                    zip(table.loc[rising, "spp"], table.loc[rising, "seed"])]
     table.to_parquet(copy / "results.parquet", index=False)
     context = write_report(copy)
     (scene,) = context["scenes"]
     assert len(scene["convergence"]) == 1
-    assert scene["convergence"][0].startswith("uniform on sphere-switch: relMSE 0.1 → 0.1 from 4 "
-                                              "to 16 spp")
+    assert scene["convergence"][0].startswith("uniform on sphere-switch: not converging: relMSE "
+                                              "0.1 → 0.1 from 4 to 16 spp")
+    assert len(scene["convergence_unresolved"]) == 1
+    assert scene["convergence_unresolved"][0].startswith("smc on sphere-switch: not resolved at 2 "
+                                                         "seeds: relMSE 0.2 → 0.235 from 4 to 16")
     page = context["path"].read_text(encoding="utf-8")
     convergence = page.index("<h3>Convergence</h3>")
     warning = page.index("<p class=\"warn\">Convergence flatter than the estimator's tags allow: "
-                         "uniform on sphere-switch")
-    assert convergence < warning < page.index("<h3>Effective samples</h3>")
+                         "uniform on sphere-switch: not converging")
+    note = page.index("<p class=\"note\">Convergence looks flatter than the estimator's tags "
+                      "allow, but its interval cannot tell: smc on sphere-switch: not resolved")
+    assert convergence < warning < note < page.index("<h3>Effective samples</h3>")

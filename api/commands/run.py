@@ -118,7 +118,7 @@ def run(args) -> None:
     for calls in control_calls(rankings, rows.get("estimator", ())):
         print(calls.text(), file=human)
     from iblbench.harness.verify.convergence import flatter_than_tags
-    for flag in flatter_than_tags(rows):   # issue 11: convergence flatter than the tags allow
+    for flag in flatter_than_tags(rows):   # issues 11, 34: not converging, or not resolved
         print(f"warning: convergence: {flag.text()}", file=sys.stderr)
     if args.json:
         print_json(run_summary(rows, args.out, read_manifest(args.out), rankings))

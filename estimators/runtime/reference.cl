@@ -7,11 +7,15 @@
  * cut down to the box that holds the lobe (specular_integral), REF_DENSITY points per lobe width
  * 1/√m and none sparser than 1/CELL_RADIANS a radian (the cosines curve on a scale of 1 rad
  * however wide the lobe), with the horizon integrated exactly (each row of points spans only its
- * part above the horizon) and sin²(r, ω) formed as a sum of squares (1 − cos² would lose ~m·1e-7
- * of the lobe to float cancellation at m = 1e4).  Where the lobe's own plane r·ω = 0 cuts the
+ * part above the horizon, and rows wholly below it are left out of the cells) and sin²(r, ω)
+ * formed as a sum of squares (1 − cos² would lose ~m·1e-7 of the lobe to float cancellation at
+ * m = 1e4).  Where the lobe's own plane r·ω = 0 cuts the
  * texel for m < 2 the lobe's slope jumps: sub-cells there are no wider than KINK_CELL_RADIANS
  * (up to MAX_CELLS a side).  Measured against tests/test_reference_twin.py's independent
- * quadrature: ≤ 1.5e-5 relative for m from 1 to 1e4 at R = 2, 8, 16, grazing views.  At m = 0
+ * quadratures, at reference.py's density of 8: ≤ 3e-6 relative for m from 1 to 1e4 at R = 2, 8,
+ * 16, grazing views; a texel lit alone: 2e-5 on the lobe's flank at m = 3000 (2e-4 at density 4),
+ * 6e-5 cut by the horizon at grazing views at m = 20 (4e-3 with the rows below it in the cells,
+ * 4e-4 without HORIZON_DENSITY).  At m = 0
  * the lobe is the half-space r·ω > 0: exact, by clipping the texel to both planes.
  * Texels whose bounding cap keeps the lobe below LOBE_CUTOFF of its peak are skipped: their
  * whole contribution is below LOBE_CUTOFF·(m+2)/(2π)·Ω·L, far under any Monte Carlo error.
@@ -34,6 +38,7 @@
 #define CELL_RADIANS 0.05f
 #define KINK_CELL_RADIANS 1e-3f
 #define MAX_CELLS 128
+#define HORIZON_DENSITY 2.0f   /* times the points per radian in a lobe texel the horizon cuts */
 #define LANES 8
 #define SUBCELL_LANES 16   /* sub-cells per step of specular_integral (~15% faster than 8 on PoCL) */
 
@@ -189,8 +194,9 @@ inline face_forms_t face_forms(float3 n, float3 r, float2 cut, int face)
     return forms;
 }
 
-/* A texel's square on its face, cut down to the lobe's box (face_forms), in the coordinates of
- * the rule: s inner, t outer, (u, v) or (v, u), s the face axis along which n·ω changes faster.
+/* A texel's square on its face, cut down to the lobe's box (face_forms) and to the rows that
+ * reach above the horizon, in the coordinates of the rule: s inner, t outer, (u, v) or (v, u), s
+ * the face axis along which n·ω changes faster.
  * Sub-cells per side follow points_per_radian over the side's angular length (face-plane
  * length / √q at its point nearest the face centre bounds it), and none wider than
  * KINK_CELL_RADIANS where the lobe's own plane r·ω = 0 cuts the texel for m < 2 (the lobe's
@@ -214,9 +220,27 @@ inline int lobe_cells(face_forms_t forms, float density, int row, int col, int r
         v_lo = max(v_lo, centre_v - half_box);
         v_hi = min(v_hi, centre_v + half_box);
     }
+    /* Rows wholly below the horizon n·ω = 0 are cut off: the integral over a row falls to 0
+     * where the horizon leaves the row and stays 0 beyond, a kink inside a cell that the 2-point
+     * rule misses by up to 4e-3 of a grazing texel's lobe (issue 34). */
+    if (s_is_v(forms)) {
+        float above = forms.n.x + max(forms.n.z * v_lo, forms.n.z * v_hi);   /* row's top, less n.y·u */
+        if (forms.n.y > 0.0f) u_lo = max(u_lo, -above / forms.n.y);
+        if (forms.n.y < 0.0f) u_hi = min(u_hi, -above / forms.n.y);
+    } else {
+        float above = forms.n.x + max(forms.n.y * u_lo, forms.n.y * u_hi);
+        if (forms.n.z > 0.0f) v_lo = max(v_lo, -above / forms.n.z);
+        if (forms.n.z < 0.0f) v_hi = min(v_hi, -above / forms.n.z);
+    }
     if (u_lo >= u_hi || v_lo >= v_hi) return 0;
     float nearest_u = max(0.0f, max(u_lo, -u_hi)), nearest_v = max(0.0f, max(v_lo, -v_hi));
     float per_length = density / sqrt(1.0f + nearest_u * nearest_u + nearest_v * nearest_v);
+    /* Where the horizon cuts the cells, the row integral keeps a kink where the horizon enters
+     * the row (its second derivative jumps): twice the points there (4e-4 → 6e-5 of a grazing
+     * texel's lobe at m = 20). */
+    float lowest = forms.n.x + min(forms.n.y * u_lo, forms.n.y * u_hi)
+                 + min(forms.n.z * v_lo, forms.n.z * v_hi);   /* n·ω√q at the lowest corner */
+    if (lowest < 0.0f) per_length *= HORIZON_DENSITY;
     if (cut_by_lobe_plane) per_length = max(per_length, 1.0f / KINK_CELL_RADIANS);
     int cells_u = clamp((int)ceil((u_hi - u_lo) * per_length / 2.0f), 1, MAX_CELLS);
     int cells_v = clamp((int)ceil((v_hi - v_lo) * per_length / 2.0f), 1, MAX_CELLS);

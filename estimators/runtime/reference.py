@@ -15,7 +15,11 @@ from iblbench.scenes import cubemap
 from iblbench.foundation.atomic import atomic_path
 
 # Quadrature points per lobe width for the specular quadrature (see reference.cl); part of the cache key.
-DEFAULT_DENSITY = 4
+# The 2 × 2 Gauss rule's error in a texel on the lobe's flank (where cos^m falls by e^{√m·θ}
+# per lobe width) shrinks as density⁻⁴: at 4 a lit texel alone was 2e-4 off (issue 34), at 8
+# ≤ 2e-5 (tests/test_reference_twin.py), for 1.3–1.8× the device time (m = 150: park-ground,
+# sphere-sun at 64² pixels and faces, PoCL).
+DEFAULT_DENSITY = 8
 LANES = 8              # texels per vector step of reference.cl: the tables' padding
 FIRST_CHUNK_PIXELS = 256   # pixels of the first enqueue; later ones aim at CHUNK_MS each
 CHUNK_MS = 100.0           # device time per enqueue: a Ctrl-C waits for at most about this

@@ -1,4 +1,5 @@
-"""Convergence flatter than an estimator's tags allow (issue 11, "Statistics").
+"""Convergence flatter than an estimator's tags allow (issue 11, "Statistics"), or not resolved
+by the run's seeds (issue 34).
 
 Between two consecutive spp levels a < b of a (scene, estimator) cell, an error E should fall
 as a power of the budget: E_b / E_a ≈ (b/a)^slope.  The ideal Monte Carlo slope of an RMS-like
@@ -33,14 +34,28 @@ map, held to that limit by ``check_consistent_limit``), on any scene.
 
 **The test.**  Each seed's error is its mean over the cell's frames (as in
 :func:`iblbench.harness.protocol.stats.cell_intervals`); the ratio of the mean over seeds at b to that at
-a gets its 95% interval from :func:`iblbench.harness.protocol.stats.ratio_ci`, and the pair is flagged
-only where the whole interval lies above the allowed ratio (b/a)^slope: convergence flatter
-than the tags allow, with the intervals saying so.  ``ratio_ci`` takes the two levels as
-independent samples; a run reuses its seeds at every spp, and the two levels' errors of one
-seed are then positively correlated (they share random streams), which makes the interval
-wider than needed: the test is conservative.  One seed gives no interval and nothing is
-flagged; a cell whose estimator is not registered here is not judged.  Equal-time cells
-(``time_budget_ms``) are left out.
+a gets a 95% interval on log(ratio) (:func:`step_interval`), the wider of two: the step's own
+(:func:`iblbench.harness.protocol.stats.ratio_ci`, from the two levels' seeds alone) and one from
+the cell's seed-to-seed spread pooled over all its spp levels (each seed's error relative to its
+level's mean, Σ(n − 1) degrees of freedom).  Seed-to-seed variation is largely the cell's own (a
+seed's shared light pool is good or bad at every spp), and two or three seeds that agree by
+chance at one step give a narrow interval there that the other levels' seeds contradict: at 2
+seeds balanced_mis was called flat where 8 seeds show it falling ×45 over 64×, each 4× step
+±40–60% (issue 34).  Pooling widens such an interval, and leaves it narrow where every level's
+seeds agree.
+
+A step is reported only where its mean falls less than the allowed ratio (b/a)^slope:
+
+- **not converging** where the whole interval lies above the allowed ratio (the intervals say
+  the convergence is flatter than the tags allow);
+- **not resolved at N seeds** where the interval reaches down to the allowed ratio, or there
+  is none (one seed): the means look flat, and N seeds cannot tell.
+
+``ratio_ci`` takes the two levels as independent samples; a run reuses its seeds at every spp,
+and the two levels' errors of one seed are then positively correlated (they share random
+streams), which makes the interval wider than needed: the test is conservative.  A cell whose
+estimator is not registered here is not judged.  Equal-time cells (``time_budget_ms``) are
+left out.
 """
 from __future__ import annotations
 
@@ -51,7 +66,7 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.protocol.metric import labels
-from iblbench.harness.protocol.stats import RatioCI, ratio_ci
+from iblbench.harness.protocol.stats import RatioCI, ratio_ci, t_quantile
 from iblbench.harness.protocol.sweep import estimator_tags
 
 # The least fall of the RMS error over 16× the samples (8 → 128 spp) that the convergence checks
@@ -87,9 +102,33 @@ def allowance(tags, metric: str, sequence: bool) -> Allowance:
     return Allowance(power * FLATTEST_RMS_SLOPE, ideal, why)
 
 
+def pooled_spread(per_seed: pd.Series) -> tuple[float, int]:
+    """The cell's relative seed-to-seed variance, pooled over its spp levels: Σ (x/x̄_spp − 1)²
+    / Σ (n_spp − 1) over the per-seed errors ``per_seed`` (indexed by spp and seed), and its
+    degrees of freedom (0: no level has two seeds, NaN variance)."""
+    levels = per_seed.groupby(level="spp")
+    dof = int((levels.size() - 1).sum())
+    relative = per_seed / levels.transform("mean") - 1
+    return (float((relative ** 2).sum()) / dof if dof else math.nan), dof
+
+
+def step_interval(before: np.ndarray, after: np.ndarray, spread: tuple[float, int]) -> RatioCI:
+    """mean(after)/mean(before) with the wider of its own interval (``ratio_ci``) and the one
+    the cell's pooled relative seed variance ``spread`` (:func:`pooled_spread`) gives."""
+    own = ratio_ci(before, after)
+    variance, dof = spread
+    if not own.resolved or not dof:
+        return own
+    half = t_quantile(dof) * math.sqrt(variance * (1 / len(before) + 1 / len(after)))
+    if half <= math.log(own.high / own.ratio):
+        return own
+    return RatioCI(own.ratio, own.ratio * math.exp(-half), own.ratio * math.exp(half), float(dof))
+
+
 @dataclasses.dataclass(frozen=True)
 class Flag:
-    """One step between spp levels whose error fell less than the tags allow."""
+    """One step between spp levels whose mean error fell less than the tags allow: not
+    converging, or not resolved (module docstring)."""
     scene: str
     estimator: str
     metric: str
@@ -97,24 +136,38 @@ class Flag:
     spp_high: int
     low: float             # the mean error over seeds at spp_low …
     high: float            # … and at spp_high
-    ratio: RatioCI         # high / low with its 95% interval
+    ratio: RatioCI         # high / low with its 95% interval (step_interval)
     allowed: Allowance
+    seeds: int             # seeds at the level with fewer
 
     @property
     def allowed_ratio(self) -> float:
         return (self.spp_high / self.spp_low) ** self.allowed.slope
 
+    @property
+    def not_converging(self) -> bool:
+        """The whole interval lies above the allowed ratio; otherwise the step is not resolved."""
+        return self.ratio.resolved and self.ratio.low > self.allowed_ratio
+
+    @property
+    def verdict(self) -> str:
+        if self.not_converging:
+            return "not converging"
+        return f"not resolved at {self.seeds} seed{'s' if self.seeds != 1 else ''}"
+
     def text(self) -> str:
         name = METRICS[self.metric][0]
-        return (f"{self.estimator} on {self.scene}: {name} {self.low:.3g} → {self.high:.3g} from "
-                f"{self.spp_low} to {self.spp_high} spp, ×{self.ratio.text()}; its tags "
-                f"({self.allowed.why}) allow at most ×{self.allowed_ratio:.3g} (slope "
+        return (f"{self.estimator} on {self.scene}: {self.verdict}: {name} {self.low:.3g} → "
+                f"{self.high:.3g} from {self.spp_low} to {self.spp_high} spp, "
+                f"×{self.ratio.text()}; its tags ({self.allowed.why}) allow at most "
+                f"×{self.allowed_ratio:.3g} (slope "
                 f"{self.allowed.slope:+.2f}, ideal {self.allowed.ideal:+.2f})")
 
 
 def flatter_than_tags(table: pd.DataFrame) -> list[Flag]:
-    """Every (scene, estimator, consecutive spp levels, metric) of a results table whose error
-    falls less than the estimator's tags allow, by the interval test of the module docstring."""
+    """Every (scene, estimator, consecutive spp levels, metric) of a results table whose mean
+    error falls less than the estimator's tags allow, each not converging or not resolved by
+    the interval test of the module docstring."""
     if "time_budget_ms" in table:
         table = table[table.time_budget_ms.isna()]
     metrics = [m for m in METRICS if m in table]
@@ -126,15 +179,19 @@ def flatter_than_tags(table: pd.DataFrame) -> list[Flag]:
         sequence = rows.frame.nunique() > 1
         per_seed = rows.groupby(["spp", "seed"])[metrics].mean()
         levels = sorted(per_seed.index.get_level_values("spp").unique())
-        for a, b in zip(levels, levels[1:]):
-            for metric in metrics:
-                before, after = per_seed.loc[a, metric].to_numpy(), per_seed.loc[b, metric].to_numpy()
-                ratio = ratio_ci(before, after)
-                allowed = allowance(tags, metric, sequence)
-                if ratio.resolved and ratio.low > (b / a) ** allowed.slope:
+        for metric in metrics:
+            spread = pooled_spread(per_seed[metric])
+            allowed = allowance(tags, metric, sequence)
+            for a, b in zip(levels, levels[1:]):
+                before = per_seed.loc[a, metric].to_numpy()
+                after = per_seed.loc[b, metric].to_numpy()
+                ratio = step_interval(before, after, spread)
+                if ratio.ratio > (b / a) ** allowed.slope:
                     flags.append(Flag(scene, label, metric, int(a), int(b), float(np.mean(before)),
-                                      float(np.mean(after)), ratio, allowed))
+                                      float(np.mean(after)), ratio, allowed,
+                                      min(len(before), len(after))))
     return flags
 
 
-__all__ = ["METRICS", "Allowance", "Flag", "allowance", "flatter_than_tags"]
+__all__ = ["METRICS", "Allowance", "Flag", "allowance", "flatter_than_tags", "pooled_spread",
+           "step_interval"]

@@ -20,8 +20,9 @@ theirs, its own cube-face table written from the OpenGL convention):
   cos^m < ``LOBE_NEGLIGIBLE`` are left out (their share is below 1e-16 of the pixel's lobe).
 
 The twin's own accuracy is checked against closed forms (the white furnace, and the lobe's
-hemisphere integral 2π/(m+2) on a constant map seen head-on), and its rule against a rule of
-twice the order.
+hemisphere integral 2π/(m+2) on a constant map seen head-on), its rule against a rule of
+twice the order, and one texel on the flank of a lobe of m = 3000 against a nested Gauss rule
+with exact limits (within 1e-9; measured 5e-14).
 """
 from __future__ import annotations
 
@@ -172,11 +173,12 @@ def texel_visibility(words: np.ndarray, vis_res: int, res: int) -> np.ndarray:
 
 
 def twin_image(gbuffer: GBuffer, env: np.ndarray, order: int = GAUSS_ORDER) -> np.ndarray:
-    """The reference radiance of every pixel [H, W, 3], float64; with the G-buffer's visibility
-    masks, each texel's integrals times its cell's V."""
+    """The reference radiance of every covered pixel [H, W, 3], float64 (0 where uncovered, as
+    the reference's); with the G-buffer's visibility masks, each texel's integrals times its
+    cell's V."""
     env = np.asarray(env, np.float64)
     out = np.zeros(gbuffer.shape + (3,))
-    for index in np.ndindex(gbuffer.shape):
+    for index in zip(*np.nonzero(gbuffer.mask)):   # uncovered pixels (zero vectors) stay 0
         m = float(gbuffer.shininess[index])
         cosine, lobe = texel_integrals(gbuffer.normal[index], gbuffer.view[index], m, env.shape[1], order)
         if gbuffer.visibility is not None:
@@ -184,6 +186,7 @@ def twin_image(gbuffer: GBuffer, env: np.ndarray, order: int = GAUSS_ORDER) -> n
             cosine, lobe = cosine * open_texels, lobe * open_texels
         diffuse = np.einsum("frc,frck->k", cosine, env)
         specular = np.einsum("frc,frck->k", lobe, env)
-        out[index] = (gbuffer.kd[index] / np.pi * diffuse
-                      + gbuffer.ks[index] * (m + 2) / (2 * np.pi) * specular)
+        # float64 kd and ks: a float32 array times a Python float stays float32 (3e-8 off)
+        kd, ks = gbuffer.kd[index].astype(np.float64), gbuffer.ks[index].astype(np.float64)
+        out[index] = kd / np.pi * diffuse + ks * (m + 2) / (2 * np.pi) * specular
     return out
