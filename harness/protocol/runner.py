@@ -480,7 +480,8 @@ class Runner:
         self._save_inputs(gbuffers, left)
         with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
                   bar_format=BAR_FORMAT, initial=self.resumed) as bar:
-            self.progress = Progress(bar, self.todo)
+            self.progress = Progress(bar, self.todo, {scene: gbuffer.covered
+                                                      for scene, gbuffer in gbuffers.items()})
             self.device_ms_total = 0.0
             # The load of this host; on a cluster the client's, not the workers' (it still
             # tells a busy machine where --workers share it, and the floors cover the workers).
@@ -551,8 +552,7 @@ class Runner:
             for row in result.rows:
                 self._journal_cell(row)
                 key = row_key(row)
-                self.progress.finished(key, row["spp"],
-                                       result.seconds[key] / len(self.engine.workers))
+                self.progress.finished(key, result.seconds[key] / len(self.engine.workers))
             self._merge(result.records)
 
         return self.engine.render(self.config, self.plan, self.todo, self.chosen, finished)
