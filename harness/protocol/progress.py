@@ -54,7 +54,8 @@ def time_left(remaining: Mapping[tuple[str, bool, float], int],
     own = {key: float(np.median(values)) for key, values in rates.items() if values}
     pooled = {}
     for timed in (False, True):
-        values = [rate for (_, kind), rates_of in rates.items() if kind == timed for rate in rates_of]
+        values = [rate for (_, kind), measured in rates.items() if kind == timed
+                  for rate in measured]
         if values:
             pooled[timed] = float(np.median(values))
     seconds, untimed = 0.0, []

@@ -36,11 +36,14 @@ Columns, in order (``COLUMNS``):
 
 Schema versions: 1 had no schema_version, time_budget_ms, width, height, env_res or
 estimator_params column; 2 had no flicker column; 3 timed one render per cell (host wall time
-``time_ms_frame``, device stages of that one render); 4 had no shadow_rays column; 5 had no per-render columns (``*_renders``); 6 had no host column; 7 is this one.  Rows of another schema never count as finished cells.
-The readers (:func:`load_table`) fill an older table's missing columns where a value is sound
-(``OLDER_ROWS_HOLD``); a column that has none (schema 3's times) makes a reader that needs it
-say which schema the table holds and how to upgrade it: a run into the folder re-renders its
-sweep's cells, saying so first, and keeps the old table beside the new one (``backup_name``).
+``time_ms_frame``, device stages of that one render) and had no metrics column; 4 had no
+shadow_rays column; 5 had no per-render columns (``*_renders``, ``time_ms_renders``); 6 had no
+host column; 7 is this one.  Rows of another schema never count as finished cells.  The readers
+(:func:`load_table`) fill an older table's missing columns where a value is sound
+(``OLDER_ROWS_HOLD``); a column that has none (the times before schema 4) makes a reader that
+needs it say which schema the table holds and how to upgrade it: a run into the folder renders
+its sweep's cells again, saying so first, and keeps the old table beside the new one
+(``backup_name``).
 
 Storage.  ``results.parquet`` and ``results.csv`` are replaced whole, each in one rename, so a
 reader never sees half a table.  While a run is going, each finished cell is appended to
@@ -152,7 +155,7 @@ def _upgraded(table: pd.DataFrame, path: pathlib.Path, required_columns) -> pd.D
     if not missing:
         return table
     versions = schema_versions(table["schema_version"])
-    if not set(KEY_COLUMNS) <= set(table.columns) or not versions or versions[0] >= SCHEMA_VERSION:
+    if not set(KEY_COLUMNS) <= set(table.columns) or versions[0] >= SCHEMA_VERSION:
         raise InputError(path, f"not an iblbench results table: missing columns {', '.join(missing)}")
     raise InputError(path, f"holds results of schema {versions[0]}, which lacks "
                            f"{', '.join(missing)} (this iblbench writes schema {SCHEMA_VERSION}); "

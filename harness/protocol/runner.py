@@ -262,7 +262,8 @@ class Runner:
         table = self.out / TABLE
         if not older or not table.exists():
             return None
-        backup = self.out / backup_name(schema_versions(row.get("schema_version") for row in older)[0])
+        oldest = schema_versions(row.get("schema_version") for row in older)[0]
+        backup = self.out / backup_name(oldest)
         if not backup.exists():
             with atomic_path(backup) as tmp:
                 shutil.copyfile(table, tmp)
