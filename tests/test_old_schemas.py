@@ -82,6 +82,13 @@ def test_report_says_which_schema_and_how_to_upgrade_where_times_are_missing(cur
     folder, _ = older(current, tmp_path, 4)   # no shadow_rays, per-render columns or host
     status, out, err = iblbench(capsys, "report", folder)
     assert status == 0 and (folder / "report" / "index.html").is_file(), err
+    # the table: today's times without time_budget_ms (KeyError: 'time_budget_ms')
+    folder = tmp_path / "no-budget-column"
+    shutil.copytree(current, folder)
+    table = pd.read_parquet(current / "results.parquet").drop(columns=["time_budget_ms"])
+    table.to_parquet(folder / "results.parquet", index=False)
+    status, out, err = iblbench(capsys, "report", folder)
+    assert status == 0 and (folder / "report" / "index.html").is_file(), err
 
 
 def test_check_reads_a_schema_5_folder(current, tmp_path, capsys):
