@@ -111,7 +111,7 @@ class CellClock:
     def stage(self, stage: str, *where: str) -> None:
         pass
 
-    def finished(self, key: tuple, spp: int, seconds: float) -> None:
+    def finished(self, key: tuple, seconds: float) -> None:
         self.seconds[key] = seconds
 
 
@@ -320,7 +320,7 @@ class Executor:
         for cell in cells:
             row = self._row(plan, cell, scorer, previous_frame)
             on_row(row)
-            self.progress.finished(cell.key, row["spp"], cell.seconds)
+            self.progress.finished(cell.key, cell.seconds)
 
     def _save_pool_picture(self, plan: ScenePlan, gbuffer, cache: FrameCache) -> None:
         """The frame's sample-picture inputs for the report (:mod:`.report_inputs`): the pool

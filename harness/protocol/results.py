@@ -36,7 +36,14 @@ Columns, in order (``COLUMNS``):
 
 Schema versions: 1 had no schema_version, time_budget_ms, width, height, env_res or
 estimator_params column; 2 had no flicker column; 3 timed one render per cell (host wall time
-``time_ms_frame``, device stages of that one render); 4 had no shadow_rays column; 5 had no per-render columns (``*_renders``); 6 had no host column; 7 is this one.  Rows of another schema never count as finished cells.
+``time_ms_frame``, device stages of that one render) and had no metrics column; 4 had no
+shadow_rays column; 5 had no per-render columns (``*_renders``, ``time_ms_renders``); 6 had no
+host column; 7 is this one.  Rows of another schema never count as finished cells.  The readers
+(:func:`load_table`) fill an older table's missing columns where a value is sound
+(``OLDER_ROWS_HOLD``); a column that has none (the times before schema 4) makes a reader that
+needs it say which schema the table holds and how to upgrade it: a run into the folder renders
+its sweep's cells again, saying so first, and keeps the old table beside the new one
+(``backup_name``).
 
 Storage.  ``results.parquet`` and ``results.csv`` are replaced whole, each in one rename, so a
 reader never sees half a table.  While a run is going, each finished cell is appended to
@@ -116,6 +123,48 @@ def results_frame(rows: list[dict]) -> pd.DataFrame:
     return frame.astype(ints)
 
 
+# What a row of an older schema holds in a column a later schema added, where that is sound
+# (module docstring, "Schema versions"): schema 1 had no equal-time cells and no version; a
+# figure the run did not record is unknown (NaN); no per-render values (empty text) make a cell's
+# interval one over its seeds (stats.cell_values); the host was not recorded.  Schema 4's times
+# have no value here: schema 3 timed one render on the host (time_ms_frame).
+OLDER_ROWS_HOLD = {"schema_version": 1, "time_budget_ms": math.nan, "flicker": math.nan,
+                   "shadow_rays": math.nan, **{column: "" for column in REPLICATE_COLUMNS},
+                   TIME + RENDERS: "", "host": ""}
+
+
+def schema_versions(values) -> list[int]:
+    """The schema versions of rows whose ``schema_version`` are ``values``, oldest first (a
+    missing one, None or NaN: a row from before the column, schema 1)."""
+    return sorted({1 if value is None or pd.isna(value) else int(value) for value in values})
+
+
+def backup_name(version: int) -> str:
+    """Where a run keeps a table of schema ``version`` before it writes its own rows."""
+    return f"results.schema{version}.parquet"
+
+
+def _upgraded(table: pd.DataFrame, path: pathlib.Path, required_columns) -> pd.DataFrame:
+    """``table`` with the columns later schemas added filled as ``OLDER_ROWS_HOLD`` says; an
+    InputError naming the table's schema and how to upgrade it where a column the reader needs
+    has no sound value, or "not an iblbench results table" where even schema 1's key is
+    missing."""
+    table = table.assign(**{column: value for column, value in OLDER_ROWS_HOLD.items()
+                            if column not in table.columns})
+    missing = [column for column in required_columns if column not in table.columns]
+    if not missing:
+        return table
+    versions = schema_versions(table["schema_version"])
+    if not set(KEY_COLUMNS) <= set(table.columns) or versions[0] >= SCHEMA_VERSION:
+        raise InputError(path, f"not an iblbench results table: missing columns {', '.join(missing)}")
+    raise InputError(path, f"holds results of schema {versions[0]}, which lacks "
+                           f"{', '.join(missing)} (this iblbench writes schema {SCHEMA_VERSION}); "
+                           f"to upgrade it, run its sweep again with "
+                           f"{argument('out', str(path.parent))}: the run "
+                           f"re-renders the cells and keeps the old table as "
+                           f"{backup_name(versions[0])}")
+
+
 def budget_of(row: dict) -> float | None:
     """The row's time budget in ms, None for an equal-spp cell."""
     value = row.get("time_budget_ms")
@@ -170,9 +219,7 @@ def load_table(run_dir: str | pathlib.Path, required_columns) -> pd.DataFrame:
         table = pd.read_parquet(path)
     except Exception as error:   # pyarrow raises several types for damaged files
         raise InputError(path, f"cannot read the results table ({type(error).__name__})") from None
-    missing = [column for column in required_columns if column not in table.columns]
-    if missing:
-        raise InputError(path, f"not an iblbench results table: missing columns {', '.join(missing)}")
+    table = _upgraded(table, path, required_columns)
     return results_frame(_newest_rows(table.to_dict("records"), journal)) if journal else table
 
 

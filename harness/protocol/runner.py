@@ -112,6 +112,7 @@ import math
 import os
 import pathlib
 import platform
+import shutil
 import signal
 import sys
 import threading
@@ -125,12 +126,12 @@ from iblbench.estimators.runtime.framecache import PRODUCTS
 from iblbench.harness.protocol.executor import WARMUP_PIXELS, Executor, device_record
 from iblbench.harness.protocol.metric import default_names
 from iblbench.harness.protocol.metrics import PROTOCOL
-from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, Journal,
-                                               cell_files_intact,
+from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, TABLE, Journal,
+                                               backup_name, cell_files_intact,
                                                configuration_differences, image_configuration,
                                                prepare_out, read_manifest, read_results,
-                                               remove_cells, row_key, write_manifest,
-                                               write_results)
+                                               remove_cells, row_key, schema_versions,
+                                               write_manifest, write_results)
 from iblbench.harness.protocol.equal_time import CALIBRATION_REPEATS, TOLERANCE
 from iblbench.harness.protocol.progress import BAR_FORMAT, Progress
 from iblbench.harness.protocol.provenance import git_revision, package_version
@@ -225,6 +226,8 @@ class Runner:
         the time the run folds it back, and drop another run's cells): its rows, checked against
         this configuration, its manifest, and the plan of the cells left."""
         rows = read_results(self.out)
+        older = [row for row in rows if row.get("schema_version") != SCHEMA_VERSION]
+        backup = self._back_up_older_table(older)
         configured = {p.scene.name: (p.width, p.height, p.env_res) for p in self.plans}
         differences = configuration_differences(rows, configured)
         if differences and not self.config.force:
@@ -249,6 +252,34 @@ class Runner:
         self.total = len(self.cells)
         self.resumed = self.total - len(self.todo)
         self.manifest = self._new_manifest()
+        if older:
+            self._say_what_replaces_older_rows(older, backup)
+
+    def _back_up_older_table(self, older: list[dict]) -> pathlib.Path | None:
+        """Where ``out``'s table, holding the rows ``older`` of an older schema, is kept before
+        this run's fold rewrites it: ``results.schema<N>.parquet``, N its oldest schema (a copy
+        an earlier run made is kept as it is); None without such rows or table."""
+        table = self.out / TABLE
+        if not older or not table.exists():
+            return None
+        oldest = schema_versions(row.get("schema_version") for row in older)[0]
+        backup = self.out / backup_name(oldest)
+        if not backup.exists():
+            with atomic_path(backup) as tmp:
+                shutil.copyfile(table, tmp)
+        return backup
+
+    def _say_what_replaces_older_rows(self, older: list[dict], backup) -> None:
+        """One line before anything is rendered or folded: how many rows of an older schema this
+        run renders again (each that is a cell of its sweep: such rows never count as done) and
+        replaces, how many stay as they are, and where the old table is kept."""
+        again = sum(row_key(row) in self.todo for row in older)
+        versions = ", ".join(map(str, schema_versions(row.get("schema_version") for row in older)))
+        kept = f"; the old table is kept as {backup}" if backup else ""
+        print(f"iblbench: {self.out / TABLE} holds {len(older)} rows of schema {versions} (this "
+              f"iblbench writes schema {SCHEMA_VERSION}): this run renders {again} of them again "
+              f"and replaces their rows, {len(older) - again} not in its sweep stay as they "
+              f"are{kept}", file=sys.stderr)
 
     # ---- planning ----------------------------------------------------------------------------
 
@@ -450,7 +481,8 @@ class Runner:
         self._save_inputs(gbuffers, left)
         with tqdm(total=self.total, unit="cell", disable=self._bar_disabled(),
                   bar_format=BAR_FORMAT, initial=self.resumed) as bar:
-            self.progress = Progress(bar, self.todo)
+            self.progress = Progress(bar, self.todo, {scene: gbuffer.covered
+                                                      for scene, gbuffer in gbuffers.items()})
             self.device_ms_total = 0.0
             # The load of this host; on a cluster the client's, not the workers' (it still
             # tells a busy machine where --workers share it, and the floors cover the workers).
@@ -521,8 +553,7 @@ class Runner:
             for row in result.rows:
                 self._journal_cell(row)
                 key = row_key(row)
-                self.progress.finished(key, row["spp"],
-                                       result.seconds[key] / len(self.engine.workers))
+                self.progress.finished(key, result.seconds[key] / len(self.engine.workers))
             self._merge(result.records)
 
         return self.engine.render(self.config, self.plan, self.todo, self.chosen, finished)
