@@ -196,6 +196,7 @@ __kernel void filter_lights(__global const acc_t *dir_ring, __global const acc_t
     }
     if (used > 1) {
         acc_t norm = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        /* The twin's maximum(norm, 1e-300) guards np.where's other branch; here only the one taken runs. */
         for (int c = 0; c < 3; ++c) d[c] = norm > ACC_LITERAL(1e-9) ? d[c] / norm : newest[c];
     }
     for (int c = 0; c < 3; ++c) {

@@ -417,7 +417,8 @@ static inline int8 texels_open(__global const uint *visibility, int p, int face,
     int8 word_index = cell >> 5;
     uint8 word = (uint8)(mask[word_index.s0], mask[word_index.s1], mask[word_index.s2], mask[word_index.s3],
                          mask[word_index.s4], mask[word_index.s5], mask[word_index.s6], mask[word_index.s7]);
-    return ((word >> convert_uint8(cell & 31)) & 1u) != 0u;
+    /* −1 where open (a mask); not `… != 0u`, which inlined into `lit && …` Oclgrind 21.10 reads wrong. */
+    return -convert_int8((word >> convert_uint8(cell & 31)) & 1u);
 }
 
 /* The reference of pixels first … first + count − 1 (one enqueue of a chunk), one work item
