@@ -95,7 +95,7 @@ ALWAYS_INLINE lanes3_t lanes_filtered_radiance(__global const float4 *mips, int1
 }
 
 /* ½·log2(R²/(4N)): Eq. 13's log2(w·h/N) with the cube face's d(u) factor 4 taken out. */
-inline float lod_shift_of(int res, int spp)
+static inline float lod_shift_of(int res, int spp)
 {
     return 0.5f * log2((float)res * (float)res / (4.0f * (float)spp));
 }

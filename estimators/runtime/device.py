@@ -249,12 +249,7 @@ class Compute:
         key = (package, filename, tuple(sorted((defines or {}).items())))
         if key not in self._programs:
             source = kernel_path(package, filename).read_text()
-            # The kernel's own folder first, so a plugin's .cl files can include their siblings.
-            options = [f"-I{kernel_path(package, filename).parent}"] + [f"-I{d}" for d in include_dirs()]
-            options += [f"-D{name}={value}" for name, value in sorted((defines or {}).items())]
-            options.append(f"-DPOOL_LANES={self.pool_lanes}")
-            if self.doubles:
-                options.append("-DHAVE_FP64=1")
+            options = program_options(package, filename, defines, self.pool_lanes, self.doubles)
             # The compiler's warnings (PoCL prints hundreds for vector-typed helpers) are kept, not
             # shown: `iblbench doctor --verbose` prints them.
             with warnings.catch_warnings():
@@ -312,6 +307,19 @@ class Compute:
 
 def kernel_path(package: str, filename: str) -> pathlib.Path:
     return pathlib.Path(str(importlib.resources.files(package) / filename))
+
+
+def program_options(package: str, filename: str, defines: dict | None, lanes: int, doubles: bool) -> list[str]:
+    """The build options of a program (what :meth:`Compute.program` passes the device's compiler,
+    and tests/test_compile_clang.py passes clang): include directories, ``defines``,
+    ``POOL_LANES=lanes`` and, where ``doubles``, ``HAVE_FP64``."""
+    # The kernel's own folder first, so a plugin's .cl files can include their siblings.
+    options = [f"-I{kernel_path(package, filename).parent}"] + [f"-I{d}" for d in include_dirs()]
+    options += [f"-D{name}={value}" for name, value in sorted((defines or {}).items())]
+    options.append(f"-DPOOL_LANES={lanes}")
+    if doubles:
+        options.append("-DHAVE_FP64=1")
+    return options
 
 
 @functools.lru_cache(maxsize=1)
