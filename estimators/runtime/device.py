@@ -272,13 +272,15 @@ class Compute:
             self._kernels[key] = cl.Kernel(self.program(package, filename, defines), name)
         return self._kernels[key]
 
-    def run(self, kernel: cl.Kernel, size: int, *args, group: int | None = None) -> cl.Event:
+    def run(self, kernel: cl.Kernel, size: int, *args, group: int | None = None,
+            offset: int = 0) -> cl.Event:
         """Launch a 1-D kernel over ``size`` work items (in work groups of ``group``, a divisor
-        of ``size``, or of it the largest divisor the device allows; default: the device's choice)
-        and wait; returns the profiled event."""
+        of ``size``, or of it the largest divisor the device allows; default: the device's choice),
+        their global ids starting at ``offset``, and wait; returns the profiled event."""
         kernel.set_args(*args)
         event = cl.enqueue_nd_range_kernel(self.queue, kernel, (int(size),),
-                                           None if group is None else (self.fitting_group(kernel, group),))
+                                           None if group is None else (self.fitting_group(kernel, group),),
+                                           (int(offset),) if offset else None)
         event.wait()
         return event
 

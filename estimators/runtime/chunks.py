@@ -1,0 +1,46 @@
+"""Kernel launches split by measured device time, so that none runs much past ``CHUNK_MS``: a
+display driver's watchdog (about 2 s on Windows) kills a longer one, and a Ctrl-C waits for the
+launch in flight.  The exact reference and every estimator kernel whose one launch grows with spp
+(``bis``, ``smc``) launch their work items through :func:`run_in_chunks`.
+
+The split changes no result: each work item computes what it computes in one launch (its own
+pixel's streams and sums), whatever launch it falls in, so images are bit-identical to one
+launch (tests/test_chunks.py).
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import pyopencl as cl
+
+from iblbench.estimators.runtime.device import event_ms
+
+CHUNK_MS = 100.0           # device time a launch aims at: 1/20 of a 2 s watchdog (read per call)
+# Work items of the first launch, before any rate is measured: a group of pixels.  At bis's and
+# smc's most spp one pixel is about 86,000 evaluations, so 256 took half a second on a 2-core CPU.
+FIRST_CHUNK_ITEMS = 64
+MOST_GROWTH = 4            # a launch takes at most this many times the last one's items
+
+
+def run_in_chunks(total: int, group: int, launch: Callable[[int, int], cl.Event],
+                  most: int | None = None) -> list[cl.Event]:
+    """Work items 0 … ``total`` − 1 in order, by ``launch(first, count)``, which runs items
+    first … first + count − 1 in one launch, waits for it and returns its profiled event; returns
+    the events.
+
+    The first launch takes FIRST_CHUNK_ITEMS, each later one as many as the last one's measured
+    rate fills CHUNK_MS with, but at most MOST_GROWTH times the last (one launch timed too short
+    cannot make the next minutes long) and at most ``most`` (a caller's scratch bound); every
+    count but the last is a whole number of ``group`` items, at least one group."""
+    def whole_groups(items: int) -> int:
+        items = max(group, items // group * group)
+        return items if most is None else min(items, most)
+
+    events, first, count = [], 0, whole_groups(FIRST_CHUNK_ITEMS)
+    while first < total:
+        count = min(count, total - first)
+        events.append(launch(first, count))
+        first += count
+        ms = event_ms(events[-1])
+        count = whole_groups(min(MOST_GROWTH * count, int(count * CHUNK_MS / max(ms, 1e-3))))
+    return events

@@ -1,0 +1,111 @@
+"""Launches split by measured device time (estimators/runtime/chunks.py): with a chunk target far
+below one group's time, bis's and smc's kernels run one group per launch, and their images are
+bit-identical to those of one launch; at a target of a few groups' time each launch takes what
+the last one's measured rate fills the target with."""
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from iblbench.estimators.bis import BIS
+from iblbench.estimators.runtime import chunks
+from iblbench.estimators.runtime.device import event_ms
+from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.smc import SMC
+from iblbench.harness.verify.fixtures import glossy_gbuffer, smooth_map
+
+SIZE = 24   # 576 pixels: 9 groups of 64
+
+
+@pytest.fixture
+def launches(monkeypatch):
+    """Every kernel launch from here on, as (kernel name, global size, event)."""
+    seen = []
+    enqueue = cl.enqueue_nd_range_kernel
+
+    def recorded(queue, kernel, global_size, *args, **kwargs):
+        event = enqueue(queue, kernel, global_size, *args, **kwargs)
+        seen.append((kernel.function_name, global_size[0], event))
+        return event
+
+    monkeypatch.setattr(cl, "enqueue_nd_range_kernel", recorded)
+    return seen
+
+
+def _render(compute, monkeypatch, launches, estimator, envs, spp, chunk_ms, first_items, size=SIZE):
+    """The frames' (radiance, used, effective, extras) and the launch sizes per kernel name."""
+    monkeypatch.setattr(chunks, "CHUNK_MS", chunk_ms)
+    monkeypatch.setattr(chunks, "FIRST_CHUNK_ITEMS", first_items)
+    gbuffer = DeviceGBuffer(compute, glossy_gbuffer(size))
+    launches.clear()
+    frames = []
+    for t, env in enumerate(envs):
+        cache = FrameCache(compute, env, frame=t)
+        cache.require(type(estimator).requires)
+        e = estimator.render(gbuffer, cache, spp, 5)
+        frames.append((e.radiance, e.used, e.effective, e.extras))
+    sizes = {}
+    for name, size, _ in launches:
+        sizes.setdefault(name, []).append(size)
+    return frames, sizes
+
+
+def _assert_identical(chunked, whole):
+    for (*images, extras), (*whole_images, whole_extras) in zip(chunked, whole):
+        for image, whole_image in zip(images, whole_images):
+            np.testing.assert_array_equal(image, whole_image)
+        assert extras.keys() == whole_extras.keys()
+        np.testing.assert_array_equal(list(extras.values()), list(whole_extras.values()))
+
+
+# smc: an init frame, a frame whose map turned (smc_advance on every pixel, re-inits where Z
+# jumped) and one whose power jumped ×1e3 (every pixel re-initialised by smc_init).
+SEQUENCES = {"bis": (BIS, [smooth_map(8)], ("render_bis",)),
+             "smc": (SMC, [smooth_map(8), np.roll(smooth_map(8), 3, axis=2), 1e3 * smooth_map(8)],
+                     ("smc_advance", "smc_init"))}
+
+
+@pytest.mark.parametrize("name", SEQUENCES)
+def test_a_tiny_chunk_target_launches_one_group_at_a_time_and_changes_no_value(
+        compute, monkeypatch, launches, name):
+    make, envs, kernels = SEQUENCES[name]
+    whole, whole_sizes = _render(compute, monkeypatch, launches, make(), envs, 8, chunks.CHUNK_MS, 10 ** 9)
+    chunked, sizes = _render(compute, monkeypatch, launches, make(), envs, 8, 1e-6, 1)
+    _assert_identical(chunked, whole)
+    for kernel in kernels:
+        frames = len(whole_sizes[kernel])   # the frames that launch it, once for the whole image
+        assert frames >= 1 and set(whole_sizes[kernel]) == {SIZE * SIZE}
+        # 576 pixels = 9 groups of 64, each its own launch, in every such frame.
+        assert sizes[kernel] == [64] * 9 * frames
+
+
+def _runs(launches, kernels):
+    """The launches of ``kernels`` as runs of one kernel each (one run_in_chunks call), each a
+    list of (work items, device ms)."""
+    runs, previous = [], None
+    for name, size, event in launches:
+        if name in kernels:
+            if name != previous:
+                runs.append([])
+            runs[-1].append((size, event_ms(event)))
+        previous = name
+    return runs
+
+
+@pytest.mark.parametrize("name", SEQUENCES)
+def test_each_launch_takes_what_the_last_ones_rate_fills_the_target_with(compute, monkeypatch,
+                                                                         launches, name):
+    """With an 8 ms target (a group of 64 pixels takes about 3 ms here at 128 spp), each launch
+    after a run's first takes at most the items that the last launch's measured rate fills the
+    target with, at most 4× the last's, and a whole group at least: the rule that bounds every
+    launch's time while the rate holds.  (Not the times themselves: other processes on a
+    2-core CI machine made the same launch 2.5× slower from one to the next.)"""
+    make, envs, kernels = SEQUENCES[name]
+    target, group = 8.0, 64
+    _render(compute, monkeypatch, launches, make(), envs, 128, target, 1)
+    runs = _runs(launches, kernels)
+    assert len(runs) >= len(kernels)
+    for run in runs:
+        assert len(run) > 1 and run[0][0] == group and sum(size for size, _ in run) == SIZE * SIZE
+        for (size, ms), (next_size, _) in zip(run, run[1:]):
+            assert next_size <= max(group, min(4 * size, size * target / ms)), run
