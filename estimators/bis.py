@@ -171,5 +171,5 @@ class BIS(Estimator):
                                 np.int32(N), np.uint32(seed), np.uint32(cache.frame), np.int32(offset),
                                 np.int32(pixels), *scratch, radiance, counts)
 
-        shade_ms = sum(map(event_ms, run_bis_chunks(compute, kernel, gbuffer.count, M, N, launch)))
+        shade_ms = event_ms(run_bis_chunks(compute, kernel, gbuffer.count, M, N, launch))
         return read_estimate(compute, gbuffer, radiance, counts, M + N, {"shade": shade_ms}, shadow_rays=N)

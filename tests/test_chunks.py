@@ -7,6 +7,7 @@ import pyopencl as cl
 import pytest
 
 from iblbench.estimators.bis import BIS
+from iblbench.estimators.registry import estimator_classes, get_estimator_class
 from iblbench.estimators.runtime import chunks
 from iblbench.estimators.runtime.device import event_ms
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
@@ -109,3 +110,17 @@ def test_each_launch_takes_what_the_last_ones_rate_fills_the_target_with(compute
         assert len(run) > 1 and run[0][0] == group and sum(size for size, _ in run) == SIZE * SIZE
         for (size, ms), (next_size, _) in zip(run, run[1:]):
             assert next_size <= max(group, min(4 * size, size * target / ms)), run
+
+
+@pytest.mark.parametrize("name", [cls.name for cls in estimator_classes()])
+def test_every_estimator_renders_the_same_image_one_group_a_launch(compute, monkeypatch, launches,
+                                                                  name):
+    """Every registered estimator's pixel kernels (DeviceGBuffer.run, bis's and smc's own
+    launches) split to one group a launch: more launches, the same two frames bit for bit."""
+    cls = get_estimator_class(name)
+    envs = [smooth_map(8), np.roll(smooth_map(8), 3, axis=2)]
+    whole, whole_sizes = _render(compute, monkeypatch, launches, cls(), envs, 8, chunks.CHUNK_MS, 10 ** 9)
+    chunked, sizes = _render(compute, monkeypatch, launches, cls(), envs, 8, 1e-6, 1)
+    _assert_identical(chunked, whole)
+    split = [kernel for kernel, size in whole_sizes.items() if size != sizes[kernel]]
+    assert split and all(set(sizes[kernel]) == {64} for kernel in split), sizes

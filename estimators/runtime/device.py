@@ -323,8 +323,11 @@ def include_dirs() -> tuple[str, ...]:
             os.path.join(os.path.dirname(pyopencl.__file__), "cl"))
 
 
-def event_ms(event: cl.Event) -> float:
-    """Device time of a profiled event in milliseconds."""
+def event_ms(event: cl.Event | list[cl.Event]) -> float:
+    """Device time of a profiled event in milliseconds, or of a list of them (one launch split
+    into several: chunks.py) summed."""
+    if isinstance(event, list):
+        return sum(map(event_ms, event))
     return (event.profile.end - event.profile.start) * 1e-6
 
 

@@ -179,5 +179,5 @@ class Reference:
             _wait(c.queue, event)
             return event
 
-        self.last_ms = sum(map(event_ms, run_in_chunks(gbuffer.count, group, launch)))
+        self.last_ms = event_ms(run_in_chunks(gbuffer.count, group, launch))
         return c.to_host(out, (gbuffer.count, 4), np.float32)[:, :3]
