@@ -141,7 +141,9 @@ from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import KeptBuffers, event_ms
 
 MAP_CHANGE_GROUP = 64   # work items of map_change's one group (smc.cl), at most
-ADVANCE_GROUP = 64      # smc_advance's launches (chunks.run_in_chunks) take whole multiples of this
+# smc_advance's work items per group: one local size for every launch (PoCL builds a kernel per
+# local size), its launches (chunks.run_in_chunks) padded to whole groups.
+ADVANCE_GROUP = 64
 
 
 @dataclasses.dataclass(frozen=True)
@@ -295,14 +297,18 @@ class SMC(Estimator):
         if have_state:
             flags = buffer("flags", count * 4)
             advance = compute.kernel(self.kernel_package(), "smc.cl", "smc_advance", defines)
-            events += run_in_chunks(count, ADVANCE_GROUP, lambda first, pixels: compute.run(
-                advance, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility,
-                cache.env_buffer, prev_texels, alias, texels, map_power, np.int32(count), np.int32(N),
-                np.int32(p.intermediates + 1), np.float32(p.nu),
-                np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
-                np.float32(p.reinit_map_ess), np.int32(static_frame), np.uint32(seed),
-                np.uint32(cache.frame), particles, gammas, scratch_p, scratch_g, state,
-                carried_estimate, radiance, counts, stats, flags, rays, offset=first))
+
+            def advance_pixels(first: int, pixels: int):
+                return compute.run(
+                    advance, -(-pixels // ADVANCE_GROUP) * ADVANCE_GROUP, gbuffer.normal, gbuffer.view,
+                    gbuffer.kd, gbuffer.ks, gbuffer.visibility, cache.env_buffer, prev_texels, alias, texels,
+                    map_power, np.int32(count), np.int32(N), np.int32(p.intermediates + 1), np.float32(p.nu),
+                    np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
+                    np.float32(p.reinit_map_ess), np.int32(static_frame), np.uint32(seed),
+                    np.uint32(cache.frame), particles, gammas, scratch_p, scratch_g, state,
+                    carried_estimate, radiance, counts, stats, flags, rays, group=ADVANCE_GROUP, offset=first)
+
+            events += run_in_chunks(count, ADVANCE_GROUP, advance_pixels)
             listed, listed_total = buffer("listed", count * 4), buffer("listed_total", 4)
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_list_reinit", defines), 1,
