@@ -1,7 +1,8 @@
 """Launches split by measured device time (estimators/runtime/chunks.py): with a chunk target far
-below one group's time, bis's and smc's kernels run one group per launch, and their images are
-bit-identical to those of one launch; at a target of a few groups' time each launch takes what
-the last one's measured rate fills the target with."""
+below one group's time, bis's and smc's kernels, every registered estimator's pixel kernels and
+the reference run one group per launch, and their images are bit-identical to those of one
+launch; at a target of a few groups' time each launch takes what the last one's measured rate
+fills the target with."""
 import numpy as np
 import pyopencl as cl
 import pytest
@@ -12,6 +13,7 @@ from iblbench.estimators.runtime import chunks
 from iblbench.estimators.runtime.device import event_ms
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
+from iblbench.estimators.runtime.reference import Reference
 from iblbench.estimators.smc import SMC
 from iblbench.harness.verify.fixtures import glossy_gbuffer, smooth_map
 
@@ -124,3 +126,17 @@ def test_every_estimator_renders_the_same_image_one_group_a_launch(compute, monk
     _assert_identical(chunked, whole)
     split = [kernel for kernel, size in whole_sizes.items() if size != sizes[kernel]]
     assert split and all(set(sizes[kernel]) == {64} for kernel in split), sizes
+
+
+def test_the_reference_is_the_same_one_group_a_launch(compute, monkeypatch, launches):
+    gbuffer = DeviceGBuffer(compute, glossy_gbuffer(SIZE))
+    cache = FrameCache(compute, smooth_map(8))
+    images, sizes = [], []
+    for chunk_ms, first_items in ((chunks.CHUNK_MS, 10 ** 9), (1e-6, 1)):
+        monkeypatch.setattr(chunks, "CHUNK_MS", chunk_ms)
+        monkeypatch.setattr(chunks, "FIRST_CHUNK_ITEMS", first_items)
+        launches.clear()
+        images.append(Reference(compute, use_cache=False).image(gbuffer, cache))
+        sizes.append([size for name, size, _ in launches if name == "reference"])
+    assert sizes == [[SIZE * SIZE], [64] * 9]
+    np.testing.assert_array_equal(images[1], images[0])

@@ -1,11 +1,14 @@
 """Kernel launches split by measured device time, so that none runs much past ``CHUNK_MS``: a
 display driver's watchdog (about 2 s on Windows) kills a longer one, and a Ctrl-C waits for the
-launch in flight.  The exact reference and every estimator kernel whose one launch grows with spp
-(``bis``, ``smc``) launch their work items through :func:`run_in_chunks`.
+launch in flight.  Every kernel whose one launch grows with spp or image size launches its work
+items through :func:`run_in_chunks`: the exact reference, every pixel kernel
+(``DeviceGBuffer.run``), bis's and smc's lockstep kernels and ``smc_advance``.
 
 The split changes no result: each work item computes what it computes in one launch (its own
 pixel's streams and sums), whatever launch it falls in, so images are bit-identical to one
-launch (tests/test_chunks.py).
+launch (tests/test_chunks.py).  Its floor is one work group: a pixel's samples stay in one work
+item, so one group's launch takes a pixel's whole sample loop (on a GPU, whose group runs its
+pixels side by side, about one pixel's serial time).
 """
 from __future__ import annotations
 
