@@ -18,11 +18,17 @@ import pyopencl as cl
 
 from iblbench.estimators.runtime.device import event_ms
 
-CHUNK_MS = 100.0           # device time a launch aims at: 1/20 of a 2 s watchdog (read per call)
+CHUNK_MS = 100.0           # the most device time a launch should take: 1/20 of a 2 s watchdog (read per call)
+# Launches aim at this share of CHUNK_MS: the next launch's rate is not the last one's (on a 2-core
+# CPU others' load made the same launch 2.5× slower from one to the next, and a launch 3× larger
+# took 4-5× as long: its scratch left the cache), and at the whole target they passed it by 80%.
+AIM = 0.5
 # Work items of the first launch, before any rate is measured: a group of pixels.  At bis's and
 # smc's most spp one pixel is about 86,000 evaluations, so 256 took half a second on a 2-core CPU.
 FIRST_CHUNK_ITEMS = 64
-MOST_GROWTH = 4            # a launch takes at most this many times the last one's items
+# A launch takes at most this many times the last one's items: bis's launches of 4× the pixels
+# took 7× as long (its scratch left the cache), so a larger step could pass CHUNK_MS.
+MOST_GROWTH = 2
 
 
 def run_in_chunks(total: int, group: int, launch: Callable[[int, int], cl.Event],
@@ -32,7 +38,7 @@ def run_in_chunks(total: int, group: int, launch: Callable[[int, int], cl.Event]
     the events.
 
     The first launch takes FIRST_CHUNK_ITEMS, each later one as many as the last one's measured
-    rate fills CHUNK_MS with, but at most MOST_GROWTH times the last (one launch timed too short
+    rate fills AIM × CHUNK_MS with, but at most MOST_GROWTH times the last (one launch timed too short
     cannot make the next minutes long) and at most ``most`` (a caller's scratch bound); every
     count but the last is a whole number of ``group`` items, at least one group."""
     def whole_groups(items: int) -> int:
@@ -45,5 +51,5 @@ def run_in_chunks(total: int, group: int, launch: Callable[[int, int], cl.Event]
         events.append(launch(first, count))
         first += count
         ms = event_ms(events[-1])
-        count = whole_groups(min(MOST_GROWTH * count, int(count * CHUNK_MS / max(ms, 1e-3))))
+        count = whole_groups(min(MOST_GROWTH * count, int(count * AIM * CHUNK_MS / max(ms, 1e-3))))
     return events
