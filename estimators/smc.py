@@ -142,8 +142,9 @@ from iblbench.estimators.runtime.device import KeptBuffers, event_ms
 
 MAP_CHANGE_GROUP = 64   # work items of map_change's one group (smc.cl), at most
 # smc_advance's work items per group: one local size for every launch (PoCL builds a kernel per
-# local size), its launches (chunks.run_in_chunks) padded to whole groups.
-ADVANCE_GROUP = 64
+# local size), its launches (chunks.run_in_chunks) padded to whole groups.  16, not 64: a group is
+# the least a launch takes, and at N = 4096 one of 64 pixels took a second on one CPU core.
+ADVANCE_GROUP = 16
 
 
 @dataclasses.dataclass(frozen=True)

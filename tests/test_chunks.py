@@ -14,10 +14,13 @@ from iblbench.estimators.runtime.device import event_ms
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
 from iblbench.estimators.runtime.reference import Reference
-from iblbench.estimators.smc import SMC
+from iblbench.estimators.smc import ADVANCE_GROUP, SMC
 from iblbench.harness.verify.fixtures import glossy_gbuffer, smooth_map
 
 SIZE = 24   # 576 pixels: 9 groups of 64
+# Work items per group of each kernel's launches: PIXEL_GROUP, bis's LOCKSTEP_GROUP, the
+# reference's WORK_GROUP (64 each on a CPU), smc_advance's own.
+GROUP = {"smc_advance": ADVANCE_GROUP}
 
 
 @pytest.fixture
@@ -61,11 +64,19 @@ def _assert_identical(chunked, whole):
         np.testing.assert_array_equal(list(extras.values()), list(whole_extras.values()))
 
 
-# smc: an init frame, a frame whose map turned (smc_advance on every pixel, re-inits where Z
-# jumped) and one whose power jumped ×1e3 (every pixel re-initialised by smc_init).
+def _smc_frames():
+    """An init frame; the map turned (smc_advance moves every pixel's particles, none re-inits);
+    one face 10× brighter (a fifth of the pixels re-initialised: smc_init's list shorter than its
+    launches); everything ×1e3 (every pixel re-initialised).  Without the map-level test, which
+    would re-initialise every pixel at the turn."""
+    env = smooth_map(8)
+    lit = env.copy()
+    lit[4] *= 10
+    return [env, np.roll(env, 3, axis=2), lit, 1e3 * lit]
+
+
 SEQUENCES = {"bis": (BIS, [smooth_map(8)], ("render_bis",)),
-             "smc": (SMC, [smooth_map(8), np.roll(smooth_map(8), 3, axis=2), 1e3 * smooth_map(8)],
-                     ("smc_advance", "smc_init"))}
+             "smc": (lambda: SMC(reinit_map_ess=0.0), _smc_frames(), ("smc_advance", "smc_init"))}
 
 
 @pytest.mark.parametrize("name", SEQUENCES)
@@ -75,22 +86,26 @@ def test_a_tiny_chunk_target_launches_one_group_at_a_time_and_changes_no_value(
     whole, whole_sizes = _render(compute, monkeypatch, launches, make(), envs, 8, chunks.CHUNK_MS, 10 ** 9)
     chunked, sizes = _render(compute, monkeypatch, launches, make(), envs, 8, 1e-6, 1)
     _assert_identical(chunked, whole)
+    if name == "smc":   # the frames do what _smc_frames says
+        reinits = [extras["reinits"] for *_, extras in whole]
+        assert reinits[:2] == [0, 0] and 0 < reinits[2] < SIZE * SIZE and reinits[3] == SIZE * SIZE
     for kernel in kernels:
         frames = len(whole_sizes[kernel])   # the frames that launch it, once for the whole image
         assert frames >= 1 and set(whole_sizes[kernel]) == {SIZE * SIZE}
-        # 576 pixels = 9 groups of 64, each its own launch, in every such frame.
-        assert sizes[kernel] == [64] * 9 * frames
+        # 576 pixels = 9 groups of 64 (36 of smc_advance's 16), each its own launch, every frame.
+        group = GROUP.get(kernel, 64)
+        assert sizes[kernel] == [group] * (SIZE * SIZE // group) * frames
 
 
 def _runs(launches, kernels):
-    """The launches of ``kernels`` as runs of one kernel each (one run_in_chunks call), each a
-    list of (work items, device ms)."""
+    """The launches of ``kernels`` as runs of one kernel each (one run_in_chunks call): (its
+    name, [(work items, device ms) of each launch])."""
     runs, previous = [], None
     for name, size, event in launches:
         if name in kernels:
             if name != previous:
-                runs.append([])
-            runs[-1].append((size, event_ms(event)))
+                runs.append((name, []))
+            runs[-1][1].append((size, event_ms(event)))
         previous = name
     return runs
 
@@ -104,11 +119,12 @@ def test_each_launch_takes_what_the_last_ones_rate_fills_the_target_with(compute
     that bounds every launch's time while the rate holds.  (Not the times themselves: other processes on a
     2-core CI machine made the same launch 2.5× slower from one to the next.)"""
     make, envs, kernels = SEQUENCES[name]
-    target, group = 16.0, 64
+    target = 16.0
     _render(compute, monkeypatch, launches, make(), envs, 128, target, 1)
     runs = _runs(launches, kernels)
     assert len(runs) >= len(kernels)
-    for run in runs:
+    for kernel, run in runs:
+        group = GROUP.get(kernel, 64)
         assert len(run) > 1 and run[0][0] == group and sum(size for size, _ in run) == SIZE * SIZE
         for (size, ms), (next_size, _) in zip(run, run[1:]):
             assert next_size <= max(group, min(chunks.MOST_GROWTH * size, size * chunks.AIM * target / ms)), run
@@ -125,7 +141,7 @@ def test_every_estimator_renders_the_same_image_one_group_a_launch(compute, monk
     chunked, sizes = _render(compute, monkeypatch, launches, cls(), envs, 8, 1e-6, 1)
     _assert_identical(chunked, whole)
     split = [kernel for kernel, size in whole_sizes.items() if size != sizes[kernel]]
-    assert split and all(set(sizes[kernel]) == {64} for kernel in split), sizes
+    assert split and all(set(sizes[kernel]) == {GROUP.get(kernel, 64)} for kernel in split), sizes
 
 
 def test_the_reference_is_the_same_one_group_a_launch(compute, monkeypatch, launches):

@@ -23,9 +23,9 @@ CHUNK_MS = 100.0           # the most device time a launch should take: 1/20 of 
 # CPU others' load made the same launch 2.5× slower from one to the next, and a launch 3× larger
 # took 4-5× as long: its scratch left the cache), and at the whole target they passed it by 80%.
 AIM = 0.5
-# Work items of the first launch, before any rate is measured: a group of pixels.  At bis's and
-# smc's most spp one pixel is about 86,000 evaluations, so 256 took half a second on a 2-core CPU.
-FIRST_CHUNK_ITEMS = 64
+# Work items of the first launch, before any rate is measured: rounded up, one group.  At bis's
+# and smc's most spp one group of pixels already takes 0.3-1 s on a 2-core CPU.
+FIRST_CHUNK_ITEMS = 1
 # A launch takes at most this many times the last one's items: bis's launches of 4× the pixels
 # took 7× as long (its scratch left the cache), so a larger step could pass CHUNK_MS.
 MOST_GROWTH = 2
