@@ -227,7 +227,8 @@ __kernel void map_draws(__global const ulong *alias, const uint seed, __global i
 
 /* One frame of every pixel that carries state (smc.py steps 2-6).  A pixel that needs a BIS
  * re-init gets reinit[p] = 1 and stats[p] = (smallest ESS, ·, evaluations so far, resamplings);
- * smc_init finishes it.  Every other pixel's outputs are final. */
+ * smc_init finishes it.  Every other pixel's outputs are final.  Launched in whole groups over
+ * pixels get_global_offset(0) … (chunks.py); items past `count` do nothing. */
 __kernel void smc_advance(__global const float4 *normal, __global const float4 *view,
                           __global const float4 *kd, __global const float4 *ks_m,
                           __global const uint *visibility, __global const float4 *env, __global const float4 *prev_texels,
@@ -244,6 +245,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
 {
     const int res = ENV_RES, plane = count;
     int p = get_global_id(0);
+    if (p >= count) return;   /* padding of the last launch to whole groups (smc.py) */
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     __global float *particles = all_particles + p, *gammas = all_gammas + p;
     __global float *scratch_p = all_scratch_p + p, *scratch_g = all_scratch_g + p;

@@ -267,13 +267,15 @@ class Compute:
             self._kernels[key] = cl.Kernel(self.program(package, filename, defines), name)
         return self._kernels[key]
 
-    def run(self, kernel: cl.Kernel, size: int, *args, group: int | None = None) -> cl.Event:
+    def run(self, kernel: cl.Kernel, size: int, *args, group: int | None = None,
+            offset: int = 0) -> cl.Event:
         """Launch a 1-D kernel over ``size`` work items (in work groups of ``group``, a divisor
-        of ``size``, or of it the largest divisor the device allows; default: the device's choice)
-        and wait; returns the profiled event."""
+        of ``size``, or of it the largest divisor the device allows; default: the device's choice),
+        their global ids starting at ``offset``, and wait; returns the profiled event."""
         kernel.set_args(*args)
         event = cl.enqueue_nd_range_kernel(self.queue, kernel, (int(size),),
-                                           None if group is None else (self.fitting_group(kernel, group),))
+                                           None if group is None else (self.fitting_group(kernel, group),),
+                                           (int(offset),) if offset else None)
         event.wait()
         return event
 
@@ -329,8 +331,11 @@ def include_dirs() -> tuple[str, ...]:
             os.path.join(os.path.dirname(pyopencl.__file__), "cl"))
 
 
-def event_ms(event: cl.Event) -> float:
-    """Device time of a profiled event in milliseconds."""
+def event_ms(event: cl.Event | list[cl.Event]) -> float:
+    """Device time of a profiled event in milliseconds, or of a list of them (one launch split
+    into several: chunks.py) summed."""
+    if isinstance(event, list):
+        return sum(map(event_ms, event))
     return (event.profile.end - event.profile.start) * 1e-6
 
 
