@@ -62,9 +62,12 @@ def _identity(address: str) -> dict | None:
     """The ``identity`` of the Dask server at ``address``, None if what answers is not Dask.
     Its own event loop on a thread of its own: the caller may be running one (a notebook)."""
     from distributed.core import rpc
+    from distributed.security import Security
+
+    security = Security().get_connection_args("client")   # TLS, as a Client would (the config's)
 
     async def ask():
-        async with rpc(address, timeout=ANSWER_S) as server:
+        async with rpc(address, timeout=ANSWER_S, connection_args=security) as server:
             return await asyncio.wait_for(server.identity(), ANSWER_S)
 
     with concurrent.futures.ThreadPoolExecutor(1) as thread:
