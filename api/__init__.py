@@ -22,7 +22,9 @@ the same sweep configs and overrides (:mod:`iblbench.harness.protocol.sweep`), t
 other sweeps' cells) as a pandas DataFrame: one row per (scene, estimator, spp, frame, seed),
 the columns of ``results.parquet`` (docs/results.md).  Bad input raises
 :class:`InputError`, whose one-line message names the file, argument (as its keyword,
-``first_seed=-1``, where the command line names a flag) or key.
+``first_seed=-1``, where the command line names a flag) or key; so does an argument of the
+wrong type (``force="no"``: booleans take only True or False), each checked against its
+:class:`~iblbench.harness.protocol.run_config.RunConfig` field's type before any is used.
 
 **Scenes** are built-in names (``iblbench list scenes``), paths of scene ``.toml`` files, or
 dicts with the keys of a scene TOML file (sections ``mesh``, ``environment``, ``material``,
