@@ -4,10 +4,10 @@ tell (issue 35: the dashboard's port held a run for ever, another server's answe
 frame length asked for 3 EiB, a bad address was a traceback).
 
 Dask reads the address (:func:`distributed.comm.get_address_host_port`) and asks the server
-who it is (its ``identity`` call, over Dask's own rpc).  Two waits are bounded here, as Dask
-bounds neither: reaching the host (an unreachable one holds a TCP connect for minutes) and the
-answer (Dask's connection handshake waits for ever on a server that says nothing, such as the
-dashboard's web server reading the handshake as a request).  Only a server that has already
+who it is (its ``identity`` call, over Dask's own rpc).  Two waits are bounded here by less
+than Dask's: reaching the host (Dask retries a refused or unanswered connect for its whole
+timeout) and the answer (Dask's connection handshake waits for ever on a server that says
+nothing, such as the dashboard's web server reading the handshake as a request).  Only a server that has already
 failed to answer as Dask is asked over HTTP whether it is a dashboard, whose
 ``/json/identity.json`` names its scheduler.
 """
@@ -47,7 +47,7 @@ def check_scheduler(address: str) -> None:
             reason = (f"no answer in {CONNECT_S} s" if isinstance(error, TimeoutError)
                       else error.strerror or str(error))
             raise InputError(None, f"{where}: no Dask scheduler answers there ({reason}); is "
-                                   f"it running, and at this address?") from None
+                                   "it running, and at this address?") from None
     identity = _identity(address)
     if identity is None:
         raise InputError(None, f"{where}: {_what_answers(host, port)}")
