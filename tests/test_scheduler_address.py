@@ -93,8 +93,10 @@ def test_a_host_that_never_answers_the_connect(tmp_path, capfd):
 
 
 def test_a_closed_port(tmp_path, capfd):
+    """Refused for a few seconds (a scheduler started beside the run may not listen yet), not
+    for the client's 10 s."""
     assert_refused_in_process(tmp_path, capfd, f"tcp://127.0.0.1:{_free_port()}",
-                              "no Dask scheduler answers there (Connection refused)")
+                              "no Dask scheduler answers there (Connection refused for 5 s)")
 
 
 class QuietHandler(http.server.BaseHTTPRequestHandler):

@@ -17,12 +17,14 @@ import asyncio
 import concurrent.futures
 import json
 import socket
+import time
 import urllib.error
 import urllib.request
 
 from iblbench.foundation.errors import InputError, argument
 
 CONNECT_S = 3   # to reach the host: an unreachable one answers nothing
+REFUSED_S = 5   # a closed port's retries
 ANSWER_S = 2    # for a reached server to answer as Dask (a scheduler takes milliseconds)
 SCHEDULER_PORT, DASHBOARD_PORT = 8786, 8787   # Dask's defaults
 _TCP_SCHEMES = ("tcp", "tls", "ws", "wss")   # those reached by a TCP connect
@@ -40,14 +42,10 @@ def check_scheduler(address: str) -> None:
     except ValueError as error:   # an unknown scheme, no port, a malformed host
         raise InputError(None, f"{where}: not a Dask scheduler address ({error}); "
                                f"{_web_address_hint(address)}") from None
-    if scheme in _TCP_SCHEMES:
-        try:
-            socket.create_connection((host, port), timeout=CONNECT_S).close()
-        except OSError as error:
-            reason = (f"no answer in {CONNECT_S} s" if isinstance(error, TimeoutError)
-                      else error.strerror or str(error))
-            raise InputError(None, f"{where}: no Dask scheduler answers there ({reason}); is "
-                                   "it running, and at this address?") from None
+    unreachable = _unreachable(host, port) if scheme in _TCP_SCHEMES else None
+    if unreachable:
+        raise InputError(None, f"{where}: no Dask scheduler answers there ({unreachable}); is "
+                               "it running, and at this address?")
     identity = _identity(address)
     if identity is None:
         raise InputError(None, f"{where}: {_what_answers(host, port)}")
@@ -56,6 +54,25 @@ def check_scheduler(address: str) -> None:
         raise InputError(None, f"{where}: a Dask {identity.get('type', 'server')} answers there, "
                                "not a scheduler" + (f"; its scheduler is at {scheduler}"
                                                     if scheduler else ""))
+
+
+def _unreachable(host: str, port: int) -> str | None:
+    """Why ``host:port`` takes no TCP connection, None once it takes one.  A refused connection
+    is tried again for REFUSED_S, as Dask does: a scheduler started beside the run may not
+    listen yet."""
+    deadline = time.monotonic() + REFUSED_S
+    while True:
+        try:
+            socket.create_connection((host, port), timeout=CONNECT_S).close()
+            return None
+        except TimeoutError:
+            return f"no answer in {CONNECT_S} s"
+        except ConnectionRefusedError as error:
+            if time.monotonic() >= deadline:
+                return f"{error.strerror} for {REFUSED_S} s"
+            time.sleep(0.1)
+        except OSError as error:   # no such host, no route
+            return error.strerror or str(error)
 
 
 def _identity(address: str) -> dict | None:
