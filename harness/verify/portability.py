@@ -276,7 +276,7 @@ class Worker:
         self.command = [sys.executable, "-m", "iblbench.harness.verify.portability", device,
                         str(lanes or 0), str(int(fp64))]
         self.env = {**os.environ, **(checks or {})}
-        self.verbose, self.timeout = verbose, timeout
+        self.fp64, self.verbose, self.timeout = fp64, verbose, timeout
         self.folder = tempfile.TemporaryDirectory()
         self.child: subprocess.Popen | None = None
         self.cases = 0
