@@ -48,9 +48,9 @@ def test_doctor_ctrl_c_stops_it_within_2_s_with_exit_130_and_no_verdict():
     """Before: the Ctrl-C reached the case's child too, which died "cannot run (ImportError:
     initialization failed)", and the doctor went on for minutes to print a FAIL for it (and it
     printed no line before the end, so here the signal came too late)."""
-    process = subprocess.Popen([sys.executable, "-c", ONE_CASE_DOCTOR], env=env_without_a_chosen_device(),
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=True)
+    process = subprocess.Popen([sys.executable, "-c", ONE_CASE_DOCTOR],
+                               env=env_without_a_chosen_device(), stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         ready = select.select([process.stdout], [], [], LINE_WAIT_S)[0]
         first = process.stdout.readline() if ready else ""
@@ -72,7 +72,7 @@ def test_doctor_ctrl_c_stops_it_within_2_s_with_exit_130_and_no_verdict():
 
 
 @needs_oclgrind
-def test_doctor_prints_a_line_for_the_default_device_too_when_stdout_is_no_terminal(monkeypatch, capsys):
+def test_doctor_prints_a_line_for_the_default_device_too_on_a_pipe(monkeypatch, capsys):
     """``--device oclgrind``: before, the default device ran as the baseline but had no line."""
     monkeypatch.setattr(portability, "quick_cases", lambda: ["reference"])
     assert main(["doctor", "--device", "oclgrind"]) == 0

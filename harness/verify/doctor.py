@@ -1,5 +1,8 @@
 """``iblbench doctor``: is every OpenCL device here right?  For each device it builds and runs the
-portability set (harness/verify/portability.py), each case in a child process, and compares:
+portability set (harness/verify/portability.py; its quick set unless told the whole), the
+device's cases one after another in a child process of its own (``portability.Worker``: a
+Ctrl-C reaches this process alone, which ends the child and stops without a verdict), and
+compares:
 
 - the exact reference with its independent NumPy twin (harness/verify/twins/reference_twin.py), and the
   map's light pdf with the NumPy one of the smc twin (harness/verify/twins/ghosh2006.py, ``Map.pdf``),
@@ -151,8 +154,10 @@ def diagnose(spec: str | None = None, verbose: bool = False,
                 outcome = worker.run(case)
                 logs.append(outcome.build_logs)
                 if default is not None and info.key == default.key and outcome.arrays is not None:
-                    baselines.setdefault(info.has_fp64 and fp64, {})[case] = outcome.arrays   # its own path
-                problems += _case_problems(outcome, None if held_to is None else baseline(held_to).get(case))
+                    own_path = baselines.setdefault(info.has_fp64 and fp64, {})
+                    own_path[case] = outcome.arrays
+                expected = None if held_to is None else baseline(held_to).get(case)
+                problems += _case_problems(outcome, expected)
         label = info.label if fp64 else f"{info.label} (float path)"
         yield DeviceReport(label, info.kind, problems, time.perf_counter() - start,
                            len(cases), "\n".join(filter(None, logs)))
