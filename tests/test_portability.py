@@ -146,15 +146,15 @@ def test_doctor_without_fp64_holds_the_default_devices_float_path_to_its_double_
     havran's sizing once gave 500×)."""
     from iblbench.harness.verify import doctor
 
-    real_run_case = portability.run_case
+    real_run = portability.Worker.run
 
-    def cosine_off_on_the_float_path(device, case, *args, fp64=True, **kwargs):
-        outcome = real_run_case(device, case, *args, fp64=fp64, **kwargs)
-        if case == "cosine" and not fp64:
+    def cosine_off_on_the_float_path(worker, case):
+        outcome = real_run(worker, case)
+        if case == "cosine" and not worker.fp64:
             outcome.arrays = {name: array * 1.01 for name, array in outcome.arrays.items()}
         return outcome
 
-    monkeypatch.setattr(portability, "run_case", cosine_off_on_the_float_path)
+    monkeypatch.setattr(portability.Worker, "run", cosine_off_on_the_float_path)
     [report] = doctor.diagnose(choose_device().label, cases=["havran", "cosine"], fp64=False)
     assert report.label.endswith("(float path)")
     assert len(report.problems) == 1 and report.problems[0].startswith("cosine: "), report.problems

@@ -170,6 +170,16 @@ def build_failure(info: DeviceInfo) -> str | None:
     return None
 
 
+def matching_devices(spec: str) -> list[DeviceInfo]:
+    """The devices whose 'platform / version / device' contains ``spec`` (any case); an
+    InputError naming every device when none does."""
+    devices = [d for d in all_devices() if spec.lower() in d.label.lower()]
+    if not devices:
+        valid = "; ".join(d.label for d in all_devices())
+        raise InputError(None, f"no OpenCL device matches '{spec}'; devices: {valid}")
+    return devices
+
+
 def choose_device(spec: str | None = None) -> DeviceInfo:
     """The device to run on: among those matching ``spec`` (or ``IBLBENCH_DEVICE``) as a substring,
     if given, else among those that are not simulators, the devices that can build a kernel; of
@@ -180,10 +190,7 @@ def choose_device(spec: str | None = None) -> DeviceInfo:
                                "(apt) or pocl-binary-distribution (pip)")
     spec = spec or os.environ.get(ENV_DEVICE)
     if spec:
-        devices = [d for d in devices if spec.lower() in d.label.lower()]
-        if not devices:
-            valid = "; ".join(d.label for d in all_devices())
-            raise InputError(None, f"no OpenCL device matches '{spec}'; devices: {valid}")
+        devices = matching_devices(spec)
     else:
         devices = [d for d in devices if not d.is_simulator]
         if not devices:

@@ -1,5 +1,8 @@
 """``iblbench doctor``: is every OpenCL device here right?  For each device it builds and runs the
-portability set (harness/verify/portability.py), each case in a child process, and compares:
+portability set (harness/verify/portability.py; its quick set unless told the whole), the
+device's cases one after another in a child process of its own (``portability.Worker``: a
+Ctrl-C reaches this process alone, which ends the child and stops without a verdict), and
+compares:
 
 - the exact reference with its independent NumPy twin (harness/verify/twins/reference_twin.py), and the
   map's light pdf with the NumPy one of the smc twin (harness/verify/twins/ghosh2006.py, ``Map.pdf``),
@@ -17,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -87,38 +90,42 @@ def _case_problems(outcome: portability.Outcome, baseline: dict | None) -> list[
 
 def diagnose(spec: str | None = None, verbose: bool = False,
              progress: Callable[[str], None] = lambda text: None,
-             cases: list[str] | None = None, fp64: bool = True) -> list[DeviceReport]:
-    """A report per OpenCL device (those matching ``spec``, else every one), on ``cases`` (by
-    default every case of the portability set, ``portability.cases()``).  The default device
-    runs first, and its arrays are the other devices' baseline, on the same fp64 path as theirs
-    (a device without cl_khr_fp64 against the default device's float path); with no default
-    device (none that builds, or only a simulator) the devices are held to the twins alone.
+             cases: list[str] | None = None, fp64: bool = True) -> Iterator[DeviceReport]:
+    """A report per OpenCL device, each as soon as its cases have run: the default device's
+    first, then every other one (those matching ``spec``, if given), on ``cases`` (by default
+    the quick set, ``portability.quick_cases()``), each device's in a
+    :class:`~iblbench.harness.verify.portability.Worker` of its own.  The default device's
+    arrays are the other devices' baseline, on the same fp64 path as theirs (a device without
+    cl_khr_fp64 against the default device's float path); with no default device (none that
+    builds, or only a simulator) the devices are held to the twins alone.
 
     ``fp64=False``: every device runs the float path, as one without cl_khr_fp64 does, and
     each, the default device too, is held to the default device's own path (its double path
     where it has fp64)."""
-    from iblbench.estimators.runtime.device import all_devices, build_failure, choose_device
+    from iblbench.estimators.runtime.device import (all_devices, build_failure, choose_device,
+                                                     matching_devices)
     from iblbench.foundation.errors import InputError
 
     try:
         default = choose_device()
     except InputError:
         default = None
-    cases = portability.cases() if cases is None else cases
-    devices = sorted(all_devices(), key=lambda d: default is None or d.key != default.key)
-    if spec:
-        devices = [d for d in devices if spec.lower() in d.label.lower()]
+    cases = portability.quick_cases() if cases is None else cases
+    others = [d for d in (matching_devices(spec) if spec else all_devices())
+              if default is None or d.key != default.key]
+    devices = ([] if default is None else [default]) + others
     baselines: dict[bool, dict] = {}
 
     def baseline(doubles: bool) -> dict:
         """The default device's arrays of every case on the fp64 or the float path."""
         if doubles not in baselines:
             baselines[doubles] = {}
-            for case in cases:
-                progress(f"baseline on {default.device.name.strip()}: {case}")
-                outcome = portability.run_case(default.label, case, fp64=doubles)
-                if outcome.arrays is not None:
-                    baselines[doubles][case] = outcome.arrays
+            with portability.Worker(default.label, fp64=doubles) as worker:
+                for case in cases:
+                    progress(f"baseline on {default.device.name.strip()}: {case}")
+                    outcome = worker.run(case)
+                    if outcome.arrays is not None:
+                        baselines[doubles][case] = outcome.arrays
         return baselines[doubles]
 
     def baseline_path(info) -> bool | None:
@@ -131,25 +138,26 @@ def diagnose(spec: str | None = None, verbose: bool = False,
             return None
         return info.has_fp64
 
-    reports = []
     for info in devices:
         start = time.perf_counter()
         failure = build_failure(info)
         if failure:
-            reports.append(DeviceReport(info.label, info.kind, [f"cannot build a kernel: {failure}"],
-                                        time.perf_counter() - start, 0))
+            yield DeviceReport(info.label, info.kind, [f"cannot build a kernel: {failure}"],
+                               time.perf_counter() - start, 0)
             continue
         checks = portability.CHECKS if info.is_simulator else None
         held_to = baseline_path(info)
         problems, logs = [], []
-        for case in cases:
-            progress(f"{info.kind} {info.device.name.strip()}: {case}")
-            outcome = portability.run_case(info.label, case, checks, verbose=verbose, fp64=fp64)
-            logs.append(outcome.build_logs)
-            if default is not None and info.key == default.key and outcome.arrays is not None:
-                baselines.setdefault(info.has_fp64 and fp64, {})[case] = outcome.arrays   # its own path
-            problems += _case_problems(outcome, None if held_to is None else baseline(held_to).get(case))
+        with portability.Worker(info.label, checks, verbose=verbose, fp64=fp64) as worker:
+            for case in cases:
+                progress(f"{info.kind} {info.device.name.strip()}: {case}")
+                outcome = worker.run(case)
+                logs.append(outcome.build_logs)
+                if default is not None and info.key == default.key and outcome.arrays is not None:
+                    own_path = baselines.setdefault(info.has_fp64 and fp64, {})
+                    own_path[case] = outcome.arrays
+                expected = None if held_to is None else baseline(held_to).get(case)
+                problems += _case_problems(outcome, expected)
         label = info.label if fp64 else f"{info.label} (float path)"
-        reports.append(DeviceReport(label, info.kind, problems, time.perf_counter() - start,
-                                    len(cases), "\n".join(filter(None, logs))))
-    return reports
+        yield DeviceReport(label, info.kind, problems, time.perf_counter() - start,
+                           len(cases), "\n".join(filter(None, logs)))

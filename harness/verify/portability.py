@@ -10,15 +10,13 @@ label such as ``envmap{mis="brdf"}`` at 4 spp; a name ending in ``+visibility`` 
 each estimator's defaults) renders the G-buffer with visibility masks of 2² cells a face, three
 in four open (issue 22), so both paths of every kernel that reads V run; a temporal estimator renders a first
 frame and then the same map with each face's texel columns shifted by one, so its carried state
-is exercised.  Sizes are
-this small because Oclgrind interprets every work item: the whole set takes about a minute
-there.
+is exercised.  Sizes are this small because Oclgrind interprets every work item.
 
-Each case runs in a process of its own (:func:`run_case`): Oclgrind's checks are switched on by
-environment variables read when its platform loads, it stops listing errors at 1000 per
-process, and a driver that crashes takes only that case with it.  The child writes the arrays
-to an ``.npz`` file and the parent reads Oclgrind's reports from its standard error
-(:func:`oclgrind_reports`).
+The cases run in a child process (:class:`Worker`), one device's one after another so that
+each program builds once: Oclgrind's checks are switched on by environment variables read when
+its platform loads, and a driver that crashes takes only the child with it.  The child writes
+each case's arrays to an ``.npz`` file and the parent reads Oclgrind's reports from its
+standard error (:func:`oclgrind_reports`).
 """
 from __future__ import annotations
 
@@ -27,6 +25,8 @@ import functools
 import os
 import pathlib
 import re
+import select
+import signal
 import subprocess
 import sys
 import tempfile
@@ -78,6 +78,16 @@ def cases() -> list[str]:
 
     return [*OWN_CASES, *estimator_names(), *variants(),
             *(name + MASKED for name in ("reference", *estimator_names()))]
+
+
+def quick_cases() -> list[str]:
+    """``iblbench doctor``'s default set, every estimator once: the cases that are no estimator
+    and each registered estimator with its defaults on the G-buffer with visibility masks (its
+    longest path: the masks read, both lit and shadowed directions).  :func:`cases` adds each
+    estimator on the plain G-buffer, its variants and the reference with masks."""
+    from iblbench.estimators.registry import estimator_names
+
+    return [*OWN_CASES, *(name + MASKED for name in estimator_names())]
 
 
 def split_case(case: str) -> tuple[str, bool]:
@@ -248,47 +258,127 @@ def oclgrind_reports(stderr: str) -> list[str]:
     return [report for report in reports if report != PYOPENCL_QUERY]
 
 
-def run_case(device: str, case: str, checks: dict[str, str] | None = None,
-             timeout: float = 600.0, verbose: bool = False, lanes: int | None = None,
-             fp64: bool = True) -> Outcome:
-    """Run ``case`` on the device matching ``device`` in a child process (with Oclgrind's
-    ``checks`` in its environment, ``lanes`` for ``Compute.pool_lanes`` if given, and the float
-    path with ``fp64=False``) and collect its arrays and reports (and with ``verbose`` the
-    compiler's output)."""
-    with tempfile.TemporaryDirectory() as folder:
-        path = pathlib.Path(folder) / "arrays.npz"
-        env = {**os.environ, **(checks or {})}
+class Worker:
+    """A child process that runs cases on one device, one after another (:func:`serve`), so
+    that each program builds once per device: with ``checks`` (Oclgrind's) in its environment,
+    ``lanes`` for ``Compute.pool_lanes`` if given, and the float path with ``fp64=False``.
+
+    The child runs in a session of its own: a Ctrl-C reaches the parent alone, which ends the
+    child (:meth:`close`) and stops, so no case is cut short into a false failure.  A case that
+    fails, crashes the driver or draws Oclgrind reports ends its child, and the next case starts
+    a fresh one: Oclgrind stops listing errors at 1000 per process, and a crash takes only that
+    case with it.  The child's standard error goes to a file, each case's part read back for
+    Oclgrind's reports (:func:`oclgrind_reports`); a child whose parent died ends at its next
+    case (its standard input closed)."""
+
+    def __init__(self, device: str, checks: dict[str, str] | None = None, lanes: int | None = None,
+                 fp64: bool = True, verbose: bool = False, timeout: float = 600.0):
+        self.command = [sys.executable, "-m", "iblbench.harness.verify.portability", device,
+                        str(lanes or 0), str(int(fp64))]
+        self.env = {**os.environ, **(checks or {})}
+        self.fp64, self.verbose, self.timeout = fp64, verbose, timeout
+        self.folder = tempfile.TemporaryDirectory()
+        self.child: subprocess.Popen | None = None
+        self.cases = 0
+
+    def __enter__(self) -> Worker:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+        self.folder.cleanup()
+
+    def _path(self, suffix: str) -> pathlib.Path:
+        return pathlib.Path(self.folder.name) / f"{self.cases}{suffix}"
+
+    def close(self) -> None:
+        """End the child, and any process it started (a linker), at once."""
+        if self.child is not None:
+            try:
+                os.killpg(self.child.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self.child.wait()
+            self.child.stdin.close()
+            self.child.stdout.close()
+            self.child = None
+
+    def run(self, case: str) -> Outcome:
+        """``case``'s arrays and reports (and with ``verbose`` the compiler's output)."""
         try:
-            child = subprocess.run([sys.executable, "-m", "iblbench.harness.verify.portability", device,
-                                    case, str(path), str(lanes or 0), str(int(fp64))],
-                                   capture_output=True,
-                                   text=True, env=env, timeout=timeout)
-        except subprocess.TimeoutExpired:
-            return Outcome(case, None, [], f"no result within {timeout:.0f} s")
-        reports = oclgrind_reports(child.stderr)
-        logs = path.with_suffix(".log")
-        build_logs = logs.read_text() if verbose and logs.exists() else ""
-        if child.returncode != 0 or not path.exists():
-            lines = [line for line in child.stderr.splitlines() if line.strip()]
-            why = lines[-1] if lines else f"exit status {child.returncode}"
+            return self._run(case)
+        except BaseException:   # a Ctrl-C (KeyboardInterrupt) above all: the child goes too
+            self.close()
+            raise
+
+    def _run(self, case: str) -> Outcome:
+        self.cases += 1
+        stderr_path = pathlib.Path(self.folder.name) / "stderr"
+        if self.child is None:
+            with open(stderr_path, "wb") as stderr:   # the child holds its own descriptor
+                self.child = subprocess.Popen(self.command + [self.folder.name], env=self.env,
+                                              stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                              stderr=stderr, bufsize=0, start_new_session=True)
+        start = stderr_path.stat().st_size
+        try:
+            self.child.stdin.write(f"{self.cases} {case}\n".encode())
+        except BrokenPipeError:   # the child ended before this case (its standard error says why)
+            answered, done = True, False
+        else:
+            answered = bool(select.select([self.child.stdout], [], [], self.timeout)[0])
+            done = answered and self.child.stdout.readline() == b"done\n"
+        with open(stderr_path, "rb") as stderr:
+            stderr.seek(start)
+            errors = stderr.read().decode(errors="replace")
+        reports = oclgrind_reports(errors)
+        logs = self._path(".log")
+        build_logs = logs.read_text() if self.verbose and logs.exists() else ""
+        if not done:
+            self.close()
+            lines = [line for line in errors.splitlines() if line.strip()]
+            why = (f"no result within {self.timeout:.0f} s" if not answered
+                   else lines[-1] if lines else "the child ended without a word")
             return Outcome(case, None, reports, why, build_logs)
-        with np.load(path) as data:
+        if reports:
+            self.close()
+        with np.load(self._path(".npz")) as data:
             return Outcome(case, {name: data[name] for name in data.files}, reports, "", build_logs)
 
 
-def main(argv: list[str]) -> None:
-    """The child of :func:`run_case`: ``DEVICE CASE OUT.npz LANES FP64`` (LANES 0: the device's;
-    FP64 0: the float path); the compiler's output goes to ``OUT.log``."""
+def run_case(device: str, case: str, checks: dict[str, str] | None = None,
+             timeout: float = 600.0, verbose: bool = False, lanes: int | None = None,
+             fp64: bool = True) -> Outcome:
+    """``case`` alone in a :class:`Worker` of its own."""
+    with Worker(device, checks, lanes, fp64, verbose, timeout) as worker:
+        return worker.run(case)
+
+
+def serve(argv: list[str]) -> None:
+    """The child of :class:`Worker`: ``DEVICE LANES FP64 FOLDER`` (LANES 0: the device's; FP64 0:
+    the float path).  For each line ``N CASE`` on standard input it writes the case's arrays to
+    ``FOLDER/N.npz``, the compiler's output of the programs it built to ``FOLDER/N.log``, and
+    ``done`` on standard output (whatever else writes there goes to standard error); it ends
+    when its input does."""
     from iblbench.estimators.runtime.device import Compute, choose_device
 
-    device, case, out, lanes, fp64 = argv
+    device, lanes, fp64, folder = argv
+    answers = os.fdopen(os.dup(sys.stdout.fileno()), "w")
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
     compute = Compute(choose_device(device), fp64=fp64 == "1", lanes=int(lanes) or None)
-    try:
-        np.savez(out, **render(compute, case))
-    finally:
-        pathlib.Path(out).with_suffix(".log").write_text("".join(
-            f"== {program}\n{log}\n" for program, log in compute.build_logs.items() if log))
+    for line in sys.stdin:
+        number, case = line.strip().split(" ", 1)
+        built = set(compute.build_logs)
+        out = pathlib.Path(folder) / number
+        try:
+            np.savez(out.with_suffix(".npz"), **render(compute, case))
+        finally:
+            out.with_suffix(".log").write_text("".join(
+                f"== {program}\n{log}\n" for program, log in compute.build_logs.items()
+                if log and program not in built))
+        sys.stdout.flush()
+        sys.stderr.flush()
+        print("done", file=answers, flush=True)
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    serve(sys.argv[1:])
