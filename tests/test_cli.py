@@ -123,6 +123,15 @@ def test_run_help_lists_every_flag(cli):
         assert flag in result.stdout, f"{flag} missing from 'run --help':\n{result.stdout}"
 
 
+def test_config_help_names_every_shipped_config(cli):
+    """The shipped configs are the folder's files, frontier included (issue 35)."""
+    shipped = sorted(path.stem for path in
+                     (Path(__file__).parents[1] / "harness" / "configs").glob("*.toml"))
+    assert "frontier" in shipped
+    stated = " ".join(cli("run", "--help").stdout.split())
+    assert f"a shipped one ({', '.join(shipped)})" in stated, stated
+
+
 def modules_imported_by(argv: list[str], heavy: tuple[str, ...]) -> list[str]:
     """The modules of ``heavy`` (a package or module name each) that ``main(argv)`` imports, in
     a fresh interpreter."""

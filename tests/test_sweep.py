@@ -201,7 +201,7 @@ def test_missing_config_and_unknown_name(tmp_path):
     with pytest.raises(InputError, match="sweep config not found") as error:
         load_sweep(tmp_path / "nowhere.toml")
     assert str(tmp_path / "nowhere.toml") in str(error.value)
-    with pytest.raises(InputError, match="shipped configs: quick, default, full, temporal"):
+    with pytest.raises(InputError, match="shipped configs: default, frontier, full, quick, temporal"):
         load_sweep("quik")
 
 

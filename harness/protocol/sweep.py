@@ -76,8 +76,10 @@ if sys.version_info >= (3, 11):
 else:   # pragma: no cover
     import tomli as tomllib
 
-SHIPPED = ("quick", "default", "full", "temporal", "frontier")
 CONFIG_PACKAGE = "iblbench.harness.configs"
+# The shipped configs' names, read from their folder so that a new one is listed everywhere.
+SHIPPED = tuple(sorted(entry.name.removesuffix(".toml") for entry in files(CONFIG_PACKAGE).iterdir()
+                       if entry.name.endswith(".toml")))
 # A sweep file's keys: its settings, a per-name one (``spp_for``) given in its own (``spp``).
 KEYS = {"protocol", "description", *(name for name in SWEEP_FIELDS if not name.endswith("_for"))}
 REQUIRED = ("protocol", "scenes", "estimators", "seeds")
