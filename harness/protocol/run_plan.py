@@ -89,6 +89,22 @@ def _estimator_specs(config: RunConfig) -> list:
                     for label in control_labels(config.control, labels)]
 
 
+def sequences(run: RunPlan, config: RunConfig):
+    """Each sequence of a sweep, in its order: (scene plan, estimator spec, keys of its cells).
+    A cell is one rendered and scored image, keyed (scene, estimator label, spp, frame, seed,
+    time budget): a sequence's cells are its frames, at each of the estimator's spp levels
+    (budget None), then at each time budget (spp None), for each seed."""
+    seeds = range(config.first_seed, config.first_seed + config.seeds)
+    for plan in run.plans:
+        for spec in run.specs:
+            variants = ([(spp, None) for spp in run.spp_levels[spec.label]]
+                        + [(None, float(budget)) for budget in config.time_budget_ms])
+            for spp, budget in variants:
+                for seed in seeds:
+                    yield plan, spec, [(plan.scene.name, spec.label, spp, frame, seed, budget)
+                                       for frame in plan.frames]
+
+
 def cell_order(key: tuple):
     """The order in which a frame's cells run: by estimator, its spp cells before its equal-time
     ones, then spp, budget and seed (an equal-time budget is calibrated on its first cell)."""

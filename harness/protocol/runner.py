@@ -135,7 +135,8 @@ from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, TAB
 from iblbench.harness.protocol.equal_time import CALIBRATION_REPEATS, TOLERANCE
 from iblbench.harness.protocol.progress import BAR_FORMAT, Progress
 from iblbench.harness.protocol.provenance import git_revision, package_version
-from iblbench.harness.protocol.run_plan import RunConfig, ScenePlan, cell_order, plan_run
+from iblbench.harness.protocol.run_plan import (RunConfig, ScenePlan, cell_order, plan_run,
+                                               sequences)
 from iblbench.harness.protocol.shadows import attach_visibility, measured_record
 from iblbench.harness.protocol.timing import (MEASURE, SPREAD_LIMIT, cell_times,
                                               cpu_snapshot, host_threads_capped,
@@ -192,7 +193,6 @@ class Runner:
     def __init__(self, config: RunConfig):
         self.plan = plan_run(config)
         self.config = config
-        self.seeds = range(config.first_seed, config.first_seed + config.seeds)
         self.specs, self.plans = self.plan.specs, self.plan.plans
         for plan in self.plans:
             environment = plan.scene.environment
@@ -283,12 +283,6 @@ class Runner:
 
     # ---- planning ----------------------------------------------------------------------------
 
-    def _variants(self, spec):
-        """(spp, budget) of each cell family of ``spec``: its spp levels (``spp_for`` or the
-        sweep's), then each time budget."""
-        return ([(spp, None) for spp in self.plan.spp_levels[spec.label]]
-                + [(None, float(b)) for b in self.config.time_budget_ms])
-
     def _valid(self, row: dict | None, plan: ScenePlan, spec) -> bool:
         """A row made with this configuration and code, on this run's device (a cluster: on one
         of its workers' devices)."""
@@ -306,24 +300,17 @@ class Runner:
         """The keys of the cells to run, the keys of every cell of the sweep, and the spp earlier
         rows chose for each (scene, estimator, budget)."""
         todo, cells, chosen = set(), set(), {}
-        for plan in self.plans:
-            for spec in self.specs:
-                for spp, budget in self._variants(spec):
-                    for seed in self.seeds:
-                        keys = [(plan.scene.name, spec.label, spp, frame, seed, budget)
-                                for frame in plan.frames]
-                        cells.update(keys)
-                        done = [not self.config.force and self._valid(self.rows.get(k), plan, spec)
-                                for k in keys]
-                        if spec.cls.tags.temporal and not all(done):
-                            todo.update(keys)       # a sequence is one unit of work
-                        else:
-                            todo.update(k for k, d in zip(keys, done) if not d)
-                        if budget is not None:
-                            for key, d in zip(keys, done):
-                                if d:
-                                    chosen[(plan.scene.name, spec.label, budget)] = int(
-                                        self.rows[key]["spp"])
+        for plan, spec, keys in sequences(self.plan, self.config):
+            cells.update(keys)
+            done = [not self.config.force and self._valid(self.rows.get(k), plan, spec)
+                    for k in keys]
+            if spec.cls.tags.temporal and not all(done):
+                todo.update(keys)       # a sequence is one unit of work
+            else:
+                todo.update(k for k, d in zip(keys, done) if not d)
+            for key, d in zip(keys, done):
+                if d and key[5] is not None:   # an equal-time cell done: the spp it chose
+                    chosen[(plan.scene.name, spec.label, key[5])] = int(self.rows[key]["spp"])
         return todo, cells, chosen
 
     def _new_manifest(self) -> dict:
