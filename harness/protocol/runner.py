@@ -137,7 +137,8 @@ from iblbench.harness.protocol.progress import BAR_FORMAT, Progress
 from iblbench.harness.protocol.provenance import git_revision, package_version
 from iblbench.harness.protocol.run_plan import (RunConfig, ScenePlan, cell_order, plan_run,
                                                sequences)
-from iblbench.harness.protocol.shadows import attach_visibility, measured_record
+from iblbench.harness.protocol.shadows import (attach_visibility, measured_record,
+                                               traces_visibility)
 from iblbench.harness.protocol.timing import (MEASURE, SPREAD_LIMIT, cell_times,
                                               cpu_snapshot, host_threads_capped,
                                               measure_timing_floor, others_cores,
@@ -665,7 +666,8 @@ class Runner:
                              f"the camera sees none of the mesh{mesh}; check the camera's eye "
                              "and target, and the mesh's position and size")
         warn_about_framing(scene, gbuffer)   # too few mesh pixels, or the camera inside the mesh
-        with tqdm(total=gbuffer.covered, unit="px", disable=self._bar_disabled(), leave=False,
+        with tqdm(total=gbuffer.covered, unit="px", leave=False,
+                  disable=self._bar_disabled() if traces_visibility(scene) else True,
                   desc=f"{scene.name}: tracing visibility") as bar:
             gbuffer, record = attach_visibility(scene, gbuffer, plan.env_res, cache_dir() / "visibility",
                                                 bar.update)
