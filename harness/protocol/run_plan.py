@@ -60,6 +60,10 @@ def plan_run(config: RunConfig) -> RunPlan:
     specs = _estimator_specs(config)
     levels = {get_estimator_class(name).name: tuple(v) for name, v in config.spp_for}
     spp_levels = {spec.label: levels.get(spec.cls.name, tuple(config.spp)) for spec in specs}
+    without = [label for label, spp in spp_levels.items() if not spp]
+    if without and not config.time_budget_ms:
+        raise InputError(None, f"no spp for {', '.join(without)} and no time budget: give "
+                               f"{argument('spp')}, or levels to each estimator")
     _require_spp_within_bounds(specs, spp_levels)
     scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
               for name in config.scenes]
@@ -137,8 +141,6 @@ def _require_sound_numbers(config: RunConfig) -> None:
         if not (math.isfinite(budget) and budget > 0):
             raise InputError(None, f"{argument('time_budget_ms')} must be positive, "
                                    f"got {budget}")
-    if not config.spp and not config.time_budget_ms:
-        raise InputError(None, "no spp and no time budget: the sweep has no cells")
 
 
 def _require_unique_names(scenes) -> None:
