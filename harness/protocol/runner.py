@@ -24,7 +24,8 @@ finished cell is appended to the results journal as it comes back (in process, b
 one starts; see :mod:`iblbench.harness.protocol.results`), so a killed run, ``kill -9``
 included, loses only what is in flight: in process the cell, on a cluster the units (a temporal
 one is its whole sequence); Ctrl-C folds the journal into the table and marks the manifest
-"interrupted".  A scene none of whose cells is left is not even traced.
+"interrupted", and an error (a full disk) marks it "failed", with the error as its "failure".
+A scene none of whose cells is left is not even traced.
 
 One folder, one run at a time, one image configuration.  ``out``'s rows and manifest are read
 only under its lock (``_locked``), so a run folds back what the folder holds then, not a stale
@@ -443,6 +444,9 @@ class Runner:
             except KeyboardInterrupt:
                 saved = len(self._save_interrupted())
                 raise KeyboardInterrupt(f"{saved} cells saved; rerun to resume") from None
+            except Exception as error:   # a full disk above all: the manifest says so
+                self._mark_failed(error)
+                raise
             finally:
                 self.journal.close()
         return table
@@ -629,6 +633,18 @@ class Runner:
             self.manifest["status"] = "interrupted"
             write_manifest(self.out, self.manifest)
         return table
+
+    def _mark_failed(self, error: Exception) -> None:
+        """The manifest of a run that ``error`` ended (a full disk, a failing device) says
+        "failed" and why, not "running", where the disk still takes it; the journal keeps the
+        finished cells, which a rerun resumes from."""
+        if self.manifest["status"] != "running":   # already says how it ended ("incomplete")
+            return
+        self.manifest.update(status="failed", failure=str(error))
+        try:
+            write_manifest(self.out, self.manifest)
+        except OSError:   # not even the manifest fits: it says "running", as a killed run's does
+            pass
 
     def _fold(self):
         self.journal.close()
