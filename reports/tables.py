@@ -151,10 +151,12 @@ def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
 
 
 def intervals(cells: pd.DataFrame, column: str) -> list[str]:
-    """The column's cells as ``mean ± half-width`` (``stats.interval_text``)."""
+    """The column's cells as ``mean ± half-width`` or ``mean [low, high]``
+    (``stats.interval_text``)."""
     counts = cells[f"{column}_n"] if f"{column}_n" in cells else cells.seeds
-    return [interval_text(mean, half, n) for mean, half, n in
-            zip(cells[column], cells[f"{column}_half"], counts)]
+    return [interval_text(mean, half, n, low=low, high=high) for mean, half, n, low, high in
+            zip(cells[column], cells[f"{column}_half"], counts, cells[f"{column}_low"],
+                cells[f"{column}_high"])]
 
 
 _TABLE_COLUMNS = {   # summary column → header (with units)
@@ -216,7 +218,8 @@ def _dict_table(mapping: dict) -> markupsafe.Markup:
 
 
 # A number, an interval (``stats.interval_text``) or "–": such a column is right-aligned.
-_NUMERIC = re.compile(r"[-+]?[\d.]+(e[-+]?\d+)?( ± \S+| \(n=\d+, no interval\))?|–")
+_NUMERIC = re.compile(r"[-+]?[\d.]+(e[-+]?\d+)?"
+                      r"( ± \S+| \[[\d.]+, [\d.]+\]| \(n=\d+, no interval\))?|–")
 
 
 def table_html(frame: pd.DataFrame, classes: str, header: bool = True) -> markupsafe.Markup:

@@ -422,15 +422,17 @@ def browser(two_seeds):
 NOT_AGGREGATED = {"estimator", "spp", "seeds", "non-finite px", "Pareto (relMSE)", "Pareto (ΔE76)",
                   "budget (ms/frame)", "spp run", "within ±10%", "scene", "stage", "why",
                   "times", "times built", "total ms"}
-INTERVAL = r"\S+ ± \S+"
+# mean ± half-width, or mean [low, high] where a positive interval is wider than its figure
+INTERVAL = r"\S+ ± \S+|\S+ \[\S+, \S+\]"
 NUMBER = re.compile(r"[-+]?[\d.]+(e[-+]?\d+)?")
 
 
 def test_report_renders_in_headless_chromium(browser):
     """Every image loads, no script error, and every table shows each figure aggregated over
-    seeds (the summary's two tables and the equal-time table) as mean ± half-width; the stage
-    timings as an interval over builds (one build: "n=1, no interval").  Exempt: the manifest's
-    key/value tables and the sample picture's counts (one pixel of seed 0, nothing averaged)."""
+    seeds (the summary's two tables and the equal-time table) as mean ± half-width (mean [low,
+    high] where that would reach below zero); the stage timings as an interval over builds (one
+    build: "n=1, no interval").  Exempt: the manifest's key/value tables and the sample
+    picture's counts (one pixel of seed 0, nothing averaged)."""
     page, errors = browser()
     images = page.evaluate("Array.from(document.images).map(i => "
                            "[i.getAttribute('src'), i.complete, i.naturalWidth])")

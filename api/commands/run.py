@@ -159,7 +159,8 @@ def terminal_summaries(table):
             for column in columns:
                 summary[shown[column]] = [interval_text(
                     cells.loc[key, column], cells.loc[key, f"{column}_half"],
-                    int(cells.loc[key, f"{column}_n"])) for key in summary.index]
+                    int(cells.loc[key, f"{column}_n"]), low=cells.loc[key, f"{column}_low"],
+                    high=cells.loc[key, f"{column}_high"]) for key in summary.index]
             summary["seeds"] = cells.seeds
             summary["nonfinite"] = rows.groupby(keys).nonfinite.sum()
             summaries.append((title, summary))
