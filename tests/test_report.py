@@ -578,6 +578,28 @@ def test_viewer_toggles_the_reference_slides_and_zooms(browser):
     assert not errors, errors
 
 
+def test_no_table_is_wider_than_its_column_on_an_800_px_page(browser):
+    """Issue 35: at 800 px the sample picture's counts and the summary's second table ran past
+    the page (to 936 px), behind a scroll bar: their lists wrap, and a figure breaks from its
+    interval (the whole figure above, the whole interval below)."""
+    page, _ = browser()
+    try:
+        page.set_viewport_size({"width": 800, "height": 900})
+        tables = page.evaluate("Array.from(document.querySelectorAll('table')).map(t => "
+                               "[t.className, t.getBoundingClientRect().width, "
+                               "t.parentElement.clientWidth])")
+        cells = page.evaluate("Array.from(document.querySelectorAll('td.num')).map(c => "
+                              "[c.innerText, Array.from(c.querySelectorAll('.spread')).map("
+                              "s => s.getClientRects().length)])")
+    finally:
+        page.set_viewport_size({"width": 1280, "height": 900})
+    assert any("counts" in name for name, _, _ in tables)
+    assert [t for t in tables if t[1] > t[2] + 0.5] == []
+    assert any(" ± " in text for text, _ in cells)
+    # An interval is one span, on one line (its figure may be on the line above).
+    assert all(spans == [1] for text, spans in cells if " ± " in text), cells
+
+
 def test_clicking_a_grid_image_puts_it_into_the_viewer(browser):
     page, errors = browser()
     viewer = page.locator("#viewer-sphere-sun")
