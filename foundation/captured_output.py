@@ -21,12 +21,14 @@ def output_collected(printed: list[str], streams: tuple[str, ...] = ("stdout", "
     writes to them."""
     python = io.StringIO()
     for name in streams:
-        getattr(sys, name).flush()
-    fds = [_FILE_DESCRIPTORS[name] for name in streams]
-    saved = [os.dup(fd) for fd in fds]
+        if getattr(sys, name) is not None:   # None: Python started with the descriptor closed
+            getattr(sys, name).flush()
+    # A descriptor closed from the start (``2>&-``) prints nothing: it is left alone.
+    copies = {fd: _duplicate(fd) for fd in (_FILE_DESCRIPTORS[name] for name in streams)}
+    saved = {fd: copy for fd, copy in copies.items() if copy is not None}
     with tempfile.TemporaryFile() as native:
         try:
-            for fd in fds:
+            for fd in saved:
                 os.dup2(native.fileno(), fd)
             with contextlib.ExitStack() as redirections:
                 for name in streams:
@@ -36,8 +38,16 @@ def output_collected(printed: list[str], streams: tuple[str, ...] = ("stdout", "
                 yield
         finally:
             _LIBC.fflush(None)   # C stdio holds what it prints in buffers
-            for fd, copy in zip(fds, saved):
+            for fd, copy in saved.items():
                 os.dup2(copy, fd)
                 os.close(copy)
             native.seek(0)
             printed += [native.read().decode(errors="replace"), python.getvalue()]
+
+
+def _duplicate(fd: int) -> int | None:
+    """A copy of file descriptor ``fd``, or None where it is closed."""
+    try:
+        return os.dup(fd)
+    except OSError:
+        return None
