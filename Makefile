@@ -43,6 +43,19 @@ $(STAMP): pyproject.toml
 		fi; \
 	fi
 	@echo "OpenCL: $$(IBLBENCH_DEVICE= $(VENV)/bin/iblbench list devices | grep '^\*' | cut -c3-)"
+	@# Optional: clang-15 compiles every kernel for two other targets (tests/test_compile_clang.py,
+	@# which skips without it); as root on Debian it is installed, else a hint says so.
+	@if ! command -v clang-15 >/dev/null 2>&1; then \
+		if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+			echo "clang: installing Debian's clang-15 (the kernel compile test) with apt-get"; \
+			export DEBIAN_FRONTEND=noninteractive; \
+			apt-get install -y -q clang-15 >$(VENV)/apt-clang.log 2>&1 \
+				|| (apt-get update -q && apt-get install -y -q clang-15) >>$(VENV)/apt-clang.log 2>&1 \
+				|| echo "hint: apt-get could not install clang-15 ($(VENV)/apt-clang.log); the kernel compile test will skip"; \
+		else \
+			echo "hint: no clang-15, so the kernel compile test will skip (Debian: apt-get install clang-15)"; \
+		fi; \
+	fi
 	touch $(STAMP)
 
 # bench: under 10 minutes on a 2-core CPU from a clean clone, about 5 CPU-minutes in all;

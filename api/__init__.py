@@ -22,7 +22,9 @@ the same sweep configs and overrides (:mod:`iblbench.harness.protocol.sweep`), t
 other sweeps' cells) as a pandas DataFrame: one row per (scene, estimator, spp, frame, seed),
 the columns of ``results.parquet`` (docs/results.md).  Bad input raises
 :class:`InputError`, whose one-line message names the file, argument (as its keyword,
-``first_seed=-1``, where the command line names a flag) or key.
+``first_seed=-1``, where the command line names a flag) or key; so does an argument of the
+wrong type (``force="no"``: booleans take only True or False), each checked against its
+:class:`~iblbench.harness.protocol.run_config.RunConfig` field's type before any is used.
 
 **Scenes** are built-in names (``iblbench list scenes``), paths of scene ``.toml`` files, or
 dicts with the keys of a scene TOML file (sections ``mesh``, ``environment``, ``material``,
@@ -46,8 +48,10 @@ import numbers
 import os
 import pathlib
 import re
+import typing
 
 from iblbench.foundation.errors import InputError, python_keywords
+from iblbench.foundation.hints import check_type
 
 __all__ = ["run", "run_config", "check", "report", "InputError"]
 
@@ -55,6 +59,7 @@ SCENE_FOLDER = "scenes"     # out/scenes/<name>.toml: the scenes given as dicts
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 _PATH_KEYS = (("mesh", "path"), ("environment", "path"))
+_CONFIG = str | os.PathLike | None   # a shipped sweep's name or a sweep file
 
 
 def _naming_keywords(function):
@@ -97,8 +102,11 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
 
 """
     settings = {name: value for name, value in locals().items() if name not in ("out", "config")}
-    from iblbench.harness.protocol.run_config import SWEEP_FIELDS
+    from iblbench.harness.protocol.run_config import SWEEP_FIELDS, check_settings
     from iblbench.harness.protocol.runner import Runner
+
+    check_type("config", config, _CONFIG)   # every argument's type before any is used
+    check_settings({"out": out} | settings, keywords=True)
 
     given = sorted(name for name, value in settings.items()
                    if value is not None and name in SWEEP_FIELDS)
@@ -122,8 +130,9 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
 def _parsed(settings: dict) -> dict:
     """:func:`run`'s values as :func:`run_config` takes them (InputError if bad): frames,
     resolution, env_res and metrics parsed as a sweep file's are, ``repeats`` split into its
-    default and ``repeats_for``, numbers checked whole, a single value as a list of one."""
+    default and ``repeats_for``, a single value of a list as a list of one."""
     from iblbench.harness.protocol.metric import parse_metrics
+    from iblbench.harness.protocol.run_config import element_type
     from iblbench.harness.protocol.sweep import (check_env_res, parse_frames, parse_repeats,
                                                  parse_resolution)
 
@@ -146,13 +155,8 @@ def _parsed(settings: dict) -> dict:
             parse_repeats(settings["repeats"]) if settings["repeats"] is not None else (None, None))
     except ValueError as error:
         raise InputError(None, str(error)) from None
-    settings["spp"] = _whole_numbers("spp", _listed(settings["spp"]))
-    for name in ("seeds", "first_seed"):
-        if settings[name] is not None:
-            settings[name] = _whole_numbers(name, [settings[name]])[0]
-    for name in ("estimators", "time_budget_ms", "control"):
-        settings[name] = _listed(settings[name])
-    return settings
+    return {name: _listed(value) if element_type(name) else value
+            for name, value in settings.items()}
 
 
 def run_config(out, *, config=None, note=None, **settings):
@@ -162,22 +166,27 @@ def run_config(out, *, config=None, note=None, **settings):
     manifest's ``sweep`` record.  ``estimators`` given without ``control`` drops the config's
     control, which named the config's estimators; ``spp`` and ``frames`` given replace the
     config's levels and frames of each estimator and scene too."""
-    from iblbench.harness.protocol.run_config import (SWEEP_FIELDS, RunConfig, config_keywords,
-                                                      element_type)
+    from iblbench.harness.protocol.run_config import (SWEEP_FIELDS, RunConfig, check_settings,
+                                                      config_keywords, element_type)
     from iblbench.harness.protocol.sweep import load_sweep
 
     unknown = sorted(set(settings) - set(config_keywords()))
     if unknown:
         raise TypeError(f"run_config() got an unexpected keyword argument {unknown[0]!r}")
+    check_type("config", config, _CONFIG)
+    check_type("note", note, dict | None)
+    check_settings({"out": out} | settings, keywords=False)
     if settings.get("control") is None and settings.get("estimators") is not None:
         settings["control"] = ()   # the config's control named the config's estimators
     for name in ("spp", "frames"):   # given: the same for every estimator or scene
         if settings.get(name) is not None:
             settings[f"{name}_for"] = ()
-    for name, values in settings.items():
+    for name, value in settings.items():   # NumPy's numbers as Python's
         kind = element_type(name)
-        if kind is not None and values is not None:
-            settings[name] = tuple(map(kind, values))
+        if kind is not None and value is not None:
+            settings[name] = tuple(map(kind, value))
+        elif isinstance(value, numbers.Integral) and not isinstance(value, bool):
+            settings[name] = int(value)
     sweep = load_sweep(config or "default").replace(
         **{name: settings.pop(name) for name in SWEEP_FIELDS if name in settings})
     return RunConfig(out=pathlib.Path(out), **{name: getattr(sweep, name) for name in SWEEP_FIELDS},
@@ -206,6 +215,8 @@ def check(out, budgets="budgets.toml"):
     bad input (:func:`iblbench.harness.protocol.budgets.check`)."""
     from iblbench.harness.protocol.budgets import check as check_budgets
 
+    check_type("out", out, pathlib.Path)
+    check_type("budgets", budgets, pathlib.Path)
     return check_budgets(out, budgets)
 
 
@@ -216,6 +227,11 @@ def report(out, **options) -> pathlib.Path:
     ray_cost_ns, progress)."""
     from iblbench.reports.report import write_report
 
+    check_type("out", out, pathlib.Path)
+    hints = typing.get_type_hints(write_report)
+    for name, value in options.items():   # an unknown one: write_report's TypeError
+        if name in hints:
+            check_type(name, value, hints[name])
     return pathlib.Path(write_report(out, **options)["path"])
 
 
@@ -226,17 +242,6 @@ def _listed(value):
     if value is None or isinstance(value, (list, tuple)):
         return value
     return [value]
-
-
-def _whole_numbers(name: str, values):
-    """``values`` as ints, None staying None; anything but a whole number (16.5, "16,64", True)
-    is an InputError naming ``name``, never truncated (issue 23: spp=[16.5] ran as 16)."""
-    if values is None:
-        return None
-    for value in values:
-        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-            raise InputError(None, f"{name} must be a whole number or a list of them, got {value!r}")
-    return [int(value) for value in values]
 
 
 def _scene_entries(scenes, out: pathlib.Path, force: bool):
@@ -256,11 +261,8 @@ def _scene_entries(scenes, out: pathlib.Path, force: bool):
                                                          "each its own 'name'")
             documents[name] = scene_toml(scene, name)
             entries.append(os.fspath(out / SCENE_FOLDER / f"{name}.toml"))
-        elif isinstance(scene, (str, os.PathLike)):
+        else:   # a name or a path (run checked the types)
             entries.append(os.fspath(scene))
-        else:
-            raise InputError(None, f"a scene must be a built-in name, a .toml path or a dict, "
-                                   f"got {type(scene).__name__}")
     written, created = [], {}   # created: path -> the text it held before (None: it was new)
     for name, text in documents.items():
         path = out / SCENE_FOLDER / f"{name}.toml"

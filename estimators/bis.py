@@ -16,7 +16,8 @@ M = round(spp · M_param / N_param), so the default params (M = 400, N = 20, Kro
 M = 20·spp and spp = 20 is exactly Kronander's set-up.  ``evaluations`` = M + N per pixel: M
 evaluations of γ at the candidates and N of f at the resampled samples, which is also what
 the kernel computes: it stores the M weights' cumulative bounds and the N candidates chosen
-(scratch of 8M + 4N bytes per pixel, in launches of at most ``SCRATCH_BYTES``) and regenerates
+(scratch of 8M + 4N bytes per pixel, in launches of at most ``SCRATCH_BYTES`` and about
+``chunks.CHUNK_MS`` device time) and regenerates
 only the N resampled candidates for f.
 ``used`` = ``effective`` = N (every resampled sample has γ > 0, so a positive cosine), 0 where
 every candidate weight is 0 (black map above the horizon).
@@ -30,6 +31,7 @@ import pyopencl as cl
 
 from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Setting, SweepPart, Tags,
                                       read_estimate, specular_lobe_defines)
+from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import event_ms
 
 
@@ -89,19 +91,20 @@ def run_lockstep(compute, kernel, count: int, *args) -> cl.Event:
     return event
 
 
-def bis_chunks(compute, kernel, count: int, M: int, N: int, empty=None):
-    """Split ``count`` pixels into launches whose BIS scratch fits SCRATCH_BYTES: yields
-    (offset, pixels, chosen, bounds, sums) with scratch buffers (sir.cl, SIR_SCRATCH_ARGS) sized
-    for the padded launch, from ``empty(name, nbytes)`` if given (a caller's reused buffers),
-    else newly allocated."""
+def run_bis_chunks(compute, kernel, count: int, M: int, N: int, launch, empty=None) -> list[cl.Event]:
+    """Run ``count`` pixels in launches of about ``chunks.CHUNK_MS`` device time whose BIS
+    scratch also fits SCRATCH_BYTES (:func:`~iblbench.estimators.runtime.chunks.run_in_chunks`):
+    ``launch(offset, pixels, chosen, bounds, sums)`` runs one and returns its event, with scratch
+    buffers (sir.cl, SIR_SCRATCH_ARGS) sized for the largest launch, from ``empty(name, nbytes)``
+    if given (a caller's reused buffers), else newly allocated.  Returns the events."""
     group = lockstep_group(compute, kernel)
     per_launch = max(group, SCRATCH_BYTES // (4 * N + 8 * M + 3 * 8) // group * group)
     size = min(per_launch, max(-(-int(count) // group), 1) * group)
     empty = empty or (lambda name, nbytes: compute.empty(nbytes))
     scratch = (empty("chosen", 4 * N * size), empty("bounds", 8 * M * size),
                empty("sums", 3 * 8 * size))
-    for offset in range(0, int(count), per_launch):
-        yield offset, min(per_launch, int(count) - offset), *scratch
+    return run_in_chunks(int(count), group, lambda offset, pixels: launch(offset, pixels, *scratch),
+                         most=per_launch)
 
 
 class BIS(Estimator):
@@ -161,11 +164,12 @@ class BIS(Estimator):
         kernel = compute.kernel(self.kernel_package(), "bis.cl", "render_bis", self.defines(gbuffer))
         radiance = compute.empty(gbuffer.count * 16)
         counts = compute.empty(gbuffer.count * 8)
-        shade_ms = 0.0
-        for offset, pixels, *scratch in bis_chunks(compute, kernel, gbuffer.count, M, N):
-            event = run_lockstep(compute, kernel, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd,
-                                 gbuffer.ks, gbuffer.visibility, cache.env_buffer, np.int32(cache.res), np.int32(M),
-                                 np.int32(N), np.uint32(seed), np.uint32(cache.frame), np.int32(offset),
-                                 np.int32(pixels), *scratch, radiance, counts)
-            shade_ms += event_ms(event)
+
+        def launch(offset: int, pixels: int, *scratch) -> cl.Event:
+            return run_lockstep(compute, kernel, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd,
+                                gbuffer.ks, gbuffer.visibility, cache.env_buffer, np.int32(cache.res), np.int32(M),
+                                np.int32(N), np.uint32(seed), np.uint32(cache.frame), np.int32(offset),
+                                np.int32(pixels), *scratch, radiance, counts)
+
+        shade_ms = event_ms(run_bis_chunks(compute, kernel, gbuffer.count, M, N, launch))
         return read_estimate(compute, gbuffer, radiance, counts, M + N, {"shade": shade_ms}, shadow_rays=N)

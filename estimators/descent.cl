@@ -41,7 +41,6 @@ ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, int res, int l, la
                                   lanes_t w[4]);
 
 #define STREAM_DESCENT 9u
-#define UNROLL __attribute__((opencl_unroll_hint))   /* loops over a choice's children: no private arrays left */
 #define DESCENT_BITS 31
 #define DESCENT_ONE 0x1p31f   /* a choice's widths total 2^31: uint lanes, where 2^32 would need ulong */
 

@@ -126,16 +126,17 @@ ALWAYS_INLINE void strategy_split(int spp, int *light, int *brdf)
     *brdf = spp * TICKS_PER_SAMPLE - *light;
 }
 
-/* Outputs in planes of n = get_global_size(0) floats: radiance R, G, B; counts used, effective
+/* Outputs in planes of n floats (the G-buffer's launch_size: launches cover part of it,
+ * chunks.py): radiance R, G, B; counts used, effective
  * (in samples); evaluations per pixel.  The light sampler's buffers are unread without light
  * samples. */
 __kernel void render_map(__global const float4 *normal, __global const float4 *view,
                          __global const float4 *kd, __global const float4 *ks_m,
-                         __global const uint *visibility, __global const float4 *env, LIGHT_PARAMS, const int res, const int spp,
+                         __global const uint *visibility, const int n, __global const float4 *env, LIGHT_PARAMS, const int res, const int spp,
                          const uint seed, const uint frame, __global float *radiance,
                          __global float *counts, __global int *evaluations)
 {
-    int p = get_global_id(0), n = get_global_size(0);
+    int p = get_global_id(0);
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     int light, brdf;
     strategy_split(spp, &light, &brdf);

@@ -70,7 +70,8 @@ class MapSampler(Estimator):
         evaluations = compute.empty(gbuffer.launch_size * 4)
         event = gbuffer.run(
             compute, self._kernel(compute, "render_map", gbuffer), gbuffer.normal,
-            gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, cache.env_buffer, *light_buffers,
+            gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, np.int32(gbuffer.launch_size),
+            cache.env_buffer, *light_buffers,
             np.int32(cache.res), np.int32(spp), np.uint32(seed), np.uint32(cache.frame),
             radiance, counts, evaluations)
         mean_evaluations = compute.to_host(evaluations, (gbuffer.count,), np.int32).mean()

@@ -95,22 +95,22 @@ ALWAYS_INLINE lanes3_t lanes_filtered_radiance(__global const float4 *mips, int1
 }
 
 /* ½·log2(R²/(4N)): Eq. 13's log2(w·h/N) with the cube face's d(u) factor 4 taken out. */
-inline float lod_shift_of(int res, int spp)
+static inline float lod_shift_of(int res, int spp)
 {
     return 0.5f * log2((float)res * (float)res / (4.0f * (float)spp));
 }
 
-/* Outputs as envmap.cl's render_map: planes of n = get_global_size(0) floats, radiance R, G, B;
+/* Outputs as envmap.cl's render_map: planes of n floats (launch_size), radiance R, G, B;
  * counts used, effective (in samples); evaluations per pixel.  `levels` (≤ 16) mip levels, the
  * last 1×1. */
 __kernel void render_fis(__global const float4 *normal, __global const float4 *view,
                          __global const float4 *kd, __global const float4 *ks_m,
-                         __global const uint *visibility, __global const float4 *mips, const int16 level_offsets,
+                         __global const uint *visibility, const int n, __global const float4 *mips, const int16 level_offsets,
                          const int levels, const int res, const int spp, const float lod_bias,
                          const uint seed, const uint frame, __global float *radiance,
                          __global float *counts, __global int *evaluations)
 {
-    int p = get_global_id(0), n = get_global_size(0);
+    int p = get_global_id(0);
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     vec3_t t_n, b_n, t_r, b_r;
     direction_about_axis_basis(s.n, &t_n, &b_n);

@@ -125,7 +125,8 @@ class Fis(Brdf):
                                              // mips.channels))
         event = gbuffer.run(
             compute, self._kernel(compute, "render_fis", gbuffer), gbuffer.normal,
-            gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, mips.buffer, level_offsets,
+            gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, np.int32(gbuffer.launch_size),
+            mips.buffer, level_offsets,
             np.int32(len(mips.sizes)), np.int32(cache.res), np.int32(spp),
             np.float32(self.params.lod_bias), np.uint32(seed), np.uint32(cache.frame), radiance,
             counts, evaluations)

@@ -55,7 +55,7 @@ __kernel void cell_mass(__global const float *mean, __global const float *value,
     float bound = max(max(row_max3(value + max(i - 1, 0) * nphi, j, nphi),
                           row_max3(value + i * nphi, j, nphi)),
                       row_max3(value + min(i + 1, nz - 1) * nphi, j, nphi));
-    mass[cell] = (1.0 - (acc_t)conservative) * (acc_t)mean[cell] + (acc_t)conservative * (acc_t)bound;
+    mass[cell] = (1 - (acc_t)conservative) * (acc_t)mean[cell] + (acc_t)conservative * (acc_t)bound;
 }
 
 __kernel void row_mass(__global const acc_t *mass, const int nphi, __global acc_t *row_total)
@@ -74,7 +74,7 @@ __kernel void grid_factors(__global const acc_t *row_total, const int nz, const 
     acc_t total = 0, cells = (acc_t)nz * (acc_t)nphi;
     for (int i = 0; i < nz; ++i) total += row_total[i];
     int usable = total > 0 && isfinite(total);
-    factors[0] = usable ? (1.0 - (acc_t)defensive) / total : 0;
+    factors[0] = usable ? (1 - (acc_t)defensive) / total : 0;
     factors[1] = usable ? (acc_t)defensive / cells : 1 / cells;
 }
 
@@ -118,7 +118,7 @@ ALWAYS_INLINE int acc_direction_texel(acc_t x, acc_t y, acc_t z, int res)
     int face = (x_major ? 0 : y_major ? 2 : 4) + (positive ? 0 : 1);
     acc_t sc = x_major ? (positive ? -z : z) : y_major ? x : (positive ? x : -x);
     acc_t tc = y_major ? (positive ? z : -z) : -y;
-    acc_t s = (sc / fabs(major) + 1) * 0.5, t = (tc / fabs(major) + 1) * 0.5;
+    acc_t s = (sc / fabs(major) + 1) * ACC_LITERAL(0.5), t = (tc / fabs(major) + 1) * ACC_LITERAL(0.5);
     int row = clamp((int)floor(t * res), 0, res - 1), col = clamp((int)floor(s * res), 0, res - 1);
     return texel_index(face, row, col, res);
 }
@@ -149,7 +149,7 @@ __kernel void place_lights(__global const float4 *env, const int res, __global c
     acc_t below = i > 0 ? row_cdf[i - 1] : 0;
     acc_t y = (i + clamp((u1 - below) / row_prob[i], (acc_t)0, (acc_t)1)) / nz;
     /* x from the blend of the CDFs of the rows whose centres bracket y, linear in y. */
-    acc_t centre = y * nz - 0.5, i0 = floor(centre), t = centre - i0;
+    acc_t centre = y * nz - ACC_LITERAL(0.5), i0 = floor(centre), t = centre - i0;
     __global const acc_t *cdf0 = col_cdf + clamp((int)i0, 0, nz - 1) * nphi;
     __global const acc_t *cdf1 = col_cdf + clamp((int)i0 + 1, 0, nz - 1) * nphi;
     int base = 0, n = nphi;   /* count_at_most over the blend, nondecreasing as its rows are */
@@ -162,9 +162,9 @@ __kernel void place_lights(__global const float4 *env, const int res, __global c
     acc_t left = j > 0 ? (1 - t) * cdf0[j - 1] + t * cdf1[j - 1] : 0;
     acc_t width = (1 - t) * col_prob[(cdf0 - col_cdf) + j] + t * col_prob[(cdf1 - col_cdf) + j];
     acc_t x = (j + clamp((u2 - left) / width, (acc_t)0, (acc_t)1)) / nphi;
-    acc_t pdf = row_prob[i] * nz * width * nphi / (acc_t)(4 * M_PI);
+    acc_t pdf = row_prob[i] * nz * width * nphi / (4 * ACC_PI);
     /* Lambert's cylindrical equal-area map, +Y the pole (equal_area_to_direction). */
-    acc_t cos_t = 1 - 2 * y, sin_t = sqrt(max(1 - cos_t * cos_t, (acc_t)0)), phi = (acc_t)(2 * M_PI) * x;
+    acc_t cos_t = 1 - 2 * y, sin_t = sqrt(max(1 - cos_t * cos_t, (acc_t)0)), phi = 2 * ACC_PI * x;
     acc_t dx = sin_t * cos(phi), dz = sin_t * sin(phi);
     float4 radiance = env[acc_direction_texel(dx, cos_t, dz, res)];
     acc_t scale = pdf * count;
@@ -196,7 +196,8 @@ __kernel void filter_lights(__global const acc_t *dir_ring, __global const acc_t
     }
     if (used > 1) {
         acc_t norm = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-        for (int c = 0; c < 3; ++c) d[c] = norm > 1e-9 ? d[c] / max(norm, (acc_t)1e-300) : newest[c];
+        /* The twin's maximum(norm, 1e-300) guards np.where's other branch; here only the one taken runs. */
+        for (int c = 0; c < 3; ++c) d[c] = norm > ACC_LITERAL(1e-9) ? d[c] / norm : newest[c];
     }
     for (int c = 0; c < 3; ++c) {
         dir_out[4 * k + c] = d[c];

@@ -20,7 +20,7 @@
 
 /* common.cl helpers on the hot paths that it does not force inline: forced here by a declaration
  * before their definition. */
-#define FORCE_INLINE inline __attribute__((always_inline))
+#define FORCE_INLINE static inline __attribute__((always_inline))   /* common.cl's ALWAYS_INLINE */
 FORCE_INLINE int cdf_search(__global const ulong *cdf, int n, ulong u);
 FORCE_INLINE ulong cdf_lower(__global const ulong *cdf, int i);
 FORCE_INLINE float cdf_bin(__global const ulong *cdf, int i);
@@ -96,7 +96,7 @@ ALWAYS_INLINE int lane_cdf_search(__global const cdf_word_t *cdf, int n, cdf_wor
 {
 #ifdef CDF_STEPS
     int base = 0;
-    __attribute__((opencl_unroll_hint))
+    UNROLL
     for (int i = 0; i < (CDF_STEPS + 1) / 2; ++i) {
         int step = n >> 1, rest = n - step, next = rest >> 1;
         /* Indices clamped where a halving is a no-op (step or next 0): never read, never past n. */

@@ -112,7 +112,8 @@ class PoolEstimator(Estimator):
         evaluations = compute.empty(gbuffer.launch_size * 4)
         event = gbuffer.run(
             compute, kernel, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-            gbuffer.visibility, cache.env_buffer, cdfs.marginal, cdfs.conditional, cdfs.face_integral,
+            gbuffer.visibility, np.int32(gbuffer.launch_size), cache.env_buffer, cdfs.marginal, cdfs.conditional,
+            cdfs.face_integral,
             planes, np.int32(cache.res), np.int32(pool.per_face),
             np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),
             np.uint32(cache.frame), numbers, radiance, counts, evaluations)

@@ -287,11 +287,12 @@ ALWAYS_INLINE reservoir_t combine_reservoirs(const reservoir_t *r, const float *
  * `temporal`.  Under GRIS the history's sample is weighed with p̂_{t−1} of this pixel under last
  * frame's map (prev_env), so a map that changed, or switched, keeps the estimator unbiased; each
  * domain's target scaled by the pixel's restir_target_scales under its map (`scales`, `prev_scales`).  Chain c of pixel
- * p is slot c·n + p of the reservoir buffers (n = global size).  stats[p] gets (evaluations,
+ * p is slot c·n + p of the reservoir buffers (n: the G-buffer's launch_size; a launch covers part of it,
+ * chunks.py).  stats[p] gets (evaluations,
  * ·, ·, shadow rays: the evaluations with V), summed over the chains. */
 __kernel void restir_initial_temporal(__global const float4 *normal, __global const float4 *view,
                                       __global const float4 *kd, __global const float4 *ks_m,
-                                      __global const uint *visibility, __global const float4 *env,
+                                      __global const uint *visibility, const int n, __global const float4 *env,
                                       __global const float4 *prev_env, __global const float *pyramid,
                                       __global const float *presamples, __global const float *scales,
                                       __global const float *prev_scales, const int res,
@@ -302,7 +303,7 @@ __kernel void restir_initial_temporal(__global const float4 *normal, __global co
                                       __global const float4 *history_info, __global float4 *out_sample,
                                       __global float4 *out_info, __global float4 *stats)
 {
-    int p = get_global_id(0), n = get_global_size(0);
+    int p = get_global_id(0);
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     /* Last frame's scale is read only where there is a last frame (`temporal`).  The history's
      * confidence is scaled by min(Z̃_t/Z̃_{t−1}, Z̃_{t−1}/Z̃_t) (restir.py): a map that lost or
@@ -404,7 +405,7 @@ ALWAYS_INLINE reservoir_t spatial_reuse(__global const float4 *normal, __global 
  * neighbours reused and the confidence, then the shadow rays of every chain). */
 __kernel void restir_spatial_shade(__global const float4 *normal, __global const float4 *view,
                                    __global const float4 *kd, __global const float4 *ks_m,
-                                   __global const uint *visibility, __global const float4 *env, const int res,
+                                   __global const uint *visibility, const int n, __global const float4 *env, const int res,
                                    __global const int *pixel_index, __global const int *pixel_at,
                                    __global const float *depth, const int width, const int height,
                                    const int neighbours, const float radius, const int chains,
@@ -412,7 +413,7 @@ __kernel void restir_spatial_shade(__global const float4 *normal, __global const
                                    __global const float4 *in_sample, __global const float4 *in_info,
                                    __global const float *scales, __global float4 *radiance, __global float2 *counts, __global float4 *stats)
 {
-    int p = get_global_id(0), n = get_global_size(0);
+    int p = get_global_id(0);
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     float4 first_pass = stats[p];
     float evaluations = first_pass.x, shadow_rays = first_pass.w, reused = 0.0f, confidence = 0.0f, effective = 0.0f;

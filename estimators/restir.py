@@ -301,13 +301,13 @@ class ReSTIR(Estimator):
         stats, radiance, counts = buffer("stats", n * 16), buffer("radiance", n * 16), buffer("counts", n * 8)
         pixel_index, pixel_at, depth = self._pixel_maps(compute, gbuffer)
         events = [
-            gbuffer.run(compute, kernel("restir_initial_temporal"), *surface, cache.env_buffer, previous_env,
+            gbuffer.run(compute, kernel("restir_initial_temporal"), *surface, np.int32(n), cache.env_buffer, previous_env,
                         pyramid.buffer, presamples, scales, previous_scales, np.int32(res),
                         np.int32(presample_count), np.int32(p.tiles),
                         np.int32(p.tile_size), np.int32(light_count), np.int32(brdf_count), np.int32(chains),
                         np.int32(temporal), np.float32(p.history_cap),
                         np.uint32(seed), np.uint32(cache.frame), *history, *new_history, stats),
-            gbuffer.run(compute, kernel("restir_spatial_shade"), *surface, cache.env_buffer, np.int32(res),
+            gbuffer.run(compute, kernel("restir_spatial_shade"), *surface, np.int32(n), cache.env_buffer, np.int32(res),
                         pixel_index, pixel_at, depth, np.int32(gbuffer.shape[1]), np.int32(gbuffer.shape[0]),
                         np.int32(p.neighbours), np.float32(p.radius), np.int32(chains), np.int32(p.unbiased),
                         np.uint32(seed), np.uint32(cache.frame), *new_history, scales, radiance, counts,

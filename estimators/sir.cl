@@ -498,7 +498,7 @@ ALWAYS_INLINE float bis_pixel(SIR_PIXEL_ARGS, __global const float4 *env, int re
 
 /* Systematic resampling of n normalised weights (for the tests and SMC): out[k] = the index
  * of position (k + u)/n in the cumulative weights. */
-inline void systematic_indices(__global const float *weights, int n, float u, __global int *out)
+static inline void systematic_indices(__global const float *weights, int n, float u, __global int *out)
 {
     acc_t total = 0, cumulative = 0;
     for (int i = 0; i < n; ++i) total += weights[i];

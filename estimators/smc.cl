@@ -24,37 +24,37 @@
 #define STREAM_SMC_MAP_POINT 32u
 
 /* Component c of particle i from the planes of a pixel. */
-inline float plane_at(__global const float *planes, int N, int plane, int i, int c)
+static inline float plane_at(__global const float *planes, int N, int plane, int i, int c)
 {
     return planes[(c * N + i) * plane];
 }
 
-inline float4 load_particle(__global const float *planes, int N, int plane, int i)
+static inline float4 load_particle(__global const float *planes, int N, int plane, int i)
 {
     return (float4)(plane_at(planes, N, plane, i, 0), plane_at(planes, N, plane, i, 1),
                     plane_at(planes, N, plane, i, 2), plane_at(planes, N, plane, i, 3));
 }
 
-inline void store_particle(__global float *planes, int N, int plane, int i, float4 q)
+static inline void store_particle(__global float *planes, int N, int plane, int i, float4 q)
 {
     store_planes(planes, N, plane, i, q.x, q.y, q.z, q.w);
 }
 
-inline float2 load_gammas(__global const float *planes, int N, int plane, int i)
+static inline float2 load_gammas(__global const float *planes, int N, int plane, int i)
 {
     return (float2)(plane_at(planes, N, plane, i, 0), plane_at(planes, N, plane, i, 1));
 }
 
-inline void store_gammas(__global float *planes, int N, int plane, int i, float2 g)
+static inline void store_gammas(__global float *planes, int N, int plane, int i, float2 g)
 {
     planes[i * plane] = g.x;
     planes[(N + i) * plane] = g.y;
 }
 
-inline vec3_t particle_direction(float4 q) { return vec3(q.x, q.y, q.z); }
+static inline vec3_t particle_direction(float4 q) { return vec3(q.x, q.y, q.z); }
 
 /* The tempered target π_α = γ_{t−1}^{1−α} γ_t^α of one step (α = 1: γ_t itself). */
-inline float tempered(float g0, float g1, float alpha)
+static inline float tempered(float g0, float g1, float alpha)
 {
     if (alpha >= 1.0f) return g1;
     if (!(g0 > 0.0f) || !(g1 > 0.0f)) return 0.0f;
@@ -64,7 +64,7 @@ inline float tempered(float g0, float g1, float alpha)
 /* The kernel of move j = (step − 1)·N + i: 0 local, 1 independent from the map, 2 independent
  * from the BRDF.  Beatty sequences fix it (smc.py): of any run of moves a ν share is local,
  * and the independent ones alternate map, BRDF. */
-inline int move_kind(int j, float nu)
+static inline int move_kind(int j, float nu)
 {
     int local_before = (int)floor((float)j * nu);
     if ((int)floor((float)(j + 1) * nu) > local_before) return 0;
@@ -72,9 +72,9 @@ inline int move_kind(int j, float nu)
 }
 
 /* Systematic resampling of the pixel's particles in place (through the scratch copies). */
-inline void resample_particles(__global float *particles, __global float *gammas,
-                               __global float *scratch_p, __global float *scratch_g, int N,
-                               int plane, float u)
+static inline void resample_particles(__global float *particles, __global float *gammas,
+                                      __global float *scratch_p, __global float *scratch_g, int N,
+                                      int plane, float u)
 {
     acc_t total = 0, cumulative = 0;
     for (int i = 0; i < N; ++i) {
@@ -105,7 +105,7 @@ inline void resample_particles(__global float *particles, __global float *gammas
 /* The integer mass of bin i of a table of n slots (ALIAS_ONE each): its CDF width (the CDF
  * restarts every `run` bins) times its run's share (null: 1), scaled to n·ALIAS_ONE over the
  * table and rounded down, and at least 1 where the weight is positive. */
-inline ulong alias_base_mass(__global const cdf_word_t *cdf, int run, const acc_t *share, int n, int i)
+static inline ulong alias_base_mass(__global const cdf_word_t *cdf, int run, const acc_t *share, int n, int i)
 {
     ulong width = cdf[i] - (i % run > 0 ? cdf[i - 1] : 0);
     ulong weight = share ? (ulong)((acc_t)width * share[i / run]) : width;
@@ -119,9 +119,9 @@ inline ulong alias_base_mass(__global const cdf_word_t *cdf, int run, const acc_
  * One work item, by a sweep of two cursors (light: the next bin of mass < ALIAS_ONE to fill;
  * heavy: the bin whose mass fills it, until what it has left is ≤ ALIAS_ONE and it fills its own
  * slot with that, the next heavy bin the rest): each slot is written once, in O(n). */
-inline void build_alias_table(__global const cdf_word_t *cdf, int run, const acc_t *share, int n,
-                              __global ulong *table, __global float *probability, int stride,
-                              float scale)
+static inline void build_alias_table(__global const cdf_word_t *cdf, int run, const acc_t *share, int n,
+                                     __global ulong *table, __global float *probability, int stride,
+                                     float scale)
 {
     ulong total = 0, largest = 0;
     int argmax = 0;
@@ -227,7 +227,8 @@ __kernel void map_draws(__global const ulong *alias, const uint seed, __global i
 
 /* One frame of every pixel that carries state (smc.py steps 2-6).  A pixel that needs a BIS
  * re-init gets reinit[p] = 1 and stats[p] = (smallest ESS, ·, evaluations so far, resamplings);
- * smc_init finishes it.  Every other pixel's outputs are final. */
+ * smc_init finishes it.  Every other pixel's outputs are final.  Launched in whole groups over
+ * pixels get_global_offset(0) … (chunks.py); items past `count` do nothing. */
 __kernel void smc_advance(__global const float4 *normal, __global const float4 *view,
                           __global const float4 *kd, __global const float4 *ks_m,
                           __global const uint *visibility, __global const float4 *env, __global const float4 *prev_texels,
@@ -244,6 +245,7 @@ __kernel void smc_advance(__global const float4 *normal, __global const float4 *
 {
     const int res = ENV_RES, plane = count;
     int p = get_global_id(0);
+    if (p >= count) return;   /* padding of the last launch to whole groups (smc.py) */
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     __global float *particles = all_particles + p, *gammas = all_gammas + p;
     __global float *scratch_p = all_scratch_p + p, *scratch_g = all_scratch_g + p;

@@ -99,7 +99,9 @@ flags those that need a BIS re-init; ``smc_list_reinit`` lists them on the devic
 to the host within a frame); ``smc_init`` runs step 1 for the listed pixels (all of them on a
 first frame) in padded groups, launched over every pixel, its groups past the list returning at
 once: each work item runs its candidates in explicit vectors of 16 lanes, and its other loops
-are vectorised by PoCL across pixels (``sir.cl``, ``lanes.cl``).  Before them,
+are vectorised by PoCL across pixels (``sir.cl``, ``lanes.cl``).  Both run their pixels in launches of about
+``chunks.CHUNK_MS`` device time (``estimators/runtime/chunks.py``: no launch outlasts a display
+driver's watchdog at N = 4096), which changes no pixel's value.  Before them,
 ``map_alias_pairs`` and ``map_alias_columns`` build the map proposal's alias tables and the map's
 texels with their density (``sir.cl``) from the frame cache's CDFs and face integrals, and the
 map's power Σ_f max(I_f, 0) beside last frame's; on a changed frame that carries state,
@@ -134,10 +136,15 @@ import numpy as np
 
 from iblbench.estimators.base import (Estimator, ExtraColumn, KernelCost, Mutant, Setting,
                                       SweepPart, Tags, read_estimate, specular_lobe_defines)
-from iblbench.estimators.bis import MAX_SPP, bis_chunks, run_lockstep
+from iblbench.estimators.bis import MAX_SPP, run_bis_chunks, run_lockstep
+from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import KeptBuffers, event_ms
 
 MAP_CHANGE_GROUP = 64   # work items of map_change's one group (smc.cl), at most
+# smc_advance's work items per group: one local size for every launch (PoCL builds a kernel per
+# local size), its launches (chunks.run_in_chunks) padded to whole groups.  16, not 64: a group is
+# the least a launch takes, and at N = 4096 one of 64 pixels took a second on one CPU core.
+ADVANCE_GROUP = 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -290,15 +297,19 @@ class SMC(Estimator):
         events = []
         if have_state:
             flags = buffer("flags", count * 4)
-            events.append(compute.run(
-                compute.kernel(self.kernel_package(), "smc.cl", "smc_advance", defines), count,
-                gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, cache.env_buffer,
-                prev_texels, alias, texels, map_power, np.int32(count), np.int32(N),
-                np.int32(p.intermediates + 1), np.float32(p.nu),
-                np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
-                np.float32(p.reinit_map_ess), np.int32(static_frame), np.uint32(seed),
-                np.uint32(cache.frame), particles, gammas, scratch_p, scratch_g, state,
-                carried_estimate, radiance, counts, stats, flags, rays))
+            advance = compute.kernel(self.kernel_package(), "smc.cl", "smc_advance", defines)
+
+            def advance_pixels(first: int, pixels: int):
+                return compute.run(
+                    advance, -(-pixels // ADVANCE_GROUP) * ADVANCE_GROUP, gbuffer.normal, gbuffer.view,
+                    gbuffer.kd, gbuffer.ks, gbuffer.visibility, cache.env_buffer, prev_texels, alias, texels,
+                    map_power, np.int32(count), np.int32(N), np.int32(p.intermediates + 1), np.float32(p.nu),
+                    np.float32(math.cos(math.radians(p.local_degrees))), np.float32(p.reinit_threshold),
+                    np.float32(p.reinit_map_ess), np.int32(static_frame), np.uint32(seed),
+                    np.uint32(cache.frame), particles, gammas, scratch_p, scratch_g, state,
+                    carried_estimate, radiance, counts, stats, flags, rays, group=ADVANCE_GROUP, offset=first)
+
+            events += run_in_chunks(count, ADVANCE_GROUP, advance_pixels)
             listed, listed_total = buffer("listed", count * 4), buffer("listed_total", 4)
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_list_reinit", defines), 1,
@@ -308,14 +319,12 @@ class SMC(Estimator):
             listed_total = compute.to_device(np.array([count], np.int32))
         # Launches over every pixel: smc_init's groups past the device's list return at once.
         init = compute.kernel(self.kernel_package(), "smc.cl", "smc_init", defines)
-        for offset, pixels, *scratch in bis_chunks(compute, init, count, M, N, buffer):
-            events.append(run_lockstep(
-                compute, init, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility,
-                texels, alias, map_power, np.int32(count), np.int32(N), np.int32(M),
-                np.float32(p.init_env_pick),
-                np.int32(have_state), np.uint32(seed), np.uint32(cache.frame), listed, listed_total,
-                np.int32(offset), *scratch, particles, gammas, state, carried_estimate, radiance,
-                counts, stats, rays))
+        events += run_bis_chunks(compute, init, count, M, N, lambda offset, pixels, *scratch: run_lockstep(
+            compute, init, pixels, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility,
+            texels, alias, map_power, np.int32(count), np.int32(N), np.int32(M),
+            np.float32(p.init_env_pick), np.int32(have_state), np.uint32(seed), np.uint32(cache.frame),
+            listed, listed_total, np.int32(offset), *scratch, particles, gammas, state, carried_estimate,
+            radiance, counts, stats, rays), buffer)
         st = compute.to_host(stats, (gbuffer.count, 4), np.float32)
         carried = st[:, 0] >= 0
         estimate = read_estimate(compute, gbuffer, radiance, counts, float(st[:, 2].mean()),

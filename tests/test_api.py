@@ -148,7 +148,7 @@ def test_bad_arguments_are_input_errors(tmp_path):
     for arguments, needle in ((dict(resolution="16by16"), "resolution"),
                               (dict(metrics=["de76", "de99"]), "de99"),
                               (dict(spp=0), "spp"), (dict(estimators="unifrom"), "unifrom"),
-                              (dict(scenes=[3.5]), "a scene must be"),
+                              (dict(scenes=[3.5]), "scenes must be a string, a path, a dict"),
                               # issue 23: spp=[16.5] ran as 16; "16,64" and seeds="2" raised
                               # a raw ValueError or TypeError
                               (dict(spp=[16.5]), r"spp must be a whole number.*16\.5"),
@@ -159,6 +159,59 @@ def test_bad_arguments_are_input_errors(tmp_path):
             iblbench.run(**({"scenes": "sphere-sun", "estimators": "uniform", "spp": 2,
                              "seeds": 1, "out": tmp_path / "x"} | arguments))
         assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (dict(device=5), "device must be a string or None, got 5"),
+    (dict(out=123), "out must be a path, got 123"),
+    (dict(metrics=["de76", 5]), "metrics must be a string or a list of strings, got ['de76', 5]"),
+    (dict(force="no"), "force must be True or False, got 'no'"),
+    (dict(sanitize="no"), "sanitize must be True or False, got 'no'"),
+    (dict(save_inputs=3), "save_inputs must be True or False, got 3"),
+    (dict(progress="yes"), "progress must be True, False or None, got 'yes'"),
+    (dict(workers=2.0), "workers must be a whole number or None, got 2.0"),
+    (dict(scheduler=8786), "scheduler must be a string or None, got 8786"),
+    (dict(control=[1]), "control must be a string or a list of strings, got [1]"),
+    (dict(time_budget_ms=["5"]), "time_budget_ms must be a number or a list of numbers, got ['5']"),
+    (dict(repeats={"default": "3"}),
+     "repeats must be a whole number or a dict of whole numbers, got {'default': '3'}"),
+    (dict(config=3), "config must be a string, a path or None, got 3"),
+])
+def test_every_keyword_of_run_is_type_checked(tmp_path, arguments, message):
+    """Issue 35: each keyword's type is checked against its RunConfig field's before any is
+    used; device=5, out=123 and metrics=["de76", 5] raised AttributeError or TypeError, and
+    force="no", sanitize="no" and save_inputs=3 ran as True."""
+    with pytest.raises(iblbench.InputError) as caught:
+        iblbench.run(**({"scenes": "sphere-sun", "estimators": "uniform", "spp": 2, "seeds": 1,
+                         "out": tmp_path / "x"} | TINY | arguments))
+    assert str(caught.value) == message
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("call, arguments, message", [
+    ("run_config", dict(device=5), "device must be a string or None, got 5"),
+    ("run_config", dict(force="no"), "force must be True or False, got 'no'"),
+    ("run_config", dict(spp=["4"]), "spp must be a list of whole numbers, got ['4']"),
+    ("run_config", dict(note=3), "note must be a dict or None, got 3"),
+    ("check", dict(budgets=5), "budgets must be a path, got 5"),
+    ("report", dict(spp="5"), "spp must be a whole number or None, got '5'"),
+    ("report", dict(pixel=(1,)), "pixel must be a list of 2 whole numbers or None, got (1,)"),
+    ("report", dict(progress=1), "progress must be True, False or None, got 1"),
+])
+def test_the_other_functions_check_their_types(tmp_path, call, arguments, message):
+    """run_config takes parsed values, of its fields' types; check and report their
+    parameters'."""
+    with pytest.raises(iblbench.InputError) as caught:
+        getattr(iblbench, call)(tmp_path, **arguments)
+    assert str(caught.value) == message
+
+
+def test_numpy_numbers_are_taken_as_pythons(tmp_path):
+    """A NumPy integer is a whole number; the RunConfig holds Python's (its manifest is JSON)."""
+    config = iblbench.run_config(tmp_path, spp=np.array([4, 8]).tolist() + [np.int64(16)],
+                                 seeds=np.int64(2), workers=np.int32(1))
+    assert config.spp == (4, 8, 16) and config.seeds == 2 and config.workers == 1
+    assert all(type(value) is int for value in (*config.spp, config.seeds, config.workers))
 
 
 def test_import_is_light_and_documented():

@@ -91,6 +91,10 @@ def run_settings(args) -> tuple[dict, list[str]]:
 
 
 def run(args) -> None:
+    if args.scheduler is not None:   # before the runner's imports, seconds on a busy machine
+        from iblbench.harness.protocol.scheduler_address import check_scheduler
+
+        check_scheduler(args.scheduler)
     from iblbench import run_config
     from iblbench.harness.protocol.machine_readable import run_summary
     from iblbench.harness.protocol.results import read_manifest

@@ -261,12 +261,7 @@ class Compute:
         key = (package, filename, tuple(sorted((defines or {}).items())))
         if key not in self._programs:
             source = kernel_path(package, filename).read_text()
-            # The kernel's own folder first, so a plugin's .cl files can include their siblings.
-            options = [f"-I{kernel_path(package, filename).parent}"] + [f"-I{d}" for d in include_dirs()]
-            options += [f"-D{name}={value}" for name, value in sorted((defines or {}).items())]
-            options.append(f"-DPOOL_LANES={self.pool_lanes}")
-            if self.doubles:
-                options.append("-DHAVE_FP64=1")
+            options = program_options(package, filename, defines, self.pool_lanes, self.doubles)
             program, printed = quietly_built(self.context, source, options)
             self._programs[key] = program
             log = program.get_build_info(self.info.device, cl.program_build_info.LOG).strip()
@@ -280,13 +275,15 @@ class Compute:
             self._kernels[key] = cl.Kernel(self.program(package, filename, defines), name)
         return self._kernels[key]
 
-    def run(self, kernel: cl.Kernel, size: int, *args, group: int | None = None) -> cl.Event:
+    def run(self, kernel: cl.Kernel, size: int, *args, group: int | None = None,
+            offset: int = 0) -> cl.Event:
         """Launch a 1-D kernel over ``size`` work items (in work groups of ``group``, a divisor
-        of ``size``, or of it the largest divisor the device allows; default: the device's choice)
-        and wait; returns the profiled event."""
+        of ``size``, or of it the largest divisor the device allows; default: the device's choice),
+        their global ids starting at ``offset``, and wait; returns the profiled event."""
         kernel.set_args(*args)
         event = cl.enqueue_nd_range_kernel(self.queue, kernel, (int(size),),
-                                           None if group is None else (self.fitting_group(kernel, group),))
+                                           None if group is None else (self.fitting_group(kernel, group),),
+                                           (int(offset),) if offset else None)
         event.wait()
         return event
 
@@ -322,6 +319,19 @@ def kernel_path(package: str, filename: str) -> pathlib.Path:
     return pathlib.Path(str(importlib.resources.files(package) / filename))
 
 
+def program_options(package: str, filename: str, defines: dict | None, lanes: int, doubles: bool) -> list[str]:
+    """The build options of a program (what :meth:`Compute.program` passes the device's compiler,
+    and tests/test_compile_clang.py passes clang): include directories, ``defines``,
+    ``POOL_LANES=lanes`` and, where ``doubles``, ``HAVE_FP64``."""
+    # The kernel's own folder first, so a plugin's .cl files can include their siblings.
+    options = [f"-I{kernel_path(package, filename).parent}"] + [f"-I{d}" for d in include_dirs()]
+    options += [f"-D{name}={value}" for name, value in sorted((defines or {}).items())]
+    options.append(f"-DPOOL_LANES={lanes}")
+    if doubles:
+        options.append("-DHAVE_FP64=1")
+    return options
+
+
 @functools.lru_cache(maxsize=1)
 def include_dirs() -> tuple[str, ...]:
     import pyopencl
@@ -329,8 +339,11 @@ def include_dirs() -> tuple[str, ...]:
             os.path.join(os.path.dirname(pyopencl.__file__), "cl"))
 
 
-def event_ms(event: cl.Event) -> float:
-    """Device time of a profiled event in milliseconds."""
+def event_ms(event: cl.Event | list[cl.Event]) -> float:
+    """Device time of a profiled event in milliseconds, or of a list of them (one launch split
+    into several: chunks.py) summed."""
+    if isinstance(event, list):
+        return sum(map(event_ms, event))
     return (event.profile.end - event.profile.start) * 1e-6
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
+from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import Compute
 from iblbench.scenes.gbuffer import GBuffer
 
@@ -35,7 +36,7 @@ class DeviceGBuffer:
     Uploaded once per scene (geometry and camera are static).  ``count`` is the number of covered
     pixels; the buffers hold ``launch_size`` ≥ ``count`` of them (a multiple of ``PIXEL_GROUP``,
     padded with copies of the last pixel, so the padding shades a real surface and stays finite).
-    A pixel kernel runs over ``launch_size`` work items (:meth:`run`); per-pixel outputs are
+    A pixel kernel runs over ``launch_size`` work items (:meth:`run`, in chunks); per-pixel outputs are
     ``launch_size`` long, and the first ``count`` are the image's.  ``scatter`` puts per-pixel
     kernel outputs back into the image.
     """
@@ -63,9 +64,15 @@ class DeviceGBuffer:
         padding = np.repeat(pixels[-1:], self.launch_size - self.count, axis=0)
         return np.concatenate([pixels, padding])
 
-    def run(self, compute: Compute, kernel: cl.Kernel, *args) -> cl.Event:
-        """Launch a pixel kernel over ``launch_size`` work items in groups of ``PIXEL_GROUP``."""
-        return compute.run(kernel, self.launch_size, *args, group=PIXEL_GROUP)
+    def run(self, compute: Compute, kernel: cl.Kernel, *args) -> list[cl.Event]:
+        """Run a pixel kernel over ``launch_size`` work items in groups of ``PIXEL_GROUP``, in
+        launches of about ``chunks.CHUNK_MS`` device time each (:func:`run_in_chunks`: a pixel
+        kernel's work grows with spp).  A launch's global ids start at its first pixel, so a work
+        item's pixel is ``get_global_id(0)``, but ``get_global_size(0)`` is that launch's size: a
+        kernel whose outputs are planes takes ``launch_size`` as an argument.  Returns the
+        launches' events (``event_ms`` sums them)."""
+        return run_in_chunks(self.launch_size, PIXEL_GROUP, lambda first, count: compute.run(
+            kernel, count, *args, group=PIXEL_GROUP, offset=first))
 
     def scatter(self, values: np.ndarray) -> np.ndarray:
         """Per-covered-pixel ``[N, ...]`` → image ``[H, W, ...]`` with zeros elsewhere."""

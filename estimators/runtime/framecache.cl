@@ -266,10 +266,10 @@ __attribute__((always_inline)) inline acc_t write_cdf(__global cdf_word_t *cdf, 
         }
         float8 w = uniform ? select((float8)0.0f, (float8)1.0f, i + lane < n)
                            : kept_weights(kept, i, n, full);
-        acc8_t scaled = convert_acc8(w) * inverse * (acc_t)0x1p63;
+        acc8_t scaled = convert_acc8(w) * inverse * ACC_LITERAL(0x1p63);
         /* min: w ≤ W up to rounding, so only the largest bin can exceed 2^63, and its width
          * cancels out of the CDF (entry i ≥ largest is 2^63 − Σ_{j>i} q_j). */
-        cdf_word8_t width = select(max((cdf_word8_t)1, convert_ulong8(min(scaled, (acc8_t)0x1p63))),
+        cdf_word8_t width = select(max((cdf_word8_t)1, convert_ulong8(min(scaled, (acc8_t)ACC_LITERAL(0x1p63)))),
                                    (cdf_word8_t)0, convert_long8(w > 0.0f) == 0);
         cdf_word8_t sums = inclusive_scan(width);
         store_words(cdf, i, n, full, sums + running);

@@ -56,7 +56,7 @@ typedef int8 acc_index8_t;
 
 /* Sutherland–Hodgman: clip the convex polygon p[0..k) on the planar face quad (whose edges are
  * great-circle arcs) to a·x ≥ 0, into out[0..k+1); returns the clipped vertex count. */
-inline int clip_to_halfspace(const real3 *p, int k, real3 a, real3 *out)
+static inline int clip_to_halfspace(const real3 *p, int k, real3 a, real3 *out)
 {
     int count = 0;
     for (int i = 0; i < k; ++i) {
@@ -68,7 +68,7 @@ inline int clip_to_halfspace(const real3 *p, int k, real3 a, real3 *out)
     return count;
 }
 
-inline void texel_quad(int face, int row, int col, int res, real3 *quad)
+static inline void texel_quad(int face, int row, int col, int res, real3 *quad)
 {
     float u0 = -1.0f + 2.0f * col / res, u1 = -1.0f + 2.0f * (col + 1) / res;
     float v0 = -1.0f + 2.0f * row / res, v1 = -1.0f + 2.0f * (row + 1) / res;
@@ -82,7 +82,7 @@ inline void texel_quad(int face, int row, int col, int res, real3 *quad)
  * when it lies above the horizon.  ∫ ω dω = (1/2) Σ θ_i γ_i over the edges, θ_i the edge's arc
  * and γ_i its unit plane normal (Arvo 1995); the edges go through vector lanes, one each.  The
  * orientation of the polygon fixes the sign of the whole sum; the integral is ≥ 0. */
-inline acc_t polygon_cosine(float3 n, const real3 *p, int k)
+static inline acc_t polygon_cosine(float3 n, const real3 *p, int k)
 {
     if (k < 3) return 0;
     acc_t x[LANES], y[LANES], z[LANES];
@@ -101,11 +101,11 @@ inline acc_t polygon_cosine(float3 n, const real3 *p, int k)
     acc8_t cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
     acc8_t s = sqrt(cx * cx + cy * cy + cz * cz);
     acc8_t term = atan2(s, ax * bx + ay * by + az * bz) / s * (n.x * cx + n.y * cy + n.z * cz);
-    return fabs((acc_t)0.5 * sum_acc8(select((acc8_t)0, term, s > 0)));
+    return fabs(ACC_LITERAL(0.5) * sum_acc8(select((acc8_t)0, term, s > 0)));
 }
 
 /* ∫ cos⁺ dω over a texel the horizon cuts: the texel clipped to n·x ≥ 0. */
-inline acc_t clipped_cosine(float3 n, int face, int row, int col, int res)
+static inline acc_t clipped_cosine(float3 n, int face, int row, int col, int res)
 {
     real3 quad[4], clipped[5];
     texel_quad(face, row, col, res, quad);
@@ -113,7 +113,7 @@ inline acc_t clipped_cosine(float3 n, int face, int row, int col, int res)
 }
 
 /* ∫_texel [r·ω > 0] cos⁺(n·ω) dω, the lobe integral at m = 0: the texel clipped to both planes. */
-inline acc_t half_space_cosine(float3 n, float3 r, int face, int row, int col, int res)
+static inline acc_t half_space_cosine(float3 n, float3 r, int face, int row, int col, int res)
 {
     real3 quad[4], by_r[5], both[6];
     texel_quad(face, row, col, res, quad);
@@ -123,7 +123,7 @@ inline acc_t half_space_cosine(float3 n, float3 r, int face, int row, int col, i
 
 /* log2 x = (2/ln 2)·atanh t for t = (x − 1)/(x + 1), |t| ≤ 0.172, by its series to t^9 (the
  * next term is below 2^-28 relative, under float rounding). */
-inline float16 log2_of_ratio(float16 t)
+static inline float16 log2_of_ratio(float16 t)
 {
     float16 t2 = t * t;
     float16 series = 1.0f + t2 * (1.0f / 3.0f + t2 * (1.0f / 5.0f + t2 * (1.0f / 7.0f + t2 * (1.0f / 9.0f))));
@@ -134,7 +134,7 @@ inline float16 log2_of_ratio(float16 t)
  * lane): x = 2^e·a with a in [√½, √2), ln a = 2 atanh(t), t = (a − 1)/(a + 1), |t| ≤ 0.172, by
  * its series to t^9 (the next term is below 2^-28 relative, under float rounding).  Relative
  * error a few ulps, also near x = 1 where log2 x → 0. */
-inline float16 log2_lanes(float16 x)
+static inline float16 log2_lanes(float16 x)
 {
     int16 bits = as_int16(x);
     float16 a = as_float16((bits & 0x007fffff) | 0x3f800000);   /* [1, 2) */
@@ -148,14 +148,14 @@ inline float16 log2_lanes(float16 x)
 /* log2(1 − s) for s in [0, 1), accurate relative to s where s is small: 2 atanh(t)/ln 2 with
  * t = −s/(2 − s) by log2_lanes's series up to s = 1/4 (|t| ≤ 1/7), log2_lanes(1 − s) above
  * (skipped when no lane needs it: in narrow lobes, none does). */
-inline float16 log2_one_minus(float16 s)
+static inline float16 log2_one_minus(float16 s)
 {
     float16 near_one = log2_of_ratio(-s / (2.0f - s));
     return all(s < 0.25f) ? near_one : select(log2_lanes(1.0f - s), near_one, s < 0.25f);
 }
 
 /* The lobe falls below LOBE_CUTOFF beyond angle θ_cut from r: (cos θ_cut, sin θ_cut). */
-inline float2 lobe_cut(float m)
+static inline float2 lobe_cut(float m)
 {
     float cos_cut = exp(log(LOBE_CUTOFF) / m);
     return (float2)(cos_cut, sqrt(1.0f - cos_cut * cos_cut));
@@ -163,7 +163,7 @@ inline float2 lobe_cut(float m)
 
 /* Quadrature points per radian for shininess m: REF_DENSITY per lobe width 1/√m, and at
  * least 1/CELL_RADIANS (the cosines curve on a scale of 1 rad however wide the lobe). */
-inline float points_per_radian(float m) { return max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS); }
+static inline float points_per_radian(float m) { return max(REF_DENSITY * sqrt(m), 1.0f / CELL_RADIANS); }
 
 /* r·ω and n·ω over face f as linear forms of the face point (u, v), times √q: the point's
  * direction N + uU + vV (face_uv_to_dir is linear) has orthonormal N, U, V and squared length
@@ -179,7 +179,7 @@ typedef struct {
     int centred;   /* is g near enough (|r_N| > |r|/10) for sin² from the offset to g? */
 } face_forms_t;
 
-inline face_forms_t face_forms(float3 n, float3 r, float2 cut, int face)
+static inline face_forms_t face_forms(float3 n, float3 r, float2 cut, int face)
 {
     float3 origin = face_uv_to_dir(face, 0.0f, 0.0f);
     float3 along_u = face_uv_to_dir(face, 1.0f, 0.0f) - origin;
@@ -206,11 +206,11 @@ typedef struct {
     int cells_s, cells_t;
 } lobe_cells_t;
 
-inline int s_is_v(face_forms_t forms) { return fabs(forms.n.z) > fabs(forms.n.y); }
+static inline int s_is_v(face_forms_t forms) { return fabs(forms.n.z) > fabs(forms.n.y); }
 
 /* The texel's cells; 0 where its square misses the lobe's box. */
-inline int lobe_cells(face_forms_t forms, float density, int row, int col, int res, int cut_by_lobe_plane,
-                      lobe_cells_t *cells)
+static inline int lobe_cells(face_forms_t forms, float density, int row, int col, int res, int cut_by_lobe_plane,
+                             lobe_cells_t *cells)
 {
     float side = 2.0f / res, half_box = forms.half_box, centre_u = forms.centre_u, centre_v = forms.centre_v;
     float u_lo = -1.0f + side * col, v_lo = -1.0f + side * row, u_hi = u_lo + side, v_hi = v_lo + side;
@@ -263,8 +263,8 @@ inline int lobe_cells(face_forms_t forms, float density, int row, int col, int r
  * above the horizon (the row integral stays C¹ in t: the integrand vanishes where the horizon
  * leaves the row).  With the face forms, cos_r^m = exp2(m/2 · log2((r·d)²/q)) (exact exp2 and
  * log2_lanes, not a fast power: the reference needs ~1e-6) and dω = dA/q^{3/2}. */
-inline float16 lobe_terms(face_forms_t forms, float m, float16 t, float16 s_lo, float16 s_hi, float16 position,
-                          float per_cell_s)
+static inline float16 lobe_terms(face_forms_t forms, float m, float16 t, float16 s_lo, float16 s_hi, float16 position,
+                                 float per_cell_s)
 {
     int swap = s_is_v(forms);
     float b_s = swap ? forms.n.z : forms.n.y, b_t = swap ? forms.n.y : forms.n.z, inverse_b_s = 1.0f / b_s;
@@ -296,7 +296,7 @@ inline float16 lobe_terms(face_forms_t forms, float m, float16 t, float16 s_lo, 
 
 /* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω by a composite Gauss–Legendre rule (2 × 2 points per
  * sub-cell) on the texel's cells (lobe_cells), SUBCELL_LANES points per step (lobe_terms). */
-inline acc_t specular_integral(face_forms_t forms, float m, lobe_cells_t cells)
+static inline acc_t specular_integral(face_forms_t forms, float m, lobe_cells_t cells)
 {
     int points_s = 2 * cells.cells_s, count = points_s * 2 * cells.cells_t;
     float per_point_s = 1.0f / points_s, per_cell_s = 1.0f / cells.cells_s;
@@ -328,13 +328,13 @@ typedef struct {
 } single_cells_t;
 
 /* Each texel's lane value: its ∫ lobe·cos⁺ from its four points, in float16 lanes. */
-inline float16 per_texel(const float *batch_values)
+static inline float16 per_texel(const float *batch_values)
 {
     return shuffle(vload4(0, batch_values), (uint16)(0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3));
 }
 
 /* Adds Σ L_t ∫_t lobe·cos⁺ dω of the batch's texels to `glossy` (red, green, blue) and empties it. */
-inline void flush_single_cells(face_forms_t forms, float m, single_cells_t *batch, acc8_t *glossy)
+static inline void flush_single_cells(face_forms_t forms, float m, single_cells_t *batch, acc8_t *glossy)
 {
     if (!batch->count) return;
     const float16 lane = (float16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
@@ -375,8 +375,8 @@ inline void flush_single_cells(face_forms_t forms, float m, single_cells_t *batc
 /* ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω of texel t, whose cap reaches the lobe and the upper
  * hemisphere (cr = r·centre); `forms` are those of its face.  With a `batch` (the reference
  * kernel), a texel of one sub-cell joins it with its radiance instead, and counts 0 here. */
-inline acc_t texel_lobe(float3 n, float3 r, float m, face_forms_t forms, int t, int res, float sin_a,
-                        float cr, single_cells_t *batch, float3 radiance)
+static inline acc_t texel_lobe(float3 n, float3 r, float m, face_forms_t forms, int t, int res, float sin_a,
+                               float cr, single_cells_t *batch, float3 radiance)
 {
     int face = t / (res * res), row = (t / res) % res, col = t % res;
     if (m == 0.0f) return half_space_cosine(n, r, face, row, col, res);
@@ -397,9 +397,9 @@ inline acc_t texel_lobe(float3 n, float3 r, float m, face_forms_t forms, int t, 
 
 /* ∫_texel cos⁺(n·ω) dω (x) and ∫_texel max(0, r·ω)^m cos⁺(n·ω) dω (y, 0 without a lobe or where
  * the texel's cap is beyond the lobe's cut) of texel t; 0 for a texel wholly below the horizon. */
-inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cut,
-                            __global const float *table, int texels, int t, int res,
-                            acc_t *cosine, acc_t *lobe)
+static inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cut,
+                                   __global const float *table, int texels, int t, int res,
+                                   acc_t *cosine, acc_t *lobe)
 {
     float sin_a = PLANE(table, 3, t, texels), cn, cr;
     int above, cut_by_horizon, in_lobe;
@@ -416,11 +416,11 @@ inline void texel_integrals(float3 n, float3 r, float m, int specular, float2 cu
         *lobe = texel_lobe(n, r, m, face_forms(n, r, cut, t / (res * res)), t, res, sin_a, cr, 0, 0.0f);
 }
 
-inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }
+static inline int has_lobe(float3 ks) { return ks.x > 0.0f || ks.y > 0.0f || ks.z > 0.0f; }
 
 /* Is the whole face in the closed lower hemisphere of n?  Yes when its four corners are: every
  * direction on the face is a positive multiple of a convex combination of them. */
-inline int face_below(float3 n, int face)
+static inline int face_below(float3 n, int face)
 {
     int below = 1;
     for (int j = 0; j < 4; ++j)
@@ -431,7 +431,7 @@ inline int face_below(float3 n, int face)
 /* V of the texels `in_face` (indices within face `face`, past the face clamped to its last) for
  * pixel p: the bit of the visibility cell that holds each (VIS_RES divides res, so a texel lies
  * in one cell: the reference Σ_t V_cell(t)·L_t·∫_t ρ cos⁺ stays exact under this V), as a mask. */
-inline int8 texels_open(__global const uint *visibility, int p, int face, int8 in_face, int res)
+static inline int8 texels_open(__global const uint *visibility, int p, int face, int8 in_face, int res)
 {
     in_face = min(in_face, (int8)(res * res - 1));
     int8 row = in_face / res, col = in_face - row * (int8)res;
@@ -441,7 +441,8 @@ inline int8 texels_open(__global const uint *visibility, int p, int face, int8 i
     int8 word_index = cell >> 5;
     uint8 word = (uint8)(mask[word_index.s0], mask[word_index.s1], mask[word_index.s2], mask[word_index.s3],
                          mask[word_index.s4], mask[word_index.s5], mask[word_index.s6], mask[word_index.s7]);
-    return ((word >> convert_uint8(cell & 31)) & 1u) != 0u;
+    /* −1 where open (a mask); not `… != 0u`, which inlined into `lit && …` Oclgrind 21.10 reads wrong. */
+    return -convert_int8((word >> convert_uint8(cell & 31)) & 1u);
 }
 
 /* The reference of pixels first … first + count − 1 (one enqueue of a chunk), one work item

@@ -10,6 +10,7 @@ from typing import Iterator
 import numpy as np
 import pyopencl as cl
 
+from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import Compute, cache_dir, event_ms, kernel_path
 from iblbench.scenes import cubemap
 from iblbench.foundation.atomic import atomic_path
@@ -21,8 +22,6 @@ from iblbench.foundation.atomic import atomic_path
 # sphere-sun at 64² pixels and faces, PoCL).
 DEFAULT_DENSITY = 8
 LANES = 8              # texels per vector step of reference.cl: the tables' padding
-FIRST_CHUNK_PIXELS = 256   # pixels of the first enqueue; later ones aim at CHUNK_MS each
-CHUNK_MS = 100.0           # device time per enqueue: a Ctrl-C waits for at most about this
 WORK_GROUP = 64        # pixels per work group, at most: many groups, so every core gets some
 
 
@@ -162,9 +161,10 @@ class Reference:
             yield c.to_host(out, (6, res, res, 2), np.float32)
 
     def _compute(self, gbuffer, cache) -> np.ndarray:
-        """The image's covered pixels in chunks of about ``CHUNK_MS`` device time each, waited
-        for in short sleeps (:func:`_wait`), so that a Ctrl-C stops it within about a chunk;
-        ``last_ms`` sums the chunks' device times."""
+        """The image's covered pixels in launches of about ``chunks.CHUNK_MS`` device time each
+        (:func:`~iblbench.estimators.runtime.chunks.run_in_chunks`), waited for in short sleeps
+        (:func:`_wait`), so that a Ctrl-C stops it within about a launch; ``last_ms`` sums the
+        launches' device times."""
         c = self.compute
         table = texel_table(cache.res)
         table_buffer = c.to_device(table)
@@ -173,19 +173,15 @@ class Reference:
         kernel = c.kernel("iblbench.estimators.runtime", "reference.cl", "reference",
                           {"REF_DENSITY": self.density, **gbuffer.defines})
         group = min(WORK_GROUP, c.group_limit(kernel))
-        self.last_ms = 0.0
-        first, chunk = 0, FIRST_CHUNK_PIXELS
-        while first < gbuffer.count:
-            count = min(chunk, gbuffer.count - first)
+
+        def launch(first: int, count: int) -> cl.Event:
             kernel.set_args(gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, env_planes,
                             table_buffer, np.int32(cache.res), np.int32(table.shape[1]),
                             np.int32(first), np.int32(count), out)
             size = -(-count // group) * group
             event = cl.enqueue_nd_range_kernel(c.queue, kernel, (size,), (group,))
             _wait(c.queue, event)
-            ms = event_ms(event)
-            self.last_ms += ms
-            first += count
-            # Grows at most 4× a chunk, so one slow estimate cannot make a chunk minutes long.
-            chunk = max(group, min(4 * count, int(count * CHUNK_MS / max(ms, 1e-3))))
+            return event
+
+        self.last_ms = event_ms(run_in_chunks(gbuffer.count, group, launch))
         return c.to_host(out, (gbuffer.count, 4), np.float32)[:, :3]

@@ -48,6 +48,7 @@ from iblbench.estimators.runtime.device import cache_dir, get_compute
 from iblbench.harness.protocol.executor import CellClock, Executor, device_record
 from iblbench.harness.protocol.run_plan import (RunConfig, RunPlan, cell_order, plan_run,
                                                 sequence_key)
+from iblbench.harness.protocol.scheduler_address import check_scheduler
 from iblbench.harness.protocol.timing import host_threads_capped, measure_timing_floor
 from iblbench.foundation.errors import InputError, argument
 from iblbench.scenes.registry import scene_entry
@@ -224,7 +225,9 @@ def cluster(config: RunConfig):
     settings = {"distributed.worker.multiprocessing-method": "spawn"}
     with dask.config.set(settings), contextlib.ExitStack() as stack:
         local = None
-        if config.scheduler is None:
+        if config.scheduler is not None:   # a bad address: one line within seconds
+            check_scheduler(config.scheduler)
+        else:
             local = stack.enter_context(LocalCluster(
                 n_workers=config.workers, threads_per_worker=1, processes=True,
                 dashboard_address=":0", silence_logs=logging.ERROR))

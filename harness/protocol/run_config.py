@@ -4,8 +4,10 @@ a sweep file, ``iblbench run``'s flags and :func:`iblbench.run`'s keywords give 
 
 Each field's metadata (:func:`setting`) holds what the command line and the Python API say about
 it: ``flag`` (its flag of ``iblbench run``; None where it has none), ``help`` (the flag's help
-text) and ``python`` (the keyword's line in :func:`iblbench.run`'s docstring; None where the API
-has no such keyword).  The sweep (:mod:`.sweep`), the API (:func:`iblbench.run_config`) and the
+text), ``python`` (the keyword's line in :func:`iblbench.run`'s docstring; None where the API
+has no such keyword) and ``python_type`` (the keyword's type where it is not the field's).  The
+field's type and ``python_type`` are the types the API checks its arguments against
+(:func:`check_settings`).  The sweep (:mod:`.sweep`), the API (:func:`iblbench.run_config`) and the
 CLI (:mod:`iblbench.commands.run`) read their fields from here.
 
 Light to import (the CLI builds its parser from it): no estimator, no scene.  The metrics
@@ -15,11 +17,13 @@ so NumPy comes with it (about 0.06 s of ``import iblbench`` here).
 from __future__ import annotations
 
 import dataclasses
+import os
 import pathlib
 import textwrap
 import typing
 from typing import Any
 
+from iblbench.foundation.hints import check_type
 from iblbench.harness.protocol.metric import default_names, names
 
 DEFAULT_SCENES = ("sphere-sun",)
@@ -31,10 +35,12 @@ MAX_REPEATS = 255     # the timing seeds hold the repeat in 8 bits (executor.tim
 
 
 def setting(default=dataclasses.MISSING, *, flag: str | None = None, help: str | None = None,
-            python: str | None = None):
-    """A field of a run's configuration with what the CLI and the API say about it."""
-    return dataclasses.field(default=default,
-                             metadata={"flag": flag, "help": help, "python": python})
+            python: str | None = None, python_type=None):
+    """A field of a run's configuration with what the CLI and the API say about it;
+    ``python_type``: the type the API's keyword takes where it is not the field's (text it
+    parses, such as ``"64x64"``; :func:`keyword_type`)."""
+    return dataclasses.field(default=default, metadata={
+        "flag": flag, "help": help, "python": python, "python_type": python_type})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,7 +50,8 @@ class SweepSettings:
     scenes: tuple[str, ...] = setting(
         DEFAULT_SCENES, flag="--scene",
         help="built-in scene name or a scene .toml file; repeatable",
-        python="a built-in name, a scene ``.toml`` path or a scene dict, or a list of them")
+        python="a built-in name, a scene ``.toml`` path or a scene dict, or a list of them",
+        python_type=tuple[str | os.PathLike | dict, ...])
     estimators: tuple[str, ...] = setting(   # labels: "name" or "name{param=value}"
         DEFAULT_ESTIMATORS, flag="--estimator",
         help="estimator name, optionally with parameters as NAME{param=value,...}; "
@@ -73,11 +80,13 @@ class SweepSettings:
              "frames such as 0:67:6 or ::4 (default: all; also all, A..B inclusive "
              "or N,N,...; write --frames=-5: for a negative start); static scenes "
              "run frame 0",
-        python='``"START:STOP[:STEP]"``, ``"all"``, ``"A..B"`` or a list of frame indices')
+        python='``"START:STOP[:STEP]"``, ``"all"``, ``"A..B"`` or a list of frame indices',
+        python_type=str | tuple[int, ...])
     frames_for: tuple[tuple[str, Any], ...] = setting(())   # (scene name, its own frames)
     resolution: tuple[int, int] | None = setting(
         None, flag="--res", help="image resolution (default: the scene's own)",
-        python='``"WxH"`` or ``(W, H)`` (default: each scene\'s own)')
+        python='``"WxH"`` or ``(W, H)`` (default: each scene\'s own)',
+        python_type=str | tuple[int, int])
     env_res: int | None = setting(
         None, flag="--env-res",
         help="cube face resolution for built-in skies and resampled maps",
@@ -100,7 +109,8 @@ class SweepSettings:
              "time is the median of their device times (build+sample+shade), "
              "with min and IQR beside it; "
              "NAME=M gives estimator NAME M of its own (e.g. 5,smc=3)",
-        python='timed renders per cell, an int or ``{"default": 5, "bis": 3}``')
+        python='timed renders per cell, an int or ``{"default": 5, "bis": 3}``',
+        python_type=int | dict[str, int])
     repeats_for: tuple[tuple[str, int], ...] = setting(())   # (estimator name, its repeats)
     spp_for: tuple[tuple[str, tuple[int, ...]], ...] = setting(())   # (name, its spp levels)
     metrics: tuple[str, ...] = setting(   # ΔE76 always; see harness.protocol.metric
@@ -225,3 +235,24 @@ def element_type(name: str):
     if typing.get_origin(hint) is tuple and len(args) == 2 and args[1] is Ellipsis:
         return args[0] if args[0] in (str, int, float) else None
     return None
+
+
+def keyword_type(name: str):
+    """The type :func:`iblbench.run`'s keyword ``name`` takes: the field's ``python_type``, else
+    its type; a list (``tuple[T, ...]``) takes a single T too, as a list of one."""
+    hint = field_of(name).metadata["python_type"] or typing.get_type_hints(RunConfig)[name]
+    args = typing.get_args(hint)
+    if typing.get_origin(hint) is tuple and len(args) == 2 and args[1] is Ellipsis:
+        return typing.Union[args[0], hint]
+    return hint
+
+
+def check_settings(values: dict, *, keywords: bool) -> None:
+    """An InputError naming the first of ``values`` (field name → value) whose type is not its
+    field's: the values of :func:`iblbench.run_config`, or with ``keywords`` the keywords of
+    :func:`iblbench.run` (:func:`keyword_type`).  None is any sweep setting's: the sweep
+    config's value."""
+    hints = typing.get_type_hints(RunConfig)
+    for name, value in values.items():
+        if not (value is None and name in SWEEP_FIELDS):
+            check_type(name, value, keyword_type(name) if keywords else hints[name])

@@ -417,9 +417,11 @@ class Runner:
         # A new --out is made only after its scenes are traced: a camera that sees no geometry
         # is bad input, and bad input must leave no partial output behind.  In an existing --out,
         # the scenes with cells left are traced once its state has been read under the lock.
-        gbuffers = ({} if self.out.exists()
-                    else {plan.scene.name: self._trace(plan) for plan in self.plans})
-        with self._cluster():   # a scheduler that does not answer leaves no --out behind
+        # The cluster first: a bad --scheduler is refused before the scenes are traced, and
+        # leaves no --out behind.
+        with self._cluster():
+            gbuffers = ({} if self.out.exists()
+                        else {plan.scene.name: self._trace(plan) for plan in self.plans})
             return self._run_locked(gbuffers)
 
     def _run_locked(self, gbuffers: dict):

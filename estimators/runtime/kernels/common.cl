@@ -3,13 +3,27 @@
 #ifndef IBLBENCH_COMMON_CL
 #define IBLBENCH_COMMON_CL
 
+/* Random123 declares its helpers with this: static, so that none is left as an undefined symbol where
+ * a compiler does not inline it (a plain `inline` function has no definition of its own, C99 6.7.4). */
+#define R123_STATIC_INLINE static inline
 #include <pyopencl-random123/philox.cl>
 
 #define IBL_PI 3.14159265358979323846f
 
 /* Helpers that per-sample loops call are forced inline: PoCL's inliner leaves large ones out
- * ("too costly"), and a call inside the work-item loop stops its vectorisation. */
-#define ALWAYS_INLINE inline __attribute__((always_inline))
+ * ("too costly"), and a call inside the work-item loop stops its vectorisation.  Every helper is
+ * static: a plain `inline` function has no definition of its own (C99 6.7.4), so a compiler that
+ * does not inline a call to it (any, at -O0) leaves an undefined symbol. */
+#define ALWAYS_INLINE static inline __attribute__((always_inline))
+
+/* Before a loop whose trip count is a constant: unroll it (so that its private arrays stay in
+ * registers).  OpenCL C 2.0's opencl_unroll_hint is not OpenCL C 1.2; clang's pragma (PoCL's
+ * compiler and most others) gives the same loop metadata, and elsewhere the loop is left as is. */
+#ifdef __clang__
+#define UNROLL _Pragma("unroll")
+#else
+#define UNROLL
+#endif
 
 /* ---- accumulation ---------------------------------------------------------------------------- */
 
@@ -20,20 +34,24 @@
 typedef double acc_t;
 typedef double8 acc8_t;   /* eight lanes of acc_t, for sums in explicit vectors */
 #define convert_acc8 convert_double8
+#define ACC_LITERAL(x) x   /* a floating constant in acc_t */
 #else
 typedef float acc_t;
 typedef float8 acc8_t;
 #define convert_acc8 convert_float8
+/* A double constant needs cl_khr_fp64 (a device without it warns and rounds it to float). */
+#define ACC_LITERAL(x) x##f
 #endif
+#define ACC_PI ACC_LITERAL(3.14159265358979323846)   /* π in acc_t (M_PI needs cl_khr_fp64) */
 
-inline acc_t sum_acc8(acc8_t v)
+static inline acc_t sum_acc8(acc8_t v)
 {
     return ((v.s0 + v.s1) + (v.s2 + v.s3)) + ((v.s4 + v.s5) + (v.s6 + v.s7));
 }
 
 typedef struct { acc_t sum, carry; } kahan_t;
 
-inline void kahan_add(kahan_t *k, acc_t x)
+static inline void kahan_add(kahan_t *k, acc_t x)
 {
     acc_t y = x - k->carry;
     acc_t t = k->sum + y;
@@ -103,7 +121,7 @@ ALWAYS_INLINE vec3x16_t vec3x16(float16 x, float16 y, float16 z)
 }
 
 ALWAYS_INLINE float vec3_luminance(vec3_t c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
-inline float luminance(float3 c) { return vec3_luminance(vec3_of(c)); }
+static inline float luminance(float3 c) { return vec3_luminance(vec3_of(c)); }
 
 /* ---- cube map ------------------------------------------------------------------------------ */
 
@@ -131,10 +149,10 @@ DEFINE_CUBE_FACE_ST(cube_face_st, float, int, vec3_t)
 DEFINE_CUBE_FACE_ST(cube_face_st8, float8, int8, vec3x8_t)
 DEFINE_CUBE_FACE_ST(cube_face_st16, float16, int16, vec3x16_t)
 
-inline int dir_to_face_st(float3 d, float *s, float *t) { return cube_face_st(vec3_of(d), s, t); }
+static inline int dir_to_face_st(float3 d, float *s, float *t) { return cube_face_st(vec3_of(d), s, t); }
 
 /* Face-plane point (u, v) = (2s-1, 2t-1) -> (unnormalised) direction on the cube. */
-inline float3 face_uv_to_dir(int face, float u, float v)
+static inline float3 face_uv_to_dir(int face, float u, float v)
 {
     switch (face) {
     case 0:  return (float3)( 1.0f, -v, -u);
@@ -146,12 +164,12 @@ inline float3 face_uv_to_dir(int face, float u, float v)
     }
 }
 
-inline int clamp_index(float x, int res) { return clamp((int)floor(x * res), 0, res - 1); }
+static inline int clamp_index(float x, int res) { return clamp((int)floor(x * res), 0, res - 1); }
 
-inline int texel_index(int face, int row, int col, int res) { return (face * res + row) * res + col; }
+static inline int texel_index(int face, int row, int col, int res) { return (face * res + row) * res + col; }
 
 /* dA/dω at face-plane point (u, v): solid angle → face area Jacobian (1+u²+v²)^{3/2}. */
-inline float area_per_solid_angle(float u, float v)
+static inline float area_per_solid_angle(float u, float v)
 {
     float q = 1.0f + u * u + v * v;
     return q * sqrt(q);
@@ -219,7 +237,7 @@ typedef ulong cdf_word_t;
 /* First i with cdf[i] > u; cdf is inclusive and ends at exactly CDF_ONE, so zero-width bins are
  * never chosen and the result is < n for u in [0, CDF_ONE).  The trip count depends on n only,
  * so the search is branch-free across work items and vectorises. */
-inline int cdf_search(__global const cdf_word_t *cdf, int n, cdf_word_t u)
+static inline int cdf_search(__global const cdf_word_t *cdf, int n, cdf_word_t u)
 {
     int base = 0;
     while (n > 1) {
@@ -230,17 +248,17 @@ inline int cdf_search(__global const cdf_word_t *cdf, int n, cdf_word_t u)
     return base;
 }
 
-inline cdf_word_t cdf_lower(__global const cdf_word_t *cdf, int i) { return i > 0 ? cdf[i - 1] : 0; }
+static inline cdf_word_t cdf_lower(__global const cdf_word_t *cdf, int i) { return i > 0 ? cdf[i - 1] : 0; }
 
 /* Probability of bin i: its width q_i·2^-63, exact to float rounding (relative 2^-24). */
-inline float cdf_bin(__global const cdf_word_t *cdf, int i)
+static inline float cdf_bin(__global const cdf_word_t *cdf, int i)
 {
     return convert_float(cdf[i] - cdf_lower(cdf, i)) * 0x1p-63f;
 }
 
 /* Position of u within bin i of `cdf`, in [0, 1): the continuous inversion that lets one uniform
  * pick both the bin and the point inside it, so a 2-D point set maps to directions. */
-inline float cdf_bin_position(__global const cdf_word_t *cdf, int i, cdf_word_t u)
+static inline float cdf_bin_position(__global const cdf_word_t *cdf, int i, cdf_word_t u)
 {
     cdf_word_t lo = cdf_lower(cdf, i);
     return clamp(convert_float(u - lo) / convert_float(cdf[i] - lo), 0.0f, 0x1.fffffep-1f);
@@ -263,9 +281,9 @@ ALWAYS_INLINE float face_point_pdf(__global const cdf_word_t *rows, __global con
     return cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area;
 }
 
-inline float sample_face(__global const cdf_word_t *marginal,
-                               __global const cdf_word_t *conditional,
-                               int face, int res, ulong2 u, float3 *dir, int *texel)
+static inline float sample_face(__global const cdf_word_t *marginal,
+                                      __global const cdf_word_t *conditional,
+                                      int face, int res, ulong2 u, float3 *dir, int *texel)
 {
     __global const cdf_word_t *rows = marginal + face * res;
     int row = cdf_search(rows, res, u.x);
@@ -295,8 +313,8 @@ ALWAYS_INLINE float light_pdf_on_face(__global const cdf_word_t *marginal,
 }
 
 /* light_pdf_on_face for a float3, without the face (it is texel / R²). */
-inline float light_pdf(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
-                       int res, float3 w, int *texel)
+static inline float light_pdf(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
+                              int res, float3 w, int *texel)
 {
     int face;
     return light_pdf_on_face(marginal, conditional, res, vec3_of(w), &face, texel);
@@ -311,7 +329,7 @@ ALWAYS_INLINE vec3_t vec3_reflect_view(vec3_t n, vec3_t v)
     return vec3(k * n.x - v.x, k * n.y - v.y, k * n.z - v.z);
 }
 
-inline float3 reflect_view(float3 n, float3 v) { return float3_of(vec3_reflect_view(vec3_of(n), vec3_of(v))); }
+static inline float3 reflect_view(float3 n, float3 v) { return float3_of(vec3_reflect_view(vec3_of(n), vec3_of(v))); }
 
 /* c^m for c in [0, 1] and m ≥ 0, as 2^(m·log2 c) with both halves polynomials over the float's
  * bits: straight-line code that inlines and vectorises (the library exp2/log2 are table-driven
@@ -380,7 +398,7 @@ ALWAYS_INLINE vec3_t phong_value(vec3_t kd, vec3_t ks, float m, float power)
     return vec3(kd.x / IBL_PI + ks.x * lobe, kd.y / IBL_PI + ks.y * lobe, kd.z / IBL_PI + ks.z * lobe);
 }
 
-inline float3 phong_brdf(float3 r, float3 w, float3 kd, float3 ks, float m)
+static inline float3 phong_brdf(float3 r, float3 w, float3 kd, float3 ks, float m)
 {
     return float3_of(phong_value(vec3_of(kd), vec3_of(ks), m, phong_lobe_power(vec3_of(r), vec3_of(w), m)));
 }
@@ -394,7 +412,7 @@ inline float3 phong_brdf(float3 r, float3 w, float3 kd, float3 ks, float m)
 /* Probability of sampling the specular lobe: its luminance weight Y(ks) / (Y(kd) + Y(ks)). */
 ALWAYS_INLINE float lobe_probability(float yd, float ys) { return ys > 0.0f ? ys / (yd + ys) : 0.0f; }
 
-inline float specular_lobe_probability(float3 kd, float3 ks)
+static inline float specular_lobe_probability(float3 kd, float3 ks)
 {
     return lobe_probability(luminance(kd), luminance(ks));
 }
@@ -426,7 +444,7 @@ ALWAYS_INLINE shading_t load_shading(__global const float4 *normal, __global con
                         vec3_load(ks_m, p), load_w(ks_m, p));
 }
 
-inline surface_t make_surface(float4 normal, float4 view, float4 kd, float4 ks_m)
+static inline surface_t make_surface(float4 normal, float4 view, float4 kd, float4 ks_m)
 {
     shading_t h = make_shading(vec3_of(normal.xyz), vec3_of(view.xyz), vec3_of(kd.xyz),
                                vec3_of(ks_m.xyz), ks_m.w);
@@ -509,7 +527,7 @@ DEFINE_DIRECTION_ABOUT_AXIS(direction_about_axis, float, vec3_t, vec3, sincos_tu
 DEFINE_DIRECTION_ABOUT_AXIS(direction_about_axis8, float8, vec3x8_t, vec3x8, sincos_turn8)
 DEFINE_DIRECTION_ABOUT_AXIS(direction_about_axis16, float16, vec3x16_t, vec3x16, sincos_turn16)
 
-inline float3 direction_about(float3 z, float cos_theta, float u)
+static inline float3 direction_about(float3 z, float cos_theta, float u)
 {
     return float3_of(direction_about_axis(vec3_of(z), cos_theta, u));
 }
@@ -529,7 +547,7 @@ DEFINE_PHONG_MIXTURE_PDF(phong_mixture_pdf, float)
 DEFINE_PHONG_MIXTURE_PDF(phong_mixture_pdf8, float8)
 DEFINE_PHONG_MIXTURE_PDF(phong_mixture_pdf16, float16)
 
-inline float phong_pdf(float3 n, float3 r, float p_spec, float m, float3 w)
+static inline float phong_pdf(float3 n, float3 r, float p_spec, float m, float3 w)
 {
 #if SPECULAR_LOBE
     float power = phong_lobe_power(vec3_of(r), vec3_of(w), m);
@@ -558,7 +576,7 @@ ALWAYS_INLINE vec3_t sample_phong_direction(vec3_t n, vec3_t r, float p_spec, fl
 
 /* sample_phong_direction for float3s and ξ = (cos, azimuth, lobe); returns the mixture pdf of the
  * direction. */
-inline float sample_phong(float3 n, float3 r, float p_spec, float m, float3 xi, float3 *w)
+static inline float sample_phong(float3 n, float3 r, float p_spec, float m, float3 xi, float3 *w)
 {
     *w = float3_of(sample_phong_direction(vec3_of(n), vec3_of(r), p_spec, m, xi.x, xi.y, xi.z));
     return phong_pdf(n, r, p_spec, m, *w);
@@ -606,7 +624,7 @@ DEFINE_RNG_BLOCK_LANES(rng_block8, uint8, ulong8, rng_block8_t)
 DEFINE_RNG_BLOCK_LANES(rng_block16, uint16, ulong16, rng_block16_t)
 
 /* The block's four uniforms. */
-inline float4 rng_uniform4(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
+static inline float4 rng_uniform4(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
 {
     philox4x32_ctr_t r = rng_block(seed, frame, stream, pixel, sample, draw);
     return (float4)(rng_unit(r.v[0]), rng_unit(r.v[1]), rng_unit(r.v[2]), rng_unit(r.v[3]));
@@ -614,7 +632,7 @@ inline float4 rng_uniform4(uint seed, uint frame, uint stream, uint pixel, uint 
 
 /* The same block as two 64-bit words (v0:v1, v2:v3): fixed-point CDF variates are their top 63
  * bits (word >> 1). */
-inline ulong2 rng_words2(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
+static inline ulong2 rng_words2(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)
 {
     philox4x32_ctr_t r = rng_block(seed, frame, stream, pixel, sample, draw);
     return (ulong2)(upsample(r.v[0], r.v[1]), upsample(r.v[2], r.v[3]));

@@ -30,7 +30,7 @@
  * (seed, frame, face) (Cranley–Patterson): every rotated point is uniform on [0, 1)², so an
  * estimate that reads any of them is unbiased over seeds even when all pixels read the same
  * ones.  The rotation is the wrapping add of 64-bit words (mod 2^64), then the top 63 bits. */
-inline ulong2 pool_point(int face, int i, uint seed, uint frame)
+static inline ulong2 pool_point(int face, int i, uint seed, uint frame)
 {
     ulong2 base = rng_words2(POOL_SEQUENCE_SEED, 0u, STREAM_POOL_SEQUENCE, (uint)face, (uint)i, 0u);
     ulong2 shift = rng_words2(seed, frame, STREAM_POOL_ROTATION, (uint)face, 0u, 0u);
@@ -94,7 +94,7 @@ ALWAYS_INLINE void split_ticks(const float weight[6], int total, int ticks[6])
 }
 
 /* Ticks of the light faces together: the whole budget, or half of it with BRDF samples (Eq. 6). */
-inline int light_ticks(int spp, int brdf_samples)
+static inline int light_ticks(int spp, int brdf_samples)
 {
     int total = spp * TICKS_PER_SAMPLE;
     return brdf_samples ? total / 2 : total;
@@ -123,15 +123,15 @@ ALWAYS_INLINE void strategy_ticks(vec3_t n, __global const float *face_integral,
 /* ---- shading (Algorithm 2) ------------------------------------------------------------------ */
 
 /* Number of draws for t ticks: Eq. 5. */
-inline int draws_for(int ticks) { return (ticks + TICKS_PER_SAMPLE - 1) / TICKS_PER_SAMPLE; }
+static inline int draws_for(int ticks) { return (ticks + TICKS_PER_SAMPLE - 1) / TICKS_PER_SAMPLE; }
 
 /* Draws of a light face with t ticks: draws_for(t), which the pool always holds (min() only
  * guards memory). */
-inline int face_draws(int ticks, int pool_size) { return min(draws_for(ticks), pool_size); }
+static inline int face_draws(int ticks, int pool_size) { return min(draws_for(ticks), pool_size); }
 
 /* The sample counts of a pixel that its samples do not change: the β-weighted ticks of every
  * draw (Σ_i β_i = t for a strategy drawn in full) and the number of draws. */
-inline void drawn_counts(const int ticks[7], int pool_size, int *used, int *draws)
+static inline void drawn_counts(const int ticks[7], int pool_size, int *used, int *draws)
 {
     *used = ticks[6];
     *draws = draws_for(ticks[6]);
@@ -210,13 +210,13 @@ typedef rng_block8_t lane_block_t;
 #endif
 
 /* Sums of a block's lanes, pairwise. */
-inline float sum_of8(float8 v)
+static inline float sum_of8(float8 v)
 {
     float4 q = v.lo + v.hi;
     return (q.x + q.z) + (q.y + q.w);
 }
 
-inline int int_sum_of8(int8 v)
+static inline int int_sum_of8(int8 v)
 {
     int4 q = v.lo + v.hi;
     return (q.x + q.z) + (q.y + q.w);

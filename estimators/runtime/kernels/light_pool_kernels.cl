@@ -45,18 +45,18 @@ __kernel void brdf_numbers(const uint seed, const uint frame, const int spp, __g
     out[5 * stride + i] = phong_power_log2(xi_cos);
 }
 
-/* Outputs in planes of n = get_global_size(0) floats: radiance R, G, B; counts used, effective
- * (in samples); evaluations per pixel. */
+/* Outputs in planes of n floats (the G-buffer's launch_size: launches cover part of it,
+ * chunks.py): radiance R, G, B; counts used, effective (in samples); evaluations per pixel. */
 __kernel void render_light_pool(__global const float4 *normal, __global const float4 *view,
                                 __global const float4 *kd, __global const float4 *ks_m,
-                                __global const uint *visibility, __global const float4 *env, __global const cdf_word_t *marginal,
+                                __global const uint *visibility, const int n, __global const float4 *env, __global const cdf_word_t *marginal,
                                 __global const cdf_word_t *conditional, __global const float *face_integral,
                                 __global const float *pool, const int res, const int pool_size, const int spp,
                                 const int shared_sequence, const uint seed, const uint frame,
                                 __global const float *shared_numbers, __global float *radiance, __global float *counts,
                                 __global int *evaluations)
 {
-    int p = get_global_id(0), n = get_global_size(0);
+    int p = get_global_id(0);
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     int ticks[7];
     strategy_ticks(s.n, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
