@@ -96,7 +96,7 @@ def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None,
     """Run a sweep and return its results table (a pandas DataFrame); see the module docstring.
 
     Each argument left None takes its value from ``config``: a shipped sweep name (``quick``,
-    ``default``, ``full``, ``temporal``) or a sweep ``.toml`` file (default ``default``), as
+    ``default``, ``full``, ``temporal``, ``frontier``) or a sweep ``.toml`` file (default ``default``), as
     the flags of ``iblbench run`` do.  The keywords are the fields of
     :class:`~iblbench.harness.protocol.run_config.RunConfig`:
 

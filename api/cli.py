@@ -22,7 +22,7 @@ exact reference on Lab error (protocol lab-reinhard-v1), effective samples and d
 
 EPILOG = """\
 examples:
-  iblbench run                                   the default sweep: every declared estimator, 6 scenes (792 cells, minutes)
+  iblbench run                                   the default sweep: every declared estimator, 6 scenes, 1,188 cells (a cell: one image, of a scene, estimator, spp, frame and seed; minutes)
   iblbench run --scene sphere-sun --estimator uniform --spp 16,256 --seeds 2 --out runs/a
   iblbench run --scene my/scene.toml --sanitize  a user scene (the TOML format: docs/scenes.md)
   iblbench reproduce lu2013 --out runs/lu2013    Lu 2013's figures and claims, with verdicts

@@ -151,10 +151,12 @@ def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
 
 
 def intervals(cells: pd.DataFrame, column: str) -> list[str]:
-    """The column's cells as ``mean ± half-width`` (``stats.interval_text``)."""
+    """The column's cells as ``mean ± half-width`` or ``mean [low, high]``
+    (``stats.interval_text``)."""
     counts = cells[f"{column}_n"] if f"{column}_n" in cells else cells.seeds
-    return [interval_text(mean, half, n) for mean, half, n in
-            zip(cells[column], cells[f"{column}_half"], counts)]
+    return [interval_text(mean, half, n, low=low, high=high) for mean, half, n, low, high in
+            zip(cells[column], cells[f"{column}_half"], counts, cells[f"{column}_low"],
+                cells[f"{column}_high"])]
 
 
 _TABLE_COLUMNS = {   # summary column → header (with units)
@@ -216,7 +218,9 @@ def _dict_table(mapping: dict) -> markupsafe.Markup:
 
 
 # A number, an interval (``stats.interval_text``) or "–": such a column is right-aligned.
-_NUMERIC = re.compile(r"[-+]?[\d.]+(e[-+]?\d+)?( ± \S+| \(n=\d+, no interval\))?|–")
+_NUMERIC = re.compile(r"[-+]?[\d.]+(e[-+]?\d+)?"
+                      r"( ± \S+| \[[\d.]+, [\d.]+\]| \(n=\d+, no interval\))?|–")
+_SLASH_BREAK = markupsafe.Markup("/<wbr>")
 
 
 def table_html(frame: pd.DataFrame, classes: str, header: bool = True) -> markupsafe.Markup:
@@ -224,14 +228,25 @@ def table_html(frame: pd.DataFrame, classes: str, header: bool = True) -> markup
     intervals gets class "num" (right-aligned), text stays left."""
     text = frame.apply(lambda column: column.map(number))   # DataFrame.map needs pandas 2.1
     numeric = [text[c].map(lambda v: _NUMERIC.fullmatch(v) is not None).all() for c in text]
-    cell = "<td{}>{}</td>".format
-    rows = ["<tr>" + "".join(cell(' class="num"' if n else "", markupsafe.escape(v))
+    rows = ["<tr>" + "".join(_figure_cell(v) if n else f"<td>{markupsafe.escape(v)}</td>"
                              for v, n in zip(values, numeric)) + "</tr>"
             for values in text.itertuples(index=False)]
-    head = ("<thead><tr>" + "".join(f"<th>{markupsafe.escape(c)}</th>" for c in frame.columns)
-            + "</tr></thead>") if header else ""
+    # A header may break after a slash ("ms/frame"), so that a unit does not widen its column.
+    head = ("<thead><tr>" + "".join(f"<th>{markupsafe.escape(c).replace('/', _SLASH_BREAK)}</th>"
+                                    for c in frame.columns) + "</tr></thead>") if header else ""
     return markupsafe.Markup(f'<table class="{classes}">{head}<tbody>{"".join(rows)}'
                              "</tbody></table>")
+
+
+def _figure_cell(text: str) -> str:
+    """A right-aligned cell of a number or an interval, the interval (``± 0.31``, ``[6.6, 31]``)
+    in a span.spread, so that a narrow page breaks a figure from its interval, never inside
+    either (report.css.j2); "(n=1, no interval)" wraps as words do."""
+    figure, _, spread = text.partition(" ")
+    if spread.startswith(("±", "[")):
+        return markupsafe.Markup('<td class="num">{} <span class="spread">{}</span></td>').format(
+            figure, spread)
+    return f'<td class="num">{markupsafe.escape(text)}</td>'
 
 
 def ray_costs(manifest: dict | None, ray_cost_ns: float | None) -> dict[str, tuple[float, int]]:

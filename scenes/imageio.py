@@ -18,13 +18,8 @@ atomically (a temporary file in the same folder, then ``os.replace``).
 """
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import io
 import os
 import re
-import sys
-import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -32,13 +27,13 @@ import numpy as np
 import OpenEXR
 
 from iblbench.foundation.atomic import atomic_path
+from iblbench.foundation.captured_output import output_collected
 from iblbench.foundation.errors import InputError
 
 _HDR_FORMAT = b"32-bit_rle_rgbe"
 _HDR_RESOLUTION = re.compile(rb"-Y (\d+) \+X (\d+)")
 _MAX_PIXELS = 1 << 28  # refuses absurd sizes from a corrupt header before allocating
 _MIN_RUN = 3  # shorter repeats are cheaper as literals in new-style RLE
-_LIBC = ctypes.CDLL(None)  # the C library, to flush its stdio buffers
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an ``.exr`` or ``.hdr`` file into float32 ``[H, W, 3]`` linear RGB."""
@@ -106,7 +101,7 @@ def _exr_channels(path: str | os.PathLike) -> dict:
     """
     printed, error = [], None
     try:
-        with _output_collected(printed):
+        with output_collected(printed):
             channels = OpenEXR.File(os.fspath(path), separate_channels=True).channels()
     except Exception as exc:  # the bindings raise RuntimeError, ValueError, ... for bad files
         error = exc
@@ -116,28 +111,6 @@ def _exr_channels(path: str | os.PathLike) -> dict:
     reason = complaint.splitlines()[0] if complaint else str(error)
     reason = reason.replace(f"{os.fspath(path)}: ", "")   # the C core starts with the path
     raise InputError(path, f"unreadable or corrupt OpenEXR file ({reason})")
-
-@contextlib.contextmanager
-def _output_collected(printed: list[str]):
-    """Append to ``printed`` what is printed meanwhile: first what native code writes to file
-    descriptors 1 and 2, then what Python code writes to sys.stdout and sys.stderr."""
-    python = io.StringIO()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(fd) for fd in (1, 2)]
-    with tempfile.TemporaryFile() as native:
-        try:
-            for fd in (1, 2):
-                os.dup2(native.fileno(), fd)
-            with contextlib.redirect_stdout(python), contextlib.redirect_stderr(python):
-                yield
-        finally:
-            _LIBC.fflush(None)   # C stdio holds what it prints in buffers
-            for fd, copy in zip((1, 2), saved):
-                os.dup2(copy, fd)
-                os.close(copy)
-            native.seek(0)
-            printed += [native.read().decode(errors="replace"), python.getvalue()]
 
 def _require_file(path: str | os.PathLike) -> None:
     if not Path(path).exists():

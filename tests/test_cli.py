@@ -123,6 +123,31 @@ def test_run_help_lists_every_flag(cli):
         assert flag in result.stdout, f"{flag} missing from 'run --help':\n{result.stdout}"
 
 
+def test_config_help_names_every_shipped_config(cli):
+    """The shipped configs are the folder's files, frontier included (issue 35)."""
+    shipped = sorted(path.stem for path in
+                     (Path(__file__).parents[1] / "harness" / "configs").glob("*.toml"))
+    assert "frontier" in shipped
+    stated = " ".join(cli("run", "--help").stdout.split())
+    assert f"a shipped one ({', '.join(shipped)})" in stated, stated
+
+
+def test_help_counts_the_default_sweeps_cells_as_its_progress_bar_does(cli, tmp_path):
+    """``iblbench --help`` said 792 cells while the bar of a bare ``iblbench run`` counted 1,188
+    (issue 35): the help's count is the runner's, and both are each estimator's spp levels ×
+    every scene's frames × the seeds."""
+    import iblbench
+    from iblbench.harness.protocol.runner import Runner
+
+    runner = Runner(iblbench.run_config(tmp_path / "out"))
+    runner._read_state()
+    plan, config = runner.plan, runner.config
+    levels = sum(len(spp) + len(config.time_budget_ms) for spp in plan.spp_levels.values())
+    assert runner.total == levels * sum(len(p.frames) for p in plan.plans) * config.seeds
+    stated = re.search(r"the default sweep: .*? ([\d,]+) cells", cli("--help").stdout)
+    assert stated and int(stated.group(1).replace(",", "")) == runner.total
+
+
 def modules_imported_by(argv: list[str], heavy: tuple[str, ...]) -> list[str]:
     """The modules of ``heavy`` (a package or module name each) that ``main(argv)`` imports, in
     a fresh interpreter."""

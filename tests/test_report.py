@@ -422,15 +422,17 @@ def browser(two_seeds):
 NOT_AGGREGATED = {"estimator", "spp", "seeds", "non-finite px", "Pareto (relMSE)", "Pareto (ΔE76)",
                   "budget (ms/frame)", "spp run", "within ±10%", "scene", "stage", "why",
                   "times", "times built", "total ms"}
-INTERVAL = r"\S+ ± \S+"
+# mean ± half-width, or mean [low, high] where a positive interval is wider than its figure
+INTERVAL = r"\S+ ± \S+|\S+ \[\S+, \S+\]"
 NUMBER = re.compile(r"[-+]?[\d.]+(e[-+]?\d+)?")
 
 
 def test_report_renders_in_headless_chromium(browser):
     """Every image loads, no script error, and every table shows each figure aggregated over
-    seeds (the summary's two tables and the equal-time table) as mean ± half-width; the stage
-    timings as an interval over builds (one build: "n=1, no interval").  Exempt: the manifest's
-    key/value tables and the sample picture's counts (one pixel of seed 0, nothing averaged)."""
+    seeds (the summary's two tables and the equal-time table) as mean ± half-width (mean [low,
+    high] where that would reach below zero); the stage timings as an interval over builds (one
+    build: "n=1, no interval").  Exempt: the manifest's key/value tables and the sample
+    picture's counts (one pixel of seed 0, nothing averaged)."""
     page, errors = browser()
     images = page.evaluate("Array.from(document.images).map(i => "
                            "[i.getAttribute('src'), i.complete, i.naturalWidth])")
@@ -574,6 +576,28 @@ def test_viewer_toggles_the_reference_slides_and_zooms(browser):
     assert clicked_y == pytest.approx(box["y"] + box["height"] / 2, abs=1)
     assert "4× crop" in viewer.locator('[data-role="caption"]').inner_text()
     assert not errors, errors
+
+
+def test_no_table_is_wider_than_its_column_on_an_800_px_page(browser):
+    """Issue 35: at 800 px the sample picture's counts and the summary's second table ran past
+    the page (to 936 px), behind a scroll bar: their lists wrap, and a figure breaks from its
+    interval (the whole figure above, the whole interval below)."""
+    page, _ = browser()
+    try:
+        page.set_viewport_size({"width": 800, "height": 900})
+        tables = page.evaluate("Array.from(document.querySelectorAll('table')).map(t => "
+                               "[t.className, t.getBoundingClientRect().width, "
+                               "t.parentElement.clientWidth])")
+        cells = page.evaluate("Array.from(document.querySelectorAll('td.num')).map(c => "
+                              "[c.innerText, Array.from(c.querySelectorAll('.spread')).map("
+                              "s => s.getClientRects().length)])")
+    finally:
+        page.set_viewport_size({"width": 1280, "height": 900})
+    assert any("counts" in name for name, _, _ in tables)
+    assert [t for t in tables if t[1] > t[2] + 0.5] == []
+    assert any(" ± " in text for text, _ in cells)
+    # An interval is one span, on one line (its figure may be on the line above).
+    assert all(spans == [1] for text, spans in cells if " ± " in text), cells
 
 
 def test_clicking_a_grid_image_puts_it_into_the_viewer(browser):

@@ -127,6 +127,16 @@ def test_a_full_disk_is_one_line_and_its_own_exit_code(tmp_path, capsys, monkeyp
     assert err.count("\n") == 1 and "no space left on device" in err, err
 
 
+def test_a_full_disk_leaves_the_manifest_failed_not_running(tmp_path, capsys, monkeypatch):
+    """Issue 35: a run that filled the disk left its manifest saying "running"."""
+    monkeypatch.setattr(OpenEXR, "File", _no_space)
+    code, _ = cli(capsys, tmp_path / "out", "--spp", "4")
+    assert code == EXIT_DISK_FULL
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["status"] == "failed", manifest["status"]
+    assert os.strerror(errno.ENOSPC) in manifest["failure"], manifest["failure"]
+
+
 def test_a_full_disk_under_report_names_the_run_and_promises_no_resume(tmp_path, capsys, monkeypatch):
     """Issue 23: `report` on a full disk named no path and said "a run resumes"."""
     import iblbench.reports.report as report_module

@@ -95,3 +95,14 @@ def test_the_git_revision_is_found_from_the_checkout():
     from iblbench.harness.protocol import provenance
 
     assert re.fullmatch(r"[0-9a-f]{40}(-dirty)?", provenance.git_revision())
+
+
+@pytest.mark.parametrize("scene, traced", [("sphere-sun", False), ("park-ground", True)])
+def test_a_tracing_visibility_bar_only_for_a_scene_with_shadows(tmp_path, capsys, scene, traced):
+    """sphere-sun asks for no visibility, so no bar says it is being traced (issue 35)."""
+    from iblbench.harness.protocol.runner import Runner
+
+    runner = Runner(RunConfig(out=tmp_path / "out", scenes=(scene,), estimators=("uniform",),
+                              spp=(1,), seeds=1, resolution=(16, 16), progress=True))
+    runner._trace(runner.plans[0])
+    assert ("tracing visibility" in capsys.readouterr().err) == traced

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from iblbench.harness.protocol.stats import (cell_intervals, median_ci, mean_ci, ratio_ci,
-                                             renders_text, separated, skew_corrected_ci,
-                                             t_quantile)
+from iblbench.harness.protocol.stats import (cell_intervals, interval_text, median_ci, mean_ci,
+                                             ratio_ci, renders_text, separated,
+                                             skew_corrected_ci, t_quantile)
 
 # Two-sided 95% critical values of Student's t from printed tables (e.g. NIST/SEMATECH
 # e-Handbook 1.4.2.5.2, upper 0.025 point).
@@ -173,6 +173,34 @@ def test_cell_intervals_use_every_scored_render_and_the_median_of_timed_renders(
     assert cell.time_ms == 4.0 and cell.time_ms_n == 7
     assert cell.time_ms_low <= 4.0 <= cell.time_ms_high
     assert "median" in cell.time_ms_method and "scored renders" in cell.rel_mse_method
+
+
+def test_a_host_wall_time_has_a_positive_interval_on_a_log_scale():
+    """Issue 35: two seeds' host wall times gave ``600 ± 1300`` (a t interval with one degree of
+    freedom reaching below zero).  On logs (by hand: geometric mean √(300·900), log sd ln 3/√2,
+    t(0.975, 1) = 12.7062) the interval stays positive and is shown as [low, high]."""
+    import pandas as pd
+
+    rows = pd.DataFrame([{"scene": "s", "estimator": "e", "spp": 4, "seed": seed, "frame": 0,
+                          "time_ms_host": ms} for seed, ms in enumerate([300.0, 900.0])])
+    cell = cell_intervals(rows, ["scene", "estimator", "spp"], ["time_ms_host"]).iloc[0]
+    centre, half = math.log(math.sqrt(300 * 900)), 12.7062 * (math.log(3) / math.sqrt(2)) / math.sqrt(2)
+    assert cell.time_ms_host == pytest.approx(math.sqrt(300 * 900))
+    assert cell.time_ms_host_low == pytest.approx(math.exp(centre - half), rel=1e-4)
+    assert cell.time_ms_host_high == pytest.approx(math.exp(centre + half), rel=1e-4)
+    text = interval_text(cell.time_ms_host, cell.time_ms_host_half, 2, low=cell.time_ms_host_low,
+                         high=cell.time_ms_host_high)
+    assert text == "520 [0.48, 560000]", text
+
+
+@pytest.mark.parametrize("low, high, text", [
+    (50.0, 7000.0, "600 [50, 7000]"),      # positive but wider than its figure: no "±"
+    (-700.0, 1900.0, "600 ± 1300"),        # an interval that holds zero keeps "±"
+    (math.nan, math.nan, "600 ± 1300"),    # no bounds given: as before
+])
+def test_an_interval_wider_than_its_positive_figure_is_shown_as_a_range(low, high, text):
+    assert interval_text(600.0, 1300.0, 2, low=low, high=high) == text
+    assert interval_text(600.0, 130.0, 2, low=470.0, high=730.0) == "600 ± 130"
 
 
 def test_skew_corrected_interval_is_the_t_interval_without_skew_and_moves_up_with_it():

@@ -152,6 +152,17 @@ def test_estimators_run_their_own_spp_levels_unless_spp_is_given(tmp_path, capsy
     capsys.readouterr()
 
 
+def test_an_spp_table_without_a_default_runs_each_estimators_own_levels(tmp_path, capsys):
+    """``spp = { uniform = [4] }`` was refused as "spp is empty" (issue 35): every estimator of
+    the sweep has levels of its own, so it has cells."""
+    path = write(tmp_path, VALID.replace('["uniform"]', '["uniform", "envmap"]').replace(
+        "spp = [4]", "spp = { uniform = [4], envmap = [2] }"))
+    assert main(["run", "--config", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    table = pd.read_parquet(tmp_path / "out" / "results.parquet")
+    assert sorted(zip(table.estimator, table.spp)) == [("envmap", 2), ("uniform", 4)]
+    capsys.readouterr()
+
+
 def test_relative_scene_files_are_found_from_the_config_folder(tmp_path):
     (tmp_path / "sub").mkdir()
     (tmp_path / "sub" / "ball.toml").write_text("")
@@ -188,6 +199,8 @@ def test_relative_scene_files_are_found_from_the_config_folder(tmp_path):
     (lambda t: t.replace('["uniform"]', '["nope"]'), "unknown estimator 'nope'"),
     (lambda t: t.replace('["uniform"]', '["uniform{beta=1}"]'), "valid parameters: shared_sequence"),
     (lambda t: t.replace('["uniform"]', '["uniform", "Uniform"]'), "lists an estimator twice"),
+    (lambda t: t.replace('["uniform"]', '["uniform", "envmap"]').replace(
+        "spp = [4]", "spp = { uniform = [4] }"), "spp gives envmap no levels"),
 ])
 def test_bad_config(tmp_path, edit, needle):
     path = write(tmp_path, edit(VALID))
@@ -201,7 +214,7 @@ def test_missing_config_and_unknown_name(tmp_path):
     with pytest.raises(InputError, match="sweep config not found") as error:
         load_sweep(tmp_path / "nowhere.toml")
     assert str(tmp_path / "nowhere.toml") in str(error.value)
-    with pytest.raises(InputError, match="shipped configs: quick, default, full, temporal"):
+    with pytest.raises(InputError, match="shipped configs: default, frontier, full, quick, temporal"):
         load_sweep("quik")
 
 

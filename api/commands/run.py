@@ -22,6 +22,7 @@ row names the host and device that ran it."""
 
 def add_parser(subparsers) -> None:
     from iblbench.harness.protocol.run_config import flag_help, flag_of
+    from iblbench.harness.protocol.sweep import SHIPPED
 
     run = subparsers.add_parser(
         "run", help="benchmark estimators on scenes and write results, manifest and images",
@@ -33,7 +34,7 @@ def add_parser(subparsers) -> None:
         group.add_argument(flag_of(name), help=flag_help(name), **options)
 
     run.add_argument("--config", metavar="NAME|FILE",
-                     help="sweep config: a shipped one (quick, default, full, temporal) or a .toml file "
+                     help=f"sweep config: a shipped one ({', '.join(SHIPPED)}) or a .toml file "
                           "(default: default; format: the docstring of iblbench.harness.sweep)")
     setting(run, "scenes", action="append", metavar="NAME|FILE")
     setting(run, "estimators", action="append", metavar="NAME")
@@ -162,7 +163,8 @@ def terminal_summaries(table):
             for column in columns:
                 summary[shown[column]] = [interval_text(
                     cells.loc[key, column], cells.loc[key, f"{column}_half"],
-                    int(cells.loc[key, f"{column}_n"])) for key in summary.index]
+                    int(cells.loc[key, f"{column}_n"]), low=cells.loc[key, f"{column}_low"],
+                    high=cells.loc[key, f"{column}_high"]) for key in summary.index]
             summary["seeds"] = cells.seeds
             summary["nonfinite"] = rows.groupby(keys).nonfinite.sum()
             summaries.append((title, summary))

@@ -29,6 +29,7 @@ import numpy as np
 import pyopencl as cl
 
 from iblbench.foundation.atomic import atomic_path
+from iblbench.foundation.captured_output import output_collected
 from iblbench.foundation.errors import InputError, argument
 
 ENV_DEVICE = "IBLBENCH_DEVICE"
@@ -126,7 +127,7 @@ def _measure_gflops(info: DeviceInfo) -> float:
     """FLOP rate of straight-line FMAs (compile and a warm-up run excluded), median of 3."""
     ctx = cl.Context([info.device])
     queue = cl.CommandQueue(ctx)
-    kernel = cl.Kernel(cl.Program(ctx, _FLOP_KERNEL).build(), "fma_block")
+    kernel = cl.Kernel(quietly_built(ctx, _FLOP_KERNEL)[0], "fma_block")
     items = 1 << 20
     out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 * items)
     kernel.set_args(out)
@@ -153,6 +154,19 @@ def measured_gflops(info: DeviceInfo) -> float:
     return float(table[info.key])
 
 
+def quietly_built(context: cl.Context, source: str, options: list[str] | None = None,
+                  ) -> tuple[cl.Program, str]:
+    """The program built, and what its compiler printed meanwhile.  The compiler's warnings
+    (PoCL gives hundreds for vector-typed helpers) are kept, not shown: pyopencl's are
+    silenced, and what a driver's compiler writes to stderr itself (clang's "125 warnings
+    generated.") is collected; `iblbench doctor --verbose` prints both."""
+    printed: list[str] = []
+    with warnings.catch_warnings(), output_collected(printed, ("stderr",)):
+        warnings.simplefilter("ignore", cl.CompilerWarning)
+        program = cl.Program(context, source).build(options=options or [])
+    return program, "".join(printed).strip()
+
+
 _PROBE_KERNEL = "__kernel void probe(__global float *out) { out[get_global_id(0)] = 1.0f; }"
 
 
@@ -160,9 +174,7 @@ _PROBE_KERNEL = "__kernel void probe(__global float *out) { out[get_global_id(0)
 def build_failure(info: DeviceInfo) -> str | None:
     """None if the device builds a trivial kernel, else the first line of its compiler's error."""
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", cl.CompilerWarning)
-            cl.Program(cl.Context([info.device]), _PROBE_KERNEL).build()
+        quietly_built(cl.Context([info.device]), _PROBE_KERNEL)
     except cl.Error as error:
         lines = [line.strip() for line in str(error).splitlines()]
         reasons = [line for line in lines if line.startswith("error")] or [lines[0]]
@@ -257,14 +269,10 @@ class Compute:
         if key not in self._programs:
             source = kernel_path(package, filename).read_text()
             options = program_options(package, filename, defines, self.pool_lanes, self.doubles)
-            # The compiler's warnings (PoCL prints hundreds for vector-typed helpers) are kept, not
-            # shown: `iblbench doctor --verbose` prints them.
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", cl.CompilerWarning)
-                program = cl.Program(self.context, source).build(options=options)
+            program, printed = quietly_built(self.context, source, options)
             self._programs[key] = program
-            self.build_logs[f"{package}/{filename}"] = program.get_build_info(
-                self.info.device, cl.program_build_info.LOG).strip()
+            log = program.get_build_info(self.info.device, cl.program_build_info.LOG).strip()
+            self.build_logs[f"{package}/{filename}"] = "\n".join(filter(None, (log, printed)))
         return self._programs[key]
 
     def kernel(self, package: str, filename: str, name: str, defines: dict | None = None) -> cl.Kernel:

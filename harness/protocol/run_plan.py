@@ -60,6 +60,10 @@ def plan_run(config: RunConfig) -> RunPlan:
     specs = _estimator_specs(config)
     levels = {get_estimator_class(name).name: tuple(v) for name, v in config.spp_for}
     spp_levels = {spec.label: levels.get(spec.cls.name, tuple(config.spp)) for spec in specs}
+    without = [label for label, spp in spp_levels.items() if not spp]
+    if without and not config.time_budget_ms:
+        raise InputError(None, f"no spp for {', '.join(without)} and no time budget: give "
+                               f"{argument('spp')}, or levels to each estimator")
     _require_spp_within_bounds(specs, spp_levels)
     scenes = [load_scene(name, sanitize=config.sanitize, env_res=config.env_res)
               for name in config.scenes]
@@ -87,6 +91,22 @@ def _estimator_specs(config: RunConfig) -> list:
     by_label = dict(zip(labels, specs))
     return specs + [dataclasses.replace(by_label[label], control=True)
                     for label in control_labels(config.control, labels)]
+
+
+def sequences(run: RunPlan, config: RunConfig):
+    """Each sequence of a sweep, in its order: (scene plan, estimator spec, keys of its cells).
+    A cell is one rendered and scored image, keyed (scene, estimator label, spp, frame, seed,
+    time budget): a sequence's cells are its frames, at each of the estimator's spp levels
+    (budget None), then at each time budget (spp None), for each seed."""
+    seeds = range(config.first_seed, config.first_seed + config.seeds)
+    for plan in run.plans:
+        for spec in run.specs:
+            variants = ([(spp, None) for spp in run.spp_levels[spec.label]]
+                        + [(None, float(budget)) for budget in config.time_budget_ms])
+            for spp, budget in variants:
+                for seed in seeds:
+                    yield plan, spec, [(plan.scene.name, spec.label, spp, frame, seed, budget)
+                                       for frame in plan.frames]
 
 
 def cell_order(key: tuple):
@@ -121,8 +141,6 @@ def _require_sound_numbers(config: RunConfig) -> None:
         if not (math.isfinite(budget) and budget > 0):
             raise InputError(None, f"{argument('time_budget_ms')} must be positive, "
                                    f"got {budget}")
-    if not config.spp and not config.time_budget_ms:
-        raise InputError(None, "no spp and no time budget: the sweep has no cells")
 
 
 def _require_unique_names(scenes) -> None:

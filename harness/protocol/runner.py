@@ -24,7 +24,8 @@ finished cell is appended to the results journal as it comes back (in process, b
 one starts; see :mod:`iblbench.harness.protocol.results`), so a killed run, ``kill -9``
 included, loses only what is in flight: in process the cell, on a cluster the units (a temporal
 one is its whole sequence); Ctrl-C folds the journal into the table and marks the manifest
-"interrupted".  A scene none of whose cells is left is not even traced.
+"interrupted", and an error (a full disk) marks it "failed", with the error as its "failure".
+A scene none of whose cells is left is not even traced.
 
 One folder, one run at a time, one image configuration.  ``out``'s rows and manifest are read
 only under its lock (``_locked``), so a run folds back what the folder holds then, not a stale
@@ -135,8 +136,10 @@ from iblbench.harness.protocol.results import (FOLD_SECONDS, SCHEMA_VERSION, TAB
 from iblbench.harness.protocol.equal_time import CALIBRATION_REPEATS, TOLERANCE
 from iblbench.harness.protocol.progress import BAR_FORMAT, Progress
 from iblbench.harness.protocol.provenance import git_revision, package_version
-from iblbench.harness.protocol.run_plan import RunConfig, ScenePlan, cell_order, plan_run
-from iblbench.harness.protocol.shadows import attach_visibility, measured_record
+from iblbench.harness.protocol.run_plan import (RunConfig, ScenePlan, cell_order, plan_run,
+                                               sequences)
+from iblbench.harness.protocol.shadows import (attach_visibility, measured_record,
+                                               traces_visibility)
 from iblbench.harness.protocol.timing import (MEASURE, SPREAD_LIMIT, cell_times,
                                               cpu_snapshot, host_threads_capped,
                                               measure_timing_floor, others_cores,
@@ -192,7 +195,6 @@ class Runner:
     def __init__(self, config: RunConfig):
         self.plan = plan_run(config)
         self.config = config
-        self.seeds = range(config.first_seed, config.first_seed + config.seeds)
         self.specs, self.plans = self.plan.specs, self.plan.plans
         for plan in self.plans:
             environment = plan.scene.environment
@@ -283,12 +285,6 @@ class Runner:
 
     # ---- planning ----------------------------------------------------------------------------
 
-    def _variants(self, spec):
-        """(spp, budget) of each cell family of ``spec``: its spp levels (``spp_for`` or the
-        sweep's), then each time budget."""
-        return ([(spp, None) for spp in self.plan.spp_levels[spec.label]]
-                + [(None, float(b)) for b in self.config.time_budget_ms])
-
     def _valid(self, row: dict | None, plan: ScenePlan, spec) -> bool:
         """A row made with this configuration and code, on this run's device (a cluster: on one
         of its workers' devices)."""
@@ -306,24 +302,17 @@ class Runner:
         """The keys of the cells to run, the keys of every cell of the sweep, and the spp earlier
         rows chose for each (scene, estimator, budget)."""
         todo, cells, chosen = set(), set(), {}
-        for plan in self.plans:
-            for spec in self.specs:
-                for spp, budget in self._variants(spec):
-                    for seed in self.seeds:
-                        keys = [(plan.scene.name, spec.label, spp, frame, seed, budget)
-                                for frame in plan.frames]
-                        cells.update(keys)
-                        done = [not self.config.force and self._valid(self.rows.get(k), plan, spec)
-                                for k in keys]
-                        if spec.cls.tags.temporal and not all(done):
-                            todo.update(keys)       # a sequence is one unit of work
-                        else:
-                            todo.update(k for k, d in zip(keys, done) if not d)
-                        if budget is not None:
-                            for key, d in zip(keys, done):
-                                if d:
-                                    chosen[(plan.scene.name, spec.label, budget)] = int(
-                                        self.rows[key]["spp"])
+        for plan, spec, keys in sequences(self.plan, self.config):
+            cells.update(keys)
+            done = [not self.config.force and self._valid(self.rows.get(k), plan, spec)
+                    for k in keys]
+            if spec.cls.tags.temporal and not all(done):
+                todo.update(keys)       # a sequence is one unit of work
+            else:
+                todo.update(k for k, d in zip(keys, done) if not d)
+            for key, d in zip(keys, done):
+                if d and key[5] is not None:   # an equal-time cell done: the spp it chose
+                    chosen[(plan.scene.name, spec.label, key[5])] = int(self.rows[key]["spp"])
         return todo, cells, chosen
 
     def _new_manifest(self) -> dict:
@@ -457,6 +446,9 @@ class Runner:
             except KeyboardInterrupt:
                 saved = len(self._save_interrupted())
                 raise KeyboardInterrupt(f"{saved} cells saved; rerun to resume") from None
+            except Exception as error:   # a full disk above all: the manifest says so
+                self._mark_failed(error)
+                raise
             finally:
                 self.journal.close()
         return table
@@ -644,6 +636,18 @@ class Runner:
             write_manifest(self.out, self.manifest)
         return table
 
+    def _mark_failed(self, error: Exception) -> None:
+        """The manifest of a run that ``error`` ended (a full disk, a failing device) says
+        "failed" and why, not "running", where the disk still takes it; the journal keeps the
+        finished cells, which a rerun resumes from."""
+        if self.manifest["status"] != "running":   # already says how it ended ("incomplete")
+            return
+        self.manifest.update(status="failed", failure=str(error))
+        try:
+            write_manifest(self.out, self.manifest)
+        except OSError:   # not even the manifest fits: it says "running", as a killed run's does
+            pass
+
     def _fold(self):
         self.journal.close()
         return write_results(self.out, sorted(self.rows.values(), key=self._table_order))
@@ -680,7 +684,8 @@ class Runner:
                              f"the camera sees none of the mesh{mesh}; check the camera's eye "
                              "and target, and the mesh's position and size")
         warn_about_framing(scene, gbuffer)   # too few mesh pixels, or the camera inside the mesh
-        with tqdm(total=gbuffer.covered, unit="px", disable=self._bar_disabled(), leave=False,
+        with tqdm(total=gbuffer.covered, unit="px", leave=False,
+                  disable=self._bar_disabled() if traces_visibility(scene) else True,
                   desc=f"{scene.name}: tracing visibility") as bar:
             gbuffer, record = attach_visibility(scene, gbuffer, plan.env_res, cache_dir() / "visibility",
                                                 bar.update)

@@ -22,7 +22,7 @@ def attach_visibility(scene, gbuffer, env_res: int, folder, progress=None) -> tu
     if not scene.visibility:
         return gbuffer, None
     record = {"scene": scene.name, "visibility_res": scene.visibility_res, "covered_pixels": gbuffer.covered}
-    if not visibility.needs_visibility(scene.mesh):
+    if not traces_visibility(scene):
         return gbuffer, dict(record, skipped="one convex mesh and nothing else: V = 1 wherever its "
                                              "surface faces ω, so nothing is traced")
     try:
@@ -37,6 +37,12 @@ def attach_visibility(scene, gbuffer, env_res: int, folder, progress=None) -> tu
                   embree_rays_per_s=round(stats.rays_per_second),
                   bytes_per_pixel=4 * visibility.words(scene.visibility_res))
     return dataclasses.replace(gbuffer, visibility=masks, visibility_res=scene.visibility_res), record
+
+
+def traces_visibility(scene) -> bool:
+    """Whether :func:`attach_visibility` traces the scene's masks (or reads them from the
+    cache): it asks for visibility, and its geometry can shadow itself."""
+    return bool(scene.visibility) and visibility.needs_visibility(scene.mesh)
 
 
 def measured_record(scene, gbuffer, env, record: dict) -> dict:

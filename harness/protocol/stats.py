@@ -38,7 +38,10 @@ interval for the median from order statistics, interpolated as Hettmansperger & 
 do, :func:`median_ci`.  It assumes only that the renders' times are independent draws of one
 distribution (a steady device: the manifest's timing floor says how steady it was).  Below 6
 renders no pair of order statistics reaches 95%: the interval is then the range, and its level
-(50% at 2, 75% at 3, 87.5% at 4, 93.75% at 5) is carried in :attr:`MeanCI.level`.
+(50% at 2, 75% at 3, 87.5% at 4, 93.75% at 5) is carried in :attr:`MeanCI.level`.  The host
+wall time (:data:`LOG_SCALE_COLUMNS`), one median per seed, is their geometric mean with the
+t interval of their logarithms, :func:`geometric_mean_ci`: a positive, skewed duration, whose
+plain t interval over two seeds reached below zero.
 
 **Times are per device.**  A table may hold rows that several devices ran (the ``device``
 column: a sweep spread over machines).  A time (``time_ms`` and every other ``time_*`` column)
@@ -96,6 +99,11 @@ MEAN_METHOD = ("mean over the cell's scored renders (every timed render of every
 SEED_METHOD = "mean over seeds, 95% Student-t interval"
 MEDIAN_METHOD = ("median of the cell's timed renders (every seed and frame), 95% order-statistic "
                  "interval (Hettmansperger-Sheather)")
+GEOMETRIC_METHOD = ("geometric mean of the cell's values, 95% Student-t interval of their "
+                    "logarithms (a positive, right-skewed time: the interval stays positive)")
+# Columns of positive, right-skewed durations: their intervals are taken on a log scale, where a
+# t interval over two seeds gave a host wall time of 600 ± 1300 ms (issue 35).
+LOG_SCALE_COLUMNS = ("time_ms_host",)
 RATIO_METHOD = ("ratio of means B/A, 95% interval by the delta method on log(ratio): paired where "
                 "both cells have the same (seed, render) replicates, else Welch-Satterthwaite")
 TIME_COLUMN = "time_ms"       # the one column aggregated as a median (timing.TIME)
@@ -127,8 +135,9 @@ class MeanCI:
         return (self.high - self.low) / 2
 
     def text(self, digits: int = 4) -> str:
-        """``mean ± half-width``, or ``mean (n=1, no interval)``."""
-        return interval_text(self.mean, self.half_width, self.n, digits)
+        """``mean ± half-width``, ``mean [low, high]`` or ``mean (n=1, no interval)``
+        (:func:`interval_text`)."""
+        return interval_text(self.mean, self.half_width, self.n, digits, self.low, self.high)
 
     def to_dict(self) -> dict:
         return {"mean": _finite(self.mean), "low": _finite(self.low), "high": _finite(self.high),
@@ -148,6 +157,16 @@ def mean_ci(values, level: float = LEVEL) -> MeanCI:
     sd = float(values.std(ddof=1))
     half = t_quantile(n - 1, level) * sd / math.sqrt(n)
     return MeanCI(mean, mean - half, mean + half, n, sd)
+
+
+def geometric_mean_ci(values, level: float = LEVEL) -> MeanCI:
+    """Geometric mean of independent positive values with the Student-t interval of their
+    logarithms, exponentiated: positive, and asymmetric about its figure as a duration's
+    spread is."""
+    values = np.asarray(values, dtype=np.float64).ravel()
+    logs = mean_ci(np.log(values), level)
+    sd = float(values.std(ddof=1)) if values.size > 1 else math.nan
+    return MeanCI(math.exp(logs.mean), math.exp(logs.low), math.exp(logs.high), logs.n, sd, level)
 
 
 def skew_corrected_ci(values, level: float = LEVEL) -> MeanCI:
@@ -333,8 +352,9 @@ def cell_values(rows, column: str):
 def column_interval(rows, column: str) -> tuple[MeanCI, str]:
     """One cell's figure of ``column`` with its interval, and the method that made it: the time
     (``TIME_COLUMN``) as :func:`median_ci` of every timed render where the rows carry them, any
-    other figure over :func:`cell_values`: :func:`skew_corrected_ci` of replicates,
-    :func:`mean_ci` of per-seed values.  A time of rows from several devices is a ValueError
+    other figure over :func:`cell_values`: :func:`geometric_mean_ci` for
+    :data:`LOG_SCALE_COLUMNS`, :func:`skew_corrected_ci` of replicates, :func:`mean_ci` of
+    per-seed values.  A time of rows from several devices is a ValueError
     (module docstring: times are per device)."""
     if column.startswith("time_") and len(devices(rows)) > 1:
         raise ValueError(f"{column} of rows from several devices ({', '.join(devices(rows))}): "
@@ -344,6 +364,8 @@ def column_interval(rows, column: str) -> tuple[MeanCI, str]:
         if times.size:
             return median_ci(times), MEDIAN_METHOD
     values, method = cell_values(rows, column)
+    if column in LOG_SCALE_COLUMNS and (values > 0).all():
+        return geometric_mean_ci(values.to_numpy()), GEOMETRIC_METHOD
     interval = skew_corrected_ci if method == MEAN_METHOD else mean_ci
     return interval(values.to_numpy()), method
 
@@ -365,21 +387,35 @@ def compare_values(a, b) -> RatioCI:
 
 
 
-def interval_text(mean: float, half_width: float, n: int, digits: int = 4) -> str:
+def interval_text(mean: float, half_width: float, n: int, digits: int = 4,
+                  low: float = math.nan, high: float = math.nan) -> str:
     """How every table shows a cell: ``mean ± half-width`` of its 95% interval, both rounded at
     the half-width's second significant digit (``3.0 ± 6.6``, ``5800 ± 4000``); ``mean (n=1, no
     interval)`` without one and ``–`` for a NaN mean.  A half-width below the mean's ``digits``-th
-    significant digit is shown as 0 (equal values give a rounding-error spread, 1e-17)."""
+    significant digit is shown as 0 (equal values give a rounding-error spread, 1e-17).  An
+    interval [``low``, ``high``] that stays positive while its half-width passes the mean (a
+    time's, skewed) is shown as ``mean [low, high]``, each to two significant digits: ``± `` would
+    reach below zero."""
     if not math.isfinite(mean):
         return "–"
     if not math.isfinite(half_width):
         return f"{mean:.{digits}g} (n={n}, no interval)"
     if half_width <= abs(mean) * 10.0 ** -digits:
         return f"{mean:.{digits}g} ± 0"
+    if half_width > abs(mean) and low >= 0:
+        return f"{_two_digits(mean)} [{_two_digits(low)}, {_two_digits(high)}]"
     place = math.floor(math.log10(half_width)) - 1
     decimals = max(-place, 0)
     mean = round(mean, -place) + 0.0            # + 0.0: no "-0.0"
     return f"{mean:.{decimals}f} ± {round(half_width, -place):.{decimals}f}"
+
+
+def _two_digits(value: float) -> str:
+    """``value`` at two significant digits, without an exponent (``7000``, ``0.48``)."""
+    if value == 0:
+        return "0"
+    place = math.floor(math.log10(abs(value))) - 1
+    return f"{round(value, -place) + 0.0:.{max(-place, 0)}f}"
 
 
 def cell_intervals(table, keys, columns):

@@ -76,8 +76,10 @@ if sys.version_info >= (3, 11):
 else:   # pragma: no cover
     import tomli as tomllib
 
-SHIPPED = ("quick", "default", "full", "temporal", "frontier")
 CONFIG_PACKAGE = "iblbench.harness.configs"
+# The shipped configs' names, read from their folder so that a new one is listed everywhere.
+SHIPPED = tuple(sorted(entry.name.removesuffix(".toml") for entry in files(CONFIG_PACKAGE).iterdir()
+                       if entry.name.endswith(".toml")))
 # A sweep file's keys: its settings, a per-name one (``spp_for``) given in its own (``spp``).
 KEYS = {"protocol", "description", *(name for name in SWEEP_FIELDS if not name.endswith("_for"))}
 REQUIRED = ("protocol", "scenes", "estimators", "seeds")
@@ -393,8 +395,10 @@ def parse_sweep(document: dict, path: Path, source: str) -> Sweep:
         except ValueError as error:
             fail(str(error))
     budgets = _time_budgets(document.get("time_budget_ms", []), fail)
-    if not spp and not budgets:
-        fail("spp is empty and there is no time_budget_ms: the sweep has no cells")
+    without = [] if spp or budgets else _without_own_levels(labels, spp_for)
+    if without:
+        fail(f"spp gives {', '.join(without)} no levels and there is no time_budget_ms: give "
+             "spp.default, or levels to each estimator (spp = {NAME = [...], ...})")
     sanitize = document.get("sanitize", False)
     if not isinstance(sanitize, bool):
         fail(f"sanitize must be true or false, got {sanitize!r}")
@@ -437,6 +441,12 @@ def declared_spp() -> dict[str, tuple[int, ...]]:
     """Name -> the spp levels its ``sweep`` declares, of those that declare their own."""
     return {cls.name: tuple(sorted(set(part.spp))) for cls, part in _declared_parts()
             if part.spp is not None}
+
+
+def _without_own_levels(labels, spp_for) -> list[str]:
+    """The estimators of ``labels`` that ``spp_for`` gives no spp levels of their own."""
+    own = {name for name, levels in spp_for if levels}
+    return [label for label in labels if parse_estimator(label).cls.name not in own]
 
 
 def _estimator_labels(estimators, fail) -> list[str]:
