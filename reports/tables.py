@@ -269,6 +269,14 @@ def with_ray_cost(cells: pd.DataFrame, ns_per_ray: float, pixels: int) -> pd.Dat
     return cells.assign(**{c: cells[c] + charge for c in (TIME, f"{TIME}_low", f"{TIME}_high") if c in cells})
 
 
+def _pixels_and_samples(error: dict) -> str:
+    """"n of N × samples"; a run before issue 34 recorded no ``covered``."""
+    if not error:
+        return "–"
+    of = f" of {error['covered']}" if "covered" in error else ""
+    return f"{error['pixels']}{of} × {error['samples']}"
+
+
 def _visibility_table(manifest: dict) -> markupsafe.Markup | None:
     """The visibility records: one row per scene and Rv of the masked reference against real
     shadow rays (``harness/protocol/visibility_error.py``), with the trace's cost."""
@@ -284,8 +292,7 @@ def _visibility_table(manifest: dict) -> markupsafe.Markup | None:
                          "± (95%)": error.get("interval", "–"),
                          "per pixel p90": error.get("pixel_difference_p90", "–"),
                          "its noise floor": error.get("pixel_noise_p90", "–"),
-                         "pixels × samples": (f"{error['pixels']} of {error['covered']} × {error['samples']}"
-                                              if error else "–")})
+                         "pixels × samples": _pixels_and_samples(error)})
     return table_html(pd.DataFrame(rows), "summary") if rows else None
 
 

@@ -320,3 +320,15 @@ def test_a_bad_visibility_resolution_is_a_one_line_error_naming_the_scene(tmp_pa
     assert result.returncode == 2
     assert "scene.toml" in result.stderr and "power of two" in result.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_the_report_shows_a_visibility_record_of_a_run_before_issue_34():
+    """A manifest written before issue 34 has no ``covered``, ``interval`` or noise floor in its
+    visibility rows: the report's table shows what it has and dashes, not a KeyError."""
+    from iblbench.reports.tables import _visibility_table
+    old = {"visibility_res": 16, "pixels": 48, "samples": 65536, "relative_difference": 0.0026,
+           "pixel_difference_p90": 0.011, "relative_standard_error": 0.0007}
+    manifest = {"visibility": [{"scene": "park-ground", "visibility_res": 16, "cached": False,
+                                "trace_seconds": 1.0, "embree_rays_per_s": 1e6, "geometric_error": [old]}]}
+    html = str(_visibility_table(manifest))
+    assert "48 × 65536" in html and "–" in html
