@@ -156,3 +156,19 @@ def test_the_reference_is_the_same_one_group_a_launch(compute, monkeypatch, laun
         sizes.append([size for name, size, _ in launches if name == "reference"])
     assert sizes == [[SIZE * SIZE], [64] * 9]
     np.testing.assert_array_equal(images[1], images[0])
+
+
+def test_a_second_render_of_a_kind_starts_at_the_last_ones_rate(compute, monkeypatch, launches):
+    """At the 100 ms target a first render's pixel kernel starts at one group and grows; a render
+    of the same kernel, size and spp after it (another seed: the Philox keys set no item's work)
+    starts at what the first one's last launch ran at, so its 576 pixels of 4 spp fit one launch."""
+    monkeypatch.setattr(chunks, "_RATES", {})
+    estimator, gbuffer = get_estimator_class("uniform")(), DeviceGBuffer(compute, glossy_gbuffer(SIZE))
+    cache = FrameCache(compute, smooth_map(8))
+    cache.require(type(estimator).requires)
+    counts = []
+    for seed in (1, 2):
+        launches.clear()
+        estimator.render(gbuffer, cache, 4, seed)
+        counts.append(sum(name == "render_light_pool" for name, _, _ in launches))
+    assert counts[0] > 1 and counts[1] == 1, counts

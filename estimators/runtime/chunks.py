@@ -29,15 +29,21 @@ FIRST_CHUNK_ITEMS = 1
 # A launch takes at most this many times the last one's items: bis's launches of 4× the pixels
 # took 7× as long (its scratch left the cache), so a larger step could pass CHUNK_MS.
 MOST_GROWTH = 2
+# Items a millisecond that the last launch of each kind ran at (a caller's key that holds what sets
+# an item's work, e.g. a kernel and its scalar arguments, spp among them): the next run of that kind
+# starts there, so a timed render after its warm-up runs in as few launches as the target allows
+# (one where the whole fits), not from one group up with a wait between each (issue 34).
+_RATES: dict = {}
 
 
 def run_in_chunks(total: int, group: int, launch: Callable[[int, int], cl.Event],
-                  most: int | None = None) -> list[cl.Event]:
+                  most: int | None = None, kind=None) -> list[cl.Event]:
     """Work items 0 … ``total`` − 1 in order, by ``launch(first, count)``, which runs items
     first … first + count − 1 in one launch, waits for it and returns its profiled event; returns
     the events.
 
-    The first launch takes FIRST_CHUNK_ITEMS, each later one as many as the last one's measured
+    The first launch takes what the last launch of ``kind`` ran at fills AIM × CHUNK_MS with, or
+    FIRST_CHUNK_ITEMS where ``kind`` is None or new; each later one as many as the last one's measured
     rate fills AIM × CHUNK_MS with, but at most MOST_GROWTH times the last (one launch timed too short
     cannot make the next minutes long) and at most ``most`` (a caller's scratch bound); every
     count but the last is a whole number of ``group`` items, at least one group."""
@@ -45,11 +51,15 @@ def run_in_chunks(total: int, group: int, launch: Callable[[int, int], cl.Event]
         items = max(group, items // group * group)
         return items if most is None else min(items, most)
 
-    events, first, count = [], 0, whole_groups(FIRST_CHUNK_ITEMS)
+    rate = _RATES.get(kind) if kind is not None else None
+    events, first = [], 0
+    count = whole_groups(int(rate * AIM * CHUNK_MS) if rate else FIRST_CHUNK_ITEMS)
     while first < total:
         count = min(count, total - first)
         events.append(launch(first, count))
         first += count
         ms = event_ms(events[-1])
+        if kind is not None:
+            _RATES[kind] = count / max(ms, 1e-3)
         count = whole_groups(min(MOST_GROWTH * count, int(count * AIM * CHUNK_MS / max(ms, 1e-3))))
     return events

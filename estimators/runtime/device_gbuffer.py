@@ -70,9 +70,14 @@ class DeviceGBuffer:
         kernel's work grows with spp).  A launch's global ids start at its first pixel, so a work
         item's pixel is ``get_global_id(0)``, but ``get_global_size(0)`` is that launch's size: a
         kernel whose outputs are planes takes ``launch_size`` as an argument.  Returns the
-        launches' events (``event_ms`` sums them)."""
+        launches' events (``event_ms`` sums them).  The launch sizes start from the rate of the
+        last run of the same kernel, device and signed scalar arguments (spp among them; the
+        unsigned ones are the Philox keys, seed and frame, which set no item's work)."""
+        scalars = tuple(a.item() if isinstance(a, np.generic) else a for a in args
+                        if isinstance(a, (int, float, np.generic)) and not isinstance(a, np.unsignedinteger))
+        kind = (id(compute), kernel.function_name, self.launch_size, scalars)
         return run_in_chunks(self.launch_size, PIXEL_GROUP, lambda first, count: compute.run(
-            kernel, count, *args, group=PIXEL_GROUP, offset=first))
+            kernel, count, *args, group=PIXEL_GROUP, offset=first), kind=kind)
 
     def scatter(self, values: np.ndarray) -> np.ndarray:
         """Per-covered-pixel ``[N, ...]`` → image ``[H, W, ...]`` with zeros elsewhere."""
