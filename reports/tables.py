@@ -152,11 +152,11 @@ def equal_time_html(rows: pd.DataFrame) -> markupsafe.Markup:
 
 def intervals(cells: pd.DataFrame, column: str) -> list[str]:
     """The column's cells as ``mean ± half-width`` or ``mean [low, high]``
-    (``stats.interval_text``)."""
+    (``stats.interval_text``; ``mean ± half-width`` where the cells carry no bounds)."""
     counts = cells[f"{column}_n"] if f"{column}_n" in cells else cells.seeds
+    bound = lambda side: cells[f"{column}_{side}"] if f"{column}_{side}" in cells else [np.nan] * len(cells)
     return [interval_text(mean, half, n, low=low, high=high) for mean, half, n, low, high in
-            zip(cells[column], cells[f"{column}_half"], counts, cells[f"{column}_low"],
-                cells[f"{column}_high"])]
+            zip(cells[column], cells[f"{column}_half"], counts, bound("low"), bound("high"))]
 
 
 _TABLE_COLUMNS = {   # summary column → header (with units)
