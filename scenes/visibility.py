@@ -36,6 +36,7 @@ scene still reports the Embree ray rate measured when it was traced.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import os
 import pathlib
@@ -85,9 +86,11 @@ class TraceStats:
         return self.rays / self.seconds if self.seconds > 0 else float("nan")
 
 
+@functools.lru_cache(maxsize=8)
 def cell_rays(vis_res: int) -> tuple[np.ndarray, np.ndarray]:
     """The unit direction through every cell's centre ``[6·Rv², 3]`` and each cell's four corner
-    directions ``[6·Rv², 4, 3]``, cells in bit order."""
+    directions ``[6·Rv², 4, 3]``, cells in bit order (made once per Rv: :func:`cell_answers` asks
+    for them per batch of samples; read-only)."""
     cells = np.arange(vis_res)
     face, row, col = np.meshgrid(np.arange(6), cells, cells, indexing="ij")
     face, row, col = (a.reshape(-1, 1) for a in (face, row, col))
@@ -95,6 +98,7 @@ def cell_rays(vis_res: int) -> tuple[np.ndarray, np.ndarray]:
     corner_s = np.array([0.0, 1.0, 0.0, 1.0])
     corner_t = np.array([0.0, 0.0, 1.0, 1.0])
     corners = cubemap.face_st_to_direction(face, (col + corner_s) / vis_res, (row + corner_t) / vis_res)
+    rays.flags.writeable = corners.flags.writeable = False
     return rays, corners
 
 
