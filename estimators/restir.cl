@@ -138,6 +138,9 @@ ALWAYS_INLINE int pick_by_weight(const float *weights, int n, float total, float
     return chosen;
 }
 
+/* Y of the lanes' colours (vec3_luminance's arithmetic). */
+ALWAYS_INLINE lanes_t lanes_luminance(lanes3_t c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+
 /* One reservoir per lane over the lanes' candidates seen so far (Bitterli Alg. 2's streaming
  * update, each lane its own stream of candidates). */
 typedef struct {
@@ -163,8 +166,7 @@ ALWAYS_INLINE void stream_candidates(lane_reservoirs_t *r, const shading_t *s, _
     lane_ints_t face, row, col;
     lanes_t jacobian = lanes_texel_of(res, w, &face, &row, &col);
     lane_ints_t texel = (face * res + row) * res + col;
-    lanes3_t radiance = lanes_texel_radiance(env, texel);
-    lanes_t luminance = 0.2126f * radiance.x + 0.7152f * radiance.y + 0.0722f * radiance.z;
+    lanes_t luminance = lanes_luminance(lanes_texel_radiance(env, texel));
     lanes_t rho = vec3_luminance(s->kd) / IBL_PI + vec3_luminance(s->ks) * ((s->m + 2.0f) / (2.0f * IBL_PI)) * power;
     lane_ints_t counted = active & (cosine > 0.0f);
     lanes_t target = select((lanes_t)0.0f, luminance * rho * cosine, counted & lanes_visible(visibility, p, w));
@@ -337,65 +339,232 @@ __kernel void restir_initial_temporal(__global const float4 *normal, __global co
     stats[p] = (float4)(evaluations, 0.0f, 0.0f, shadow_rays);
 }
 
-/* Neighbour j of chain c of pixel p (image position `at` of a width × height image): a pixel
- * uniform in the disc of `radius` pixels about it, clamped to the image, not p itself, covered,
- * and passing RTXDI's normal and depth tests; -1 if none. */
-ALWAYS_INLINE int spatial_neighbour(int p, int at, int width, int height, float radius, uint seed, uint frame,
-                                    int c, int j, __global const int *pixel_at, __global const float4 *normal,
-                                    __global const float *depth)
+/* ---- pass 2 in explicit lanes: POOL_LANES chains of one pixel at a time, a chain a lane --------
+ * Each lane runs spatial reuse's arithmetic of one chain (combine_reservoirs' and restir_target's,
+ * bit for bit): the inputs keep fixed slots (0: the pixel's own reservoir, 1 + j: neighbour j's)
+ * instead of being packed, a slot without a neighbour masked; it adds exactly 0 to every sum
+ * and is never chosen, so the sums, the pick and the result are those of the packed inputs. */
+
+/* Reservoirs of the lanes' chains (reservoir_t's fields). */
+typedef struct {
+    lanes_t x, y, z, weight, confidence, target;
+} lane_reservoirs_of_chains_t;
+
+/* What p̂ needs of the lanes' pixels' shading: n, r, m, Y(kd)/π and Y(ks) (load_shading's and
+ * brdf_luminance's arithmetic). */
+typedef struct {
+    lanes3_t n, r;
+    lanes_t m, diffuse, specular;
+} lane_targets_t;
+
+ALWAYS_INLINE lanes3_t gather_lanes3(__global const float4 *buffer, lane_ints_t i)
 {
-    philox4x32_ctr_t xi = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, (uint)(1 + j), (uint)c);
-    float sine, cosine, distance = radius * sqrt(rng_unit(xi.v[0]));
-    sincos_turn(rng_unit(xi.v[1]), &sine, &cosine);
-    int x = clamp(at % width + (int)rint(distance * cosine), 0, width - 1);
-    int y = clamp(at / width + (int)rint(distance * sine), 0, height - 1);
-    int q = pixel_at[y * width + x];
-    if (q < 0 || q == p) return -1;
-    if (vec3_dot(vec3_load(normal, p), vec3_load(normal, q)) < NORMAL_THRESHOLD) return -1;
-    if (fabs(depth[q] - depth[p]) > DEPTH_THRESHOLD * depth[p]) return -1;
-    return q;
+    __global const float *f = (__global const float *)buffer;
+    return make_lanes3(GATHER(lanes_t, f, 4 * i), GATHER(lanes_t, f, 4 * i + 1), GATHER(lanes_t, f, 4 * i + 2));
 }
 
-/* Chain c of pixel p's reservoir of pass 1 combined with up to `neighbours` neighbours' of the
- * same chain (also of pass 1, so no pixel reads what another writes); *evaluations, *shadow_rays
- * and *reused grow by the targets evaluated, those with V, and the neighbours found. */
-ALWAYS_INLINE reservoir_t spatial_reuse(__global const float4 *normal, __global const float4 *view,
+ALWAYS_INLINE lanes_t lanes_dot3(lanes3_t a, lanes3_t b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+
+/* Chains `chain`'s reservoirs of pass 1 at the lanes' pixels q. */
+ALWAYS_INLINE void load_lane_reservoirs(__global const float4 *sample, __global const float4 *info, int n,
+                                        lane_ints_t chain, lane_ints_t q, lane_reservoirs_of_chains_t *r)
+{
+    lane_ints_t at = 4 * (chain * n + q);
+    __global const float *samples = (__global const float *)sample, *infos = (__global const float *)info;
+    r->x = GATHER(lanes_t, samples, at);
+    r->y = GATHER(lanes_t, samples, at + 1);
+    r->z = GATHER(lanes_t, samples, at + 2);
+    r->weight = GATHER(lanes_t, samples, at + 3);
+    r->confidence = GATHER(lanes_t, infos, at);
+    r->target = GATHER(lanes_t, infos, at + 1);
+}
+
+ALWAYS_INLINE void load_lane_targets(__global const float4 *normal, __global const float4 *view,
+                                     __global const float4 *kd, __global const float4 *ks_m, lane_ints_t q,
+                                     lane_targets_t *s)
+{
+    lanes3_t n = gather_lanes3(normal, q), v = gather_lanes3(view, q);
+    lanes_t k = 2.0f * lanes_dot3(n, v);   /* vec3_reflect_view */
+    s->n = n;
+    s->r = make_lanes3(k * n.x - v.x, k * n.y - v.y, k * n.z - v.z);
+    s->m = GATHER(lanes_t, (__global const float *)ks_m, 4 * q + 3);
+    s->diffuse = lanes_luminance(gather_lanes3(kd, q)) / IBL_PI;
+    s->specular = lanes_luminance(gather_lanes3(ks_m, q));
+}
+
+/* p̂ of the lanes' pixels s at the lanes' directions w (restir_target's arithmetic), given L_Y(w)
+ * and V as the mask `open`. */
+ALWAYS_INLINE lanes_t lanes_restir_target(const lane_targets_t *s, lanes3_t w, lanes_t luminance, lane_ints_t open)
+{
+    lanes_t cosine = lanes_dot3(s->n, w);
+    lanes_t power = phong_power_lanes(max(lanes_dot3(s->r, w), 0.0f), s->m);
+    lanes_t rho = s->diffuse + s->specular * ((s->m + 2.0f) / (2.0f * IBL_PI) * power);
+    return select((lanes_t)0.0f, luminance * rho * cosine, (cosine > 0.0f) & open);
+}
+
+/* lanes_cells_open of light_pool.cl with a pixel per lane. */
+ALWAYS_INLINE lane_ints_t lanes_cells_open_of(__global const uint *visibility, lane_ints_t pixel, lane_ints_t cell)
+{
+#if VISIBILITY
+    lane_longs_t word = convert_lane_longs(pixel) * VIS_WORDS + convert_lane_longs(cell >> 5);
+    return ((GATHER(lane_uints_t, visibility, word) >> convert_lane_uints(cell & 31)) & 1u) != 0u;
+#else
+    return (lane_ints_t)(-1);
+#endif
+}
+
+/* Neighbour j of the lanes' chains of pixel p (image position `at` of a width × height image): a
+ * pixel uniform in the disc of `radius` pixels about it, clamped to the image, not p itself,
+ * covered, and passing RTXDI's normal and depth tests; -1 where none. */
+ALWAYS_INLINE lane_ints_t spatial_neighbour(int p, int at, int width, int height, float radius, uint seed,
+                                            uint frame, lane_ints_t chain, int j, __global const int *pixel_at,
+                                            __global const float4 *normal, __global const float *depth)
+{
+    lane_block_t xi = rng_block_draws_lanes(seed, frame, STREAM_RESTIR_REUSE, (uint)p, (uint)(1 + j),
+                                            convert_lane_uints(chain));
+    lanes_t sine, cosine, distance = radius * sqrt(lanes_unit(xi.v[0]));
+    sincos_turn_lanes(lanes_unit(xi.v[1]), &sine, &cosine);
+    lane_ints_t x = clamp(at % width + convert_lane_ints(rint(distance * cosine)), (lane_ints_t)0, (lane_ints_t)(width - 1));
+    lane_ints_t y = clamp(at / width + convert_lane_ints(rint(distance * sine)), (lane_ints_t)0, (lane_ints_t)(height - 1));
+    lane_ints_t q = GATHER(lane_ints_t, pixel_at, y * width + x);
+    lane_ints_t covered = max(q, (lane_ints_t)0);   /* where q is -1 the loads read pixel 0, unused */
+    float depth_p = depth[p];
+    lane_ints_t rejected = (q < 0) | (q == p)
+                         | (lanes_dot(vec3_load(normal, p), gather_lanes3(normal, covered)) < NORMAL_THRESHOLD)
+                         | (fabs(GATHER(lanes_t, depth, covered) - depth_p) > DEPTH_THRESHOLD * depth_p);
+    return select(q, (lane_ints_t)(-1), rejected);
+}
+
+/* The slots' inputs of the lanes' chains: the reservoirs r, their pixels, whether each is there
+ * (`valid`), and the map's luminance and the visibility cell at each one's sample; returns the
+ * neighbours found per lane. */
+ALWAYS_INLINE lane_ints_t spatial_inputs(int p, int n, lane_ints_t chain, int at, int width, int height, int neighbours,
+                                         float radius, uint seed, uint frame, __global const int *pixel_at,
+                                         __global const float4 *normal, __global const float *depth,
+                                         __global const float4 *env, int res, __global const float4 *in_sample,
+                                         __global const float4 *in_info, lane_reservoirs_of_chains_t *r,
+                                         lane_ints_t *pixels, lane_ints_t *valid, lanes_t *luminance, lane_ints_t *cell)
+{
+    lane_ints_t found = 0;
+    for (int i = 0; i <= neighbours; ++i) {
+        lane_ints_t q = i == 0 ? (lane_ints_t)p : spatial_neighbour(p, at, width, height, radius, seed, frame, chain,
+                                                                    i - 1, pixel_at, normal, depth);
+        valid[i] = q >= 0;
+        pixels[i] = select(q, (lane_ints_t)p, q < 0);   /* an absent neighbour reads the pixel's own */
+        if (i > 0) found -= valid[i];
+        load_lane_reservoirs(in_sample, in_info, n, chain, pixels[i], &r[i]);
+        lanes3_t w = make_lanes3(r[i].x, r[i].y, r[i].z);
+        lane_ints_t face, row, col;
+        lanes_texel_of(res, w, &face, &row, &col);
+        luminance[i] = lanes_luminance(lanes_texel_radiance(env, (face * res + row) * res + col));
+        cell[i] = lanes_visibility_cell(w);
+    }
+    return found;
+}
+
+/* combine_reservoirs of the slots' inputs, a chain a lane, with the targets p̂_j(ω_i) evaluated
+ * as spatial reuse defines them (restir_target of domain j, with V where `unbiased` or j = 0; the
+ * diagonal the inputs' own): the unbiased weights' denominators Σ_j c_j s_j p̂_j(ω_i) and the
+ * biased Z's supports (bit j: p̂_j(ω_i) > 0) are summed domain by domain, as there. */
+ALWAYS_INLINE void combine_lanes(const lane_reservoirs_of_chains_t *r, const lane_ints_t *pixels,
+                                 const lane_ints_t *valid, const lanes_t *luminance, const lane_ints_t *cell,
+                                 int slots, int unbiased, __global const float4 *normal, __global const float4 *view,
+                                 __global const float4 *kd, __global const float4 *ks_m,
+                                 __global const uint *visibility, __global const float *scales, lanes_t u,
+                                 lane_reservoirs_of_chains_t *out)
+{
+    lanes_t denominator[MAX_NEIGHBOURS + 1], own_target[MAX_NEIGHBOURS + 1], scale[MAX_NEIGHBOURS + 1];
+    lane_ints_t support[MAX_NEIGHBOURS + 1];
+    lanes_t confidence = 0.0f;
+    for (int i = 0; i < slots; ++i) {
+        confidence += select((lanes_t)0.0f, r[i].confidence, valid[i]);
+        denominator[i] = 0.0f;
+        support[i] = 0;
+    }
+    for (int j = 0; j < slots; ++j) {
+        lane_targets_t s;
+        load_lane_targets(normal, view, kd, ks_m, pixels[j], &s);
+        scale[j] = GATHER(lanes_t, scales, pixels[j]);
+        for (int i = 0; i < slots; ++i) {
+            lane_ints_t open = unbiased || j == 0 ? lanes_cells_open_of(visibility, pixels[j], cell[i]) : (lane_ints_t)(-1);
+            lanes_t target = i == j ? r[i].target
+                           : lanes_restir_target(&s, make_lanes3(r[i].x, r[i].y, r[i].z), luminance[i], open);
+            if (j == 0) own_target[i] = target;   /* p̂_0(ω_i), domain 0 the pixel's own */
+            if (unbiased)
+                denominator[i] = select(denominator[i], denominator[i] + r[j].confidence * scale[j] * target, valid[j]);
+            else
+                support[i] |= select((lane_ints_t)0, (lane_ints_t)(1 << j), valid[j] & (target > 0.0f));
+        }
+    }
+    lanes_t weights[MAX_NEIGHBOURS + 1], total = 0.0f;
+    for (int i = 0; i < slots; ++i) {
+        lanes_t w = own_target[i] * r[i].weight;
+        if (unbiased) w *= r[i].confidence * scale[i] * r[i].target / denominator[i];
+        else w *= r[i].confidence;
+        weights[i] = select((lanes_t)0.0f, w, valid[i] & (w > 0.0f) & isfinite(w));
+        total += weights[i];
+    }
+    /* pick_by_weight */
+    lanes_t threshold = u * total, running = 0.0f;
+    lane_ints_t chosen = -1, last = -1;
+    for (int i = 0; i < slots; ++i) {
+        running += weights[i];
+        chosen = select(chosen, (lane_ints_t)i, (chosen < 0) & (weights[i] > 0.0f) & (threshold < running));
+        last = select(last, (lane_ints_t)i, weights[i] > 0.0f);
+    }
+    chosen = select(chosen, last, chosen < 0);
+    lane_ints_t kept = (chosen >= 0) & isfinite(total), chosen_support = 0;
+    *out = r[0];
+    out->weight = 0.0f;
+    out->confidence = confidence;
+    out->target = 0.0f;
+    for (int i = 0; i < slots; ++i) {
+        lane_ints_t pick = kept & (chosen == i);
+        out->x = select(out->x, r[i].x, pick);
+        out->y = select(out->y, r[i].y, pick);
+        out->z = select(out->z, r[i].z, pick);
+        out->target = select(out->target, own_target[i], pick);
+        chosen_support = select(chosen_support, support[i], pick);
+    }
+    lanes_t normaliser = 1.0f;   /* Z(ω) of the biased combination */
+    if (!unbiased) {
+        normaliser = 0.0f;
+        for (int j = 0; j < slots; ++j)
+            normaliser += select((lanes_t)0.0f, r[j].confidence, (chosen_support & (1 << j)) != 0);
+    }
+    lanes_t weight = total / (out->target * normaliser);
+    out->weight = select((lanes_t)0.0f, weight, kept & isfinite(weight));
+}
+
+/* Spatial reuse of the lanes' chains of pixel p: each one's reservoir of pass 1 combined with up
+ * to `neighbours` neighbours' of the same chain (also of pass 1, so no pixel reads what another
+ * writes), or kept as it is where no neighbour is found; returns the neighbours found. */
+ALWAYS_INLINE lane_ints_t spatial_reuse(__global const float4 *normal, __global const float4 *view,
                                         __global const float4 *kd, __global const float4 *ks_m,
                                         __global const uint *visibility, __global const float4 *env, int res,
-                                        int p, int n, int c, int at, __global const int *pixel_at,
+                                        int p, int n, lane_ints_t chain, int at, __global const int *pixel_at,
                                         __global const float *depth, int width, int height, int neighbours,
                                         float radius, int unbiased, uint seed, uint frame,
                                         __global const float4 *in_sample, __global const float4 *in_info,
-                                        __global const float *scales, float *evaluations, float *shadow_rays,
-                                        float *reused)
+                                        __global const float *scales, lane_reservoirs_of_chains_t *out)
 {
-    reservoir_t inputs[MAX_NEIGHBOURS + 1];
-    int pixels[MAX_NEIGHBOURS + 1], count = 1;
-    pixels[0] = p;
-    load_reservoir(in_sample, in_info, c * n + p, &inputs[0]);
-    for (int j = 0; j < neighbours; ++j) {
-        int q = spatial_neighbour(p, at, width, height, radius, seed, frame, c, j, pixel_at, normal, depth);
-        if (q < 0) continue;
-        pixels[count] = q;
-        load_reservoir(in_sample, in_info, c * n + q, &inputs[count++]);
-    }
-    *reused += (float)(count - 1);
-    if (count == 1) return inputs[0];
-    float targets[(MAX_NEIGHBOURS + 1) * (MAX_NEIGHBOURS + 1)], domain_scales[MAX_NEIGHBOURS + 1];
-    for (int j = 0; j < count; ++j) {
-        shading_t s = load_shading(normal, view, kd, ks_m, pixels[j]);
-        domain_scales[j] = scales[pixels[j]];
-        for (int i = 0; i < count; ++i) {
-            int visible_too = unbiased || j == 0;   /* the biased Z's support tests leave V out */
-            targets[j * count + i] = i == j ? inputs[i].target
-                                   : visible_too ? restir_target(&s, env, res, inputs[i].w, visibility, pixels[j])
-                                   : target_without_visibility(&s, env, res, inputs[i].w);
-            *evaluations += i != j ? 1.0f : 0.0f;
-            *shadow_rays += i != j && visible_too ? 1.0f : 0.0f;
-        }
-    }
-    philox4x32_ctr_t u = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, (uint)c);
-    return combine_reservoirs(inputs, targets, domain_scales, count, unbiased, rng_unit(u.v[3]));
+    lane_reservoirs_of_chains_t inputs[MAX_NEIGHBOURS + 1];
+    lane_ints_t pixels[MAX_NEIGHBOURS + 1], valid[MAX_NEIGHBOURS + 1], cell[MAX_NEIGHBOURS + 1];
+    lanes_t luminance[MAX_NEIGHBOURS + 1];
+    lane_ints_t found = spatial_inputs(p, n, chain, at, width, height, neighbours, radius, seed, frame, pixel_at,
+                                       normal, depth, env, res, in_sample, in_info, inputs, pixels, valid,
+                                       luminance, cell);
+    lane_block_t u = rng_block_draws_lanes(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, convert_lane_uints(chain));
+    combine_lanes(inputs, pixels, valid, luminance, cell, neighbours + 1, unbiased, normal, view, kd, ks_m,
+                  visibility, scales, lanes_unit(u.v[3]), out);
+    lane_ints_t alone = found == 0;   /* the reservoir itself, not combined */
+    out->x = select(out->x, inputs[0].x, alone);
+    out->y = select(out->y, inputs[0].y, alone);
+    out->z = select(out->z, inputs[0].z, alone);
+    out->weight = select(out->weight, inputs[0].weight, alone);
+    out->confidence = select(out->confidence, inputs[0].confidence, alone);
+    out->target = select(out->target, inputs[0].target, alone);
+    return found;
 }
 
 /* Pass 2: each chain's spatial reuse (spatial_reuse) of pass 1's reservoirs, which are also the
@@ -418,16 +587,39 @@ __kernel void restir_spatial_shade(__global const float4 *normal, __global const
     float4 first_pass = stats[p];
     float evaluations = first_pass.x, shadow_rays = first_pass.w, reused = 0.0f, confidence = 0.0f, effective = 0.0f;
     vec3_t sum = vec3(0.0f, 0.0f, 0.0f);
-    for (int c = 0; c < chains; ++c) {
-        reservoir_t out = spatial_reuse(normal, view, kd, ks_m, visibility, env, res, p, n, c, pixel_index[p],
-                                        pixel_at, depth, width, height, neighbours, radius, unbiased, seed,
-                                        frame, in_sample, in_info, scales, &evaluations, &shadow_rays, &reused);
-        confidence += out.confidence;
-        float cosine = vec3_dot(s.n, out.w);
-        if (out.weight > 0.0f && cosine > 0.0f) {
-            vec3_t f = vec3_mul(env_radiance(env, res, out.w), phong_value(s.kd, s.ks, s.m, phong_lobe_power(s.r, out.w, s.m)));
-            sum = vec3_add(sum, vec3_scale(f, out.weight * cosine));
-            effective += 1.0f;
+    for (int first = 0; first < chains; first += POOL_LANES) {
+        lane_ints_t chain = min(first + LANE_NUMBERS, (lane_ints_t)(chains - 1));   /* lanes past the last: its copies */
+        lane_reservoirs_of_chains_t out;
+        lane_ints_t found = spatial_reuse(normal, view, kd, ks_m, visibility, env, res, p, n, chain, pixel_index[p],
+                                          pixel_at, depth, width, height, neighbours, radius, unbiased, seed, frame,
+                                          in_sample, in_info, scales, &out);
+        /* f(ω)·W·cos⁺ of each lane's kept sample (phong_value's arithmetic) */
+        lanes3_t w = make_lanes3(out.x, out.y, out.z);
+        lanes_t cosine = lanes_dot(s.n, w);
+        lanes_t lobe = (s.m + 2.0f) / (2.0f * IBL_PI) * phong_power_lanes(max(lanes_dot(s.r, w), 0.0f), (lanes_t)s.m);
+        lane_ints_t face, row, col;
+        lanes_texel_of(res, w, &face, &row, &col);
+        lanes3_t light = lanes_texel_radiance(env, (face * res + row) * res + col);
+        lanes_t scale = out.weight * cosine;
+        float red[POOL_LANES], green[POOL_LANES], blue[POOL_LANES], kept_confidence[POOL_LANES];
+        int lit[POOL_LANES], neighbours_found[POOL_LANES];
+        vstore_lanes(light.x * (s.kd.x / IBL_PI + s.ks.x * lobe) * scale, 0, red);
+        vstore_lanes(light.y * (s.kd.y / IBL_PI + s.ks.y * lobe) * scale, 0, green);
+        vstore_lanes(light.z * (s.kd.z / IBL_PI + s.ks.z * lobe) * scale, 0, blue);
+        vstore_lanes(out.confidence, 0, kept_confidence);
+        vstore_lanes((out.weight > 0.0f) & (cosine > 0.0f), 0, lit);
+        vstore_lanes(found, 0, neighbours_found);
+        /* The chains' sums in chain order, as one chain at a time adds them. */
+        for (int k = 0; k < min(POOL_LANES, chains - first); ++k) {
+            int count = 1 + neighbours_found[k];
+            reused += (float)(count - 1);
+            evaluations += (float)(count * (count - 1));
+            shadow_rays += (float)((unbiased ? count : 1) * (count - 1));
+            confidence += kept_confidence[k];
+            if (lit[k]) {
+                sum = vec3_add(sum, vec3(red[k], green[k], blue[k]));
+                effective += 1.0f;
+            }
         }
     }
     float share = 1.0f / (float)chains;

@@ -596,11 +596,13 @@ ALWAYS_INLINE philox4x32_ctr_t rng_block(uint seed, uint frame, uint stream, uin
 /* A uniform in [0, 1) from one word; 24-bit mantissas keep u < 1 exactly. */
 ALWAYS_INLINE float rng_unit(uint word) { return (float)(word >> 8) * (1.0f / 16777216.0f); }
 
-/* rng_block for lanes of sample numbers: lane k is rng_block(seed, frame, stream, pixel,
- * sample.sk, draw), Philox4x32 with random123's constants and ten rounds, in explicit vectors. */
-#define DEFINE_RNG_BLOCK_LANES(name, uintn, ulongn, blockn)                                                \
-typedef struct { uintn v[4]; } blockn;                                                             \
-ALWAYS_INLINE blockn name(uint seed, uint frame, uint stream, uint pixel, uintn sample, uint draw) \
+/* rng_block for lanes of sample numbers (lane k is rng_block(seed, frame, stream, pixel,
+ * sample.sk, draw)) or of draw numbers (the `_draws` forms: rng_block(…, sample, draw.sk)),
+ * Philox4x32 with random123's constants and ten rounds, in explicit vectors. */
+typedef struct { uint8 v[4]; } rng_block8_t;
+typedef struct { uint16 v[4]; } rng_block16_t;
+#define DEFINE_RNG_BLOCK_LANES(name, uintn, ulongn, blockn, samplen, drawn)                         \
+ALWAYS_INLINE blockn name(uint seed, uint frame, uint stream, uint pixel, samplen sample, drawn draw) \
 {                                                                                                  \
     uint key0 = seed, key1 = (frame << 8) | (stream & 0xffu);                                      \
     uintn c0 = pixel, c1 = sample, c2 = draw, c3 = 0u;                                             \
@@ -620,8 +622,10 @@ ALWAYS_INLINE blockn name(uint seed, uint frame, uint stream, uint pixel, uintn 
     return block;                                                                                  \
 }
 
-DEFINE_RNG_BLOCK_LANES(rng_block8, uint8, ulong8, rng_block8_t)
-DEFINE_RNG_BLOCK_LANES(rng_block16, uint16, ulong16, rng_block16_t)
+DEFINE_RNG_BLOCK_LANES(rng_block8, uint8, ulong8, rng_block8_t, uint8, uint)
+DEFINE_RNG_BLOCK_LANES(rng_block16, uint16, ulong16, rng_block16_t, uint16, uint)
+DEFINE_RNG_BLOCK_LANES(rng_block8_draws, uint8, ulong8, rng_block8_t, uint, uint8)
+DEFINE_RNG_BLOCK_LANES(rng_block16_draws, uint16, ulong16, rng_block16_t, uint, uint16)
 
 /* The block's four uniforms. */
 static inline float4 rng_uniform4(uint seed, uint frame, uint stream, uint pixel, uint sample, uint draw)

@@ -174,6 +174,7 @@ typedef rng_block16_t lane_block_t;
 #define sincos_turn_lanes sincos_turn16
 #define cube_face_st_lanes cube_face_st16
 #define rng_block_lanes rng_block16
+#define rng_block_draws_lanes rng_block16_draws
 #define make_lanes3 vec3x16
 #define LANE_NUMBERS ((int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
 #define to8(v) ((v).lo + (v).hi)
@@ -202,6 +203,7 @@ typedef rng_block8_t lane_block_t;
 #define sincos_turn_lanes sincos_turn8
 #define cube_face_st_lanes cube_face_st8
 #define rng_block_lanes rng_block8
+#define rng_block_draws_lanes rng_block8_draws
 #define make_lanes3 vec3x8
 #define LANE_NUMBERS ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
 #define to8(v) (v)
@@ -252,14 +254,20 @@ ALWAYS_INLINE lane_ints_t lanes_cells_open(__global const uint *visibility, int 
 #endif
 }
 
+/* visibility_cell of common.cl for the lanes' directions w (found once where several pixels'
+ * masks are read at the same directions: restir's spatial reuse). */
+ALWAYS_INLINE lane_ints_t lanes_visibility_cell(lanes3_t w)
+{
+    lanes_t s, t;
+    lane_ints_t face = cube_face_st_lanes(w, &s, &t);
+    return (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES + lanes_clamp_index(s, VIS_RES);
+}
+
 /* visible() of common.cl for the lanes' directions w, as lanes_cells_open's mask. */
 ALWAYS_INLINE lane_ints_t lanes_visible(__global const uint *visibility, int pixel, lanes3_t w)
 {
 #if VISIBILITY
-    lanes_t s, t;
-    lane_ints_t face = cube_face_st_lanes(w, &s, &t);
-    lane_ints_t cell = (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES + lanes_clamp_index(s, VIS_RES);
-    return lanes_cells_open(visibility, pixel, cell);
+    return lanes_cells_open(visibility, pixel, lanes_visibility_cell(w));
 #else
     return (lane_ints_t)(-1);
 #endif
