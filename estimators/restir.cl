@@ -339,6 +339,64 @@ __kernel void restir_initial_temporal(__global const float4 *normal, __global co
     stats[p] = (float4)(evaluations, 0.0f, 0.0f, shadow_rays);
 }
 
+/* Neighbour j of chain c of pixel p (image position `at` of a width × height image): a pixel
+ * uniform in the disc of `radius` pixels about it, clamped to the image, not p itself, covered,
+ * and passing RTXDI's normal and depth tests; -1 if none. */
+ALWAYS_INLINE int spatial_neighbour(int p, int at, int width, int height, float radius, uint seed, uint frame,
+                                    int c, int j, __global const int *pixel_at, __global const float4 *normal,
+                                    __global const float *depth)
+{
+    philox4x32_ctr_t xi = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, (uint)(1 + j), (uint)c);
+    float sine, cosine, distance = radius * sqrt(rng_unit(xi.v[0]));
+    sincos_turn(rng_unit(xi.v[1]), &sine, &cosine);
+    int x = clamp(at % width + (int)rint(distance * cosine), 0, width - 1);
+    int y = clamp(at / width + (int)rint(distance * sine), 0, height - 1);
+    int q = pixel_at[y * width + x];
+    if (q < 0 || q == p) return -1;
+    if (vec3_dot(vec3_load(normal, p), vec3_load(normal, q)) < NORMAL_THRESHOLD) return -1;
+    if (fabs(depth[q] - depth[p]) > DEPTH_THRESHOLD * depth[p]) return -1;
+    return q;
+}
+
+/* Chain c of pixel p's reservoir of pass 1 combined with up to `neighbours` neighbours' of the
+ * same chain (also of pass 1, so no pixel reads what another writes); *found gets the neighbours
+ * found. */
+ALWAYS_INLINE reservoir_t spatial_reuse(__global const float4 *normal, __global const float4 *view,
+                                        __global const float4 *kd, __global const float4 *ks_m,
+                                        __global const uint *visibility, __global const float4 *env, int res,
+                                        int p, int n, int c, int at, __global const int *pixel_at,
+                                        __global const float *depth, int width, int height, int neighbours,
+                                        float radius, int unbiased, uint seed, uint frame,
+                                        __global const float4 *in_sample, __global const float4 *in_info,
+                                        __global const float *scales, int *found)
+{
+    reservoir_t inputs[MAX_NEIGHBOURS + 1];
+    int pixels[MAX_NEIGHBOURS + 1], count = 1;
+    pixels[0] = p;
+    load_reservoir(in_sample, in_info, c * n + p, &inputs[0]);
+    for (int j = 0; j < neighbours; ++j) {
+        int q = spatial_neighbour(p, at, width, height, radius, seed, frame, c, j, pixel_at, normal, depth);
+        if (q < 0) continue;
+        pixels[count] = q;
+        load_reservoir(in_sample, in_info, c * n + q, &inputs[count++]);
+    }
+    *found = count - 1;
+    if (count == 1) return inputs[0];
+    float targets[(MAX_NEIGHBOURS + 1) * (MAX_NEIGHBOURS + 1)], domain_scales[MAX_NEIGHBOURS + 1];
+    for (int j = 0; j < count; ++j) {
+        shading_t s = load_shading(normal, view, kd, ks_m, pixels[j]);
+        domain_scales[j] = scales[pixels[j]];
+        for (int i = 0; i < count; ++i) {
+            int visible_too = unbiased || j == 0;   /* the biased Z's support tests leave V out */
+            targets[j * count + i] = i == j ? inputs[i].target
+                                   : visible_too ? restir_target(&s, env, res, inputs[i].w, visibility, pixels[j])
+                                   : target_without_visibility(&s, env, res, inputs[i].w);
+        }
+    }
+    philox4x32_ctr_t u = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, (uint)c);
+    return combine_reservoirs(inputs, targets, domain_scales, count, unbiased, rng_unit(u.v[3]));
+}
+
 /* ---- pass 2 in explicit lanes: POOL_LANES chains of one pixel at a time, a chain a lane --------
  * Each lane runs spatial reuse's arithmetic of one chain (combine_reservoirs' and restir_target's,
  * bit for bit): the inputs keep fixed slots (0: the pixel's own reservoir, 1 + j: neighbour j's)
@@ -416,7 +474,7 @@ ALWAYS_INLINE lane_ints_t lanes_cells_open_of(__global const uint *visibility, l
 /* Neighbour j of the lanes' chains of pixel p (image position `at` of a width × height image): a
  * pixel uniform in the disc of `radius` pixels about it, clamped to the image, not p itself,
  * covered, and passing RTXDI's normal and depth tests; -1 where none. */
-ALWAYS_INLINE lane_ints_t spatial_neighbour(int p, int at, int width, int height, float radius, uint seed,
+ALWAYS_INLINE lane_ints_t lanes_spatial_neighbour(int p, int at, int width, int height, float radius, uint seed,
                                             uint frame, lane_ints_t chain, int j, __global const int *pixel_at,
                                             __global const float4 *normal, __global const float *depth)
 {
@@ -447,7 +505,7 @@ ALWAYS_INLINE lane_ints_t spatial_inputs(int p, int n, lane_ints_t chain, int at
 {
     lane_ints_t found = 0;
     for (int i = 0; i <= neighbours; ++i) {
-        lane_ints_t q = i == 0 ? (lane_ints_t)p : spatial_neighbour(p, at, width, height, radius, seed, frame, chain,
+        lane_ints_t q = i == 0 ? (lane_ints_t)p : lanes_spatial_neighbour(p, at, width, height, radius, seed, frame, chain,
                                                                     i - 1, pixel_at, normal, depth);
         valid[i] = q >= 0;
         pixels[i] = select(q, (lane_ints_t)p, q < 0);   /* an absent neighbour reads the pixel's own */
@@ -539,7 +597,7 @@ ALWAYS_INLINE void combine_lanes(const lane_reservoirs_of_chains_t *r, const lan
 /* Spatial reuse of the lanes' chains of pixel p: each one's reservoir of pass 1 combined with up
  * to `neighbours` neighbours' of the same chain (also of pass 1, so no pixel reads what another
  * writes), or kept as it is where no neighbour is found; returns the neighbours found. */
-ALWAYS_INLINE lane_ints_t spatial_reuse(__global const float4 *normal, __global const float4 *view,
+ALWAYS_INLINE lane_ints_t lanes_spatial_reuse(__global const float4 *normal, __global const float4 *view,
                                         __global const float4 *kd, __global const float4 *ks_m,
                                         __global const uint *visibility, __global const float4 *env, int res,
                                         int p, int n, lane_ints_t chain, int at, __global const int *pixel_at,
@@ -567,11 +625,39 @@ ALWAYS_INLINE lane_ints_t spatial_reuse(__global const float4 *normal, __global 
     return found;
 }
 
-/* Pass 2: each chain's spatial reuse (spatial_reuse) of pass 1's reservoirs, which are also the
- * next frame's history (restir.py: the spatially reused ones are shaded, not kept); the pixel's
- * estimate is the chains' mean of f(ω)·W, f = L·ρ·cos⁺·V (V = 1 where p̂ > 0).  Outputs: radiance, counts (used = the chains, effective = those whose kept sample has
- * a positive cosine), stats (evaluations of every chain with the shading, and per chain the
- * neighbours reused and the confidence, then the shadow rays of every chain). */
+/* A pixel's sums over its chains in pass 2. */
+typedef struct {
+    vec3_t sum;
+    float evaluations, shadow_rays, reused, confidence, effective;
+} chain_sums_t;
+
+/* Add one chain to the sums: its neighbours found, its kept reservoir's confidence, and f(ω)·W·cos⁺
+ * where `lit` (W and the cosine positive). */
+ALWAYS_INLINE void add_chain(chain_sums_t *t, int found, int unbiased, float confidence, int lit, vec3_t contribution)
+{
+    int count = 1 + found;
+    t->reused += (float)found;
+    t->evaluations += (float)(count * found);                    /* every domain's p̂ at the others' samples */
+    t->shadow_rays += (float)((unbiased ? count : 1) * found);   /* those with V */
+    t->confidence += confidence;
+    if (lit) {
+        t->sum = vec3_add(t->sum, contribution);
+        t->effective += 1.0f;
+    }
+}
+
+/* Chains are reused POOL_LANES at a time in lanes where at least LANE_CHAINS_FROM are left, one at a
+ * time in scalars otherwise: a block of lanes costs between one and two scalar chains (sphere-sun
+ * at 128², PoCL on AVX2, 8 lanes and 16: a lone chain 0.5-0.8× as fast in lanes, two 1.1-1.7×). */
+#define LANE_CHAINS_FROM 2
+
+/* Pass 2: each chain's spatial reuse (spatial_reuse, lanes_spatial_reuse) of pass 1's reservoirs,
+ * which are also the next frame's history (restir.py: the spatially reused ones are shaded, not
+ * kept); the pixel's estimate is the chains' mean of f(ω)·W, f = L·ρ·cos⁺·V (V = 1 where p̂ > 0),
+ * summed in chain order whichever path runs a chain.  Outputs: radiance, counts (used = the chains,
+ * effective = those whose kept sample has a positive cosine), stats (evaluations of every chain
+ * with the shading, and per chain the neighbours reused and the confidence, then the shadow rays of
+ * every chain). */
 __kernel void restir_spatial_shade(__global const float4 *normal, __global const float4 *view,
                                    __global const float4 *kd, __global const float4 *ks_m,
                                    __global const uint *visibility, const int n, __global const float4 *env, const int res,
@@ -582,17 +668,32 @@ __kernel void restir_spatial_shade(__global const float4 *normal, __global const
                                    __global const float4 *in_sample, __global const float4 *in_info,
                                    __global const float *scales, __global float4 *radiance, __global float2 *counts, __global float4 *stats)
 {
-    int p = get_global_id(0);
+    int p = get_global_id(0), at = pixel_index[p];
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     float4 first_pass = stats[p];
-    float evaluations = first_pass.x, shadow_rays = first_pass.w, reused = 0.0f, confidence = 0.0f, effective = 0.0f;
-    vec3_t sum = vec3(0.0f, 0.0f, 0.0f);
-    for (int first = 0; first < chains; first += POOL_LANES) {
+    chain_sums_t t = {vec3(0.0f, 0.0f, 0.0f), first_pass.x, first_pass.w, 0.0f, 0.0f, 0.0f};
+    for (int first = 0; first < chains; ) {
+        if (chains - first < LANE_CHAINS_FROM) {
+            int found;
+            reservoir_t out = spatial_reuse(normal, view, kd, ks_m, visibility, env, res, p, n, first, at, pixel_at,
+                                            depth, width, height, neighbours, radius, unbiased, seed, frame, in_sample,
+                                            in_info, scales, &found);
+            float cosine = vec3_dot(s.n, out.w);
+            int lit = out.weight > 0.0f && cosine > 0.0f;
+            vec3_t f = vec3(0.0f, 0.0f, 0.0f);
+            if (lit)
+                f = vec3_scale(vec3_mul(env_radiance(env, res, out.w),
+                                        phong_value(s.kd, s.ks, s.m, phong_lobe_power(s.r, out.w, s.m))),
+                               out.weight * cosine);
+            add_chain(&t, found, unbiased, out.confidence, lit, f);
+            first += 1;
+            continue;
+        }
         lane_ints_t chain = min(first + LANE_NUMBERS, (lane_ints_t)(chains - 1));   /* lanes past the last: its copies */
         lane_reservoirs_of_chains_t out;
-        lane_ints_t found = spatial_reuse(normal, view, kd, ks_m, visibility, env, res, p, n, chain, pixel_index[p],
-                                          pixel_at, depth, width, height, neighbours, radius, unbiased, seed, frame,
-                                          in_sample, in_info, scales, &out);
+        lane_ints_t found = lanes_spatial_reuse(normal, view, kd, ks_m, visibility, env, res, p, n, chain, at,
+                                                pixel_at, depth, width, height, neighbours, radius, unbiased, seed,
+                                                frame, in_sample, in_info, scales, &out);
         /* f(ω)·W·cos⁺ of each lane's kept sample (phong_value's arithmetic) */
         lanes3_t w = make_lanes3(out.x, out.y, out.z);
         lanes_t cosine = lanes_dot(s.n, w);
@@ -609,21 +710,12 @@ __kernel void restir_spatial_shade(__global const float4 *normal, __global const
         vstore_lanes(out.confidence, 0, kept_confidence);
         vstore_lanes((out.weight > 0.0f) & (cosine > 0.0f), 0, lit);
         vstore_lanes(found, 0, neighbours_found);
-        /* The chains' sums in chain order, as one chain at a time adds them. */
-        for (int k = 0; k < min(POOL_LANES, chains - first); ++k) {
-            int count = 1 + neighbours_found[k];
-            reused += (float)(count - 1);
-            evaluations += (float)(count * (count - 1));
-            shadow_rays += (float)((unbiased ? count : 1) * (count - 1));
-            confidence += kept_confidence[k];
-            if (lit[k]) {
-                sum = vec3_add(sum, vec3(red[k], green[k], blue[k]));
-                effective += 1.0f;
-            }
-        }
+        for (int k = 0; k < min(POOL_LANES, chains - first); ++k)
+            add_chain(&t, neighbours_found[k], unbiased, kept_confidence[k], lit[k], vec3(red[k], green[k], blue[k]));
+        first += POOL_LANES;
     }
     float share = 1.0f / (float)chains;
-    radiance[p] = (float4)(sum.x * share, sum.y * share, sum.z * share, 0.0f);
-    counts[p] = (float2)((float)chains, effective);
-    stats[p] = (float4)(evaluations + (float)chains, reused * share, confidence * share, shadow_rays);
+    radiance[p] = (float4)(t.sum.x * share, t.sum.y * share, t.sum.z * share, 0.0f);
+    counts[p] = (float2)((float)chains, t.effective);
+    stats[p] = (float4)(t.evaluations + (float)chains, t.reused * share, t.confidence * share, t.shadow_rays);
 }
