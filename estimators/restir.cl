@@ -9,7 +9,8 @@
  *                           tile, BRDF candidates), combined with its reservoir of last frame: the
  *                           result is the next frame's history;
  *   restir_spatial_shade    each chain's reservoir combined with k neighbours' (of pass 1), and
- *                           shaded.
+ *                           shaded; POOL_LANES chains at a time in explicit lanes, a chain a
+ *                           lane (pass 1 runs a chain's candidates in lanes).
  * A reservoir is two float4s: (ω, W) and (c, p̂, ·, ·): its sample, its unbiased contribution
  * weight W, its confidence c (the candidates behind it) and p̂ of its own pixel at ω under the
  * frame's map (the next frame's p̂_{t−1}(ω), no re-evaluation under the old map). */

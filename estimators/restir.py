@@ -79,6 +79,14 @@ estimate, their mean, has about 1/spp of one chain's variance.  Per frame and ch
      produce the sample is counted (tests/test_restir.py).
 5. **Shading**: f(ω)·W with f = L·ρ·cos⁺·V (RGB; V = 1 wherever p̂_t > 0): one sample a chain.
 
+Speed.  Pass 1 runs a chain's M candidates POOL_LANES at a time in explicit lanes; pass 2 runs
+POOL_LANES chains of a pixel at a time, a chain a lane (its neighbours, the (k+1)·k targets, the
+combination and the shading), and a chain left alone (spp 1, or one after whole blocks) in
+scalars, where a block of lanes would cost more.  Each lane does the one-chain arithmetic and the
+chains are summed in order, so the images are those of one chain at a time, bit for bit.  PoCL
+runs neither kernel's work items as SIMD lanes (``POCL_VECTORIZER_REMARKS=1``: no work-item loop
+of either vectorised), so the explicit lanes are what makes them SIMD.
+
 Budget.  ``spp`` = chains, each shading one sample (``used`` = spp; ``effective``: the chains
 whose kept sample has a positive cosine).  ``evaluations`` (per pixel, mean) counts every
 evaluation of p̂, its support test or f: spp·(M + 2 (temporal) + (k+1)k (spatial) + 1);
@@ -201,8 +209,8 @@ class ReSTIR(Estimator):
         the mean of a default chain's 17 evaluations (``Estimate.evaluations``): 8 candidates in
         one block of lanes, 204 each (every lane draws a BRDF direction 107 beside its
         presample's; n·ω 5, lobe power 41, the texel of ω 20, Y(L) 5, ρ_Y 3, p̂ 2, the light and
-        BRDF densities 12, the weight 6, the reservoir update 3), 8 reuse targets, 76 (scalar
-        p̂: n·ω 5, lobe power 41, texel 20, Y(L) 5, ρ_Y 3, products 2), and the shading, 82 (n·ω
+        BRDF densities 12, the weight 6, the reservoir update 3), 8 reuse targets, 76 (p̂
+        alone: n·ω 5, lobe power 41, texel 20, Y(L) 5, ρ_Y 3, products 2), and the shading, 82 (n·ω
         5, lobe power 41, texel 20, phong_value 7, f·W 6, sum 3); F_s is the rest of a chain (a
         shaded sample): the lanes' merge 50, the temporal combination 27, two neighbours found
         80 (disc point, sincos_turn, normal and depth tests), the spatial combination 49; B_s:
