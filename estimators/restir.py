@@ -324,3 +324,14 @@ class ReSTIR(Estimator):
         estimate.extras = {"neighbours": float(st[:, 1].mean()),
                            "confidence": float(st[:, 2].mean()) / self.params.candidates}
         return estimate
+
+    def kept_state(self, compute, gbuffer, spp: int) -> dict[str, np.ndarray]:
+        """Host copies of what the last ``render(gbuffer, …, spp, …)`` keeps for the next frame,
+        for tests of the weights (read back only here, never by a render): ``sample``
+        [spp, covered pixels, 4], each chain's reservoir's (ω, W); ``info`` likewise, (c, p̂, 0, 0);
+        ``scales`` [covered pixels], each pixel's 1/Z̃ under the frame's map."""
+        n, parity = gbuffer.launch_size, 1 - self._parity
+        read = lambda name, count: compute.to_host(self._buffers.get(compute, name, count * 4), (count,), np.float32)
+        chains = lambda name: read(name, int(spp) * n * 4).reshape(int(spp), n, 4)[:, :gbuffer.count]
+        return {"sample": chains(f"history{parity}_sample"), "info": chains(f"history{parity}_info"),
+                "scales": read(f"scales{parity}", n)[:gbuffer.count]}
