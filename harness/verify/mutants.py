@@ -212,6 +212,25 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("visibility-missing-from-reference", "estimators/runtime/reference.cl",
        "lit = lit && texels_open(visibility, p, face, t - face * res * res + lane, res);",
        "lit = lit;", ["envmap"], ["occlusion"]),
+    # ---- restir's temporal reuse in its edge cases (issue 36, class 2) ---------------------------
+    # Weights that keep restir unbiased, so no z-test sees them: its unit tests read the weights.
+    # The history's confidence scaled only where the map lost the pixel's light (restir.py's
+    # rejected variant): where light came on, the history claims light it never sampled.
+    _m("restir-history-share-one-sided", "estimators/restir.cl",
+       "min(domain_scales[1] / domain_scales[0], domain_scales[0] / domain_scales[1])",
+       "min(domain_scales[1] / domain_scales[0], 1.0f)", [],
+       tests=["test_restir_weights.py::test_history_confidence_is_capped_and_scaled_by_the_change_of_the_map"]),
+    # No fallback where every lit coarse cell's centre is below the horizon: scale 0, and every
+    # reservoir that reuse combines there is black.
+    _m("restir-target-scale-without-fallback", "estimators/restir.cl",
+       "float normaliser = total > 0.0f ? total : map_power(pyramid, res);",
+       "float normaliser = total;", [],
+       tests=["test_restir_weights.py::test_restir_finds_the_light_of_plane_grazing"]),
+    # Each domain's MIS scale given to the other's target.
+    _m("restir-gris-scales-swapped", "estimators/restir.cl",
+       "float domain_scales[2] = {scales[p], temporal ? prev_scales[p] : 0.0f};",
+       "float domain_scales[2] = {temporal ? prev_scales[p] : 0.0f, scales[p]};", [],
+       tests=["test_restir_weights.py::test_temporal_resampling_weights_are_gris_with_confidence_and_scales"]),
     # ---- the metrics -----------------------------------------------------------------------------
     _m("metrics-exposure-from-estimate", "harness/protocol/metrics.py",
        "lab = to_lab(tonemap(estimate[mask], self.k))",
