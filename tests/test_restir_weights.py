@@ -17,7 +17,7 @@ from iblbench.estimators.runtime.reference import Reference
 from iblbench.harness.verify.conformance import (bias_test, glossy_gbuffer, sequence_renders, sidak_z,
                                                 smooth_map, switch_frames)
 from iblbench.scenes import cubemap
-from iblbench.scenes.gbuffer import trace_gbuffer
+from iblbench.scenes.gbuffer import GBuffer, trace_gbuffer
 from iblbench.scenes.registry import load_scene
 
 M = ReSTIR.Params().candidates
@@ -93,19 +93,20 @@ def history_share(scale, previous_scale):
 SEED = 5
 
 
-def _render(compute, gbuffer, env, frame, estimator):
-    """The state ``estimator`` keeps after rendering frame ``frame`` of map ``env``."""
+def _render(compute, gbuffer, env, frame, estimator, spp=SPP, seed=SEED):
+    """The state ``estimator`` keeps after rendering frame ``frame`` of map ``env``, with the
+    covered pixels' radiance under ``radiance``."""
     cache = FrameCache(compute, env, frame)
     cache.require(ReSTIR.requires)
-    estimator.render(gbuffer, cache, SPP, SEED)
-    return estimator.kept_state(compute, gbuffer, SPP)
+    radiance = estimator.render(gbuffer, cache, spp, seed).radiance[gbuffer.gbuffer.mask]
+    return {**estimator.kept_state(compute, gbuffer, spp), "radiance": radiance}
 
 
-def _frames(compute, gb, maps, estimator):
+def _frames(compute, gb, maps, estimator, spp=SPP, seed=SEED):
     """The kept state after each frame of ``maps`` rendered in order after reset()."""
     gbuffer = DeviceGBuffer(compute, gb)
     estimator.reset()
-    return [_render(compute, gbuffer, env, t, estimator) for t, env in enumerate(maps)]
+    return [_render(compute, gbuffer, env, t, estimator, spp, seed) for t, env in enumerate(maps)]
 
 
 def test_target_scales_are_the_coarse_cells_sum_and_its_fallbacks(compute):
@@ -139,23 +140,30 @@ def test_history_confidence_is_capped_and_scaled_by_the_change_of_the_map(comput
                                    err_msg=f"history_cap {cap}, frame {t}: confidence off its definition")
 
 
-def _gris(gb, maps, t, initial, history, cap):
-    """GRIS's resampling weights (w_0, w_1) of frame t's initial reservoir and the history, and
-    p̂_t at their samples: m_i(ω) = c_i s_i p̂_i(ω) / Σ_j c_j s_j p̂_j(ω), w_i = m_i(ω_i)·p̂_t(ω_i)·W_i,
-    p̂_0 = p̂_t, p̂_1 = p̂_{t−1}, s_i = 1/Z̃ under its map, c_0 = M, c_1 the capped, scaled history."""
-    omega = (initial["sample"][..., :3], history["sample"][..., :3])
-    contribution = (initial["sample"][..., 3], history["sample"][..., 3])
-    scale = target_scales(gb, maps[t]), target_scales(gb, maps[t - 1])
-    c = (M, np.minimum(history["info"][..., 0], cap * M) * history_share(*scale))
-    now = [targets(gb, maps[t], w) for w in omega]
-    before = [targets(gb, maps[t - 1], w) for w in omega]
+def gris_weights(confidence, scale, target, contribution) -> list[np.ndarray]:
+    """GRIS's resampling weights w_i = m_i(ω_i)·p̂_0(ω_i)·W_i of inputs i with the confidence-
+    weighted, scaled balance heuristic m_i(ω) = c_i s_i p̂_i(ω) / Σ_j c_j s_j p̂_j(ω); target[j][i]
+    is p̂_j(ω_i) (domain 0 the output's); 0 where not a positive number (the kernel's rule)."""
+    n = len(contribution)
     with np.errstate(divide="ignore", invalid="ignore"):
         weights = []
-        for i in range(2):
-            mine = (c[0] * scale[0] * now[i], c[1] * scale[1] * before[i])
-            w = mine[i] / (mine[0] + mine[1]) * now[i] * contribution[i]
+        for i in range(n):
+            share = [confidence[j] * scale[j] * target[j][i] for j in range(n)]
+            w = share[i] / sum(share) * target[0][i] * contribution[i]
             weights.append(np.where(np.isfinite(w) & (w > 0), w, 0.0))
-    return weights, now
+    return weights
+
+
+def _temporal_gris(gb, maps, t, initial, history, cap):
+    """(w_0, w_1) of frame t's initial reservoir and the history, and p̂_t at their samples:
+    p̂_0 = p̂_t, p̂_1 = p̂_{t−1}, s_i = 1/Z̃ under its map, c_0 = M, c_1 the capped, scaled history."""
+    omega = (initial["sample"][..., :3], history["sample"][..., :3])
+    scale = target_scales(gb, maps[t]), target_scales(gb, maps[t - 1])
+    confidence = (M, np.minimum(history["info"][..., 0], cap * M) * history_share(*scale))
+    now = [targets(gb, maps[t], w) for w in omega]
+    before = [targets(gb, maps[t - 1], w) for w in omega]
+    contribution = (initial["sample"][..., 3], history["sample"][..., 3])
+    return gris_weights(confidence, scale, (now, before), contribution), now
 
 
 def test_temporal_resampling_weights_are_gris_with_confidence_and_scales(compute):
@@ -174,7 +182,7 @@ def test_temporal_resampling_weights_are_gris_with_confidence_and_scales(compute
         kept_history, chance = 0.0, []
         for t in range(1, len(maps)):
             initial = _render(compute, DeviceGBuffer(compute, gb), maps[t], t, fresh)
-            (w0, w1), now = _gris(gb, maps, t, initial, states[t - 1], cap)
+            (w0, w1), now = _temporal_gris(gb, maps, t, initial, states[t - 1], cap)
             out = states[t]
             took = [np.all(out["sample"][..., :3] == source["sample"][..., :3], -1)
                     for source in (initial, states[t - 1])]
@@ -196,6 +204,76 @@ def test_temporal_resampling_weights_are_gris_with_confidence_and_scales(compute
         z = (kept_history - q.sum()) / np.sqrt(np.sum(q * (1 - q)))
         assert q.size > 200 and abs(z) < 4.5, f"cap {cap}: the history kept {kept_history} of {q.size} " \
                                                f"times against {q.sum():.1f} expected (z = {z:.1f})"
+
+
+def shade(gb, env, w, weight):
+    """f(ω)·W = L(ω)·ρ(ω)·cos·W (RGB) of each covered pixel at w [pixels, 3]; 0 where W ≤ 0 or
+    the cosine is not positive."""
+    n, r, _kd, _ks, m = _shading(gb)
+    cosine = np.sum(n * w, -1)
+    face, row, col = cubemap.direction_to_texel(w, env.shape[1])
+    lobe = (m + 2.0) / (2.0 * np.pi) * np.maximum(np.sum(r * w, -1), 0.0) ** m
+    rho = gb.kd[gb.mask] / np.pi + gb.ks[gb.mask] * lobe[:, None]
+    value = env[face, row, col] * rho * (cosine * weight)[:, None]
+    return np.where(((weight > 0) & (cosine > 0))[:, None], value, 0.0)
+
+
+def _spatial_outcomes(gb, env, state, unbiased):
+    """Pixel p of a two-pixel image combined with the other, q (the only pixel its disc can
+    reach): the radiance of each outcome, [no neighbour, kept ω_p, kept ω_q] × [pixels, 3], and
+    (w_p, w_q).  Unbiased: GRIS over the two pixels' targets, each scaled by its 1/Z̃; biased:
+    w_i = p̂_p(ω_i)·W_i·c_i and W = Σ w / (p̂_p(kept)·Z), Z = Σ c_j over the pixels j with
+    p̂_j(kept) > 0."""
+    omega, contribution = state["sample"][0, :, :3].astype(np.float64), state["sample"][0, :, 3]
+    confidence, scale = state["info"][0, :, 0], target_scales(gb, env)
+    own, across = targets(gb, env, omega), targets(gb, env, omega[::-1])   # p̂_p(ω_p), p̂_p(ω_q)
+    swap = lambda a: a[::-1]
+    if unbiased:
+        w = gris_weights((confidence, swap(confidence)), (scale, swap(scale)), ((own, across), (swap(across), swap(own))),
+                         (contribution, swap(contribution)))
+        z = (1.0, 1.0)
+    else:
+        w = [own * contribution * confidence, across * swap(contribution * confidence)]
+        z = (confidence * (own > 0) + swap(confidence * (across > 0)),
+             confidence * (across > 0) + swap(confidence * (own > 0)))
+    total = w[0] + w[1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kept = [shade(gb, env, at, np.where(total > 0, total / (target * norm), 0.0))
+                for at, target, norm in ((omega, own, z[0]), (swap(omega), across, z[1]))]
+    return [shade(gb, env, omega, contribution), *kept], w
+
+
+@pytest.mark.parametrize("unbiased", [True, False])
+def test_spatial_resampling_weights_are_gris_or_one_over_z(compute, unbiased):
+    """Two pixels side by side (normals 30° apart, their own views), one neighbour at radius 2,
+    1 chain, history cap 20, over the changing sequence and 40 seeds: each pixel's shaded radiance
+    is one of its three outcomes (no neighbour found; the combination keeping its own sample or
+    the other's) with the weights of restir.py's step 4 from the NumPy twin (rtol 1e-3), the
+    combination happens (≥ 20% of the cases) and keeps the other's sample as often as
+    w_q/(w_p + w_q) says (|z| < 4.5)."""
+    normal = np.array([[[0.2, 0.5, 0.85], [-0.3, 0.6, 0.75]]])
+    gb = GBuffer.from_pixels(normal, np.array([[[0.5, 0.3, 0.8], [-0.2, 0.1, 1.0]]]), 0.5, 0.3, 20.0)
+    maps = sequence_maps()
+    combined = kept_other = 0
+    chance = []
+    for seed in range(40):
+        states = _frames(compute, gb, maps, ReSTIR(neighbours=1, radius=2.0, history_cap=20.0, unbiased=unbiased),
+                         spp=1, seed=seed)
+        for t, (env, state) in enumerate(zip(maps, states)):
+            outcomes, (w_own, w_other) = _spatial_outcomes(gb, env, state, unbiased)
+            match = [np.all(np.abs(state["radiance"] - o) <= 1e-3 * np.abs(o) + 1e-12, -1) for o in outcomes]
+            odd = ~(match[0] | match[1] | match[2])
+            assert not odd.any(), (f"seed {seed}, frame {t}: radiance {state['radiance'][odd]} is none of "
+                                   f"{np.array(outcomes)[:, odd].tolist()} (no neighbour, own kept, other's kept)")
+            clear = (w_own > 0) & (w_other > 0) & ~match[0] & (match[1] ^ match[2])
+            combined += np.sum(~match[0] & (match[1] | match[2]))
+            kept_other += np.sum(match[2][clear])
+            chance.append(w_other[clear] / (w_own[clear] + w_other[clear]))
+    q = np.concatenate(chance)
+    cases = 40 * len(maps) * gb.covered
+    assert combined >= 0.2 * cases, f"{combined} of {cases} cases combined: the test sees too little reuse"
+    z = (kept_other - q.sum()) / np.sqrt(np.sum(q * (1 - q)))
+    assert abs(z) < 4.5, f"the other's sample kept {kept_other} of {q.size} times, {q.sum():.1f} expected (z = {z:.1f})"
 
 
 # ---- plane-grazing: all the light where the coarse model says it cannot reach ----------------
