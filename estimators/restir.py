@@ -330,6 +330,8 @@ class ReSTIR(Estimator):
         for tests of the weights (read back only here, never by a render): ``sample``
         [spp, covered pixels, 4], each chain's reservoir's (ω, W); ``info`` likewise, (c, p̂, 0, 0);
         ``scales`` [covered pixels], each pixel's 1/Z̃ under the frame's map."""
+        if self._key is None or self._key[0] is not gbuffer or self._key[3] != int(spp):
+            raise ValueError("kept_state reads the last render's G-buffer and spp, not others")
         n, parity = gbuffer.launch_size, 1 - self._parity
         read = lambda name, count: compute.to_host(self._buffers.get(compute, name, count * 4), (count,), np.float32)
         chains = lambda name: read(name, int(spp) * n * 4).reshape(int(spp), n, 4)[:, :gbuffer.count]
