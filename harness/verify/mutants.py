@@ -219,7 +219,7 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("restir-history-share-one-sided", "estimators/restir.cl",
        "min(domain_scales[1] / domain_scales[0], domain_scales[0] / domain_scales[1])",
        "min(domain_scales[1] / domain_scales[0], 1.0f)", [],
-       tests=["test_restir_weights.py::test_history_confidence_is_capped_and_scaled_by_the_change_of_the_map"]),
+       tests=["test_restir_weights.py::test_history_confidence_is_capped_and_scaled_by_the_change_of_the_map[1.0]"]),
     # No fallback where every lit coarse cell's centre is below the horizon: scale 0, and every
     # reservoir that reuse combines there is black.
     _m("restir-target-scale-without-fallback", "estimators/restir.cl",
