@@ -102,15 +102,18 @@ def test_the_masked_reference_is_held_to_the_masked_twin_not_the_plain_one():
         assert problems and problems[0].startswith("reference off its NumPy twin"), (case, problems)
 
 
-def test_doctor_flags_a_non_finite_array_against_the_default_devices():
+def test_doctor_flags_a_non_finite_or_missing_array_against_the_default_devices():
     """A case without a twin is held to the default device's arrays: a NaN there (or in the
-    baseline) is named, as not finite."""
+    baseline) is named, as not finite, and so is an array the case lacks."""
     clean = arrays()
     for ours, baseline in ((poisoned(clean, "f0_radiance", np.nan, 3), clean),
                            (clean, poisoned(clean, "f0_radiance", np.inf, 3))):
         problems = doctor._case_problems(portability.Outcome("cosine", ours, []), baseline)
         assert problems == ["cosine: 1 arrays differ from the default device's, most f0_radiance "
                             "(not finite, or integers differ)"], problems
+    missing = {name: array for name, array in clean.items() if name != "cdf"}
+    assert doctor._case_problems(portability.Outcome("cosine", missing, []), clean) == [
+        "cosine: 1 arrays differ from the default device's, most cdf (not finite, or integers differ)"]
 
 
 @pytest.mark.parametrize("first_line", [

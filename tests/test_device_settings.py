@@ -71,7 +71,7 @@ def test_an_explicit_lane_width_wins_over_the_devices(no_driver, width, lanes):
 
 
 @pytest.mark.parametrize("lanes", (0, 1, 4, 12, 32))
-def test_a_lane_width_that_no_kernel_has_is_refused_before_any_device_work(lanes):
+def test_a_lane_width_that_no_kernel_has_is_refused_before_any_device_work(no_driver, lanes):
     """light_pool.cl has 8- and 16-wide forms only; 0 is refused too, not read as "the device's"."""
     with pytest.raises(ValueError, match="lanes must be 8 or 16"):
         device.Compute(fake_info(16), lanes=lanes)
