@@ -8,6 +8,8 @@ comparison and ``iblbench doctor`` are given must be flagged.
 - Oclgrind's reports, however they start, become a problem of the case."""
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -58,6 +60,7 @@ def test_the_comparison_holds_floats_to_its_relative_tolerance_and_words_as_told
     assert portability.differences(word, clean, exact_integers=False) == {}
 
 
+@functools.lru_cache(maxsize=None)
 def twin_arrays(case: str) -> dict[str, np.ndarray]:
     """What a device that computes exactly hands back for a twinned ``case``: the twin itself, on
     the case's own inputs (its visibility masks where it has them)."""
