@@ -12,6 +12,7 @@ answers follow from the rule alone.
   the estimators (and two), at least 2× apart (exactly 2× included), most estimators first.
 - Calibration: an spp whose predicted time equals the budget is chosen; refinement stops within
   half the tolerance, inclusive; the spp run is the largest measured within tolerance and budget.
+- An error budget (``iblbench check``) passes a value equal to its limit (``<=``, ``>=``).
 
 Times are stored with 7 significant digits (``stats.renders_text``), so "just above 11 ms" is
 11.00001."""
@@ -225,3 +226,30 @@ def test_refinement_stops_within_half_the_tolerance_inclusive(measured, done):
 ])
 def test_the_spp_run_is_the_best_measured_at_the_tolerances_edge(medians, expected):
     assert best_measured(medians, T) == expected
+
+
+# ---- the error budgets' limits (budgets.py: "<=" and ">=", equality passing) -----------------------
+
+@pytest.mark.parametrize("limits, results", [
+    ("max_mean_delta_e76 = 2.0\nmin_mean_delta_e76 = 2.0", ["PASS", "PASS"]),
+    ("max_mean_delta_e76 = 1.9999999", ["FAIL"]),
+    ("min_mean_delta_e76 = 2.0000001", ["FAIL"]),
+    ("nonfinite = 3", ["PASS"]),
+    ("nonfinite = 2", ["FAIL"]),
+    ('max_time_ratio = { baseline = "fast", metric = "time_ms_shade", max = 2.0 }', ["PASS"]),
+    ('max_time_ratio = { baseline = "fast", metric = "time_ms_shade", max = 1.9999999 }', ["FAIL"]),
+])
+def test_an_error_budget_passes_a_value_equal_to_its_limit_and_fails_one_a_hair_beyond(
+        tmp_path, limits, results):
+    """The cell's ΔE76 is (1.5 + 2.5) / 2 = 2.0 over its seeds, its non-finite pixels 1 + 2 = 3,
+    its shade time 2.0 ms against the baseline's 1.0 ms."""
+    from test_budgets import configuration, row
+
+    from iblbench.harness.protocol.budgets import evaluate, load_budgets
+
+    table = pd.DataFrame([row("s", "slow", 16, seed=0, mean_delta_e76=1.5, nonfinite=1, time_ms_shade=2.0),
+                          row("s", "slow", 16, seed=1, mean_delta_e76=2.5, nonfinite=2, time_ms_shade=2.0),
+                          row("s", "fast", 16, seed=0), row("s", "fast", 16, seed=1)])
+    budgets = tmp_path / "budgets.toml"
+    budgets.write_text(configuration(2) + f'[[rule]]\nscene = "s"\nestimator = "slow"\nspp = 16\n{limits}\n')
+    assert list(evaluate(load_budgets(budgets), table).result) == results
