@@ -9,6 +9,7 @@ comparison and ``iblbench doctor`` are given must be flagged.
 from __future__ import annotations
 
 import functools
+import types
 
 import numpy as np
 import pytest
@@ -138,3 +139,53 @@ def test_every_kind_of_oclgrind_report_becomes_a_problem_of_its_case(first_line)
     clean = arrays()
     problems = doctor._case_problems(portability.Outcome("uniform", clean, reports), clean)
     assert problems == [f"uniform: 1 Oclgrind reports, first '{first_line}' Kernel: render_uniform"]
+
+
+class FakeWorker:
+    """portability.Worker on stand-in devices: each case's arrays as ``ARRAYS[label]`` plants them."""
+    arrays: dict[str, dict[str, dict]] = {}
+
+    def __init__(self, label, checks=None, lanes=None, fp64=True, verbose=False, timeout=600.0):
+        self.label = label
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return None
+
+    def run(self, case):
+        return portability.Outcome(case, self.arrays[self.label][case], [])
+
+
+def fake_info(label: str):
+    return types.SimpleNamespace(label=label, key=label, kind="CPU", is_simulator=False,
+                                 has_fp64=True, device=types.SimpleNamespace(name=label))
+
+
+def test_doctor_flags_each_device_whose_arrays_carry_a_planted_fault(monkeypatch):
+    """Four stand-in devices run the twinned cases and one estimator: A (the default) and B give
+    the twins' arrays; C a NaN in the estimator's image, D the plain reference for the masked
+    one.  A and B pass; C fails against A's arrays, D against the masked twin (and A's)."""
+    from iblbench.estimators.runtime import device
+
+    cases = ["reference", "reference" + portability.MASKED, "light_pdf", "cosine"]
+    clean = {case: twin_arrays(case) for case in cases[:3]} | {"cosine": arrays()}
+    monkeypatch.setattr(FakeWorker, "arrays", {
+        "A": clean, "B": clean,
+        "C": {**clean, "cosine": poisoned(clean["cosine"], "f0_radiance", np.nan, 7)},
+        "D": {**clean, "reference" + portability.MASKED: clean["reference"]}})
+    monkeypatch.setattr(device, "all_devices", lambda: [fake_info(label) for label in FakeWorker.arrays])
+    monkeypatch.setattr(device, "choose_device", lambda spec=None: fake_info("A"))
+    monkeypatch.setattr(device, "build_failure", lambda info: None)
+    monkeypatch.setattr(portability, "Worker", FakeWorker)
+    reports = {report.label: report for report in doctor.diagnose(cases=cases)}
+    assert reports["A"].ok and reports["B"].ok, (reports["A"].problems, reports["B"].problems)
+    assert reports["C"].problems == ["cosine: 1 arrays differ from the default device's, most "
+                                     "f0_radiance (not finite, or integers differ)"]
+    (twin, baseline) = reports["D"].problems
+    assert twin.startswith("reference off its NumPy twin by") and baseline.startswith(
+        "reference+visibility: 1 arrays differ from the default device's, most reference")
+    monkeypatch.setattr(FakeWorker, "arrays", {"A": FakeWorker.arrays["D"]})   # the default too
+    (alone,) = doctor.diagnose(cases=cases)
+    assert [p.split(" by ")[0] for p in alone.problems] == ["reference off its NumPy twin"]

@@ -251,6 +251,9 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
        "if portability.split_case(outcome.case)[0] in (\"reference\", \"light_pdf\"):",
        "if outcome.case in (\"reference\", \"light_pdf\"):", [],
        tests=["test_checkers.py::test_doctor_holds_every_case_with_a_twin_to_it_masked_variants_included"]),
+    _m("doctor-devices-not-held-to-default", "harness/verify/doctor.py",
+       "expected = None if held_to is None else baseline(held_to).get(case)", "expected = None", [],
+       tests=["test_checkers.py::test_doctor_flags_each_device_whose_arrays_carry_a_planted_fault"]),
 )
 
 
