@@ -241,6 +241,38 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("metrics-relmse-without-square", "harness/protocol/metrics.py",
        "return float(np.mean((x - r) ** 2 / (r * r + 0.01)))",
        "return float(np.mean((x - r) ** 2 / (r + 0.01)))", [], ["constant"], budgets=True),
+    # ---- issue 36, class 4: the ranking's edges (tests/test_ranking_edges.py) ---------------------
+    _m("ranking-end-tolerance-exclusive", "harness/protocol/ranking.py",
+       "and abs(t - budget_ms) <= TOLERANCE * budget_ms and t in span]",
+       "and abs(t - budget_ms) < TOLERANCE * budget_ms and t in span]", [],
+       tests=["test_ranking_edges.py::test_an_equal_time_cell_at_the_fast_end_is_read_within_its_tolerance"]),
+    _m("ranking-headlines-more-than-twice-apart", "harness/protocol/ranking.py",
+       ">= BUDGET_SPACING for c in chosen)", "> BUDGET_SPACING for c in chosen)", [],
+       tests=["test_ranking_edges.py::test_budgets_exactly_twice_apart_and_reaching_exactly_half_are_both_headlines"]),
+    _m("ranking-budget-at-fastest-cell-not-reached", "harness/protocol/ranking.py",
+       "if budget_ms < span[0] and not at_end:", "if budget_ms <= span[0] and not at_end:", [],
+       tests=["test_ranking_edges.py::test_a_budget_equal_to_a_cells_time_reads_that_cell"]),
+    # ---- issue 36, class 6: device settings (tests/test_device_settings.py) ------------------------
+    _m("pool-lanes-16-from-preferred-8", "estimators/runtime/device.py",
+       "(16 if device.preferred_vector_width_float >= 16 else 8)",
+       "(16 if device.preferred_vector_width_float >= 8 else 8)", [],
+       tests=["test_device_settings.py::test_the_lane_width_is_16_where_the_device_prefers_16_floats_else_8"]),
+    _m("float-path-forgets-lane-override", "harness/verify/portability.py",
+       "return Compute(compute.info, fp64=False, lanes=compute.pool_lanes)",
+       "return Compute(compute.info, fp64=False)", [],
+       tests=["test_device_settings.py::test_an_explicit_lane_width_wins_over_the_devices"]),
+    # ---- issue 36, class 7: the checkers themselves (tests/test_checkers.py) -----------------------
+    _m("portability-nonfinite-baseline-passes", "harness/verify/portability.py",
+       "elif not (np.isfinite(got).all() and np.isfinite(expected).all()):",
+       "elif not np.isfinite(got).all():", [],
+       tests=["test_checkers.py::test_a_non_finite_value_fails_the_comparison_wherever_it_is"]),
+    _m("doctor-masked-reference-skips-twin", "harness/verify/doctor.py",
+       "if portability.split_case(outcome.case)[0] in (\"reference\", \"light_pdf\"):",
+       "if outcome.case in (\"reference\", \"light_pdf\"):", [],
+       tests=["test_checkers.py::test_doctor_holds_every_case_with_a_twin_to_it_masked_variants_included"]),
+    _m("doctor-devices-not-held-to-default", "harness/verify/doctor.py",
+       "expected = None if held_to is None else baseline(held_to).get(case)", "expected = None", [],
+       tests=["test_checkers.py::test_doctor_flags_each_device_whose_arrays_carry_a_planted_fault"]),
 )
 
 
