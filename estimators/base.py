@@ -80,6 +80,30 @@ class Estimate:
 
 
 @dataclasses.dataclass(frozen=True)
+class CountFrame:
+    """One frame of a sequence that ``conformance.check_work_counts`` renders, in order, after
+    ``reset()``: the frame's ``cache`` (a FrameCache: its map ``cache.env``), and the render's
+    ``spp`` and ``seed``."""
+
+    cache: object
+    spp: int
+    seed: int
+
+
+@dataclasses.dataclass(frozen=True)
+class WorkCounts:
+    """The work a frame's render must report, as its docstring counts it (an estimator's
+    ``work_counts``): ``evaluations`` and ``shadow_rays`` per covered pixel (arrays over the
+    covered pixels, or one number for all), the shadow rays as on a G-buffer with visibility
+    (without it the render must report 0); ``extras``: the ``Estimate.extras`` that count work
+    (``smc``'s ``reinits``, ``restir``'s ``neighbours``), each the value the render must report."""
+
+    evaluations: object
+    shadow_rays: object
+    extras: dict = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass(frozen=True)
 class KernelCost:
     """Analytic FLOPs and DRAM bytes of an estimator's shading kernel, per integrand evaluation,
     per sample and per pixel: an estimate, counted by reading the kernel by the rules of
@@ -173,6 +197,13 @@ class Estimator:
 
     def reset(self) -> None:
         """Forget state carried across frames (temporal estimators)."""
+
+    def work_counts(self, gbuffer, frames) -> list[WorkCounts] | None:
+        """The counts of work (:class:`WorkCounts`) that renders of ``frames`` (:class:`CountFrame`,
+        in order after ``reset()``) on the host G-buffer ``gbuffer`` must report, computed in
+        Python from the docstring's formula and the inputs, never read from a render:
+        ``conformance.check_work_counts`` holds every path to them.  None: not declared."""
+        return None
 
     def limit_map(self, cache):
         """The map whose exact integral a ``has_limit`` estimator converges to (``fis``: its

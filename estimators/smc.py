@@ -135,10 +135,11 @@ import math
 import numpy as np
 
 from iblbench.estimators.base import (Estimator, ExtraColumn, KernelCost, Mutant, Setting,
-                                      SweepPart, Tags, read_estimate, specular_lobe_defines)
+                                      SweepPart, Tags, WorkCounts, read_estimate, specular_lobe_defines)
 from iblbench.estimators.bis import MAX_SPP, run_bis_chunks, run_lockstep
 from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import KeptBuffers, event_ms
+from iblbench.scenes import cubemap
 
 MAP_CHANGE_GROUP = 64   # work items of map_change's one group (smc.cl), at most
 # smc_advance's work items per group: one local size for every launch (PoCL builds a kernel per
@@ -246,6 +247,53 @@ class SMC(Estimator):
 
     def particles(self, spp: int) -> int:
         return self.params.N or int(spp)
+
+    def work_counts(self, gbuffer, frames) -> list[WorkCounts]:
+        """"Budget" above, per pixel, on a sequence whose every changed map is a scaled copy of
+        the one before (ValueError otherwise: which pixels' own rule of step 5 fires is then not
+        known without the particles), lit wherever a pixel looks, so that every particle keeps a
+        positive weight and every pixel's Z_t/Z_{t−1} is the scale: a first frame's BIS init,
+        M + N evaluations and M shadow rays (the candidates' V); a static frame's S·N MH
+        proposals, each one evaluation and one ray; a changed one N + (2(S−1) + 1)·N + N
+        evaluations and S·N rays, but where a map-level rule of step 5 fires (the power's jump
+        past ``reinit_threshold``, or 1 + χ² past 1/``reinit_map_ess``, computed here from the
+        maps) every pixel's re-init instead (M + N, M rays), counted in the ``reinits`` extra.
+        No resampling anywhere (the weights stay equal): ``resample_steps`` 0."""
+        p, pixels = self.params, int(gbuffer.mask.sum())
+        counts, previous = [], None
+        for frame in frames:
+            N = self.particles(frame.spp)
+            M, steps = p.init_candidates * N, p.intermediates + 1
+            env = np.asarray(frame.cache.env, np.float64)
+            init = (M + N, M)
+            if previous is None:
+                work, reinits = init, 0
+            elif np.array_equal(env, previous):
+                work, reinits = (steps * N, steps * N), 0
+            elif self._map_rule_fires(previous, env):
+                work, reinits = init, pixels
+            else:
+                work, reinits = (N + (2 * steps - 1) * N + N, steps * N), 0
+            counts.append(WorkCounts(*work, extras={"reinits": reinits, "resample_steps": 0.0}))
+            previous = env
+        return counts
+
+    def _map_rule_fires(self, previous: np.ndarray, env: np.ndarray) -> bool:
+        """Whether step 5's map-level rules re-initialise every pixel between two maps, of which
+        the second must be a scaled copy of the first or fire one."""
+        p = self.params
+        omega = cubemap.texel_solid_angles(env.shape[1])
+        before, after = (cubemap.luminance(m) * omega for m in (previous, env))
+        ratio = after.sum() / before.sum()
+        lit_up = np.where(after > 0, np.inf, 0.0)   # a black texel that lit up: +∞ (step 5)
+        chi2_plus_1 = np.sum(np.divide((after / after.sum()) ** 2, before / before.sum(),
+                                       out=lit_up, where=before > 0))
+        if not 1.0 / p.reinit_threshold <= ratio <= p.reinit_threshold \
+                or p.reinit_map_ess * chi2_plus_1 > 1.0:
+            return True
+        if not np.allclose(env, ratio * previous, rtol=1e-6, atol=0.0):
+            raise ValueError("smc's counts are known on scaled maps and map-level re-inits only")
+        return False
 
     def _map_tables(self, cache, defines, buffer, changed: bool):
         """The map proposal's alias tables (sir.cl), the map's power and, where the map
