@@ -66,7 +66,10 @@ class Estimate:
     ``extras``: estimator-specific per-frame scalars (e.g. ``smc``'s ``ess`` and ``reinits``),
     which the runner writes as extra result columns after the fixed ones.  ``shadow_rays``: the
     visibility queries V(x, ω) per covered pixel (mean; 0 on a G-buffer without visibility): the
-    integrand evaluations, but for ``bis``, whose target leaves V out (its N resampled samples).
+    integrand evaluations, but where an estimator's docstring counts otherwise (``bis``, whose
+    target leaves V out: its N resampled samples; ``smc`` and ``restir``, which reuse a
+    direction's V).  ``Estimator.work_counts`` states both counts, and ``conformance.check_work_counts``
+    holds every path to them.
     """
 
     radiance: np.ndarray

@@ -87,7 +87,9 @@ the particles) + per step N MH proposals (2 at α < 1, where γ_{t−1} is evalu
 proposal too, 1 at α = 1) + N (f in Eq. 7); on a static frame the S·N MH proposals only (γ_t
 at the particles is γ_{t−1}, stored; a proposal's γ and f share one evaluation); and M + N for
 each BIS (re-)init (its candidates and resampled samples).  With the defaults a changed frame
-costs N(1 + 2·3 + 1 + 1) = 9N and a static one 4N.
+costs N(1 + 2·3 + 1 + 1) = 9N and a static one 4N.  ``shadow_rays`` counts V at new directions
+only: the MH proposals (S·N a carried frame) and an init's M candidates (γ_t at a particle, γ_{t−1} at a
+proposal and f at a resampled or carried particle reuse a direction whose V is known).
 
 Extras (per-frame columns): ``ess``: mean over pixels that carried state of the smallest ESS
 before resampling over the frame's steps (NaN on an init frame); ``reinits``: pixels

@@ -30,7 +30,7 @@ def philox4x32(counter, key) -> tuple[np.ndarray, ...]:
 def rng_block(seed, frame, stream, pixel, sample, draw) -> tuple[np.ndarray, ...]:
     """common.cl's ``rng_block``: the block keyed by (seed, frame·2^8 + stream), countered by
     (pixel, sample, draw, 0)."""
-    key = (seed, (np.asarray(frame, np.uint64) << np.uint64(8)) | np.uint64(int(stream) & 0xFF))
+    key = (seed, (np.asarray(frame, np.uint64) << np.uint64(8)) | (np.asarray(stream, np.uint64) & np.uint64(0xFF)))
     return philox4x32((pixel, sample, draw, 0), key)
 
 
