@@ -138,7 +138,9 @@ def configuration_label(instance) -> str:
 def count_differences(label: str, estimate, expected, pixels: int, masked: bool) -> list[str]:
     """Where one render's counts differ from its ``WorkCounts`` (means over ``pixels``; shadow
     rays 0 without masks), to 1e-6 relative."""
-    mean = lambda value: float(np.mean(np.broadcast_to(np.asarray(value, np.float64), (pixels,))))
+    def mean(value) -> float:
+        return float(np.mean(np.broadcast_to(np.asarray(value, np.float64), (pixels,))))
+
     wanted = {"evaluations": mean(expected.evaluations),
               "shadow_rays": mean(expected.shadow_rays) if masked else 0.0,
               **{name: mean(value) for name, value in expected.extras.items()}}
