@@ -141,7 +141,7 @@ from iblbench.estimators.base import (Estimator, ExtraColumn, KernelCost, Mutant
 from iblbench.estimators.bis import MAX_SPP, run_bis_chunks, run_lockstep
 from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import KeptBuffers, event_ms
-from iblbench.scenes import cubemap
+from iblbench.scenes import cubemap, visibility
 
 MAP_CHANGE_GROUP = 64   # work items of map_change's one group (smc.cl), at most
 # smc_advance's work items per group: one local size for every launch (PoCL builds a kernel per
@@ -253,29 +253,31 @@ class SMC(Estimator):
     def work_counts(self, gbuffer, frames) -> list[WorkCounts]:
         """"Budget" above, per pixel, on a sequence whose every changed map is a scaled copy of
         the one before (ValueError otherwise: which pixels' own rule of step 5 fires is then not
-        known without the particles), lit wherever a pixel looks, so that every particle keeps a
-        positive weight and every pixel's Z_t/Z_{t−1} is the scale: a first frame's BIS init,
-        M + N evaluations and M shadow rays (the candidates' V); a static frame's S·N MH
-        proposals, each one evaluation and one ray; a changed one N + (2(S−1) + 1)·N + N
-        evaluations and S·N rays, but where a map-level rule of step 5 fires (the power's jump
-        past ``reinit_threshold``, or 1 + χ² past 1/``reinit_map_ess``, computed here from the
-        maps) every pixel's re-init instead (M + N, M rays), counted in the ``reinits`` extra.
-        No resampling anywhere (the weights stay equal): ``resample_steps`` 0."""
-        p, pixels = self.params, int(gbuffer.mask.sum())
+        known without the particles), lit wherever a pixel looks but at pixels whose every
+        visibility cell is closed, which see black: there every particle keeps a positive weight
+        and Z_t/Z_{t−1} is the scale.  A BIS init costs M + N evaluations and M shadow rays (the
+        candidates' V); a static frame S·N MH proposals, each one evaluation and one ray; a
+        changed one N + (2(S−1) + 1)·N + N evaluations and S·N rays.  Re-initialised (an init,
+        counted in the ``reinits`` extra after the first frame): every pixel on the first frame
+        and where a map-level rule of step 5 fires (the power's jump past ``reinit_threshold``,
+        or 1 + χ² past 1/``reinit_map_ess``, computed here from the maps); a black pixel on
+        every frame (Z_{t−1} = 0).  No resampling anywhere (the weights stay equal):
+        ``resample_steps`` 0."""
+        p = self.params
+        black = np.zeros(int(gbuffer.mask.sum()), bool) if gbuffer.visibility is None else \
+            ~visibility.unpack_bits(gbuffer.visibility[gbuffer.mask], gbuffer.visibility_res).any(-1)
         counts, previous = [], None
         for frame in frames:
             N = self.particles(frame.spp)
             M, steps = p.init_candidates * N, p.intermediates + 1
             env = np.asarray(frame.cache.env, np.float64)
-            init = (M + N, M)
-            if previous is None:
-                work, reinits = init, 0
-            elif np.array_equal(env, previous):
-                work, reinits = (steps * N, steps * N), 0
-            elif self._map_rule_fires(previous, env):
-                work, reinits = init, pixels
+            if previous is None or np.array_equal(env, previous):
+                reinit, carried = previous is None, (steps * N, steps * N)
             else:
-                work, reinits = (N + (2 * steps - 1) * N + N, steps * N), 0
+                reinit, carried = self._map_rule_fires(previous, env), (N + (2 * steps - 1) * N + N, steps * N)
+            reinit = reinit | black
+            work = [np.where(reinit, init, carry) for init, carry in zip((M + N, M), carried)]
+            reinits = 0 if previous is None else int(reinit.sum())
             counts.append(WorkCounts(*work, extras={"reinits": reinits, "resample_steps": 0.0}))
             previous = env
         return counts

@@ -110,4 +110,5 @@ def test_smc_counts_refuse_a_change_whose_reinits_only_the_particles_know():
     with pytest.raises(ValueError, match="scaled maps"):
         SMC(reinit_map_ess=0.0).work_counts(count_gbuffer(False), frames)
     counts = SMC().work_counts(count_gbuffer(False), frames)   # the shape rule fires: every pixel
-    assert (counts[1].evaluations, counts[1].shadow_rays, counts[1].extras["reinits"]) == (60 + 3, 60, 16)
+    assert np.all(counts[1].evaluations == 60 + 3) and np.all(counts[1].shadow_rays == 60)
+    assert counts[1].extras["reinits"] == 16

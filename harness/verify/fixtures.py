@@ -125,7 +125,8 @@ def count_gbuffer(masked: bool, size: int = 4) -> GBuffer:
     """``size``² glossy pixels whose normals lie within 35° of +Y, views tilted off them, so that
     many pixels pass restir's neighbour tests and some do not; ``masked``: visibility masks of
     2² cells a face with the −Y face closed and, at every other pixel, a cell of +Y, so every
-    pixel sees light on a map that is lit everywhere (``check_work_counts``)."""
+    pixel sees light on a map that is lit everywhere, but pixel (1, 2), whose every cell is
+    closed (a black pixel: ``smc`` re-initialises it every frame) (``check_work_counts``)."""
     side = np.linspace(-0.5, 0.5, size)
     x, z = np.meshgrid(side, side, indexing="ij")
     normal = np.stack([x, np.ones_like(x), z], axis=-1)
@@ -139,6 +140,7 @@ def count_gbuffer(masked: bool, size: int = 4) -> GBuffer:
     cells = np.ones(gb.shape + (6 * res * res,), bool)
     cells[..., 3 * res * res:4 * res * res] = False            # −Y
     cells.reshape(-1, 6 * res * res)[1::2, 2 * res * res] = False   # a cell of +Y
+    cells[1, 2] = False                                         # one pixel sees nothing
     return dataclasses.replace(gb, visibility=visibility.pack_bits(cells), visibility_res=res)
 
 
