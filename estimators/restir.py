@@ -155,6 +155,7 @@ MAX_CANDIDATES = 4096
 MAX_NEIGHBOURS = 8   # restir.cl's bound of k
 MIN_TILE = 16        # presamples are drawn in whole blocks of POOL_LANES (at most 16) lanes
 STREAM_RESTIR_REUSE = 51   # restir.cl's stream of the reuse steps' numbers
+TIE_MARGIN = 1e-4          # float32's rounding of a neighbour's offset (≤ 4 pixels) is far below it
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,7 +201,9 @@ def neighbours_found(gbuffer, chains: int, neighbours: int, radius: float, seed:
     ``[pixels, chains]``, on the host G-buffer ``gbuffer``: the rule of step 4 (a pixel uniform
     in the disc, clamped to the image; kept if covered, not the pixel, its normal within acos 0.5
     and its depth within 10%) drawn from the kernel's Philox numbers (``runtime.philox``), its
-    geometry in NumPy.  For ``work_counts``: what a render found, recomputed without it."""
+    geometry in NumPy.  For ``work_counts``: what a render found, recomputed without it.
+    ValueError where an offset lies within ``TIE_MARGIN`` of a half pixel, where the device's
+    float32 rounding may decide otherwise."""
     height, width = gbuffer.mask.shape
     index = np.flatnonzero(gbuffer.mask)
     at = np.full(height * width, -1)
@@ -211,10 +214,14 @@ def neighbours_found(gbuffer, chains: int, neighbours: int, radius: float, seed:
     found = np.zeros(pixel.shape, int)
     for j in range(neighbours):
         words = philox.rng_block(seed, frame, STREAM_RESTIR_REUSE, pixel, 1 + j, chain)
-        distance = np.float32(radius) * np.sqrt(philox.rng_unit(words[0]))
+        distance = np.float32(radius) * np.sqrt(philox.rng_unit(words[0]).astype(np.float64))
         turn = 2 * np.pi * philox.rng_unit(words[1]).astype(np.float64)
-        x = np.clip(index[pixel] % width + np.rint(distance * np.cos(turn)).astype(int), 0, width - 1)
-        y = np.clip(index[pixel] // width + np.rint(distance * np.sin(turn)).astype(int), 0, height - 1)
+        offsets = distance * np.cos(turn), distance * np.sin(turn)
+        if min(np.abs(np.abs(v) % 1.0 - 0.5).min() for v in offsets) < TIE_MARGIN:
+            raise ValueError("a neighbour's offset lies within rounding of a tie of rint: the neighbours "
+                             "a device finds are not known; choose another seed")
+        x = np.clip(index[pixel] % width + np.rint(offsets[0]).astype(int), 0, width - 1)
+        y = np.clip(index[pixel] // width + np.rint(offsets[1]).astype(int), 0, height - 1)
         q = at[y * width + x]
         kept = (q >= 0) & (q != pixel)
         q = np.where(kept, q, pixel)

@@ -115,7 +115,9 @@ def check_sample_counts(estimator, h: Harness) -> None:
         assert np.all(est.effective >= 0), "effective must be non-negative"
 
 
-COUNT_SPP, COUNT_SEED = 3, 1   # an odd budget: a split in halves leaves fractional samples
+# An odd budget (a split in halves leaves fractional samples); a seed at which restir's neighbour
+# offsets keep 2e-3 from a rounding tie on count_gbuffer (restir.neighbours_found; seed 1: 9e-6).
+COUNT_SPP, COUNT_SEED = 3, 100
 
 
 def count_configurations(estimator) -> list:
