@@ -231,6 +231,22 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
        "float domain_scales[2] = {scales[p], temporal ? prev_scales[p] : 0.0f};",
        "float domain_scales[2] = {temporal ? prev_scales[p] : 0.0f, scales[p]};", [],
        tests=["test_restir_weights.py::test_temporal_resampling_weights_are_gris_with_confidence_and_scales"]),
+    # ---- counts of work (issue 36, class 1): conformance's check_work_counts ----------------------
+    # The "0 without visibility" rule of Estimate.shadow_rays: bis reports its N rays unmasked.
+    _m("counts-shadow-rays-without-visibility", "estimators/base.py",
+       "shadow_rays=float(evaluations if shadow_rays is None else shadow_rays) if gbuffer.has_visibility else 0.0,",
+       "shadow_rays=float(evaluations if shadow_rays is None else shadow_rays),", ["bis"]),
+    # An MIS variant's BRDF draws left out of the pool's count.
+    _m("counts-pool-brdf-draws-uncounted", POOL,
+       "*draws = draws_for(ticks[6]);", "*draws = 0;", ["balanced_mis"]),
+    # The biased mode's spatial pass: row 0's neighbour targets (with V) counted as without.
+    _m("counts-restir-biased-neighbour-rays-uncounted", "estimators/restir.cl",
+       "*shadow_rays += i != j && visible_too ? 1.0f : 0.0f;",
+       "*shadow_rays += i != j && unbiased ? 1.0f : 0.0f;", ["restir{unbiased=false}"]),
+    # A re-initialised pixel's candidates' rays counted twice.
+    _m("counts-smc-reinit-rays-counted-twice", "estimators/smc.cl",
+       "rays[p] = (have_state ? rays[p] : 0.0f) + (float)M;",
+       "rays[p] = (have_state ? rays[p] + (float)M : 0.0f) + (float)M;", ["smc"]),
     # ---- the metrics -----------------------------------------------------------------------------
     _m("metrics-exposure-from-estimate", "harness/protocol/metrics.py",
        "lab = to_lab(tonemap(estimate[mask], self.k))",
