@@ -360,8 +360,8 @@ ALWAYS_INLINE int spatial_neighbour(int p, int at, int width, int height, float 
 }
 
 /* Chain c of pixel p's reservoir of pass 1 combined with up to `neighbours` neighbours' of the
- * same chain (also of pass 1, so no pixel reads what another writes); *found gets the neighbours
- * found. */
+ * same chain (also of pass 1, so no pixel reads what another writes); *evaluations, *shadow_rays
+ * and *reused grow by the targets evaluated, those with V, and the neighbours found. */
 ALWAYS_INLINE reservoir_t spatial_reuse(__global const float4 *normal, __global const float4 *view,
                                         __global const float4 *kd, __global const float4 *ks_m,
                                         __global const uint *visibility, __global const float4 *env, int res,
@@ -369,7 +369,8 @@ ALWAYS_INLINE reservoir_t spatial_reuse(__global const float4 *normal, __global 
                                         __global const float *depth, int width, int height, int neighbours,
                                         float radius, int unbiased, uint seed, uint frame,
                                         __global const float4 *in_sample, __global const float4 *in_info,
-                                        __global const float *scales, int *found)
+                                        __global const float *scales, float *evaluations, float *shadow_rays,
+                                        float *reused)
 {
     reservoir_t inputs[MAX_NEIGHBOURS + 1];
     int pixels[MAX_NEIGHBOURS + 1], count = 1;
@@ -381,7 +382,7 @@ ALWAYS_INLINE reservoir_t spatial_reuse(__global const float4 *normal, __global 
         pixels[count] = q;
         load_reservoir(in_sample, in_info, c * n + q, &inputs[count++]);
     }
-    *found = count - 1;
+    *reused += (float)(count - 1);
     if (count == 1) return inputs[0];
     float targets[(MAX_NEIGHBOURS + 1) * (MAX_NEIGHBOURS + 1)], domain_scales[MAX_NEIGHBOURS + 1];
     for (int j = 0; j < count; ++j) {
@@ -392,6 +393,8 @@ ALWAYS_INLINE reservoir_t spatial_reuse(__global const float4 *normal, __global 
             targets[j * count + i] = i == j ? inputs[i].target
                                    : visible_too ? restir_target(&s, env, res, inputs[i].w, visibility, pixels[j])
                                    : target_without_visibility(&s, env, res, inputs[i].w);
+            *evaluations += i != j ? 1.0f : 0.0f;
+            *shadow_rays += i != j && visible_too ? 1.0f : 0.0f;
         }
     }
     philox4x32_ctr_t u = rng_block(seed, frame, STREAM_RESTIR_REUSE, (uint)p, 0u, (uint)c);
@@ -626,31 +629,15 @@ ALWAYS_INLINE lane_ints_t lanes_spatial_reuse(__global const float4 *normal, __g
     return found;
 }
 
-/* A pixel's sums over its chains in pass 2. */
-typedef struct {
-    vec3_t sum;
-    float evaluations, shadow_rays, reused, confidence, effective;
-} chain_sums_t;
-
-/* Add one chain to the sums: its neighbours found, its kept reservoir's confidence, and f(ω)·W·cos⁺
- * where `lit` (W and the cosine positive). */
-ALWAYS_INLINE void add_chain(chain_sums_t *t, int found, int unbiased, float confidence, int lit, vec3_t contribution)
-{
-    int count = 1 + found;
-    t->reused += (float)found;
-    t->evaluations += (float)(count * found);                    /* every domain's p̂ at the others' samples */
-    t->shadow_rays += (float)((unbiased ? count : 1) * found);   /* those with V */
-    t->confidence += confidence;
-    if (lit) {
-        t->sum = vec3_add(t->sum, contribution);
-        t->effective += 1.0f;
-    }
-}
-
-/* Chains are reused POOL_LANES at a time in lanes where at least LANE_CHAINS_FROM are left, one at a
- * time in scalars otherwise: a block of lanes costs between one and two scalar chains (sphere-sun
- * at 128², PoCL on AVX2, 8 lanes and 16: a lone chain 0.5-0.8× as fast in lanes, two 1.1-1.7×). */
+/* The fewest chains left that run as a block of lanes; fewer run one at a time in scalars: a
+ * block costs 1-2 scalar chains (sphere-sun at 128², PoCL on AVX2, 8 lanes: two chains 1.1× as
+ * fast in lanes, three 1.7-2.0×, one 0.5-0.8×). */
 #define LANE_CHAINS_FROM 2
+/* 0 compiles pass 2 without lanes (restir.py's choice where a pixel has one chain): a kernel that
+ * holds both paths runs a lone chain 10-20% slower than one with the scalar path alone. */
+#ifndef CHAIN_LANES
+#define CHAIN_LANES 1
+#endif
 
 /* Pass 2: each chain's spatial reuse (spatial_reuse, lanes_spatial_reuse) of pass 1's reservoirs,
  * which are also the next frame's history (restir.py: the spatially reused ones are shaded, not
@@ -672,21 +659,20 @@ __kernel void restir_spatial_shade(__global const float4 *normal, __global const
     int p = get_global_id(0), at = pixel_index[p];
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     float4 first_pass = stats[p];
-    chain_sums_t t = {vec3(0.0f, 0.0f, 0.0f), first_pass.x, first_pass.w, 0.0f, 0.0f, 0.0f};
+    float evaluations = first_pass.x, shadow_rays = first_pass.w, reused = 0.0f, confidence = 0.0f, effective = 0.0f;
+    vec3_t sum = vec3(0.0f, 0.0f, 0.0f);
     for (int first = 0; first < chains; ) {
-        if (chains - first < LANE_CHAINS_FROM) {
-            int found;
+        if (!CHAIN_LANES || chains - first < LANE_CHAINS_FROM) {
             reservoir_t out = spatial_reuse(normal, view, kd, ks_m, visibility, env, res, p, n, first, at, pixel_at,
                                             depth, width, height, neighbours, radius, unbiased, seed, frame, in_sample,
-                                            in_info, scales, &found);
+                                            in_info, scales, &evaluations, &shadow_rays, &reused);
+            confidence += out.confidence;
             float cosine = vec3_dot(s.n, out.w);
-            int lit = out.weight > 0.0f && cosine > 0.0f;
-            vec3_t f = vec3(0.0f, 0.0f, 0.0f);
-            if (lit)
-                f = vec3_scale(vec3_mul(env_radiance(env, res, out.w),
-                                        phong_value(s.kd, s.ks, s.m, phong_lobe_power(s.r, out.w, s.m))),
-                               out.weight * cosine);
-            add_chain(&t, found, unbiased, out.confidence, lit, f);
+            if (out.weight > 0.0f && cosine > 0.0f) {
+                vec3_t f = vec3_mul(env_radiance(env, res, out.w), phong_value(s.kd, s.ks, s.m, phong_lobe_power(s.r, out.w, s.m)));
+                sum = vec3_add(sum, vec3_scale(f, out.weight * cosine));
+                effective += 1.0f;
+            }
             first += 1;
             continue;
         }
@@ -695,7 +681,7 @@ __kernel void restir_spatial_shade(__global const float4 *normal, __global const
         lane_ints_t found = lanes_spatial_reuse(normal, view, kd, ks_m, visibility, env, res, p, n, chain, at,
                                                 pixel_at, depth, width, height, neighbours, radius, unbiased, seed,
                                                 frame, in_sample, in_info, scales, &out);
-        /* f(ω)·W·cos⁺ of each lane's kept sample (phong_value's arithmetic) */
+        /* f(ω)·W·cos⁺ of each lane's kept sample (phong_value's arithmetic, vec3_scale's product) */
         lanes3_t w = make_lanes3(out.x, out.y, out.z);
         lanes_t cosine = lanes_dot(s.n, w);
         lanes_t lobe = (s.m + 2.0f) / (2.0f * IBL_PI) * phong_power_lanes(max(lanes_dot(s.r, w), 0.0f), (lanes_t)s.m);
@@ -711,12 +697,22 @@ __kernel void restir_spatial_shade(__global const float4 *normal, __global const
         vstore_lanes(out.confidence, 0, kept_confidence);
         vstore_lanes((out.weight > 0.0f) & (cosine > 0.0f), 0, lit);
         vstore_lanes(found, 0, neighbours_found);
-        for (int k = 0; k < min(POOL_LANES, chains - first); ++k)
-            add_chain(&t, neighbours_found[k], unbiased, kept_confidence[k], lit[k], vec3(red[k], green[k], blue[k]));
+        /* The lanes' chains added in chain order, as the scalar path adds them. */
+        for (int k = 0; k < min(POOL_LANES, chains - first); ++k) {
+            int count = 1 + neighbours_found[k];
+            reused += (float)(count - 1);
+            evaluations += (float)(count * (count - 1));                    /* p̂_j at the others' samples */
+            shadow_rays += (float)((unbiased ? count : 1) * (count - 1));   /* those with V */
+            confidence += kept_confidence[k];
+            if (lit[k]) {
+                sum = vec3_add(sum, vec3(red[k], green[k], blue[k]));
+                effective += 1.0f;
+            }
+        }
         first += POOL_LANES;
     }
     float share = 1.0f / (float)chains;
-    radiance[p] = (float4)(t.sum.x * share, t.sum.y * share, t.sum.z * share, 0.0f);
-    counts[p] = (float2)((float)chains, t.effective);
-    stats[p] = (float4)(t.evaluations + (float)chains, t.reused * share, t.confidence * share, t.shadow_rays);
+    radiance[p] = (float4)(sum.x * share, sum.y * share, sum.z * share, 0.0f);
+    counts[p] = (float2)((float)chains, effective);
+    stats[p] = (float4)(evaluations + (float)chains, reused * share, confidence * share, shadow_rays);
 }

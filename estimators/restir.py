@@ -81,8 +81,8 @@ estimate, their mean, has about 1/spp of one chain's variance.  Per frame and ch
 
 Speed.  Pass 1 runs a chain's M candidates POOL_LANES at a time in explicit lanes; pass 2 runs
 POOL_LANES chains of a pixel at a time, a chain a lane (its neighbours, the (k+1)·k targets, the
-combination and the shading), and a chain left alone (spp 1, or one after whole blocks) in
-scalars, where a block of lanes would cost more.  Each lane does the one-chain arithmetic and the
+combination and the shading), and a chain left alone (one after whole blocks) in scalars, where
+a block of lanes would cost more; at spp 1 it is built without the lanes.  Each lane does the one-chain arithmetic and the
 chains are summed in order, so the images are those of one chain at a time, bit for bit.  PoCL
 runs neither kernel's work items as SIMD lanes (``POCL_VECTORIZER_REMARKS=1``: no work-item loop
 of either vectorised), so the explicit lanes are what makes them SIMD.
@@ -343,8 +343,9 @@ class ReSTIR(Estimator):
         self._key = key
         n, chains = gbuffer.launch_size, int(spp)
         buffer = functools.partial(self._buffers.get, compute)
+        # One chain a pixel: pass 2 built without its lanes (restir.cl, CHAIN_LANES).
         kernel = functools.partial(compute.kernel, self.kernel_package(), "restir.cl",
-                                   defines={**self.defines(gbuffer), "BRDF_SAMPLES": 1})
+                                   defines={**self.defines(gbuffer), "BRDF_SAMPLES": 1, "CHAIN_LANES": int(chains > 1)})
         pyramid = cache.weight_pyramid(False)
         presample_count = p.tiles * p.tile_size
         presamples = buffer("presamples", 4 * 4 * presample_count)
