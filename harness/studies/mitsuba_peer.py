@@ -71,8 +71,9 @@ def unavailable() -> str | None:
     if probe.returncode == 0:
         return None
     lines = [line.strip() for line in probe.stderr.splitlines() if line.strip()]
-    errors = [line for line in lines if "error" in line.lower()] or lines or [f"exit {probe.returncode}"]
-    return f"mitsuba's {VARIANT} variant cannot run a kernel here: {errors[0][:160]}"
+    # LLVM's code generator aborts with its error first and a dump after; Python's error is last
+    why = [line for line in lines if line.startswith("LLVM ERROR")] or lines[-1:] or [f"exit {probe.returncode}"]
+    return f"mitsuba's {VARIANT} variant cannot run a kernel here: {why[0][:160]}"
 
 
 def latlong_grid(height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -114,15 +115,16 @@ def latlong_from_cube(env: np.ndarray, height: int | None = None) -> np.ndarray:
 class MitsubaPeer:
     """Mitsuba's ``envmap`` emitter over ``env`` shading the pixels of ``surface`` (a
     perf.HostSurface: ``normal``, ``view``, ``kd``, ``ks`` [N, 3], ``shininess`` [N]) as the
-    module docstring says.  Construct only where :func:`unavailable` is None."""
+    module docstring says, the map converted at ``height`` rows (:func:`latlong_from_cube`'s
+    default unless given).  Construct only where :func:`unavailable` is None."""
 
-    def __init__(self, surface, env: np.ndarray):
+    def __init__(self, surface, env: np.ndarray, height: int | None = None):
         import drjit as dr
         import mitsuba as mi
 
         mi.set_variant(VARIANT)
         self.dr, self.mi = dr, mi
-        bitmap = mi.Bitmap(latlong_from_cube(env))
+        bitmap = mi.Bitmap(latlong_from_cube(env, height))
         start = time.perf_counter()
         self.emitter = mi.load_dict({"type": "envmap", "bitmap": bitmap})
         self.build_ms = (time.perf_counter() - start) * 1e3
