@@ -467,15 +467,52 @@ def _floor_row(scene: str, spp: int, evaluations: int, pixels: int, times: list,
                 floor_max_rel_diff=difference)
 
 
+def _peer_row(scene: str, peer, spp: int, times: list, roofline: Roofline, device: str) -> dict:
+    """The Mitsuba peer's row from its renders' (kernel ms, host ms) ``times``."""
+    kernel_ms, host_ms = zip(*times)
+    return dict(_host_row(scene, mitsuba_peer.PEER, spp, spp, peer.count, kernel_ms, roofline, device),
+                build_ms=peer.build_ms, host_ms=spread(host_ms)[0])
+
+
+def _with_speedups(rows: list, floor: dict) -> list:
+    """``rows`` of one scene, each with its rate over the floor's (and over the peer's where its
+    row is among them), then the floor's row."""
+    peers = [row for row in rows if row["estimator"] == mitsuba_peer.PEER]
+    for row in rows:
+        row["speedup_vs_floor"] = row["msamples_per_s"] / floor["msamples_per_s"]
+    for row in rows + [floor] if peers else []:
+        row["speedup_vs_mitsuba"] = row["msamples_per_s"] / peers[0]["msamples_per_s"]
+    return rows + [floor]
+
+
+def _floor_pool(compute, specs, gbuffer, device_gbuffer, surface, env, spp: int) -> tuple:
+    """(the floor's light-sample pool, drawn on the device, and :func:`floor_difference` of the
+    floor from the uniform kernel on that pool, NaN where ``uniform`` is not measured); the
+    floor's first render here is its warm-up."""
+    from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+    from iblbench.estimators.runtime.framecache import FrameCache
+    from iblbench.estimators.uniform import Uniform
+
+    floor_cache = FrameCache(compute, env, 0)
+    floor_cache.require(Uniform.requires)
+    pool = HostPool.read(floor_cache, Uniform.pool_size(spp), FLOOR_SEED)
+    floor_image = numpy_floor(surface, pool, spp)
+    if Uniform.name not in {spec.cls.name for spec in specs}:
+        return pool, math.nan
+    # The floor has no V: the kernel it must agree with renders without the masks.
+    unmasked = DeviceGBuffer(compute, dataclasses.replace(gbuffer, visibility=None)) \
+        if gbuffer.visibility is not None else device_gbuffer
+    kernel = Uniform().render(unmasked, floor_cache, spp, FLOOR_SEED)
+    return pool, floor_difference(floor_image, kernel.radiance[gbuffer.mask])
+
+
 def run_perf(config: PerfConfig, log=print):
     """Measure (module docstring); returns (the perf table, the roofline)."""
     import pandas as pd
 
     from iblbench.estimators.registry import estimator_names
-    from iblbench.estimators.uniform import Uniform
     from iblbench.estimators.runtime.device import cache_dir, get_compute
     from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
-    from iblbench.estimators.runtime.framecache import FrameCache
     from iblbench.harness.protocol.shadows import attach_visibility
     from iblbench.harness.protocol.sweep import parse_estimator
     from iblbench.scenes.gbuffer import trace_gbuffer
@@ -509,22 +546,11 @@ def run_perf(config: PerfConfig, log=print):
             cells.append((_Cell(spec.label, spec.make(), spp), repeats))
         for cell, _ in cells:
             cell.render(compute, device_gbuffer, env, WARMUP_SEED, timed=False)
-        # The floor's inputs: a pool drawn on the device; the uniform kernel on the same pool.
-        floor_cache = FrameCache(compute, env, 0)
-        floor_cache.require(Uniform.requires)
-        pool = HostPool.read(floor_cache, Uniform.pool_size(floor_spp), FLOOR_SEED)
         surface = HostSurface.of(gbuffer)
-        floor_image = numpy_floor(surface, pool, floor_spp)   # also its warm-up
+        pool, difference = _floor_pool(compute, specs, gbuffer, device_gbuffer, surface, env, floor_spp)
         peer = None if peer_absent else mitsuba_peer.MitsubaPeer(surface, env)
         if peer:
             peer.render(floor_spp, WARMUP_SEED)   # Dr.Jit traces and compiles its kernel
-        difference = math.nan
-        if Uniform.name in {spec.cls.name for spec in specs}:
-            # The floor has no V: the kernel it must agree with renders without the masks.
-            unmasked = DeviceGBuffer(compute, dataclasses.replace(gbuffer, visibility=None)) \
-                if gbuffer.visibility is not None else device_gbuffer
-            kernel = Uniform().render(unmasked, floor_cache, floor_spp, FLOOR_SEED)
-            difference = floor_difference(floor_image, kernel.radiance[gbuffer.mask])
         floor_times, peer_times, floor_repeats = [], [], config.repeats or DEFAULT_REPEATS
         for round_ in range(max([floor_repeats] + [repeats for _, repeats in cells])):
             for cell, repeats in cells:
@@ -545,17 +571,9 @@ def run_perf(config: PerfConfig, log=print):
                            compute.device_name)
                       for cell, _ in cells]
         if peer:
-            kernel_ms, host_ms = zip(*peer_times)
-            scene_rows.append(dict(_host_row(scene.name, mitsuba_peer.PEER, floor_spp, floor_spp,
-                                             peer.count, kernel_ms, roofline, compute.device_name),
-                                   build_ms=peer.build_ms, host_ms=spread(host_ms)[0]))
-        for row in scene_rows:
-            row["speedup_vs_floor"] = row["msamples_per_s"] / floor["msamples_per_s"]
-        scene_rows.append(floor)
-        if peer:
-            for row in scene_rows:
-                row["speedup_vs_mitsuba"] = row["msamples_per_s"] / scene_rows[-2]["msamples_per_s"]
-        rows += scene_rows
+            scene_rows.append(_peer_row(scene.name, peer, floor_spp, peer_times, roofline,
+                                        compute.device_name))
+        rows += _with_speedups(scene_rows, floor)
         log(f"{scene.name}: {len(cells)} estimators and the floor{' and the peer' * bool(peer)} measured")
     return pd.DataFrame(rows, columns=list(COLUMNS)), roofline
 
