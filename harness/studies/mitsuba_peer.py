@@ -11,7 +11,9 @@ solid angle; it returns L/pdf), then ``envmap.cl``'s shading of that sample (``a
 view about n; the per-pixel sum over its samples (``dr.block_sum``) divided by spp is the pixel's
 estimate, as ``envmap``'s light-only estimate is.  All pixels × samples are one Dr.Jit wavefront,
 traced and compiled into one LLVM kernel (cached by Dr.Jit after the first render) that runs on
-Dr.Jit's thread pool, one thread per core.  A render's time is its kernels' execution time by
+Dr.Jit's thread pool, one thread per core, and writes each sample's value (12 B); three small
+kernels then sum each pixel's block (``block_sum`` needs its input evaluated; a
+``scatter_reduce`` into the pixels instead, fused into the one kernel, measured 1.3× slower).  A render's time is its kernels' execution time by
 Dr.Jit's kernel history (what the estimators' OpenCL profiling events are to them), and beside it
 the host wall time from the trace to ``dr.sync_thread()`` (the Python tracing included); the
 emitter's construction (the warp's build) is timed apart, as the estimators' CDF builds are.
@@ -25,17 +27,21 @@ columns; its row y is the polar angle θ = π·y/(H − 1) (the first and last r
 its column x the azimuth φ = 2π·(x + ½)/W, and the direction is (sin θ sin φ, cos θ,
 −sin θ cos φ), Y up as in iblbench's cube maps (ARCHITECTURE.md §Conventions), so no rotation is
 needed.  Between those points it interpolates bilinearly.  :func:`latlong_from_cube` converts a
-cube map [6, R, R, 3] at H = 2R (the equator keeps the cube's 4R texels): each lat-long texel is
-the solid-angle-weighted mean (weights sin θ) of the cube's nearest texels at S × S points spread
-over the texel's cell, [θ − Δθ/2, θ + Δθ/2] ∩ [0, π] × [φ − Δφ/2, φ + Δφ/2], so the map's
-integral is kept and a sun keeps its power, only spread over a few more, bilinear texels.  The
-peer therefore estimates a slightly blurred version of the cube map's integrand; its image agrees
-with ``envmap``'s within the statistical tolerance that tests/test_mitsuba_peer.py states.
+cube map [6, R, R, 3] at H = 2R by default (the equator keeps the cube's 4R texels, so the
+peer's tables are the cube's size, not larger): every cube texel is split into SUPERSAMPLE²
+squares, each square's power L·Ω (Ω its exact solid angle, ``cubemap.texel_solid_angles``) goes
+to the lat-long cell its centre falls in (the cell of row y: θ within Δθ/2 = π/(2(H − 1)) of
+the row's, clipped to [0, π]; of column x: φ in [2πx/W, 2π(x + 1)/W)), and each cell's radiance
+is its power over its solid angle.  So Σ L·Ω is the cube map's exactly and a sun keeps its power,
+placed within a cell of where it is; Mitsuba's bilinear lookup then blurs it by about a cell.
+The peer therefore estimates a slightly blurred version of the cube map's integrand; its image
+agrees with ``envmap``'s within the statistical tolerance tests/test_mitsuba_peer.py states (at
+H = 4R within the noise alone).
 
 Availability.  The peer needs the ``mitsuba`` package (``pip install 'iblbench[peer]'``) and its
 ``llvm_ad_rgb`` variant, which needs a libLLVM that Dr.Jit can load and compile with: Dr.Jit ≥ 1.0
 (Mitsuba ≥ 3.6) aborts the process in LLVM 15's code generator (Debian 12's; ``Cannot select
-fmaximum``), Mitsuba 3.5 runs there.  :func:`unavailable` therefore compiles and runs a tiny
+fmaximum``), Mitsuba 3.5.2 (Dr.Jit 0.4.6) runs there.  :func:`unavailable` therefore compiles and runs a tiny
 kernel in a child process first, and ``perf`` says in one line why the peer is absent.
 """
 from __future__ import annotations
