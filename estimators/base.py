@@ -128,7 +128,8 @@ class Mutant:
     plugin names its own files).  ``estimators``: the configurations whose checks must reject
     it, as a sweep names them (default: the estimator itself); ``stress``: the stress cases that
     guard the broken code; ``budgets``: whether the quick sweep's error budgets apply;
-    ``expect_killed_after``: the check still to land that will catch it (it may survive)."""
+    ``expect_killed_after``: the check still to land that will catch it (it may survive);
+    ``tests``: unit tests (pytest node ids in the repository's ``tests/``) that must fail on it."""
 
     name: str
     path: str
@@ -138,6 +139,7 @@ class Mutant:
     stress: tuple[str, ...] = ()
     budgets: bool = False
     expect_killed_after: str = ""
+    tests: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -124,19 +124,24 @@ _FLOPS_PER_ITEM = 2 * 2 * 32 * 4
 
 
 def _measure_gflops(info: DeviceInfo) -> float:
-    """FLOP rate of straight-line FMAs (compile and a warm-up run excluded), median of 3."""
+    """FLOP rate of straight-line FMAs (compile and a warm-up run excluded), median of 3.  The
+    launch doubles from 1,024 work items until one takes 50 ms (or reaches 2^20), so that a
+    simulator, thousands of times slower, is measured in seconds too."""
     ctx = cl.Context([info.device])
     queue = cl.CommandQueue(ctx)
     kernel = cl.Kernel(quietly_built(ctx, _FLOP_KERNEL)[0], "fma_block")
-    items = 1 << 20
-    out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 * items)
+    out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 << 20)
     kernel.set_args(out)
-    cl.enqueue_nd_range_kernel(queue, kernel, (items,), None).wait()
-    times = []
-    for _ in range(3):
+
+    def seconds(items: int) -> float:
         start = time.perf_counter()
         cl.enqueue_nd_range_kernel(queue, kernel, (items,), None).wait()
-        times.append(time.perf_counter() - start)
+        return time.perf_counter() - start
+
+    items = 1 << 10
+    while seconds(items) < 0.05 and items < 1 << 20:
+        items *= 2
+    times = [seconds(items) for _ in range(3)]
     return _FLOPS_PER_ITEM * items / float(np.median(times)) / 1e9
 
 

@@ -18,7 +18,11 @@ Layers, in order (``run_mutant`` stops at the first that rejects unless asked fo
 - ``stress``: the stress battery at its quick size (``stress.SMALL``), on the mutant's cases
   only (the ones that guard the code it breaks) and its estimators;
 - ``budgets``: the ``quick`` sweep (``iblbench run --config quick --repeats 1 --no-flip``) checked
-  against the repository's ``budgets.toml`` (only where that file exists: a source checkout).
+  against the repository's ``budgets.toml`` (only where that file exists: a source checkout);
+- ``tests``: the unit tests the mutant names (pytest node ids in the repository's ``tests/``,
+  again only in a source checkout), run on the mutated copy: the layer for bugs that no render
+  can show, such as the bookkeeping of a distributed run, the ranking's rules or a checker
+  that passes what it should fail.
 
 A mutant that only a check still to land can catch says so in ``expect_killed_after``: the
 test suite expects it to survive until then (``xfail``, not strict).
@@ -42,7 +46,7 @@ import tempfile
 import time
 
 PACKAGES = ("foundation", "scenes", "estimators", "harness", "reports")
-LAYERS = ("conformance", "stress", "budgets")
+LAYERS = ("conformance", "stress", "budgets", "tests")
 RESULT_TAG = "MUTANT-RESULT "
 
 
@@ -54,7 +58,8 @@ class Mutant:
     run, as a sweep names them (``name`` or ``name{param=value,...}``: a configuration where the
     bug shows, such as bis with M = 2 candidates per sample); ``stress``: the stress cases that
     guard the broken code; ``budgets``: whether the budgets layer applies (the quick sweep runs
-    uniform, balanced and balanced_mis)."""
+    uniform, balanced and balanced_mis); ``tests``: pytest node ids, relative to the repository's
+    ``tests/`` folder, that must fail on the bug (each should take seconds)."""
 
     name: str
     path: str
@@ -65,6 +70,7 @@ class Mutant:
     budgets: bool = False
     expect_killed_after: str = ""
     package: str = "iblbench"
+    tests: tuple[str, ...] = ()
 
     @classmethod
     def declared(cls, estimator: type, mutant) -> "Mutant":
@@ -75,7 +81,8 @@ class Mutant:
         top, _, below = package.partition(".")
         return cls(mutant.name, "/".join(filter(None, [*below.split("."), mutant.path])),
                    mutant.old, mutant.new, tuple(mutant.estimators) or (estimator.name,),
-                   tuple(mutant.stress), mutant.budgets, mutant.expect_killed_after, top)
+                   tuple(mutant.stress), mutant.budgets, mutant.expect_killed_after, top,
+                   tuple(mutant.tests))
 
     @property
     def where(self) -> str:
@@ -95,8 +102,9 @@ class Mutant:
         target.write_text(text, encoding="utf-8")
 
 
-def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed_after=""):
-    return Mutant(name, path, old, new, tuple(estimators), tuple(stress), budgets, expect_killed_after)
+def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed_after="", tests=()):
+    return Mutant(name, path, old, new, tuple(estimators), tuple(stress), budgets, expect_killed_after,
+                  tests=tuple(tests))
 
 
 COMMON, POOL = "estimators/runtime/kernels/common.cl", "estimators/runtime/kernels/light_pool.cl"
@@ -261,6 +269,12 @@ def budgets_file() -> pathlib.Path | None:
     return path if path.is_file() else None
 
 
+def tests_folder() -> pathlib.Path | None:
+    """The repository's tests/ beside the packages (a source checkout), or None."""
+    path = _package_folder("iblbench.harness").resolve().parent / "tests"
+    return path if path.is_dir() else None
+
+
 def copy_sources(folder: pathlib.Path, packages=()) -> pathlib.Path:
     """Copy the installed ``iblbench`` packages into ``folder/iblbench``, and each other
     top-level package of ``packages`` (a plugin's) into ``folder``; returns ``folder``.
@@ -320,9 +334,10 @@ def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout:
         mutant.apply(root)
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
                    IBLBENCH_CACHE=str(cache or root / "cache"), IBLBENCH_CHI2_PLOTS=str(root / "chi2"))
-        budgets = budgets_file()
+        budgets, tests = budgets_file(), tests_folder()
         command = [sys.executable, "-m", "iblbench.harness.verify.mutants", json.dumps(dataclasses.asdict(mutant)),
-                   ",".join(layers), "all" if all_layers else "first", str(budgets) if budgets else "-"]
+                   ",".join(layers), "all" if all_layers else "first", str(budgets) if budgets else "-",
+                   str(tests) if tests else "-"]
         try:
             done = subprocess.run(command, env=env, cwd=tmp, capture_output=True, text=True,
                                   timeout=timeout)
@@ -413,7 +428,22 @@ def _budgets(budgets: str) -> str:
     return "" if status == 0 else verdict[:300]
 
 
-def _child(fields: str, layers: str, mode: str, budgets: str) -> None:
+def _tests(mutant: Mutant, tests: str) -> str:
+    """The mutant's named tests, run by pytest in a fresh interpreter on the mutated copy (first
+    on ``PYTHONPATH``); the first failing test's summary line when any fails."""
+    if tests == "-":
+        return ""
+    nodes = [str(pathlib.Path(tests) / node) for node in mutant.tests]
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-n", "0", "-p", "no:randomly",
+                           "-p", "no:cacheprovider", "--rootdir", str(pathlib.Path(tests).parent),
+                           "--tb=line", *nodes], capture_output=True, text=True)
+    if done.returncode == 0:
+        return ""
+    failed = [line for line in done.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))]
+    return (failed[0] if failed else f"pytest exit {done.returncode}: {done.stdout[-200:]}")[:300]
+
+
+def _child(fields: str, layers: str, mode: str, budgets: str, tests: str) -> None:
     from iblbench.estimators.runtime.device import get_compute
 
     mutant = Mutant(**{key: tuple(value) if isinstance(value, list) else value
@@ -427,10 +457,12 @@ def _child(fields: str, layers: str, mode: str, budgets: str) -> None:
             results[layer] = _stress(mutant, compute)
         elif layer == "budgets" and mutant.budgets:
             results[layer] = _budgets(budgets)
+        elif layer == "tests" and mutant.tests:
+            results[layer] = _tests(mutant, tests)
         if mode == "first" and any(results.values()):
             break
     print(RESULT_TAG + json.dumps(results), flush=True)
 
 
 if __name__ == "__main__":
-    _child(*sys.argv[1:5])
+    _child(*sys.argv[1:6])
