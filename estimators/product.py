@@ -191,6 +191,12 @@ class Product(Hierarchical):
                "for (int l = levels - 2; l > 0; --l) {\n        int n = level_size(res, l);\n"
                "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
                stress=("face-pattern",)),
+        # weigh_children stages the four children: a child weighed with a sibling's lobe bound
+        # still samples its own density (unbiased, χ² clean); the NumPy descent sees it.
+        Mutant("product-children-lobe-bounds-swapped", "product.cl",
+               "w[k] *= cone_factor(g, &cone[k], bound_lobe[k]);",
+               "w[k] *= cone_factor(g, &cone[k], bound_lobe[3 - k]);",
+               tests=("test_product.py::test_texel_probabilities_match_a_numpy_descent[face-pattern-capped-0]",)),
     )
 
     @property
