@@ -134,8 +134,8 @@ class Product(Hierarchical):
 
     Cost (issue 37; sphere-sun, env 64, 64 spp, PoCL 3.1 on a 2-core AVX-512 Xeon shared with
     other jobs, one PoCL thread, process CPU time per render, so that the load cancels; ratios
-    measured in one run).  About 3.6× ``hierarchical{mis="brdf"}``'s time a sample at 256²
-    (91 against 25 ns).  A sample makes one product descent (a light sample's draw, or a BRDF
+    measured in one run).  About 3.4× ``hierarchical{mis="brdf"}``'s time a sample at 256²
+    (88 against 26 ns).  A sample makes one product descent (a light sample's draw, or a BRDF
     sample's density for MIS): 24 child factors (four a level, six levels below the faces; the
     faces' are the same for the whole pixel and the compiler hoists them out of the sample loop),
     each about 130 vector operations.  At 128², before the children were staged (below), with
@@ -147,12 +147,12 @@ class Product(Hierarchical):
     divider or memory: square roots and divisions by Newton steps from a bit-level guess, and
     the geometry read from a table (three gathers a child), each saved under 10% or nothing.
     weigh_children runs the four children stage by stage (cones, the halves of the powers,
-    factors: same bits):
-    3.86× to 3.59× at 256².  Measured and not taken: the top two levels' widths
-    once per pixel instead of once per 16 samples, bit-identical, 7% less (it needs a per-pixel
-    light-sampler state in envmap.cl's render loop); ``light_levels = 3`` 2.4× (issue 24: +0.5%
-    to +6% relMSE).  Within 1.5× of ``hierarchical`` would need a factor about six times
-    cheaper than this bound, or fewer of them (issue 37).
+    factors: same bits): 3.82× to 3.43× at 256² (product's own time 10% less).  Measured and
+    not taken: the top two levels' widths once per pixel instead of once per 16 samples,
+    bit-identical, 7% less (it needs a per-pixel light-sampler state in envmap.cl's render
+    loop); ``light_levels = 3`` 2.4× (issue 24: +0.5% to +6% relMSE).  Within 1.5× of
+    ``hierarchical`` would need a factor about six times cheaper than this bound, or fewer of
+    them (issue 37).
 
     Deviations.  Clarberg et al. multiply wavelet (Haar) representations of the map and the
     BRDF and sample the product's quadtree; Clarberg & Akenine-Möller 2008 evaluate the BRDF on
