@@ -89,8 +89,9 @@ ROW_STATISTICS = ["flicker", "used_samples", "effective_samples", "effective_rat
 METRIC_COLUMNS = [*metric_columns(), *ROW_STATISTICS, *REPLICATE_COLUMNS, *TIME_COLUMNS]
 COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "host", "protocol"]
 # Columns that are the same on every rerun of a cell on one device (renders are deterministic
-# per seed): everything but the measured times and how many renders they took (timing module).
-DETERMINISTIC_COLUMNS = [c for c in COLUMNS if not c.startswith("time_")]
+# per seed): everything but the time columns, the measured times and how many renders they took
+# (timing module).
+DETERMINISTIC_COLUMNS = [c for c in COLUMNS if c not in TIME_COLUMNS]
 TABLE = "results.parquet"
 CSV = "results.csv"
 JOURNAL = "results.journal.jsonl"

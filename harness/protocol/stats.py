@@ -44,8 +44,8 @@ t interval of their logarithms, :func:`geometric_mean_ci`: a positive, skewed du
 plain t interval over two seeds reached below zero.
 
 **Times are per device.**  A table may hold rows that several devices ran (the ``device``
-column: a sweep spread over machines).  A time (``time_ms`` and every other ``time_*`` column)
-is never aggregated over rows of two devices (:func:`column_interval` refuses to), so every
+column: a sweep spread over machines).  A time (``time_ms`` and every other time column of the
+schema, :func:`is_time_column`) is never aggregated over rows of two devices (:func:`column_interval` refuses to), so every
 figure of time is aggregated per device: :func:`by_device` splits a table by device, and
 :func:`time_keys` adds ``device`` to an aggregation's keys, each only where the table holds
 several devices, so a one-device table is aggregated as before.  Errors do not depend on the
@@ -356,7 +356,7 @@ def column_interval(rows, column: str) -> tuple[MeanCI, str]:
     :data:`LOG_SCALE_COLUMNS`, :func:`skew_corrected_ci` of replicates, :func:`mean_ci` of
     per-seed values.  A time of rows from several devices is a ValueError
     (module docstring: times are per device)."""
-    if column.startswith("time_") and len(devices(rows)) > 1:
+    if is_time_column(column) and len(devices(rows)) > 1:
         raise ValueError(f"{column} of rows from several devices ({', '.join(devices(rows))}): "
                          "times are aggregated per device")
     if column == TIME_COLUMN:
@@ -441,6 +441,16 @@ def cell_intervals(table, keys, columns):
              else pd.Index(list(cells), name=keys[0]))
     frame.index = index
     return frame
+
+
+def is_time_column(column: str) -> bool:
+    """Whether ``column`` is one of the results schema's time columns (the timing module's
+    ``COLUMNS``, which the table's columns are made of): a figure of the device that ran the
+    row, never aggregated over devices (module docstring).  Read from the schema, not the name,
+    so that a time column added to it is one here too."""
+    from iblbench.harness.protocol.timing import COLUMNS   # timing is built on this module
+
+    return column in COLUMNS
 
 
 def devices(table) -> list[str]:
