@@ -7,6 +7,15 @@ BENCH_OUT ?= results/default
 BUDGETS_OUT ?= results/budgets-quick
 # Where the system OpenCL loader looks for drivers (it honours OCL_ICD_VENDORS too).
 OPENCL_VENDORS ?= $(or $(OCL_ICD_VENDORS),/etc/OpenCL/vendors)
+# OPENCL=pip: install the pip PoCL and run `make bench` on it alone (the loader shown only its
+# driver file), to compare drivers; the default, auto, prefers a system driver (see $(STAMP)).
+OPENCL ?= auto
+ifeq ($(OPENCL),pip)
+ON_DRIVER_BENCH = OCL_ICD_VENDORS="$$(echo $(CURDIR)/$(VENV)/lib/python3*/site-packages/pyopencl/.libs/pocl.icd)"
+DRIVER_STAMP := $(VENV)/.pip-pocl
+endif
+ON_DRIVER = IBLBENCH_DEVICE= $(ON_DRIVER_BENCH)
+APT_INSTALL = DEBIAN_FRONTEND=noninteractive sh -c 'apt-get install -y -q "$$0" || { apt-get update -q && apt-get install -y -q "$$0"; }'
 
 .PHONY: bench budgets test venv clean
 
@@ -16,24 +25,34 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
-	@if ls $(OPENCL_VENDORS)/*.icd >/dev/null 2>&1; then \
+	@# The driver: a system one where there is one; else, as root with apt-get, Debian's PoCL,
+	@# built for this CPU, not the pip PoCL (docs/measurements.md: about 1/2.7 of Debian's speed on
+	@# a Zen 3); else the pip PoCL, with a hint. OPENCL=pip forces the pip PoCL for `make bench`.
+	@if [ "$(OPENCL)" = pip ]; then \
+		echo "OpenCL: OPENCL=pip: installing the pip PoCL; make bench runs on it alone"; \
+		$(PY) -m pip install -q -e '.[test,pocl]'; \
+	elif ls $(OPENCL_VENDORS)/*.icd >/dev/null 2>&1; then \
 		echo "OpenCL: system driver found in $(OPENCL_VENDORS)"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+		echo "OpenCL: no system driver; installing Debian's pocl-opencl-icd with apt-get, because it"; \
+		echo "OpenCL: builds for this CPU and ran 2.7x as fast as the pip PoCL (docs/measurements.md)"; \
+		$(APT_INSTALL) pocl-opencl-icd >$(VENV)/apt.log 2>&1 || { \
+			tail -3 $(VENV)/apt.log; echo "hint: apt-get could not install pocl-opencl-icd; installing the pip PoCL"; \
+			$(PY) -m pip install -q -e '.[test,pocl]'; }; \
 	else \
-		echo "hint: no system OpenCL driver found; installing the pip PoCL (generic target)."; \
-		echo "hint: Debian's 'apt-get install -y pocl-opencl-icd' runs about 10x faster on this CPU."; \
+		echo "hint: no system OpenCL driver, and not root with apt-get: installing the pip PoCL, which ran"; \
+		echo "hint: at 1/2.7 of the speed of Debian's 'apt-get install -y pocl-opencl-icd' (docs/measurements.md)"; \
 		$(PY) -m pip install -q -e '.[test,pocl]'; \
 	fi
 	@# A driver may be there and still unable to build for this CPU (the pip PoCL's LLVM 14 names
 	@# CPUs newer than it 'generic', which it cannot target): then, as root on Debian, install
 	@# Debian's PoCL; otherwise stop here with the reason.
-	@if ! IBLBENCH_DEVICE= $(VENV)/bin/iblbench list devices >/dev/null 2>&1; then \
+	@if ! $(ON_DRIVER) $(VENV)/bin/iblbench list devices >/dev/null 2>&1; then \
 		echo "OpenCL: no device here can build a kernel:"; \
-		IBLBENCH_DEVICE= $(VENV)/bin/iblbench list devices 2>&1 | sed 's/^/  /'; \
-		if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+		$(ON_DRIVER) $(VENV)/bin/iblbench list devices 2>&1 | sed 's/^/  /'; \
+		if [ "$(OPENCL)" != pip ] && [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 			echo "OpenCL: installing Debian's pocl-opencl-icd (PoCL for this CPU) with apt-get"; \
-			export DEBIAN_FRONTEND=noninteractive; \
-			apt-get install -y -q pocl-opencl-icd >$(VENV)/apt.log 2>&1 \
-				|| (apt-get update -q && apt-get install -y -q pocl-opencl-icd) >>$(VENV)/apt.log 2>&1 \
+			$(APT_INSTALL) pocl-opencl-icd >>$(VENV)/apt.log 2>&1 \
 				|| { tail -5 $(VENV)/apt.log; echo "error: apt-get could not install pocl-opencl-icd"; exit 1; }; \
 			IBLBENCH_DEVICE= $(VENV)/bin/iblbench list devices >/dev/null \
 				|| { echo "error: still no OpenCL device that can build a kernel"; exit 1; }; \
@@ -42,15 +61,13 @@ $(STAMP): pyproject.toml
 			exit 1; \
 		fi; \
 	fi
-	@echo "OpenCL: $$(IBLBENCH_DEVICE= $(VENV)/bin/iblbench list devices | grep '^\*' | cut -c3-)"
+	@echo "OpenCL: $$($(ON_DRIVER) $(VENV)/bin/iblbench list devices | grep '^\*' | cut -c3-)"
 	@# Optional: clang-15 compiles every kernel for two other targets (tests/test_compile_clang.py,
 	@# which skips without it); as root on Debian it is installed, else a hint says so.
 	@if ! command -v clang-15 >/dev/null 2>&1; then \
 		if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 			echo "clang: installing Debian's clang-15 (the kernel compile test) with apt-get"; \
-			export DEBIAN_FRONTEND=noninteractive; \
-			apt-get install -y -q clang-15 >$(VENV)/apt-clang.log 2>&1 \
-				|| (apt-get update -q && apt-get install -y -q clang-15) >>$(VENV)/apt-clang.log 2>&1 \
+			$(APT_INSTALL) clang-15 >$(VENV)/apt-clang.log 2>&1 \
 				|| echo "hint: apt-get could not install clang-15 ($(VENV)/apt-clang.log); the kernel compile test will skip"; \
 		else \
 			echo "hint: no clang-15, so the kernel compile test will skip (Debian: apt-get install clang-15)"; \
@@ -63,10 +80,15 @@ $(STAMP): pyproject.toml
 # real-photograph scene sphere-park and the short sequence park-turn.
 # perf: throughput against the roofline and the NumPy floor (about a minute here; bis and smc run
 # at spp 20, Kronander's N = 20 with M = 400 candidates, with 3 repeats by default).
-bench: $(STAMP)
-	$(VENV)/bin/iblbench run --config default --out $(BENCH_OUT)
+# OPENCL=pip on a venv made without it: add the pip PoCL.
+$(VENV)/.pip-pocl: $(STAMP)
+	$(PY) -m pip install -q -e '.[test,pocl]'
+	touch $@
+
+bench: $(STAMP) $(DRIVER_STAMP)
+	$(ON_DRIVER_BENCH) $(VENV)/bin/iblbench run --config default --out $(BENCH_OUT)
 	$(VENV)/bin/iblbench report $(BENCH_OUT)
-	$(VENV)/bin/iblbench perf --out $(BENCH_OUT)/perf
+	$(ON_DRIVER_BENCH) $(VENV)/bin/iblbench perf --out $(BENCH_OUT)/perf
 
 # budgets: remake budgets.toml from a fresh `quick` sweep (16 seeds; under a minute here), after
 # any change that moves a sample stream: `make budgets WHY="what changed"`.  The margin and

@@ -66,7 +66,10 @@ class Estimate:
     ``extras``: estimator-specific per-frame scalars (e.g. ``smc``'s ``ess`` and ``reinits``),
     which the runner writes as extra result columns after the fixed ones.  ``shadow_rays``: the
     visibility queries V(x, ω) per covered pixel (mean; 0 on a G-buffer without visibility): the
-    integrand evaluations, but for ``bis``, whose target leaves V out (its N resampled samples).
+    integrand evaluations, but where an estimator's docstring counts otherwise (``bis``, whose
+    target leaves V out: its N resampled samples; ``smc`` and ``restir``, which reuse a
+    direction's V).  ``Estimator.work_counts`` states both counts, and ``conformance.check_work_counts``
+    holds every path to them.
     """
 
     radiance: np.ndarray
@@ -77,6 +80,30 @@ class Estimate:
     timings_ms: dict[str, float]
     extras: dict[str, float] = dataclasses.field(default_factory=dict)
     shadow_rays: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class CountFrame:
+    """One frame of a sequence that ``conformance.check_work_counts`` renders, in order, after
+    ``reset()``: the frame's ``cache`` (a FrameCache: its map ``cache.env``), and the render's
+    ``spp`` and ``seed``."""
+
+    cache: object
+    spp: int
+    seed: int
+
+
+@dataclasses.dataclass(frozen=True)
+class WorkCounts:
+    """The work a frame's render must report, as its docstring counts it (an estimator's
+    ``work_counts``): ``evaluations`` and ``shadow_rays`` per covered pixel (arrays over the
+    covered pixels, or one number for all), the shadow rays as on a G-buffer with visibility
+    (without it the render must report 0); ``extras``: the ``Estimate.extras`` that count work
+    (``smc``'s ``reinits``, ``restir``'s ``neighbours``), each the value the render must report."""
+
+    evaluations: object
+    shadow_rays: object
+    extras: dict = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -128,7 +155,8 @@ class Mutant:
     plugin names its own files).  ``estimators``: the configurations whose checks must reject
     it, as a sweep names them (default: the estimator itself); ``stress``: the stress cases that
     guard the broken code; ``budgets``: whether the quick sweep's error budgets apply;
-    ``expect_killed_after``: the check still to land that will catch it (it may survive)."""
+    ``expect_killed_after``: the check still to land that will catch it (it may survive);
+    ``tests``: unit tests (pytest node ids in the repository's ``tests/``) that must fail on it."""
 
     name: str
     path: str
@@ -138,6 +166,7 @@ class Mutant:
     stress: tuple[str, ...] = ()
     budgets: bool = False
     expect_killed_after: str = ""
+    tests: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,6 +202,13 @@ class Estimator:
 
     def reset(self) -> None:
         """Forget state carried across frames (temporal estimators)."""
+
+    def work_counts(self, gbuffer, frames) -> list[WorkCounts] | None:
+        """The counts of work (:class:`WorkCounts`) that renders of ``frames`` (:class:`CountFrame`,
+        in order after ``reset()``) on the host G-buffer ``gbuffer`` must report, computed in
+        Python from the docstring's formula and the inputs, never read from a render:
+        ``conformance.check_work_counts`` holds every path to them.  None: not declared."""
+        return None
 
     def limit_map(self, cache):
         """The map whose exact integral a ``has_limit`` estimator converges to (``fis``: its

@@ -30,7 +30,7 @@ import numpy as np
 import pyopencl as cl
 
 from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Setting, SweepPart, Tags,
-                                      read_estimate, specular_lobe_defines)
+                                      WorkCounts, read_estimate, specular_lobe_defines)
 from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import event_ms
 
@@ -155,6 +155,15 @@ class BIS(Estimator):
     def budget(self, spp: int) -> tuple[int, int]:
         """(M, N) of a render at ``spp``."""
         return candidates_for(spp, self.params.M, self.params.N), int(spp)
+
+    def work_counts(self, gbuffer, frames) -> list[WorkCounts]:
+        """"Budget" above: M = round(spp·M/N) candidates' γ and the N = spp resampled samples' f,
+        only those N with V (the target leaves it out)."""
+        counts = []
+        for frame in frames:
+            candidates = max(frame.spp, round(frame.spp * self.params.M / self.params.N))
+            counts.append(WorkCounts(candidates + frame.spp, frame.spp))
+        return counts
 
     def render(self, gbuffer, cache, spp, seed):
         if not 1 <= spp <= MAX_SPP:

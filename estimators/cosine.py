@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Tags, read_estimate,
+from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Tags, WorkCounts, read_estimate,
                                       visibility_defines)
 from iblbench.estimators.runtime.device import event_ms
 
@@ -34,6 +34,10 @@ class Cosine(Estimator):
                "sum += open * IBL_PI * phong_brdf", "sum += open * phong_brdf",
                stress=("constant",)),
     )
+
+    def work_counts(self, gbuffer, frames) -> list[WorkCounts]:
+        """N samples, each one evaluation and one V."""
+        return [WorkCounts(frame.spp, frame.spp) for frame in frames]
 
     def render(self, gbuffer, cache, spp, seed):
         if spp < 1:

@@ -3,11 +3,12 @@ optional MIS with Phong BRDF samples and MIS compensation."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
 from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Setting, SweepPart, Tags,
-                                      read_estimate, specular_lobe_defines)
+                                      WorkCounts, read_estimate, specular_lobe_defines)
 from iblbench.estimators.light_pool import HOOK_SPP, MAX_SPP, TICKS_PER_SAMPLE, hook_surface
 from iblbench.estimators.runtime.device import event_ms
 
@@ -37,6 +38,12 @@ class MapSampler(Estimator):
         light half rounded down to a tick."""
         light = spp * TICKS_PER_SAMPLE // (2 if self.brdf_samples else 1) if self.light_samples else 0
         return light / TICKS_PER_SAMPLE, spp - light / TICKS_PER_SAMPLE
+
+    def work_counts(self, gbuffer, frames) -> list[WorkCounts]:
+        """Each strategy's N samples of :meth:`strategy_samples` in ⌈N⌉ draws (the last weighted by
+        β), a draw one evaluation of the integrand and its V."""
+        draws = [sum(math.ceil(n) for n in self.strategy_samples(frame.spp)) for frame in frames]
+        return [WorkCounts(count, count) for count in draws]
 
     def defines(self, gbuffer=None) -> dict:
         """Compile-time options of envmap.cl (for this G-buffer, when one is given)."""

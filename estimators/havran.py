@@ -102,7 +102,7 @@ import weakref
 import numpy as np
 
 from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Setting, SweepPart, Tags,
-                                      read_estimate, visibility_defines)
+                                      WorkCounts, read_estimate, visibility_defines)
 from iblbench.estimators.runtime.device import event_ms
 from iblbench.scenes import cubemap
 
@@ -550,6 +550,17 @@ class Havran(Estimator):
         """The filtered lights of this frame, host copies (tests), updating the history."""
         _, _, directions, weights, _ = self._filtered(cache, k, seed)
         return self._to_host(cache.compute, directions, k), self._to_host(cache.compute, weights, k)
+
+    def work_counts(self, gbuffer, frames) -> list[WorkCounts]:
+        """"Shading" above: the K lights above each pixel's horizon (n·ω > 0) shaded, each with
+        its V; the lights those a fresh instance places and filters on the same frames."""
+        twin, normals = type(self)(self.params), gbuffer.normal[gbuffer.mask].astype(np.float32)
+        counts = []
+        for frame in frames:
+            directions, _ = twin.lights(frame.cache, frame.spp, frame.seed)
+            above = (normals @ directions.astype(np.float32).T > 0).sum(1)
+            counts.append(WorkCounts(above, above))
+        return counts
 
     def render(self, gbuffer, cache, spp, seed):
         if not 1 <= spp <= MAX_K:

@@ -19,7 +19,7 @@ import dataclasses
 
 import numpy as np
 
-from iblbench.estimators.base import Estimator, Setting, Tags, read_estimate, visibility_defines
+from iblbench.estimators.base import Estimator, Setting, Tags, WorkCounts, read_estimate, visibility_defines
 from iblbench.estimators.runtime.device import event_ms
 
 TICKS_PER_SAMPLE = 65536   # fixed point of the sample counts (light_pool.cl)
@@ -89,6 +89,19 @@ class PoolEstimator(Estimator):
     def light_cdfs(self, cache):
         """The light CDFs the kernels read (FrameCache.light_cdfs)."""
         return cache.light_cdfs(self.mis_compensated)
+
+    def work_counts(self, gbuffer, frames) -> list[WorkCounts]:
+        """Each strategy's N_k = ticks/``TICKS_PER_SAMPLE`` samples (the split of
+        :meth:`strategy_ticks`, Eq. 3) in ⌈N_k⌉ draws, the last weighted by β (Eq. 5), a draw
+        one evaluation of the integrand and its V."""
+        normals = gbuffer.normal[gbuffer.mask]
+        counts = []
+        for frame in frames:
+            frame.cache.require(self.requires)
+            ticks = self.strategy_ticks(frame.cache, normals, frame.spp).astype(np.int64)
+            draws = (-(-ticks // TICKS_PER_SAMPLE)).sum(1)
+            counts.append(WorkCounts(draws, draws))
+        return counts
 
     def render(self, gbuffer, cache, spp, seed):
         if not 1 <= spp <= MAX_SPP:

@@ -146,13 +146,16 @@ import numpy as np
 import pyopencl as cl
 
 from iblbench.estimators.base import (Estimate, Estimator, KernelCost, Mutant, Setting, SweepPart,
-                                      Tags, read_estimate, specular_lobe_defines)
+                                      Tags, WorkCounts, read_estimate, specular_lobe_defines)
+from iblbench.estimators.runtime import philox
 from iblbench.estimators.runtime.device import KeptBuffers, event_ms
 
 MAX_SPP = 1024          # reservoir chains a pixel: 32 bytes of each of two frames' reservoirs
 MAX_CANDIDATES = 4096
 MAX_NEIGHBOURS = 8   # restir.cl's bound of k
 MIN_TILE = 16        # presamples are drawn in whole blocks of POOL_LANES (at most 16) lanes
+STREAM_RESTIR_REUSE = 51   # restir.cl's stream of the reuse steps' numbers
+TIE_MARGIN = 1e-4          # float32's rounding of a neighbour's offset (≤ 4 pixels) is far below it
 
 
 @dataclasses.dataclass(frozen=True)
@@ -182,14 +185,50 @@ def _power_of_two(n: int) -> bool:
 
 
 def eye_depths(gbuffer) -> np.ndarray:
-    """Each covered pixel's distance to the eye, the point nearest (least squares) every pixel's
+    """Each covered pixel's distance to the eye (``gbuffer``: a DeviceGBuffer or a host GBuffer), the point nearest (least squares) every pixel's
     view ray x + t·v; all 0 for a synthetic G-buffer whose rays do not meet (positions all 0)."""
-    g = gbuffer.gbuffer
+    g = getattr(gbuffer, "gbuffer", gbuffer)   # a DeviceGBuffer's host G-buffer, or a host one
     x = g.position[g.mask].astype(np.float64)
     v = g.view[g.mask].astype(np.float64)
     projector = np.eye(3) - v[:, :, None] * v[:, None, :]     # I − v vᵀ: off-ray components
     eye = np.linalg.lstsq(projector.sum(0), np.einsum("nij,nj->i", projector, x), rcond=None)[0]
     return np.linalg.norm(x - eye, axis=1).astype(np.float32)
+
+
+def neighbours_found(gbuffer, chains: int, neighbours: int, radius: float, seed: int,
+                     frame: int) -> np.ndarray:
+    """How many neighbours each covered pixel's spatial pass (step 4) finds, per chain, int
+    ``[pixels, chains]``, on the host G-buffer ``gbuffer``: the rule of step 4 (a pixel uniform
+    in the disc, clamped to the image; kept if covered, not the pixel, its normal within acos 0.5
+    and its depth within 10%) drawn from the kernel's Philox numbers (``runtime.philox``), its
+    geometry in NumPy.  For ``work_counts``: what a render found, recomputed without it.
+    ValueError where an offset lies within ``TIE_MARGIN`` of a half pixel, where the device's
+    float32 rounding may decide otherwise."""
+    height, width = gbuffer.mask.shape
+    index = np.flatnonzero(gbuffer.mask)
+    at = np.full(height * width, -1)
+    at[index] = np.arange(len(index))
+    normal = gbuffer.normal[gbuffer.mask].astype(np.float32)
+    depth = eye_depths(gbuffer)
+    pixel, chain = np.meshgrid(np.arange(len(index)), np.arange(chains), indexing="ij")
+    found = np.zeros(pixel.shape, int)
+    for j in range(neighbours):
+        words = philox.rng_block(seed, frame, STREAM_RESTIR_REUSE, pixel, 1 + j, chain)
+        distance = np.float32(radius) * np.sqrt(philox.rng_unit(words[0]).astype(np.float64))
+        turn = 2 * np.pi * philox.rng_unit(words[1]).astype(np.float64)
+        offsets = distance * np.cos(turn), distance * np.sin(turn)
+        if min(np.abs(np.abs(v) % 1.0 - 0.5).min() for v in offsets) < TIE_MARGIN:
+            raise ValueError("a neighbour's offset lies within rounding of a tie of rint: the neighbours "
+                             "a device finds are not known; choose another seed")
+        x = np.clip(index[pixel] % width + np.rint(offsets[0]).astype(int), 0, width - 1)
+        y = np.clip(index[pixel] // width + np.rint(offsets[1]).astype(int), 0, height - 1)
+        q = at[y * width + x]
+        kept = (q >= 0) & (q != pixel)
+        q = np.where(kept, q, pixel)
+        kept &= np.einsum("...i,...i->...", normal[pixel], normal[q]) >= np.float32(0.5)
+        kept &= ~(np.abs(depth[q] - depth[pixel]) > np.float32(0.1) * depth[pixel])
+        found += kept
+    return found
 
 
 class ReSTIR(Estimator):
@@ -254,6 +293,23 @@ class ReSTIR(Estimator):
         """(light, BRDF) candidates of a reservoir."""
         brdf = int(round(self.params.candidates * self.params.brdf_share))
         return self.params.candidates - brdf, brdf
+
+    def work_counts(self, gbuffer, frames) -> list[WorkCounts]:
+        """"Budget" above, per chain: M candidates, 2 targets of temporal reuse after the first
+        frame, (r+1)·r targets of spatial reuse with the r neighbours it found
+        (:func:`neighbours_found`) and the shading; shadow rays the same but the shading's and,
+        in the biased mode, the r·r neighbour targets without V.  Extra ``neighbours``: the
+        mean r."""
+        p, counts = self.params, []
+        for t, frame in enumerate(frames):
+            found = neighbours_found(gbuffer, frame.spp, p.neighbours, p.radius, frame.seed, frame.cache.frame)
+            temporal = 2 if p.temporal and t > 0 else 0
+            spatial = found * (found + 1)
+            counts.append(WorkCounts(
+                evaluations=(p.candidates + temporal + spatial + 1).sum(1),
+                shadow_rays=(p.candidates + temporal + (spatial if p.unbiased else found)).sum(1),
+                extras={"neighbours": found.mean()}))
+        return counts
 
     def _pixel_maps(self, compute, gbuffer) -> tuple:
         """(each launched pixel's image index, each image position's pixel or −1, depths), on the
@@ -324,3 +380,16 @@ class ReSTIR(Estimator):
         estimate.extras = {"neighbours": float(st[:, 1].mean()),
                            "confidence": float(st[:, 2].mean()) / self.params.candidates}
         return estimate
+
+    def kept_state(self, compute, gbuffer, spp: int) -> dict[str, np.ndarray]:
+        """Host copies of what the last ``render(gbuffer, …, spp, …)`` keeps for the next frame,
+        for tests of the weights (read back only here, never by a render): ``sample``
+        [spp, covered pixels, 4], each chain's reservoir's (ω, W); ``info`` likewise, (c, p̂, 0, 0);
+        ``scales`` [covered pixels], each pixel's 1/Z̃ under the frame's map."""
+        if self._key is None or self._key[0] is not gbuffer or self._key[3] != int(spp):
+            raise ValueError("kept_state reads the last render's G-buffer and spp, not others")
+        n, parity = gbuffer.launch_size, 1 - self._parity
+        read = lambda name, count: compute.to_host(self._buffers.get(compute, name, count * 4), (count,), np.float32)
+        chains = lambda name: read(name, int(spp) * n * 4).reshape(int(spp), n, 4)[:, :gbuffer.count]
+        return {"sample": chains(f"history{parity}_sample"), "info": chains(f"history{parity}_info"),
+                "scales": read(f"scales{parity}", n)[:gbuffer.count]}

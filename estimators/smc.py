@@ -87,7 +87,9 @@ the particles) + per step N MH proposals (2 at α < 1, where γ_{t−1} is evalu
 proposal too, 1 at α = 1) + N (f in Eq. 7); on a static frame the S·N MH proposals only (γ_t
 at the particles is γ_{t−1}, stored; a proposal's γ and f share one evaluation); and M + N for
 each BIS (re-)init (its candidates and resampled samples).  With the defaults a changed frame
-costs N(1 + 2·3 + 1 + 1) = 9N and a static one 4N.
+costs N(1 + 2·3 + 1 + 1) = 9N and a static one 4N.  ``shadow_rays`` counts V at new directions
+only: the MH proposals (S·N a carried frame) and an init's M candidates (γ_t at a particle, γ_{t−1} at a
+proposal and f at a resampled or carried particle reuse a direction whose V is known).
 
 Extras (per-frame columns): ``ess``: mean over pixels that carried state of the smallest ESS
 before resampling over the frame's steps (NaN on an init frame); ``reinits``: pixels
@@ -135,10 +137,11 @@ import math
 import numpy as np
 
 from iblbench.estimators.base import (Estimator, ExtraColumn, KernelCost, Mutant, Setting,
-                                      SweepPart, Tags, read_estimate, specular_lobe_defines)
+                                      SweepPart, Tags, WorkCounts, read_estimate, specular_lobe_defines)
 from iblbench.estimators.bis import MAX_SPP, run_bis_chunks, run_lockstep
 from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import KeptBuffers, event_ms
+from iblbench.scenes import cubemap, visibility
 
 MAP_CHANGE_GROUP = 64   # work items of map_change's one group (smc.cl), at most
 # smc_advance's work items per group: one local size for every launch (PoCL builds a kernel per
@@ -246,6 +249,55 @@ class SMC(Estimator):
 
     def particles(self, spp: int) -> int:
         return self.params.N or int(spp)
+
+    def work_counts(self, gbuffer, frames) -> list[WorkCounts]:
+        """"Budget" above, per pixel, on a sequence whose every changed map is a scaled copy of
+        the one before (ValueError otherwise: which pixels' own rule of step 5 fires is then not
+        known without the particles), lit wherever a pixel looks but at pixels whose every
+        visibility cell is closed, which see black: there every particle keeps a positive weight
+        and Z_t/Z_{t−1} is the scale.  A BIS init costs M + N evaluations and M shadow rays (the
+        candidates' V); a static frame S·N MH proposals, each one evaluation and one ray; a
+        changed one N + (2(S−1) + 1)·N + N evaluations and S·N rays.  Re-initialised (an init,
+        counted in the ``reinits`` extra after the first frame): every pixel on the first frame
+        and where a map-level rule of step 5 fires (the power's jump past ``reinit_threshold``,
+        or 1 + χ² past 1/``reinit_map_ess``, computed here from the maps); a black pixel on
+        every frame (Z_{t−1} = 0).  No resampling anywhere (the weights stay equal):
+        ``resample_steps`` 0."""
+        p = self.params
+        black = np.zeros(int(gbuffer.mask.sum()), bool) if gbuffer.visibility is None else \
+            ~visibility.unpack_bits(gbuffer.visibility[gbuffer.mask], gbuffer.visibility_res).any(-1)
+        counts, previous = [], None
+        for frame in frames:
+            N = self.particles(frame.spp)
+            M, steps = p.init_candidates * N, p.intermediates + 1
+            env = np.asarray(frame.cache.env, np.float64)
+            if previous is None or np.array_equal(env, previous):
+                reinit, carried = previous is None, (steps * N, steps * N)
+            else:
+                reinit, carried = self._map_rule_fires(previous, env), (N + (2 * steps - 1) * N + N, steps * N)
+            reinit = reinit | black
+            work = [np.where(reinit, init, carry) for init, carry in zip((M + N, M), carried)]
+            reinits = 0 if previous is None else int(reinit.sum())
+            counts.append(WorkCounts(*work, extras={"reinits": reinits, "resample_steps": 0.0}))
+            previous = env
+        return counts
+
+    def _map_rule_fires(self, previous: np.ndarray, env: np.ndarray) -> bool:
+        """Whether step 5's map-level rules re-initialise every pixel between two maps, of which
+        the second must be a scaled copy of the first or fire one."""
+        p = self.params
+        omega = cubemap.texel_solid_angles(env.shape[1])
+        before, after = (cubemap.luminance(m) * omega for m in (previous, env))
+        ratio = after.sum() / before.sum()
+        lit_up = np.where(after > 0, np.inf, 0.0)   # a black texel that lit up: +∞ (step 5)
+        chi2_plus_1 = np.sum(np.divide((after / after.sum()) ** 2, before / before.sum(),
+                                       out=lit_up, where=before > 0))
+        if not 1.0 / p.reinit_threshold <= ratio <= p.reinit_threshold \
+                or p.reinit_map_ess * chi2_plus_1 > 1.0:
+            return True
+        if not np.allclose(env, ratio * previous, rtol=1e-6, atol=0.0):
+            raise ValueError("smc's counts are known on scaled maps and map-level re-inits only")
+        return False
 
     def _map_tables(self, cache, defines, buffer, changed: bool):
         """The map proposal's alias tables (sir.cl), the map's power and, where the map

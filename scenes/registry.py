@@ -10,6 +10,9 @@ Built-in scenes (static Preetham sun + sky, kd = 0.5, ks = 0.3, shininess = 150,
 - ``blob-sun``: a displaced icosphere of 327,680 triangles (bumps and dents, varied normals) for
   scale and normal variety.
 - ``torus-sun``: a torus seen from above; inner faces point down and back at the tube.
+- ``plane-grazing``: a plane tilted 20°, lit only by a small light 11° above its horizon (no sky)
+  whose coarse cube-map cell (a quarter face) has its centre 6° below that horizon: the light is
+  where a coarse model of the map says it cannot reach.
 
 Built-in scenes with occlusion (visibility on, 32² cells a face: :mod:`iblbench.scenes.visibility`):
 
@@ -208,6 +211,34 @@ def _torus_sun(env_res: int | None) -> Scene:
     return _sun_sky_scene("torus-sun", meshes.torus(), camera, env_res)
 
 
+# plane-grazing: a plane tilted 20° about Z (its normal n = (sin 20°, cos 20°, 0)) lit only by a
+# sun-sized light on the +X face at face point (u, v) = (−0.15, 0.15): 11.3° above the plane's
+# horizon, while the centre (−0.5, 0.5) of its quarter of the face, the cell of the coarsest
+# level of at most 2 × 2 cells a face (restir's target scales), lies 6.0° below it; the light's
+# texels stay above it at every face size from 4².
+GRAZING_TILT_DEG = 20.0
+GRAZING_LIGHT = (1.0, -0.15, 0.15)   # unnormalised: the +X face's point (u, v) = (−0.15, 0.15)
+GRAZING_LIGHT_POWER = 3.0            # Σ Y·Ω of the light
+
+
+def _plane_grazing(env_res: int | None) -> Scene:
+    """A plane tilted 20°, lit only by a small light 11° above its horizon whose coarse cube-map
+    cell (a quarter face) has its centre 6° below it: where a model of the map by coarse cells
+    (restir's target scales) sees no light that reaches the plane."""
+    res = env_res or DEFAULT_ENV_RES
+    light = np.asarray(GRAZING_LIGHT) / np.linalg.norm(GRAZING_LIGHT)
+    solid_angle = 2.0 * math.pi * (1.0 - math.cos(math.radians(sky.SUN_ANGULAR_RADIUS_DEG)))
+    env = sky.sun_disc(res, light, sky.sun_rgb(GRAZING_LIGHT_POWER / solid_angle)).astype(np.float32)
+    env.flags.writeable = False
+    plane = meshes.transform_mesh(meshes.ground(height=0.0), meshes.rotation_xyz((0.0, 0.0, -GRAZING_TILT_DEG)),
+                                  (0.0, 0.0, 0.0))
+    # Seen from 30° off its normal, towards +Z: the plane fills the frame.
+    camera = Camera(eye=(1.03, 2.82, 1.5), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y=45.0)
+    return Scene(name="plane-grazing", mesh=plane, material=_MATERIAL, camera=camera,
+                 environment=EnvSequence.static(env, source="builtin:grazing-light"),
+                 resolution=(128, 128), source="builtin:plane-grazing")
+
+
 # --- real photographs ---------------------------------------------------------------------------
 
 PARK_MAP = "rooitou_park_1k.hdr"
@@ -371,13 +402,14 @@ def _sphere_park_switch(env_res: int | None) -> Scene:
 
 # Every built-in scene: kd = 0.5, ks = 0.3, shininess = 150; 128 × 128 but park-turn and the
 # photographed sequences (48 × 48); the *-sun ones static Preetham sun + sky, the *-park and
-# *-studio ones shipped photographs; cube faces DEFAULT_ENV_RES² (park-turn, sphere-studio-moving
+# *-studio ones shipped photographs, plane-grazing one small light; cube faces DEFAULT_ENV_RES² (park-turn, sphere-studio-moving
 # and sphere-park-switch: PARK_TURN_ENV_RES²) unless env_res says otherwise.
 BUILTIN_SCENES: dict[str, Callable[[int | None], Scene]] = {
     "sphere-sun": _sphere_sun,
     "sphere-backlit": _sphere_backlit,
     "blob-sun": _blob_sun,
     "torus-sun": _torus_sun,
+    "plane-grazing": _plane_grazing,
     "blob-day": _blob_day,
     "torus-moving": _torus_moving,
     "sphere-switch": _sphere_switch,

@@ -471,6 +471,23 @@ def test_list_devices_marks_exactly_one(cli):
     assert sum(line.startswith("*") for line in lines) == 1, result.stdout
 
 
+def test_list_devices_gives_every_device_a_measured_speed(cli):
+    """Issue 35: each device that builds a kernel shows its measured FLOP rate, the simulator and
+    GPUs included (before, only CPUs had one); a simulator, which interprets every work item,
+    measures slower than the CPU chosen beside it."""
+    lines = [line for line in cli("list", "devices").stdout.splitlines() if line[2:3] == "["]
+    rates = {}
+    for line in lines:
+        if "cannot build a kernel" in line:
+            continue
+        found = re.search(r"  ([0-9.]+) (G|M)FLOP/s \(measured\)$", line)
+        assert found, line
+        rates[line[3:line.index("]")]] = float(found[1]) * (1e3 if found[2] == "G" else 1)
+    assert rates and all(rate > 0 for rate in rates.values()), lines
+    if "simulator" in rates and "CPU" in rates:
+        assert rates["simulator"] < rates["CPU"] / 10, rates
+
+
 def listing(command: str, columns: int) -> dict[str, str]:
     """``iblbench list COMMAND`` at a terminal width: name -> its text, continuation lines joined;
     every line fits the width."""

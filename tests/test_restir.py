@@ -1,7 +1,8 @@
 """``restir`` (estimators/restir.py): unbiased on every frame of a switching sequence, its biased
 mode biased where the docstring says, reuse that lowers the error, and the eye its depth test
 measures from.  Its GRIS weights and M-cap are held by the conformance suite
-(``check_unbiased_over_frames``, ``says_history_cap``) and the mutation catalogue."""
+(``check_unbiased_over_frames``, ``says_history_cap``), the mutation catalogue and, weight by
+weight against NumPy twins, tests/test_restir_weights.py."""
 import dataclasses
 
 import numpy as np

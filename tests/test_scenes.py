@@ -245,7 +245,7 @@ def test_builtin_sphere_sun_scene_is_case_insensitive():
     assert scene.environment.is_static and scene.environment.frame(0).shape == (6, 16, 16, 3)
 
 
-EXPECTED_SCENES = ("blob-sun", "sphere-backlit", "sphere-sun", "torus-sun", "sphere-park",
+EXPECTED_SCENES = ("blob-sun", "sphere-backlit", "sphere-sun", "torus-sun", "plane-grazing", "sphere-park",
                    "sphere-studio", "blob-day", "torus-moving", "sphere-switch", "park-turn",
                    "sphere-ground", "park-ground", "torus-day", "blob-minutes", "sphere-studio-moving",
                    "sphere-park-switch")

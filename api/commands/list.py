@@ -29,9 +29,10 @@ def run(args) -> None:
             mark = "*" if info.key == chosen.key else " "
             failure = build_failure(info)
             note = (f"  cannot build a kernel: {failure}" if failure
-                    else "" if info.is_gpu else f"  {measured_gflops(info):.1f} GFLOP/s")
+                    else f"  {_rate(measured_gflops(info))} (measured)")
             print(f"{mark} [{info.kind}] {info.label}{note}")
-        print("(* = chosen; override with --device or IBLBENCH_DEVICE; a simulator only by name)")
+        print("(* = chosen; override with --device or IBLBENCH_DEVICE; a simulator only by name;\n"
+              " speed: straight-line FMAs, measured once per device and driver, cached)")
     elif args.what == "estimators":
         from iblbench.estimators.registry import estimator_docstrings
 
@@ -54,6 +55,11 @@ def run(args) -> None:
             frames = builtin_frames(name)
             print(_listing_line(name, f"{frames} frame{'s' * (frames > 1)}. "
                                       f"{summary(BUILTIN_SCENES[name].__doc__, name)}"))
+
+
+def _rate(gflops: float) -> str:
+    """A FLOP rate with a unit that keeps it readable (a simulator's is MFLOP/s or less)."""
+    return f"{gflops:.1f} GFLOP/s" if gflops >= 1 else f"{gflops * 1e3:.3g} MFLOP/s"
 
 
 _NAME_WIDTH = 15

@@ -12,7 +12,9 @@ Apply each mutant of the project's catalogue of realistic bugs (harness/verify/m
 and each registered estimator's own, a plugin's included) to a temporary copy of the sources
 and run the check layers on it: the conformance suite
 (check_estimator), the stress battery at its quick size (the cases that guard the broken
-code) and the error budgets of the quick sweep (budgets.toml, in a source checkout). By
+code), the error budgets of the quick sweep (budgets.toml) and the unit tests a mutant names
+(for bugs no render shows: bookkeeping, ranking rules, the checkers; the last two layers only
+in a source checkout, which has budgets.toml and tests/). By
 default each mutant stops at the first layer that rejects it; --all-layers runs every layer,
 to show which layers catch what. Prints one row per mutant and, per layer, the mutants it
 caught. Exit 0 when every mutant is rejected (or survives as its catalogue entry expects, until

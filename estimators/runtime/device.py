@@ -124,19 +124,24 @@ _FLOPS_PER_ITEM = 2 * 2 * 32 * 4
 
 
 def _measure_gflops(info: DeviceInfo) -> float:
-    """FLOP rate of straight-line FMAs (compile and a warm-up run excluded), median of 3."""
+    """FLOP rate of straight-line FMAs (compile and a warm-up run excluded), median of 3.  The
+    launch doubles from 1,024 work items until one takes 50 ms (or reaches 2^20), so that a
+    simulator, thousands of times slower, is measured in seconds too."""
     ctx = cl.Context([info.device])
     queue = cl.CommandQueue(ctx)
     kernel = cl.Kernel(quietly_built(ctx, _FLOP_KERNEL)[0], "fma_block")
-    items = 1 << 20
-    out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 * items)
+    out = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, 4 << 20)
     kernel.set_args(out)
-    cl.enqueue_nd_range_kernel(queue, kernel, (items,), None).wait()
-    times = []
-    for _ in range(3):
+
+    def seconds(items: int) -> float:
         start = time.perf_counter()
         cl.enqueue_nd_range_kernel(queue, kernel, (items,), None).wait()
-        times.append(time.perf_counter() - start)
+        return time.perf_counter() - start
+
+    items = 1 << 10
+    while seconds(items) < 0.05 and items < 1 << 20:
+        items *= 2
+    times = [seconds(items) for _ in range(3)]
     return _FLOPS_PER_ITEM * items / float(np.median(times)) / 1e9
 
 
@@ -224,6 +229,21 @@ def choose_device(spec: str | None = None) -> DeviceInfo:
     return max(devices, key=measured_gflops)
 
 
+POOL_WIDTHS = (8, 16)   # light_pool.cl's explicit vector widths (POOL_LANES)
+
+
+def pool_lanes_for(device, lanes: int | None = None) -> int:
+    """The estimators' explicit vector width (``-DPOOL_LANES``) on ``device`` (a pyopencl
+    device, or anything with its ``preferred_vector_width_float``): ``lanes`` where given, else
+    16 where the device's preferred float width is 16 (AVX-512), else 8.  A ValueError for a
+    ``lanes`` that is not one of :data:`POOL_WIDTHS` (0 included: an override never falls back
+    to the device's width unseen)."""
+    width = (16 if device.preferred_vector_width_float >= 16 else 8) if lanes is None else lanes
+    if width not in POOL_WIDTHS:
+        raise ValueError(f"lanes must be 8 or 16 (light_pool.cl's widths), got {lanes}")
+    return width
+
+
 class Compute:
     """A context and a profiling queue on one device, with a program cache for ``.cl`` files.
 
@@ -242,9 +262,7 @@ class Compute:
         ``lanes`` (8 or 16) overrides :attr:`pool_lanes`."""
         self.info = info
         self.fp64 = fp64
-        self.pool_lanes = lanes or (16 if info.device.preferred_vector_width_float >= 16 else 8)
-        if self.pool_lanes not in (8, 16):
-            raise ValueError(f"lanes must be 8 or 16 (light_pool.cl's widths), got {lanes}")
+        self.pool_lanes = pool_lanes_for(info.device, lanes)
         self.build_logs: dict[str, str] = {}
         self.context = cl.Context([info.device])
         self.queue = cl.CommandQueue(

@@ -31,8 +31,10 @@ from iblbench.estimators.runtime.reference import Reference
 from iblbench.scenes import cubemap
 from iblbench.scenes.gbuffer import GBuffer
 from iblbench.harness.verify.convergence import MIN_ERROR_FALL_8_TO_128
+from iblbench.estimators.base import CountFrame, Estimator
 from iblbench.harness.verify.fixtures import (FACE_BLOB_WIDTH, FACE_BLOBS, SUN_FACE,  # noqa: F401
-                                              constant_map, face_pattern_map, fibonacci_directions,
+                                              constant_map, count_frames, count_gbuffer,
+                                              face_pattern_map, fibonacci_directions,
                                               glossy_gbuffer, grazing_gbuffer, same_pixels,
                                               settings_frames, smooth_map, stress_maps, sun_map,
                                               white_lambertian)
@@ -111,6 +113,69 @@ def check_sample_counts(estimator, h: Harness) -> None:
         assert np.all(est.effective <= est.used + slack), "effective must not exceed used"
         assert np.all(est.used <= spp + slack), f"used must not exceed the budget {spp}"
         assert np.all(est.effective >= 0), "effective must be non-negative"
+
+
+# An odd budget (a split in halves leaves fractional samples); a seed at which restir's neighbour
+# offsets keep 2e-3 from a rounding tie on count_gbuffer (restir.neighbours_found; seed 1: 9e-6).
+COUNT_SPP, COUNT_SEED = 3, 100
+
+
+def count_configurations(estimator) -> list:
+    """The configurations whose counts ``check_work_counts`` holds: the estimator, and on its
+    default instance every declared setting's (each parameter that may take another path)."""
+    cls = type(estimator)
+    if estimator.params != cls.Params():
+        return [estimator]
+    return [estimator] + [setting_pair(cls, setting)[0] for setting in cls.settings]
+
+
+def configuration_label(instance) -> str:
+    """``name{param=value,...}`` of the parameters off their defaults."""
+    default = type(instance).Params()
+    changed = [f"{f.name}={getattr(instance.params, f.name)!r}" for f in dataclasses.fields(instance.params)
+               if getattr(instance.params, f.name) != getattr(default, f.name)]
+    return type(instance).name + (f"{{{','.join(changed)}}}" if changed else "")
+
+
+def count_differences(label: str, estimate, expected, pixels: int, masked: bool) -> list[str]:
+    """Where one render's counts differ from its ``WorkCounts`` (means over ``pixels``; shadow
+    rays 0 without masks), to 1e-6 relative."""
+    def mean(value) -> float:
+        return float(np.mean(np.broadcast_to(np.asarray(value, np.float64), (pixels,))))
+
+    wanted = {"evaluations": mean(expected.evaluations),
+              "shadow_rays": mean(expected.shadow_rays) if masked else 0.0,
+              **{name: mean(value) for name, value in expected.extras.items()}}
+    got = {"evaluations": estimate.evaluations, "shadow_rays": estimate.shadow_rays, **estimate.extras}
+    return [f"{label}: {name} {got.get(name)} where the docstring counts {value:.6g}"
+            for name, value in wanted.items()
+            if not (name in got and np.isclose(got[name], value, rtol=1e-6, atol=1e-9))]
+
+
+def check_work_counts(estimator, h: Harness) -> None:
+    """Every path's counts of work are the docstring's (``Estimator.work_counts``, computed in
+    Python from the inputs, never from a render): ``evaluations``, ``shadow_rays`` and the extras
+    that count work, on every frame of ``count_frames`` (first, static, a small change, a
+    re-initialising jump), on ``count_gbuffer`` with and without visibility masks, for the
+    estimator and, on its default instance, each declared setting (biased modes, spatial and
+    temporal reuse off, other budgets).  A count that no other check recomputes (a re-initialised
+    pixel counted twice, a pass whose shadow rays go uncounted) fails here."""
+    failures = []
+    caches = [FrameCache(h.compute, env, t) for t, env in enumerate(count_frames())]
+    for cache in caches:
+        cache.require(type(estimator).requires)
+    frames = [CountFrame(cache, COUNT_SPP, COUNT_SEED) for cache in caches]
+    for masked in (False, True):
+        gb = count_gbuffer(masked)
+        gbuffer = DeviceGBuffer(h.compute, gb)
+        for instance in count_configurations(estimator):
+            expected = instance.work_counts(gb, frames)
+            instance.reset()
+            for t, (frame, counts) in enumerate(zip(frames, expected, strict=True)):
+                estimate = instance.render(gbuffer, frame.cache, frame.spp, frame.seed)
+                label = f"{configuration_label(instance)} frame {t}{' masked' if masked else ''}"
+                failures += count_differences(label, estimate, counts, gbuffer.count, masked)
+    assert not failures, f"{len(failures)} counts off: " + "; ".join(failures[:4])
 
 
 def check_float_path(estimator, h: Harness) -> None:
@@ -806,10 +871,13 @@ SETTING_PROPERTIES = {"shared_sequence": says_shared_sequence, "mis_brdf": says_
 
 def skipped_checks(estimator) -> dict[str, str]:
     """Checks that do not apply to this estimator and why (reported, not run)."""
-    if getattr(type(estimator), "twin", ""):
-        return {}
-    return {"check_matches_twin": "no independent NumPy twin declared (class attribute twin, "
-                                  "harness/verify/twins)"}
+    skipped = {}
+    if not getattr(type(estimator), "twin", ""):
+        skipped["check_matches_twin"] = ("no independent NumPy twin declared (class attribute twin, "
+                                         "harness/verify/twins)")
+    if type(estimator).work_counts is Estimator.work_counts:
+        skipped["check_work_counts"] = "no count formula declared (Estimator.work_counts)"
+    return skipped
 
 
 def check_timing(estimator, h: Harness) -> None:
@@ -831,6 +899,8 @@ def yield_checks(estimator) -> Iterator[Callable]:
         yield check_settings_differ
         if any(setting.says for setting in type(estimator).settings):
             yield check_setting_properties
+    if "check_work_counts" not in skipped_checks(estimator):
+        yield check_work_counts
     yield check_stress_finite
     yield check_sample_counts
     yield check_float_path

@@ -19,6 +19,7 @@ The default device's estimators have no other device to agree with: the conforma
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from typing import Callable, Iterator
 
@@ -51,19 +52,28 @@ class DeviceReport:
         return f"{verdict} [{self.kind}] {self.label}: {tail}"
 
 
-def _twin_problem(case: str, arrays: dict[str, np.ndarray]) -> str | None:
-    """How far the reference or the light pdf is from its NumPy twin, if beyond tolerance."""
+@functools.lru_cache(maxsize=None)
+def _twin(case: str) -> tuple[np.ndarray | None, np.ndarray]:
+    """The NumPy twin of the reference (``case`` "reference", with or without ``MASKED``) or of
+    the light pdf on the case's own inputs: (the covered pixels it holds, None for every value;
+    its values), made once per process, however many devices run the case."""
     from iblbench.harness.verify.twins.ghosh2006 import Map
     from iblbench.harness.verify.twins.reference_twin import twin_image
 
     case, masked = portability.split_case(case)
     gbuffer, env, _ = portability.inputs(masked)
     if case == "reference":
-        got, twin = arrays["reference"][gbuffer.mask], twin_image(gbuffer, env)[gbuffer.mask]
-    else:
-        got, twin = arrays["light_pdf"], Map(env).pdf(portability.pdf_directions().astype(np.float64))
+        return gbuffer.mask, twin_image(gbuffer, env)[gbuffer.mask]
+    return None, Map(env).pdf(portability.pdf_directions().astype(np.float64))
+
+
+def _twin_problem(case: str, arrays: dict[str, np.ndarray]) -> str | None:
+    """How far the reference or the light pdf is from its NumPy twin, if beyond tolerance."""
+    name = portability.split_case(case)[0]
+    covered, twin = _twin(case)
+    got = arrays[name] if covered is None else arrays[name][covered]
     error = float(np.max(np.abs(got.astype(np.float64) - twin) / np.maximum(np.abs(twin), 1e-12)))
-    return None if error <= TWIN_RTOL else f"{case} off its NumPy twin by {error:.2g} (relative)"
+    return None if error <= TWIN_RTOL else f"{name} off its NumPy twin by {error:.2g} (relative)"
 
 
 def _case_problems(outcome: portability.Outcome, baseline: dict | None) -> list[str]:

@@ -3,9 +3,11 @@
 from.  Each is a pure NumPy function of its size; nothing here touches a device."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from iblbench.scenes import cubemap
+from iblbench.scenes import cubemap, visibility
 from iblbench.scenes.gbuffer import GBuffer
 
 
@@ -117,3 +119,34 @@ def same_pixels(normal, view, rows: int = 5, cols: int = 7, kd=0.5, ks=0.3, shin
     shape = (rows, cols, 3)
     return GBuffer.from_pixels(np.broadcast_to(normal, shape), np.broadcast_to(view, shape), kd, ks,
                                shininess)
+
+
+def count_gbuffer(masked: bool, size: int = 4) -> GBuffer:
+    """``size``² glossy pixels whose normals lie within 35° of +Y, views tilted off them, so that
+    many pixels pass restir's neighbour tests and some do not; ``masked``: visibility masks of
+    2² cells a face with the −Y face closed and, at every other pixel, a cell of +Y, so every
+    pixel sees light on a map that is lit everywhere, but pixel (1, 2), whose every cell is
+    closed (a black pixel: ``smc`` re-initialises it every frame) (``check_work_counts``)."""
+    side = np.linspace(-0.5, 0.5, size)
+    x, z = np.meshgrid(side, side, indexing="ij")
+    normal = np.stack([x, np.ones_like(x), z], axis=-1)
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    tilt = np.roll(normal, 1, axis=-1)
+    view = normal + 0.6 * (tilt - np.sum(tilt * normal, -1, keepdims=True) * normal)
+    gb = GBuffer.from_pixels(normal, view, 0.5, 0.3, 20.0)
+    if not masked:
+        return gb
+    res = 2
+    cells = np.ones(gb.shape + (6 * res * res,), bool)
+    cells[..., 3 * res * res:4 * res * res] = False            # −Y
+    cells.reshape(-1, 6 * res * res)[1::2, 2 * res * res] = False   # a cell of +Y
+    cells[1, 2] = False                                         # one pixel sees nothing
+    return dataclasses.replace(gb, visibility=visibility.pack_bits(cells), visibility_res=res)
+
+
+def count_frames(res: int = 8) -> list[np.ndarray]:
+    """The maps of ``check_work_counts``'s sequence, one per path of a temporal estimator:
+    ``face_pattern_map`` (a first frame), the same again (static), ×1.25 (a change that carries
+    state) and ×8 (one whose power jump re-initialises it)."""
+    still = face_pattern_map(res)
+    return [still, still.copy(), still * np.float32(1.25), still * np.float32(8.0)]

@@ -18,7 +18,11 @@ Layers, in order (``run_mutant`` stops at the first that rejects unless asked fo
 - ``stress``: the stress battery at its quick size (``stress.SMALL``), on the mutant's cases
   only (the ones that guard the code it breaks) and its estimators;
 - ``budgets``: the ``quick`` sweep (``iblbench run --config quick --repeats 1 --no-flip``) checked
-  against the repository's ``budgets.toml`` (only where that file exists: a source checkout).
+  against the repository's ``budgets.toml`` (only where that file exists: a source checkout);
+- ``tests``: the unit tests the mutant names (pytest node ids in the repository's ``tests/``,
+  again only in a source checkout), run on the mutated copy: the layer for bugs that no render
+  can show, such as the bookkeeping of a distributed run, the ranking's rules or a checker
+  that passes what it should fail.
 
 A mutant that only a check still to land can catch says so in ``expect_killed_after``: the
 test suite expects it to survive until then (``xfail``, not strict).
@@ -42,7 +46,7 @@ import tempfile
 import time
 
 PACKAGES = ("foundation", "scenes", "estimators", "harness", "reports")
-LAYERS = ("conformance", "stress", "budgets")
+LAYERS = ("conformance", "stress", "budgets", "tests")
 RESULT_TAG = "MUTANT-RESULT "
 
 
@@ -54,7 +58,8 @@ class Mutant:
     run, as a sweep names them (``name`` or ``name{param=value,...}``: a configuration where the
     bug shows, such as bis with M = 2 candidates per sample); ``stress``: the stress cases that
     guard the broken code; ``budgets``: whether the budgets layer applies (the quick sweep runs
-    uniform, balanced and balanced_mis)."""
+    uniform, balanced and balanced_mis); ``tests``: pytest node ids, relative to the repository's
+    ``tests/`` folder, that must fail on the bug (each should take seconds)."""
 
     name: str
     path: str
@@ -65,6 +70,7 @@ class Mutant:
     budgets: bool = False
     expect_killed_after: str = ""
     package: str = "iblbench"
+    tests: tuple[str, ...] = ()
 
     @classmethod
     def declared(cls, estimator: type, mutant) -> "Mutant":
@@ -75,7 +81,8 @@ class Mutant:
         top, _, below = package.partition(".")
         return cls(mutant.name, "/".join(filter(None, [*below.split("."), mutant.path])),
                    mutant.old, mutant.new, tuple(mutant.estimators) or (estimator.name,),
-                   tuple(mutant.stress), mutant.budgets, mutant.expect_killed_after, top)
+                   tuple(mutant.stress), mutant.budgets, mutant.expect_killed_after, top,
+                   tuple(mutant.tests))
 
     @property
     def where(self) -> str:
@@ -95,8 +102,9 @@ class Mutant:
         target.write_text(text, encoding="utf-8")
 
 
-def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed_after=""):
-    return Mutant(name, path, old, new, tuple(estimators), tuple(stress), budgets, expect_killed_after)
+def _m(name, path, old, new, estimators, stress=(), budgets=False, expect_killed_after="", tests=()):
+    return Mutant(name, path, old, new, tuple(estimators), tuple(stress), budgets, expect_killed_after,
+                  tests=tuple(tests))
 
 
 COMMON, POOL = "estimators/runtime/kernels/common.cl", "estimators/runtime/kernels/light_pool.cl"
@@ -204,6 +212,41 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("visibility-missing-from-reference", "estimators/runtime/reference.cl",
        "lit = lit && texels_open(visibility, p, face, t - face * res * res + lane, res);",
        "lit = lit;", ["envmap"], ["occlusion"]),
+    # ---- restir's temporal reuse in its edge cases (issue 36, class 2) ---------------------------
+    # Weights that keep restir unbiased, so no z-test sees them: its unit tests read the weights.
+    # The history's confidence scaled only where the map lost the pixel's light (restir.py's
+    # rejected variant): where light came on, the history claims light it never sampled.
+    _m("restir-history-share-one-sided", "estimators/restir.cl",
+       "min(domain_scales[1] / domain_scales[0], domain_scales[0] / domain_scales[1])",
+       "min(domain_scales[1] / domain_scales[0], 1.0f)", [],
+       tests=["test_restir_weights.py::test_history_confidence_is_capped_and_scaled_by_the_change_of_the_map[1.0]"]),
+    # No fallback where every lit coarse cell's centre is below the horizon: scale 0, and every
+    # reservoir that reuse combines there is black.
+    _m("restir-target-scale-without-fallback", "estimators/restir.cl",
+       "float normaliser = total > 0.0f ? total : map_power(pyramid, res);",
+       "float normaliser = total;", [],
+       tests=["test_restir_weights.py::test_restir_finds_the_light_of_plane_grazing"]),
+    # Each domain's MIS scale given to the other's target.
+    _m("restir-gris-scales-swapped", "estimators/restir.cl",
+       "float domain_scales[2] = {scales[p], temporal ? prev_scales[p] : 0.0f};",
+       "float domain_scales[2] = {temporal ? prev_scales[p] : 0.0f, scales[p]};", [],
+       tests=["test_restir_weights.py::test_temporal_resampling_weights_are_gris_with_confidence_and_scales"]),
+    # ---- counts of work (issue 36, class 1): conformance's check_work_counts ----------------------
+    # The "0 without visibility" rule of Estimate.shadow_rays: bis reports its N rays unmasked.
+    _m("counts-shadow-rays-without-visibility", "estimators/base.py",
+       "shadow_rays=float(evaluations if shadow_rays is None else shadow_rays) if gbuffer.has_visibility else 0.0,",
+       "shadow_rays=float(evaluations if shadow_rays is None else shadow_rays),", ["bis"]),
+    # An MIS variant's BRDF draws left out of the pool's count.
+    _m("counts-pool-brdf-draws-uncounted", POOL,
+       "*draws = draws_for(ticks[6]);", "*draws = 0;", ["balanced_mis"]),
+    # The biased mode's spatial pass: row 0's neighbour targets (with V) counted as without.
+    _m("counts-restir-biased-neighbour-rays-uncounted", "estimators/restir.cl",
+       "*shadow_rays += i != j && visible_too ? 1.0f : 0.0f;",
+       "*shadow_rays += i != j && unbiased ? 1.0f : 0.0f;", ["restir{unbiased=false}"]),
+    # A re-initialised pixel's candidates' rays counted twice.
+    _m("counts-smc-reinit-rays-counted-twice", "estimators/smc.cl",
+       "rays[p] = (have_state ? rays[p] : 0.0f) + (float)M;",
+       "rays[p] = (have_state ? rays[p] + (float)M : 0.0f) + (float)M;", ["smc"]),
     # ---- the metrics -----------------------------------------------------------------------------
     _m("metrics-exposure-from-estimate", "harness/protocol/metrics.py",
        "lab = to_lab(tonemap(estimate[mask], self.k))",
@@ -214,6 +257,38 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("metrics-relmse-without-square", "harness/protocol/metrics.py",
        "return float(np.mean((x - r) ** 2 / (r * r + 0.01)))",
        "return float(np.mean((x - r) ** 2 / (r + 0.01)))", [], ["constant"], budgets=True),
+    # ---- issue 36, class 4: the ranking's edges (tests/test_ranking_edges.py) ---------------------
+    _m("ranking-end-tolerance-exclusive", "harness/protocol/ranking.py",
+       "and abs(t - budget_ms) <= TOLERANCE * budget_ms and t in span]",
+       "and abs(t - budget_ms) < TOLERANCE * budget_ms and t in span]", [],
+       tests=["test_ranking_edges.py::test_an_equal_time_cell_at_the_fast_end_is_read_within_its_tolerance"]),
+    _m("ranking-headlines-more-than-twice-apart", "harness/protocol/ranking.py",
+       ">= BUDGET_SPACING for c in chosen)", "> BUDGET_SPACING for c in chosen)", [],
+       tests=["test_ranking_edges.py::test_budgets_exactly_twice_apart_and_reaching_exactly_half_are_both_headlines"]),
+    _m("ranking-budget-at-fastest-cell-not-reached", "harness/protocol/ranking.py",
+       "if budget_ms < span[0] and not at_end:", "if budget_ms <= span[0] and not at_end:", [],
+       tests=["test_ranking_edges.py::test_a_budget_equal_to_a_cells_time_reads_that_cell"]),
+    # ---- issue 36, class 6: device settings (tests/test_device_settings.py) ------------------------
+    _m("pool-lanes-16-from-preferred-8", "estimators/runtime/device.py",
+       "(16 if device.preferred_vector_width_float >= 16 else 8)",
+       "(16 if device.preferred_vector_width_float >= 8 else 8)", [],
+       tests=["test_device_settings.py::test_the_lane_width_is_16_where_the_device_prefers_16_floats_else_8"]),
+    _m("float-path-forgets-lane-override", "harness/verify/portability.py",
+       "return Compute(compute.info, fp64=False, lanes=compute.pool_lanes)",
+       "return Compute(compute.info, fp64=False)", [],
+       tests=["test_device_settings.py::test_an_explicit_lane_width_wins_over_the_devices"]),
+    # ---- issue 36, class 7: the checkers themselves (tests/test_checkers.py) -----------------------
+    _m("portability-nonfinite-baseline-passes", "harness/verify/portability.py",
+       "elif not (np.isfinite(got).all() and np.isfinite(expected).all()):",
+       "elif not np.isfinite(got).all():", [],
+       tests=["test_checkers.py::test_a_non_finite_value_fails_the_comparison_wherever_it_is"]),
+    _m("doctor-masked-reference-skips-twin", "harness/verify/doctor.py",
+       "if portability.split_case(outcome.case)[0] in (\"reference\", \"light_pdf\"):",
+       "if outcome.case in (\"reference\", \"light_pdf\"):", [],
+       tests=["test_checkers.py::test_doctor_holds_every_case_with_a_twin_to_it_masked_variants_included"]),
+    _m("doctor-devices-not-held-to-default", "harness/verify/doctor.py",
+       "expected = None if held_to is None else baseline(held_to).get(case)", "expected = None", [],
+       tests=["test_checkers.py::test_doctor_flags_each_device_whose_arrays_carry_a_planted_fault"]),
 )
 
 
@@ -259,6 +334,12 @@ def budgets_file() -> pathlib.Path | None:
     """The repository's budgets.toml beside the packages (a source checkout), or None."""
     path = _package_folder("iblbench.harness").resolve().parent / "budgets.toml"
     return path if path.is_file() else None
+
+
+def tests_folder() -> pathlib.Path | None:
+    """The repository's tests/ beside the packages (a source checkout), or None."""
+    path = _package_folder("iblbench.harness").resolve().parent / "tests"
+    return path if path.is_dir() else None
 
 
 def copy_sources(folder: pathlib.Path, packages=()) -> pathlib.Path:
@@ -320,9 +401,10 @@ def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout:
         mutant.apply(root)
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
                    IBLBENCH_CACHE=str(cache or root / "cache"), IBLBENCH_CHI2_PLOTS=str(root / "chi2"))
-        budgets = budgets_file()
+        budgets, tests = budgets_file(), tests_folder()
         command = [sys.executable, "-m", "iblbench.harness.verify.mutants", json.dumps(dataclasses.asdict(mutant)),
-                   ",".join(layers), "all" if all_layers else "first", str(budgets) if budgets else "-"]
+                   ",".join(layers), "all" if all_layers else "first", str(budgets) if budgets else "-",
+                   str(tests) if tests else "-"]
         try:
             done = subprocess.run(command, env=env, cwd=tmp, capture_output=True, text=True,
                                   timeout=timeout)
@@ -413,7 +495,22 @@ def _budgets(budgets: str) -> str:
     return "" if status == 0 else verdict[:300]
 
 
-def _child(fields: str, layers: str, mode: str, budgets: str) -> None:
+def _tests(mutant: Mutant, tests: str) -> str:
+    """The mutant's named tests, run by pytest in a fresh interpreter on the mutated copy (first
+    on ``PYTHONPATH``); the first failing test's summary line when any fails."""
+    if tests == "-":
+        return ""
+    nodes = [str(pathlib.Path(tests) / node) for node in mutant.tests]
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-n", "0", "-p", "no:randomly",
+                           "-p", "no:cacheprovider", "--rootdir", str(pathlib.Path(tests).parent),
+                           "--tb=line", *nodes], capture_output=True, text=True)
+    if done.returncode == 0:
+        return ""
+    failed = [line for line in done.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))]
+    return (failed[0] if failed else f"pytest exit {done.returncode}: {done.stdout[-200:]}")[:300]
+
+
+def _child(fields: str, layers: str, mode: str, budgets: str, tests: str) -> None:
     from iblbench.estimators.runtime.device import get_compute
 
     mutant = Mutant(**{key: tuple(value) if isinstance(value, list) else value
@@ -427,10 +524,12 @@ def _child(fields: str, layers: str, mode: str, budgets: str) -> None:
             results[layer] = _stress(mutant, compute)
         elif layer == "budgets" and mutant.budgets:
             results[layer] = _budgets(budgets)
+        elif layer == "tests" and mutant.tests:
+            results[layer] = _tests(mutant, tests)
         if mode == "first" and any(results.values()):
             break
     print(RESULT_TAG + json.dumps(results), flush=True)
 
 
 if __name__ == "__main__":
-    _child(*sys.argv[1:5])
+    _child(*sys.argv[1:6])

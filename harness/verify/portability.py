@@ -206,8 +206,9 @@ def differences(ours: dict[str, np.ndarray], baseline: dict[str, np.ndarray],
                 exact_integers: bool = True) -> dict[str, float]:
     """Per array of ``baseline``: 0 where ``ours`` matches it (bit for bit for integer arrays if
     ``exact_integers``, else like float ones; within :data:`FLOAT_RTOL` for float ones), else how
-    far off: the largest relative difference (inf for a missing array, a shape change or an
-    integer mismatch)."""
+    far off: the largest relative difference (inf for a missing array, a shape change, an
+    integer mismatch or a NaN or infinity in either array, even where both have it: no render
+    of the set's inputs has one)."""
     out = {}
     for name, expected in baseline.items():
         got = ours.get(name)
@@ -215,11 +216,13 @@ def differences(ours: dict[str, np.ndarray], baseline: dict[str, np.ndarray],
             out[name] = float("inf")
         elif exact_integers and np.issubdtype(np.asarray(expected).dtype, np.integer):
             out[name] = 0.0 if np.array_equal(got, expected) else float("inf")
+        elif not (np.isfinite(got).all() and np.isfinite(expected).all()):
+            out[name] = float("inf")
         else:
             expected = np.asarray(expected, np.float64)
             scale = np.maximum(np.abs(expected), 1e-3 * max(float(np.max(np.abs(expected))), 1e-30))
             relative = float(np.max(np.abs(np.asarray(got, np.float64) - expected) / scale, initial=0.0))
-            out[name] = relative if relative > FLOAT_RTOL or not np.isfinite(got).all() else 0.0
+            out[name] = relative if relative > FLOAT_RTOL else 0.0
     return {name: value for name, value in out.items() if value}
 
 
