@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 from iblbench.cli import main
-from iblbench.harness.protocol import timing
+from iblbench.harness.protocol import stats
 from iblbench.harness.protocol.budgets import TIME_METRICS
 from iblbench.harness.protocol.results import COLUMNS, TIME_COLUMNS, write_results
 from iblbench.harness.protocol.stats import (RENDERS, cell_intervals, column_interval,
@@ -90,7 +90,7 @@ def test_a_time_column_added_to_the_schema_is_refused_too(monkeypatch):
     added = "gpu_wall_ms"
     one, two = _tables(extra=(added,))
     column_interval(two, added)                      # not yet a time column: pooled
-    monkeypatch.setattr(timing, "COLUMNS", (*timing.COLUMNS, added))
+    monkeypatch.setattr(stats, "TIME_COLUMNS", (*stats.TIME_COLUMNS, added))
     assert is_time_column(added)
     with pytest.raises(ValueError, match=f"{added} of rows from several devices"):
         column_interval(two, added)

@@ -96,8 +96,8 @@ import pandas as pd
 
 from iblbench.harness.protocol.metric import LIMITS, registered
 from iblbench.harness.protocol.results import METRIC_COLUMNS, ROW_STATISTICS, load_table, read_manifest
-from iblbench.harness.protocol.stats import RENDERS, devices, mean_ci
-from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME, one_cell_time
+from iblbench.harness.protocol.stats import RENDERS, TIME_COLUMNS, devices, mean_ci
+from iblbench.harness.protocol.timing import TIME, one_cell_time
 from iblbench.foundation.atomic import atomic_path
 from iblbench.foundation.errors import InputError
 from iblbench.foundation.tomlfile import read_toml

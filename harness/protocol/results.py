@@ -71,8 +71,8 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.protocol.metric import columns as metric_columns, replicated_columns
-from iblbench.harness.protocol.stats import RENDERS
-from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME
+from iblbench.harness.protocol.stats import RENDERS, TIME_COLUMNS
+from iblbench.harness.protocol.timing import TIME
 from iblbench.foundation.atomic import atomic_path
 from iblbench.foundation.errors import InputError, argument, keywords_named
 

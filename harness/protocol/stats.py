@@ -108,6 +108,10 @@ RATIO_METHOD = ("ratio of means B/A, 95% interval by the delta method on log(rat
                 "both cells have the same (seed, render) replicates, else Welch-Satterthwaite")
 TIME_COLUMN = "time_ms"       # the one column aggregated as a median (timing.TIME)
 DEVICE_COLUMN = "device"      # the device that ran a row: times are aggregated per device
+# A results row's time columns, in the schema's order (timing.time_columns writes them, the
+# results schema lists them): each a figure of the device that ran the row.
+TIME_COLUMNS = (TIME_COLUMN, "time_ms_min", "time_ms_iqr", "time_ms_build", "time_ms_sample",
+                "time_ms_shade", "time_ms_host", "time_repeats", TIME_COLUMN + RENDERS)
 
 
 def t_quantile(df: float, level: float = LEVEL) -> float:
@@ -444,13 +448,10 @@ def cell_intervals(table, keys, columns):
 
 
 def is_time_column(column: str) -> bool:
-    """Whether ``column`` is one of the results schema's time columns (the timing module's
-    ``COLUMNS``, which the table's columns are made of): a figure of the device that ran the
-    row, never aggregated over devices (module docstring).  Read from the schema, not the name,
-    so that a time column added to it is one here too."""
-    from iblbench.harness.protocol.timing import COLUMNS   # timing is built on this module
-
-    return column in COLUMNS
+    """Whether ``column`` is one of the results schema's time columns (:data:`TIME_COLUMNS`): a
+    figure of the device that ran the row, never aggregated over devices (module docstring).
+    Read from the schema, not the name, so that a time column added to it is one here too."""
+    return column in TIME_COLUMNS
 
 
 def devices(table) -> list[str]:
