@@ -24,7 +24,7 @@ Dask distributed schedules; iblbench only says what a unit of work is and keeps 
 - **One writer.** Workers return rows; only the client journals them and folds the table
   (:mod:`.results`).  A killed worker's unit is rerun by Dask on another worker; a unit that
   kills ``distributed.scheduler.allowed-failures`` workers is lost with the rest of its chain
-  (their flicker needs it), and the run says so at its end (a rerun resumes them).  A killed
+  (their flicker needs it), and the run ends "incomplete" (a rerun resumes them).  A killed
   client loses the units in flight; with ``--scheduler``, units already running may still
   write their images into the run's folder, which the next run replaces.
 - **Seeds and time.** A cell's seeds come from its key, so no result depends on scheduling.

@@ -25,6 +25,9 @@ one starts; see :mod:`iblbench.harness.protocol.results`), so a killed run, ``ki
 included, loses only what is in flight: in process the cell, on a cluster the units (a temporal
 one is its whole sequence); Ctrl-C folds the journal into the table and marks the manifest
 "interrupted", and an error (a full disk) marks it "failed", with the error as its "failure".
+A run that ends with a cell to run that it never journalled (lost with Dask workers that died,
+or however else) marks it "incomplete" and raises an InputError (exit 2), never "complete": the
+runner counts those cells from its journal, not only from what the cluster says it lost.
 A scene none of whose cells is left is not even traced.
 
 One folder, one run at a time, one image configuration.  ``out``'s rows and manifest are read
