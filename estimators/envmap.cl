@@ -1,7 +1,7 @@
 /* `envmap` (and, with LIGHT_SAMPLES = 0, `brdf`): the production samplers.  Light samples come from
- * one 2-D distribution over the whole cube map, a marginal over its 6·R rows (faces and rows,
- * face-major) and a conditional over columns, both fixed-point CDFs (FrameCache.map_marginal and
- * light_cdfs), as pbrt-v4's ImageInfiniteLight samples its one image; BRDF samples are ARCHITECTURE.md §Conventions's
+ * one distribution over all texels of the cube map, drawn from its alias table in O(1)
+ * (FrameCache.map_alias: Walker 1977, Vose 1991; pbrt-v4's ImageInfiniteLight samples its one
+ * image by a 2-D CDF, its AliasTable serves its light sampler); BRDF samples are ARCHITECTURE.md §Conventions's
  * Phong sampling; the two combine by MIS.  Configured by the estimator's defines:
  *   LIGHT_SAMPLES  1: light samples (0: none, the `brdf` estimator)
  *   BRDF_SAMPLES   1: BRDF samples (half the budget when LIGHT_SAMPLES is 1)
@@ -48,32 +48,46 @@ ALWAYS_INLINE lanes_t mis_denominator(lanes_t own, lanes_t other)
 #endif
 }
 
-/* The map's CDFs, the light sampler unless the including file brought its own (header). */
+/* The map's alias table, the light sampler unless the including file brought its own (header). */
 #ifndef LIGHT_PARAMS
-#define LIGHT_PARAMS __global const cdf_word_t *marginal, __global const cdf_word_t *conditional
-#define LIGHT_ARGS marginal, conditional
+#define LIGHT_PARAMS __global const cdf_word_t *alias_words, __global const float *texel_probability
+#define LIGHT_ARGS alias_words, texel_probability
 
-/* The lanes' light directions from the blocks xi (63-bit points (v0:v1, v2:v3) >> 1): the map
- * row by the marginal over all 6·R rows, the column by that row's conditional, the point in the
- * texel by the variates' position inside their bins (lanes_sample_face's arithmetic).  *texel
- * gets the texel and *pdf the density in solid angle, P(row)·P(col | row)·(1+x²+y²)^{3/2}/a_texel
- * (ARCHITECTURE.md §Conventions with the map's rows for μ_f·P(row | f)). */
-ALWAYS_INLINE lanes3_t lanes_sample_map(__global const cdf_word_t *marginal,
-                                        __global const cdf_word_t *conditional, int res,
+/* x / d for 0 ≤ x, x/d < 2^24 and x + d < 2^31, in float lanes (CPUs have no vector integer
+ * division): the float quotient's truncation is within one of x/d, and the two steps correct it. */
+ALWAYS_INLINE lane_ints_t lanes_quotient(lane_ints_t x, int d)
+{
+    lane_ints_t q = convert_lane_ints(convert_lanes(x) / (float)d);
+    q += q * d > x;            /* a true comparison is −1 */
+    q -= (q + 1) * d <= x;
+    return q;
+}
+
+/* The lanes' light directions from the blocks xi: the texel by the map's alias table
+ * (framecache.cl's alias_table: the bin from the top alias_bits of the 64-bit word v0:v1, its
+ * threshold test from the 63 − alias_bits bits below them), the point uniform in the texel's
+ * face square from v2 and v3 (24 bits each).  *texel gets the texel and *pdf the density in
+ * solid angle, P(texel)·(1+x²+y²)^{3/2}/a_texel (ARCHITECTURE.md §Conventions), P(texel) the
+ * table's exact probability q/2^63 in float. */
+ALWAYS_INLINE lanes3_t lanes_sample_map(__global const cdf_word_t *alias_words,
+                                        __global const float *texel_probability, int res,
                                         lane_block_t xi, lane_ints_t *texel, lanes_t *pdf)
 {
-    lane_words_t ux = upsample(xi.v[0], xi.v[1]) >> 1, uy = upsample(xi.v[2], xi.v[3]) >> 1;
-    lane_ints_t map_row = lanes_cdf_search(marginal, (lane_ints_t)0, 6 * res, ux);
-    lane_ints_t cols = map_row * res;
-    lane_ints_t col = lanes_cdf_search(conditional, cols, res, uy);
-    lane_ints_t face = map_row / res;
-    lanes_t row_bin, col_bin;
-    lanes_t x = -1.0f + 2.0f * (convert_lanes(col) + lanes_cdf_bin_position(conditional, cols, col, uy, &col_bin)) / (float)res;
-    lanes_t y = -1.0f + 2.0f * (convert_lanes(map_row - face * res)
-                                + lanes_cdf_bin_position(marginal, (lane_ints_t)0, map_row, ux, &row_bin)) / (float)res;
+    int bits = alias_bits(6 * res * res);
+    lane_words_t u = upsample(xi.v[0], xi.v[1]);
+    lane_ints_t bin = convert_lane_ints(u >> (lane_words_t)(64 - bits));
+    lane_words_t word = GATHER(lane_words_t, alias_words, bin);
+    lane_words_t below = (u >> (lane_words_t)1) & (lane_words_t)((CDF_ONE >> bits) - 1);
+    lane_ints_t kept = convert_lane_ints(below < (word >> (lane_words_t)bits));
+    lane_ints_t chosen = select(convert_lane_ints(word & (lane_words_t)((1 << bits) - 1)), bin, kept);
+    lane_ints_t map_row = lanes_quotient(chosen, res), face = lanes_quotient(map_row, res);
+    lane_ints_t col = chosen - map_row * res;
+    lanes_t x = -1.0f + 2.0f * (convert_lanes(col) + lanes_unit(xi.v[2])) / (float)res;
+    lanes_t y = -1.0f + 2.0f * (convert_lanes(map_row - face * res) + lanes_unit(xi.v[3])) / (float)res;
     lanes_t q = 1.0f + x * x + y * y;   /* area_per_solid_angle */
-    *texel = cols + col;
-    *pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;
+    lanes_t p_texel = GATHER(lanes_t, texel_probability, chosen);
+    *texel = chosen;
+    *pdf = p_texel * q * sqrt(q) * (float)(res * res) / 4.0f;
     return lanes_face_direction(face, x, y);
 }
 
@@ -84,15 +98,17 @@ ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const shading_t *s, int 
                                           uint pixel, lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
 {
     lane_block_t xi = rng_block_lanes(seed, frame, STREAM_MAP_LIGHT, pixel, convert_lane_uints(draw), 0u);
-    return lanes_sample_map(marginal, conditional, res, xi, texel, pdf);
+    return lanes_sample_map(alias_words, texel_probability, res, xi, texel, pdf);
 }
 
-/* The light density at the lanes' directions w for the pixel of shading s; *texel gets the
- * texel of each. */
+/* The light density at the lanes' directions w for the pixel of shading s: their texels'
+ * probabilities in the table, with lanes_sample_map's Jacobian; *texel gets the texel of each. */
 ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const shading_t *s, int res, lanes3_t w, lane_ints_t *texel)
 {
-    lane_ints_t face;
-    return lanes_light_pdf_rows(marginal, conditional, res, w, 1, &face, texel);
+    lane_ints_t face, row, col;
+    lanes_t area = lanes_texel_of(res, w, &face, &row, &col);
+    *texel = (face * res + row) * res + col;
+    return GATHER(lanes_t, texel_probability, *texel) * area * (float)(res * res) / 4.0f;
 }
 #endif
 

@@ -54,13 +54,13 @@ class MapSampler(Estimator):
         return compute.kernel(self.kernel_package(), self.kernel_files[0], name, self.defines(gbuffer))
 
     def _light_buffers(self, cache) -> tuple[tuple, float]:
-        """(the kernels' light-sampler buffers, ``LIGHT_PARAMS`` of envmap.cl: the map marginal
-        and the conditional; device ms that built them for this render)."""
+        """(the kernels' light-sampler buffers, ``LIGHT_PARAMS`` of envmap.cl: the map's alias
+        table and its texel probabilities; device ms that built them for this render)."""
         if not self.light_samples:
             unread = cache.compute.empty(8)
             return (unread, unread), 0.0
-        marginal, build_ms = cache.map_marginal(self.compensated)
-        return (marginal, cache.light_cdfs(self.compensated).conditional), build_ms
+        table = cache.map_alias(self.compensated)
+        return (table.words, table.probability), table.build_ms
 
     def _map_is_black(self, cache) -> bool:
         """Whether every texel weighs 0 (from the ``cdf`` product's face integrals)."""
@@ -158,13 +158,25 @@ class Envmap(MapSampler):
     ``envmap``, src/emitters/envmap.cpp), optionally with Phong BRDF samples under MIS.
 
     Distribution.  Weights Y·Ω per texel (Y the texel's luminance, Ω its exact solid angle), so
-    that p(ω) ∝ Y(ω) in solid angle; one marginal CDF over the map's 6·R rows (faces and rows
-    together, face-major: ``FrameCache.map_marginal``) and one conditional CDF over each row's
-    columns (the ``cdf`` product's, or the compensated ones), both the fixed-point CDFs of
-    issue 6, so every texel of positive weight keeps a positive, relatively exact probability
-    next to a 1e6:1 sun.  A sample picks a row, a column, and a point uniform in the texel's face
-    square; its density is P(row)·P(col | row)·(1+x²+y²)^{3/2}/a_texel (ARCHITECTURE.md §Conventions).  No
+    that p(ω) ∝ Y(ω) in solid angle; one distribution over all 6·R² texels, their fixed-point
+    widths q_j of issue 6 as one run (every texel of positive weight q_j ≥ 1 of 2^63, relatively
+    exact next to a 1e6:1 sun), drawn in O(1) from Walker's alias table (A. J. Walker, "An
+    efficient method for generating discrete random variables with general distributions", ACM
+    TOMS 3(3), 1977), built in integers by Vose's worklists (M. D. Vose, "A linear algorithm for
+    generating random numbers with a given distribution", IEEE TSE 17(9), 1991):
+    ``FrameCache.map_alias``, framecache.cl's ``alias_table``.  A sample picks a bin from the
+    top bits of a 64-bit word and keeps it or takes its alias by the bits below, then a point
+    uniform in the texel's face square; texel j is drawn with probability exactly q_j/2^63
+    (the table's integer invariant), and its density is
+    P(texel)·(1+x²+y²)^{3/2}/a_texel (ARCHITECTURE.md §Conventions), P(texel) = q_j/2^63 read
+    from the table's float copy, the same in the sampler and in the density lookup.  No
     per-normal balancing: the distribution is the same for every pixel.
+
+    Change (issue 37): until then a marginal CDF over the 6·R rows and a conditional over each
+    row's columns were searched by bisection, P(row)·P(col | row); the alias table draws the
+    same weights (each texel's probability now rounded once, as a whole, instead of as two
+    factors) with one lookup instead of ⌈log2 6R⌉ + ⌈log2 R⌉ dependent ones, so the sample
+    streams changed and the density is the table's.
 
     Budget and MIS.  Without MIS all N_s samples are light samples (Eq. 4 of Lu 2013 with one
     strategy).  With ``mis = "brdf"`` N_s/2 are light and N_s/2 BRDF samples, each strategy's
@@ -182,7 +194,8 @@ class Envmap(MapSampler):
     needs no special case).  Mitsuba 3 and pbrt-v4 use it only under MIS; so does this.
 
     Deviations from pbrt-v4: a cube map with nearest lookup and Y·Ω weights (ARCHITECTURE.md §Conventions) where
-    pbrt-v4 samples an equal-area octahedral image by its bilinearly filtered channel average;
+    pbrt-v4 samples an equal-area octahedral image by its bilinearly filtered channel average
+    (through a 2-D CDF; an alias table here);
     a budget split N_s/2 + N_s/2 where a path tracer takes one light and one BSDF sample per
     vertex (the same at N_s = 2); no visibility (none in this benchmark).
     """
@@ -207,8 +220,8 @@ class Envmap(MapSampler):
                '"MIS_POWER": int(getattr(self.params, "heuristic", ' '"balance") == "power")',
                '"MIS_POWER": int(getattr(self.params, "heuristic", "balance") == "balance")'),
         Mutant("envmap-light-jacobian-inverted", "envmap.cl",
-               "*pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;",
-               "*pdf = row_bin * col_bin / (q * sqrt(q)) * (float)(res * res) / 4.0f;",
+               "*pdf = p_texel * q * sqrt(q) * (float)(res * res) / 4.0f;",
+               "*pdf = p_texel / (q * sqrt(q)) * (float)(res * res) / 4.0f;",
                stress=("sun-1e6",)),
     )
 

@@ -26,11 +26,25 @@ def bins(cdf: np.ndarray) -> np.ndarray:
 
 
 def map_texel_probabilities(compute, cache: FrameCache, compensated: bool) -> np.ndarray:
-    """P(texel) ``[6, R, R]`` of envmap's light sampler: the map marginal times the conditional."""
-    res = cache.res
-    marginal = compute.to_host(cache.map_marginal(compensated)[0], (6 * res,), np.uint64)
-    conditional = compute.to_host(cache.light_cdfs(compensated).conditional, (6 * res, res), np.uint64)
-    return (bins(marginal)[:, None] * bins(conditional)).reshape(6, res, res)
+    """P(texel) ``[6, R, R]`` of envmap's light sampler, read off its alias table as a draw makes
+    it (bin i of M uniformly, kept with probability t_i/S, else its alias a_i), in exact integers;
+    the table's float probabilities, which the kernels divide by, must be these rounded."""
+    texels = 6 * cache.res ** 2
+    bits = (texels - 1).bit_length()
+    table = cache.map_alias(compensated)
+    words = compute.to_host(table.words, (1 << bits,), np.uint64)
+    unit = CDF_ONE >> bits
+    thresholds, aliases = words >> np.uint64(bits), words & np.uint64((1 << bits) - 1)
+    assert np.all(thresholds <= unit) and np.all(aliases < texels)
+    units = np.zeros(1 << bits, object)   # Python ints: 2^63 overflows int64
+    np.add.at(units, np.arange(1 << bits), thresholds.astype(object))
+    np.add.at(units, aliases.astype(np.int64), unit - thresholds.astype(object))
+    assert sum(units) == CDF_ONE
+    exact = np.array([int(u) for u in units[:texels]], np.float64) / CDF_ONE
+    stored = compute.to_host(table.probability, (1 << bits,), np.float32)
+    np.testing.assert_allclose(stored[:texels], exact, rtol=2.0 ** -24, atol=0)   # rounded to float
+    assert not np.any(stored[texels:]) and not np.any(units[texels:])
+    return exact.reshape(6, cache.res, cache.res)
 
 
 def numpy_weights(env: np.ndarray, compensated: bool) -> np.ndarray:

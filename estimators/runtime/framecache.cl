@@ -306,6 +306,43 @@ __kernel void weight_cdfs(__global const float *weight, const int n, __global cd
     totals[r] = (float)write_cdf(cdfs + (size_t)r * n, &run);
 }
 
+/* Walker's alias table (Walker 1977; built by Vose 1991's worklists) of one fixed-point CDF of
+ * n bins, in integers, by one work item.  M = 2^alias_bits(n) bins of S = 2^63 / M units each;
+ * bin i holds a threshold t_i ≤ S and an alias a_i, packed as words[i] = t_i·M + a_i (< 2^64).
+ * A draw takes bin i uniformly and u uniform in [0, S): bin i where u < t_i, else a_i.
+ * Construction from the CDF's widths q_j (zeros past n, Σ q = 2^63 = M·S): pair the last
+ * under-full bin l (q_l < S) with the last over-full one g, t_l = q_l, a_l = g, and g keeps
+ * q_g − (S − q_l), under-full or not; over-full bins left over get t = S.  Each pairing removes
+ * one bin and S units, so Σ of the remaining widths = (bins left)·S holds exactly: the lists run
+ * out together (none under-full is left), and bin j is drawn with probability
+ * (t_j + Σ_{a_i = j} (S − t_i)) / 2^63 = q_j / 2^63, exactly the CDF's.  probability[j] gets
+ * q_j · 2^-63 rounded to float (0 past n).  `worklist` holds M ints: the under-full bins from
+ * the bottom, the over-full ones from the top. */
+__kernel void alias_table(__global const cdf_word_t *cdf, const int n, __global cdf_word_t *words,
+                          __global float *probability, __global int *worklist)
+{
+    int bits = alias_bits(n), bins = 1 << bits, under = 0, over = bins;
+    cdf_word_t unit = CDF_ONE >> bits;
+    for (int j = 0; j < bins; ++j) {
+        cdf_word_t width = j < n ? cdf[j] - (j > 0 ? cdf[j - 1] : 0) : 0;
+        words[j] = width;
+        probability[j] = (float)width * 0x1p-63f;
+        if (width < unit) worklist[under++] = j;
+        else worklist[--over] = j;
+    }
+    while (under > 0 && over < bins) {
+        int l = worklist[--under], g = worklist[over];
+        cdf_word_t rest = words[g] - (unit - words[l]);
+        words[l] = (words[l] << bits) | (cdf_word_t)g;
+        words[g] = rest;
+        if (rest < unit) {   /* g turns under-full: off the over-full list, onto the other */
+            ++over;
+            worklist[under++] = g;
+        }
+    }
+    for (; over < bins; ++over) words[worklist[over]] = (unit << bits) | (cdf_word_t)worklist[over];
+}
+
 /* The pool (Algorithm 1, line 10): `per_face` samples of each lit face f, entry f·per_face + i
  * drawn from pool point i by the face's CDFs.  Entries store (ω, pdf_L(ω|f)) and the radiance. */
 __kernel void build_light_pool(__global const float4 *env, __global const cdf_word_t *marginal,

@@ -14,11 +14,12 @@ Products:
   pool per (size, seed) on first use; its device time is ``timings_ms["pool"]``;
 - ``light_cdfs``: the light samplers' CDFs beyond ``cdf`` (estimators/envmap.py, and
   ``balanced_mis`` with MIS compensation), drawn on first use like the pool, since what they
-  hold depends on the estimator's parameters: :meth:`FrameCache.map_marginal`, one CDF over all
-  6·R rows of the map (the global 2-D distribution of pbrt-v4's ImageInfiniteLight), and
-  :meth:`FrameCache.light_cdfs` with ``compensated``, every CDF rebuilt from MIS-compensated
-  weights.  ``require("light_cdfs")`` builds their input (``cdf``); their device times are
-  ``timings_ms["map_cdf"]``, ``["compensated_cdf"]`` and ``["compensated_map_cdf"]``, and each
+  hold depends on the estimator's parameters: :meth:`FrameCache.map_alias`, an alias table
+  over all 6·R² texels of the map (one global distribution, as pbrt-v4's ImageInfiniteLight's,
+  drawn in O(1)), and :meth:`FrameCache.light_cdfs` with ``compensated``, every CDF rebuilt
+  from MIS-compensated weights.  ``require("light_cdfs")`` builds their input (``cdf``); their
+  device times are ``timings_ms["map_alias"]``, ``["compensated_cdf"]`` and
+  ``["compensated_map_alias"]``, and each
   render that reads them counts them in its ``sample`` stage, as the pool's;
 - ``weight_pyramid``: each face's pyramid of sampling-weight sums (estimators/runtime/mips.py) over the
   texels' Y·Ω, :meth:`FrameCache.weight_pyramid` (``timings_ms["weight_pyramid"]``), and with
@@ -135,6 +136,18 @@ class LightCdfs:
     build_ms: float
 
 
+@dataclasses.dataclass(frozen=True)
+class MapAlias:
+    """The alias table of one distribution over the map's texels (framecache.cl's
+    ``alias_table``): ``words`` uint64 ``[M]``, bin i's threshold·M + alias (M = 2^⌈log2 6R²⌉
+    bins), ``probability`` float ``[M]``, texel j's probability q_j / 2^63 (0 past the texels);
+    ``build_ms`` the device time of the weights, their CDF and the table."""
+
+    words: cl.Buffer
+    probability: cl.Buffer
+    build_ms: float
+
+
 class FrameCache:
     def __init__(self, compute: Compute, env: np.ndarray, frame: int = 0):
         env = np.asarray(env, dtype=np.float32)
@@ -152,7 +165,7 @@ class FrameCache:
         self._face_integrals: np.ndarray | None = None
         self._pools: dict[tuple[int, int, bool], LightPool] = {}
         self._compensated: tuple[LightCdfs, cl.Buffer] | None = None
-        self._map_marginals: dict[bool, tuple[cl.Buffer, float]] = {}
+        self._map_aliases: dict[bool, MapAlias] = {}
         self._weight_pyramids: dict[bool, mips.MipChain] = {}
         self._radiance_mips: mips.MipChain | None = None
 
@@ -167,7 +180,7 @@ class FrameCache:
     def built(self) -> list[str]:
         return (["env"] + (["cdf"] if self._cdf is not None else [])
                 + (["pool"] if self._pools else [])
-                + (["light_cdfs"] if self._compensated or self._map_marginals else [])
+                + (["light_cdfs"] if self._compensated or self._map_aliases else [])
                 + (["weight_pyramid"] if self._weight_pyramids else [])
                 + (["radiance_mips"] if self._radiance_mips is not None else []))
 
@@ -281,24 +294,24 @@ class FrameCache:
                                            self.timings_ms["compensated_cdf"]), rows)
         return self._compensated[0]
 
-    def map_marginal(self, compensated: bool = False) -> tuple[cl.Buffer, float]:
-        """(uint64 ``[6·R]``, device ms): one fixed-point CDF over the 6·R rows of the map,
-        face-major, by their total weight (Y·Ω, or compensated as in :meth:`light_cdfs`):
-        with ``light_cdfs(compensated).conditional`` it is one 2-D distribution over the whole
-        map, a marginal over faces and rows and a conditional over columns (built on first use;
-        with ``compensated`` the ms include the compensated CDFs' build, which a sampler of this
-        marginal reads too)."""
-        if compensated not in self._map_marginals:
-            if compensated:
-                cdfs = self.light_cdfs(True)
-                rows, weights_ms = self._compensated[1], cdfs.build_ms
-            else:
-                _, rows, weights_ms = self._sampling_weights(False)
-            marginal, _, scan_ms = build_fixed_point_cdfs(self.compute, rows, 1, 6 * self.res)
-            self.timings_ms["compensated_map_cdf" if compensated else "map_cdf"] = scan_ms + (
-                0.0 if compensated else weights_ms)
-            self._map_marginals[compensated] = (marginal, weights_ms + scan_ms)
-        return self._map_marginals[compensated]
+    def map_alias(self, compensated: bool = False) -> MapAlias:
+        """The alias table of one distribution over all 6·R² texels of the map, by their weight
+        (Y·Ω, or compensated as in :meth:`light_cdfs`), built on first use: the texels' weights,
+        their fixed-point CDF as one run (every texel of positive weight a width q ≥ 1 of 2^63,
+        relatively exact), and from its widths framecache.cl's ``alias_table`` (Walker 1977,
+        Vose 1991), which draws texel j with probability exactly q_j / 2^63."""
+        if compensated not in self._map_aliases:
+            c, texels = self.compute, 6 * self.res * self.res
+            bins = 1 << (texels - 1).bit_length()   # common.cl's alias_bits
+            weights, _, weights_ms = self._sampling_weights(compensated, self._buffer(texels * 4))
+            cdf, _, scan_ms = build_fixed_point_cdfs(c, weights, 1, texels)
+            words, probability = self._buffer(bins * 8), self._buffer(bins * 4)
+            event = c.run(c.kernel("iblbench.estimators.runtime", "framecache.cl", "alias_table"), 1,
+                          cdf, np.int32(texels), words, probability, c.empty(bins * 4))
+            build_ms = weights_ms + scan_ms + event_ms(event)
+            self.timings_ms["compensated_map_alias" if compensated else "map_alias"] = build_ms
+            self._map_aliases[compensated] = MapAlias(words, probability, build_ms)
+        return self._map_aliases[compensated]
 
     def light_pool(self, per_face: int, seed: int, compensated: bool = False) -> LightPool:
         """The pool of ``per_face`` samples per face for render seed ``seed`` (drawn on first use)
