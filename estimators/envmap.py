@@ -204,10 +204,12 @@ class Envmap(MapSampler):
     sweep = SweepPart(("envmap", 'envmap{mis="brdf"}', 'envmap{mis="brdf",mis_compensation=true}'),
                       order=8)
     portability_variants = ('envmap{mis="brdf"}', 'envmap{mis="brdf",mis_compensation=true}')
-    cost = KernelCost(115, 0, 0, 76, 88, derivation="""\
-        the default, light samples only: a light sample of the map's 2-D distribution, 115: its
-        point and pdf 38 (as sample_face's), the face direction normalised 12, lobe power 41,
-        n·ω 5, D 1, add_samples 18; per pixel shading 24, hoisted factors 5, sums out 47""")
+    cost = KernelCost(97, 0, 0, 76, 88, derivation="""\
+        the default, light samples only: a light sample of the map's alias table, 97: the bin,
+        its threshold test and alias (integer work, not counted), the row and face by float
+        quotients 2, the point in the texel 10, its pdf 8, the face direction normalised 12,
+        lobe power 41, n·ω 5, D 1, add_samples 18; per pixel shading 24, hoisted factors 5,
+        sums out 47""")
     Params = EnvmapParams
     settings = (Setting("mis", "brdf", says="mis_brdf"),
                 Setting("heuristic", "balance", {"mis": "brdf"}, says="mis_heuristic"),

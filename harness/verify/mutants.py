@@ -136,10 +136,6 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
        ["balanced_mis"], ["shininess"]),
     _m("pool-shared-sequence-ignored", "estimators/light_pool.py",
        "np.int32(self.params.shared_sequence)", "np.int32(True)", ["uniform"]),
-    # ---- envmap's map rows in the shared lanes code -----------------------------------------------
-    _m("envmap-row-bin-per-face", POOL,
-       "map_rows ? lanes_cdf_bin(marginal, (lane_ints_t)0, map_row)",
-       "map_rows ? lanes_cdf_bin(marginal, f * res, row)", ["envmap"], ["face-pattern"]),
     # ---- shared conventions (common.cl) -----------------------------------------------------------
     _m("light-pdf-jacobian-inverted", COMMON,
        "cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area",
