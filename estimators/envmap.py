@@ -225,6 +225,11 @@ class Envmap(MapSampler):
                "*pdf = p_texel * q * sqrt(q) * (float)(res * res) / 4.0f;",
                "*pdf = p_texel / (q * sqrt(q)) * (float)(res * res) / 4.0f;",
                stress=("sun-1e6",)),
+        # The probability of the bin drawn, not of the texel chosen (its alias where the
+        # threshold test sends it there): the density of another texel.
+        Mutant("envmap-alias-pdf-of-the-bin", "envmap.cl",
+               "lanes_t p_texel = GATHER(lanes_t, texel_probability, chosen);",
+               "lanes_t p_texel = GATHER(lanes_t, texel_probability, bin);", stress=("sun-1e6",)),
     )
 
     @property
