@@ -14,9 +14,9 @@ Products:
   pool per (size, seed) on first use; its device time is ``timings_ms["pool"]``;
 - ``light_cdfs``: the light samplers' CDFs beyond ``cdf`` (estimators/envmap.py, and
   ``balanced_mis`` with MIS compensation), drawn on first use like the pool, since what they
-  hold depends on the estimator's parameters: :meth:`FrameCache.map_alias`, an alias table
-  over all 6·R² texels of the map (one global distribution, as pbrt-v4's ImageInfiniteLight's,
-  drawn in O(1)), and :meth:`FrameCache.light_cdfs` with ``compensated``, every CDF rebuilt
+  hold depends on the estimator's parameters: :meth:`FrameCache.map_alias`, alias tables of
+  one distribution over all 6·R² texels of the map (the global distribution of pbrt-v4's
+  ImageInfiniteLight, a row and then a column, each drawn in O(1)), and :meth:`FrameCache.light_cdfs` with ``compensated``, every CDF rebuilt
   from MIS-compensated weights.  ``require("light_cdfs")`` builds their input (``cdf``); their
   device times are ``timings_ms["map_alias"]``, ``["compensated_cdf"]`` and
   ``["compensated_map_alias"]``, and each
@@ -136,12 +136,19 @@ class LightCdfs:
     build_ms: float
 
 
+def alias_bins(n: int) -> int:
+    """Bins of an alias table over ``n`` bins: n padded to a power of two (kernels/common.cl's
+    ``alias_bits``)."""
+    return 1 << (n - 1).bit_length()
+
+
 @dataclasses.dataclass(frozen=True)
 class MapAlias:
-    """The alias table of one distribution over the map's texels (framecache.cl's
-    ``alias_table``): ``words`` uint64 ``[M]``, bin i's threshold·M + alias (M = 2^⌈log2 6R²⌉
-    bins), ``probability`` float ``[M]``, texel j's probability q_j / 2^63 (0 past the texels);
-    ``build_ms`` the device time of the weights, their CDF and the table."""
+    """The map's two-level alias tables (framecache.cl's ``alias_tables``): ``words`` uint64,
+    the rows' table (``alias_bins(6R)`` bins, each threshold·bins + alias), then each row's
+    table over its columns (``alias_bins(R)`` bins each); ``probability`` float ``[6·R·R]``,
+    each texel's P(row)·P(col | row); ``build_ms`` the device time of the weights, the rows' CDF
+    and the tables (with the compensated CDFs' where compensated)."""
 
     words: cl.Buffer
     probability: cl.Buffer
@@ -295,22 +302,36 @@ class FrameCache:
         return self._compensated[0]
 
     def map_alias(self, compensated: bool = False) -> MapAlias:
-        """The alias table of one distribution over all 6·R² texels of the map, by their weight
-        (Y·Ω, or compensated as in :meth:`light_cdfs`), built on first use: the texels' weights,
-        their fixed-point CDF as one run (every texel of positive weight a width q ≥ 1 of 2^63,
-        relatively exact), and from its widths framecache.cl's ``alias_table`` (Walker 1977,
-        Vose 1991), which draws texel j with probability exactly q_j / 2^63."""
+        """The alias tables of one distribution over all 6·R² texels of the map, by their weight
+        (Y·Ω, or compensated as in :meth:`light_cdfs`), built on first use: a fixed-point CDF
+        over the map's 6·R rows, face-major, by their total weights, and with the conditional
+        CDFs of :meth:`light_cdfs` (``compensated``) one alias table over the rows and one over
+        each row's columns (framecache.cl's ``alias_tables``, Walker 1977, Vose 1991, a work
+        item per table), which draw a row and a column with exactly the CDFs' probabilities;
+        ``probability`` holds their product per texel (``texel_probabilities``)."""
         if compensated not in self._map_aliases:
-            c, texels = self.compute, 6 * self.res * self.res
-            bins = 1 << (texels - 1).bit_length()   # common.cl's alias_bits
-            weights, _, weights_ms = self._sampling_weights(compensated, self._buffer(texels * 4))
-            cdf, _, scan_ms = build_fixed_point_cdfs(c, weights, 1, texels)
-            words, probability = self._buffer(bins * 8), self._buffer(bins * 4)
-            event = c.run(c.kernel("iblbench.estimators.runtime", "framecache.cl", "alias_table"), 1,
-                          cdf, np.int32(texels), words, probability, c.empty(bins * 4))
-            build_ms = weights_ms + scan_ms + event_ms(event)
-            self.timings_ms["compensated_map_alias" if compensated else "map_alias"] = build_ms
-            self._map_aliases[compensated] = MapAlias(words, probability, build_ms)
+            c, res = self.compute, self.res
+            if compensated:
+                cdfs = self.light_cdfs(True)
+                rows, weights_ms = self._compensated[1], cdfs.build_ms
+            else:
+                cdfs = self.light_cdfs(False)
+                _, rows, weights_ms = self._sampling_weights(False)
+            marginal, _, scan_ms = build_fixed_point_cdfs(c, rows, 1, 6 * res)
+            row_bins, col_bins = alias_bins(6 * res), alias_bins(res)
+            words = self._buffer((row_bins + 6 * res * col_bins) * 8)
+            worklist = self._buffer(max(row_bins, 6 * res * col_bins) * 4)
+            probability = self._buffer(6 * res * res * 4)
+            kernel = lambda name: c.kernel("iblbench.estimators.runtime", "framecache.cl", name)
+            events = (c.run(kernel("alias_tables"), 1, marginal, np.int32(6 * res), np.int32(0), words, worklist),
+                      c.run(kernel("alias_tables"), 6 * res, cdfs.conditional, np.int32(res), np.int32(row_bins),
+                            words, worklist),
+                      c.run(kernel("texel_probabilities"), 6 * res * res, marginal, cdfs.conditional,
+                            np.int32(res), probability))
+            own_ms = scan_ms + sum(map(event_ms, events))
+            self.timings_ms["compensated_map_alias" if compensated else "map_alias"] = own_ms + (
+                0.0 if compensated else weights_ms)
+            self._map_aliases[compensated] = MapAlias(words, probability, weights_ms + own_ms)
         return self._map_aliases[compensated]
 
     def light_pool(self, per_face: int, seed: int, compensated: bool = False) -> LightPool:

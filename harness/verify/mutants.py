@@ -167,10 +167,10 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
        "(cdf_word8_t)0, convert_long8(w > 0.0f) == 0);", "(cdf_word8_t)0, convert_long8(w >= 0.0f) == 0);",
        ["uniform"], ["hot-texel"]),
     # ---- the frame cache's alias table (FrameCache.map_alias, envmap's light sampler) -------------
-    # The over-full bin keeps its whole width after lending to an under-full one: the table draws
-    # other probabilities than the q/2^63 it stores, which the table test reads off its words.
+    # The over-full bin keeps its whole width after lending to an under-full one: the tables draw
+    # other probabilities than the CDFs' widths, which the table test reads off their words.
     _m("framecache-alias-lend-not-deducted", "estimators/runtime/framecache.cl",
-       "cdf_word_t rest = words[g] - (unit - words[l]);", "cdf_word_t rest = words[g];",
+       "cdf_word_t rest = table[g] - (unit - table[l]);", "cdf_word_t rest = table[g];",
        ["envmap"], ["sun-1e6"],
        tests=("test_brdf_envmap.py::test_map_distribution_is_proportional_to_its_weights",)),
     # ---- the reference ---------------------------------------------------------------------------
