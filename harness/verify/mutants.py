@@ -260,6 +260,17 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("metrics-relmse-without-square", "harness/protocol/metrics.py",
        "return float(np.mean((x - r) ** 2 / (r * r + 0.01)))",
        "return float(np.mean((x - r) ** 2 / (r + 0.01)))", [], ["constant"], budgets=True),
+    # ---- issue 36, class 3: distributed bookkeeping (tests/test_lost_units.py) --------------------
+    _m("cluster-lost-chain-spares-the-killed-unit", "harness/protocol/distributed.py",
+       "lost += [k for unit in units[index:] for k in unit]",
+       "lost += [k for unit in units[index + 1:] for k in unit]", [],
+       tests=["test_lost_units.py::test_a_run_that_lost_cells_never_ends_complete[before-0-in-order]"]),
+    _m("cluster-lost-calibrator-strands-its-budget", "harness/protocol/distributed.py",
+       "submit(waiting[budget].pop(0), 0, {})", "waiting[budget].pop(0)", [],
+       tests=["test_lost_units.py::test_a_run_that_lost_cells_never_ends_complete[mid-0-newest-first]"]),
+    _m("runner-trusts-the-cluster-s-lost-count", "harness/protocol/runner.py",
+       "missing = set(lost) | (self.todo - self.journalled)", "missing = set(lost)", [],
+       tests=["test_lost_units.py::test_a_unit_that_returns_without_a_cell_s_row_leaves_the_run_incomplete"]),
     # ---- issue 36, class 4: the ranking's edges (tests/test_ranking_edges.py) ---------------------
     _m("ranking-end-tolerance-exclusive", "harness/protocol/ranking.py",
        "and abs(t - budget_ms) <= TOLERANCE * budget_ms and t in span]",
@@ -271,6 +282,14 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("ranking-budget-at-fastest-cell-not-reached", "harness/protocol/ranking.py",
        "if budget_ms < span[0] and not at_end:", "if budget_ms <= span[0] and not at_end:", [],
        tests=["test_ranking_edges.py::test_a_budget_equal_to_a_cells_time_reads_that_cell"]),
+    # ---- issue 36, class 5: per-device times (tests/test_time_pooling.py) -------------------------
+    _m("time-refused-over-devices-only-for-time-ms", "harness/protocol/stats.py",
+       "if is_time_column(column) and len(devices(rows)) > 1:",
+       "if column == TIME_COLUMN and len(devices(rows)) > 1:", [],
+       tests=["test_time_pooling.py::test_every_time_column_is_refused_over_two_devices[time_ms_host]"]),
+    _m("check-time-ratio-pools-devices", "harness/protocol/budgets.py",
+       'if any(rule.time_ratio for rule in rules):', "if False:", [],
+       tests=["test_time_pooling.py::test_check_refuses_a_time_ratio_over_two_devices[time_ms_shade]"]),
     # ---- issue 36, class 6: device settings (tests/test_device_settings.py) ------------------------
     _m("pool-lanes-16-from-preferred-8", "estimators/runtime/device.py",
        "(16 if device.preferred_vector_width_float >= 16 else 8)",
