@@ -49,7 +49,7 @@ ALWAYS_INLINE lanes_t mis_denominator(lanes_t own, lanes_t other)
 #endif
 }
 
-/* The map's alias table, the light sampler unless the including file brought its own (header). */
+/* The map's alias tables, the light sampler unless the including file brought its own (header). */
 #ifndef LIGHT_PARAMS
 #define LIGHT_PARAMS __global const cdf_word_t *alias_words, __global const float *texel_probability
 #define LIGHT_ARGS alias_words, texel_probability
@@ -114,7 +114,7 @@ ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const shading_t *s, int 
 }
 
 /* The light density at the lanes' directions w for the pixel of shading s: their texels'
- * probabilities in the table, with lanes_sample_map's Jacobian; *texel gets the texel of each. */
+ * probabilities (texel_probabilities), with lanes_sample_map's Jacobian; *texel gets the texel of each. */
 ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const shading_t *s, int res, lanes3_t w, lane_ints_t *texel)
 {
     lane_ints_t face, row, col;

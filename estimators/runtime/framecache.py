@@ -16,11 +16,11 @@ Products:
   ``balanced_mis`` with MIS compensation), drawn on first use like the pool, since what they
   hold depends on the estimator's parameters: :meth:`FrameCache.map_alias`, alias tables of
   one distribution over all 6·R² texels of the map (the global distribution of pbrt-v4's
-  ImageInfiniteLight, a row and then a column, each drawn in O(1)), and :meth:`FrameCache.light_cdfs` with ``compensated``, every CDF rebuilt
-  from MIS-compensated weights.  ``require("light_cdfs")`` builds their input (``cdf``); their
-  device times are ``timings_ms["map_alias"]``, ``["compensated_cdf"]`` and
-  ``["compensated_map_alias"]``, and each
-  render that reads them counts them in its ``sample`` stage, as the pool's;
+  ImageInfiniteLight, a row and then a column, each drawn in O(1)), and
+  :meth:`FrameCache.light_cdfs` with ``compensated``, every CDF rebuilt from MIS-compensated
+  weights.  ``require("light_cdfs")`` builds their input (``cdf``); their device times are
+  ``timings_ms["map_alias"]``, ``["compensated_cdf"]`` and ``["compensated_map_alias"]``, and
+  each render that reads them counts them in its ``sample`` stage, as the pool's;
 - ``weight_pyramid``: each face's pyramid of sampling-weight sums (estimators/runtime/mips.py) over the
   texels' Y·Ω, :meth:`FrameCache.weight_pyramid` (``timings_ms["weight_pyramid"]``), and with
   ``compensated`` over the MIS-compensated weights of :meth:`FrameCache.light_cdfs`, drawn on
