@@ -136,10 +136,6 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
        ["balanced_mis"], ["shininess"]),
     _m("pool-shared-sequence-ignored", "estimators/light_pool.py",
        "np.int32(self.params.shared_sequence)", "np.int32(True)", ["uniform"]),
-    # ---- envmap's map rows in the shared lanes code -----------------------------------------------
-    _m("envmap-row-bin-per-face", POOL,
-       "map_rows ? lanes_cdf_bin(marginal, (lane_ints_t)0, map_row)",
-       "map_rows ? lanes_cdf_bin(marginal, f * res, row)", ["envmap"], ["face-pattern"]),
     # ---- shared conventions (common.cl) -----------------------------------------------------------
     _m("light-pdf-jacobian-inverted", COMMON,
        "cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area",
@@ -170,6 +166,13 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("framecache-zero-bins-kept", "estimators/runtime/framecache.cl",
        "(cdf_word8_t)0, convert_long8(w > 0.0f) == 0);", "(cdf_word8_t)0, convert_long8(w >= 0.0f) == 0);",
        ["uniform"], ["hot-texel"]),
+    # ---- the frame cache's alias table (FrameCache.map_alias, envmap's light sampler) -------------
+    # The over-full bin keeps its whole width after lending to an under-full one: the tables draw
+    # other probabilities than the CDFs' widths, which the table test reads off their words.
+    _m("framecache-alias-lend-not-deducted", "estimators/runtime/framecache.cl",
+       "cdf_word_t rest = table[g] - (unit - table[l]);", "cdf_word_t rest = table[g];",
+       ["envmap"], ["sun-1e6"],
+       tests=("test_brdf_envmap.py::test_map_distribution_is_proportional_to_its_weights",)),
     # ---- the reference ---------------------------------------------------------------------------
     _m("reference-chord-for-arc", "estimators/runtime/reference.py",
        "theta = np.arctan2(s, np.sum(a * b, axis=-1, keepdims=True))",
