@@ -26,8 +26,8 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
 	@# The driver: a system one where there is one; else, as root with apt-get, Debian's PoCL,
-	@# built for this CPU, not the pip PoCL (docs/measurements.md: about 1/2.7 of Debian's speed on
-	@# a Zen 3); else the pip PoCL, with a hint. OPENCL=pip forces the pip PoCL for `make bench`.
+	@# built for this CPU, not the pip PoCL (1.6-2.7x slower: the README's driver table); else the
+	@# pip PoCL, with a hint. OPENCL=pip forces the pip PoCL for `make bench`.
 	@if [ "$(OPENCL)" = pip ]; then \
 		echo "OpenCL: OPENCL=pip: installing the pip PoCL; make bench runs on it alone"; \
 		$(PY) -m pip install -q -e '.[test,pocl]'; \
@@ -35,13 +35,13 @@ $(STAMP): pyproject.toml
 		echo "OpenCL: system driver found in $(OPENCL_VENDORS)"; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 		echo "OpenCL: no system driver; installing Debian's pocl-opencl-icd with apt-get, because it"; \
-		echo "OpenCL: builds for this CPU and ran 2.7x as fast as the pip PoCL (docs/measurements.md)"; \
+		echo "OpenCL: builds for this CPU: the pip PoCL ran 1.6-2.7x slower (README, Drivers)"; \
 		$(APT_INSTALL) pocl-opencl-icd >$(VENV)/apt.log 2>&1 || { \
 			tail -3 $(VENV)/apt.log; echo "hint: apt-get could not install pocl-opencl-icd; installing the pip PoCL"; \
 			$(PY) -m pip install -q -e '.[test,pocl]'; }; \
 	else \
 		echo "hint: no system OpenCL driver, and not root with apt-get: installing the pip PoCL, which ran"; \
-		echo "hint: at 1/2.7 of the speed of Debian's 'apt-get install -y pocl-opencl-icd' (docs/measurements.md)"; \
+		echo "hint: 1.6-2.7x slower than Debian's 'apt-get install -y pocl-opencl-icd' (README, Drivers)"; \
 		$(PY) -m pip install -q -e '.[test,pocl]'; \
 	fi
 	@# A driver may be there and still unable to build for this CPU (the pip PoCL's LLVM 14 names

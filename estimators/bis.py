@@ -96,7 +96,8 @@ def run_bis_chunks(compute, kernel, count: int, M: int, N: int, launch, empty=No
     scratch also fits SCRATCH_BYTES (:func:`~iblbench.estimators.runtime.chunks.run_in_chunks`):
     ``launch(offset, pixels, chosen, bounds, sums)`` runs one and returns its event, with scratch
     buffers (sir.cl, SIR_SCRATCH_ARGS) sized for the largest launch, from ``empty(name, nbytes)``
-    if given (a caller's reused buffers), else newly allocated.  Returns the events."""
+    if given (a caller's reused buffers), else newly allocated.  Its first launch starts from the
+    rate of the last run of the same kernel, device, pixels, M and N.  Returns the events."""
     group = lockstep_group(compute, kernel)
     per_launch = max(group, SCRATCH_BYTES // (4 * N + 8 * M + 3 * 8) // group * group)
     size = min(per_launch, max(-(-int(count) // group), 1) * group)
@@ -104,7 +105,7 @@ def run_bis_chunks(compute, kernel, count: int, M: int, N: int, launch, empty=No
     scratch = (empty("chosen", 4 * N * size), empty("bounds", 8 * M * size),
                empty("sums", 3 * 8 * size))
     return run_in_chunks(int(count), group, lambda offset, pixels: launch(offset, pixels, *scratch),
-                         most=per_launch)
+                         most=per_launch, kind=(id(compute), kernel.function_name, int(count), M, N))
 
 
 class BIS(Estimator):

@@ -1,7 +1,8 @@
 /* `envmap` (and, with LIGHT_SAMPLES = 0, `brdf`): the production samplers.  Light samples come from
  * one 2-D distribution over the whole cube map, a marginal over its 6·R rows (faces and rows,
- * face-major) and a conditional over columns, both fixed-point CDFs (FrameCache.map_marginal and
- * light_cdfs), as pbrt-v4's ImageInfiniteLight samples its one image; BRDF samples are ARCHITECTURE.md §Conventions's
+ * face-major) and a conditional over columns, as pbrt-v4's ImageInfiniteLight samples its one
+ * image, each drawn in O(1) from Walker's alias tables (FrameCache.map_alias: Walker 1977,
+ * Vose 1991) where pbrt-v4 bisects its CDFs; BRDF samples are ARCHITECTURE.md §Conventions's
  * Phong sampling; the two combine by MIS.  Configured by the estimator's defines:
  *   LIGHT_SAMPLES  1: light samples (0: none, the `brdf` estimator)
  *   BRDF_SAMPLES   1: BRDF samples (half the budget when LIGHT_SAMPLES is 1)
@@ -48,51 +49,78 @@ ALWAYS_INLINE lanes_t mis_denominator(lanes_t own, lanes_t other)
 #endif
 }
 
-/* The map's CDFs, the light sampler unless the including file brought its own (header). */
+/* The map's alias tables, the light sampler unless the including file brought its own (header). */
 #ifndef LIGHT_PARAMS
-#define LIGHT_PARAMS __global const cdf_word_t *marginal, __global const cdf_word_t *conditional
-#define LIGHT_ARGS marginal, conditional
+#define LIGHT_PARAMS __global const cdf_word_t *alias_words, __global const float *texel_probability
+#define LIGHT_ARGS alias_words, texel_probability
 
-/* The lanes' light directions from the blocks xi (63-bit points (v0:v1, v2:v3) >> 1): the map
- * row by the marginal over all 6·R rows, the column by that row's conditional, the point in the
- * texel by the variates' position inside their bins (lanes_sample_face's arithmetic).  *texel
- * gets the texel and *pdf the density in solid angle, P(row)·P(col | row)·(1+x²+y²)^{3/2}/a_texel
- * (ARCHITECTURE.md §Conventions with the map's rows for μ_f·P(row | f)). */
-ALWAYS_INLINE lanes3_t lanes_sample_map(__global const cdf_word_t *marginal,
-                                        __global const cdf_word_t *conditional, int res,
-                                        lane_block_t xi, lane_ints_t *texel, lanes_t *pdf)
+/* x / d for 0 ≤ x, x/d < 2^24 and x + d < 2^31, in float lanes (CPUs have no vector integer
+ * division): the float quotient's truncation is within one of x/d, and the two steps correct it. */
+ALWAYS_INLINE lane_ints_t lanes_quotient(lane_ints_t x, int d)
 {
-    lane_words_t ux = upsample(xi.v[0], xi.v[1]) >> 1, uy = upsample(xi.v[2], xi.v[3]) >> 1;
-    lane_ints_t map_row = lanes_cdf_search(marginal, (lane_ints_t)0, 6 * res, ux);
-    lane_ints_t cols = map_row * res;
-    lane_ints_t col = lanes_cdf_search(conditional, cols, res, uy);
-    lane_ints_t face = map_row / res;
-    lanes_t row_bin, col_bin;
-    lanes_t x = -1.0f + 2.0f * (convert_lanes(col) + lanes_cdf_bin_position(conditional, cols, col, uy, &col_bin)) / (float)res;
-    lanes_t y = -1.0f + 2.0f * (convert_lanes(map_row - face * res)
-                                + lanes_cdf_bin_position(marginal, (lane_ints_t)0, map_row, ux, &row_bin)) / (float)res;
+    lane_ints_t q = convert_lane_ints(convert_lanes(x) / (float)d);
+    q += q * d > x;            /* a true comparison is −1 */
+    q -= (q + 1) * d <= x;
+    return q;
+}
+
+/* The bins that the lanes' 64-bit words u draw from the alias tables of 2^bits bins at
+ * words + first (framecache.cl's alias_tables): the bin from u's top bits, its threshold test by
+ * the 63 − bits bits below them (bit 0 unused). */
+ALWAYS_INLINE lane_ints_t lanes_alias_draw(__global const cdf_word_t *words, lane_ints_t first, int bits,
+                                           lane_words_t u)
+{
+    lane_words_t low = u >> (lane_words_t)1;
+    lane_ints_t bin = convert_lane_ints(low >> (lane_words_t)(63 - bits));
+    lane_words_t word = GATHER(lane_words_t, words, first + bin);
+    lane_words_t below = low & (lane_words_t)((CDF_ONE >> bits) - 1);
+    lane_ints_t kept = convert_lane_ints(below < (word >> (lane_words_t)bits));
+    return select(convert_lane_ints(word & (lane_words_t)(((cdf_word_t)1 << bits) - 1)), bin, kept);
+}
+
+/* The lanes' light directions from the blocks xi and at: the map row by the rows' alias table
+ * (v0:v1 of xi), the column by that row's (v2:v3), the point uniform in the texel's face square
+ * from at's v0 and v1 (24 bits each).  *texel gets the texel and *pdf the density in solid
+ * angle, P(texel)·(1+x²+y²)^{3/2}/a_texel (ARCHITECTURE.md §Conventions), P(texel) = P(row)·P(col | row)
+ * the tables' exact probabilities, as texel_probabilities rounds them. */
+ALWAYS_INLINE lanes3_t lanes_sample_map(__global const cdf_word_t *alias_words,
+                                        __global const float *texel_probability, int res,
+                                        lane_block_t xi, lane_block_t at, lane_ints_t *texel, lanes_t *pdf)
+{
+    int row_bits = alias_bits(6 * res), col_bits = alias_bits(res);
+    lane_ints_t map_row = lanes_alias_draw(alias_words, (lane_ints_t)0, row_bits, upsample(xi.v[0], xi.v[1]));
+    lane_ints_t col = lanes_alias_draw(alias_words, (1 << row_bits) + (map_row << col_bits), col_bits,
+                                       upsample(xi.v[2], xi.v[3]));
+    lane_ints_t face = lanes_quotient(map_row, res);
+    lanes_t x = -1.0f + 2.0f * (convert_lanes(col) + lanes_unit(at.v[0])) / (float)res;
+    lanes_t y = -1.0f + 2.0f * (convert_lanes(map_row - face * res) + lanes_unit(at.v[1])) / (float)res;
     lanes_t q = 1.0f + x * x + y * y;   /* area_per_solid_angle */
-    *texel = cols + col;
-    *pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;
+    *texel = map_row * res + col;
+    lanes_t p_texel = GATHER(lanes_t, texel_probability, *texel);
+    *pdf = p_texel * q * sqrt(q) * (float)(res * res) / 4.0f;
     return lanes_face_direction(face, x, y);
 }
 
 /* The light directions of draws `draw` of pixel stream `pixel` (their random numbers keyed by
- * seed and frame) for the pixel of shading s; *texel gets each one's texel and *pdf its density
- * in solid angle. */
+ * seed and frame: blocks 0 and 1 of each draw) for the pixel of shading s; *texel gets each
+ * one's texel and *pdf its density in solid angle. */
 ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const shading_t *s, int res, uint seed, uint frame,
                                           uint pixel, lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
 {
-    lane_block_t xi = rng_block_lanes(seed, frame, STREAM_MAP_LIGHT, pixel, convert_lane_uints(draw), 0u);
-    return lanes_sample_map(marginal, conditional, res, xi, texel, pdf);
+    lane_uints_t index = convert_lane_uints(draw);
+    lane_block_t xi = rng_block_lanes(seed, frame, STREAM_MAP_LIGHT, pixel, index, 0u);
+    lane_block_t at = rng_block_lanes(seed, frame, STREAM_MAP_LIGHT, pixel, index, 1u);
+    return lanes_sample_map(alias_words, texel_probability, res, xi, at, texel, pdf);
 }
 
-/* The light density at the lanes' directions w for the pixel of shading s; *texel gets the
- * texel of each. */
+/* The light density at the lanes' directions w for the pixel of shading s: their texels'
+ * probabilities (texel_probabilities), with lanes_sample_map's Jacobian; *texel gets the texel of each. */
 ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const shading_t *s, int res, lanes3_t w, lane_ints_t *texel)
 {
-    lane_ints_t face;
-    return lanes_light_pdf_rows(marginal, conditional, res, w, 1, &face, texel);
+    lane_ints_t face, row, col;
+    lanes_t area = lanes_texel_of(res, w, &face, &row, &col);
+    *texel = (face * res + row) * res + col;
+    return GATHER(lanes_t, texel_probability, *texel) * area * (float)(res * res) / 4.0f;
 }
 #endif
 

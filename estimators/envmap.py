@@ -54,13 +54,13 @@ class MapSampler(Estimator):
         return compute.kernel(self.kernel_package(), self.kernel_files[0], name, self.defines(gbuffer))
 
     def _light_buffers(self, cache) -> tuple[tuple, float]:
-        """(the kernels' light-sampler buffers, ``LIGHT_PARAMS`` of envmap.cl: the map marginal
-        and the conditional; device ms that built them for this render)."""
+        """(the kernels' light-sampler buffers, ``LIGHT_PARAMS`` of envmap.cl: the map's alias
+        table and its texel probabilities; device ms that built them for this render)."""
         if not self.light_samples:
             unread = cache.compute.empty(8)
             return (unread, unread), 0.0
-        marginal, build_ms = cache.map_marginal(self.compensated)
-        return (marginal, cache.light_cdfs(self.compensated).conditional), build_ms
+        table = cache.map_alias(self.compensated)
+        return (table.words, table.probability), table.build_ms
 
     def _map_is_black(self, cache) -> bool:
         """Whether every texel weighs 0 (from the ``cdf`` product's face integrals)."""
@@ -159,12 +159,25 @@ class Envmap(MapSampler):
 
     Distribution.  Weights Y·Ω per texel (Y the texel's luminance, Ω its exact solid angle), so
     that p(ω) ∝ Y(ω) in solid angle; one marginal CDF over the map's 6·R rows (faces and rows
-    together, face-major: ``FrameCache.map_marginal``) and one conditional CDF over each row's
-    columns (the ``cdf`` product's, or the compensated ones), both the fixed-point CDFs of
-    issue 6, so every texel of positive weight keeps a positive, relatively exact probability
-    next to a 1e6:1 sun.  A sample picks a row, a column, and a point uniform in the texel's face
-    square; its density is P(row)·P(col | row)·(1+x²+y²)^{3/2}/a_texel (ARCHITECTURE.md §Conventions).  No
-    per-normal balancing: the distribution is the same for every pixel.
+    together, face-major) and one conditional CDF over each row's columns (the ``cdf``
+    product's, or the compensated ones), both the fixed-point CDFs of issue 6, so every texel of
+    positive weight keeps a positive, relatively exact probability next to a 1e6:1 sun.  Each
+    is drawn in O(1) from Walker's alias table (A. J. Walker, "An efficient method for generating
+    discrete random variables with general distributions", ACM TOMS 3(3), 1977), built per frame
+    in integers by Vose's worklists (M. D. Vose, "A linear algorithm for generating random
+    numbers with a given distribution", IEEE TSE 17(9), 1991), a table over the rows and one over
+    each row's columns (``FrameCache.map_alias``, framecache.cl's ``alias_tables``), which draw
+    a bin with exactly its CDF width / 2^63.  A sample picks a row, a column, and a point uniform
+    in the texel's face square; its density is P(row)·P(col | row)·(1+x²+y²)^{3/2}/a_texel
+    (ARCHITECTURE.md §Conventions), P(row)·P(col | row) read from the tables' float product per
+    texel, the same in the sampler and in the density lookup.  No per-normal balancing: the
+    distribution is the same for every pixel.
+
+    Change (issue 37): the two CDFs were searched by bisection, ⌈log2 6R⌉ + ⌈log2 R⌉ dependent
+    loads, and the point in the texel came from the variates' positions in their bins.  The
+    alias tables draw the same row and column probabilities with two loads (a second Philox
+    block places the point), and the density lookup reads one float instead of four CDF words:
+    the density is the same function as before, bit for bit, but the sample streams changed.
 
     Budget and MIS.  Without MIS all N_s samples are light samples (Eq. 4 of Lu 2013 with one
     strategy).  With ``mis = "brdf"`` N_s/2 are light and N_s/2 BRDF samples, each strategy's
@@ -182,7 +195,8 @@ class Envmap(MapSampler):
     needs no special case).  Mitsuba 3 and pbrt-v4 use it only under MIS; so does this.
 
     Deviations from pbrt-v4: a cube map with nearest lookup and Y·Ω weights (ARCHITECTURE.md §Conventions) where
-    pbrt-v4 samples an equal-area octahedral image by its bilinearly filtered channel average;
+    pbrt-v4 samples an equal-area octahedral image by its bilinearly filtered channel average
+    (by bisection of its 2-D CDF; alias tables here);
     a budget split N_s/2 + N_s/2 where a path tracer takes one light and one BSDF sample per
     vertex (the same at N_s = 2); no visibility (none in this benchmark).
     """
@@ -191,10 +205,12 @@ class Envmap(MapSampler):
     sweep = SweepPart(("envmap", 'envmap{mis="brdf"}', 'envmap{mis="brdf",mis_compensation=true}'),
                       order=8)
     portability_variants = ('envmap{mis="brdf"}', 'envmap{mis="brdf",mis_compensation=true}')
-    cost = KernelCost(115, 0, 0, 76, 88, derivation="""\
-        the default, light samples only: a light sample of the map's 2-D distribution, 115: its
-        point and pdf 38 (as sample_face's), the face direction normalised 12, lobe power 41,
-        n·ω 5, D 1, add_samples 18; per pixel shading 24, hoisted factors 5, sums out 47""")
+    cost = KernelCost(96, 0, 0, 76, 88, derivation="""\
+        the default, light samples only: a light sample of the map's alias tables, 96: the row
+        and the column, each a bin, its threshold test and alias (integer work, not counted),
+        the face by a float quotient 1, the point in the texel 10, its pdf 8, the face
+        direction normalised 12, lobe power 41, n·ω 5, D 1, add_samples 18; per pixel shading
+        24, hoisted factors 5, sums out 47""")
     Params = EnvmapParams
     settings = (Setting("mis", "brdf", says="mis_brdf"),
                 Setting("heuristic", "balance", {"mis": "brdf"}, says="mis_heuristic"),
@@ -207,8 +223,14 @@ class Envmap(MapSampler):
                '"MIS_POWER": int(getattr(self.params, "heuristic", ' '"balance") == "power")',
                '"MIS_POWER": int(getattr(self.params, "heuristic", "balance") == "balance")'),
         Mutant("envmap-light-jacobian-inverted", "envmap.cl",
-               "*pdf = row_bin * col_bin * q * sqrt(q) * (float)(res * res) / 4.0f;",
-               "*pdf = row_bin * col_bin / (q * sqrt(q)) * (float)(res * res) / 4.0f;",
+               "*pdf = p_texel * q * sqrt(q) * (float)(res * res) / 4.0f;",
+               "*pdf = p_texel / (q * sqrt(q)) * (float)(res * res) / 4.0f;",
+               stress=("sun-1e6",)),
+        # The threshold test's variate one bit short: a bin is kept with probability 2t/S
+        # (capped at 1) instead of t/S, so the alias tables no longer draw their CDFs' widths.
+        Mutant("envmap-alias-threshold-bit-short", "envmap.cl",
+               "lane_words_t below = low & (lane_words_t)((CDF_ONE >> bits) - 1);",
+               "lane_words_t below = low & (lane_words_t)((CDF_ONE >> (bits + 1)) - 1);",
                stress=("sun-1e6",)),
     )
 

@@ -132,6 +132,28 @@ class Product(Hierarchical):
     seeds) the bound beat ``hierarchical`` with MIS: relative RMS error 0.135 vs 0.214 on a 1e3
     sun and 0.142 vs 0.153 on face_pattern_map (not re-measured with ``"capped"``).
 
+    Cost (issue 37; sphere-sun, env 64, 64 spp, PoCL 3.1 on a 2-core AVX-512 Xeon shared with
+    other jobs, one PoCL thread, process CPU time per render, so that the load cancels; ratios
+    measured in one run).  About 3.4× ``hierarchical{mis="brdf"}``'s time a sample at 256²
+    (88 against 26 ns).  A sample makes one product descent (a light sample's draw, or a BRDF
+    sample's density for MIS): 24 child factors (four a level, six levels below the faces; the
+    faces' are the same for the whole pixel and the compiler hoists them out of the sample loop),
+    each about 130 vector operations.  At 128², before the children were staged (below), with
+    ``hierarchical{mis="brdf"}`` = 1: the whole 3.6; without the lobe's power 2.9; the children's
+    geometry and centre cosines alone (no cone bound, power or cap) 2.3; no product level at all
+    (``light_levels`` past the top) 1.07.  So the time is the factors' arithmetic, spread
+    over the geometry (three reciprocal square roots and a square root a child), the two cone
+    bounds and the power, and the kernel is bound by the count of vector operations, not by the
+    divider or memory: square roots and divisions by Newton steps from a bit-level guess, and
+    the geometry read from a table (three gathers a child), each saved under 10% or nothing.
+    weigh_children runs the four children stage by stage (cones, the halves of the powers,
+    factors: same bits): 3.82× to 3.43× at 256² (product's own time 10% less).  Measured and
+    not taken: the top two levels' widths once per pixel instead of once per 16 samples,
+    bit-identical, 7% less (it needs a per-pixel light-sampler state in envmap.cl's render
+    loop); ``light_levels = 3`` 2.4× (issue 24: +0.5% to +6% relMSE).  Within 1.5× of
+    ``hierarchical`` would need a factor about six times cheaper than this bound, or fewer of
+    them (issue 37).
+
     Deviations.  Clarberg et al. multiply wavelet (Haar) representations of the map and the
     BRDF and sample the product's quadtree; Clarberg & Akenine-Möller 2008 evaluate the BRDF on
     a coarse quadtree per pixel.  Here no BRDF representation is built: a factor per node
@@ -170,6 +192,12 @@ class Product(Hierarchical):
                "for (int l = levels - 2; l > 0; --l) {\n        int n = level_size(res, l);\n"
                "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
                stress=("face-pattern",)),
+        # weigh_children stages the four children: a child weighed with a sibling's lobe bound
+        # still samples its own density (unbiased, χ² clean); the NumPy descent sees it.
+        Mutant("product-children-lobe-bounds-swapped", "product.cl",
+               "w[k] *= cone_factor(g, &cone[k], lobe[k]);",
+               "w[k] *= cone_factor(g, &cone[k], lobe[3 - k]);",
+               tests=("test_product.py::test_texel_probabilities_match_a_numpy_descent[face-pattern-capped-0]",)),
     )
 
     @property

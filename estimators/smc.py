@@ -361,7 +361,8 @@ class SMC(Estimator):
                     np.uint32(cache.frame), particles, gammas, scratch_p, scratch_g, state,
                     carried_estimate, radiance, counts, stats, flags, rays, group=ADVANCE_GROUP, offset=first)
 
-            events += run_in_chunks(count, ADVANCE_GROUP, advance_pixels)
+            events += run_in_chunks(count, ADVANCE_GROUP, advance_pixels, kind=(
+                id(compute), "smc_advance", count, N, p.intermediates, bool(static_frame)))
             listed, listed_total = buffer("listed", count * 4), buffer("listed_total", 4)
             events.append(compute.run(
                 compute.kernel(self.kernel_package(), "smc.cl", "smc_list_reinit", defines), 1,

@@ -15,7 +15,7 @@ from iblbench.harness.protocol.equal_time import TOLERANCE
 from iblbench.harness.protocol.metric import registered
 from iblbench.harness.protocol.results import load_table
 from iblbench.harness.protocol.stats import (by_device, cell_intervals, devices, interval_text,
-                                             mean_ci)
+                                             is_time_column, mean_ci)
 from iblbench.harness.protocol.timing import TIME
 from iblbench.reports import plots
 from iblbench.foundation.errors import InputError
@@ -76,7 +76,7 @@ def summarize(table: pd.DataFrame) -> pd.DataFrame:
     # (--metrics de76 has no relMSE); any other figure left out is dropped.
     columns = [c for c in INTERVAL_COLUMNS if c in table
                and (table[c].notna().any() or c in ("mean_delta_e76", "rel_mse"))
-               and not (several and c.startswith("time_"))]
+               and not (several and is_time_column(c))]
     cells = cell_intervals(table, keys, columns)
     cells["nonfinite"] = table.groupby(keys, sort=False).nonfinite.sum()
     cells = cells.reset_index()

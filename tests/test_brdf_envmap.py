@@ -25,12 +25,41 @@ def bins(cdf: np.ndarray) -> np.ndarray:
     return widths.astype(np.float64) / CDF_ONE
 
 
+def alias_probabilities(words: np.ndarray, n: int) -> np.ndarray:
+    """P(bin) ``[..., n]`` of alias tables ``[..., M]`` (framecache.cl's words), read off them as
+    a draw makes it (bin i of M uniformly, kept with probability t_i/S, else its alias a_i) in
+    exact integers, as a float64 fraction of 2^63; each table must hold exactly 2^63."""
+    bins = words.shape[-1]
+    bits = bins.bit_length() - 1
+    unit = CDF_ONE >> bits
+    thresholds, aliases = words >> np.uint64(bits), (words & np.uint64(bins - 1)).astype(np.int64)
+    assert np.all(thresholds <= unit) and np.all(aliases < n)
+    tables = words.reshape(-1, bins)
+    out = np.zeros((len(tables), n))
+    for k in range(len(tables)):
+        units = [0] * bins   # Python ints: 2^63 overflows int64
+        for i, (t, a) in enumerate(zip(thresholds.reshape(-1, bins)[k].tolist(), aliases.reshape(-1, bins)[k])):
+            units[i] += t
+            units[a] += unit - t
+        assert sum(units) == CDF_ONE and not any(units[n:])
+        out[k] = np.array(units[:n], np.float64) / CDF_ONE
+    return out.reshape(words.shape[:-1] + (n,))
+
+
 def map_texel_probabilities(compute, cache: FrameCache, compensated: bool) -> np.ndarray:
-    """P(texel) ``[6, R, R]`` of envmap's light sampler: the map marginal times the conditional."""
+    """P(texel) ``[6, R, R]`` of envmap's light sampler: the rows' alias table's P(row) times the
+    row's table's P(col | row), read off the tables; the float probabilities the kernels divide
+    by must be these, rounded."""
     res = cache.res
-    marginal = compute.to_host(cache.map_marginal(compensated)[0], (6 * res,), np.uint64)
-    conditional = compute.to_host(cache.light_cdfs(compensated).conditional, (6 * res, res), np.uint64)
-    return (bins(marginal)[:, None] * bins(conditional)).reshape(6, res, res)
+    row_bins, col_bins = (1 << (n - 1).bit_length() for n in (6 * res, res))
+    table = cache.map_alias(compensated)
+    words = compute.to_host(table.words, (row_bins + 6 * res * col_bins,), np.uint64)
+    rows = alias_probabilities(words[:row_bins], 6 * res)
+    cols = alias_probabilities(words[row_bins:].reshape(6 * res, col_bins), res)
+    exact = rows[:, None] * cols
+    stored = compute.to_host(table.probability, (6 * res, res), np.float32)
+    np.testing.assert_allclose(stored, exact, rtol=2.0 ** -22, atol=0)   # three roundings to float
+    return exact.reshape(6, res, res)
 
 
 def numpy_weights(env: np.ndarray, compensated: bool) -> np.ndarray:

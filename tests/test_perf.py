@@ -16,7 +16,7 @@ from iblbench.estimators.base import KernelCost
 from iblbench.estimators.registry import builtin_names, get_estimator_class
 from iblbench.estimators.uniform import Uniform
 from iblbench.estimators.runtime import probes
-from iblbench.harness.studies import perf
+from iblbench.harness.studies import mitsuba_peer, perf
 from iblbench.harness.protocol import timing
 from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
 from iblbench.estimators.runtime.framecache import FrameCache
@@ -127,7 +127,7 @@ def test_roofline_fraction_is_the_binding_roof():
 COSTS = {"uniform": (65, 0, 0, 88, 88), "balanced": (65, 0, 0, 214, 88),
          "balanced_mis": (110, 0, 0, 246, 88), "havran": (57, 5, 0, 17, 92),
          "bis": (183, 3, 0, 50, 88), "smc": (176, 45, 24, 58, 140), "brdf": (174, 0, 0, 103, 88),
-         "envmap": (115, 0, 0, 76, 88), "hierarchical": (182, 0, 0, 95, 88),
+         "envmap": (96, 0, 0, 76, 88), "hierarchical": (182, 0, 0, 95, 88),
          "fis": (223, 0, 0, 123, 88), "restir": (137, 206, 352, 1590, 252),
          "product": (1500, 0, 0, 142, 88)}
 
@@ -174,13 +174,15 @@ def test_perf_csv_has_the_documented_columns_and_positive_rates(tiny_perf):
     assert result.returncode == 0, result.stderr
     table = pd.read_csv(out / "perf.csv")
     assert list(table.columns) == list(perf.COLUMNS)
-    assert sorted(table.estimator) == sorted([*builtin_names(), perf.FLOOR])
+    peer = [mitsuba_peer.PEER] * (mitsuba_peer.unavailable() is None)
+    assert sorted(table.estimator) == sorted([*builtin_names(), perf.FLOOR, *peer])
+    counted = table.estimator != mitsuba_peer.PEER   # the peer has no FLOP or byte counts
     for column in ("msamples_per_s", "mevals_per_s", "shade_ms", "render_ms", "evaluations",
                    "flops_per_sample", "bytes_per_sample", "speedup_vs_floor", "peak_gflops",
                    "peak_gbps"):
-        values = table[column].to_numpy(float)
+        values = table[column][counted if column.endswith("per_sample") else slice(None)].to_numpy(float)
         assert np.all(np.isfinite(values) & (values > 0)), (column, values)
-    kernels = table[table.estimator != perf.FLOOR]
+    kernels = table[~table.estimator.isin([perf.FLOOR, mitsuba_peer.PEER])]
     for column in ("build_ms", "frame_ms", "gflops", "gbytes_per_s", "roofline_fraction"):
         values = kernels[column].to_numpy(float)
         assert np.all(np.isfinite(values) & (values > 0)), (column, values)
@@ -192,14 +194,21 @@ def test_perf_csv_has_the_documented_columns_and_positive_rates(tiny_perf):
     assert kernels[~with_cdf][["cdf_ms", "cdf_bound_ms"]].isna().all().all()
     floor = table[table.estimator == perf.FLOOR].iloc[0]
     assert floor.floor_max_rel_diff <= perf.FLOOR_RTOL and floor.speedup_vs_floor == 1.0
+    if peer:   # every row's rate over the peer's, the peer's own 1
+        assert np.all(table.speedup_vs_mitsuba > 0)
+        assert table.set_index("estimator").speedup_vs_mitsuba[mitsuba_peer.PEER] == 1.0
+    else:
+        assert table.speedup_vs_mitsuba.isna().all()
     assert (table.spp == 4).all() and (table.repeats == 2).all()
     np.testing.assert_allclose(table.msamples_per_s, table.pixels * table.spp / (table.render_ms * 1e3))
 
 
 def test_perf_prints_the_table_and_writes_the_page(tiny_perf):
     result, out = tiny_perf
-    for header in perf.SHOWN.values():
-        assert header in result.stdout, header
+    peer = mitsuba_peer.unavailable() is None
+    for name, header in perf.SHOWN.items():
+        assert (header in result.stdout) == (peer or name != "speedup_vs_mitsuba"), header
+    assert f"{mitsuba_peer.PEER}: " in result.stdout   # present, or one line saying why not
     page = (out / "perf.html").read_text(encoding="utf-8")
     for needle in ("Roofline", "GFLOP/s", perf.FLOOR, "uniform", "iblbench perf --scene sphere-sun"):
         assert needle in page, needle

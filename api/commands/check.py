@@ -10,7 +10,8 @@ from iblbench.foundation.errors import InputError
 DESCRIPTION = """\
 Check DIR/results.parquet against the rules of a budgets file (per scene glob, estimator glob
 and spp: max mean ΔE76, max relMSE, min effective ratio, nonfinite == 0, max time ratio to a
-baseline estimator of the same run; format in harness/protocol/budgets.py). Prints every rule x cell with
+baseline estimator of the same run, on one device: a time ratio over rows of several devices is
+refused; format in harness/protocol/budgets.py). Prints every rule x cell with
 value, budget and PASS/FAIL, then a verdict. A missing cell fails. Exit 0 all pass, 1 any fails,
 2 bad input."""
 

@@ -16,6 +16,10 @@ device's measured FMA and copy roofline and the fraction of it each shading kern
 (from analytic FLOP and byte counts per sample, estimates), and the speed-up over a
 single-threaded NumPy implementation of Lu 2013's shared-pool shading on the same inputs (the
 floor every kernel must beat; it must also agree with the uniform kernel on the same pool).
+Where the mitsuba package is installed (pip install 'iblbench[peer]') and its llvm_ad_rgb variant
+runs a kernel here, also a production peer, row mitsuba3-envmap: Mitsuba 3's own envmap emitter
+sampling of the same map, Phong-shaded as envmap does, over the same pixels on every core, and
+each row's speed-up over it (× mitsuba); otherwise one line says why it is absent.
 Prints a table and writes perf.csv and perf.html into --out. The method is in
 harness/studies/perf.py, the counts are each estimator's cost declaration. Exit 0, or 2 on bad input."""
 

@@ -306,6 +306,55 @@ __kernel void weight_cdfs(__global const float *weight, const int n, __global cd
     totals[r] = (float)write_cdf(cdfs + (size_t)r * n, &run);
 }
 
+/* Walker's alias tables (Walker 1977; built by Vose 1991's worklists) of fixed-point CDFs, one
+ * run of n bins per work item, in integers.  A table has M = 2^alias_bits(n) bins of S = 2^63 / M
+ * units each; bin i holds a threshold t_i ≤ S and an alias a_i, packed as t_i·M + a_i (< 2^64).
+ * A draw takes bin i uniformly and u uniform in [0, S): bin i where u < t_i, else a_i.
+ * Construction from the run's widths q_j (zeros past n, Σ q = 2^63 = M·S): pair the last
+ * under-full bin l (q_l < S) with the last over-full one g, t_l = q_l, a_l = g, and g keeps
+ * q_g − (S − q_l), under-full or not; over-full bins left over get t = S.  Each pairing removes
+ * one bin and S units, so Σ of the remaining widths = (bins left)·S holds exactly: the lists run
+ * out together (none under-full is left), and bin j is drawn with probability
+ * (t_j + Σ_{a_i = j} (S − t_i)) / 2^63 = q_j / 2^63, exactly the CDF's.  Run r's table goes to
+ * words[first + r·M …]; `worklist` holds M ints per run: the under-full bins from the bottom, the
+ * over-full ones from the top. */
+__kernel void alias_tables(__global const cdf_word_t *cdfs, const int n, const int first,
+                           __global cdf_word_t *words, __global int *worklist)
+{
+    int bits = alias_bits(n), bins = 1 << bits, under = 0, over = bins, r = get_global_id(0);
+    __global const cdf_word_t *cdf = cdfs + (size_t)r * n;
+    __global cdf_word_t *table = words + first + (size_t)r * bins;
+    __global int *list = worklist + (size_t)r * bins;
+    cdf_word_t unit = CDF_ONE >> bits;
+    for (int j = 0; j < bins; ++j) {
+        cdf_word_t width = j < n ? cdf[j] - cdf_lower(cdf, j) : 0;
+        table[j] = width;
+        if (width < unit) list[under++] = j;
+        else list[--over] = j;
+    }
+    while (under > 0 && over < bins) {
+        int l = list[--under], g = list[over];
+        cdf_word_t rest = table[g] - (unit - table[l]);
+        table[l] = (table[l] << bits) | (cdf_word_t)g;
+        table[g] = rest;
+        if (rest < unit) {   /* g turns under-full: off the over-full list, onto the other */
+            ++over;
+            list[under++] = g;
+        }
+    }
+    for (; over < bins; ++over) table[list[over]] = (unit << bits) | (cdf_word_t)list[over];
+}
+
+/* P(texel) of the map's two-level distribution, one work item per texel: the probability of its
+ * row in `marginal` (over the map's 6·R rows) times that of its column in the row's conditional,
+ * each its width·2^-63 in float (cdf_bin), their product rounded once more. */
+__kernel void texel_probabilities(__global const cdf_word_t *marginal, __global const cdf_word_t *conditional,
+                                  const int res, __global float *probability)
+{
+    int texel = get_global_id(0), map_row = texel / res;
+    probability[texel] = cdf_bin(marginal, map_row) * cdf_bin(conditional + (size_t)map_row * res, texel - map_row * res);
+}
+
 /* The pool (Algorithm 1, line 10): `per_face` samples of each lit face f, entry f·per_face + i
  * drawn from pool point i by the face's CDFs.  Entries store (ω, pdf_L(ω|f)) and the radiance. */
 __kernel void build_light_pool(__global const float4 *env, __global const cdf_word_t *marginal,

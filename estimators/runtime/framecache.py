@@ -14,12 +14,13 @@ Products:
   pool per (size, seed) on first use; its device time is ``timings_ms["pool"]``;
 - ``light_cdfs``: the light samplers' CDFs beyond ``cdf`` (estimators/envmap.py, and
   ``balanced_mis`` with MIS compensation), drawn on first use like the pool, since what they
-  hold depends on the estimator's parameters: :meth:`FrameCache.map_marginal`, one CDF over all
-  6·R rows of the map (the global 2-D distribution of pbrt-v4's ImageInfiniteLight), and
+  hold depends on the estimator's parameters: :meth:`FrameCache.map_alias`, alias tables of
+  one distribution over all 6·R² texels of the map (the global distribution of pbrt-v4's
+  ImageInfiniteLight, a row and then a column, each drawn in O(1)), and
   :meth:`FrameCache.light_cdfs` with ``compensated``, every CDF rebuilt from MIS-compensated
   weights.  ``require("light_cdfs")`` builds their input (``cdf``); their device times are
-  ``timings_ms["map_cdf"]``, ``["compensated_cdf"]`` and ``["compensated_map_cdf"]``, and each
-  render that reads them counts them in its ``sample`` stage, as the pool's;
+  ``timings_ms["map_alias"]``, ``["compensated_cdf"]`` and ``["compensated_map_alias"]``, and
+  each render that reads them counts them in its ``sample`` stage, as the pool's;
 - ``weight_pyramid``: each face's pyramid of sampling-weight sums (estimators/runtime/mips.py) over the
   texels' Y·Ω, :meth:`FrameCache.weight_pyramid` (``timings_ms["weight_pyramid"]``), and with
   ``compensated`` over the MIS-compensated weights of :meth:`FrameCache.light_cdfs`, drawn on
@@ -135,6 +136,25 @@ class LightCdfs:
     build_ms: float
 
 
+def alias_bins(n: int) -> int:
+    """Bins of an alias table over ``n`` bins: n padded to a power of two (kernels/common.cl's
+    ``alias_bits``)."""
+    return 1 << (n - 1).bit_length()
+
+
+@dataclasses.dataclass(frozen=True)
+class MapAlias:
+    """The map's two-level alias tables (framecache.cl's ``alias_tables``): ``words`` uint64,
+    the rows' table (``alias_bins(6R)`` bins, each threshold·bins + alias), then each row's
+    table over its columns (``alias_bins(R)`` bins each); ``probability`` float ``[6·R·R]``,
+    each texel's P(row)·P(col | row); ``build_ms`` the device time of the weights, the rows' CDF
+    and the tables (with the compensated CDFs' where compensated)."""
+
+    words: cl.Buffer
+    probability: cl.Buffer
+    build_ms: float
+
+
 class FrameCache:
     def __init__(self, compute: Compute, env: np.ndarray, frame: int = 0):
         env = np.asarray(env, dtype=np.float32)
@@ -152,7 +172,7 @@ class FrameCache:
         self._face_integrals: np.ndarray | None = None
         self._pools: dict[tuple[int, int, bool], LightPool] = {}
         self._compensated: tuple[LightCdfs, cl.Buffer] | None = None
-        self._map_marginals: dict[bool, tuple[cl.Buffer, float]] = {}
+        self._map_aliases: dict[bool, MapAlias] = {}
         self._weight_pyramids: dict[bool, mips.MipChain] = {}
         self._radiance_mips: mips.MipChain | None = None
 
@@ -167,7 +187,7 @@ class FrameCache:
     def built(self) -> list[str]:
         return (["env"] + (["cdf"] if self._cdf is not None else [])
                 + (["pool"] if self._pools else [])
-                + (["light_cdfs"] if self._compensated or self._map_marginals else [])
+                + (["light_cdfs"] if self._compensated or self._map_aliases else [])
                 + (["weight_pyramid"] if self._weight_pyramids else [])
                 + (["radiance_mips"] if self._radiance_mips is not None else []))
 
@@ -281,24 +301,38 @@ class FrameCache:
                                            self.timings_ms["compensated_cdf"]), rows)
         return self._compensated[0]
 
-    def map_marginal(self, compensated: bool = False) -> tuple[cl.Buffer, float]:
-        """(uint64 ``[6·R]``, device ms): one fixed-point CDF over the 6·R rows of the map,
-        face-major, by their total weight (Y·Ω, or compensated as in :meth:`light_cdfs`):
-        with ``light_cdfs(compensated).conditional`` it is one 2-D distribution over the whole
-        map, a marginal over faces and rows and a conditional over columns (built on first use;
-        with ``compensated`` the ms include the compensated CDFs' build, which a sampler of this
-        marginal reads too)."""
-        if compensated not in self._map_marginals:
+    def map_alias(self, compensated: bool = False) -> MapAlias:
+        """The alias tables of one distribution over all 6·R² texels of the map, by their weight
+        (Y·Ω, or compensated as in :meth:`light_cdfs`), built on first use: a fixed-point CDF
+        over the map's 6·R rows, face-major, by their total weights, and with the conditional
+        CDFs of :meth:`light_cdfs` (``compensated``) one alias table over the rows and one over
+        each row's columns (framecache.cl's ``alias_tables``, Walker 1977, Vose 1991, a work
+        item per table), which draw a row and a column with exactly the CDFs' probabilities;
+        ``probability`` holds their product per texel (``texel_probabilities``)."""
+        if compensated not in self._map_aliases:
+            c, res = self.compute, self.res
             if compensated:
                 cdfs = self.light_cdfs(True)
                 rows, weights_ms = self._compensated[1], cdfs.build_ms
             else:
+                cdfs = self.light_cdfs(False)
                 _, rows, weights_ms = self._sampling_weights(False)
-            marginal, _, scan_ms = build_fixed_point_cdfs(self.compute, rows, 1, 6 * self.res)
-            self.timings_ms["compensated_map_cdf" if compensated else "map_cdf"] = scan_ms + (
+            marginal, _, scan_ms = build_fixed_point_cdfs(c, rows, 1, 6 * res)
+            row_bins, col_bins = alias_bins(6 * res), alias_bins(res)
+            words = self._buffer((row_bins + 6 * res * col_bins) * 8)
+            worklist = self._buffer(max(row_bins, 6 * res * col_bins) * 4)
+            probability = self._buffer(6 * res * res * 4)
+            kernel = lambda name: c.kernel("iblbench.estimators.runtime", "framecache.cl", name)
+            events = (c.run(kernel("alias_tables"), 1, marginal, np.int32(6 * res), np.int32(0), words, worklist),
+                      c.run(kernel("alias_tables"), 6 * res, cdfs.conditional, np.int32(res), np.int32(row_bins),
+                            words, worklist),
+                      c.run(kernel("texel_probabilities"), 6 * res * res, marginal, cdfs.conditional,
+                            np.int32(res), probability))
+            own_ms = scan_ms + sum(map(event_ms, events))
+            self.timings_ms["compensated_map_alias" if compensated else "map_alias"] = own_ms + (
                 0.0 if compensated else weights_ms)
-            self._map_marginals[compensated] = (marginal, weights_ms + scan_ms)
-        return self._map_marginals[compensated]
+            self._map_aliases[compensated] = MapAlias(words, probability, weights_ms + own_ms)
+        return self._map_aliases[compensated]
 
     def light_pool(self, per_face: int, seed: int, compensated: bool = False) -> LightPool:
         """The pool of ``per_face`` samples per face for render seed ``seed`` (drawn on first use)

@@ -52,7 +52,9 @@ aggregation, per seed the mean over frames, then the mean over seeds), the time 
 Configuration. ``check`` refuses (exit 2, naming what differs) results whose rows were made at
 another width, height, env_res or protocol than the budgets' ``[configuration]``, or whose seed
 count differs from its ``seeds``: a budget holds only for the configuration it was measured on.
-A checked cell with another seed count (a run cut short) FAILs (``seeds``).
+A checked cell with another seed count (a run cut short) FAILs (``seeds``).  Times are per device
+(:mod:`iblbench.harness.protocol.stats`): ``check`` with a ``max_time_ratio`` rule, and
+``budgets`` where it would derive one, refuse (exit 2) rows of several devices.
 
 Typos. A rule's scene or estimator without glob characters that names nothing in the table and no
 registered estimator or built-in scene, but is close to a name in the table
@@ -94,14 +96,16 @@ import pandas as pd
 
 from iblbench.harness.protocol.metric import LIMITS, registered
 from iblbench.harness.protocol.results import METRIC_COLUMNS, ROW_STATISTICS, load_table, read_manifest
-from iblbench.harness.protocol.stats import mean_ci
-from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME, one_cell_time
+from iblbench.harness.protocol.stats import RENDERS, TIME_COLUMNS, devices, mean_ci
+from iblbench.harness.protocol.timing import TIME, one_cell_time
 from iblbench.foundation.atomic import atomic_path
 from iblbench.foundation.errors import InputError
 from iblbench.foundation.tomlfile import read_toml
 
 CELL = ["scene", "estimator", "spp"]
-TIME_METRICS = tuple(column for column in TIME_COLUMNS if column.startswith("time_ms"))
+# The schema's times in ms of a cell (not time_repeats, a count, nor the per-render text).
+TIME_METRICS = tuple(column for column in TIME_COLUMNS
+                     if column.startswith("time_ms") and not column.endswith(RENDERS))
 ROW_LIMITED = tuple(column for column in ROW_STATISTICS if column != "nonfinite")   # a sum, below
 QUALITY_METRICS = tuple([metric.column for metric in registered()] + list(ROW_LIMITED))
 LIMIT_KEYS = tuple([f"{kind}_{column}" for kind in LIMITS
@@ -443,6 +447,8 @@ def check(out_dir: str | pathlib.Path, budgets: str | pathlib.Path) -> tuple[pd.
     mistakes = typos(rules, equal_spp_rows(table))
     if mistakes:
         raise InputError(budgets, "; ".join(mistakes))
+    if any(rule.time_ratio for rule in rules):
+        _one_device(equal_spp_rows(table), out_dir, f"the time ratios of {budgets}")
     checks = evaluate(rules, table, configuration.seeds)
     return checks, verdict(checks), 0 if (checks["result"] != "FAIL").all() else 1
 
@@ -494,6 +500,15 @@ def _outward(value: float, up: bool) -> float:
     while (rounded < value) if up else (rounded > value):   # the decimal text rounded back
         rounded = float(f"{rounded + (quantum if up else -quantum):.4g}")
     return rounded
+
+
+def _one_device(table: pd.DataFrame, out_dir, what: str) -> None:
+    """An InputError where ``table``'s rows come from several devices: ``what`` compares times,
+    which are never pooled over devices (:mod:`iblbench.harness.protocol.stats`)."""
+    names = devices(table)
+    if len(names) > 1:
+        raise InputError(out_dir, f"holds rows of {len(names)} devices ({', '.join(names)}): "
+                                  f"{what} compare one device's times; give one device's results")
 
 
 def _single(table: pd.DataFrame, column: str, out_dir) -> object:
@@ -593,6 +608,8 @@ def derive_budgets(out_dir: str | pathlib.Path, margin: float,
     if seeds.nunique() != 1:
         raise InputError(out_dir, f"cells hold {seeds.min()} to {seeds.max()} seeds; budgets "
                                   "are made from one seed count (finish the run)")
+    if TIME_BASELINE in set(table["estimator"]):
+        _one_device(table, out_dir, "the budgets' time ratios")
     manifest = read_manifest(out_dir)
     device = manifest.get("device", {})
     text = [BUDGETS_HEADER.format(

@@ -59,7 +59,8 @@ import pandas as pd
 from iblbench.harness.protocol.metric import columns, higher_is_better
 from iblbench.harness.protocol.results import KEY_COLUMNS, json_text, load_table, read_manifest, row_key
 from iblbench.harness.protocol.stats import (LEVEL, RATIO_METHOD, MeanCI, RatioCI, cell_values,
-                                             column_interval, compare_values, devices, ratio_ci)
+                                             column_interval, compare_values, devices,
+                                             is_time_column, ratio_ci)
 from iblbench.foundation.errors import InputError
 
 METRICS = (*columns(), "effective_ratio", "time_ms")
@@ -211,7 +212,7 @@ def compare(dir_a, dir_b, thresholds=()) -> dict:
         for metric in METRICS:
             if metric not in rows_a.columns or metric not in rows_b.columns \
                     or not _comparable(rows_a[metric], rows_b[metric]) \
-                    or (metric.startswith("time_") and max(len(devices(r)) for r in (rows_a, rows_b)) > 1):
+                    or (is_time_column(metric) and max(len(devices(r)) for r in (rows_a, rows_b)) > 1):
                 continue
             compared.add(metric)
             values_a, values_b = (cell_values(rows, metric)[0] for rows in (rows_a, rows_b))

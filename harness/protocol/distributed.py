@@ -24,7 +24,7 @@ Dask distributed schedules; iblbench only says what a unit of work is and keeps 
 - **One writer.** Workers return rows; only the client journals them and folds the table
   (:mod:`.results`).  A killed worker's unit is rerun by Dask on another worker; a unit that
   kills ``distributed.scheduler.allowed-failures`` workers is lost with the rest of its chain
-  (their flicker needs it), and the run says so at its end (a rerun resumes them).  A killed
+  (their flicker needs it), and the run ends "incomplete" (a rerun resumes them).  A killed
   client loses the units in flight; with ``--scheduler``, units already running may still
   write their images into the run's folder, which the next run replaces.
 - **Seeds and time.** A cell's seeds come from its key, so no result depends on scheduling.
@@ -136,10 +136,12 @@ def chains(todo, plan: RunPlan) -> list[list[list[tuple]]]:
 
 
 class Cluster:
-    """A Dask client with the plugin registered on its workers, and their records."""
+    """A Dask client with the plugin registered on its workers, and their records; ``task``
+    is what a worker runs for a unit (:func:`render_unit`; a test's stand-in takes its arguments
+    and returns its UnitResult)."""
 
-    def __init__(self, client):
-        self.client = client
+    def __init__(self, client, task=render_unit):
+        self.client, self.task = client, task
         self.workers = client.run(_worker_record)   # address → UnitResult.worker
 
     @property
@@ -167,7 +169,7 @@ class Cluster:
             budgets = {(k[0], k[1], k[5]) for k in keys if k[5] is not None}
             scene, label, spp, frame, seed, _ = keys[0]
             future = self.client.submit(
-                render_unit, run_id, config, keys, {b: chosen[b] for b in budgets if b in chosen},
+                self.task, run_id, config, keys, {b: chosen[b] for b in budgets if b in chosen},
                 maps, pure=False, resources={"GPU": 1} if gpu else None,
                 key=f"iblbench-{scene}-{label}-{spp}-f{frame}-s{seed}-{run_id}-{next(numbers)}")
             pending[future] = (units, index)

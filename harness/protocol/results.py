@@ -71,8 +71,8 @@ import numpy as np
 import pandas as pd
 
 from iblbench.harness.protocol.metric import columns as metric_columns, replicated_columns
-from iblbench.harness.protocol.stats import RENDERS
-from iblbench.harness.protocol.timing import COLUMNS as TIME_COLUMNS, TIME
+from iblbench.harness.protocol.stats import RENDERS, TIME_COLUMNS
+from iblbench.harness.protocol.timing import TIME
 from iblbench.foundation.atomic import atomic_path
 from iblbench.foundation.errors import InputError, argument, keywords_named
 
@@ -89,8 +89,9 @@ ROW_STATISTICS = ["flicker", "used_samples", "effective_samples", "effective_rat
 METRIC_COLUMNS = [*metric_columns(), *ROW_STATISTICS, *REPLICATE_COLUMNS, *TIME_COLUMNS]
 COLUMNS = KEY_COLUMNS + CONFIG_COLUMNS + METRIC_COLUMNS + ["device", "host", "protocol"]
 # Columns that are the same on every rerun of a cell on one device (renders are deterministic
-# per seed): everything but the measured times and how many renders they took (timing module).
-DETERMINISTIC_COLUMNS = [c for c in COLUMNS if not c.startswith("time_")]
+# per seed): everything but the time columns, the measured times and how many renders they took
+# (timing module).
+DETERMINISTIC_COLUMNS = [c for c in COLUMNS if c not in TIME_COLUMNS]
 TABLE = "results.parquet"
 CSV = "results.csv"
 JOURNAL = "results.journal.jsonl"

@@ -25,6 +25,9 @@ one starts; see :mod:`iblbench.harness.protocol.results`), so a killed run, ``ki
 included, loses only what is in flight: in process the cell, on a cluster the units (a temporal
 one is its whole sequence); Ctrl-C folds the journal into the table and marks the manifest
 "interrupted", and an error (a full disk) marks it "failed", with the error as its "failure".
+A run that ends with a cell to run that it never journalled (lost with Dask workers that died,
+or however else) marks it "incomplete" and raises an InputError (exit 2), never "complete": the
+runner counts those cells from its journal, not only from what the cluster says it lost.
 A scene none of whose cells is left is not even traced.
 
 One folder, one run at a time, one image configuration.  ``out``'s rows and manifest are read
@@ -437,6 +440,7 @@ class Runner:
                       file=sys.stderr)
             _remove_stale_temporaries(self.out)
             self.journal = Journal(self.out)
+            self.journalled = set()   # the keys of the cells this run journalled
             self._fold()   # a journal a killed run left becomes part of the table now
             self._last_fold = time.monotonic()
             self.manifest["status"] = "running"   # a killed run leaves this, not a missing manifest
@@ -469,7 +473,8 @@ class Runner:
 
     def _run_cells(self, gbuffers: dict):
         """Every cell left, in process between two measurements of the timing floor, or on the
-        cluster; the manifest ends "complete"; returns the table."""
+        cluster; the manifest ends "complete", or "incomplete" with an InputError where a cell
+        to run has no row in the journal; returns the table."""
         left = collections.Counter((key[0], key[3]) for key in self.todo)   # (scene, frame)
         self._record_skips(left)
         self._save_inputs(gbuffers, left)
@@ -513,11 +518,14 @@ class Runner:
         self._report_spread(floors)
         if self.config.time_budget_ms:
             self.manifest["time_budget"]["achieved"] = self._check_budgets(table)
-        if lost:
+        # Counted from the journal too, not only from what the cluster says it lost: a cell to
+        # run that has no row, however it went missing, leaves the run incomplete.
+        missing = set(lost) | (self.todo - self.journalled)
+        if missing:
             self.manifest["status"] = "incomplete"
             write_manifest(self.out, self.manifest)
-            raise InputError(self.out, f"{len(lost)} cells were lost with Dask workers that "
-                                       "died running them; rerun to resume")
+            died = " with Dask workers that died running them" if lost else ""
+            raise InputError(self.out, f"{len(missing)} cells were lost{died}; rerun to resume")
         self.manifest["status"] = "complete"
         write_manifest(self.out, self.manifest)
         return table
@@ -749,6 +757,7 @@ class Runner:
         the journal is folded into the table every FOLD_SECONDS."""
         self.journal.append(row)
         self.rows[row_key(row)] = row
+        self.journalled.add(row_key(row))
         if time.monotonic() - self._last_fold > FOLD_SECONDS:
             self._fold()
             self._last_fold = time.monotonic()

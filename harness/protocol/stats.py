@@ -44,8 +44,8 @@ t interval of their logarithms, :func:`geometric_mean_ci`: a positive, skewed du
 plain t interval over two seeds reached below zero.
 
 **Times are per device.**  A table may hold rows that several devices ran (the ``device``
-column: a sweep spread over machines).  A time (``time_ms`` and every other ``time_*`` column)
-is never aggregated over rows of two devices (:func:`column_interval` refuses to), so every
+column: a sweep spread over machines).  A time (``time_ms`` and every other time column of the
+schema, :func:`is_time_column`) is never aggregated over rows of two devices (:func:`column_interval` refuses to), so every
 figure of time is aggregated per device: :func:`by_device` splits a table by device, and
 :func:`time_keys` adds ``device`` to an aggregation's keys, each only where the table holds
 several devices, so a one-device table is aggregated as before.  Errors do not depend on the
@@ -108,6 +108,10 @@ RATIO_METHOD = ("ratio of means B/A, 95% interval by the delta method on log(rat
                 "both cells have the same (seed, render) replicates, else Welch-Satterthwaite")
 TIME_COLUMN = "time_ms"       # the one column aggregated as a median (timing.TIME)
 DEVICE_COLUMN = "device"      # the device that ran a row: times are aggregated per device
+# A results row's time columns, in the schema's order (timing.time_columns writes them, the
+# results schema lists them): each a figure of the device that ran the row.
+TIME_COLUMNS = (TIME_COLUMN, "time_ms_min", "time_ms_iqr", "time_ms_build", "time_ms_sample",
+                "time_ms_shade", "time_ms_host", "time_repeats", TIME_COLUMN + RENDERS)
 
 
 def t_quantile(df: float, level: float = LEVEL) -> float:
@@ -356,7 +360,7 @@ def column_interval(rows, column: str) -> tuple[MeanCI, str]:
     :data:`LOG_SCALE_COLUMNS`, :func:`skew_corrected_ci` of replicates, :func:`mean_ci` of
     per-seed values.  A time of rows from several devices is a ValueError
     (module docstring: times are per device)."""
-    if column.startswith("time_") and len(devices(rows)) > 1:
+    if is_time_column(column) and len(devices(rows)) > 1:
         raise ValueError(f"{column} of rows from several devices ({', '.join(devices(rows))}): "
                          "times are aggregated per device")
     if column == TIME_COLUMN:
@@ -441,6 +445,13 @@ def cell_intervals(table, keys, columns):
              else pd.Index(list(cells), name=keys[0]))
     frame.index = index
     return frame
+
+
+def is_time_column(column: str) -> bool:
+    """Whether ``column`` is one of the results schema's time columns (:data:`TIME_COLUMNS`): a
+    figure of the device that ran the row, never aggregated over devices (module docstring).
+    Read from the schema, not the name, so that a time column added to it is one here too."""
+    return column in TIME_COLUMNS
 
 
 def devices(table) -> list[str]:

@@ -140,8 +140,6 @@ from iblbench.harness.protocol.stats import RENDERS, TIME_COLUMN, cell_intervals
 
 STAGES = ("build", "sample", "shade")
 TIME = TIME_COLUMN
-COLUMNS = ("time_ms", "time_ms_min", "time_ms_iqr", "time_ms_build", "time_ms_sample",
-           "time_ms_shade", "time_ms_host", "time_repeats", TIME + RENDERS)
 SPREAD_LIMIT = 0.15   # IQR/median a cell's timed renders should stay within
 MEASURE = ("device time per frame of the stages the estimator needs: build + sample + shade "
            "(OpenCL profiling events), ms")

@@ -90,6 +90,18 @@ exact (N_s/6 and frac(N_f)) where the kernel rounds them to 2^-16 of a sample (t
 relative difference under 1e-4 of a pixel.  ``FLOOR_RTOL``/``FLOOR_ATOL`` state how closely the
 floor must match the ``uniform`` kernel on the same pool (``floor_max_rel_diff``); the
 ``speedup_vs_floor`` of a kernel is its msamples_per_s over the floor's.
+
+The production peer (``mitsuba3-envmap``, :mod:`iblbench.harness.studies.mitsuba_peer`), where
+the ``mitsuba`` package is installed and its ``llvm_ad_rgb`` variant runs a kernel here
+(otherwise one line says why and its row and the ``× mitsuba`` column are absent; perf.csv keeps
+the column, NaN): Mitsuba 3's own ``envmap`` emitter sampling (its ``Hierarchical2D`` warp over a
+lat-long conversion of the same map), Phong-shaded as ``envmap`` is, over the same covered pixels
+at the floor's spp, one Dr.Jit LLVM wavefront on every core.  It renders once untimed (Dr.Jit
+compiles its kernel), then once per round after the floor; its shade_ms and render_ms are its
+kernels' execution time (Dr.Jit's kernel history), its host_ms the wall time from the trace to
+``dr.sync_thread()``, its build_ms the emitter's construction (host).
+``speedup_vs_mitsuba`` of a row is its msamples_per_s over the peer's: ``envmap`` and
+``hierarchical`` (light only) do the peer's work.
 """
 from __future__ import annotations
 
@@ -103,6 +115,7 @@ import numpy as np
 
 from iblbench.estimators.runtime.probes import (FMA_ITEMS, CopyProbe, copy_size, fma_iterations,
                                                 run_copy, run_fma)
+from iblbench.harness.studies import mitsuba_peer
 from iblbench.harness.protocol.timing import (measure_timing_floor, required_build_ms, spread,
                                               timing_floor_text)
 from iblbench.foundation.errors import InputError
@@ -133,7 +146,8 @@ def cdf_build_bytes(res: int) -> int:
 # Every column of perf.csv, in order, with what it means (the --help epilog and perf.html).
 COLUMNS = {
     "scene": "scene name",
-    "estimator": f"estimator label; '{FLOOR}' is the NumPy shared-pool floor (one host thread)",
+    "estimator": f"estimator label; '{FLOOR}' is the NumPy shared-pool floor (one host thread), "
+                 f"'{mitsuba_peer.PEER}' the Mitsuba 3 peer (where it runs)",
     "estimator_version": "hash of the estimator's Python and kernel sources (as in results rows)",
     "spp": "samples per pixel (havran: K lights; bis: N resampled; smc: N particles)",
     "repeats": "timed renders after one untimed warm-up; times are their median",
@@ -168,6 +182,8 @@ COLUMNS = {
                          "attainable at the kernel's intensity",
     "bound": "the roof that binds at the kernel's intensity: compute or memory",
     "speedup_vs_floor": "msamples_per_s over the NumPy floor's (same scene)",
+    "speedup_vs_mitsuba": "msamples_per_s over the Mitsuba 3 peer's (same scene; NaN where the "
+                          "peer does not run)",
     "floor_max_rel_diff": "floor row: max over pixels and channels of |floor − uniform| / "
                           "(|uniform| + max|uniform|·ATOL/RTOL), on the same pool (≤ RTOL passes)",
     "peak_gflops": "the device's measured FMA throughput, GFLOP/s (median)",
@@ -178,7 +194,7 @@ SHOWN = {"scene": "scene", "estimator": "estimator", "spp": "spp", "pixels": "pi
          "msamples_per_s": "Msamples/s", "mevals_per_s": "Mevals/s", "build_ms": "build ms",
          "sample_ms": "sample ms", "shade_ms": "shade ms", "shade_iqr_pct": "IQR %",
          "gflops": "GFLOP/s", "gbytes_per_s": "GB/s", "roofline_fraction": "roof",
-         "speedup_vs_floor": "× floor"}
+         "speedup_vs_floor": "× floor", "speedup_vs_mitsuba": "× mitsuba"}
 
 
 def columns_help() -> str:
@@ -424,24 +440,70 @@ def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
     return row
 
 
-def _floor_row(scene: str, spp: int, evaluations: int, pixels: int, times: list,
-               difference: float, roofline: Roofline, device: str) -> dict:
-    """The floor's row: ``evaluations`` pool entries read per pixel; host times ``times``."""
+def _host_row(scene: str, label: str, spp: int, evaluations: int, pixels: int, times: list,
+              roofline: Roofline, device: str) -> dict:
+    """The row of a renderer timed outside OpenCL (the floor, the peer): ``evaluations`` per
+    pixel, ms ``times``; the columns it has no figure for NaN."""
     median, low, iqr = spread(times)
-    from iblbench.estimators.uniform import Uniform
-
-    flops, nbytes = Uniform.cost.per_sample(spp, evaluations)
     row = {column: math.nan for column in COLUMNS}
-    row.update({"scene": scene, "estimator": FLOOR, "estimator_version": "", "spp": spp,
+    row.update({"scene": scene, "estimator": label, "estimator_version": "", "spp": spp,
                 "repeats": len(times),
                 "pixels": pixels, "evaluations": float(evaluations), "shade_ms": median,
                 "shade_ms_min": low, "shade_ms_iqr": iqr, "render_ms": median, "host_ms": median,
                 "msamples_per_s": pixels * spp / (median * 1e3),
-                "mevals_per_s": pixels * evaluations / (median * 1e3),
-                "flops_per_sample": flops, "bytes_per_sample": nbytes, "bound": "",
-                "speedup_vs_floor": 1.0, "floor_max_rel_diff": difference,
+                "mevals_per_s": pixels * evaluations / (median * 1e3), "bound": "",
                 "peak_gflops": roofline.gflops, "peak_gbps": roofline.gbps, "device": device})
     return row
+
+
+def _floor_row(scene: str, spp: int, evaluations: int, pixels: int, times: list,
+               difference: float, roofline: Roofline, device: str) -> dict:
+    """The floor's row: ``evaluations`` pool entries read per pixel; host times ``times``."""
+    from iblbench.estimators.uniform import Uniform
+
+    flops, nbytes = Uniform.cost.per_sample(spp, evaluations)
+    return dict(_host_row(scene, FLOOR, spp, evaluations, pixels, times, roofline, device),
+                flops_per_sample=flops, bytes_per_sample=nbytes, speedup_vs_floor=1.0,
+                floor_max_rel_diff=difference)
+
+
+def _peer_row(scene: str, peer, spp: int, times: list, roofline: Roofline, device: str) -> dict:
+    """The Mitsuba peer's row from its renders' (kernel ms, host ms) ``times``."""
+    kernel_ms, host_ms = zip(*times)
+    return dict(_host_row(scene, mitsuba_peer.PEER, spp, spp, peer.count, kernel_ms, roofline, device),
+                build_ms=peer.build_ms, host_ms=spread(host_ms)[0])
+
+
+def _with_speedups(rows: list, floor: dict) -> list:
+    """``rows`` of one scene, each with its rate over the floor's (and over the peer's where its
+    row is among them), then the floor's row."""
+    peers = [row for row in rows if row["estimator"] == mitsuba_peer.PEER]
+    for row in rows:
+        row["speedup_vs_floor"] = row["msamples_per_s"] / floor["msamples_per_s"]
+    for row in rows + [floor] if peers else []:
+        row["speedup_vs_mitsuba"] = row["msamples_per_s"] / peers[0]["msamples_per_s"]
+    return rows + [floor]
+
+
+def _floor_pool(compute, specs, gbuffer, device_gbuffer, surface, env, spp: int) -> tuple:
+    """(the floor's light-sample pool, drawn on the device, and :func:`floor_difference` of the
+    floor from the uniform kernel on that pool, NaN where ``uniform`` is not measured); the
+    floor's first render here is its warm-up."""
+    from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
+    from iblbench.estimators.runtime.framecache import FrameCache
+    from iblbench.estimators.uniform import Uniform
+
+    floor_cache = FrameCache(compute, env, 0)
+    floor_cache.require(Uniform.requires)
+    pool = HostPool.read(floor_cache, Uniform.pool_size(spp), FLOOR_SEED)
+    floor_image = numpy_floor(surface, pool, spp)
+    if Uniform.name not in {spec.cls.name for spec in specs}:
+        return pool, math.nan
+    # The floor has no V: the kernel it must agree with renders without the masks.
+    unmasked = DeviceGBuffer(compute, dataclasses.replace(gbuffer, visibility=None)) \
+        if gbuffer.visibility is not None else device_gbuffer
+    kernel = Uniform().render(unmasked, floor_cache, spp, FLOOR_SEED)
+    return pool, floor_difference(floor_image, kernel.radiance[gbuffer.mask])
 
 
 def run_perf(config: PerfConfig, log=print):
@@ -449,10 +511,8 @@ def run_perf(config: PerfConfig, log=print):
     import pandas as pd
 
     from iblbench.estimators.registry import estimator_names
-    from iblbench.estimators.uniform import Uniform
     from iblbench.estimators.runtime.device import cache_dir, get_compute
     from iblbench.estimators.runtime.device_gbuffer import DeviceGBuffer
-    from iblbench.estimators.runtime.framecache import FrameCache
     from iblbench.harness.protocol.shadows import attach_visibility
     from iblbench.harness.protocol.sweep import parse_estimator
     from iblbench.scenes.gbuffer import trace_gbuffer
@@ -470,6 +530,9 @@ def run_perf(config: PerfConfig, log=print):
     roofline = measure_roofline(compute, config.repeats or DEFAULT_REPEATS)
     log(f"roofline: {roofline.gflops:.4g} GFLOP/s (FMA), {roofline.gbps:.4g} GB/s (copy)")
     probe = CopyProbe(compute)
+    peer_absent = mitsuba_peer.unavailable()
+    log(f"{mitsuba_peer.PEER}: " + (f"absent, {peer_absent}" if peer_absent
+                                   else f"Mitsuba 3 {mitsuba_peer.VARIANT}, at spp {floor_spp}"))
     for scene in scenes:
         gbuffer = trace_gbuffer(scene.mesh, scene.material, scene.camera, *config.resolution)
         if gbuffer.covered == 0:
@@ -483,20 +546,12 @@ def run_perf(config: PerfConfig, log=print):
             cells.append((_Cell(spec.label, spec.make(), spp), repeats))
         for cell, _ in cells:
             cell.render(compute, device_gbuffer, env, WARMUP_SEED, timed=False)
-        # The floor's inputs: a pool drawn on the device; the uniform kernel on the same pool.
-        floor_cache = FrameCache(compute, env, 0)
-        floor_cache.require(Uniform.requires)
-        pool = HostPool.read(floor_cache, Uniform.pool_size(floor_spp), FLOOR_SEED)
         surface = HostSurface.of(gbuffer)
-        floor_image = numpy_floor(surface, pool, floor_spp)   # also its warm-up
-        difference = math.nan
-        if Uniform.name in {spec.cls.name for spec in specs}:
-            # The floor has no V: the kernel it must agree with renders without the masks.
-            unmasked = DeviceGBuffer(compute, dataclasses.replace(gbuffer, visibility=None)) \
-                if gbuffer.visibility is not None else device_gbuffer
-            kernel = Uniform().render(unmasked, floor_cache, floor_spp, FLOOR_SEED)
-            difference = floor_difference(floor_image, kernel.radiance[gbuffer.mask])
-        floor_times, floor_repeats = [], config.repeats or DEFAULT_REPEATS
+        pool, difference = _floor_pool(compute, specs, gbuffer, device_gbuffer, surface, env, floor_spp)
+        peer = None if peer_absent else mitsuba_peer.MitsubaPeer(surface, env)
+        if peer:
+            peer.render(floor_spp, WARMUP_SEED)   # Dr.Jit traces and compiles its kernel
+        floor_times, peer_times, floor_repeats = [], [], config.repeats or DEFAULT_REPEATS
         for round_ in range(max([floor_repeats] + [repeats for _, repeats in cells])):
             for cell, repeats in cells:
                 if round_ < repeats:
@@ -507,16 +562,19 @@ def run_perf(config: PerfConfig, log=print):
                 start = time.perf_counter()
                 numpy_floor(surface, pool, floor_spp)
                 floor_times.append((time.perf_counter() - start) * 1e3)
+                if peer:
+                    peer_times.append(peer.render(floor_spp, round_)[1:])
         floor = _floor_row(scene.name, floor_spp, len(floor_samples(pool, floor_spp)[0]),
                            device_gbuffer.count, floor_times, difference, roofline,
                            compute.device_name)
         scene_rows = [_row(scene.name, cell, device_gbuffer.count, env.shape[1], roofline,
                            compute.device_name)
                       for cell, _ in cells]
-        for row in scene_rows:
-            row["speedup_vs_floor"] = row["msamples_per_s"] / floor["msamples_per_s"]
-        rows += scene_rows + [floor]
-        log(f"{scene.name}: {len(cells)} estimators and the floor measured")
+        if peer:
+            scene_rows.append(_peer_row(scene.name, peer, floor_spp, peer_times, roofline,
+                                        compute.device_name))
+        rows += _with_speedups(scene_rows, floor)
+        log(f"{scene.name}: {len(cells)} estimators and the floor{' and the peer' * bool(peer)} measured")
     return pd.DataFrame(rows, columns=list(COLUMNS)), roofline
 
 
@@ -525,7 +583,9 @@ def run_perf(config: PerfConfig, log=print):
 def shown_table(table):
     """The printed subset of the table, with readable headers."""
     shown = table.assign(shade_iqr_pct=100.0 * table.shade_ms_iqr / table.shade_ms)
-    return shown[list(SHOWN)].rename(columns=SHOWN)
+    names = [name for name in SHOWN if name != "speedup_vs_mitsuba"
+             or table.speedup_vs_mitsuba.notna().any()]   # absent where the peer did not run
+    return shown[names].rename(columns=SHOWN)
 
 
 def format_table(table) -> str:
@@ -554,7 +614,7 @@ def measured_costs(table) -> dict:
     """Label -> the ``cost`` declared by the estimator of each row of ``table`` that has one."""
     from iblbench.harness.protocol.sweep import parse_estimator
 
-    labels = dict.fromkeys(label for label in table.estimator if label != FLOOR)
+    labels = dict.fromkeys(label for label in table.estimator if label not in (FLOOR, mitsuba_peer.PEER))
     costs = {label: parse_estimator(label).cls.cost for label in labels}
     return {label: cost for label, cost in costs.items() if cost is not None}
 

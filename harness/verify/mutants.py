@@ -136,10 +136,6 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
        ["balanced_mis"], ["shininess"]),
     _m("pool-shared-sequence-ignored", "estimators/light_pool.py",
        "np.int32(self.params.shared_sequence)", "np.int32(True)", ["uniform"]),
-    # ---- envmap's map rows in the shared lanes code -----------------------------------------------
-    _m("envmap-row-bin-per-face", POOL,
-       "map_rows ? lanes_cdf_bin(marginal, (lane_ints_t)0, map_row)",
-       "map_rows ? lanes_cdf_bin(marginal, f * res, row)", ["envmap"], ["face-pattern"]),
     # ---- shared conventions (common.cl) -----------------------------------------------------------
     _m("light-pdf-jacobian-inverted", COMMON,
        "cdf_bin(rows, row) * cdf_bin(cols, col) * area_per_solid_angle(*x, *y) / texel_area",
@@ -170,6 +166,13 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("framecache-zero-bins-kept", "estimators/runtime/framecache.cl",
        "(cdf_word8_t)0, convert_long8(w > 0.0f) == 0);", "(cdf_word8_t)0, convert_long8(w >= 0.0f) == 0);",
        ["uniform"], ["hot-texel"]),
+    # ---- the frame cache's alias table (FrameCache.map_alias, envmap's light sampler) -------------
+    # The over-full bin keeps its whole width after lending to an under-full one: the tables draw
+    # other probabilities than the CDFs' widths, which the table test reads off their words.
+    _m("framecache-alias-lend-not-deducted", "estimators/runtime/framecache.cl",
+       "cdf_word_t rest = table[g] - (unit - table[l]);", "cdf_word_t rest = table[g];",
+       ["envmap"], ["sun-1e6"],
+       tests=("test_brdf_envmap.py::test_map_distribution_is_proportional_to_its_weights",)),
     # ---- the reference ---------------------------------------------------------------------------
     _m("reference-chord-for-arc", "estimators/runtime/reference.py",
        "theta = np.arctan2(s, np.sum(a * b, axis=-1, keepdims=True))",
@@ -257,6 +260,17 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("metrics-relmse-without-square", "harness/protocol/metrics.py",
        "return float(np.mean((x - r) ** 2 / (r * r + 0.01)))",
        "return float(np.mean((x - r) ** 2 / (r + 0.01)))", [], ["constant"], budgets=True),
+    # ---- issue 36, class 3: distributed bookkeeping (tests/test_lost_units.py) --------------------
+    _m("cluster-lost-chain-spares-the-killed-unit", "harness/protocol/distributed.py",
+       "lost += [k for unit in units[index:] for k in unit]",
+       "lost += [k for unit in units[index + 1:] for k in unit]", [],
+       tests=["test_lost_units.py::test_a_run_that_lost_cells_never_ends_complete[before-0-in-order]"]),
+    _m("cluster-lost-calibrator-strands-its-budget", "harness/protocol/distributed.py",
+       "submit(waiting[budget].pop(0), 0, {})", "waiting[budget].pop(0)", [],
+       tests=["test_lost_units.py::test_a_run_that_lost_cells_never_ends_complete[mid-0-newest-first]"]),
+    _m("runner-trusts-the-cluster-s-lost-count", "harness/protocol/runner.py",
+       "missing = set(lost) | (self.todo - self.journalled)", "missing = set(lost)", [],
+       tests=["test_lost_units.py::test_a_unit_that_returns_without_a_cell_s_row_leaves_the_run_incomplete"]),
     # ---- issue 36, class 4: the ranking's edges (tests/test_ranking_edges.py) ---------------------
     _m("ranking-end-tolerance-exclusive", "harness/protocol/ranking.py",
        "and abs(t - budget_ms) <= TOLERANCE * budget_ms and t in span]",
@@ -268,6 +282,14 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
     _m("ranking-budget-at-fastest-cell-not-reached", "harness/protocol/ranking.py",
        "if budget_ms < span[0] and not at_end:", "if budget_ms <= span[0] and not at_end:", [],
        tests=["test_ranking_edges.py::test_a_budget_equal_to_a_cells_time_reads_that_cell"]),
+    # ---- issue 36, class 5: per-device times (tests/test_time_pooling.py) -------------------------
+    _m("time-refused-over-devices-only-for-time-ms", "harness/protocol/stats.py",
+       "if is_time_column(column) and len(devices(rows)) > 1:",
+       "if column == TIME_COLUMN and len(devices(rows)) > 1:", [],
+       tests=["test_time_pooling.py::test_every_time_column_is_refused_over_two_devices[time_ms_host]"]),
+    _m("check-time-ratio-pools-devices", "harness/protocol/budgets.py",
+       'if any(rule.time_ratio for rule in rules):', "if False:", [],
+       tests=["test_time_pooling.py::test_check_refuses_a_time_ratio_over_two_devices[time_ms_shade]"]),
     # ---- issue 36, class 6: device settings (tests/test_device_settings.py) ------------------------
     _m("pool-lanes-16-from-preferred-8", "estimators/runtime/device.py",
        "(16 if device.preferred_vector_width_float >= 16 else 8)",

@@ -234,6 +234,10 @@ ALWAYS_INLINE int visible(__global const uint *visibility, int pixel, vec3_t w)
 typedef ulong cdf_word_t;
 #define CDF_ONE ((cdf_word_t)1 << 63)
 
+/* Bits of the bin index of an alias table over n ≥ 2 bins (framecache.cl's alias_table): its
+ * 2^bits bins are the n padded to a power of two, so a bin is the top bits of a random word. */
+static inline int alias_bits(int n) { return 32 - clz(n - 1); }
+
 /* First i with cdf[i] > u; cdf is inclusive and ends at exactly CDF_ONE, so zero-width bins are
  * never chosen and the result is < n for u in [0, CDF_ONE).  The trip count depends on n only,
  * so the search is branch-free across work items and vectorises. */

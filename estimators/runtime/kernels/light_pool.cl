@@ -365,30 +365,20 @@ ALWAYS_INLINE lanes_t lanes_texel_of(int res, lanes3_t w, lane_ints_t *face, lan
     return q * sqrt(q);   /* area_per_solid_angle */
 }
 
-/* light_pdf_on_face of common.cl for the lanes' directions, the same arithmetic, with the rows'
- * probabilities from one CDF per face (`map_rows` = 0) or from one CDF over the map's 6·R rows,
- * face-major (`map_rows` = 1: the global distribution of estimators/envmap.cl); *face and *texel
- * get the face and the texel of each. */
-ALWAYS_INLINE lanes_t lanes_light_pdf_rows(__global const cdf_word_t *marginal,
-                                           __global const cdf_word_t *conditional, int res, lanes3_t w,
-                                           int map_rows, lane_ints_t *face, lane_ints_t *texel)
-{
-    lane_ints_t f, row, col;
-    lanes_t area = lanes_texel_of(res, w, &f, &row, &col);
-    lane_ints_t map_row = f * res + row;
-    lanes_t p_row = map_rows ? lanes_cdf_bin(marginal, (lane_ints_t)0, map_row) : lanes_cdf_bin(marginal, f * res, row);
-    lanes_t p_texel = p_row * lanes_cdf_bin(conditional, map_row * res, col);
-    *face = f;
-    *texel = map_row * res + col;
-    return p_texel * area * (float)(res * res) / 4.0f;
-}
-
-/* lanes_light_pdf_rows with one marginal CDF per face (ARCHITECTURE.md §Conventions's light pdf). */
+/* light_pdf_on_face of common.cl for the lanes' directions, the same arithmetic (ARCHITECTURE.md
+ * §Conventions's light pdf, one marginal CDF per face); *face and *texel get the face and the
+ * texel of each. */
 ALWAYS_INLINE lanes_t lanes_light_pdf(__global const cdf_word_t *marginal,
                                       __global const cdf_word_t *conditional, int res, lanes3_t w,
                                       lane_ints_t *face, lane_ints_t *texel)
 {
-    return lanes_light_pdf_rows(marginal, conditional, res, w, 0, face, texel);
+    lane_ints_t f, row, col;
+    lanes_t area = lanes_texel_of(res, w, &f, &row, &col);
+    lane_ints_t map_row = f * res + row;
+    lanes_t p_texel = lanes_cdf_bin(marginal, f * res, row) * lanes_cdf_bin(conditional, map_row * res, col);
+    *face = f;
+    *texel = map_row * res + col;
+    return p_texel * area * (float)(res * res) / 4.0f;
 }
 
 /* The BRDF draws' numbers where every pixel draws the same ones (the shared sequence), as planes
