@@ -343,9 +343,10 @@ class ReSTIR(Estimator):
         self._key = key
         n, chains = gbuffer.launch_size, int(spp)
         buffer = functools.partial(self._buffers.get, compute)
-        # One chain a pixel: pass 2 built without its lanes (restir.cl, CHAIN_LANES).
+        # One chain a pixel: pass 2 built without its lanes (restir.cl, CHAIN_LANES; defines() may
+        # set it, as tests/test_restir.py does to run every chain in scalars).
         kernel = functools.partial(compute.kernel, self.kernel_package(), "restir.cl",
-                                   defines={**self.defines(gbuffer), "BRDF_SAMPLES": 1, "CHAIN_LANES": int(chains > 1)})
+                                   defines={"CHAIN_LANES": int(chains > 1), **self.defines(gbuffer), "BRDF_SAMPLES": 1})
         pyramid = cache.weight_pyramid(False)
         presample_count = p.tiles * p.tile_size
         presamples = buffer("presamples", 4 * 4 * presample_count)

@@ -125,6 +125,32 @@ def test_evaluations_and_shadow_rays_count_what_the_docstring_says(compute):
         assert (first.shadow_rays, second.shadow_rays) == ((spp * m, spp * (m + 2)) if masked else (0, 0))
 
 
+class _ScalarPass2(ReSTIR):
+    """restir with pass 2 built without its lanes: every chain one at a time in scalars."""
+
+    def defines(self, gbuffer=None):
+        return {**super().defines(gbuffer), "CHAIN_LANES": 0}
+
+
+@pytest.mark.parametrize("unbiased", [True, False])
+def test_pass_2_in_lanes_gives_the_scalar_paths_images_bit_for_bit(compute, unbiased):
+    """Pass 2's lanes (a chain a lane, restir.cl) against its scalar path on every chain: the same
+    radiance, counts and extras bit for bit, on two frames (the second with history), with masks
+    and all eight neighbours, at whole and part blocks of lanes with a lone chain left over."""
+    env = smooth_map()
+    caches = [FrameCache(compute, env, t) for t in range(2)]
+    for cache in caches:
+        cache.require(ReSTIR.requires)
+    gbuffer = DeviceGBuffer(compute, _masked(glossy_gbuffer()))
+    for spp in (compute.pool_lanes + 3, 2 * compute.pool_lanes + 1):
+        lanes, scalar = (cls(neighbours=8, radius=3.0, unbiased=unbiased) for cls in (ReSTIR, _ScalarPass2))
+        for cache in caches:
+            a, b = (estimator.render(gbuffer, cache, spp, 5) for estimator in (lanes, scalar))
+            assert np.array_equal(a.radiance, b.radiance) and np.array_equal(a.effective, b.effective)
+            assert (a.evaluations, a.shadow_rays, a.extras) == (b.evaluations, b.shadow_rays, b.extras)
+            assert a.extras["neighbours"] > 1.0   # neighbours were found and combined
+
+
 def test_a_new_seed_spp_or_gbuffer_starts_without_history(compute):
     """Reuse carries over only within one (G-buffer, face size, seed, spp): after a frame of
     another, a render equals a fresh instance's."""
