@@ -203,9 +203,9 @@ HARNESS_MUTANTS: tuple[Mutant, ...] = (
        "         + clamp((int)floor(s * VIS_RES) + 1, 0, VIS_RES - 1);",
        ["uniform"], ["occlusion"]),
     _m("visibility-lanes-cell-index-off-by-one", POOL,
-       "lane_ints_t cell = (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES + lanes_clamp_index(s, VIS_RES);",
-       "lane_ints_t cell = (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES\n"
-       "                       + min(lanes_clamp_index(s, VIS_RES) + 1, (lane_ints_t)(VIS_RES - 1));",
+       "return (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES + lanes_clamp_index(s, VIS_RES);",
+       "return (face * VIS_RES + lanes_clamp_index(t, VIS_RES)) * VIS_RES\n"
+       "           + min(lanes_clamp_index(s, VIS_RES) + 1, (lane_ints_t)(VIS_RES - 1));",
        ["envmap"], ["occlusion"]),
     # Shadow rays from the hit point itself: they hit the triangle they start on.
     _m("visibility-without-normal-offset", "scenes/visibility.py",
