@@ -352,16 +352,11 @@ class Outcome:
         return self.killed_by is not None
 
 
-def budgets_file() -> pathlib.Path | None:
-    """The repository's budgets.toml beside the packages (a source checkout), or None."""
-    path = _package_folder("iblbench.harness").resolve().parent / "budgets.toml"
-    return path if path.is_file() else None
-
-
-def tests_folder() -> pathlib.Path | None:
-    """The repository's tests/ beside the packages (a source checkout), or None."""
-    path = _package_folder("iblbench.harness").resolve().parent / "tests"
-    return path if path.is_dir() else None
+def in_checkout(name: str) -> pathlib.Path | None:
+    """The repository's ``name`` beside the packages (budgets.toml, tests/) where this is a
+    source checkout that has it, else None."""
+    path = _package_folder("iblbench.harness").resolve().parent / name
+    return path if path.exists() else None
 
 
 def copy_sources(folder: pathlib.Path, packages=()) -> pathlib.Path:
@@ -423,7 +418,7 @@ def run_mutant(mutant: Mutant, layers=LAYERS, all_layers: bool = False, timeout:
         mutant.apply(root)
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root)] + [p for p in [os.environ.get("PYTHONPATH")] if p]),
                    IBLBENCH_CACHE=str(cache or root / "cache"), IBLBENCH_CHI2_PLOTS=str(root / "chi2"))
-        budgets, tests = budgets_file(), tests_folder()
+        budgets, tests = in_checkout("budgets.toml"), in_checkout("tests")
         command = [sys.executable, "-m", "iblbench.harness.verify.mutants", json.dumps(dataclasses.asdict(mutant)),
                    ",".join(layers), "all" if all_layers else "first", str(budgets) if budgets else "-",
                    str(tests) if tests else "-"]
