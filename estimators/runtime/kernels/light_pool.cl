@@ -282,7 +282,11 @@ ALWAYS_INLINE lane_ints_t lanes_visible(__global const uint *visibility, int pix
  *     one after another in the kernel's order (strategy_window); it writes its sums to
  *     `partial`, and sum_sample_blocks adds pixel p's blocks in the order b = 0, 1, ….
  * A chunk holds the same draws in either shape, each keyed by (pixel, draw index) as before, so
- * both shapes shade the same samples; only the order of the float sums differs. */
+ * both shapes shade the same samples; only the order of the float sums differs.  The kernels
+ * with state per pixel keep the pixel shape on every device: restir's reservoirs (its chains
+ * are a pixel's, resampled together; on a GPU built with CHAIN_LANES=0, scalar chains), smc's
+ * particles across frames, and bis's resampling among all of a pixel's candidates; so do
+ * cosine's scalar loop and havran's lights, which do not sum lane chunks. */
 #if SAMPLE_BLOCKS
 #define LAUNCH_PARAMS , const int block_chunks, const int blocks, __global float *partial
 #define LAUNCH_ITEM(n) launch_item(n, block_chunks, blocks)
