@@ -249,16 +249,22 @@ def pool_lanes_for(device, lanes: int | None = None) -> int:
 LAUNCH_SHAPES = ("pixel", "sample_block")
 
 
+def check_launch_shape(shape: str | None) -> None:
+    """An InputError unless ``shape`` is one of :data:`LAUNCH_SHAPES`, "auto" or None."""
+    if shape not in (None, "auto", *LAUNCH_SHAPES):
+        raise InputError(None, f"{argument('launch_shape', shape)}: the launch shape is one of "
+                               f"auto, {', '.join(LAUNCH_SHAPES)}")
+
+
 def launch_shape_for(device, shape: str | None = None) -> str:
     """The launch shape on ``device`` (a pyopencl device, or anything with its ``type``):
     ``shape`` where given ("auto" or None: the device's), else ``"sample_block"`` where the
     device's type is GPU (its pixels alone are too few work items to keep it busy: 16k at 128²),
     else ``"pixel"`` (a CPU runs the lanes of one work item as SIMD and needs only a few work
-    items a core).  A ValueError for any other ``shape``."""
+    items a core).  An InputError for any other ``shape`` (:func:`check_launch_shape`)."""
+    check_launch_shape(shape)
     if shape in (None, "auto"):
         return "sample_block" if device.type & cl.device_type.GPU else "pixel"
-    if shape not in LAUNCH_SHAPES:
-        raise ValueError(f"launch shape must be auto, pixel or sample_block, got {shape!r}")
     return shape
 
 

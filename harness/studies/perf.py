@@ -388,6 +388,7 @@ class PerfConfig:
     env_res: int = DEFAULT_ENV_RES
     repeats: int | None = None              # None: its perf_budget, else DEFAULT_REPEATS
     device: str | None = None
+    launch_shape: str | None = None         # None: the device's (Compute.launch_shape)
 
 
 def command_line(config: PerfConfig) -> str:
@@ -396,7 +397,9 @@ def command_line(config: PerfConfig) -> str:
     words += [f"--estimator '{label}'" for label in config.estimators]
     words += [f"--spp {config.spp}"] * bool(config.spp) + [f"--repeats {config.repeats}"] * bool(config.repeats)
     words += [f"--res {config.resolution[0]}x{config.resolution[1]}", f"--env-res {config.env_res}"]
-    return " ".join(words + [f"--device '{config.device}'"] * bool(config.device) + [f"--out {config.out}"])
+    words += [f"--device '{config.device}'"] * bool(config.device)
+    words += [f"--launch-shape {config.launch_shape}"] * bool(config.launch_shape)
+    return " ".join(words + [f"--out {config.out}"])
 
 
 def _budget(config: PerfConfig, cls) -> tuple[int, int]:
@@ -523,7 +526,7 @@ def run_perf(config: PerfConfig, log=print):
     if len(set(labels)) != len(labels):
         raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
     scenes = [load_scene(name, env_res=config.env_res) for name in dict.fromkeys(config.scenes)]
-    compute = get_compute(config.device)
+    compute = get_compute(config.device, config.launch_shape)
     floor_spp = config.spp or DEFAULT_SPP
     rows = []
     log(f"device: {compute.device_name}")
