@@ -278,11 +278,13 @@ ITEMS_PER_UNIT = 1024
 def sample_blocks(units: int, pixels: int, chunks: int) -> tuple[int, int]:
     """(lane chunks per block, blocks per pixel) of a sample-block launch over ``pixels`` on a
     device of ``units`` compute units, where a pixel has at most ``chunks`` chunks of POOL_LANES
-    draws: the fewest chunks per block that still give pixels × blocks ≥ units ×
-    :data:`ITEMS_PER_UNIT` work items (one chunk a block where even that is too few)."""
+    draws: the most chunks per block that still give pixels × blocks ≥ units ×
+    :data:`ITEMS_PER_UNIT` work items (one chunk a block where even that is too few), so a work
+    item's setup (its pixel's shading, the pool's split) is shared by as many draws as the
+    device allows."""
     chunks = max(int(chunks), 1)
     wanted = -(-units * ITEMS_PER_UNIT // max(int(pixels), 1))
-    per_block = -(-chunks // max(1, min(chunks, wanted)))
+    per_block = max(1, chunks // wanted)
     return per_block, -(-chunks // per_block)
 
 
