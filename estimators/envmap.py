@@ -18,8 +18,9 @@ HEURISTICS = ("balance", "power")
 
 class MapSampler(Estimator):
     """What ``envmap`` and ``brdf`` share: ``envmap.cl``'s kernels, one pixel per work item (or one
-    block of a pixel's draws: ``DeviceGBuffer.run_sampled``), light samples from one 2-D distribution over the whole map and/or Phong BRDF samples
-    combined by MIS, configured by :meth:`defines`."""
+    block of a pixel's draws: ``DeviceGBuffer.run_sampled``), light samples from one 2-D
+    distribution over the whole map and/or Phong BRDF samples combined by MIS, configured by
+    :meth:`defines`."""
 
     tags = Tags(unbiased=True, has_pdf=True)
     max_spp = MAX_SPP

@@ -127,7 +127,8 @@ class PoolEstimator(Estimator):
         samples, a face's ⌈N_f⌉ at most one over its N_f) sum to at most ⌊D/L⌋ + 6, and the BRDF
         draws take theirs."""
         light = light_ticks(spp, self.brdf_samples)
-        return light // TICKS_PER_SAMPLE // lanes + 6 + lane_chunks([draws_for(spp * TICKS_PER_SAMPLE - light)], lanes)
+        brdf_draws = draws_for(spp * TICKS_PER_SAMPLE - light)
+        return light // TICKS_PER_SAMPLE // lanes + 6 + lane_chunks([brdf_draws], lanes)
 
     def render(self, gbuffer, cache, spp, seed):
         if not 1 <= spp <= MAX_SPP:
@@ -150,8 +151,8 @@ class PoolEstimator(Estimator):
         evaluations = compute.empty(gbuffer.launch_size * 4)
         event = gbuffer.run_sampled(
             compute, lambda name: self._kernel(compute, name, gbuffer), "render_light_pool",
-            self.most_lane_chunks(spp, compute.pool_lanes), gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-            gbuffer.visibility, np.int32(gbuffer.launch_size), cache.env_buffer, cdfs.marginal, cdfs.conditional,
+            self.most_lane_chunks(spp, compute.pool_lanes), gbuffer.normal, gbuffer.view, gbuffer.kd,
+            gbuffer.ks, gbuffer.visibility, np.int32(gbuffer.launch_size), cache.env_buffer, cdfs.marginal, cdfs.conditional,
             cdfs.face_integral,
             planes, np.int32(cache.res), np.int32(pool.per_face),
             np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),

@@ -5,7 +5,7 @@ import numpy as np
 import pyopencl as cl
 
 from iblbench.estimators.runtime.chunks import run_in_chunks
-from iblbench.estimators.runtime.device import Compute, sample_blocks
+from iblbench.estimators.runtime.device import Compute, KeptBuffers, sample_blocks
 from iblbench.scenes.gbuffer import GBuffer
 
 # Work items per group of a pixel kernel.  PoCL's own choice (local size None) depends on the
@@ -58,6 +58,7 @@ class DeviceGBuffer:
         self.visibility = compute.to_device(self._padded(gbuffer.visibility[m]) if self.has_visibility
                                             else np.zeros(1, np.uint32))
         self.defines = {"VISIBILITY": 1, "VIS_RES": self.visibility_res} if self.has_visibility else {}
+        self._scratch = KeptBuffers()   # run_sampled's partial sums, kept across frames
 
     def _padded(self, pixels: np.ndarray) -> np.ndarray:
         """``pixels`` followed by copies of the last one up to ``launch_size``."""
@@ -94,7 +95,7 @@ class DeviceGBuffer:
         if compute.launch_shape == "pixel":
             return self.run(compute, kernel_of(name), *args)
         per_block, blocks = sample_blocks(compute.info.device.max_compute_units, self.count, chunks)
-        partial = compute.empty(4 * 4 * self.launch_size * blocks)   # planes R, G, B, effective ticks
+        partial = self._scratch.get(compute, "partial", 4 * 4 * self.launch_size * blocks)   # R, G, B, effective
         radiance, counts = args[-3], args[-2]
         events = self._run_items(compute, kernel_of(name), self.launch_size * blocks,
                                  *args, np.int32(per_block), np.int32(blocks), partial)

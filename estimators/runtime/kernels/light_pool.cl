@@ -298,8 +298,9 @@ ALWAYS_INLINE lane_ints_t lanes_visible(__global const uint *visibility, int pix
 #endif
 
 /* A work item's pixel, its block and the planes' stride of `partial` (n·blocks), its window of
- * lane chunks [first, end) (the pixel shape's: all), and the chunks of the strategies before the
- * next one (`base`). */
+ * lane chunks [first, end) (the pixel shape's: all; the last block's reaches past the host's
+ * bound on a pixel's chunks, so no draw is left out even were it short), and the chunks of the
+ * strategies before the next one (`base`). */
 typedef struct { int pixel, block, stride, first, end, base; } launch_item_t;
 
 ALWAYS_INLINE launch_item_t launch_item(int n, int block_chunks, int blocks)
@@ -307,7 +308,8 @@ ALWAYS_INLINE launch_item_t launch_item(int n, int block_chunks, int blocks)
     int g = get_global_id(0);
 #if SAMPLE_BLOCKS
     int block = g / n;
-    launch_item_t item = {g - block * n, block, n * blocks, block * block_chunks, (block + 1) * block_chunks, 0};
+    int end = block + 1 < blocks ? (block + 1) * block_chunks : INT_MAX;
+    launch_item_t item = {g - block * n, block, n * blocks, block * block_chunks, end, 0};
 #else
     launch_item_t item = {g, 0, 0, 0, 0, 0};
 #endif
