@@ -146,3 +146,17 @@ def test_both_shapes_run_clean_on_oclgrind_and_agree(tmp_path):
     assert reports == [], "\n".join(reports[:10])
     pixel, blocked = (dict(np.load(tmp_path / f"{shape}.npz")) for shape in ("pixel", "sample_block"))
     assert_same_images(blocked, pixel)
+
+
+def test_restir_keeps_the_pixel_shape_with_scalar_chains_on_the_gpu_shape(compute):
+    """restir's pass 2 is built without its chain lanes (CHAIN_LANES=0: small private arrays) in
+    the GPU's shape, and its images are the pixel shape's bit for bit (its scalar chains are its
+    lanes' arithmetic, restir.cl)."""
+    pixel = compute if compute.launch_shape == "pixel" else get_compute(None, "pixel")
+    blocked = get_compute(None, "sample_block")
+    images = [_frames(c, ("restir",), 3, True) for c in (pixel, blocked)]
+    for name, expected in images[0].items():
+        np.testing.assert_array_equal(images[1][name], expected, err_msg=name)
+    chain_lanes = {dict(defines).get("CHAIN_LANES") for (_, filename, defines) in blocked._programs
+                   if filename == "restir.cl"}
+    assert chain_lanes == {0}
