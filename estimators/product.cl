@@ -1,5 +1,5 @@
 /* `product`: envmap.cl's kernels (budget, MIS with BRDF samples, χ² hooks) with light samples
- * drawn by descent.cl's descent through the weight pyramid, each choice weighted by the
+ * drawn by weighed_descent.cl's descent through the weight pyramid, each choice weighted by the
  * pyramid's sums times the pixel's BRDF·cos factor over the child (hierarchical product
  * sampling of L·ρ·cos⁺, after Clarberg et al. 2005 and Clarberg & Akenine-Möller 2008).
  * Configured by the estimator's defines:
@@ -30,7 +30,7 @@
 #define FACE_COS 0.577350269f      /* a face's cone about its axis: its corners are 1/√3 off it */
 #define FACE_SIN 0.816496581f
 
-/* descent.cl's weigher: the pixel's normal n, mirror direction r and normalised factor
+/* weighed_descent.cl's weigher: the pixel's normal n, mirror direction r and normalised factor
  * F = cos_n·(diffuse + specular·cos_r^m) (diffuse + specular = 1), and n and r in the frames of
  * the lanes' faces (n·U, n·V, n·W of the face's direction x·U + y·V + W at face point (x, y)). */
 typedef struct {
@@ -39,7 +39,7 @@ typedef struct {
     lanes_t n_u, n_v, n_w, r_u, r_v, r_w;
 } descent_weigher_t;
 
-#include "descent.cl"
+#include "weighed_descent.cl"
 
 ALWAYS_INLINE descent_weigher_t product_weigher(const shading_t *s)
 {
@@ -199,19 +199,19 @@ ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, int res, int l, la
 #define LIGHT_PARAMS __global const float *pyramid
 #define LIGHT_ARGS pyramid
 
-/* envmap.cl's light sampler: descent.cl's descent weighted for the pixel of shading s. */
+/* envmap.cl's light sampler: weighed_descent.cl's descent weighted for the pixel of shading s. */
 ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const shading_t *s, int res, uint seed, uint frame,
                                           uint pixel, lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
 {
     descent_weigher_t g = product_weigher(s);
-    return descent_sample(pyramid, &g, res, seed, frame, pixel, draw, texel, pdf);
+    return weighed_descent_sample(pyramid, &g, res, seed, frame, pixel, draw, texel, pdf);
 }
 
-/* envmap.cl's light density: descent.cl's, with the same weights. */
+/* envmap.cl's light density: weighed_descent.cl's, with the same weights. */
 ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const shading_t *s, int res, lanes3_t w, lane_ints_t *texel)
 {
     descent_weigher_t g = product_weigher(s);
-    return descent_density(pyramid, &g, res, w, texel);
+    return weighed_descent_density(pyramid, &g, res, w, texel);
 }
 
 #include "envmap.cl"

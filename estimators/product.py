@@ -182,11 +182,11 @@ class Product(Hierarchical):
     Params = ProductParams
     settings = (Setting("mis", "none"), Setting("heuristic", "balance"),
                 Setting("child_weight", "centre"), Setting("child_weight", "bound"), Setting("light_levels", 2))
-    kernel_files = ("product.cl", "descent.cl", "envmap.cl", "lanes.cl")
+    kernel_files = ("product.cl", "weighed_descent.cl", "descent.cl", "envmap.cl", "lanes.cl")
     mutants = (   # for iblbench selftest (harness/verify/mutants.py)
         # The density recomputes the descent for a given direction: an off-by-one loop bound there
         # leaves out the texel level's choice (the sampler still makes it).
-        Mutant("product-pdf-missing-a-level", "descent.cl",
+        Mutant("product-pdf-missing-a-level", "weighed_descent.cl",
                "for (int l = levels - 2; l >= 0; --l) {\n        int n = level_size(res, l);\n"
                "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
                "for (int l = levels - 2; l > 0; --l) {\n        int n = level_size(res, l);\n"
@@ -203,6 +203,10 @@ class Product(Hierarchical):
     @property
     def compensated(self) -> bool:
         return False
+
+    def _light_buffers(self, cache) -> tuple[tuple, float]:
+        """((the weight pyramid,), 0: its build is the ``build`` stage's required product)."""
+        return (cache.weight_pyramid(False).buffer,), 0.0
 
     def defines(self, gbuffer=None) -> dict:
         """envmap.cl's options and product.cl's: the child-weight rule and the light-only levels."""

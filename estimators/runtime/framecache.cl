@@ -4,6 +4,7 @@
  * integral of Lu Eq. 3.  Rows are scanned in parallel, one work item per (face, row), each in
  * vector steps of sixteen weights and eight CDF words. */
 #include "light_pool.cl"
+#include "descent_choice.cl"
 
 /* The fixed-point CDFs of common.cl.  A run of n weights w_i ≥ 0 (a row's Y·Ω, or a face's row
  * totals) with total W = Σ w (compensated, double where the device has it) gets integer widths
@@ -402,4 +403,76 @@ __kernel void sampling_weights(__global const float4 *env, __global const float 
         sum += weight;
     }
     row_weight[face_row] = (float)sum;
+}
+
+/* ---- descent tables (estimators/descent.cl's header has their layout) ------------------------ */
+
+/* The bits of m at even positions, packed: a Morton index's column (m) or row (m >> 1). */
+ALWAYS_INLINE lane_ints_t morton_half(lane_ints_t m)
+{
+    m &= 0x55555555;
+    m = (m | (m >> 1)) & 0x33333333;
+    m = (m | (m >> 2)) & 0x0f0f0f0f;
+    m = (m | (m >> 4)) & 0x00ff00ff;
+    return (m | (m >> 8)) & 0x0000ffff;
+}
+
+/* The records of depth k = `depth` (0 … L − 2) from the weight pyramid over faces of `res`, a
+ * work item per POOL_LANES consecutive nodes Q of the 6·4^k; `depth` −1: records 0 and 1, the
+ * faces' (work item 0 alone).  Each choice's widths are descent_widths##N's of the sums, as a
+ * descent computes them from the pyramid. */
+__kernel void descent_bounds(__global const float *pyramid, const int res, const int depth, __global uint *bounds)
+{
+    int top, levels = descent_levels(res, &top);
+    if (depth < 0) {
+        lanes_t w[6];
+        lane_ints_t exists[6];
+        lane_uints_t q[6];
+        for (int f = 0; f < 6; ++f) {
+            w[f] = pyramid[top + f];
+            exists[f] = -1;
+        }
+        descent_widths6(w, exists, q);
+        uint sum = 0;
+        for (int f = 0; f < 8; ++f) {
+            sum += f < 6 ? q[f].s0 : 0u;
+            bounds[f] = f < 5 ? sum : 1u << DESCENT_BITS;
+        }
+        return;
+    }
+    int nodes = 6 << (2 * depth), first = get_global_id(0) * POOL_LANES, l = levels - 2 - depth, level = 0;
+    for (int finer = 0; finer < l; ++finer) level += 6 * level_size(res, finer) * level_size(res, finer);
+    lane_ints_t node = min(first + LANE_NUMBERS, (lane_ints_t)(nodes - 1)), morton = node & ((1 << (2 * depth)) - 1);
+    lanes_t w[4];
+    lane_ints_t exists[4];
+    lane_uints_t q[4];
+    child_sums(pyramid, level, level_size(res, l), node >> (2 * depth), morton_half(morton >> 1),
+               morton_half(morton), w, exists);
+    descent_widths4(w, exists, q);
+    lane_uints_t words[3] = {q[0], q[0] + q[1], q[0] + q[1] + q[2]};
+    const uint *word = (const uint *)words;   /* lane i of words[k] at word[k·POOL_LANES + i] */
+    for (int i = 0; i < POOL_LANES && first + i < nodes; ++i)
+        vstore4((uint4)(word[i], word[POOL_LANES + i], word[2 * POOL_LANES + i], 1u << DESCENT_BITS),
+                (2 << (2 * depth)) + first + i, bounds);
+}
+
+/* Each texel's P, a work item per POOL_LANES consecutive texels of the 6·res² (the buffer holds
+ * whole work items): the product of its descent's q/2^31 in float, the faces' first, as
+ * descent_pick##N's probabilities multiply in a descent. */
+__kernel void descent_probabilities(__global const uint *bounds, const int res, __global float *probability)
+{
+    int top, levels = descent_levels(res, &top), first = get_global_id(0) * POOL_LANES;
+    lane_ints_t texel = min(first + LANE_NUMBERS, (lane_ints_t)(6 * res * res - 1));
+    lane_ints_t face = texel / (res * res), row = texel / res - face * res, col = texel % res;
+    lane_uints_t low = select(GATHER(lane_uints_t, bounds, max(face - 1, (lane_ints_t)0)), (lane_uints_t)0, face == 0);
+    lanes_t p = convert_lanes(GATHER(lane_uints_t, bounds, face) - low) * (1.0f / DESCENT_ONE);
+    lane_ints_t record = 2 + face;
+    for (int l = levels - 2; l >= 0; --l) {
+        lane_ints_t child = 2 * ((row >> l) & 1) + ((col >> l) & 1), at = 4 * record + child;
+        low = select(GATHER(lane_uints_t, bounds, max(at - 1, (lane_ints_t)0)), (lane_uints_t)0, child == 0);
+        p *= convert_lanes(GATHER(lane_uints_t, bounds, at) - low) * (1.0f / DESCENT_ONE);
+        record = 4 * record + child;
+    }
+    const float *lane = (const float *)&p;
+    for (int i = 0; i < POOL_LANES; ++i) probability[first + i] = lane[i];
 }

@@ -143,6 +143,18 @@ def alias_bins(n: int) -> int:
 
 
 @dataclasses.dataclass(frozen=True)
+class DescentTables:
+    """A weight pyramid's descent tables (estimators/descent.cl's header has the layout):
+    ``bounds`` uint32, four words a record, each choice's children's prefix widths out of 2^31,
+    records indexed as a 4-ary heap from the faces'; ``probability`` float ``[6·R·R]`` (padded to
+    whole work items), each texel's probability P; ``build_ms`` the device time of the two."""
+
+    bounds: cl.Buffer
+    probability: cl.Buffer
+    build_ms: float
+
+
+@dataclasses.dataclass(frozen=True)
 class MapAlias:
     """The map's two-level alias tables (framecache.cl's ``alias_tables``): ``words`` uint64,
     the rows' table (``alias_bins(6R)`` bins, each threshold·bins + alias), then each row's
@@ -174,6 +186,7 @@ class FrameCache:
         self._compensated: tuple[LightCdfs, cl.Buffer] | None = None
         self._map_aliases: dict[bool, MapAlias] = {}
         self._weight_pyramids: dict[bool, mips.MipChain] = {}
+        self._descent_tables: dict[bool, DescentTables] = {}
         self._radiance_mips: mips.MipChain | None = None
 
     def retarget(self, frame: int) -> None:
@@ -381,6 +394,30 @@ class FrameCache:
             self.timings_ms["compensated_weight_pyramid" if compensated else "weight_pyramid"] = build_ms
             self._weight_pyramids[compensated] = mips.chain(buffer, res, 1, build_ms)
         return self._weight_pyramids[compensated]
+
+    def descent_tables(self, compensated: bool = False) -> DescentTables:
+        """The descent tables of :meth:`weight_pyramid` (``compensated``), built on first use
+        from it (``timings_ms["descent_tables"]``, ``["compensated_descent_tables"]``: the
+        tables' own device time, without the pyramid's): every choice's widths, computed once
+        per frame where a descent whose weights are the sums alone would compute them per
+        sample, and each texel's probability."""
+        if compensated not in self._descent_tables:
+            c, res = self.compute, self.res
+            pyramid = self.weight_pyramid(compensated)
+            depths = len(pyramid.sizes) - 1   # choices below the faces
+            lanes = c.pool_lanes
+            bounds = self._buffer(8 * 4 ** depths * 4)
+            texel_items = -(-6 * res * res // lanes)
+            probability = self._buffer(texel_items * lanes * 4)
+            kernel = lambda name: c.kernel("iblbench.estimators.runtime", "framecache.cl", name)
+            events = [c.run(kernel("descent_bounds"), max(1, -(-6 * 4 ** depth // lanes)), pyramid.buffer,
+                            np.int32(res), np.int32(depth), bounds)
+                      for depth in range(-1, depths)]
+            events.append(c.run(kernel("descent_probabilities"), texel_items, bounds, np.int32(res), probability))
+            build_ms = sum(map(event_ms, events))
+            self.timings_ms["compensated_descent_tables" if compensated else "descent_tables"] = build_ms
+            self._descent_tables[compensated] = DescentTables(bounds, probability, build_ms)
+        return self._descent_tables[compensated]
 
     def radiance_mips(self) -> mips.MipChain:
         """The map's radiance mip chain (estimators/runtime/mips.py's layout, float4 texels, level 0 a copy
