@@ -25,7 +25,7 @@
  * Two forms (the same choices, bit for bit: both make them with descent_choice.cl's arithmetic
  * from the same sums):
  *   - from the frame cache's descent tables (FrameCache.descent_tables, framecache.cl's
- *     descent_bounds and descent_probabilities), here: `hierarchical`'s and `restir`'s weights
+ *     descent_bounds), here: `hierarchical`'s and `restir`'s weights
  *     are the sums alone, the same for every pixel, so each choice's widths are computed once per
  *     frame; a sample reads three bounds a level (three gathers, no division: 1.6× the speed of
  *     the widths computed per sample, issue 37), and its density is its texel's P, read;

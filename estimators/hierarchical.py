@@ -85,8 +85,8 @@ class Hierarchical(Envmap):
                "*pdf = probability / (area * sqrt(area)) * (float)(res * res) / 4.0f;",
                stress=("sun-1e6",)),
         Mutant("hierarchical-density-quad-transposed", "runtime/framecache.cl",
-               "child = 2 * ((row >> l) & 1) + ((col >> l) & 1)",
-               "child = ((row >> l) & 1) + 2 * ((col >> l) & 1)",
+               "probability[at[i] + (c >> 1) * res + (c & 1)]",
+               "probability[at[i] + (c & 1) * res + (c >> 1)]",
                estimators=('hierarchical{mis="brdf"}',), stress=("face-pattern",)),
     )
 

@@ -418,10 +418,14 @@ ALWAYS_INLINE lane_ints_t morton_half(lane_ints_t m)
 }
 
 /* The records of depth k = `depth` (0 … L − 2) from the weight pyramid over faces of `res`, a
- * work item per POOL_LANES consecutive nodes Q of the 6·4^k; `depth` −1: records 0 and 1, the
- * faces' (work item 0 alone).  Each choice's widths are descent_widths##N's of the sums, as a
- * descent computes them from the pyramid. */
-__kernel void descent_bounds(__global const float *pyramid, const int res, const int depth, __global uint *bounds)
+ * work item per POOL_LANES consecutive nodes Q of the 6·4^k, and their children's probabilities:
+ * the node's (`node_probability` from 2·(4^k − 1), in heap order) times q_c/2^31, to the next
+ * depth's nodes, or at the last depth to the texels (`probability`, [6, res, res]); `depth` −1:
+ * records 0 and 1, the faces', and the faces' probabilities (work item 0 alone).  Each choice's
+ * widths are descent_widths##N's of the sums, as a descent computes them from the pyramid, and
+ * each probability the product a descent forms, in its order (the faces' first). */
+__kernel void descent_bounds(__global const float *pyramid, const int res, const int depth, __global uint *bounds,
+                             __global float *node_probability, __global float *probability)
 {
     int top, levels = descent_levels(res, &top);
     if (depth < 0) {
@@ -438,41 +442,36 @@ __kernel void descent_bounds(__global const float *pyramid, const int res, const
             sum += f < 6 ? q[f].s0 : 0u;
             bounds[f] = f < 5 ? sum : 1u << DESCENT_BITS;
         }
+        for (int f = 0; f < 6; ++f)   /* a face size of 1: the faces are the texels */
+            (levels > 1 ? node_probability : probability)[f] = (float)q[f].s0 * (1.0f / DESCENT_ONE);
         return;
     }
     int nodes = 6 << (2 * depth), first = get_global_id(0) * POOL_LANES, l = levels - 2 - depth, level = 0;
     for (int finer = 0; finer < l; ++finer) level += 6 * level_size(res, finer) * level_size(res, finer);
+    int here = 2 * ((1 << (2 * depth)) - 1), next = 2 * ((1 << (2 * depth + 2)) - 1);
     lane_ints_t node = min(first + LANE_NUMBERS, (lane_ints_t)(nodes - 1)), morton = node & ((1 << (2 * depth)) - 1);
+    lane_ints_t face = node >> (2 * depth), row = morton_half(morton >> 1), col = morton_half(morton);
     lanes_t w[4];
     lane_ints_t exists[4];
     lane_uints_t q[4];
-    child_sums(pyramid, level, level_size(res, l), node >> (2 * depth), morton_half(morton >> 1),
-               morton_half(morton), w, exists);
+    child_sums(pyramid, level, level_size(res, l), face, row, col, w, exists);
     descent_widths4(w, exists, q);
+    lanes_t parent = GATHER(lanes_t, node_probability, here + node), p[4];
+    for (int c = 0; c < 4; ++c) p[c] = parent * (convert_lanes(q[c]) * (1.0f / DESCENT_ONE));
     lane_uints_t words[3] = {q[0], q[0] + q[1], q[0] + q[1] + q[2]};
-    const uint *word = (const uint *)words;   /* lane i of words[k] at word[k·POOL_LANES + i] */
-    for (int i = 0; i < POOL_LANES && first + i < nodes; ++i)
+    lane_ints_t texel = (face * res + 2 * row) * res + 2 * col, present[4] = {exists[0], exists[1], exists[2], exists[3]};
+    /* lane i of a vector v at ((T *)&v)[i] */
+    const uint *word = (const uint *)words;
+    const float *child = (const float *)p;
+    const int *at = (const int *)&texel, *opened = (const int *)present;
+    for (int i = 0; i < POOL_LANES && first + i < nodes; ++i) {
         vstore4((uint4)(word[i], word[POOL_LANES + i], word[2 * POOL_LANES + i], 1u << DESCENT_BITS),
                 (2 << (2 * depth)) + first + i, bounds);
-}
-
-/* Each texel's P, a work item per POOL_LANES consecutive texels of the 6·res² (the buffer holds
- * whole work items): the product of its descent's q/2^31 in float, the faces' first, as
- * descent_pick##N's probabilities multiply in a descent. */
-__kernel void descent_probabilities(__global const uint *bounds, const int res, __global float *probability)
-{
-    int top, levels = descent_levels(res, &top), first = get_global_id(0) * POOL_LANES;
-    lane_ints_t texel = min(first + LANE_NUMBERS, (lane_ints_t)(6 * res * res - 1));
-    lane_ints_t face = texel / (res * res), row = texel / res - face * res, col = texel % res;
-    lane_uints_t low = select(GATHER(lane_uints_t, bounds, max(face - 1, (lane_ints_t)0)), (lane_uints_t)0, face == 0);
-    lanes_t p = convert_lanes(GATHER(lane_uints_t, bounds, face) - low) * (1.0f / DESCENT_ONE);
-    lane_ints_t record = 2 + face;
-    for (int l = levels - 2; l >= 0; --l) {
-        lane_ints_t child = 2 * ((row >> l) & 1) + ((col >> l) & 1), at = 4 * record + child;
-        low = select(GATHER(lane_uints_t, bounds, max(at - 1, (lane_ints_t)0)), (lane_uints_t)0, child == 0);
-        p *= convert_lanes(GATHER(lane_uints_t, bounds, at) - low) * (1.0f / DESCENT_ONE);
-        record = 4 * record + child;
+        for (int c = 0; c < 4; ++c) {
+            if (l > 0)
+                node_probability[next + 4 * (first + i) + c] = child[c * POOL_LANES + i];
+            else if (opened[c * POOL_LANES + i])
+                probability[at[i] + (c >> 1) * res + (c & 1)] = child[c * POOL_LANES + i];
+        }
     }
-    const float *lane = (const float *)&p;
-    for (int i = 0; i < POOL_LANES; ++i) probability[first + i] = lane[i];
 }

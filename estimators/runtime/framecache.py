@@ -25,7 +25,11 @@ Products:
   texels' Y·Ω, :meth:`FrameCache.weight_pyramid` (``timings_ms["weight_pyramid"]``), and with
   ``compensated`` over the MIS-compensated weights of :meth:`FrameCache.light_cdfs`, drawn on
   first use (``["compensated_weight_pyramid"]``, counted in the reading render's ``sample``
-  stage).  Its coarsest level is each face's total, so it needs no ``cdf`` product;
+  stage).  Its coarsest level is each face's total, so it needs no ``cdf`` product.
+  :meth:`FrameCache.descent_tables` (of either pyramid), drawn on first use and
+  counted in the reading render's ``sample`` stage (``timings_ms["descent_tables"]``,
+  ``["compensated_descent_tables"]``), holds each descent choice's widths and each texel's
+  probability, for the descents whose weights are the sums alone (estimators/descent.cl);
 - ``radiance_mips``: the map's radiance mip chain, 2×2 box averages down to 1×1 per face
   (estimators/runtime/mips.py), :meth:`FrameCache.radiance_mips` (``timings_ms["radiance_mips"]``).
 
@@ -146,8 +150,8 @@ def alias_bins(n: int) -> int:
 class DescentTables:
     """A weight pyramid's descent tables (estimators/descent.cl's header has the layout):
     ``bounds`` uint32, four words a record, each choice's children's prefix widths out of 2^31,
-    records indexed as a 4-ary heap from the faces'; ``probability`` float ``[6·R·R]`` (padded to
-    whole work items), each texel's probability P; ``build_ms`` the device time of the two."""
+    records indexed as a 4-ary heap from the faces'; ``probability`` float ``[6·R·R]``, each
+    texel's probability P; ``build_ms`` the device time of the two."""
 
     bounds: cl.Buffer
     probability: cl.Buffer
@@ -407,13 +411,12 @@ class FrameCache:
             depths = len(pyramid.sizes) - 1   # choices below the faces
             lanes = c.pool_lanes
             bounds = self._buffer(8 * 4 ** depths * 4)
-            texel_items = -(-6 * res * res // lanes)
-            probability = self._buffer(texel_items * lanes * 4)
-            kernel = lambda name: c.kernel("iblbench.estimators.runtime", "framecache.cl", name)
-            events = [c.run(kernel("descent_bounds"), max(1, -(-6 * 4 ** depth // lanes)), pyramid.buffer,
-                            np.int32(res), np.int32(depth), bounds)
+            node_probability = self._buffer(max(2 * 4 ** depths - 2, 1) * 4)   # the depths' parents
+            probability = self._buffer(6 * res * res * 4)
+            kernel = c.kernel("iblbench.estimators.runtime", "framecache.cl", "descent_bounds")
+            events = [c.run(kernel, max(1, -(-6 * 4 ** depth // lanes)), pyramid.buffer, np.int32(res),
+                            np.int32(depth), bounds, node_probability, probability)
                       for depth in range(-1, depths)]
-            events.append(c.run(kernel("descent_probabilities"), texel_items, bounds, np.int32(res), probability))
             build_ms = sum(map(event_ms, events))
             self.timings_ms["compensated_descent_tables" if compensated else "descent_tables"] = build_ms
             self._descent_tables[compensated] = DescentTables(bounds, probability, build_ms)
