@@ -153,19 +153,24 @@ class Product(Hierarchical):
     loop); ``light_levels = 3`` 2.4× (issue 24: +0.5% to +6% relMSE).  Within 1.5× of
     ``hierarchical`` would need a factor about six times cheaper than this bound, or fewer of
     them (issue 37).  Since then (same machine and settings, shading time of alternated renders
-    in one run, medians of 6): the lobe's bound cos_r^m of the bound cosine c replaced by
-    (1 + m(1 − c)/32)^-32 (Deviations) cuts product's time to about 0.72×; the children's cone
-    half angle and least solid angle taken from their parent (one per level instead of four:
-    looser, still bounds) saved 3% more and was not taken.  ``hierarchical{mis="brdf"}`` itself
-    became about 2× faster (its choices read from the frame cache's descent tables, its density
-    one lookup instead of a re-descent), so product is now about 6.5× its time a sample (was
-    about 9× against the faster ``hierarchical``, 3.4× against the old one): the weighed
-    descent's 24 child factors a sample, each still about 100 vector operations, against
-    ``hierarchical``'s three gathers a level.  Within 1.5× needs product levels that are not
-    recomputed a sample (a per-pixel table of the coarse levels' widths: at 64 spp a pixel's
-    four batches of 16 samples already share the faces' factors, and the two coarsest levels'
-    120 children cost as much as the 32 child factors a pixel's batches compute there), or far
-    fewer of them.
+    in one process): the lobe's bound cos_r^m of the bound cosine c replaced by
+    (1 + m(1 − c)/32)^-32 (Deviations): the power made the kernel 1.10× slower [0.92–1.28, 10
+    pairs], so product takes about 0.9× its time.  Measured and not taken: the children's cone
+    half angle and least solid angle from their parent (looser bounds, one square root and two
+    reciprocal ones a level instead of four), 0.79× product's time [0.73–0.87] on top of that
+    (0.97× with the exact power); at test_product's fixed χ² seeds one pixel read p = 9e-4 (16
+    other seeds per pixel: p uniform, 0.09–0.99), which needs a decision before the streams move
+    again.  ``hierarchical{mis="brdf"}`` itself became about 2× faster (its choices read from the
+    frame cache's descent tables, its density one lookup instead of a re-descent), so product
+    now takes about 7.5× its time a sample (``iblbench perf``, alternated with the code before:
+    3.7× before, 7.5× after): the weighed descent's 24 child factors a sample, each still about
+    100 vector operations, against ``hierarchical``'s three gathers a level.  Within 1.5× needs
+    product levels that are not recomputed a sample, or far fewer of them: a per-pixel table of
+    the coarse levels' widths pays little at 64 spp (a pixel's light draws are two batches of
+    16, as are its BRDF draws' densities: the 6 face records' 24 children cost 4 batch-wide
+    factor evaluations to save 8 of a strategy's 48, the next level's 96 cost 8 to save 8), and
+    ``light_levels = 9`` (no product level, the sums' widths computed a sample) is 1.9×
+    ``hierarchical{mis="brdf"}`` and ``light_levels = 6`` (the faces alone) 1.8×.
 
     Deviations.  Clarberg et al. multiply wavelet (Haar) representations of the map and the
     BRDF and sample the product's quadtree; Clarberg & Akenine-Möller 2008 evaluate the BRDF on
@@ -180,7 +185,7 @@ class Product(Hierarchical):
     within (1 + y²/64)-ish where the lobe is large (y = m(1 − c) small), looser in its tail
     (at m = 150, c = 0.95: 1.2e-3 against 4.5e-4), where it weighs little beside the diffuse
     term; every factor stays positive wherever F is, so the estimator stays unbiased.  Its
-    error is the power's: relMSE 0.988-1.003× of it on sphere-sun, blob-sun and sphere-studio
+    error is the power's (about 10% of product's time): relMSE 0.988-1.003× of it on sphere-sun, blob-sun and sphere-studio
     at 16 and 64 spp (64², env 64, 4 seeds, ``iblbench run --scene … --estimator product --spp
     16,64 --seeds 4 --res 64x64 --env-res 64``, issue 37).
     Otherwise as ``hierarchical`` (point on a 2^16 grid in the texel, float density of up to
