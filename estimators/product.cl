@@ -1,5 +1,5 @@
 /* `product`: envmap.cl's kernels (budget, MIS with BRDF samples, χ² hooks) with light samples
- * drawn by descent.cl's descent through the weight pyramid, each choice weighted by the
+ * drawn by weighed_descent.cl's descent through the weight pyramid, each choice weighted by the
  * pyramid's sums times the pixel's BRDF·cos factor over the child (hierarchical product
  * sampling of L·ρ·cos⁺, after Clarberg et al. 2005 and Clarberg & Akenine-Möller 2008).
  * Configured by the estimator's defines:
@@ -30,7 +30,7 @@
 #define FACE_COS 0.577350269f      /* a face's cone about its axis: its corners are 1/√3 off it */
 #define FACE_SIN 0.816496581f
 
-/* descent.cl's weigher: the pixel's normal n, mirror direction r and normalised factor
+/* weighed_descent.cl's weigher: the pixel's normal n, mirror direction r and normalised factor
  * F = cos_n·(diffuse + specular·cos_r^m) (diffuse + specular = 1), and n and r in the frames of
  * the lanes' faces (n·U, n·V, n·W of the face's direction x·U + y·V + W at face point (x, y)). */
 typedef struct {
@@ -39,7 +39,7 @@ typedef struct {
     lanes_t n_u, n_v, n_w, r_u, r_v, r_w;
 } descent_weigher_t;
 
-#include "descent.cl"
+#include "weighed_descent.cl"
 
 ALWAYS_INLINE descent_weigher_t product_weigher(const shading_t *s)
 {
@@ -108,10 +108,24 @@ typedef struct {
     lanes_t cos_n, cos_r, cos_lo, cos_hi, sin_hi, least_omega;
 } cone_t;
 
-/* The bound of cos⁺_r over the cone; to the m, the bound of the lobe cos⁺_r^m. */
+/* The bound of cos⁺_r over the cone; its lobe_bound bounds the lobe cos⁺_r^m. */
 ALWAYS_INLINE lanes_t cone_r_bound(const cone_t *c)
 {
     return cone_cos_bound(c->cos_r, c->cos_lo, c->cos_hi, c->sin_hi);
+}
+
+/* An upper bound of c^m for 0 ≤ c ≤ 1: c^m = e^{m ln c} ≤ e^{-m(1 − c)} ≤ (1 + m(1 − c)/32)^{-32}
+ * (e^t ≥ (1 + t/32)^32 for t ≥ 0): a reciprocal and five squarings where the power took two
+ * polynomials (issue 37: the lobe's power was about a quarter of product's time).  It is
+ * tight where the lobe is large (c near 1) and looser in its tail, where the lobe is small. */
+ALWAYS_INLINE lanes_t lobe_bound(lanes_t c, float m)
+{
+    lanes_t b = 1.0f / (1.0f + (m * (1.0f / 32.0f)) * (1.0f - c));
+    b *= b;
+    b *= b;
+    b *= b;
+    b *= b;
+    return b * b;
 }
 
 /* The factor of the cone's child by the CHILD_WEIGHT rule, given the lobe's bound (computed apart,
@@ -142,7 +156,7 @@ ALWAYS_INLINE void weigh_faces(const descent_weigher_t *g, int l, lanes_t w[6])
         float sign = (f & 1) ? -1.0f : 1.0f;
         cone_t face = {(lanes_t)(sign * n_axis[f >> 1]), (lanes_t)(sign * r_axis[f >> 1]), (lanes_t)FACE_COS,
                        (lanes_t)FACE_COS, (lanes_t)FACE_SIN, (lanes_t)(2.0f * IBL_PI / 3.0f)};
-        w[f] *= cone_factor(g, &face, phong_power_lanes(cone_r_bound(&face), (lanes_t)g->m));
+        w[f] *= cone_factor(g, &face, lobe_bound(cone_r_bound(&face), g->m));
     }
 }
 
@@ -172,26 +186,22 @@ ALWAYS_INLINE cone_t child_cone(const descent_weigher_t *g, int res, int span, f
     return c;
 }
 
-/* The four children's factors stage by stage (their cones, the bounds of cos_r, the two halves of
- * the lobe's power, the factors), not child after child: the same operations on the same
- * values, so the same bits, but four independent chains side by side for the core to overlap
- * (10% less CPU time a sample than child after child, measured; the powers' divisions and
- * polynomials are long chains). */
+/* The four children's factors stage by stage (their cones, the lobes' bounds, the factors), not
+ * child after child: the same operations on the same values, so the same bits, but four
+ * independent chains side by side for the core to overlap (10% less CPU time a sample than
+ * child after child, measured with the lobe's exact power, whose division and polynomials are
+ * long chains). */
 ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, int res, int l, lane_ints_t row, lane_ints_t col,
                                   lanes_t w[4])
 {
     if (l < LIGHT_LEVELS)
         return;
     cone_t cone[4];
-    lanes_t bound_r[4], lobe[4];
+    lanes_t lobe[4];
     UNROLL
     for (int k = 0; k < 4; ++k) cone[k] = child_cone(g, res, 1 << l, 1.0f / (float)res, row, col, k);
     UNROLL
-    for (int k = 0; k < 4; ++k) bound_r[k] = cone_r_bound(&cone[k]);
-    UNROLL
-    for (int k = 0; k < 4; ++k) lobe[k] = phong_power_log2_lanes(bound_r[k]);   /* phong_power_lanes's halves */
-    UNROLL
-    for (int k = 0; k < 4; ++k) lobe[k] = phong_power_of_log2_lanes(bound_r[k], lobe[k], (lanes_t)g->m);
+    for (int k = 0; k < 4; ++k) lobe[k] = lobe_bound(cone_r_bound(&cone[k]), g->m);
     UNROLL
     for (int k = 0; k < 4; ++k) w[k] *= cone_factor(g, &cone[k], lobe[k]);
 }
@@ -199,19 +209,19 @@ ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, int res, int l, la
 #define LIGHT_PARAMS __global const float *pyramid
 #define LIGHT_ARGS pyramid
 
-/* envmap.cl's light sampler: descent.cl's descent weighted for the pixel of shading s. */
+/* envmap.cl's light sampler: weighed_descent.cl's descent weighted for the pixel of shading s. */
 ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const shading_t *s, int res, uint seed, uint frame,
                                           uint pixel, lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
 {
     descent_weigher_t g = product_weigher(s);
-    return descent_sample(pyramid, &g, res, seed, frame, pixel, draw, texel, pdf);
+    return weighed_descent_sample(pyramid, &g, res, seed, frame, pixel, draw, texel, pdf);
 }
 
-/* envmap.cl's light density: descent.cl's, with the same weights. */
+/* envmap.cl's light density: weighed_descent.cl's, with the same weights. */
 ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const shading_t *s, int res, lanes3_t w, lane_ints_t *texel)
 {
     descent_weigher_t g = product_weigher(s);
-    return descent_density(pyramid, &g, res, w, texel);
+    return weighed_descent_density(pyramid, &g, res, w, texel);
 }
 
 #include "envmap.cl"

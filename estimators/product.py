@@ -64,7 +64,7 @@ class Product(Hierarchical):
     integrand's BRDF·cos in luminance, without V (scenes with visibility keep V in the
     integrand through ``visible()``, as every estimator; the descent does not see it).
 
-    Descent (descent.cl, shared with ``hierarchical``).  The frame cache's ``weight_pyramid``
+    Descent (weighed_descent.cl, with ``hierarchical``'s choices, descent.cl).  The frame cache's ``weight_pyramid``
     (Y·Ω sums, the only per-frame product).  A sample picks a face with probability ∝
     I_f·F_f, then at every level one of the four children of the node picked so far ∝
     W_k·F_k (W_k the child's pyramid sum, F_k the child-weight rule's factor for this pixel),
@@ -152,7 +152,25 @@ class Product(Hierarchical):
     bit-identical, 7% less (it needs a per-pixel light-sampler state in envmap.cl's render
     loop); ``light_levels = 3`` 2.4× (issue 24: +0.5% to +6% relMSE).  Within 1.5× of
     ``hierarchical`` would need a factor about six times cheaper than this bound, or fewer of
-    them (issue 37).
+    them (issue 37).  Since then (same machine and settings, shading time of alternated renders
+    in one process): the lobe's bound cos_r^m of the bound cosine c replaced by
+    (1 + m(1 − c)/32)^-32 (Deviations): the power made the kernel 1.10× slower [0.92–1.28, 10
+    pairs], so product takes about 0.9× its time.  Measured and not taken: the children's cone
+    half angle and least solid angle from their parent (looser bounds, one square root and two
+    reciprocal ones a level instead of four), 0.79× product's time [0.73–0.87] on top of that
+    (0.97× with the exact power); at test_product's fixed χ² seeds one pixel read p = 9e-4 (16
+    other seeds per pixel: p uniform, 0.09–0.99), which needs a decision before the streams move
+    again.  ``hierarchical{mis="brdf"}`` itself became about 2× faster (its choices read from the
+    frame cache's descent tables, its density one lookup instead of a re-descent), so product
+    now takes about 7.5× its time a sample (``iblbench perf``, alternated with the code before:
+    3.7× before, 7.5× after): the weighed descent's 24 child factors a sample, each still about
+    100 vector operations, against ``hierarchical``'s three gathers a level.  Within 1.5× needs
+    product levels that are not recomputed a sample, or far fewer of them: a per-pixel table of
+    the coarse levels' widths pays little at 64 spp (a pixel's light draws are two batches of
+    16, as are its BRDF draws' densities: the 6 face records' 24 children cost 4 batch-wide
+    factor evaluations to save 8 of a strategy's 48, the next level's 96 cost 8 to save 8), and
+    ``light_levels = 9`` (no product level, the sums' widths computed a sample) is 1.9×
+    ``hierarchical{mis="brdf"}`` and ``light_levels = 6`` (the faces alone) 1.8×.
 
     Deviations.  Clarberg et al. multiply wavelet (Haar) representations of the map and the
     BRDF and sample the product's quadtree; Clarberg & Akenine-Möller 2008 evaluate the BRDF on
@@ -160,7 +178,16 @@ class Product(Hierarchical):
     (a bound of the mean, a bound or a centre value) multiplies the map's own pyramid sums, so
     the coarse levels see the BRDF's integral over the node only through ``"capped"``'s bound
     of it (the bound's and the centre's losses above).  Lobe and diffuse
-    share one factor in luminance; kd and ks colours enter only through the estimate.
+    share one factor in luminance; kd and ks colours enter only through the estimate.  The
+    lobe's term of ``"bound"`` and ``"capped"`` (and of ``"centre"``'s floor) is not the power
+    of the cone's cosine bound c but (1 + m(1 − c)/32)^-32, an upper bound of it (c^m ≤
+    e^{-m(1-c)} ≤ that), because the power was about a quarter of the kernel's time: equal to it
+    within (1 + y²/64)-ish where the lobe is large (y = m(1 − c) small), looser in its tail
+    (at m = 150, c = 0.95: 1.2e-3 against 4.5e-4), where it weighs little beside the diffuse
+    term; every factor stays positive wherever F is, so the estimator stays unbiased.  Its
+    error is the power's (about 10% of product's time): relMSE 0.988-1.003× of it on sphere-sun, blob-sun and sphere-studio
+    at 16 and 64 spp (64², env 64, 4 seeds, ``iblbench run --scene … --estimator product --spp
+    16,64 --seeds 4 --res 64x64 --env-res 64``, issue 37).
     Otherwise as ``hierarchical`` (point on a 2^16 grid in the texel, float density of up to
     ⌈log2 R⌉ + 1 factors).
     """
@@ -182,11 +209,11 @@ class Product(Hierarchical):
     Params = ProductParams
     settings = (Setting("mis", "none"), Setting("heuristic", "balance"),
                 Setting("child_weight", "centre"), Setting("child_weight", "bound"), Setting("light_levels", 2))
-    kernel_files = ("product.cl", "descent.cl", "envmap.cl", "lanes.cl")
+    kernel_files = ("product.cl", "weighed_descent.cl", "descent.cl", "envmap.cl", "lanes.cl")
     mutants = (   # for iblbench selftest (harness/verify/mutants.py)
         # The density recomputes the descent for a given direction: an off-by-one loop bound there
         # leaves out the texel level's choice (the sampler still makes it).
-        Mutant("product-pdf-missing-a-level", "descent.cl",
+        Mutant("product-pdf-missing-a-level", "weighed_descent.cl",
                "for (int l = levels - 2; l >= 0; --l) {\n        int n = level_size(res, l);\n"
                "        offset -= 6 * n * n;\n        lane_uints_t q[4];\n        lane_ints_t child_row",
                "for (int l = levels - 2; l > 0; --l) {\n        int n = level_size(res, l);\n"
@@ -203,6 +230,10 @@ class Product(Hierarchical):
     @property
     def compensated(self) -> bool:
         return False
+
+    def _light_buffers(self, cache) -> tuple[tuple, float]:
+        """((the weight pyramid,), 0: its build is the ``build`` stage's required product)."""
+        return (cache.weight_pyramid(False).buffer,), 0.0
 
     def defines(self, gbuffer=None) -> dict:
         """envmap.cl's options and product.cl's: the child-weight rule and the light-only levels."""

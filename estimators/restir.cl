@@ -67,14 +67,14 @@ ALWAYS_INLINE float restir_target(const shading_t *s, __global const float4 *env
 /* The frame's presamples: `tiles` × tile_size light directions by the pyramid's descent, as planes
  * x, y, z, density (solid angle) of n = global size × POOL_LANES floats.  Slot i of the planes is
  * draw i of presample stream 0: the tiles are consecutive runs of the one stream. */
-__kernel void restir_presample(__global const float *pyramid, const int res, const uint seed,
+__kernel void restir_presample(LIGHT_PARAMS, const int res, const uint seed,
                                const uint frame, __global float *presamples)
 {
     int at = get_global_id(0) * POOL_LANES, n = get_global_size(0) * POOL_LANES;
     lane_ints_t texel;
     lanes_t pdf;
     shading_t none;   /* hierarchical's light sampler reads no shading (product's would) */
-    lanes3_t w = lanes_sample_light(pyramid, &none, res, seed, frame, 0u, at + LANE_NUMBERS, &texel, &pdf);
+    lanes3_t w = lanes_sample_light(LIGHT_ARGS, &none, res, seed, frame, 0u, at + LANE_NUMBERS, &texel, &pdf);
     vstore_lanes(w.x, 0, presamples + at);
     vstore_lanes(w.y, 0, presamples + n + at);
     vstore_lanes(w.z, 0, presamples + 2 * n + at);

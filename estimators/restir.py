@@ -350,7 +350,7 @@ class ReSTIR(Estimator):
         chain_lanes = chains > 1 and compute.launch_shape == "pixel"
         kernel = functools.partial(compute.kernel, self.kernel_package(), "restir.cl",
                                    defines={"CHAIN_LANES": int(chain_lanes), **self.defines(gbuffer), "BRDF_SAMPLES": 1})
-        pyramid = cache.weight_pyramid(False)
+        pyramid, tables = cache.weight_pyramid(False), cache.descent_tables(False)
         presample_count = p.tiles * p.tile_size
         presamples = buffer("presamples", 4 * 4 * presample_count)
         lanes = compute.pool_lanes
@@ -359,8 +359,8 @@ class ReSTIR(Estimator):
         parity, self._parity = self._parity, 1 - self._parity
         scales, previous_scales = buffer(f"scales{parity}", n * 4), buffer(f"scales{1 - parity}", n * 4)
         surface = (gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility)
-        sample_events = [compute.run(kernel("restir_presample"), -(-presample_count // lanes), pyramid.buffer,
-                                     np.int32(res), np.uint32(seed), np.uint32(cache.frame), presamples),
+        sample_events = [compute.run(kernel("restir_presample"), -(-presample_count // lanes), tables.bounds,
+                                     tables.probability, np.int32(res), np.uint32(seed), np.uint32(cache.frame), presamples),
                          gbuffer.run(compute, kernel("restir_target_scales"), *surface[:4], pyramid.buffer,
                                      np.int32(res), scales)]
         reservoirs = lambda name: (buffer(f"{name}_sample", chains * n * 16), buffer(f"{name}_info", chains * n * 16))
@@ -387,7 +387,7 @@ class ReSTIR(Estimator):
             events[-1].wait()
         st = compute.to_host(stats, (n, 4), np.float32)[:gbuffer.count]
         estimate = read_estimate(compute, gbuffer, radiance, counts, float(st[:, 0].mean()),
-                                 {"sample": sum(map(event_ms, sample_events)),
+                                 {"sample": sum(map(event_ms, sample_events)) + tables.build_ms,
                                   "shade": sum(map(event_ms, events))},
                                  shadow_rays=float(st[:, 3].mean()))
         estimate.extras = {"neighbours": float(st[:, 1].mean()),

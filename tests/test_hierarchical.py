@@ -98,18 +98,21 @@ def test_a_sibling_below_float_resolution_stays_reachable(compute):
     assert p[2, 4, 5] <= 6.0 * parent / ONE
 
 
-def test_render_builds_only_the_pyramid(compute):
-    """The per-frame product is the plain pyramid (the build stage); the compensated pyramid is
-    drawn on first use and timed in the render's sample stage."""
+def test_render_builds_the_pyramid_and_draws_its_tables(compute):
+    """The per-frame product is the plain pyramid (the build stage); its descent tables, and the
+    compensated pyramid and its tables, are drawn on first use and timed in the render's sample
+    stage."""
     gbuffer = DeviceGBuffer(compute, conformance.glossy_gbuffer(4))
     cache = FrameCache(compute, conformance.smooth_map(8))
     cache.require(registry.get_estimator_class("hierarchical").requires)
     assert cache.built == ["env", "weight_pyramid"]
     plain = registry.make_estimator("hierarchical").render(gbuffer, cache, 4, 1)
-    assert plain.timings_ms["sample"] == 0.0
+    assert plain.timings_ms["sample"] == cache.timings_ms["descent_tables"] > 0
     compensated = parse_estimator('hierarchical{mis="brdf",mis_compensation=true}').make()
     estimate = compensated.render(gbuffer, cache, 4, 1)
-    assert estimate.timings_ms["sample"] == cache.timings_ms["compensated_weight_pyramid"] > 0
+    assert estimate.timings_ms["sample"] == (cache.timings_ms["compensated_descent_tables"]
+                                             + cache.timings_ms["compensated_weight_pyramid"])
+    assert cache.timings_ms["compensated_weight_pyramid"] > 0
     assert "cdf" not in cache.built and np.all(np.isfinite(estimate.radiance))
 
 
@@ -128,3 +131,61 @@ def test_parameters_and_version():
     assert {"hierarchical.cl", "envmap.cl"} <= set(hierarchical.kernel_files)
     assert hierarchical.version() != envmap.version()
     assert "cdf" not in hierarchical.requires
+
+
+def numpy_widths(w: np.ndarray, exists: np.ndarray) -> np.ndarray:
+    """descent_choice.cl's widths (uint64 here) of N children of float32 weights ``w [..., N]``,
+    in float32 as the kernel rounds them: q = max(1, ⌊w·(2^31/Σw)⌋) for w > 0, the rest to the
+    first largest; where Σw is 0, 2^31/N for each child that exists."""
+    n = w.shape[-1]
+    total = np.zeros(w.shape[:-1], np.float32)
+    for k in range(n):   # the kernel's order
+        total = (total + w[..., k]).astype(np.float32)
+    with np.errstate(divide="ignore"):
+        scale = np.float32(ONE) / total
+    fallback = ~(total > 0) | np.isinf(scale)
+    weight = np.where(fallback[..., None], exists.astype(np.float32), w)
+    share = weight * np.where(fallback, np.float32(ONE / n), scale)[..., None]
+    q = np.where(weight > 0, np.maximum(1, np.minimum(share, np.float32(ONE)).astype(np.uint64)), 0)
+    largest = np.argmax(weight, axis=-1)[..., None]
+    others = q.sum(-1, keepdims=True) - np.take_along_axis(q, largest, -1)
+    np.put_along_axis(q, largest, int(ONE) - others, -1)
+    return q
+
+
+def test_descent_tables_are_the_sums_choices(compute):
+    """The frame cache's descent tables against a NumPy twin on a face size of 6 (levels 6, 3,
+    2, 1: parents with 1, 2 and 4 children) with a black 2×2 block (the fallback's widths): every
+    record's prefix widths at its heap index 2·4^k + f·4^k + Morton(row, col), the faces'
+    record, and every texel's probability, the product of its choices' q/2^31 in float32 from
+    the faces down."""
+    res = 6
+    env = np.random.default_rng(5).uniform(0.0, 2.0, (6, res, res, 3)).astype(np.float32)
+    env[3, 2:4, 2:4] = 0.0
+    cache = FrameCache(compute, env)
+    levels = [level[..., 0] for level in cache.weight_pyramid().host_levels(compute)]
+    tables = cache.descent_tables()
+    depths = len(levels) - 1
+    bounds = compute.to_host(tables.bounds, (2 * 4 ** depths, 4), np.uint32).astype(np.uint64)
+    faces = numpy_widths(levels[-1].reshape(1, 6), np.ones((1, 6), bool))[0]
+    assert list(bounds.reshape(-1)[:8]) == list(np.cumsum(faces)[:5]) + [ONE] * 3
+    probability = np.empty((6, res, res), np.float32)
+    for face in range(6):
+        for row in range(res):
+            for col in range(res):
+                p = np.float32(faces[face]) * np.float32(1 / ONE)
+                record = 2 + face
+                for k in range(depths):
+                    l, n = depths - 1 - k, levels[depths - 1 - k].shape[1]
+                    r, c = row >> (l + 1), col >> (l + 1)
+                    rows, cols = 2 * r + np.array([0, 0, 1, 1]), 2 * c + np.array([0, 1, 0, 1])
+                    exists = (rows < n) & (cols < n)
+                    w = np.where(exists, levels[l][face, np.minimum(rows, n - 1), np.minimum(cols, n - 1)], 0)
+                    q = numpy_widths(w.astype(np.float32)[None], exists[None])[0]
+                    assert list(bounds[record]) == list(np.cumsum(q)[:3]) + [ONE], (face, row, col, k)
+                    child = 2 * ((row >> l) & 1) + ((col >> l) & 1)
+                    p = np.float32(p * np.float32(np.float32(q[child]) * np.float32(1 / ONE)))
+                    record = 4 * record + child
+                probability[face, row, col] = p
+    device = compute.to_host(tables.probability, (6 * res * res,), np.float32).reshape(6, res, res)
+    assert np.array_equal(device, probability)

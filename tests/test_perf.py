@@ -127,7 +127,7 @@ def test_roofline_fraction_is_the_binding_roof():
 COSTS = {"uniform": (65, 0, 0, 88, 88), "balanced": (65, 0, 0, 214, 88),
          "balanced_mis": (110, 0, 0, 246, 88), "havran": (57, 5, 0, 17, 92),
          "bis": (183, 3, 0, 50, 88), "smc": (176, 45, 24, 58, 140), "brdf": (174, 0, 0, 103, 88),
-         "envmap": (96, 0, 0, 76, 88), "hierarchical": (182, 0, 0, 95, 88),
+         "envmap": (96, 0, 0, 76, 88), "hierarchical": (97, 0, 0, 76, 88),
          "fis": (223, 0, 0, 123, 88), "restir": (137, 206, 352, 1590, 252),
          "product": (1500, 0, 0, 142, 88)}
 

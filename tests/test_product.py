@@ -59,7 +59,8 @@ class Twin:
         angles at least ``least_omega``."""
         cos_n, cos_r = centre @ self.n, centre @ self.r
         bound_n = self.cone_cos_bound(cos_n, cos_lo, cos_hi, sin_hi)
-        bound_lobe = self.cone_cos_bound(cos_r, cos_lo, cos_hi, sin_hi) ** self.m
+        # c^m ≤ e^{-m(1-c)} ≤ (1 + m(1-c)/32)^-32, product.cl's lobe_bound
+        bound_lobe = (1 + self.m * (1 - self.cone_cos_bound(cos_r, cos_lo, cos_hi, sin_hi)) / 32) ** -32.0
         if self.rule == "capped":     # the lobe's mean: at most ∫ cos_r^m = 2π/(m + 1) over the child
             bound_lobe = np.minimum(bound_lobe, 2 * np.pi / (self.m + 1) / least_omega)
         bound = bound_n * (self.d + self.s * bound_lobe)

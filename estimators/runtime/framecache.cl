@@ -4,6 +4,7 @@
  * integral of Lu Eq. 3.  Rows are scanned in parallel, one work item per (face, row), each in
  * vector steps of sixteen weights and eight CDF words. */
 #include "light_pool.cl"
+#include "descent_choice.cl"
 
 /* The fixed-point CDFs of common.cl.  A run of n weights w_i ≥ 0 (a row's Y·Ω, or a face's row
  * totals) with total W = Σ w (compensated, double where the device has it) gets integer widths
@@ -402,4 +403,75 @@ __kernel void sampling_weights(__global const float4 *env, __global const float 
         sum += weight;
     }
     row_weight[face_row] = (float)sum;
+}
+
+/* ---- descent tables (estimators/descent.cl's header has their layout) ------------------------ */
+
+/* The bits of m at even positions, packed: a Morton index's column (m) or row (m >> 1). */
+ALWAYS_INLINE lane_ints_t morton_half(lane_ints_t m)
+{
+    m &= 0x55555555;
+    m = (m | (m >> 1)) & 0x33333333;
+    m = (m | (m >> 2)) & 0x0f0f0f0f;
+    m = (m | (m >> 4)) & 0x00ff00ff;
+    return (m | (m >> 8)) & 0x0000ffff;
+}
+
+/* The records of depth k = `depth` (0 … L − 2) from the weight pyramid over faces of `res`, a
+ * work item per POOL_LANES consecutive nodes Q of the 6·4^k, and their children's probabilities:
+ * the node's (`node_probability` from 2·(4^k − 1), in heap order) times q_c/2^31, to the next
+ * depth's nodes, or at the last depth to the texels (`probability`, [6, res, res]); `depth` −1:
+ * records 0 and 1, the faces', and the faces' probabilities (work item 0 alone).  Each choice's
+ * widths are descent_widths##N's of the sums, as a descent computes them from the pyramid, and
+ * each probability the product a descent forms, in its order (the faces' first). */
+__kernel void descent_bounds(__global const float *pyramid, const int res, const int depth, __global uint *bounds,
+                             __global float *node_probability, __global float *probability)
+{
+    int top, levels = descent_levels(res, &top);
+    if (depth < 0) {
+        lanes_t w[6];
+        lane_ints_t exists[6];
+        lane_uints_t q[6];
+        for (int f = 0; f < 6; ++f) {
+            w[f] = pyramid[top + f];
+            exists[f] = -1;
+        }
+        descent_widths6(w, exists, q);
+        uint sum = 0;
+        for (int f = 0; f < 8; ++f) {
+            sum += f < 6 ? q[f].s0 : 0u;
+            bounds[f] = f < 5 ? sum : 1u << DESCENT_BITS;
+        }
+        for (int f = 0; f < 6; ++f)   /* a face size of 1: the faces are the texels */
+            (levels > 1 ? node_probability : probability)[f] = (float)q[f].s0 * (1.0f / DESCENT_ONE);
+        return;
+    }
+    int nodes = 6 << (2 * depth), first = get_global_id(0) * POOL_LANES, l = levels - 2 - depth, level = 0;
+    for (int finer = 0; finer < l; ++finer) level += 6 * level_size(res, finer) * level_size(res, finer);
+    int here = 2 * ((1 << (2 * depth)) - 1), next = 2 * ((1 << (2 * depth + 2)) - 1);
+    lane_ints_t node = min(first + LANE_NUMBERS, (lane_ints_t)(nodes - 1)), morton = node & ((1 << (2 * depth)) - 1);
+    lane_ints_t face = node >> (2 * depth), row = morton_half(morton >> 1), col = morton_half(morton);
+    lanes_t w[4];
+    lane_ints_t exists[4];
+    lane_uints_t q[4];
+    child_sums(pyramid, level, level_size(res, l), face, row, col, w, exists);
+    descent_widths4(w, exists, q);
+    lanes_t parent = GATHER(lanes_t, node_probability, here + node), p[4];
+    for (int c = 0; c < 4; ++c) p[c] = parent * (convert_lanes(q[c]) * (1.0f / DESCENT_ONE));
+    lane_uints_t words[3] = {q[0], q[0] + q[1], q[0] + q[1] + q[2]};
+    lane_ints_t texel = (face * res + 2 * row) * res + 2 * col, present[4] = {exists[0], exists[1], exists[2], exists[3]};
+    /* lane i of a vector v at ((T *)&v)[i] */
+    const uint *word = (const uint *)words;
+    const float *child = (const float *)p;
+    const int *at = (const int *)&texel, *opened = (const int *)present;
+    for (int i = 0; i < POOL_LANES && first + i < nodes; ++i) {
+        vstore4((uint4)(word[i], word[POOL_LANES + i], word[2 * POOL_LANES + i], 1u << DESCENT_BITS),
+                (2 << (2 * depth)) + first + i, bounds);
+        for (int c = 0; c < 4; ++c) {
+            if (l > 0)
+                node_probability[next + 4 * (first + i) + c] = child[c * POOL_LANES + i];
+            else if (opened[c * POOL_LANES + i])
+                probability[at[i] + (c >> 1) * res + (c & 1)] = child[c * POOL_LANES + i];
+        }
+    }
 }

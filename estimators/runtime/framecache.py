@@ -25,7 +25,11 @@ Products:
   texels' Y·Ω, :meth:`FrameCache.weight_pyramid` (``timings_ms["weight_pyramid"]``), and with
   ``compensated`` over the MIS-compensated weights of :meth:`FrameCache.light_cdfs`, drawn on
   first use (``["compensated_weight_pyramid"]``, counted in the reading render's ``sample``
-  stage).  Its coarsest level is each face's total, so it needs no ``cdf`` product;
+  stage).  Its coarsest level is each face's total, so it needs no ``cdf`` product.
+  :meth:`FrameCache.descent_tables` (of either pyramid), drawn on first use and
+  counted in the reading render's ``sample`` stage (``timings_ms["descent_tables"]``,
+  ``["compensated_descent_tables"]``), holds each descent choice's widths and each texel's
+  probability, for the descents whose weights are the sums alone (estimators/descent.cl);
 - ``radiance_mips``: the map's radiance mip chain, 2×2 box averages down to 1×1 per face
   (estimators/runtime/mips.py), :meth:`FrameCache.radiance_mips` (``timings_ms["radiance_mips"]``).
 
@@ -143,6 +147,18 @@ def alias_bins(n: int) -> int:
 
 
 @dataclasses.dataclass(frozen=True)
+class DescentTables:
+    """A weight pyramid's descent tables (estimators/descent.cl's header has the layout):
+    ``bounds`` uint32, four words a record, each choice's children's prefix widths out of 2^31,
+    records indexed as a 4-ary heap from the faces'; ``probability`` float ``[6·R·R]``, each
+    texel's probability P; ``build_ms`` the device time of the two."""
+
+    bounds: cl.Buffer
+    probability: cl.Buffer
+    build_ms: float
+
+
+@dataclasses.dataclass(frozen=True)
 class MapAlias:
     """The map's two-level alias tables (framecache.cl's ``alias_tables``): ``words`` uint64,
     the rows' table (``alias_bins(6R)`` bins, each threshold·bins + alias), then each row's
@@ -174,6 +190,7 @@ class FrameCache:
         self._compensated: tuple[LightCdfs, cl.Buffer] | None = None
         self._map_aliases: dict[bool, MapAlias] = {}
         self._weight_pyramids: dict[bool, mips.MipChain] = {}
+        self._descent_tables: dict[bool, DescentTables] = {}
         self._radiance_mips: mips.MipChain | None = None
 
     def retarget(self, frame: int) -> None:
@@ -381,6 +398,29 @@ class FrameCache:
             self.timings_ms["compensated_weight_pyramid" if compensated else "weight_pyramid"] = build_ms
             self._weight_pyramids[compensated] = mips.chain(buffer, res, 1, build_ms)
         return self._weight_pyramids[compensated]
+
+    def descent_tables(self, compensated: bool = False) -> DescentTables:
+        """The descent tables of :meth:`weight_pyramid` (``compensated``), built on first use
+        from it (``timings_ms["descent_tables"]``, ``["compensated_descent_tables"]``: the
+        tables' own device time, without the pyramid's): every choice's widths, computed once
+        per frame where a descent whose weights are the sums alone would compute them per
+        sample, and each texel's probability."""
+        if compensated not in self._descent_tables:
+            c, res = self.compute, self.res
+            pyramid = self.weight_pyramid(compensated)
+            depths = len(pyramid.sizes) - 1   # choices below the faces
+            lanes = c.pool_lanes
+            bounds = self._buffer(8 * 4 ** depths * 4)
+            node_probability = self._buffer(max(2 * 4 ** depths - 2, 1) * 4)   # the depths' parents
+            probability = self._buffer(6 * res * res * 4)
+            kernel = c.kernel("iblbench.estimators.runtime", "framecache.cl", "descent_bounds")
+            events = [c.run(kernel, max(1, -(-6 * 4 ** depth // lanes)), pyramid.buffer, np.int32(res),
+                            np.int32(depth), bounds, node_probability, probability)
+                      for depth in range(-1, depths)]
+            build_ms = sum(map(event_ms, events))
+            self.timings_ms["compensated_descent_tables" if compensated else "descent_tables"] = build_ms
+            self._descent_tables[compensated] = DescentTables(bounds, probability, build_ms)
+        return self._descent_tables[compensated]
 
     def radiance_mips(self) -> mips.MipChain:
         """The map's radiance mip chain (estimators/runtime/mips.py's layout, float4 texels, level 0 a copy

@@ -3,7 +3,8 @@ devices (``iblbench doctor``, tests/test_portability.py).
 
 One *case* renders one thing on 16 pixels (a glossy G-buffer over the whole sphere) lit by a
 4×4-texel-per-face map with a sun: ``reference`` (the exact reference), ``products`` (the frame
-cache's CDFs, face integrals, light pool and both mip pyramids, plain and compensated),
+cache's CDFs, face integrals, light pool and both mip pyramids, plain and compensated, and the
+weight pyramids' descent tables),
 ``light_pdf`` (the map's light pdf, ARCHITECTURE.md §Conventions, at :data:`PDF_DIRECTIONS` directions, by
 ``envmap``'s pdf hook), ``probes`` (``iblbench perf``'s FMA and copy kernels), or an estimator
 label such as ``envmap{mis="brdf"}`` at 4 spp; a name ending in ``+visibility`` (the reference and
@@ -189,6 +190,9 @@ def _products(compute, cache) -> dict[str, np.ndarray]:
         out[f"pool_{tag}"] = compute.to_host(pool.dir_pdf, (6 * 8, 4), np.float32)
         levels = cache.weight_pyramid(compensated).host_levels(compute)
         out.update({f"weights_{tag}_{i}": level for i, level in enumerate(levels)})
+        tables = cache.descent_tables(compensated)
+        out[f"descent_bounds_{tag}"] = compute.to_host(tables.bounds, (2 * 4 ** (len(levels) - 1), 4), np.uint32)
+        out[f"descent_probability_{tag}"] = compute.to_host(tables.probability, (6 * cache.res ** 2,), np.float32)
     levels = cache.radiance_mips().host_levels(compute)
     out.update({f"radiance_mips_{i}": level for i, level in enumerate(levels)})
     return out
