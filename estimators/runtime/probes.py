@@ -110,3 +110,96 @@ class CopyProbe:
     def gbps(self) -> float:
         ms = event_ms(self.compute.run(self.kernel, self.items, *self.buffers))
         return 32 * self.items / (ms * 1e6)
+
+
+# ---- the other limits (limit_probes.cl): per lane-operation rates -------------------------------
+
+LIMIT_MIN_MS = 10.0            # each limit probe's launch is sized to take at least this
+LIMIT_ITEMS = 1 << 12          # work items of a limit probe's launch (POOL_LANES lanes each)
+PHONG_M = 37.0                 # the lobe power's exponent (its cost does not depend on it)
+PHONG_SHRINK = 0.9999
+
+
+def _limit_kernel(compute, name: str, dependent: bool = False):
+    return compute.kernel("iblbench.estimators.runtime", "limit_probes.cl", name,
+                          {"DEPENDENT": int(dependent)})
+
+
+def run_phong_power(compute, items: int, iterations: int, launches: int = 1):
+    """``launches`` timed launches of ``phong_power_throughput``: (each lane's sum of its
+    ``iterations`` powers ``[items, pool_lanes]``, device ms of each launch, lane-powers per
+    launch)."""
+    lanes = compute.pool_lanes
+    out = compute.empty(4 * items * lanes)
+    args = (np.int32(iterations), np.float32(PHONG_M), np.float32(PHONG_SHRINK), out)
+    times = _launches(compute, _limit_kernel(compute, "phong_power_throughput"), items, args,
+                      launches)
+    return compute.to_host(out, (items, lanes), np.float32), times, items * lanes * iterations
+
+
+def run_philox(compute, items: int, iterations: int, launches: int = 1, seed: int = 0x1234):
+    """``launches`` timed launches of ``philox_throughput``: (the XOR of each lane's words
+    ``[items, pool_lanes]``, device ms of each launch, lane-blocks per launch)."""
+    lanes = compute.pool_lanes
+    out = compute.empty(4 * items * lanes)
+    args = (np.int32(iterations), np.uint32(seed), out)
+    times = _launches(compute, _limit_kernel(compute, "philox_throughput"), items, args, launches)
+    return compute.to_host(out, (items, lanes), np.uint32), times, items * lanes * iterations
+
+
+DIVIDE_STEP = 0.25
+
+
+def run_divide(compute, items: int, iterations: int, launches: int = 1):
+    """``launches`` timed launches of ``divide_throughput``: (each lane's sum ``[items,
+    pool_lanes]``, device ms of each launch, lane-divisions per launch)."""
+    lanes = compute.pool_lanes
+    out = compute.empty(4 * items * lanes)
+    args = (np.int32(iterations), np.float32(DIVIDE_STEP), out)
+    times = _launches(compute, _limit_kernel(compute, "divide_throughput"), items, args, launches)
+    return compute.to_host(out, (items, lanes), np.float32), times, items * lanes * iterations
+
+
+def chase_table(entries: int, seed: int = 0) -> np.ndarray:
+    """``entries`` (a power of two) uint32: a random cyclic permutation, so that index →
+    table[index] visits every entry once in a random order (the dependent chain's table)."""
+    if entries & (entries - 1):
+        raise ValueError(f"a gather table's entries must be a power of two, got {entries}")
+    order = np.random.default_rng(seed).permutation(entries).astype(np.uint32)
+    table = np.empty(entries, np.uint32)
+    table[order] = np.roll(order, -1)
+    return table
+
+
+def run_gathers(compute, table: np.ndarray, items: int, steps: int, dependent: bool,
+                launches: int = 1, seed: int = 1):
+    """``launches`` timed launches of ``lane_gathers`` on ``table`` (uint32, a power-of-two
+    size): (the XOR of each lane's loaded values ``[items, pool_lanes]``, the start indices,
+    device ms of each launch, lane-gathers per launch)."""
+    lanes = compute.pool_lanes
+    start = np.random.default_rng(seed).integers(0, len(table), items * lanes, dtype=np.uint32)
+    out = compute.empty(4 * items * lanes)
+    args = (compute.to_device(np.ascontiguousarray(table, np.uint32)), np.uint32(len(table) - 1),
+            np.int32(steps), compute.to_device(start), out)
+    times = _launches(compute, _limit_kernel(compute, "lane_gathers", dependent), items, args,
+                      launches)
+    return (compute.to_host(out, (items, lanes), np.uint32), start.reshape(items, lanes), times,
+            items * lanes * steps)
+
+
+def gather_entries(env_res: int) -> int:
+    """The gather probes' table size: the power of two ≥ the cube map's floats, 6·R²·4 (the
+    texels the estimators gather from; their CDF words, pyramid and alias tables are as large)."""
+    return 1 << max(10, (6 * env_res * env_res * 4 - 1).bit_length())
+
+
+def sized(run, min_ms: float) -> int:
+    """The power-of-two count (of iterations or steps) for which ``run(count)`` (device ms)
+    takes ≥ ``min_ms``."""
+    count = 16
+    while True:
+        ms = run(count)
+        if ms >= min_ms or count >= 1 << 20:
+            return count
+        count *= 2 if ms > min_ms / 64 else 16
+

@@ -1,0 +1,82 @@
+/* The limits other than the roofline that hold an estimator's kernel (`iblbench perf`,
+ * harness/studies/perf.py; launchers in probes.py).  Each runs one operation of the estimators'
+ * explicit vectors (POOL_LANES lanes, light_pool.cl) many times, independently of the
+ * estimators' code but in its form, and perf divides its time by the lane-operations it ran:
+ *   - phong_power_throughput: phong_power_lanes (common.cl) on fresh arguments, the lobe power
+ *     of every sample;
+ *   - philox_throughput: rng_block_lanes (common.cl), a Philox4x32-10 block a lane, the random
+ *     numbers of a sample drawn per pixel;
+ *   - divide_throughput: a float division a lane (correctly rounded: no -cl-fast-relaxed-math);
+ *   - lane_gathers: GATHER (light_pool.cl), one element a lane from a table, as a texel, CDF
+ *     word or pool lookup is made; with DEPENDENT = 1 each lane's next index is the value just
+ *     loaded (a chain of dependent loads: a CDF search, a descent, an alias table's second
+ *     read), with DEPENDENT = 0 an index the loads do not feed (independent random gathers). */
+#include "light_pool.cl"
+
+#if POOL_LANES == 16
+#define as_lane_uints as_uint16
+#else
+#define as_lane_uints as_uint8
+#endif
+
+/* `iterations` lobe powers a lane: acc += c^m, then c *= shrink (shrink < 1 keeps c in (0, 1];
+ * one multiply and one add of overhead a power).  out[id] holds each lane's sum. */
+__kernel void phong_power_throughput(const int iterations, const float m, const float shrink,
+                                     __global lanes_t *out)
+{
+    size_t id = get_global_id(0);
+    lanes_t c = 0.5f + convert_lanes(LANE_NUMBERS) * (0.5f / POOL_LANES)
+              - (float)(id & 1023) * 1e-6f, acc = (lanes_t)0.0f;
+    for (int i = 0; i < iterations; ++i) {
+        acc += phong_power_lanes(c, (lanes_t)m);
+        c *= shrink;
+    }
+    out[id] = acc;
+}
+
+/* `iterations` Philox blocks a lane, rng_block_lanes(seed, 0, 0, id, i·POOL_LANES + k, 0) in
+ * lane k of iteration i; out[id] holds the XOR of every word each lane drew. */
+__kernel void philox_throughput(const int iterations, const uint seed, __global lane_uints_t *out)
+{
+    uint id = get_global_id(0);
+    lane_uints_t seen = (lane_uints_t)0u;
+    for (int i = 0; i < iterations; ++i) {
+        lane_uints_t sample = convert_lane_uints(i * POOL_LANES + LANE_NUMBERS);
+        lane_block_t block = rng_block_lanes(seed, 0u, 0u, id, sample, 0u);
+        seen ^= block.v[0] ^ block.v[1] ^ block.v[2] ^ block.v[3];
+    }
+    out[id] = seen;
+}
+
+/* `iterations` divisions a lane: acc += x / d, then d += step (one add each of overhead);
+ * x = 1 + lane, d starts at 1 + lane/2.  out[id] holds each lane's sum. */
+__kernel void divide_throughput(const int iterations, const float step, __global lanes_t *out)
+{
+    size_t id = get_global_id(0);
+    lanes_t x = 1.0f + convert_lanes(LANE_NUMBERS), d = 1.0f + 0.5f * convert_lanes(LANE_NUMBERS),
+            acc = (lanes_t)0.0f;
+    for (int i = 0; i < iterations; ++i) {
+        acc += x / d;
+        d += step;
+    }
+    out[id] = acc;
+}
+
+/* `steps` gathers a lane from `table` (`mask` + 1 entries, a power of two), starting at lane
+ * k's index start[POOL_LANES·id + k]; out[id] holds the XOR of every value each lane loaded. */
+__kernel void lane_gathers(__global const uint *table, const uint mask, const int steps,
+                           __global const uint *start, __global lane_uints_t *out)
+{
+    size_t id = get_global_id(0);
+    lane_uints_t index = vload_lanes(id, start) & mask, seen = (lane_uints_t)0u;
+    for (int s = 0; s < steps; ++s) {
+        lane_uints_t value = GATHER(lane_uints_t, table, index);
+        seen ^= value;
+#if DEPENDENT
+        index = value & mask;
+#else
+        index = (index * 1664525u + 1013904223u) & mask;   /* Numerical Recipes' LCG */
+#endif
+    }
+    out[id] = seen;
+}
