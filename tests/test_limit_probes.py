@@ -41,18 +41,20 @@ def test_philox_probe_draws_every_block_it_counts(lanes_compute):
 
 
 def test_divide_probe_sums_every_quotient_it_counts(lanes_compute):
-    """acc += x/d, d += step, replayed in float32 in the kernel's order (each quotient correctly
-    rounded): equal within a few roundings."""
+    """acc_k += (x + k)/d for k < 4, d += step, replayed in float32 in the kernel's order (each
+    quotient correctly rounded): equal within a few roundings; 4 divisions a lane a round."""
     items, iterations, lanes = 3, 50, lanes_compute.pool_lanes
     out, _, divisions = probes.run_divide(lanes_compute, items, iterations)
-    assert divisions == items * lanes * iterations
+    assert divisions == 4 * items * lanes * iterations
     x = np.float32(1) + np.arange(lanes, dtype=np.float32)
     d = np.float32(1) + np.float32(0.5) * np.arange(lanes, dtype=np.float32)
-    acc = np.zeros(lanes, np.float32)
+    acc = np.zeros((4, lanes), np.float32)
     for _ in range(iterations):
-        acc += x / d
+        for k in range(4):
+            acc[k] += (x + np.float32(k)) / d
         d += np.float32(probes.DIVIDE_STEP)
-    np.testing.assert_allclose(out, np.broadcast_to(acc, out.shape), rtol=1e-6)
+    expected = (acc[0] + acc[1]) + (acc[2] + acc[3])
+    np.testing.assert_allclose(out, np.broadcast_to(expected, out.shape), rtol=1e-6)
 
 
 def test_chase_table_is_one_cycle_through_every_entry():
@@ -82,3 +84,28 @@ def test_gather_probe_loads_every_element_it_counts(lanes_compute, dependent):
         index = (value.astype(np.uint64) if dependent
                  else index * 1664525 + 1013904223) & (len(table) - 1)
     np.testing.assert_array_equal(out, seen)
+
+
+def test_serial_add_probe_adds_every_term_it_counts(lanes_compute):
+    """total = Σ_i x_i in acc_t, x_{i+1} = x_i·shrink in float32, replayed in NumPy."""
+    items, iterations = 5, 70
+    out, _, adds = probes.run_serial_adds(lanes_compute, items, iterations)
+    assert adds == items * iterations
+    x = np.float32(1) + (np.arange(items) % 1024).astype(np.float32) * np.float32(1e-3)
+    total = np.zeros(items, out.dtype)
+    for _ in range(iterations):
+        total += x.astype(out.dtype)
+        x = x * np.float32(probes.PHONG_SHRINK)
+    np.testing.assert_allclose(out, total, rtol=1e-6)
+
+
+def test_lockstep_probe_takes_every_step_it_counts(lanes_compute):
+    """Each work item's index after `steps` rounds of index = table[index] from id & mask."""
+    table = probes.chase_table(1 << 8, seed=2)
+    items, steps = 2 * probes.LOCKSTEP_GROUP, 11
+    out, _, taken = probes.run_lockstep_steps(lanes_compute, table, items, steps)
+    assert taken == items * steps
+    index = np.arange(items) & (len(table) - 1)
+    for _ in range(steps):
+        index = table[index]
+    np.testing.assert_array_equal(out, index)

@@ -46,6 +46,10 @@ def add_parser(subparsers) -> None:
     perf.add_argument("--repeats", type=positive_int, metavar="N",
                       help="timed renders per estimator after one warm-up (default: 5, or an "
                            "estimator's own perf_budget: bis and smc 3)")
+    perf.add_argument("--lanes", type=int, choices=(8, 16), metavar="{8,16}",
+                      help="the estimators' explicit vector width (POOL_LANES) instead of the "
+                           "device's (16 where its preferred float width is 16, else 8): to "
+                           "measure the 8-lane kernels on an AVX-512 CPU")
     perf.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/perf"),
                       help="output directory for perf.csv and perf.html (default: results/perf)")
 
@@ -70,7 +74,7 @@ def run(args) -> None:
         out=args.out, scenes=tuple(args.scene or perf.DEFAULT_SCENES),
         estimators=tuple(args.estimator or ()), spp=args.spp,
         resolution=args.res or perf.DEFAULT_RESOLUTION, env_res=args.env_res or perf.DEFAULT_ENV_RES,
-        repeats=args.repeats, device=args.device)
+        repeats=args.repeats, device=args.device, lanes=args.lanes)
     out = pathlib.Path(config.out)
     if out.exists() and not out.is_dir():
         raise InputError(out, "--out exists and is not a directory")

@@ -373,9 +373,10 @@ def event_ms(event: cl.Event | list[cl.Event]) -> float:
 
 
 @functools.lru_cache(maxsize=None)
-def get_compute(spec: str | None = None) -> Compute:
-    """One shared Compute per device choice, so programs are built once per context."""
-    return Compute(choose_device(spec))
+def get_compute(spec: str | None = None, lanes: int | None = None) -> Compute:
+    """One shared Compute per device choice (and ``lanes``, :func:`pool_lanes_for`'s override),
+    so programs are built once per context."""
+    return Compute(choose_device(spec), lanes=lanes)
 
 
 class KeptBuffers:

@@ -10,7 +10,11 @@
  *   - lane_gathers: GATHER (light_pool.cl), one element a lane from a table, as a texel, CDF
  *     word or pool lookup is made; with DEPENDENT = 1 each lane's next index is the value just
  *     loaded (a chain of dependent loads: a CDF search, a descent, an alias table's second
- *     read), with DEPENDENT = 0 an index the loads do not feed (independent random gathers). */
+ *     read), with DEPENDENT = 0 an index the loads do not feed (independent random gathers);
+ *   - serial_adds: a scalar chain of dependent acc_t additions, as a vector's lanes leave one by
+ *     one into a pixel's running sum (bis's and smc's candidates' total);
+ *   - lockstep_steps: a step of a scalar search, one dependent load a work item, ended by a
+ *     LOCKSTEP barrier (lanes.cl), as bis's and smc's binary searches of their bounds are. */
 #include "light_pool.cl"
 
 #if POOL_LANES == 16
@@ -48,18 +52,23 @@ __kernel void philox_throughput(const int iterations, const uint seed, __global 
     out[id] = seen;
 }
 
-/* `iterations` divisions a lane: acc += x / d, then d += step (one add each of overhead);
- * x = 1 + lane, d starts at 1 + lane/2.  out[id] holds each lane's sum. */
+/* `iterations` rounds of four independent divisions a lane, acc_k += (x + k) / d, then
+ * d += step (one add each of overhead, and one a round): four chains, so the divider's
+ * throughput binds, not an add's latency.  x = 1 + lane, d starts at 1 + lane/2.  out[id]
+ * holds each lane's acc_0 + acc_1 + acc_2 + acc_3. */
 __kernel void divide_throughput(const int iterations, const float step, __global lanes_t *out)
 {
     size_t id = get_global_id(0);
     lanes_t x = 1.0f + convert_lanes(LANE_NUMBERS), d = 1.0f + 0.5f * convert_lanes(LANE_NUMBERS),
-            acc = (lanes_t)0.0f;
+            acc0 = (lanes_t)0.0f, acc1 = acc0, acc2 = acc0, acc3 = acc0;
     for (int i = 0; i < iterations; ++i) {
-        acc += x / d;
+        acc0 += x / d;
+        acc1 += (x + 1.0f) / d;
+        acc2 += (x + 2.0f) / d;
+        acc3 += (x + 3.0f) / d;
         d += step;
     }
-    out[id] = acc;
+    out[id] = (acc0 + acc1) + (acc2 + acc3);
 }
 
 /* `steps` gathers a lane from `table` (`mask` + 1 entries, a power of two), starting at lane
@@ -79,4 +88,33 @@ __kernel void lane_gathers(__global const uint *table, const uint mask, const in
 #endif
     }
     out[id] = seen;
+}
+
+/* `iterations` dependent additions total += (acc_t)x, then x *= shrink (a float multiply off the
+ * chain).  out[id] holds the total. */
+__kernel void serial_adds(const int iterations, const float shrink, __global acc_t *out)
+{
+    size_t id = get_global_id(0);
+    float x = 1.0f + (float)(id & 1023) * 1e-3f;
+    acc_t total = 0;
+    for (int i = 0; i < iterations; ++i) {
+        total += (acc_t)x;
+        x *= shrink;
+    }
+    out[id] = total;
+}
+
+/* `steps` rounds of index = table[index] (work item id starts at id & mask), each ended by a
+ * barrier: launched in groups of LOCKSTEP_GROUP (estimators/bis.py), as a LOCKSTEP loop is.
+ * out[id] holds the last index. */
+__kernel void lockstep_steps(__global const uint *table, const uint mask, const int steps,
+                             __global uint *out)
+{
+    size_t id = get_global_id(0);
+    uint index = (uint)id & mask;
+    for (int s = 0; s < steps; ++s) {
+        index = table[index];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    out[id] = index;
 }

@@ -33,11 +33,11 @@ def _probe_kernel(compute, name: str):
                           {"FMA_WIDTH": fma_width(compute)})
 
 
-def _launches(compute, kernel, items: int, args, launches: int) -> list[float]:
-    """Device ms of ``launches`` launches after an untimed one (first touch of the buffers'
-    pages, kernel compilation)."""
-    compute.run(kernel, items, *args)
-    return [event_ms(compute.run(kernel, items, *args)) for _ in range(launches)]
+def _launches(compute, kernel, items: int, args, launches: int, group: int | None = None) -> list[float]:
+    """Device ms of ``launches`` launches (in groups of ``group``; None: the device's choice)
+    after an untimed one (first touch of the buffers' pages, kernel compilation)."""
+    compute.run(kernel, items, *args, group=group)
+    return [event_ms(compute.run(kernel, items, *args, group=group)) for _ in range(launches)]
 
 
 def run_fma(compute, items: int, iterations: int, launches: int = 1, b: float = 0.999,
@@ -114,6 +114,17 @@ class CopyProbe:
 
 # ---- the other limits (limit_probes.cl): per lane-operation rates -------------------------------
 
+# Each limit probe's operation and its FLOPs by perf's counting rules (its docstring), which a
+# bound that times the operation by its probe must not count again at the FMA rate.
+PROBE_FLOPS = {
+    "phong_power": 35,      # phong_power_lanes: log2 half 16, exp2 half 19
+    "philox": 0,            # rng_block_lanes: integer work
+    "divide": 1,            # a division or a square root (both on the divider)
+    "gather": 0,            # one GATHER element, independent
+    "dependent_load": 0,    # one GATHER element whose index the previous load gave
+    "serial_add": 1,        # one acc_t addition of a scalar chain
+    "lockstep": 0,          # one work item's step of a search between LOCKSTEP barriers
+}
 LIMIT_MIN_MS = 10.0            # each limit probe's launch is sized to take at least this
 LIMIT_ITEMS = 1 << 12          # work items of a limit probe's launch (POOL_LANES lanes each)
 PHONG_M = 37.0                 # the lobe power's exponent (its cost does not depend on it)
@@ -151,13 +162,38 @@ DIVIDE_STEP = 0.25
 
 
 def run_divide(compute, items: int, iterations: int, launches: int = 1):
-    """``launches`` timed launches of ``divide_throughput``: (each lane's sum ``[items,
-    pool_lanes]``, device ms of each launch, lane-divisions per launch)."""
+    """``launches`` timed launches of ``divide_throughput``: (each lane's sum of its four
+    chains ``[items, pool_lanes]``, device ms of each launch, lane-divisions per launch)."""
     lanes = compute.pool_lanes
     out = compute.empty(4 * items * lanes)
     args = (np.int32(iterations), np.float32(DIVIDE_STEP), out)
     times = _launches(compute, _limit_kernel(compute, "divide_throughput"), items, args, launches)
-    return compute.to_host(out, (items, lanes), np.float32), times, items * lanes * iterations
+    return compute.to_host(out, (items, lanes), np.float32), times, 4 * items * lanes * iterations
+
+
+def run_serial_adds(compute, items: int, iterations: int, launches: int = 1):
+    """``launches`` timed launches of ``serial_adds``: (each item's total ``[items]``, in the
+    kernels' acc_t, device ms of each launch, additions per launch)."""
+    dtype = np.float64 if compute.doubles else np.float32
+    out = compute.empty(np.dtype(dtype).itemsize * items)
+    args = (np.int32(iterations), np.float32(PHONG_SHRINK), out)
+    times = _launches(compute, _limit_kernel(compute, "serial_adds"), items, args, launches)
+    return compute.to_host(out, (items,), dtype), times, items * iterations
+
+
+LOCKSTEP_GROUP = 64   # estimators/bis.py's LOCKSTEP_GROUP (a probe cannot import an estimator)
+
+
+def run_lockstep_steps(compute, table: np.ndarray, items: int, steps: int, launches: int = 1):
+    """``launches`` timed launches of ``lockstep_steps`` on ``table`` in groups of
+    LOCKSTEP_GROUP (``items`` a multiple of it): (each item's last index ``[items]``, device ms
+    of each launch, work-item steps per launch)."""
+    out = compute.empty(4 * items)
+    args = (compute.to_device(np.ascontiguousarray(table, np.uint32)), np.uint32(len(table) - 1),
+            np.int32(steps), out)
+    times = _launches(compute, _limit_kernel(compute, "lockstep_steps"), items, args, launches,
+                      LOCKSTEP_GROUP)
+    return compute.to_host(out, (items,), np.uint32), times, items * steps
 
 
 def chase_table(entries: int, seed: int = 0) -> np.ndarray:

@@ -113,8 +113,11 @@ import time
 
 import numpy as np
 
-from iblbench.estimators.runtime.probes import (FMA_ITEMS, CopyProbe, copy_size, fma_iterations,
-                                                run_copy, run_fma)
+from iblbench.estimators.runtime.probes import (FMA_ITEMS, LIMIT_ITEMS, LIMIT_MIN_MS, PROBE_FLOPS,
+                                                CopyProbe, chase_table, copy_size, fma_iterations,
+                                                gather_entries, run_copy, run_divide, run_fma,
+                                                run_gathers, run_lockstep_steps, run_philox,
+                                                run_phong_power, run_serial_adds, sized)
 from iblbench.harness.studies import mitsuba_peer
 from iblbench.harness.protocol.timing import (measure_timing_floor, required_build_ms, spread,
                                               timing_floor_text)
@@ -181,6 +184,12 @@ COLUMNS = {
     "roofline_fraction": "max(gflops/peak_gflops, gbytes_per_s/peak_gbps): achieved over "
                          "attainable at the kernel's intensity",
     "bound": "the roof that binds at the kernel's intensity: compute or memory",
+    "limit_ms": "the shading kernel's time bound by its limits: per sample, Σ over the probe "
+                "operations its cost declares (masked lanes included) of count × the probe's ns, "
+                "+ its other FLOPs at the FMA peak; × pixels × spp",
+    "limit_fraction": "limit_ms / shade_ms: the kernel's speed over its limits' (≥ 0.5: within "
+                      "2× of the bound)",
+    "limiting_probe": "the largest term of limit_ms: a probe's name, or flops",
     "speedup_vs_floor": "msamples_per_s over the NumPy floor's (same scene)",
     "speedup_vs_mitsuba": "msamples_per_s over the Mitsuba 3 peer's (same scene; NaN where the "
                           "peer does not run)",
@@ -188,13 +197,17 @@ COLUMNS = {
                           "(|uniform| + max|uniform|·ATOL/RTOL), on the same pool (≤ RTOL passes)",
     "peak_gflops": "the device's measured FMA throughput, GFLOP/s (median)",
     "peak_gbps": "the device's measured copy bandwidth, GB/s, read + written (median)",
+    **{f"{probe}_ns": f"ns per lane-operation of the {probe} limit probe on the whole device "
+                      "(median)" for probe in PROBE_FLOPS},
     "device": "OpenCL device | platform version | driver",
+    "lanes": "the estimators' explicit vector width (POOL_LANES: the device's, or --lanes)",
 }
 SHOWN = {"scene": "scene", "estimator": "estimator", "spp": "spp", "pixels": "pixels",
          "msamples_per_s": "Msamples/s", "mevals_per_s": "Mevals/s", "build_ms": "build ms",
          "sample_ms": "sample ms", "shade_ms": "shade ms", "shade_iqr_pct": "IQR %",
          "gflops": "GFLOP/s", "gbytes_per_s": "GB/s", "roofline_fraction": "roof",
-         "speedup_vs_floor": "× floor", "speedup_vs_mitsuba": "× mitsuba"}
+         "limit_fraction": "limit", "limiting_probe": "limited by", "speedup_vs_floor": "× floor",
+         "speedup_vs_mitsuba": "× mitsuba"}
 
 
 def columns_help() -> str:
@@ -216,6 +229,7 @@ class Roofline:
     gbps: float            # median copy bandwidth, bytes read + written
     fma_flops: int         # FLOPs per timed FMA launch
     copy_bytes: int        # bytes moved per timed copy launch
+    limit_ns: dict = dataclasses.field(default_factory=dict)   # probe -> ns per lane-operation
 
     def fraction(self, gflops: float, gbps: float) -> float:
         """Achieved over attainable, min(peak, intensity × bandwidth), for a kernel that reaches
@@ -227,14 +241,48 @@ class Roofline:
         return "compute" if flops_per_byte * self.gbps >= self.gflops else "memory"
 
 
-def measure_roofline(compute, repeats: int) -> Roofline:
+def measure_roofline(compute, repeats: int, env_res: int = DEFAULT_ENV_RES) -> Roofline:
     """The device's FMA throughput and copy bandwidth: the median of ``repeats`` launches each,
-    the FMA launch sized to take ≥ ROOF_MIN_MS."""
+    the FMA launch sized to take ≥ ROOF_MIN_MS; and its limit probes (:func:`measure_limits`)."""
     iterations = fma_iterations(compute, FMA_ITEMS, ROOF_MIN_MS)
     _, fma_ms, flops = run_fma(compute, FMA_ITEMS, iterations, repeats)
     _, copy_ms, moved = run_copy(compute, np.ones(copy_size(compute) // 4, np.float32), repeats)
     return Roofline(gflops=flops / spread(fma_ms)[0] / 1e6, gbps=moved / spread(copy_ms)[0] / 1e6,
-                    fma_flops=flops, copy_bytes=moved)
+                    fma_flops=flops, copy_bytes=moved,
+                    limit_ns=measure_limits(compute, env_res, repeats))
+
+
+def measure_limits(compute, env_res: int, repeats: int) -> dict[str, float]:
+    """ns per lane-operation of each limit probe (``probes.PROBE_FLOPS``) on the whole device:
+    the median of ``repeats`` launches of LIMIT_ITEMS work items, each sized to take ≥
+    LIMIT_MIN_MS; the gathers read a table of ``gather_entries(env_res)`` entries."""
+    table = chase_table(gather_entries(env_res))
+    runs = {   # (count, launches) -> (device ms of each launch, lane-operations per launch)
+        "phong_power": lambda n, k: run_phong_power(compute, LIMIT_ITEMS, n, k)[1:],
+        "philox": lambda n, k: run_philox(compute, LIMIT_ITEMS, n, k)[1:],
+        "divide": lambda n, k: run_divide(compute, LIMIT_ITEMS, n, k)[1:],
+        "gather": lambda n, k: run_gathers(compute, table, LIMIT_ITEMS, n, False, k)[2:],
+        "dependent_load": lambda n, k: run_gathers(compute, table, LIMIT_ITEMS, n, True, k)[2:],
+        "serial_add": lambda n, k: run_serial_adds(compute, LIMIT_ITEMS, n, k)[1:],
+        "lockstep": lambda n, k: run_lockstep_steps(compute, table, LIMIT_ITEMS, n, k)[1:]}
+    rates = {}
+    for probe, run in runs.items():
+        count = sized(lambda n: run(n, 1)[0][0], LIMIT_MIN_MS)
+        times, operations = run(count, repeats)
+        rates[probe] = spread(times)[0] * 1e6 / operations
+    return rates
+
+
+def limit_terms(cost, spp: int, evaluations: float, lanes: int, roofline: Roofline) -> dict[str, float]:
+    """ns per sample of each limit of an estimator's ``cost`` at ``spp`` and ``evaluations``
+    per pixel in blocks of ``lanes``: each probe's operations × its ns, and under ``"flops"``
+    the FLOPs its probes' operations do not hold at the FMA peak.  Their sum bounds the time
+    (module docstring)."""
+    counts = cost.executed_per_sample(spp, evaluations, lanes)
+    flops = counts.pop("flops") - sum(count * PROBE_FLOPS[probe] for probe, count in counts.items())
+    terms = {probe: count * roofline.limit_ns[probe] for probe, count in counts.items()}
+    terms["flops"] = max(flops, 0.0) / roofline.gflops
+    return terms
 
 
 # ---- the NumPy floor ---------------------------------------------------------------------------
@@ -388,6 +436,7 @@ class PerfConfig:
     env_res: int = DEFAULT_ENV_RES
     repeats: int | None = None              # None: its perf_budget, else DEFAULT_REPEATS
     device: str | None = None
+    lanes: int | None = None                # POOL_LANES override (8 or 16); None: the device's
 
 
 def command_line(config: PerfConfig) -> str:
@@ -396,7 +445,8 @@ def command_line(config: PerfConfig) -> str:
     words += [f"--estimator '{label}'" for label in config.estimators]
     words += [f"--spp {config.spp}"] * bool(config.spp) + [f"--repeats {config.repeats}"] * bool(config.repeats)
     words += [f"--res {config.resolution[0]}x{config.resolution[1]}", f"--env-res {config.env_res}"]
-    return " ".join(words + [f"--device '{config.device}'"] * bool(config.device) + [f"--out {config.out}"])
+    words += [f"--device '{config.device}'"] * bool(config.device) + [f"--lanes {config.lanes}"] * bool(config.lanes)
+    return " ".join(words + [f"--out {config.out}"])
 
 
 def _budget(config: PerfConfig, cls) -> tuple[int, int]:
@@ -407,7 +457,7 @@ def _budget(config: PerfConfig, cls) -> tuple[int, int]:
 
 
 def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
-         device: str) -> dict:
+         device: str, lanes: int) -> dict:
     build, sample, shade = spread(cell.build), spread(cell.sample), spread(cell.shade)
     frame = spread([b + s + h for b, s, h in zip(cell.build, cell.sample, cell.shade)])
     render_ms = spread([s + h for s, h in zip(cell.sample, cell.shade)])[0]
@@ -431,10 +481,15 @@ def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
     if cost is not None:
         flops, nbytes = cost.per_sample(cell.spp, cell.evaluations)
         gflops, gbps = flops * samples / (shade[0] * 1e6), nbytes * samples / (shade[0] * 1e6)
+    limit_ms, limiting = math.nan, ""
+    if cost is not None and cost.limits:
+        terms = limit_terms(cost, cell.spp, cell.evaluations, lanes, roofline)
+        limit_ms, limiting = sum(terms.values()) * samples / 1e6, max(terms, key=terms.get)
     row.update({"flops_per_sample": flops, "bytes_per_sample": nbytes, "gflops": gflops,
                 "gbytes_per_s": gbps,
                 "roofline_fraction": roofline.fraction(gflops, gbps) if cost else math.nan,
                 "bound": roofline.bound(flops / nbytes) if cost else "",
+                "limit_ms": limit_ms, "limit_fraction": limit_ms / shade[0], "limiting_probe": limiting,
                 "speedup_vs_floor": math.nan, "floor_max_rel_diff": math.nan,
                 "peak_gflops": roofline.gflops, "peak_gbps": roofline.gbps, "device": device})
     return row
@@ -452,6 +507,7 @@ def _host_row(scene: str, label: str, spp: int, evaluations: int, pixels: int, t
                 "shade_ms_min": low, "shade_ms_iqr": iqr, "render_ms": median, "host_ms": median,
                 "msamples_per_s": pixels * spp / (median * 1e3),
                 "mevals_per_s": pixels * evaluations / (median * 1e3), "bound": "",
+                "limiting_probe": "",
                 "peak_gflops": roofline.gflops, "peak_gbps": roofline.gbps, "device": device})
     return row
 
@@ -523,12 +579,15 @@ def run_perf(config: PerfConfig, log=print):
     if len(set(labels)) != len(labels):
         raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
     scenes = [load_scene(name, env_res=config.env_res) for name in dict.fromkeys(config.scenes)]
-    compute = get_compute(config.device)
+    compute = get_compute(config.device, config.lanes)
     floor_spp = config.spp or DEFAULT_SPP
     rows = []
-    log(f"device: {compute.device_name}")
-    roofline = measure_roofline(compute, config.repeats or DEFAULT_REPEATS)
+    log(f"device: {compute.device_name}, {compute.pool_lanes} lanes")
+    roofline = measure_roofline(compute, config.repeats or DEFAULT_REPEATS, config.env_res)
     log(f"roofline: {roofline.gflops:.4g} GFLOP/s (FMA), {roofline.gbps:.4g} GB/s (copy)")
+    log("limit probes, ns per lane-operation: "
+        + ", ".join(f"{probe} {ns:.3g}" for probe, ns in roofline.limit_ns.items()))
+    probe_ns = {f"{probe}_ns": ns for probe, ns in roofline.limit_ns.items()}
     probe = CopyProbe(compute)
     peer_absent = mitsuba_peer.unavailable()
     log(f"{mitsuba_peer.PEER}: " + (f"absent, {peer_absent}" if peer_absent
@@ -568,12 +627,13 @@ def run_perf(config: PerfConfig, log=print):
                            device_gbuffer.count, floor_times, difference, roofline,
                            compute.device_name)
         scene_rows = [_row(scene.name, cell, device_gbuffer.count, env.shape[1], roofline,
-                           compute.device_name)
+                           compute.device_name, compute.pool_lanes)
                       for cell, _ in cells]
         if peer:
             scene_rows.append(_peer_row(scene.name, peer, floor_spp, peer_times, roofline,
                                         compute.device_name))
-        rows += _with_speedups(scene_rows, floor)
+        rows += [dict(row, lanes=compute.pool_lanes, **probe_ns)
+                 for row in _with_speedups(scene_rows, floor)]
         log(f"{scene.name}: {len(cells)} estimators and the floor{' and the peer' * bool(peer)} measured")
     return pd.DataFrame(rows, columns=list(COLUMNS)), roofline
 
@@ -602,7 +662,7 @@ def run_study(config: PerfConfig) -> PerfStudy:
 
     start = time.perf_counter()
     with host_threads_capped():   # the NumPy floor runs between timed kernels: no spinning BLAS
-        compute = get_compute(config.device)   # cached: run_perf gets the same context
+        compute = get_compute(config.device, config.lanes)   # cached: run_perf gets the same context
         floors = [measure_timing_floor(compute)]
         table, roofline = run_perf(config)
         floors.append(measure_timing_floor(compute))
