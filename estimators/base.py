@@ -132,7 +132,11 @@ class KernelCost:
     ``limits`` (:class:`Limit`) are the probe operations it runs; perf bounds the kernel's time
     by them (its ``limit_fraction``).  ``lane_loops`` groups a pixel's evaluations: (loops,
     share) where ``share`` of the evaluations run in ``loops`` loops of blocks of POOL_LANES
-    lanes, split evenly, each loop's last block masked; () is one group of unpadded slots."""
+    lanes, split evenly, each loop's last block masked; () is one group of unpadded slots.
+    ``scalar``: the kernel runs one evaluation at a time per work item in scalar code that PoCL
+    does not vectorise across work items (``POCL_VECTORIZER_REMARKS=1`` reports no loop of the
+    device's width), so each operation and FLOP holds a whole vector's time: POOL_LANES
+    lane-operations."""
 
     flops_per_eval: float
     flops_per_sample: float
@@ -142,6 +146,7 @@ class KernelCost:
     derivation: str = ""
     limits: tuple[Limit, ...] = ()
     lane_loops: tuple[tuple[int, float], ...] = ()
+    scalar: bool = False
 
     def per_sample(self, spp: int, evaluations: float) -> tuple[float, float]:
         """(FLOPs, bytes) per sample of a render at ``spp`` with ``evaluations`` per pixel."""
@@ -158,13 +163,13 @@ class KernelCost:
 
     def executed_per_sample(self, spp: int, evaluations: float, lanes: int) -> dict[str, float]:
         """Per sample at ``spp``: the FLOPs run (masked slots included) under ``"flops"``, and
-        each limit probe's lane-operations under its name."""
-        slots = self.slots(evaluations, lanes)
+        each limit probe's lane-operations under its name (× ``lanes`` where :attr:`scalar`)."""
+        slots, width = self.slots(evaluations, lanes), lanes if self.scalar else 1
         counts = {"flops": self.flops_per_sample + (self.flops_per_eval * sum(slots) + self.flops_per_pixel) / spp}
         for limit in self.limits:
             counts[limit.probe] = (counts.get(limit.probe, 0.0) + limit.per_sample
                                    + (limit.per_eval * slots[limit.group] + limit.per_pixel) / spp)
-        return counts
+        return {name: count * width for name, count in counts.items()}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from iblbench.estimators.base import KernelCost, Mutant, SweepPart
+from iblbench.estimators.base import KernelCost, Limit, Mutant, SweepPart
 from iblbench.estimators.envmap import Envmap
 
 
@@ -68,7 +68,18 @@ class Hierarchical(Envmap):
         face's probability 1, the point in the texel 12 (a grid cell's centre, 6 per
         coordinate), its pdf 8, the face direction normalised 12, lobe power 41, n·ω 5, D 1,
         add_samples 18; per pixel envmap's 76 and the faces' widths 19 (their total 5,
-        2^31/total 1, six shares and clamps 12, hoisted: the same for every sample)""")
+        2^31/total 1, six shares and clamps 12, hoisted: the same for every sample)""",
+        lane_loops=((1, 1.0),), limits=(   # descent.cl's descent_sample in render_map's light loop
+            Limit("philox", per_eval=2, why="descent_word: 8 words (face, 6 levels, point)"),
+            Limit("dependent_load", per_eval=7,
+                  why="a level's four children at the child picked above, 6 levels, then the "
+                      "texel's radiance"),
+            Limit("gather", per_eval=20, why="the other three children of each level 18, the "
+                                             "texel's other two channels 2"),
+            Limit("phong_power", per_eval=1, why="the lobe power"),
+            Limit("divide", per_eval=13,
+                  why="descent_widths' 2^31 / total at the faces and 6 levels 7, x and y / res "
+                      "2, √area 1, lanes_face_direction 2, add_samples 1")))
     requires = ("weight_pyramid",)
     kernel_files = ("hierarchical.cl", "descent.cl", "envmap.cl", "lanes.cl")
     mutants = (   # for iblbench selftest (harness/verify/mutants.py)

@@ -153,7 +153,7 @@ import functools
 import numpy as np
 import pyopencl as cl
 
-from iblbench.estimators.base import (Estimate, Estimator, KernelCost, Mutant, Setting, SweepPart,
+from iblbench.estimators.base import (Estimate, Estimator, KernelCost, Limit, Mutant, Setting, SweepPart,
                                       Tags, WorkCounts, read_estimate, specular_lobe_defines)
 from iblbench.estimators.runtime import philox
 from iblbench.estimators.runtime.device import KeptBuffers, event_ms
@@ -258,7 +258,19 @@ class ReSTIR(Estimator):
         kernels 72 and its target scale over 24 coarse cells, 63 each (direction 12, n·ω 5, lobe
         power 41, ρ_Y 3, products 2), 1512, and the power 6; bytes: the G-buffer read three
         times, 192, the scale (4) and stats (16) written and read back, radiance (16) and counts
-        (8) out, 60 (presamples, maps and pyramid cache-resident)""")
+        (8) out, 60 (presamples, maps and pyramid cache-resident)""",
+        limits=(   # approximate: restir.cl's passes, per evaluation the mean of a chain's 17
+            Limit("philox", per_eval=16 / 17, why="a candidate's block and its BRDF draw's"),
+            Limit("phong_power", per_eval=25 / 17,
+                  why="a candidate's ξ^{1/(m+1)} and lobe power, a reuse target's, the shading's"),
+            Limit("gather", per_eval=143 / 17,
+                  why="a candidate's presample (x, y, z, pdf), texel and pyramid 8; a reuse "
+                      "target's texel and its neighbour's reservoir 9; the shading's texel 3"),
+            Limit("divide", per_eval=107 / 17,
+                  why="a candidate 10 (√ξ, log2 ξ, direction 3, lanes_texel_of 3, densities 2), "
+                      "a reuse target's or the shading's lanes_texel_of 3"),
+            Limit("philox", per_sample=2, why="the two neighbours' disc points"),
+            Limit("phong_power", per_pixel=24, why="the target scale's 24 coarse cells")))
     Params = ReSTIRParams
     settings = (Setting("candidates", 2), Setting("brdf_share", 0.0), Setting("temporal", False),
                 Setting("history_cap", 20.0, {"neighbours": 0}, says="history_cap"),

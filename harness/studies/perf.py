@@ -75,6 +75,33 @@ fields of the estimator's ``cost`` (a ``KernelCost``, declared on its class besi
 with its derivation; perf.html lists those of the estimators measured).  An estimator that
 declares none gets NaN FLOP, byte and roofline figures.
 
+The other limits.  Most kernels are held by something other than FLOPs and DRAM bytes, so perf
+also measures, beside the roofline and on the same queue, the rate of each operation that
+holds one (``estimators/runtime/limit_probes.cl``, written in the estimators' explicit vectors
+of POOL_LANES lanes but independent of their code; :func:`measure_limits`, ns per
+lane-operation on the whole device, the median of ``repeats`` launches of ≥ 10 ms):
+``phong_power`` (a lobe power, common.cl's polynomial), ``philox`` (a Philox4x32-10 block),
+``divide`` (a correctly rounded division or square root: both run on the divider, at about 20
+FMAs' time each here), ``gather`` (one lane's element of an independent random gather from a
+table the size of the map), ``dependent_load`` (one step of a chain of such gathers, each
+index the value loaded before: a CDF search, a descent, an alias table's second read),
+``serial_add`` (one step of a scalar chain of acc_t additions: a vector's lanes leaving into a
+running sum) and ``lockstep`` (a scalar search step ended by a LOCKSTEP barrier, as bis's and
+smc's resampling searches are).  Each estimator's ``cost`` declares the operations its kernel
+runs (``limits``, each with where in the kernel, counts a reviewer checks against it) per
+evaluation slot, per sample and per pixel; an evaluation slot is a lane, masked or not, of the
+blocks its loops run (``lane_loops``: uniform at spp 64 runs 96 slots a pixel for 66 useful
+evaluations).  Per sample, each limit's time is its count × its probe's ns, and the FLOPs that
+its probes' operations do not hold (the count's FLOPs less 35 a lobe power and 1 a division)
+take their time at the FMA peak.  ``limit_ms`` is the sum of those times × pixels × spp: the
+bound if the operations do not overlap, which is the model here because on this kind of CPU
+they share the same two vector ports (FMA, integer, shuffle and a gather's inserts; only the
+divider is a unit apart, so where divisions dominate the sum may exceed the time); the largest
+term alone (``limiting_probe``, ``limiting_fraction``) is the bound if they overlapped fully.
+The true bound lies between.  ``limit_fraction`` = limit_ms / shade_ms: ≥ 0.5 is within 2× of
+the limits; scalar per-pixel work is counted one lane an operation (a lower bound of its
+time).
+
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
 ⌈N_f⌉ entries of each lit face's pool, N_f = N_s/6, with the fractional last weight β of
@@ -190,6 +217,8 @@ COLUMNS = {
     "limit_fraction": "limit_ms / shade_ms: the kernel's speed over its limits' (≥ 0.5: within "
                       "2× of the bound)",
     "limiting_probe": "the largest term of limit_ms: a probe's name, or flops",
+    "limiting_fraction": "that term's ms / shade_ms: the kernel's speed over its largest limit's "
+                         "alone (the bound where the limits overlap fully)",
     "speedup_vs_floor": "msamples_per_s over the NumPy floor's (same scene)",
     "speedup_vs_mitsuba": "msamples_per_s over the Mitsuba 3 peer's (same scene; NaN where the "
                           "peer does not run)",
@@ -481,15 +510,17 @@ def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
     if cost is not None:
         flops, nbytes = cost.per_sample(cell.spp, cell.evaluations)
         gflops, gbps = flops * samples / (shade[0] * 1e6), nbytes * samples / (shade[0] * 1e6)
-    limit_ms, limiting = math.nan, ""
+    limit_ms, limiting, limiting_ms = math.nan, "", math.nan
     if cost is not None and cost.limits:
         terms = limit_terms(cost, cell.spp, cell.evaluations, lanes, roofline)
-        limit_ms, limiting = sum(terms.values()) * samples / 1e6, max(terms, key=terms.get)
+        limiting = max(terms, key=terms.get)
+        limit_ms, limiting_ms = sum(terms.values()) * samples / 1e6, terms[limiting] * samples / 1e6
     row.update({"flops_per_sample": flops, "bytes_per_sample": nbytes, "gflops": gflops,
                 "gbytes_per_s": gbps,
                 "roofline_fraction": roofline.fraction(gflops, gbps) if cost else math.nan,
                 "bound": roofline.bound(flops / nbytes) if cost else "",
                 "limit_ms": limit_ms, "limit_fraction": limit_ms / shade[0], "limiting_probe": limiting,
+                "limiting_fraction": limiting_ms / shade[0],
                 "speedup_vs_floor": math.nan, "floor_max_rel_diff": math.nan,
                 "peak_gflops": roofline.gflops, "peak_gbps": roofline.gbps, "device": device})
     return row
