@@ -15,46 +15,49 @@ def lanes_compute(compute, request):
     return Compute(compute.info, lanes=request.param)
 
 
+def global_lanes(items: int, lanes: int) -> np.ndarray:
+    """limit_probes.cl's GLOBAL_LANES: g = lanes·item + k, ``[items, lanes]``."""
+    return np.arange(items * lanes).reshape(items, lanes)
+
+
 def test_phong_power_probe_sums_every_power_it_counts(lanes_compute):
-    """Lane k of item i sums c^m over c = c₀·shrink^j, j < iterations, c₀ = 0.5 + k/(2L) −
-    (i mod 1024)·1e-6: one power left out would move the sum by ≥ 1/iterations of it."""
+    """Lane g sums c^m over c = c₀·shrink^j, j < iterations, c₀ = 0.25 + (g mod 64)/128: one
+    power left out would move the sum by ≥ 1/iterations of it."""
     items, iterations, lanes = 24, 40, lanes_compute.pool_lanes
     out, times, powers = probes.run_phong_power(lanes_compute, items, iterations)
     assert powers == items * lanes * iterations and len(times) == 1
-    start = (np.float32(0.5) + np.arange(lanes, dtype=np.float32) * np.float32(0.5 / lanes))[None, :] \
-        - (np.arange(items) % 1024).astype(np.float32)[:, None] * np.float32(1e-6)
-    c = start.astype(np.float64)[:, :, None] * probes.PHONG_SHRINK ** np.arange(iterations)
+    start = 0.25 + (global_lanes(items, lanes) % 64) / 128.0
+    c = start[:, :, None] * probes.PHONG_SHRINK ** np.arange(iterations)
     np.testing.assert_allclose(out, (c ** probes.PHONG_M).sum(axis=2), rtol=2e-4)
 
 
 def test_philox_probe_draws_every_block_it_counts(lanes_compute):
     """The XOR of every word drawn equals philox.py's (the paper's round function), block by
-    block: rng_block(seed, 0, 0, item, i·L + k, 0) in lane k of iteration i."""
+    block: rng_block(seed, 0, 0, 0, g·iterations + i, 0) in lane g at iteration i."""
     items, iterations, lanes, seed = 6, 5, lanes_compute.pool_lanes, 0x1234
     out, _, blocks = probes.run_philox(lanes_compute, items, iterations, seed=seed)
     assert blocks == items * lanes * iterations
-    item = np.arange(items)[:, None, None]
-    sample = (np.arange(iterations)[None, :, None] * lanes + np.arange(lanes)[None, None, :])
-    words = philox.rng_block(seed, 0, 0, item, sample, 0)
-    expected = np.bitwise_xor.reduce(np.bitwise_xor.reduce(np.stack(words), axis=0), axis=1)
+    sample = global_lanes(items, lanes)[:, :, None] * iterations + np.arange(iterations)
+    words = philox.rng_block(seed, 0, 0, 0, sample, 0)
+    expected = np.bitwise_xor.reduce(np.bitwise_xor.reduce(np.stack(words), axis=0), axis=2)
     np.testing.assert_array_equal(out, expected)
 
 
 def test_divide_probe_sums_every_quotient_it_counts(lanes_compute):
-    """acc_k += (x + k)/d for k < 4, d += step, replayed in float32 in the kernel's order (each
-    quotient correctly rounded): equal within a few roundings; 4 divisions a lane a round."""
+    """acc_k += (x + k)/d for k < 4, d += step, x = 1 + (g mod 16), replayed in float32 in the
+    kernel's order (each quotient correctly rounded): equal within a few roundings; 4 divisions
+    a lane a round."""
     items, iterations, lanes = 3, 50, lanes_compute.pool_lanes
     out, _, divisions = probes.run_divide(lanes_compute, items, iterations)
     assert divisions == 4 * items * lanes * iterations
-    x = np.float32(1) + np.arange(lanes, dtype=np.float32)
-    d = np.float32(1) + np.float32(0.5) * np.arange(lanes, dtype=np.float32)
-    acc = np.zeros((4, lanes), np.float32)
+    lane = (global_lanes(items, lanes) % 16).astype(np.float32)
+    x, d = np.float32(1) + lane, np.float32(1) + np.float32(0.5) * lane
+    acc = np.zeros((4, items, lanes), np.float32)
     for _ in range(iterations):
         for k in range(4):
             acc[k] += (x + np.float32(k)) / d
         d += np.float32(probes.DIVIDE_STEP)
-    expected = (acc[0] + acc[1]) + (acc[2] + acc[3])
-    np.testing.assert_allclose(out, np.broadcast_to(expected, out.shape), rtol=1e-6)
+    np.testing.assert_allclose(out, (acc[0] + acc[1]) + (acc[2] + acc[3]), rtol=1e-6)
 
 
 def test_chase_table_is_one_cycle_through_every_entry():
@@ -109,3 +112,11 @@ def test_lockstep_probe_takes_every_step_it_counts(lanes_compute):
     for _ in range(steps):
         index = table[index]
     np.testing.assert_array_equal(out, index)
+
+
+def test_limit_outputs_are_the_same_at_either_lane_width(compute):
+    """What the portability set compares across devices does not depend on POOL_LANES."""
+    narrow, wide = (probes.limit_outputs(Compute(compute.info, lanes=lanes)) for lanes in (8, 16))
+    assert narrow.keys() == wide.keys() == set(probes.PROBE_FLOPS)
+    for name in narrow:
+        np.testing.assert_allclose(narrow[name], wide[name], rtol=1e-6, err_msg=name)

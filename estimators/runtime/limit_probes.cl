@@ -23,14 +23,18 @@
 #define as_lane_uints as_uint8
 #endif
 
+/* A work item's lanes' global numbers g = POOL_LANES·id + k: every probe's arguments depend on g
+ * alone, so its outputs, read as one array, are the same at either lane width. */
+#define GLOBAL_LANES(id) (convert_lane_uints((int)((id) * POOL_LANES) + LANE_NUMBERS))
+
 /* `iterations` lobe powers a lane: acc += c^m, then c *= shrink (shrink < 1 keeps c in (0, 1];
- * one multiply and one add of overhead a power).  out[id] holds each lane's sum. */
+ * one multiply and one add of overhead a power), from c = 0.25 + (g mod 64)/128.  out[id]
+ * holds each lane's sum. */
 __kernel void phong_power_throughput(const int iterations, const float m, const float shrink,
                                      __global lanes_t *out)
 {
     size_t id = get_global_id(0);
-    lanes_t c = 0.5f + convert_lanes(LANE_NUMBERS) * (0.5f / POOL_LANES)
-              - (float)(id & 1023) * 1e-6f, acc = (lanes_t)0.0f;
+    lanes_t c = 0.25f + convert_lanes(GLOBAL_LANES(id) & 63u) * (1.0f / 128.0f), acc = (lanes_t)0.0f;
     for (int i = 0; i < iterations; ++i) {
         acc += phong_power_lanes(c, (lanes_t)m);
         c *= shrink;
@@ -38,15 +42,14 @@ __kernel void phong_power_throughput(const int iterations, const float m, const 
     out[id] = acc;
 }
 
-/* `iterations` Philox blocks a lane, rng_block_lanes(seed, 0, 0, id, i·POOL_LANES + k, 0) in
- * lane k of iteration i; out[id] holds the XOR of every word each lane drew. */
+/* `iterations` Philox blocks a lane, rng_block_lanes(seed, 0, 0, 0, g·iterations + i, 0) in
+ * iteration i; out[id] holds the XOR of every word each lane drew. */
 __kernel void philox_throughput(const int iterations, const uint seed, __global lane_uints_t *out)
 {
-    uint id = get_global_id(0);
-    lane_uints_t seen = (lane_uints_t)0u;
+    size_t id = get_global_id(0);
+    lane_uints_t first = GLOBAL_LANES(id) * (uint)iterations, seen = (lane_uints_t)0u;
     for (int i = 0; i < iterations; ++i) {
-        lane_uints_t sample = convert_lane_uints(i * POOL_LANES + LANE_NUMBERS);
-        lane_block_t block = rng_block_lanes(seed, 0u, 0u, id, sample, 0u);
+        lane_block_t block = rng_block_lanes(seed, 0u, 0u, 0u, first + (uint)i, 0u);
         seen ^= block.v[0] ^ block.v[1] ^ block.v[2] ^ block.v[3];
     }
     out[id] = seen;
@@ -54,13 +57,14 @@ __kernel void philox_throughput(const int iterations, const uint seed, __global 
 
 /* `iterations` rounds of four independent divisions a lane, acc_k += (x + k) / d, then
  * d += step (one add each of overhead, and one a round): four chains, so the divider's
- * throughput binds, not an add's latency.  x = 1 + lane, d starts at 1 + lane/2.  out[id]
- * holds each lane's acc_0 + acc_1 + acc_2 + acc_3. */
+ * throughput binds, not an add's latency.  x = 1 + (g mod 16), d starts at 1 + (g mod 16)/2.
+ * out[id] holds each lane's acc_0 + acc_1 + acc_2 + acc_3. */
 __kernel void divide_throughput(const int iterations, const float step, __global lanes_t *out)
 {
     size_t id = get_global_id(0);
-    lanes_t x = 1.0f + convert_lanes(LANE_NUMBERS), d = 1.0f + 0.5f * convert_lanes(LANE_NUMBERS),
-            acc0 = (lanes_t)0.0f, acc1 = acc0, acc2 = acc0, acc3 = acc0;
+    lanes_t lane = convert_lanes(GLOBAL_LANES(id) & 15u);
+    lanes_t x = 1.0f + lane, d = 1.0f + 0.5f * lane, acc0 = (lanes_t)0.0f, acc1 = acc0, acc2 = acc0,
+            acc3 = acc0;
     for (int i = 0; i < iterations; ++i) {
         acc0 += x / d;
         acc1 += (x + 1.0f) / d;

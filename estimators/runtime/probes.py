@@ -150,7 +150,8 @@ def run_phong_power(compute, items: int, iterations: int, launches: int = 1):
 
 def run_philox(compute, items: int, iterations: int, launches: int = 1, seed: int = 0x1234):
     """``launches`` timed launches of ``philox_throughput``: (the XOR of each lane's words
-    ``[items, pool_lanes]``, device ms of each launch, lane-blocks per launch)."""
+    ``[items, pool_lanes]``, device ms of each launch, lane-blocks per launch).  Lane g =
+    pool_lanes·item + k draws rng_block(seed, 0, 0, 0, g·iterations + i, 0), i < iterations."""
     lanes = compute.pool_lanes
     out = compute.empty(4 * items * lanes)
     args = (np.int32(iterations), np.uint32(seed), out)
@@ -239,3 +240,18 @@ def sized(run, min_ms: float) -> int:
             return count
         count *= 2 if ms > min_ms / 64 else 16
 
+
+
+def limit_outputs(compute, lanes_total: int = 32) -> dict[str, np.ndarray]:
+    """Small runs of every limit probe over ``lanes_total`` lanes (a multiple of 16), their
+    outputs by probe, flat: the same at either lane width (the portability set's ``probes``
+    case runs them on Oclgrind and compares them across devices)."""
+    table, items = chase_table(1 << 8), lanes_total // compute.pool_lanes
+    return {name: np.ravel(out) for name, out in {
+        "phong_power": run_phong_power(compute, items, 3)[0],
+        "philox": run_philox(compute, items, 2)[0],
+        "divide": run_divide(compute, items, 3)[0],
+        "gather": run_gathers(compute, table, items, 3, False)[0],
+        "dependent_load": run_gathers(compute, table, items, 3, True)[0],
+        "serial_add": run_serial_adds(compute, 2, 3)[0],
+        "lockstep": run_lockstep_steps(compute, table, LOCKSTEP_GROUP, 2)[0]}.items()}
