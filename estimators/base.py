@@ -136,7 +136,8 @@ class KernelCost:
     ``scalar``: the kernel runs one evaluation at a time per work item in scalar code that PoCL
     does not vectorise across work items (``POCL_VECTORIZER_REMARKS=1`` reports no loop of the
     device's width), so each operation and FLOP holds a whole vector's time: POOL_LANES
-    lane-operations."""
+    lane-operations.  Per-pixel work is scalar in every kernel that runs a pixel a work item
+    and its samples in explicit lanes, so it counts POOL_LANES lane-operations too."""
 
     flops_per_eval: float
     flops_per_sample: float
@@ -163,13 +164,15 @@ class KernelCost:
 
     def executed_per_sample(self, spp: int, evaluations: float, lanes: int) -> dict[str, float]:
         """Per sample at ``spp``: the FLOPs run (masked slots included) under ``"flops"``, and
-        each limit probe's lane-operations under its name (× ``lanes`` where :attr:`scalar`)."""
+        each limit probe's lane-operations under its name: per-pixel ones × ``lanes``, all of
+        them where :attr:`scalar`."""
         slots, width = self.slots(evaluations, lanes), lanes if self.scalar else 1
-        counts = {"flops": self.flops_per_sample + (self.flops_per_eval * sum(slots) + self.flops_per_pixel) / spp}
+        counts = {"flops": width * (self.flops_per_sample + self.flops_per_eval * sum(slots) / spp)
+                  + lanes * self.flops_per_pixel / spp}
         for limit in self.limits:
-            counts[limit.probe] = (counts.get(limit.probe, 0.0) + limit.per_sample
-                                   + (limit.per_eval * slots[limit.group] + limit.per_pixel) / spp)
-        return {name: count * width for name, count in counts.items()}
+            counts[limit.probe] = (counts.get(limit.probe, 0.0) + lanes * limit.per_pixel / spp
+                                   + width * (limit.per_sample + limit.per_eval * slots[limit.group] / spp))
+        return counts
 
 
 @dataclasses.dataclass(frozen=True)

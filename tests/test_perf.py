@@ -161,7 +161,7 @@ def test_uniform_runs_its_masked_lanes():
         assert Uniform.cost.slots(66, lanes) == [96]
         counts = Uniform.cost.executed_per_sample(64, 66, lanes)
         assert counts["phong_power"] == counts["divide"] == 1.5
-        assert counts["flops"] == pytest.approx((65 * 96 + 88) / 64)
+        assert counts["flops"] == pytest.approx((65 * 96 + lanes * 88) / 64)   # per pixel: scalar
     assert Uniform.cost.slots(66 * 16, 16) == [6 * 16 * 11]   # 176 draws a face: 11 whole blocks
 
 
@@ -180,9 +180,10 @@ def test_limit_terms_time_each_probe_and_the_remaining_flops():
     grouped = KernelCost(0, 0, 0, 0, 64, lane_loops=((2, 0.75), (1, 0.25)),
                          limits=(Limit("gather", per_eval=1, group=1, per_pixel=8),
                                  Limit("gather", per_sample=0.5)))
-    # 40 evaluations: 30 in 2 loops of 15 → 2 × 16 slots; 10 in 1 loop → 16 slots
+    # 40 evaluations: 30 in 2 loops of 15 → 2 × 16 slots; 10 in 1 loop → 16 slots; the 8
+    # per-pixel gathers are scalar, 16 lane-operations each
     assert grouped.slots(40, 16) == [32, 16]
-    assert grouped.executed_per_sample(8, 40, 16)["gather"] == pytest.approx((16 + 8) / 8 + 0.5)
+    assert grouped.executed_per_sample(8, 40, 16)["gather"] == pytest.approx((16 + 16 * 8) / 8 + 0.5)
 
 
 def test_per_sample_cost_follows_the_docstring_formula():
@@ -314,8 +315,9 @@ def test_spread_is_median_min_and_iqr():
 
 
 def test_a_scalar_kernel_holds_a_vector_an_operation():
-    """scalar=True: each operation and FLOP costs `lanes` lane-operations."""
-    limits = (Limit("phong_power", per_sample=1),)
+    """scalar=True: each operation and FLOP costs `lanes` lane-operations (per-pixel ones
+    already do)."""
+    limits = (Limit("phong_power", per_sample=1, per_eval=2),)
     vector, scalar = KernelCost(10, 0, 0, 0, 64, limits=limits), KernelCost(10, 0, 0, 0, 64, limits=limits, scalar=True)
     for lanes in (8, 16):
         assert scalar.executed_per_sample(4, 4, lanes) == {

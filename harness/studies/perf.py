@@ -99,8 +99,9 @@ they share the same two vector ports (FMA, integer, shuffle and a gather's inser
 divider is a unit apart, so where divisions dominate the sum may exceed the time); the largest
 term alone (``limiting_probe``, ``limiting_fraction``) is the bound if they overlapped fully.
 The true bound lies between.  ``limit_fraction`` = limit_ms / shade_ms: ≥ 0.5 is within 2× of
-the limits; scalar per-pixel work is counted one lane an operation (a lower bound of its
-time).
+the limits.  Per-pixel work runs scalar (a pixel a work item), so each of its operations and
+FLOPs counts POOL_LANES lane-operations, and so does all the work of a kernel that PoCL does not
+vectorise (``scalar``: havran's and cosine's, whose one-pixel loops hold a branch).
 
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
