@@ -13,9 +13,12 @@ Measure the throughput of every estimator (or the chosen ones) on this device, s
 one run: per (scene, estimator), Msamples/s and M evaluations/s, the device ms of the build,
 sample and shade stages (median, min and IQR of --repeats renders after one warm-up), the
 device's measured FMA and copy roofline and the fraction of it each shading kernel reaches
-(from analytic FLOP and byte counts per sample, estimates), and the speed-up over a
-single-threaded NumPy implementation of Lu 2013's shared-pool shading on the same inputs (the
-floor every kernel must beat; it must also agree with the uniform kernel on the same pool).
+(from analytic FLOP and byte counts per sample, estimates), the rates of probes of the other
+limits (lobe powers, Philox blocks, divisions, random and dependent gathers, scalar sums,
+LOCKSTEP search steps) and each kernel's speed over the time its declared uses of them take
+(limit), and the speed-up over a single-threaded NumPy implementation of Lu 2013's shared-pool
+shading on the same inputs (the floor every kernel must beat; it must also agree with the
+uniform kernel on the same pool).
 Where the mitsuba package is installed (pip install 'iblbench[peer]') and its llvm_ad_rgb variant
 runs a kernel here, also a production peer, row mitsuba3-envmap: Mitsuba 3's own envmap emitter
 sampling of the same map, Phong-shaded as envmap does, over the same pixels on every core, and
