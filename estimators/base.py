@@ -131,8 +131,9 @@ class KernelCost:
 
     ``limits`` (:class:`Limit`) are the probe operations it runs; perf bounds the kernel's time
     by them (its ``limit_fraction``).  ``lane_loops`` groups a pixel's evaluations: (loops,
-    share) where ``share`` of the evaluations run in ``loops`` loops of blocks of POOL_LANES
-    lanes, split evenly, each loop's last block masked; () is one group of unpadded slots.
+    share) where ``share`` of the evaluations run in ``loops`` loops (0: one a sample) of blocks
+    of POOL_LANES lanes, split evenly, each loop's last block masked; () is one group of
+    unpadded slots.
     ``scalar``: the kernel runs one evaluation at a time per work item in scalar code that PoCL
     does not vectorise across work items (``POCL_VECTORIZER_REMARKS=1`` reports no loop of the
     device's width), so each operation and FLOP holds a whole vector's time: POOL_LANES
@@ -154,19 +155,19 @@ class KernelCost:
         flops = self.flops_per_sample + (self.flops_per_eval * evaluations + self.flops_per_pixel) / spp
         return flops, self.bytes_per_sample + self.bytes_per_pixel / spp
 
-    def slots(self, evaluations: float, lanes: int) -> list[float]:
+    def slots(self, evaluations: float, lanes: int, spp: int) -> list[float]:
         """Evaluation slots a pixel runs in each group of :attr:`lane_loops`, masked lanes
-        included, for ``evaluations`` per pixel (a mean) in blocks of ``lanes``."""
+        included, for ``evaluations`` per pixel (a mean) in blocks of ``lanes`` at ``spp``."""
         if not self.lane_loops:
             return [evaluations]
-        return [loops * lanes * math.ceil(evaluations * share / loops / lanes - 1e-9)
+        return [(loops or spp) * lanes * math.ceil(evaluations * share / (loops or spp) / lanes - 1e-9)
                 for loops, share in self.lane_loops]
 
     def executed_per_sample(self, spp: int, evaluations: float, lanes: int) -> dict[str, float]:
         """Per sample at ``spp``: the FLOPs run (masked slots included) under ``"flops"``, and
         each limit probe's lane-operations under its name: per-pixel ones × ``lanes``, all of
         them where :attr:`scalar`."""
-        slots, width = self.slots(evaluations, lanes), lanes if self.scalar else 1
+        slots, width = self.slots(evaluations, lanes, spp), lanes if self.scalar else 1
         counts = {"flops": width * (self.flops_per_sample + self.flops_per_eval * sum(slots) / spp)
                   + lanes * self.flops_per_pixel / spp}
         for limit in self.limits:

@@ -91,7 +91,7 @@ smc's resampling searches are).  Each estimator's ``cost`` declares the operatio
 runs (``limits``, each with where in the kernel, counts a reviewer checks against it) per
 evaluation slot, per sample and per pixel; an evaluation slot is a lane, masked or not, of the
 blocks its loops run (``lane_loops``: uniform at spp 64 runs 96 slots a pixel for 66 useful
-evaluations).  Per sample, each limit's time is its count × its probe's ns, and the FLOPs that
+evaluations; restir a block of 16 for a chain's 8 candidates).  Per sample, each limit's time is its count × its probe's ns, and the FLOPs that
 its probes' operations do not hold (the count's FLOPs less 35 a lobe power and 1 a division)
 take their time at the FMA peak.  ``limit_ms`` is the sum of those times × pixels × spp: the
 bound if the operations do not overlap, which is the model here because on this kind of CPU
