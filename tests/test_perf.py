@@ -169,16 +169,17 @@ def test_uniform_runs_its_masked_lanes():
 
 def test_limit_terms_time_each_probe_and_the_remaining_flops():
     """Per sample: 2 powers of 35 FLOPs and 3 divisions of 1 at their probes' ns, the rest of
-    100 FLOPs per evaluation (100 − 70 − 3 = 27) at the FMA peak; per-pixel and per-sample
+    100 FLOPs per evaluation (100 − 70 − 3 = 27) at the lanes' FMA rate; per-pixel and per-sample
     counts added as the docstring says; a second loop group holds its own slots."""
     roof = perf.Roofline(gflops=10.0, gbps=1.0, fma_flops=1, copy_bytes=1,
-                         limit_ns={probe: 1.0 + i for i, probe in enumerate(probes.PROBE_FLOPS)})
+                         limit_ns={**{probe: 1.0 + i for i, probe in enumerate(probes.PROBE_FLOPS)},
+                                   "fma": 0.1})
     cost = KernelCost(100, 0, 0, 0, 64, limits=(Limit("phong_power", per_eval=2),
                                                 Limit("divide", per_eval=3)))
     terms = perf.limit_terms(cost, 4, 4, 16, roof)
     ns = roof.limit_ns
     assert terms == pytest.approx({"phong_power": 2 * ns["phong_power"], "divide": 3 * ns["divide"],
-                                   "flops": 27 / 10.0})
+                                   "flops": 27 * 0.1})
     grouped = KernelCost(0, 0, 0, 0, 64, lane_loops=((2, 0.75), (1, 0.25)),
                          limits=(Limit("gather", per_eval=1, group=1, per_pixel=8),
                                  Limit("gather", per_sample=0.5)))
@@ -239,8 +240,10 @@ def test_perf_csv_has_the_documented_columns_and_positive_rates(tiny_perf):
     assert np.all(kernels.limiting_fraction <= kernels.limit_fraction)
     assert set(kernels.limiting_probe) <= {*probes.PROBE_FLOPS, "flops"}
     assert (table.lanes == get_compute().pool_lanes).all()
-    for probe in probes.PROBE_FLOPS:
+    for probe in [*probes.PROBE_FLOPS, "fma"]:
         assert np.all(table[f"{probe}_ns"] > 0), probe
+    # the FMA rate of the estimators' lanes is at most the roofline's peak (its widest vectors)
+    assert np.all(table.fma_ns * table.peak_gflops > 0.8)
     with_cdf = kernels.estimator.map(lambda name: "cdf" in get_estimator_class(name).requires)
     assert with_cdf.any() and not with_cdf.all()
     cdf = kernels[with_cdf]

@@ -28,9 +28,9 @@ def fma_width(compute) -> int:
     return max(w for w in (1, 2, 4, 8, 16) if w <= max(width, 1))
 
 
-def _probe_kernel(compute, name: str):
+def _probe_kernel(compute, name: str, width: int | None = None):
     return compute.kernel("iblbench.estimators.runtime", "probes.cl", name,
-                          {"FMA_WIDTH": fma_width(compute)})
+                          {"FMA_WIDTH": width or fma_width(compute)})
 
 
 def _launches(compute, kernel, items: int, args, launches: int, group: int | None = None) -> list[float]:
@@ -41,14 +41,15 @@ def _launches(compute, kernel, items: int, args, launches: int, group: int | Non
 
 
 def run_fma(compute, items: int, iterations: int, launches: int = 1, b: float = 0.999,
-            c: float = 1e-3):
-    """``launches`` timed launches of ``fma_throughput``: (the outputs ``[items, FMA_CHAINS,
-    fma_width]``, device ms of each launch, FLOPs per launch)."""
-    lanes = fma_width(compute)
+            c: float = 1e-3, width: int | None = None):
+    """``launches`` timed launches of ``fma_throughput`` with chains of ``width`` lanes (None:
+    :func:`fma_width`): (the outputs ``[items, FMA_CHAINS, width]``, device ms of each launch,
+    FLOPs per launch)."""
+    lanes = width or fma_width(compute)
     shape = (items, FMA_CHAINS, lanes)
     out = compute.empty(4 * math.prod(shape))
     args = (np.int32(iterations), np.float32(b), np.float32(c), out)
-    times = _launches(compute, _probe_kernel(compute, "fma_throughput"), items, args, launches)
+    times = _launches(compute, _probe_kernel(compute, "fma_throughput", lanes), items, args, launches)
     flops = 2 * lanes * FMA_CHAINS * iterations * items
     return compute.to_host(out, shape, np.float32), times, flops
 

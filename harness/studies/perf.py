@@ -93,7 +93,8 @@ evaluation slot, per sample and per pixel; an evaluation slot is a lane, masked 
 blocks its loops run (``lane_loops``: uniform at spp 64 runs 96 slots a pixel for 66 useful
 evaluations; restir a block of 16 for a chain's 8 candidates).  Per sample, each limit's time is its count × its probe's ns, and the FLOPs that
 its probes' operations do not hold (the count's FLOPs less 35 a lobe power and 1 a division)
-take their time at the FMA peak.  ``limit_ms`` is the sum of those times × pixels × spp: the
+take their time at the FMA rate of POOL_LANES-wide vectors (``fma_ns``: at 8 lanes on an
+AVX-512 CPU half the roofline's peak, which is measured at the preferred width).  ``limit_ms`` is the sum of those times × pixels × spp: the
 bound if the operations do not overlap, which is the model here because on this kind of CPU
 they share the same two vector ports (FMA, integer, shuffle and a gather's inserts; only the
 divider is a unit apart, so where divisions dominate the sum may exceed the time); the largest
@@ -229,6 +230,8 @@ COLUMNS = {
     "peak_gbps": "the device's measured copy bandwidth, GB/s, read + written (median)",
     **{f"{probe}_ns": f"ns per lane-operation of the {probe} limit probe on the whole device "
                       "(median)" for probe in PROBE_FLOPS},
+    "fma_ns": "ns per FLOP of FMA chains in vectors of POOL_LANES on the whole device (median): "
+              "the rate of a limit's other FLOPs",
     "device": "OpenCL device | platform version | driver",
     "lanes": "the estimators' explicit vector width (POOL_LANES: the device's, or --lanes)",
 }
@@ -283,9 +286,11 @@ def measure_roofline(compute, repeats: int, env_res: int = DEFAULT_ENV_RES) -> R
 
 
 def measure_limits(compute, env_res: int, repeats: int) -> dict[str, float]:
-    """ns per lane-operation of each limit probe (``probes.PROBE_FLOPS``) on the whole device:
-    the median of ``repeats`` launches of LIMIT_ITEMS work items, each sized to take ≥
-    LIMIT_MIN_MS; the gathers read a table of ``gather_entries(env_res)`` entries."""
+    """ns per lane-operation of each limit probe (``probes.PROBE_FLOPS``) on the whole device,
+    and under ``"fma"`` ns per FLOP of FMA chains in vectors of POOL_LANES (the estimators'
+    width: at 8 lanes on an AVX-512 CPU, half the roofline's rate): the median of ``repeats``
+    launches of LIMIT_ITEMS work items, each sized to take ≥ LIMIT_MIN_MS; the gathers read a
+    table of ``gather_entries(env_res)`` entries."""
     table = chase_table(gather_entries(env_res))
     runs = {   # (count, launches) -> (device ms of each launch, lane-operations per launch)
         "phong_power": lambda n, k: run_phong_power(compute, LIMIT_ITEMS, n, k)[1:],
@@ -295,6 +300,7 @@ def measure_limits(compute, env_res: int, repeats: int) -> dict[str, float]:
         "dependent_load": lambda n, k: run_gathers(compute, table, LIMIT_ITEMS, n, True, k)[2:],
         "serial_add": lambda n, k: run_serial_adds(compute, LIMIT_ITEMS, n, k)[1:],
         "lockstep": lambda n, k: run_lockstep_steps(compute, table, LIMIT_ITEMS, n, k)[1:]}
+    runs["fma"] = lambda n, k: run_fma(compute, LIMIT_ITEMS, n, k, width=compute.pool_lanes)[1:]
     rates = {}
     for probe, run in runs.items():
         count = sized(lambda n: run(n, 1)[0][0], LIMIT_MIN_MS)
@@ -306,12 +312,12 @@ def measure_limits(compute, env_res: int, repeats: int) -> dict[str, float]:
 def limit_terms(cost, spp: int, evaluations: float, lanes: int, roofline: Roofline) -> dict[str, float]:
     """ns per sample of each limit of an estimator's ``cost`` at ``spp`` and ``evaluations``
     per pixel in blocks of ``lanes``: each probe's operations × its ns, and under ``"flops"``
-    the FLOPs its probes' operations do not hold at the FMA peak.  Their sum bounds the time
-    (module docstring)."""
+    the FLOPs its probes' operations do not hold at the FMA rate of ``lanes``-wide vectors.
+    Their sum bounds the time (module docstring)."""
     counts = cost.executed_per_sample(spp, evaluations, lanes)
     flops = counts.pop("flops") - sum(count * PROBE_FLOPS[probe] for probe, count in counts.items())
     terms = {probe: count * roofline.limit_ns[probe] for probe, count in counts.items()}
-    terms["flops"] = max(flops, 0.0) / roofline.gflops
+    terms["flops"] = max(flops, 0.0) * roofline.limit_ns["fma"]
     return terms
 
 
