@@ -91,7 +91,7 @@ def _keywords_of_run_config(function):
 @_keywords_of_run_config
 def run(scenes=None, estimators=None, spp=None, seeds=None, *, out, config=None, first_seed=None,
         frames=None, resolution=None, env_res=None, time_budget_ms=None, repeats=None, metrics=None,
-        sanitize=None, device=None, save_inputs=False, force=False, progress=None, workers=None,
+        sanitize=None, device=None, launch_shape=None, save_inputs=False, force=False, progress=None, workers=None,
         scheduler=None, control=None):
     """Run a sweep and return its results table (a pandas DataFrame); see the module docstring.
 

@@ -10,7 +10,8 @@
  * Budgets are light_pool.cl's fixed-point ticks: N_s samples are Q·N_s ticks, t_L = Q·N_s/2 for
  * light and t_B = Q·N_s − t_L for BRDF samples with MIS, and each strategy draws draws_for(t)
  * samples, the last weighted by β = frac(t/Q) (Lu 2013 Eq. 5), so every N_s ≥ 1 is unbiased.
- * `render_map` shades one pixel per work item, its samples POOL_LANES at a time in explicit
+ * `render_map` shades one pixel per work item (or, in the sample-block launch shape, one block of
+ * a pixel's draws: light_pool.cl's launch shapes), its samples POOL_LANES at a time in explicit
  * vectors (light_pool.cl: lanes masked past a strategy's draws, no data-dependent trip count, the
  * polynomial Phong power, Philox per lane); `map_directions`/`map_direction_pdf` are the χ² hooks.
  *
@@ -156,22 +157,24 @@ ALWAYS_INLINE void strategy_split(int spp, int *light, int *brdf)
 
 /* Outputs in planes of n floats (the G-buffer's launch_size: launches cover part of it,
  * chunks.py): radiance R, G, B; counts used, effective
- * (in samples); evaluations per pixel.  The light sampler's buffers are unread without light
- * samples. */
+ * (in samples); evaluations per pixel (store_sums; LAUNCH_PARAMS: the sample-block shape's).
+ * The light sampler's buffers are unread without light samples. */
 __kernel void render_map(__global const float4 *normal, __global const float4 *view,
                          __global const float4 *kd, __global const float4 *ks_m,
                          __global const uint *visibility, const int n, __global const float4 *env, LIGHT_PARAMS, const int res, const int spp,
                          const uint seed, const uint frame, __global float *radiance,
-                         __global float *counts, __global int *evaluations)
+                         __global float *counts, __global int *evaluations LAUNCH_PARAMS)
 {
-    int p = get_global_id(0);
+    launch_item_t item = LAUNCH_ITEM(n);
+    int p = item.pixel, from, to;
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     int light, brdf;
     strategy_split(spp, &light, &brdf);
     int light_draws = draws_for(light), brdf_draws = draws_for(brdf);
     lanes_sum_t acc = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lane_ints_t)0};
 #if LIGHT_SAMPLES
-    for (int i = 0; i < light_draws; i += POOL_LANES) {
+    strategy_window(&item, light_draws, &from, &to);
+    for (int i = from; i < to; i += POOL_LANES) {
         lane_ints_t draw = i + LANE_NUMBERS, texel;
         lanes_t pdf_light;
         lanes3_t w = lanes_sample_light(LIGHT_ARGS, &s, res, seed, frame, (uint)p, draw, &texel, &pdf_light);
@@ -187,7 +190,8 @@ __kernel void render_map(__global const float4 *normal, __global const float4 *v
     vec3_t t_n, b_n, t_r, b_r;
     direction_about_axis_basis(s.n, &t_n, &b_n);
     direction_about_axis_basis(s.r, &t_r, &b_r);
-    for (int i = 0; i < brdf_draws; i += POOL_LANES) {
+    strategy_window(&item, brdf_draws, &from, &to);
+    for (int i = from; i < to; i += POOL_LANES) {
         lane_ints_t draw = i + LANE_NUMBERS, texel;
         lanes3_t w = lanes_brdf_draw(&s, t_n, b_n, t_r, b_r, seed, frame, (uint)p, draw);
         lanes_t cosine = lanes_dot(s.n, w);
@@ -199,12 +203,7 @@ __kernel void render_map(__global const float4 *normal, __global const float4 *v
                     lanes_visible(visibility, p, w));
     }
 #endif
-    radiance[p] = sum_of8(to8(acc.r));
-    radiance[n + p] = sum_of8(to8(acc.g));
-    radiance[2 * n + p] = sum_of8(to8(acc.b));
-    counts[p] = (float)(light + brdf) * (1.0f / TICKS_PER_SAMPLE);
-    counts[n + p] = (float)int_sum_of8(to8(acc.effective)) * (1.0f / TICKS_PER_SAMPLE);
-    evaluations[p] = light_draws + brdf_draws;
+    store_sums(&acc, item, n, light + brdf, light_draws + brdf_draws, radiance, counts, evaluations, PARTIAL_SUMS);
 }
 
 /* The density of all of a pixel's samples pooled, (t_L·p_L + t_B·p_B)/(t_L + t_B), at the lanes'

@@ -9,7 +9,7 @@ import numpy as np
 
 from iblbench.estimators.base import (Estimator, KernelCost, Limit, Mutant, Setting, SweepPart, Tags,
                                       WorkCounts, read_estimate, specular_lobe_defines)
-from iblbench.estimators.light_pool import HOOK_SPP, MAX_SPP, TICKS_PER_SAMPLE, hook_surface
+from iblbench.estimators.light_pool import HOOK_SPP, MAX_SPP, TICKS_PER_SAMPLE, hook_surface, lane_chunks
 from iblbench.estimators.runtime.device import event_ms
 
 MIS_MODES = ("none", "brdf")
@@ -17,9 +17,10 @@ HEURISTICS = ("balance", "power")
 
 
 class MapSampler(Estimator):
-    """What ``envmap`` and ``brdf`` share: ``envmap.cl``'s kernels, one pixel per work item,
-    light samples from one 2-D distribution over the whole map and/or Phong BRDF samples
-    combined by MIS, configured by :meth:`defines`."""
+    """What ``envmap`` and ``brdf`` share: ``envmap.cl``'s kernels, one pixel per work item (or one
+    block of a pixel's draws: ``DeviceGBuffer.run_sampled``), light samples from one 2-D
+    distribution over the whole map and/or Phong BRDF samples combined by MIS, configured by
+    :meth:`defines`."""
 
     tags = Tags(unbiased=True, has_pdf=True)
     max_spp = MAX_SPP
@@ -75,8 +76,10 @@ class MapSampler(Estimator):
         radiance = compute.empty(gbuffer.launch_size * 12)   # planes R, G, B (envmap.cl)
         counts = compute.empty(gbuffer.launch_size * 8)      # planes used, effective
         evaluations = compute.empty(gbuffer.launch_size * 4)
-        event = gbuffer.run(
-            compute, self._kernel(compute, "render_map", gbuffer), gbuffer.normal,
+        draws = [math.ceil(samples) for samples in self.strategy_samples(spp)]
+        event = gbuffer.run_sampled(
+            compute, lambda name: self._kernel(compute, name, gbuffer), "render_map",
+            lane_chunks(draws, compute.pool_lanes), gbuffer.normal,
             gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, np.int32(gbuffer.launch_size),
             cache.env_buffer, *light_buffers,
             np.int32(cache.res), np.int32(spp), np.uint32(seed), np.uint32(cache.frame),

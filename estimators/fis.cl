@@ -101,16 +101,17 @@ static inline float lod_shift_of(int res, int spp)
 }
 
 /* Outputs as envmap.cl's render_map: planes of n floats (launch_size), radiance R, G, B;
- * counts used, effective (in samples); evaluations per pixel.  `levels` (≤ 16) mip levels, the
- * last 1×1. */
+ * counts used, effective (in samples); evaluations per pixel; either launch shape (light_pool.cl).
+ * `levels` (≤ 16) mip levels, the last 1×1. */
 __kernel void render_fis(__global const float4 *normal, __global const float4 *view,
                          __global const float4 *kd, __global const float4 *ks_m,
                          __global const uint *visibility, const int n, __global const float4 *mips, const int16 level_offsets,
                          const int levels, const int res, const int spp, const float lod_bias,
                          const uint seed, const uint frame, __global float *radiance,
-                         __global float *counts, __global int *evaluations)
+                         __global float *counts, __global int *evaluations LAUNCH_PARAMS)
 {
-    int p = get_global_id(0);
+    launch_item_t item = LAUNCH_ITEM(n);
+    int p = item.pixel, from, to;
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     vec3_t t_n, b_n, t_r, b_r;
     direction_about_axis_basis(s.n, &t_n, &b_n);
@@ -119,7 +120,8 @@ __kernel void render_fis(__global const float4 *normal, __global const float4 *v
     float lod_shift = lod_shift_of(res, spp);
     int ticks = spp * TICKS_PER_SAMPLE;
     lanes_sum_t acc = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lane_ints_t)0};
-    for (int i = 0; i < spp; i += POOL_LANES) {
+    strategy_window(&item, spp, &from, &to);
+    for (int i = from; i < to; i += POOL_LANES) {
         lane_ints_t draw = i + LANE_NUMBERS;
         lanes3_t w = lanes_hammersley_direction(&s, t_n, b_n, t_r, b_r, h, draw);
         lanes_t cosine = lanes_dot(s.n, w);
@@ -130,12 +132,7 @@ __kernel void render_fis(__global const float4 *normal, __global const float4 *v
         add_samples(&acc, &s, draw < spp, lanes_beta(ticks, i), cosine, power, filtered, (float)ticks * pdf,
                     lanes_visible(visibility, p, w));
     }
-    radiance[p] = sum_of8(to8(acc.r));
-    radiance[n + p] = sum_of8(to8(acc.g));
-    radiance[2 * n + p] = sum_of8(to8(acc.b));
-    counts[p] = (float)spp;
-    counts[n + p] = (float)int_sum_of8(to8(acc.effective)) * (1.0f / TICKS_PER_SAMPLE);
-    evaluations[p] = spp;
+    store_sums(&acc, item, n, ticks, spp, radiance, counts, evaluations, PARTIAL_SUMS);
 }
 
 /* The χ² hook: surface[0..3] = normal, view, kd, (ks, m) of one pixel; the set of `points`

@@ -10,7 +10,7 @@ import pyopencl.cltypes as cltypes
 
 from iblbench.estimators.base import KernelCost, Limit, Setting, SweepPart, Tags, read_estimate
 from iblbench.estimators.brdf import Brdf
-from iblbench.estimators.light_pool import MAX_SPP, hook_surface
+from iblbench.estimators.light_pool import MAX_SPP, hook_surface, lane_chunks
 from iblbench.estimators.runtime.device import event_ms
 
 MAX_LEVELS = 16   # mip levels render_fis takes (its int16 of level offsets): faces up to 2^15, past
@@ -130,8 +130,9 @@ class Fis(Brdf):
         evaluations = compute.empty(gbuffer.launch_size * 4)
         level_offsets = cltypes.make_int16(*(np.array(mips.offsets + (0,) * MAX_LEVELS)[:MAX_LEVELS]
                                              // mips.channels))
-        event = gbuffer.run(
-            compute, self._kernel(compute, "render_fis", gbuffer), gbuffer.normal,
+        event = gbuffer.run_sampled(
+            compute, lambda name: self._kernel(compute, name, gbuffer), "render_fis",
+            lane_chunks([spp], compute.pool_lanes), gbuffer.normal,
             gbuffer.view, gbuffer.kd, gbuffer.ks, gbuffer.visibility, np.int32(gbuffer.launch_size),
             mips.buffer, level_offsets,
             np.int32(len(mips.sizes)), np.int32(cache.res), np.int32(spp),

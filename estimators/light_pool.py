@@ -27,6 +27,24 @@ MAX_SPP = 2 ** 31 // TICKS_PER_SAMPLE - 1
 HOOK_SPP = 64              # budget whose split the χ² hooks sample
 
 
+def light_ticks(spp: int, brdf_samples: bool) -> int:
+    """The light samples' ticks of a budget of ``spp``: all, or half with BRDF samples
+    (light_pool.cl's ``light_ticks``, which envmap.cl's split shares)."""
+    total = spp * TICKS_PER_SAMPLE
+    return total // 2 if brdf_samples else total
+
+
+def draws_for(ticks: int) -> int:
+    """Draws of a strategy of ``ticks`` ticks (light_pool.cl's ``draws_for``, Lu 2013 Eq. 5)."""
+    return -(-ticks // TICKS_PER_SAMPLE)
+
+
+def lane_chunks(draws, lanes: int) -> int:
+    """The chunks of ``lanes`` draws (POOL_LANES) that each of ``draws`` draws (one a strategy)
+    takes, together: what a kernel's window counts (light_pool.cl's ``strategy_window``)."""
+    return sum(-(-int(d) // lanes) for d in draws)
+
+
 def hook_surface(cache, normal, view, kd=0.5, ks=0.3, shininess=20.0):
     """The χ² hooks' one pixel on the device: rows normal, view, kd, (ks, m) of float4, the
     material the conformance suite's glossy one."""
@@ -103,6 +121,15 @@ class PoolEstimator(Estimator):
             counts.append(WorkCounts(draws, draws))
         return counts
 
+    def most_lane_chunks(self, spp: int, lanes: int) -> int:
+        """The most chunks of ``lanes`` draws a pixel's strategies take together at ``spp``
+        (DeviceGBuffer.run_sampled): the six faces' ⌈d_f/L⌉ of Σ d_f ≤ D + 6 draws (D the light
+        samples, a face's ⌈N_f⌉ at most one over its N_f) sum to at most ⌊D/L⌋ + 6, and the BRDF
+        draws take theirs."""
+        light = light_ticks(spp, self.brdf_samples)
+        brdf_draws = draws_for(spp * TICKS_PER_SAMPLE - light)
+        return light // TICKS_PER_SAMPLE // lanes + 6 + lane_chunks([brdf_draws], lanes)
+
     def render(self, gbuffer, cache, spp, seed):
         if not 1 <= spp <= MAX_SPP:
             raise ValueError(f"spp must be in [1, {MAX_SPP}], got {spp}")
@@ -119,13 +146,13 @@ class PoolEstimator(Estimator):
         if shared_brdf:
             events.append(compute.run(self._kernel(compute, "brdf_numbers"), numbers_stride, np.uint32(seed),
                                       np.uint32(cache.frame), np.int32(spp), numbers))
-        kernel = self._kernel(compute, "render_light_pool", gbuffer)
         radiance = compute.empty(gbuffer.launch_size * 12)   # planes R, G, B (light_pool_kernels.cl)
         counts = compute.empty(gbuffer.launch_size * 8)      # planes used, effective
         evaluations = compute.empty(gbuffer.launch_size * 4)
-        event = gbuffer.run(
-            compute, kernel, gbuffer.normal, gbuffer.view, gbuffer.kd, gbuffer.ks,
-            gbuffer.visibility, np.int32(gbuffer.launch_size), cache.env_buffer, cdfs.marginal, cdfs.conditional,
+        event = gbuffer.run_sampled(
+            compute, lambda name: self._kernel(compute, name, gbuffer), "render_light_pool",
+            self.most_lane_chunks(spp, compute.pool_lanes), gbuffer.normal, gbuffer.view, gbuffer.kd,
+            gbuffer.ks, gbuffer.visibility, np.int32(gbuffer.launch_size), cache.env_buffer, cdfs.marginal, cdfs.conditional,
             cdfs.face_integral,
             planes, np.int32(cache.res), np.int32(pool.per_face),
             np.int32(spp), np.int32(self.params.shared_sequence), np.uint32(seed),

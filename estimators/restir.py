@@ -360,9 +360,12 @@ class ReSTIR(Estimator):
         n, chains = gbuffer.launch_size, int(spp)
         buffer = functools.partial(self._buffers.get, compute)
         # One chain a pixel: pass 2 built without its lanes (restir.cl, CHAIN_LANES; defines() may
-        # set it, as tests/test_restir.py does to run every chain in scalars).
+        # set it, as tests/test_restir.py does to run every chain in scalars).  Nor in the GPU's
+        # launch shape: a GPU runs each work item's lanes one after another, and their private
+        # arrays would spill; the scalar chains give the same images bit for bit.
+        chain_lanes = chains > 1 and compute.launch_shape == "pixel"
         kernel = functools.partial(compute.kernel, self.kernel_package(), "restir.cl",
-                                   defines={"CHAIN_LANES": int(chains > 1), **self.defines(gbuffer), "BRDF_SAMPLES": 1})
+                                   defines={"CHAIN_LANES": int(chain_lanes), **self.defines(gbuffer), "BRDF_SAMPLES": 1})
         pyramid = cache.weight_pyramid(False)
         presample_count = p.tiles * p.tile_size
         presamples = buffer("presamples", 4 * 4 * presample_count)

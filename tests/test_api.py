@@ -229,7 +229,7 @@ def test_import_is_light_and_documented():
 RUN_CONFIG_KEYWORDS = {
     "out", "config", "scenes", "estimators", "spp", "seeds", "first_seed", "frames", "resolution",
     "env_res", "time_budget_ms", "repeats", "repeats_for", "metrics", "sanitize", "device",
-    "save_inputs", "force", "progress", "workers", "scheduler", "control", "note"}
+    "launch_shape", "save_inputs", "force", "progress", "workers", "scheduler", "control", "note"}
 
 
 def test_run_config_keeps_its_keywords_and_refuses_others(tmp_path):
@@ -279,7 +279,7 @@ def test_the_flags_and_the_keywords_give_one_config(tmp_path):
         "--first-seed", "5", "--frames", "1:3", "--res", "16x8", "--env-res", "8",
         "--time-budget-ms", "5,7", "--repeats", "3,envmap=2", "--metrics", "de76,relmse",
         "--force", "--out", str(tmp_path), "--save-inputs", "--sanitize", "--workers", "2",
-        "--device", "cpu", "--no-progress"])
+        "--device", "cpu", "--launch-shape", "sample-block", "--no-progress"])
     settings, flags = run_settings(args)
     from_flags = iblbench.run_config(args.out, config="quick", **settings, note={})
     from_keywords = iblbench.run_config(
@@ -287,7 +287,8 @@ def test_the_flags_and_the_keywords_give_one_config(tmp_path):
         control=["envmap"], spp=[4, 8], seeds=3, first_seed=5, frames=slice(1, 3),
         resolution=(16, 8), env_res=8, time_budget_ms=[5, 7], repeats=3,
         repeats_for=(("envmap", 2),), metrics=("de76", "relmse"), force=True, save_inputs=True,
-        sanitize=True, workers=2, device="cpu", progress=False, note={})
+        sanitize=True, workers=2, device="cpu", launch_shape="sample_block", progress=False,
+            note={})
     assert from_flags == from_keywords
     defaults = RunConfig(out=tmp_path / "elsewhere")
     same = [field.name for field in dataclasses.fields(RunConfig)

@@ -417,6 +417,8 @@ def test_tiny_run_manifest(tiny_run):
     assert manifest["git_revision"] and manifest["versions"]["pyopencl"]
     device = manifest["device"]
     assert isinstance(device, dict) and device.get("name") and device.get("platform")
+    # How the kernels ran sets a cell's time as much as the device: recorded with it.
+    assert device.get("launch_shape") in ("pixel", "sample_block") and device.get("lanes") in (1, 2, 4, 8, 16)
     assert "uniform" in manifest["estimator_versions"]
     table = pd.read_parquet(out / "results.parquet")
     assert (table["estimator_version"].astype(str)

@@ -20,7 +20,8 @@ SPEC_WIDTHS = (1, 2, 4, 8, 16)   # CL_DEVICE_PREFERRED_VECTOR_WIDTH_FLOAT's valu
 
 
 def fake_device(width: int):
-    return types.SimpleNamespace(preferred_vector_width_float=width, name="fake", extensions="")
+    return types.SimpleNamespace(preferred_vector_width_float=width, name="fake", extensions="",
+                                 type=cl.device_type.CPU)
 
 
 def fake_info(width: int) -> device.DeviceInfo:

@@ -30,6 +30,11 @@ def rendering_flags() -> argparse.ArgumentParser:
     return rendering
 
 
+def launch_shape(text: str) -> str:
+    """``--launch-shape``'s value as the API spells it (sample-block: sample_block)."""
+    return text.replace("-", "_")
+
+
 def spp_list(text: str) -> tuple[int, ...]:
     try:
         values = tuple(int(part) for part in text.split(",") if part.strip())

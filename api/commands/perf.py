@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import pathlib
 
-from iblbench.commands.common import device_flags, env_res, positive_int, resolution
+from iblbench.commands.common import device_flags, env_res, launch_shape, positive_int, resolution
 
 
 PERF_DESCRIPTION = """\
@@ -28,6 +28,8 @@ harness/studies/perf.py, the counts are each estimator's cost declaration. Exit 
 
 
 def add_parser(subparsers) -> None:
+    from iblbench.harness.protocol.run_config import flag_help
+
     perf = subparsers.add_parser("perf", help="throughput per estimator against the device's "
                                             "roofline and a NumPy floor (perf.csv, perf.html)",
                                description=PERF_DESCRIPTION, parents=[device_flags()],
@@ -49,6 +51,8 @@ def add_parser(subparsers) -> None:
     perf.add_argument("--repeats", type=positive_int, metavar="N",
                       help="timed renders per estimator after one warm-up (default: 5, or an "
                            "estimator's own perf_budget: bis and smc 3)")
+    perf.add_argument("--launch-shape", type=launch_shape, metavar="auto|pixel|sample-block",
+                      help=flag_help("launch_shape"))
     perf.add_argument("--lanes", type=int, choices=(8, 16), metavar="{8,16}",
                       help="the estimators' explicit vector width (POOL_LANES) instead of the "
                            "device's (16 where its preferred float width is 16, else 8): to "
@@ -77,7 +81,8 @@ def run(args) -> None:
         out=args.out, scenes=tuple(args.scene or perf.DEFAULT_SCENES),
         estimators=tuple(args.estimator or ()), spp=args.spp,
         resolution=args.res or perf.DEFAULT_RESOLUTION, env_res=args.env_res or perf.DEFAULT_ENV_RES,
-        repeats=args.repeats, device=args.device, lanes=args.lanes)
+        repeats=args.repeats, device=args.device, launch_shape=args.launch_shape,
+        lanes=args.lanes)
     out = pathlib.Path(config.out)
     if out.exists() and not out.is_dir():
         raise InputError(out, "--out exists and is not a directory")

@@ -5,7 +5,7 @@ import pathlib
 import sys
 
 from iblbench.commands.common import (add_json, budgets_arg, env_res, frames_arg, human_output,
-                                      labels_arg, metrics_arg, non_negative_int, positive_int,
+                                      labels_arg, launch_shape, metrics_arg, non_negative_int, positive_int,
                                       print_json, rendering_flags, repeats_arg, resolution,
                                       spp_list)
 
@@ -54,6 +54,7 @@ def add_parser(subparsers) -> None:
     setting(run, "force", action="store_true")
     setting(run, "out", type=pathlib.Path, default=pathlib.Path("results/latest"))
     setting(run, "save_inputs", action="store_true")
+    setting(run, "launch_shape", type=launch_shape, metavar="auto|pixel|sample-block")
     setting(run, "sanitize", action="store_true")
     where = run.add_mutually_exclusive_group()
     setting(where, "workers", type=positive_int, metavar="N")

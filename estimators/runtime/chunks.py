@@ -8,7 +8,9 @@ The split changes no result: each work item computes what it computes in one lau
 pixel's streams and sums), whatever launch it falls in, so images are bit-identical to one
 launch (tests/test_chunks.py).  Its floor is one work group: a pixel's samples stay in one work
 item, so one group's launch takes a pixel's whole sample loop (on a GPU, whose group runs its
-pixels side by side, about one pixel's serial time).
+pixels side by side, about one pixel's serial time); in the sample-block launch shape
+(``DeviceGBuffer.run_sampled``) a work item is one block of a pixel's samples, and the chunks
+split the pixels' blocks.
 """
 from __future__ import annotations
 

@@ -244,6 +244,50 @@ def pool_lanes_for(device, lanes: int | None = None) -> int:
     return width
 
 
+# How the kernels that sum a pixel's draws in lanes (light_pool.cl's LAUNCH_PARAMS) are launched:
+# one work item a pixel, or one a (pixel, block of draws) with a reduction (SAMPLE_BLOCKS).
+LAUNCH_SHAPES = ("pixel", "sample_block")
+
+
+def check_launch_shape(shape: str | None) -> None:
+    """An InputError unless ``shape`` is one of :data:`LAUNCH_SHAPES`, "auto" or None."""
+    if shape not in (None, "auto", *LAUNCH_SHAPES):
+        raise InputError(None, f"{argument('launch_shape', shape)}: the launch shape is one of "
+                               f"auto, {', '.join(LAUNCH_SHAPES)}")
+
+
+def launch_shape_for(device, shape: str | None = None) -> str:
+    """The launch shape on ``device`` (a pyopencl device, or anything with its ``type``):
+    ``shape`` where given ("auto" or None: the device's), else ``"sample_block"`` where the
+    device's type is GPU (its pixels alone are too few work items to keep it busy: 16k at 128²),
+    else ``"pixel"`` (a CPU runs the lanes of one work item as SIMD and needs only a few work
+    items a core).  An InputError for any other ``shape`` (:func:`check_launch_shape`)."""
+    check_launch_shape(shape)
+    if shape in (None, "auto"):
+        return "sample_block" if device.type & cl.device_type.GPU else "pixel"
+    return shape
+
+
+# Work items a sample-block launch aims at per compute unit: a GPU's unit holds 1-2k resident
+# work items (an NVIDIA SM 2048, an AMD CU 2560, fewer where a kernel's registers limit it), so
+# 1024 a unit, with pixels × blocks ≥ that, leaves each unit whole waves to switch between while
+# gathers wait, and a block still shades at least POOL_LANES draws.
+ITEMS_PER_UNIT = 1024
+
+
+def sample_blocks(units: int, pixels: int, chunks: int) -> tuple[int, int]:
+    """(lane chunks per block, blocks per pixel) of a sample-block launch over ``pixels`` on a
+    device of ``units`` compute units, where a pixel has at most ``chunks`` chunks of POOL_LANES
+    draws: the most chunks per block that still give pixels × blocks ≥ units ×
+    :data:`ITEMS_PER_UNIT` work items (one chunk a block where even that is too few), so a work
+    item's setup (its pixel's shading, the pool's split) is shared by as many draws as the
+    device allows."""
+    chunks = max(int(chunks), 1)
+    wanted = -(-units * ITEMS_PER_UNIT // max(int(pixels), 1))
+    per_block = max(1, chunks // wanted)
+    return per_block, -(-chunks // per_block)
+
+
 class Compute:
     """A context and a profiling queue on one device, with a program cache for ``.cl`` files.
 
@@ -253,16 +297,22 @@ class Compute:
     run a pixel's samples (light_pool.cl), comes from the device: 16 where its preferred float
     vector width is 16 (AVX-512), else 8 (a generic CPU target warned of an ABI change for every
     float16 argument).  Both widths give the same images within float rounding, and Oclgrind
-    checks both (tests/test_portability.py).
+    checks both (tests/test_portability.py).  ``launch_shape`` (:func:`launch_shape_for`) is how
+    the kernels that sum a pixel's draws launch (``DeviceGBuffer.run_sampled``): ``"pixel"`` on a
+    CPU, ``"sample_block"`` (``-DSAMPLE_BLOCKS=1``) on a GPU; both give the same images within
+    float rounding (tests/test_launch_shape.py).
     """
 
-    def __init__(self, info: DeviceInfo, fp64: bool = True, lanes: int | None = None):
+    def __init__(self, info: DeviceInfo, fp64: bool = True, lanes: int | None = None,
+                 launch_shape: str | None = None):
         """``fp64=False`` builds the float path of the kernels that accumulate in double where the
         device has it (the reference, the CDF scans), as on a device without cl_khr_fp64;
-        ``lanes`` (8 or 16) overrides :attr:`pool_lanes`."""
+        ``lanes`` (8 or 16) overrides :attr:`pool_lanes`, ``launch_shape`` (pixel, sample_block;
+        auto: the device's) :attr:`launch_shape`."""
         self.info = info
         self.fp64 = fp64
         self.pool_lanes = pool_lanes_for(info.device, lanes)
+        self.launch_shape = launch_shape_for(info.device, launch_shape)
         self.build_logs: dict[str, str] = {}
         self.context = cl.Context([info.device])
         self.queue = cl.CommandQueue(
@@ -286,7 +336,8 @@ class Compute:
         key = (package, filename, tuple(sorted((defines or {}).items())))
         if key not in self._programs:
             source = kernel_path(package, filename).read_text()
-            options = program_options(package, filename, defines, self.pool_lanes, self.doubles)
+            options = program_options(package, filename, defines, self.pool_lanes, self.doubles,
+                                      self.launch_shape == "sample_block")
             program, printed = quietly_built(self.context, source, options)
             self._programs[key] = program
             log = program.get_build_info(self.info.device, cl.program_build_info.LOG).strip()
@@ -344,16 +395,20 @@ def kernel_path(package: str, filename: str) -> pathlib.Path:
     return pathlib.Path(str(importlib.resources.files(package) / filename))
 
 
-def program_options(package: str, filename: str, defines: dict | None, lanes: int, doubles: bool) -> list[str]:
+def program_options(package: str, filename: str, defines: dict | None, lanes: int, doubles: bool,
+                    sample_blocks: bool = False) -> list[str]:
     """The build options of a program (what :meth:`Compute.program` passes the device's compiler,
     and tests/test_compile_clang.py passes clang): include directories, ``defines``,
-    ``POOL_LANES=lanes`` and, where ``doubles``, ``HAVE_FP64``."""
+    ``POOL_LANES=lanes``, where ``doubles`` ``HAVE_FP64`` and where ``sample_blocks`` (the
+    sample-block launch shape) ``SAMPLE_BLOCKS``."""
     # The kernel's own folder first, so a plugin's .cl files can include their siblings.
     options = [f"-I{kernel_path(package, filename).parent}"] + [f"-I{d}" for d in include_dirs()]
     options += [f"-D{name}={value}" for name, value in sorted((defines or {}).items())]
     options.append(f"-DPOOL_LANES={lanes}")
     if doubles:
         options.append("-DHAVE_FP64=1")
+    if sample_blocks:
+        options.append("-DSAMPLE_BLOCKS=1")
     return options
 
 
@@ -373,10 +428,11 @@ def event_ms(event: cl.Event | list[cl.Event]) -> float:
 
 
 @functools.lru_cache(maxsize=None)
-def get_compute(spec: str | None = None, lanes: int | None = None) -> Compute:
-    """One shared Compute per device choice (and ``lanes``, :func:`pool_lanes_for`'s override),
-    so programs are built once per context."""
-    return Compute(choose_device(spec), lanes=lanes)
+def get_compute(spec: str | None = None, launch_shape: str | None = None,
+                lanes: int | None = None) -> Compute:
+    """One shared Compute per device choice, launch shape (None: the device's) and ``lanes``
+    (:func:`pool_lanes_for`'s override), so programs are built once per context."""
+    return Compute(choose_device(spec), lanes=lanes, launch_shape=launch_shape)
 
 
 class KeptBuffers:

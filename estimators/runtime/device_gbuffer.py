@@ -5,7 +5,7 @@ import numpy as np
 import pyopencl as cl
 
 from iblbench.estimators.runtime.chunks import run_in_chunks
-from iblbench.estimators.runtime.device import Compute
+from iblbench.estimators.runtime.device import Compute, KeptBuffers, sample_blocks
 from iblbench.scenes.gbuffer import GBuffer
 
 # Work items per group of a pixel kernel.  PoCL's own choice (local size None) depends on the
@@ -58,6 +58,7 @@ class DeviceGBuffer:
         self.visibility = compute.to_device(self._padded(gbuffer.visibility[m]) if self.has_visibility
                                             else np.zeros(1, np.uint32))
         self.defines = {"VISIBILITY": 1, "VIS_RES": self.visibility_res} if self.has_visibility else {}
+        self._scratch = KeptBuffers()   # run_sampled's partial sums, kept across frames
 
     def _padded(self, pixels: np.ndarray) -> np.ndarray:
         """``pixels`` followed by copies of the last one up to ``launch_size``."""
@@ -73,11 +74,35 @@ class DeviceGBuffer:
         launches' events (``event_ms`` sums them).  The launch sizes start from the rate of the
         last run of the same kernel, device and signed scalar arguments (spp among them; the
         unsigned ones are the Philox keys, seed and frame, which set no item's work)."""
+        return self._run_items(compute, kernel, self.launch_size, *args)
+
+    def _run_items(self, compute: Compute, kernel: cl.Kernel, items: int, *args) -> list[cl.Event]:
+        """:meth:`run` over ``items`` work items (a multiple of ``PIXEL_GROUP``)."""
         scalars = tuple(a.item() if isinstance(a, np.generic) else a for a in args
                         if isinstance(a, (int, float, np.generic)) and not isinstance(a, np.unsignedinteger))
-        kind = (id(compute), kernel.function_name, self.launch_size, scalars)
-        return run_in_chunks(self.launch_size, PIXEL_GROUP, lambda first, count: compute.run(
+        kind = (id(compute), kernel.function_name, items, scalars)
+        return run_in_chunks(items, PIXEL_GROUP, lambda first, count: compute.run(
             kernel, count, *args, group=PIXEL_GROUP, offset=first), kind=kind)
+
+    def run_sampled(self, compute: Compute, kernel_of, name: str, chunks: int, *args) -> list[cl.Event]:
+        """Run the kernel ``name`` (``kernel_of(name)``: of the estimator's program) that sums its
+        pixels' draws in lane chunks (light_pool.cl's launch shapes: ``LAUNCH_PARAMS``, its last
+        three arguments before them the radiance, counts and evaluations planes), in
+        ``compute.launch_shape``.  ``chunks``: the most chunks of POOL_LANES draws a pixel has, its
+        strategies' together.  The pixel shape is :meth:`run`; the sample-block shape runs
+        ``launch_size`` × blocks work items (:func:`device.sample_blocks`) into a scratch of partial
+        sums, then ``sum_sample_blocks`` over the pixels.  Returns every launch's event."""
+        if compute.launch_shape == "pixel":
+            return self.run(compute, kernel_of(name), *args)
+        per_block, blocks = sample_blocks(compute.info.device.max_compute_units, self.count, chunks)
+        partial = self._scratch.get(compute, "partial", 4 * 4 * self.launch_size * blocks)   # R, G, B, effective
+        radiance, counts = args[-3], args[-2]
+        events = self._run_items(compute, kernel_of(name), self.launch_size * blocks,
+                                 *args, np.int32(per_block), np.int32(blocks), partial)
+        events.append(compute.run(kernel_of("sum_sample_blocks"), self.launch_size, partial,
+                                  np.int32(self.launch_size), np.int32(blocks), radiance, counts,
+                                  group=PIXEL_GROUP))
+        return events
 
     def scatter(self, values: np.ndarray) -> np.ndarray:
         """Per-covered-pixel ``[N, ...]`` → image ``[H, W, ...]`` with zeros elsewhere."""

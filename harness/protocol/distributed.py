@@ -62,13 +62,13 @@ class OpenCLWorker(WorkerPlugin):
 
     name = PLUGIN
 
-    def __init__(self, device: str | None, cache: str):
-        self.device, self.cache = device, cache
+    def __init__(self, device: str | None, cache: str, launch_shape: str | None = None):
+        self.device, self.cache, self.launch_shape = device, cache, launch_shape
         self.executors: dict[str, Executor] = {}
 
     def setup(self, worker) -> None:
         os.environ["IBLBENCH_CACHE"] = self.cache
-        self.compute = get_compute(self.device)
+        self.compute = get_compute(self.device, self.launch_shape)
         self.lock = threading.Lock()   # one unit at a time on the executor and its queue
         self.floor = measure_timing_floor(self.compute)
         self.worker = {"address": worker.address, "record": device_record(self.compute),
@@ -245,7 +245,7 @@ def cluster(config: RunConfig):
             raise InputError(None, f"no worker joined the scheduler {where} in "
                                    f"{WORKER_WAIT_S} s; start one with 'dask worker "
                                    f"{config.scheduler or 'ADDRESS'}'") from None
-        client.register_plugin(OpenCLWorker(config.device, str(cache_dir())))
+        client.register_plugin(OpenCLWorker(config.device, str(cache_dir()), config.launch_shape))
         engine = Cluster(client)
         print(f"iblbench: {len(engine.workers)} Dask workers on "
               f"{', '.join(sorted(engine.devices))}"

@@ -88,11 +88,13 @@ def warm_up_gbuffer(gbuffer):
 
 
 def device_record(compute) -> dict:
-    """The manifest's record of a device, with the host it is on."""
+    """The manifest's record of a device, with the host it is on, and how the kernels ran there:
+    their lane width and launch shape, which set a cell's time as much as the device does."""
     info = compute.info
     return {"name": info.device.name.strip(), "platform": info.platform.name.strip(),
             "platform_version": info.platform.version.strip(),
             "driver": info.device.driver_version.strip(), "fp64": info.has_fp64,
+            "lanes": compute.pool_lanes, "launch_shape": compute.launch_shape,
             "host": platform.node()}
 
 

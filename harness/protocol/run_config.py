@@ -145,6 +145,18 @@ class RunConfig(SweepSettings):
     device: str | None = setting(
         None, flag="--device",
         python="an OpenCL platform/device substring, as ``iblbench run --device``")
+    launch_shape: str | None = setting(
+        None, flag="--launch-shape",
+        help="how the kernels that sum a pixel's samples in lanes (envmap, brdf, hierarchical, "
+             "product, fis and the pool estimators) launch: pixel, one work item a pixel, its "
+             "samples in a loop (the CPU shape); sample-block, one work item a pixel and block "
+             "of its samples, the blocks' partial sums added in a fixed order by a second "
+             "kernel (the GPU shape: enough work items to fill a GPU); auto (default), "
+             "sample-block where the OpenCL device's type is GPU, else pixel.  Both shade the "
+             "same samples: images agree within float rounding (1e-5); the others (restir, "
+             "smc, bis, havran, cosine) keep the pixel shape",
+        python='``"pixel"``, ``"sample_block"`` or ``"auto"`` (None: auto), as ``iblbench run '
+               '--launch-shape``')
     save_inputs: bool = setting(
         False, flag="--save-inputs",
         help="also write inputs/<scene>/gbuffer.npz and env_f<frame>.npy",

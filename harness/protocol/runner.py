@@ -125,7 +125,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from iblbench.estimators.runtime.device import cache_dir, get_compute
+from iblbench.estimators.runtime.device import cache_dir, check_launch_shape, get_compute
 from iblbench.estimators.runtime.framecache import PRODUCTS
 from iblbench.harness.protocol.executor import WARMUP_PIXELS, Executor, device_record
 from iblbench.harness.protocol.metric import default_names
@@ -208,9 +208,10 @@ class Runner:
         self.distributed = config.scheduler is not None or config.workers is not None
         if config.workers is not None and config.workers < 1:
             raise InputError(None, f"{argument('workers', config.workers)}: at least one worker")
+        check_launch_shape(config.launch_shape)   # before a cluster's workers meet it
         # In process, the run's device; on a cluster, the workers' (and this process's default
         # device only measures the visibility masks' error for the manifest).
-        self.compute = None if self.distributed else get_compute(config.device)
+        self.compute = None if self.distributed else get_compute(config.device, config.launch_shape)
         self.devices = set() if self.distributed else {self.compute.device_name}
         self.out = pathlib.Path(config.out)
         if self.out.exists() and not self.out.is_dir():

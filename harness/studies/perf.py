@@ -472,6 +472,7 @@ class PerfConfig:
     env_res: int = DEFAULT_ENV_RES
     repeats: int | None = None              # None: its perf_budget, else DEFAULT_REPEATS
     device: str | None = None
+    launch_shape: str | None = None         # None: the device's (Compute.launch_shape)
     lanes: int | None = None                # POOL_LANES override (8 or 16); None: the device's
 
 
@@ -482,6 +483,7 @@ def command_line(config: PerfConfig) -> str:
     words += [f"--spp {config.spp}"] * bool(config.spp) + [f"--repeats {config.repeats}"] * bool(config.repeats)
     words += [f"--res {config.resolution[0]}x{config.resolution[1]}", f"--env-res {config.env_res}"]
     words += [f"--device '{config.device}'"] * bool(config.device) + [f"--lanes {config.lanes}"] * bool(config.lanes)
+    words += [f"--launch-shape {config.launch_shape}"] * bool(config.launch_shape)
     return " ".join(words + [f"--out {config.out}"])
 
 
@@ -617,7 +619,7 @@ def run_perf(config: PerfConfig, log=print):
     if len(set(labels)) != len(labels):
         raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
     scenes = [load_scene(name, env_res=config.env_res) for name in dict.fromkeys(config.scenes)]
-    compute = get_compute(config.device, config.lanes)
+    compute = get_compute(config.device, config.launch_shape, config.lanes)
     floor_spp = config.spp or DEFAULT_SPP
     rows = []
     log(f"device: {compute.device_name}, {compute.pool_lanes} lanes")
@@ -700,7 +702,7 @@ def run_study(config: PerfConfig) -> PerfStudy:
 
     start = time.perf_counter()
     with host_threads_capped():   # the NumPy floor runs between timed kernels: no spinning BLAS
-        compute = get_compute(config.device, config.lanes)   # cached: run_perf gets the same context
+        compute = get_compute(config.device, config.launch_shape, config.lanes)   # cached: as run_perf
         floors = [measure_timing_floor(compute)]
         table, roofline = run_perf(config)
         floors.append(measure_timing_floor(compute))

@@ -273,11 +273,118 @@ ALWAYS_INLINE lane_ints_t lanes_visible(__global const uint *visibility, int pix
 #endif
 }
 
+/* ---- launch shapes (issue 37) -----------------------------------------------------------------
+ * The kernels that sum a pixel's draws in lanes (envmap.cl's render_map, render_light_pool,
+ * fis.cl's render_fis) launch in one of two shapes (Compute.launch_shape; DeviceGBuffer.run_sampled):
+ *   pixel (CPUs): work item p shades every draw of pixel p and writes its sums;
+ *   sample block (SAMPLE_BLOCKS, GPUs): work item g = b·n + p shades the lane chunks (POOL_LANES
+ *     draws each) [b·K, (b + 1)·K) of pixel p, K = block_chunks, its strategies' chunks counted
+ *     one after another in the kernel's order (strategy_window); it writes its sums to
+ *     `partial`, and sum_sample_blocks adds pixel p's blocks in the order b = 0, 1, ….
+ * A chunk holds the same draws in either shape, each keyed by (pixel, draw index) as before, so
+ * both shapes shade the same samples; only the order of the float sums differs.  The kernels
+ * with state per pixel keep the pixel shape on every device: restir's reservoirs (its chains
+ * are a pixel's, resampled together; on a GPU built with CHAIN_LANES=0, scalar chains), smc's
+ * particles across frames, and bis's resampling among all of a pixel's candidates; so do
+ * cosine's scalar loop and havran's lights, which do not sum lane chunks. */
+#if SAMPLE_BLOCKS
+#define LAUNCH_PARAMS , const int block_chunks, const int blocks, __global float *partial
+#define LAUNCH_ITEM(n) launch_item(n, block_chunks, blocks)
+#define PARTIAL_SUMS partial
+#else
+#define LAUNCH_PARAMS
+#define LAUNCH_ITEM(n) launch_item(n, 0, 0)
+#define PARTIAL_SUMS 0
+#endif
+
+/* A work item's pixel, its block and the planes' stride of `partial` (n·blocks), its window of
+ * lane chunks [first, end) (the pixel shape's: all; the last block's reaches past the host's
+ * bound on a pixel's chunks, so no draw is left out even were it short), and the chunks of the
+ * strategies before the next one (`base`). */
+typedef struct { int pixel, block, stride, first, end, base; } launch_item_t;
+
+ALWAYS_INLINE launch_item_t launch_item(int n, int block_chunks, int blocks)
+{
+    int g = get_global_id(0);
+#if SAMPLE_BLOCKS
+    int block = g / n;
+    int end = block + 1 < blocks ? (block + 1) * block_chunks : INT_MAX;
+    launch_item_t item = {g - block * n, block, n * blocks, block * block_chunks, end, 0};
+#else
+    launch_item_t item = {g, 0, 0, 0, 0, 0};
+#endif
+    return item;
+}
+
+/* The draws [*first, *end) that the work item shades of the next strategy, of `draws` draws. */
+ALWAYS_INLINE void strategy_window(launch_item_t *item, int draws, int *first, int *end)
+{
+#if SAMPLE_BLOCKS
+    int chunks = (draws + POOL_LANES - 1) / POOL_LANES;
+    *first = clamp(item->first - item->base, 0, chunks) * POOL_LANES;
+    *end = min(clamp(item->end - item->base, 0, chunks) * POOL_LANES, draws);
+    item->base += chunks;
+#else
+    *first = 0;
+    *end = draws;
+#endif
+}
+
 /* A pixel's running estimate, one partial sum per lane. */
 typedef struct {
     lanes_t r, g, b;
     lane_ints_t effective;   /* ticks of the samples with a positive cosine and denominator */
 } lanes_sum_t;
+
+/* The work item's sums into planes of n floats: radiance R, G, B; counts used and effective (in
+ * samples, from ticks); evaluations per pixel.  In the sample-block shape its radiance and
+ * effective ticks (as_float) go to `partial`'s planes of n·blocks at its global id, and block 0
+ * writes the pixel's used ticks and evaluations, which no draw changes. */
+ALWAYS_INLINE void store_sums(const lanes_sum_t *acc, launch_item_t item, int n, int used, int evaluation_count,
+                              __global float *radiance, __global float *counts, __global int *evaluations,
+                              __global float *partial)
+{
+    int p = item.pixel;
+#if SAMPLE_BLOCKS
+    int at = get_global_id(0), stride = item.stride;
+    partial[at] = sum_of8(to8(acc->r));
+    partial[stride + at] = sum_of8(to8(acc->g));
+    partial[2 * stride + at] = sum_of8(to8(acc->b));
+    partial[3 * stride + at] = as_float(int_sum_of8(to8(acc->effective)));
+    if (item.block == 0) {
+        counts[p] = (float)used * (1.0f / TICKS_PER_SAMPLE);
+        evaluations[p] = evaluation_count;
+    }
+#else
+    radiance[p] = sum_of8(to8(acc->r));
+    radiance[n + p] = sum_of8(to8(acc->g));
+    radiance[2 * n + p] = sum_of8(to8(acc->b));
+    counts[p] = (float)used * (1.0f / TICKS_PER_SAMPLE);
+    counts[n + p] = (float)int_sum_of8(to8(acc->effective)) * (1.0f / TICKS_PER_SAMPLE);
+    evaluations[p] = evaluation_count;
+#endif
+}
+
+#if SAMPLE_BLOCKS
+/* Pixel p's radiance and effective count from its `blocks` blocks' partial sums (store_sums),
+ * added in block order; the effective ticks as integers, exactly the pixel shape's. */
+__kernel void sum_sample_blocks(__global const float *partial, const int n, const int blocks,
+                                __global float *radiance, __global float *counts)
+{
+    int p = get_global_id(0), stride = n * blocks, effective = 0;
+    float r = 0.0f, g = 0.0f, b = 0.0f;
+    for (int at = p; at < stride; at += n) {
+        r += partial[at];
+        g += partial[stride + at];
+        b += partial[2 * stride + at];
+        effective += as_int(partial[3 * stride + at]);
+    }
+    radiance[p] = r;
+    radiance[n + p] = g;
+    radiance[2 * n + p] = b;
+    counts[n + p] = (float)effective * (1.0f / TICKS_PER_SAMPLE);
+}
+#endif
 
 /* Add the lanes' samples of strategy weight β (in ticks) where `active` and `open` (V(x, ω) = 1,
  * lanes_visible; a shadowed sample adds 0, but counts as effective: Lu 2013's effective samples
@@ -315,18 +422,20 @@ ALWAYS_INLINE lanes3_t lanes3_load(__global const float *plane0, int stride, int
 }
 
 /* Light samples of every face (Eq. 4, or the g_{f,i} of Eq. 6): face f's draws_for(t_f) draws
- * read consecutive pool entries from `offset` (0 for the shared sequence; offset < pool_size).
+ * read consecutive pool entries from `offset` (0 for the shared sequence; offset < pool_size),
+ * those of the work item's window (strategy_window, the faces in order).
  * brdf_samples = 0 leaves the BRDF term out of the denominator (t_6 = 0 there). */
-ALWAYS_INLINE void shade_light_faces(lanes_sum_t *acc, const shading_t *s, const int ticks[7],
+ALWAYS_INLINE void shade_light_faces(lanes_sum_t *acc, launch_item_t *item, const shading_t *s, const int ticks[7],
                                      int brdf_samples, __global const float *planes, int pool_size,
                                      int offset, __global const uint *visibility, int pixel)
 {
     int stride = POOL_PLANE_STRIDE(pool_size);
     for (int f = 0; f < 6; ++f) {
-        int draws = face_draws(ticks[f], pool_size);
+        int draws = face_draws(ticks[f], pool_size), from, to;
+        strategy_window(item, draws, &from, &to);
         float face_ticks = (float)ticks[f];
         int first = 2 * pool_size * f + offset;
-        for (int i = 0; i < draws; i += POOL_LANES) {
+        for (int i = from; i < to; i += POOL_LANES) {
             lanes3_t w = lanes3_load(planes, stride, first + i);
             lanes_t pdf = vload_lanes(0, planes + 3 * stride + first + i);
             lanes_t power = phong_power_lanes(max(lanes_dot(s->r, w), 0.0f), (lanes_t)s->m);
@@ -435,21 +544,23 @@ ALWAYS_INLINE lanes3_t lanes_texel_radiance(__global const float4 *env, lane_int
 
 /* BRDF samples of Eq. 6 (f_i): the denominator holds the full light mixture, which is the one
  * face term t_{f(ω)}·pdf_L(ω|f(ω)) because pdf_L(ω|f) = 0 off face f.  Every pixel draws
- * draws_for(t_6) samples (t_6 depends on the budget alone); draw i's numbers are draw_numbers
- * (read from `shared_numbers` for the shared sequence), its direction sample_phong_direction's
- * arithmetic, with the bases about n and r computed once per pixel. */
-ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, const shading_t *s, const int ticks[7],
+ * draws_for(t_6) samples (t_6 depends on the budget alone), the work item those of its window;
+ * draw i's numbers are draw_numbers (read from `shared_numbers` for the shared sequence), its
+ * direction sample_phong_direction's arithmetic, with the bases about n and r computed once per
+ * work item. */
+ALWAYS_INLINE void shade_brdf(lanes_sum_t *acc, launch_item_t *item, const shading_t *s, const int ticks[7],
                               __global const float4 *env, __global const cdf_word_t *marginal,
                               __global const cdf_word_t *conditional, int res, uint seed,
                               uint frame, int shared_sequence, uint stream_pixel,
                               __global const float *shared_numbers, int numbers_stride,
                               __global const uint *visibility, int pixel)
 {
-    int draws = draws_for(ticks[6]);
+    int draws = draws_for(ticks[6]), from, to;
+    strategy_window(item, draws, &from, &to);
     vec3_t t_n, b_n, t_r, b_r;
     direction_about_axis_basis(s->n, &t_n, &b_n);
     direction_about_axis_basis(s->r, &t_r, &b_r);
-    for (int i = 0; i < draws; i += POOL_LANES) {
+    for (int i = from; i < to; i += POOL_LANES) {
         lane_ints_t draw = i + LANE_NUMBERS;
         lanes_t xi_cos, xi_lobe, azimuth_sin, azimuth_cos, sqrt_xi_cos, log2_xi_cos;
         if (shared_sequence) {

@@ -2,7 +2,8 @@
  * includes this one:
  *   LU_BALANCED_FACES  0: μ_f = 1/6 (Sec. 2.1);  1: μ_f(n) of Eq. 3
  *   LU_BRDF_SAMPLES    0: light samples only (Eq. 4);  1: half the budget to BRDF samples (Eq. 6)
- * `render_light_pool` shades one pixel per work item, its samples in explicit vectors of
+ * `render_light_pool` shades one pixel per work item (or, in the sample-block launch shape, one
+ * block of a pixel's draws: light_pool.cl's launch shapes), its samples in explicit vectors of
  * POOL_LANES (light_pool.cl), from the pool laid out by `pool_planes` and, for BRDF samples of the
  * shared sequence, the numbers of `brdf_numbers`; `pooled_directions`/`pooled_direction_pdf` are
  * the χ² hooks; `split_strategies` exposes the per-normal split for tests. */
@@ -46,7 +47,8 @@ __kernel void brdf_numbers(const uint seed, const uint frame, const int spp, __g
 }
 
 /* Outputs in planes of n floats (the G-buffer's launch_size: launches cover part of it,
- * chunks.py): radiance R, G, B; counts used, effective (in samples); evaluations per pixel. */
+ * chunks.py): radiance R, G, B; counts used, effective (in samples); evaluations per pixel
+ * (store_sums; LAUNCH_PARAMS: the sample-block shape's). */
 __kernel void render_light_pool(__global const float4 *normal, __global const float4 *view,
                                 __global const float4 *kd, __global const float4 *ks_m,
                                 __global const uint *visibility, const int n, __global const float4 *env, __global const cdf_word_t *marginal,
@@ -54,9 +56,10 @@ __kernel void render_light_pool(__global const float4 *normal, __global const fl
                                 __global const float *pool, const int res, const int pool_size, const int spp,
                                 const int shared_sequence, const uint seed, const uint frame,
                                 __global const float *shared_numbers, __global float *radiance, __global float *counts,
-                                __global int *evaluations)
+                                __global int *evaluations LAUNCH_PARAMS)
 {
-    int p = get_global_id(0);
+    launch_item_t item = LAUNCH_ITEM(n);
+    int p = item.pixel;
     shading_t s = load_shading(normal, view, kd, ks_m, p);
     int ticks[7];
     strategy_ticks(s.n, face_integral, spp, LU_BALANCED_FACES, LU_BRDF_SAMPLES, ticks);
@@ -65,19 +68,14 @@ __kernel void render_light_pool(__global const float4 *normal, __global const fl
     int offset = shared_sequence ? 0
                : (int)(rng_unit(rng_block(seed, frame, STREAM_POOL_OFFSET, (uint)p, 0u, 0u).v[0]) * pool_size);
     lanes_sum_t acc = {(lanes_t)0.0f, (lanes_t)0.0f, (lanes_t)0.0f, (lane_ints_t)0};
-    shade_light_faces(&acc, &s, ticks, LU_BRDF_SAMPLES, pool, pool_size, offset, visibility, p);
+    shade_light_faces(&acc, &item, &s, ticks, LU_BRDF_SAMPLES, pool, pool_size, offset, visibility, p);
 #if LU_BRDF_SAMPLES
-    shade_brdf(&acc, &s, ticks, env, marginal, conditional, res, seed, frame, shared_sequence, (uint)p,
+    shade_brdf(&acc, &item, &s, ticks, env, marginal, conditional, res, seed, frame, shared_sequence, (uint)p,
                shared_numbers, BRDF_NUMBERS_STRIDE(spp), visibility, p);
 #endif
-    radiance[p] = sum_of8(to8(acc.r));
-    radiance[n + p] = sum_of8(to8(acc.g));
-    radiance[2 * n + p] = sum_of8(to8(acc.b));
     int used, draws;
     drawn_counts(ticks, pool_size, &used, &draws);
-    counts[p] = (float)used * (1.0f / TICKS_PER_SAMPLE);
-    counts[n + p] = (float)int_sum_of8(to8(acc.effective)) * (1.0f / TICKS_PER_SAMPLE);
-    evaluations[p] = draws;
+    store_sums(&acc, item, n, used, draws, radiance, counts, evaluations, PARTIAL_SUMS);
 }
 
 /* surface[0..3] = normal, view, kd, (ks, m) of one pixel; n directions drawn as the estimator
