@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from iblbench.estimators.base import KernelCost, Setting, SweepPart
+from iblbench.estimators.base import KernelCost, Limit, Setting, SweepPart
 from iblbench.estimators.light_pool import PoolEstimator, PoolParams
 
 
@@ -36,7 +36,11 @@ class Balanced(PoolEstimator):
     sweep = SweepPart(("balanced",), spp=(64, 256, 1024, 4096), order=2)
     cost = KernelCost(65, 0, 0, 214, 88, derivation="""\
         uniform's samples; per pixel + F_f(n)·I_f of Eq. 3, 6 faces × 18 (4 corners × 4: n·c
-        with c = (±1, ±1, ±1) folds to 2 adds), and the split of split_ticks over weights 30""")
+        with c = (±1, ±1, ±1) folds to 2 adds), and the split of split_ticks over weights 30""",
+        lane_loops=((6, 1.0),), limits=(   # uniform's loops (light_pool.cl), the split per pixel
+            Limit("phong_power", per_eval=1, why="the lobe power of each lane"),
+            Limit("divide", per_eval=1, per_pixel=6,
+                  why="add_samples' β / D; split_ticks' running / divisor of each face")))
     Params = BalancedParams
     settings = PoolEstimator.settings + (Setting("uniform_faces", True),)   # tests/test_lu2013.py
     kernel_files = ("balanced.cl",)

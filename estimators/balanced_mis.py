@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from iblbench.estimators.base import KernelCost, Setting, SweepPart, specular_lobe_defines
+from iblbench.estimators.base import KernelCost, Limit, Setting, SweepPart, specular_lobe_defines
 from iblbench.estimators.light_pool import PoolEstimator, PoolParams
 
 
@@ -61,7 +61,18 @@ class BalancedMIS(PoolEstimator):
         the mean of a light sample, 72 (+ t_6·phong_mixture_pdf 7 in D), and a BRDF sample of
         the shared sequence, 148 (cos θ from the shared log2 ξ: exp2 half 19; direction 31 in
         the per-pixel bases; lobe power 41; n·ω 5; mixture pdf 5; light_pdf 26; D 3; add_samples
-        18); per pixel balanced's 214 + the bases about n and r 26 + pdf factors 6""")
+        18); per pixel balanced's 214 + the bases about n and r 26 + pdf factors 6""",
+        lane_loops=((6, 0.5), (1, 0.5)), limits=(   # light_pool.cl: a loop a face, then the BRDF's
+            Limit("phong_power", per_eval=1, group=0, why="a light sample's lobe power"),
+            Limit("divide", per_eval=2, group=0, why="add_samples' β / D, the mixture pdf's /π"),
+            Limit("phong_power", per_eval=1, group=1, why="a BRDF sample's lobe power"),
+            Limit("divide", per_eval=8, group=1,
+                  why="shade_brdf: the direction's sin θ and 1/|ω| 3, the mixture pdf 1, "
+                      "lanes_texel_of's s/ma, t/ma and √q 3, add_samples 1"),
+            Limit("gather", per_eval=7, group=1,
+                  why="lanes_cdf_bin's upper and lower words of the marginal and the "
+                      "conditional 4, the texel's R, G, B 3"),
+            Limit("divide", per_pixel=8, why="split_ticks 6, the bases about n and r 2")))
     Params = BalancedMISParams
     settings = PoolEstimator.settings + (Setting("mis_compensation", True, says="mis_compensation"),)
     kernel_files = ("balanced_mis.cl",)

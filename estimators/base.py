@@ -20,6 +20,7 @@ import dataclasses
 import functools
 import hashlib
 import inspect
+import math
 from typing import ClassVar
 
 import numpy as np
@@ -107,10 +108,37 @@ class WorkCounts:
 
 
 @dataclasses.dataclass(frozen=True)
+class Limit:
+    """Lane-operations of one of ``iblbench perf``'s limit probes (a key of
+    ``estimators.runtime.probes.PROBE_FLOPS``: ``phong_power``, ``philox``, ``divide``,
+    ``gather``, ``dependent_load``) that an estimator's shading kernel runs per evaluation slot
+    of its loop group ``group`` (:meth:`KernelCost.slots`), per sample and per pixel; ``why``
+    says where in the kernel."""
+
+    probe: str
+    per_eval: float = 0.0
+    per_sample: float = 0.0
+    per_pixel: float = 0.0
+    group: int = 0
+    why: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
 class KernelCost:
     """Analytic FLOPs and DRAM bytes of an estimator's shading kernel, per integrand evaluation,
     per sample and per pixel: an estimate, counted by reading the kernel by the rules of
-    ``iblbench.harness.studies.perf``'s docstring; ``derivation`` says how (perf.html shows it)."""
+    ``iblbench.harness.studies.perf``'s docstring; ``derivation`` says how (perf.html shows it).
+
+    ``limits`` (:class:`Limit`) are the probe operations it runs; perf bounds the kernel's time
+    by them (its ``limit_fraction``).  ``lane_loops`` groups a pixel's evaluations: (loops,
+    share) where ``share`` of the evaluations run in ``loops`` loops (0: one a sample) of blocks
+    of POOL_LANES lanes, split evenly, each loop's last block masked; () is one group of
+    unpadded slots.
+    ``scalar``: the kernel runs one evaluation at a time per work item in scalar code that PoCL
+    does not vectorise across work items (``POCL_VECTORIZER_REMARKS=1`` reports no loop of the
+    device's width), so each operation and FLOP holds a whole vector's time: POOL_LANES
+    lane-operations.  Per-pixel work is scalar in every kernel that runs a pixel a work item
+    and its samples in explicit lanes, so it counts POOL_LANES lane-operations too."""
 
     flops_per_eval: float
     flops_per_sample: float
@@ -118,11 +146,34 @@ class KernelCost:
     flops_per_pixel: float
     bytes_per_pixel: float
     derivation: str = ""
+    limits: tuple[Limit, ...] = ()
+    lane_loops: tuple[tuple[int, float], ...] = ()
+    scalar: bool = False
 
     def per_sample(self, spp: int, evaluations: float) -> tuple[float, float]:
         """(FLOPs, bytes) per sample of a render at ``spp`` with ``evaluations`` per pixel."""
         flops = self.flops_per_sample + (self.flops_per_eval * evaluations + self.flops_per_pixel) / spp
         return flops, self.bytes_per_sample + self.bytes_per_pixel / spp
+
+    def slots(self, evaluations: float, lanes: int, spp: int) -> list[float]:
+        """Evaluation slots a pixel runs in each group of :attr:`lane_loops`, masked lanes
+        included, for ``evaluations`` per pixel (a mean) in blocks of ``lanes`` at ``spp``."""
+        if not self.lane_loops:
+            return [evaluations]
+        return [(loops or spp) * lanes * math.ceil(evaluations * share / (loops or spp) / lanes - 1e-9)
+                for loops, share in self.lane_loops]
+
+    def executed_per_sample(self, spp: int, evaluations: float, lanes: int) -> dict[str, float]:
+        """Per sample at ``spp``: the FLOPs run (masked slots included) under ``"flops"``, and
+        each limit probe's lane-operations under its name: per-pixel ones × ``lanes``, all of
+        them where :attr:`scalar`."""
+        slots, width = self.slots(evaluations, lanes, spp), lanes if self.scalar else 1
+        counts = {"flops": width * (self.flops_per_sample + self.flops_per_eval * sum(slots) / spp)
+                  + lanes * self.flops_per_pixel / spp}
+        for limit in self.limits:
+            counts[limit.probe] = (counts.get(limit.probe, 0.0) + lanes * limit.per_pixel / spp
+                                   + width * (limit.per_sample + limit.per_eval * slots[limit.group] / spp))
+        return counts
 
 
 @dataclasses.dataclass(frozen=True)

@@ -29,7 +29,7 @@ import dataclasses
 import numpy as np
 import pyopencl as cl
 
-from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Setting, SweepPart, Tags,
+from iblbench.estimators.base import (Estimator, KernelCost, Limit, Mutant, Setting, SweepPart, Tags,
                                       WorkCounts, read_estimate, specular_lobe_defines)
 from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import event_ms
@@ -125,7 +125,20 @@ class BIS(Estimator):
         candidate's 181 before its lane's sums, less q 10, γ/q 1 and ×cos 1, which nothing reads
         there, + f/γ 12), its systematic position 2 and f/γ sums 3: 186 = 183 + 3; per pixel
         shading 24, hoisted factors 19 (11 before the candidates, the 8 that f/γ needs again
-        before the regeneration), the resampling uniform, Σw/N and Ẑ 3, output 4""")
+        before the regeneration), the resampling uniform, Σw/N and Ẑ 3, output 4""",
+        lane_loops=((1, 1.0),), limits=(   # sir.cl: sir_candidate_lanes for the M + N evaluations
+            Limit("philox", per_eval=1, why="the candidate's block"),
+            Limit("phong_power", per_eval=2, why="ξ^{1/(m+1)} and the lobe power"),
+            Limit("divide", per_eval=13,
+                  why="the strategy's (i + ½)/M 1, √ξ 1, direction_about_axis 4 (its basis' "
+                      "1/(s + z), sin θ, √ and 1/ of the norm), the mixture pdf 1, "
+                      "cube_face_st 2, f/γ's three quotients 3, γ/q 1"),
+            Limit("gather", per_eval=3, why="the texel's R, G, B"),
+            Limit("serial_add", per_eval=1,
+                  why="bis_pixel: each candidate's weight leaves its lane into the total"),
+            Limit("lockstep", per_sample=10,
+                  why="a resampled position's binary search, ⌈log2 M⌉ = 9 steps at the "
+                      "default M = 400, and its store, each ended by LOCKSTEP")))
     Params = BISParams
     settings = (Setting("M", 100), Setting("N", 5))
     tags = Tags(unbiased=True, temporal=False, has_pdf=False)

@@ -1,7 +1,7 @@
 """``brdf``: Phong BRDF sampling only, the classic baseline for glossy surfaces under smooth maps."""
 from __future__ import annotations
 
-from iblbench.estimators.base import KernelCost, SweepPart
+from iblbench.estimators.base import KernelCost, Limit, SweepPart
 from iblbench.estimators.envmap import MapSampler
 
 
@@ -31,6 +31,15 @@ class Brdf(MapSampler):
         uniforms 3, sincos_turn 24, √ξ 1, log2 ξ 16 and the exp2 half 19 of ξ^{1/(m+1)}, the
         direction 31 in the per-pixel bases, lobe power 41, n·ω 5, mixture pdf 5, texel lookup
         10, D 1, add_samples 18; per pixel shading 24, the bases about n and r 26, hoisted
-        factors 6, the 16-lane sums out 47; bytes as uniform's""")
+        factors 6, the 16-lane sums out 47; bytes as uniform's""",
+        lane_loops=((1, 1.0),), limits=(   # envmap.cl's BRDF loop, LIGHT_SAMPLES = 0
+            Limit("philox", per_eval=1, why="draw_numbers' block"),
+            Limit("phong_power", per_eval=1, why="the lobe power"),
+            Limit("divide", per_eval=9,
+                  why="√ξ, log2 ξ's (f − 1)/(f + 1), the direction's sin θ and 1/|ω| 3, the "
+                      "mixture pdf's /π, lanes_texel_of's s/ma and t/ma (its √q is dead), "
+                      "add_samples' β / D"),
+            Limit("gather", per_eval=3, why="the texel's R, G, B"),
+            Limit("divide", per_pixel=2, why="the bases about n and r")))
     kernel_files = ("brdf.cl", "envmap.cl", "lanes.cl")
     light_samples = False

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Tags, WorkCounts, read_estimate,
+from iblbench.estimators.base import (Estimator, KernelCost, Limit, Mutant, Tags, WorkCounts, read_estimate,
                                       visibility_defines)
 from iblbench.estimators.runtime.device import event_ms
 
@@ -28,7 +28,13 @@ class Cosine(Estimator):
         pixel's), n·ω 5, the texel of ω 10, lobe power 41 (r·ω 5, phong_power 35, max 1),
         phong_value 7, V·π·ρ·L and the sum 10: 129; per pixel the shading 24 (reflection 12,
         Y(kd), Y(ks) 10, lobe choice 2), the basis about n 13 and the mean 4: 41; bytes: 64 in,
-        radiance 16 and counts 8 out""")
+        radiance 16 and counts 8 out""",
+        scalar=True, limits=(   # render_cosine's loop over its samples, a pixel a work item
+            Limit("philox", per_eval=1, why="rng_uniform4's block"),
+            Limit("phong_power", per_eval=1, why="phong_brdf's lobe power"),
+            Limit("divide", per_eval=7,
+                  why="√ξ, direction_about_axis 4, dir_to_face_st's two quotients"),
+            Limit("gather", per_eval=1, why="the texel")))
     mutants = (
         Mutant("cosine-density-without-pi", "cosine.cl",
                "sum += open * IBL_PI * phong_brdf", "sum += open * phong_brdf",

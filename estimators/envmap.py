@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Setting, SweepPart, Tags,
+from iblbench.estimators.base import (Estimator, KernelCost, Limit, Mutant, Setting, SweepPart, Tags,
                                       WorkCounts, read_estimate, specular_lobe_defines)
 from iblbench.estimators.light_pool import HOOK_SPP, MAX_SPP, TICKS_PER_SAMPLE, hook_surface, lane_chunks
 from iblbench.estimators.runtime.device import event_ms
@@ -213,7 +213,17 @@ class Envmap(MapSampler):
         and the column, each a bin, its threshold test and alias (integer work, not counted),
         the face by a float quotient 1, the point in the texel 10, its pdf 8, the face
         direction normalised 12, lobe power 41, n·ω 5, D 1, add_samples 18; per pixel shading
-        24, hoisted factors 5, sums out 47""")
+        24, hoisted factors 5, sums out 47""",
+        lane_loops=((1, 1.0),), limits=(   # render_map's light loop (the default: no BRDF samples)
+            Limit("philox", per_eval=2, why="lanes_sample_light's blocks xi and at"),
+            Limit("dependent_load", per_eval=3,
+                  why="the row's alias word, then its column's (at the row drawn), then the "
+                      "texel's probability and radiance (at the column drawn)"),
+            Limit("gather", per_eval=3, why="the rest of that texel's four loads"),
+            Limit("phong_power", per_eval=1, why="the lobe power"),
+            Limit("divide", per_eval=7,
+                  why="lanes_quotient 1, x and y / res 2, √q 1, lanes_face_direction's √ and "
+                      "1/ 2, add_samples' β / D 1")))
     Params = EnvmapParams
     settings = (Setting("mis", "brdf", says="mis_brdf"),
                 Setting("heuristic", "balance", {"mis": "brdf"}, says="mis_heuristic"),

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pyopencl.cltypes as cltypes
 
-from iblbench.estimators.base import KernelCost, Setting, SweepPart, Tags, read_estimate
+from iblbench.estimators.base import KernelCost, Limit, Setting, SweepPart, Tags, read_estimate
 from iblbench.estimators.brdf import Brdf
 from iblbench.estimators.light_pool import MAX_SPP, hook_surface, lane_chunks
 from iblbench.estimators.runtime.device import event_ms
@@ -106,7 +106,14 @@ class Fis(Brdf):
         13 26 (log2 16, the clamps, bias, floor and share 10), the blend of two levels 9, D 1,
         add_samples 18; per pixel brdf's 103 and the lod shift ½·log2(R²/4N) 20 (its library
         log2 counted as the polynomial's 16); bytes as brdf's (the mip chain, 4/3 of the map,
-        taken as cache-resident like the map)""")
+        taken as cache-resident like the map)""",
+        lane_loops=((1, 1.0),), limits=(   # render_fis's loop
+            Limit("phong_power", per_eval=1, why="the lobe power"),
+            Limit("divide", per_eval=14,
+                  why="ξ_cos's two quotients 2, √ξ 1, log2 ξ 1, the direction 3, the mixture "
+                      "pdf 1, lanes_texel_of 3, Jacobian / pdf 1, the lod's log2 1, add_samples "
+                      "1"),
+            Limit("gather", per_eval=6, why="R, G, B at the two mip levels")))
     Params = FisParams
     settings = (Setting("lod_bias", 0.0),)   # tests/test_fis.py: the filtered integral at 0-2.25
     tags = Tags(unbiased=False, has_pdf=True, has_limit=True)

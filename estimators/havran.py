@@ -101,7 +101,7 @@ import weakref
 
 import numpy as np
 
-from iblbench.estimators.base import (Estimator, KernelCost, Mutant, Setting, SweepPart, Tags,
+from iblbench.estimators.base import (Estimator, KernelCost, Limit, Mutant, Setting, SweepPart, Tags,
                                       WorkCounts, read_estimate, visibility_defines)
 from iblbench.estimators.runtime.device import event_ms
 from iblbench.scenes import cubemap
@@ -436,7 +436,9 @@ class Havran(Estimator):
     cost = KernelCost(57, 5, 0, 17, 92, derivation="""\
         a light above the horizon: lobe power 41, phong_value 7, ×W, ×cos 6, sum 3; per light
         n·ω 5, culled or not; per pixel the reflection 12 and hoisted factors 5; bytes: 64 in,
-        radiance float4, counts float2 and evaluations out""")
+        radiance float4, counts float2 and evaluations out""",
+        scalar=True, limits=(   # render_havran's loop over the K lights, a pixel a work item
+            Limit("phong_power", per_sample=1, why="phong_brdf's lobe power, a light"),))
     Params = HavranParams
     settings = (Setting("fir_taps", (1.0,), says="fir_taps"), Setting("fir_taps", (0.2, 0.8), says="fir_taps"))
     tags = Tags(unbiased=False, temporal=True, has_pdf=False)

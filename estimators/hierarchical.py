@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from iblbench.estimators.base import KernelCost, Mutant, SweepPart
+from iblbench.estimators.base import KernelCost, Limit, Mutant, SweepPart
 from iblbench.estimators.envmap import Envmap
 
 
@@ -76,7 +76,17 @@ class Hierarchical(Envmap):
         with the level's word (integer work, not counted), the texel's probability read; the
         point in the texel 12 (a grid cell's centre, 6 per coordinate), its pdf 8, the face
         direction normalised 12, lobe power 41, n·ω 5, D 1, add_samples 18; per pixel envmap's
-        76 (the choices' widths are the tables', built once per frame)""")
+        76 (the choices' widths are the tables', built once per frame)""",
+        lane_loops=((1, 1.0),), limits=(   # descent.cl's descent_sample in render_map's light loop
+            Limit("philox", per_eval=2, why="descent_word: 8 words (face, 6 levels, point)"),
+            Limit("dependent_load", per_eval=7,
+                  why="a level's first bound at the record picked above, 6 levels, then the "
+                      "texel's probability and radiance"),
+            Limit("gather", per_eval=15, why="the other two bounds of each level 12, the "
+                                             "texel's probability 1 and other two channels 2"),
+            Limit("phong_power", per_eval=1, why="the lobe power"),
+            Limit("divide", per_eval=6,
+                  why="x and y / res 2, √area 1, lanes_face_direction 2, add_samples 1")))
     requires = ("weight_pyramid",)
     kernel_files = ("hierarchical.cl", "descent.cl", "envmap.cl", "lanes.cl")
     mutants = (   # for iblbench selftest (harness/verify/mutants.py)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from iblbench.estimators.base import KernelCost, Mutant, Setting, SweepPart
+from iblbench.estimators.base import KernelCost, Limit, Mutant, Setting, SweepPart
 from iblbench.estimators.envmap import HEURISTICS, MIS_MODES
 from iblbench.estimators.hierarchical import Hierarchical
 
@@ -205,7 +205,24 @@ class Product(Hierarchical):
         solid angle and cap, 15 a child (the farthest corner 6, its Jacobian 5, the area 2, the
         division and min 2), 360 more: about 1,500; as much for a BRDF sample's density under
         MIS (its draw 107 less the light draw's 41); per pixel the weigher's frame 30 and the
-        lobe's integral 2, envmap's 76, the faces' widths 34; bytes as envmap's""")
+        lobe's integral 2, envmap's 76, the faces' widths 34; bytes as envmap's""",
+        lane_loops=((1, 0.5), (1, 0.5)), limits=(   # render_map: light, then BRDF samples (mis="brdf")
+            Limit("philox", per_eval=2, group=0, why="descent_word's two blocks"),
+            Limit("philox", per_eval=1, group=1, why="draw_numbers' block"),
+            *(Limit("phong_power", per_eval=1, group=group,
+                    why="the sample's lobe power (light and BRDF samples alike: a BRDF sample's "
+                        "density descends again); the children's and faces' lobe bounds are "
+                        "lobe_bound's reciprocal and five squarings") for group in (0, 1)),
+            *(Limit("divide", per_eval=304, group=group,
+                    why="a child: child_cone's three rsqrt (√ and 1/) and √ 7, cone_r_bound's "
+                        "√ 1, cone_factor's √ and its cap's quotient 2, lobe_bound's reciprocal "
+                        "1: 44 a level, 264; the faces' 24; the widths' 7; about 9 more for the "
+                        "sample (as envmap's or brdf's)") for group in (0, 1)),
+            Limit("dependent_load", per_eval=7, group=0, why="hierarchical's chain"),
+            Limit("gather", per_eval=20, group=0, why="hierarchical's other loads"),
+            Limit("gather", per_eval=27, group=1,
+                  why="descent_density: four children a level at the texel's ancestors 24 "
+                      "(known from ω: independent), the texel's R, G, B 3")))
     Params = ProductParams
     settings = (Setting("mis", "none"), Setting("heuristic", "balance"),
                 Setting("child_weight", "centre"), Setting("child_weight", "bound"), Setting("light_levels", 2))

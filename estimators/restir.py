@@ -153,7 +153,7 @@ import functools
 import numpy as np
 import pyopencl as cl
 
-from iblbench.estimators.base import (Estimate, Estimator, KernelCost, Mutant, Setting, SweepPart,
+from iblbench.estimators.base import (Estimate, Estimator, KernelCost, Limit, Mutant, Setting, SweepPart,
                                       Tags, WorkCounts, read_estimate, specular_lobe_defines)
 from iblbench.estimators.runtime import philox
 from iblbench.estimators.runtime.device import KeptBuffers, event_ms
@@ -244,7 +244,7 @@ class ReSTIR(Estimator):
     name = "restir"
     sweep = SweepPart(("restir",), spp=(1, 4, 16, 64), order=11)
     portability_variants = ("restir{unbiased=false}",)
-    cost = KernelCost(137, 206, 352, 1590, 252, derivation="""\
+    cost = KernelCost(137, 206, 352, 54, 188, derivation="""\
         the mean of a default chain's 17 evaluations (``Estimate.evaluations``): 8 candidates in
         one block of lanes, 204 each (every lane draws a BRDF direction 107 beside its
         presample's; n·ω 5, lobe power 41, the texel of ω 20, Y(L) 5, ρ_Y 3, p̂ 2, the light and
@@ -254,11 +254,27 @@ class ReSTIR(Estimator):
         shaded sample): the lanes' merge 50, the temporal combination 27, two neighbours found
         80 (disc point, sincos_turn, normal and depth tests), the spatial combination 49; B_s:
         its reservoirs, 32 B each, written once and read four times (history, own, two
-        neighbours), and two neighbours' shading, 192 B; per pixel the shading loaded in three
-        kernels 72 and its target scale over 24 coarse cells, 63 each (direction 12, n·ω 5, lobe
-        power 41, ρ_Y 3, products 2), 1512, and the power 6; bytes: the G-buffer read three
-        times, 192, the scale (4) and stats (16) written and read back, radiance (16) and counts
-        (8) out, 60 (presamples, maps and pyramid cache-resident)""")
+        neighbours), and two neighbours' shading, 192 B; per pixel the shading loaded in the two
+        shading kernels 48 and the power 6 (the target scales run in the sample stage, outside
+        shade_ms); bytes: the G-buffer read twice, 128, the scale (4) and stats (16) written and
+        read back, radiance (16) and counts (8) out, 60 (presamples, maps and pyramid
+        cache-resident)""",
+        lane_loops=((0, 8 / 17), (1, 9 / 17)), limits=(   # approximate: restir.cl's two shading passes
+            # restir_initial_temporal: a chain's 8 candidates in one block of lanes (half of it
+            # masked at 16 lanes), one chain a sample
+            Limit("philox", per_eval=2, why="a candidate's block and its BRDF draw's"),
+            Limit("phong_power", per_eval=2, why="a candidate's ξ^{1/(m+1)} and lobe power"),
+            Limit("gather", per_eval=8,
+                  why="a candidate's presample (x, y, z, pdf), its texel's R, G, B and pyramid"),
+            Limit("divide", per_eval=10,
+                  why="√ξ, log2 ξ, the direction 3, lanes_texel_of 3, the densities 2"),
+            # restir_spatial_shade: chains in lanes, a chain a lane: 8 reuse targets, the shading
+            Limit("phong_power", per_eval=1, group=1, why="a target's or the shading's lobe power"),
+            Limit("gather", per_eval=75 / 9, group=1,
+                  why="a reuse target's texel and its neighbour's reservoir 9, the shading's "
+                      "texel 3"),
+            Limit("divide", per_eval=3, group=1, why="lanes_texel_of's s/ma, t/ma and √q"),
+            Limit("philox", per_sample=2, why="the two neighbours' disc points")))
     Params = ReSTIRParams
     settings = (Setting("candidates", 2), Setting("brdf_share", 0.0), Setting("temporal", False),
                 Setting("history_cap", 20.0, {"neighbours": 0}, says="history_cap"),

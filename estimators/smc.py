@@ -136,7 +136,7 @@ import math
 
 import numpy as np
 
-from iblbench.estimators.base import (Estimator, ExtraColumn, KernelCost, Mutant, Setting,
+from iblbench.estimators.base import (Estimator, ExtraColumn, KernelCost, Limit, Mutant, Setting,
                                       SweepPart, Tags, WorkCounts, read_estimate, specular_lobe_defines)
 from iblbench.estimators.bis import MAX_SPP, run_bis_chunks, run_lockstep
 from iblbench.estimators.runtime.chunks import run_in_chunks
@@ -195,7 +195,19 @@ class SMC(Estimator):
         particle (ω, W) and gammas written, 24 B; per pixel shading 24, hoisted factors 20
         (bis's + 1 − env_pick), the stratified pick 3, the resampling 3, the candidate ratio
         Σw·f/γ / Σw 3, 1/N 1, the estimate 3, stats 1; bytes: 64 in, its list entry 4, state,
-        carried estimate, radiance, counts and stats out (72)""")
+        carried estimate, radiance, counts and stats out (72)""",
+        lane_loops=((1, 1.0),), limits=(   # smc_init: BIS, half its candidates from the map
+            Limit("philox", per_eval=1.5, why="a candidate's block, and a map draw's words"),
+            Limit("phong_power", per_eval=1.5,
+                  why="the lobe power; a BRDF draw's ξ^{1/(m+1)} (half)"),
+            Limit("dependent_load", per_eval=1.5,
+                  why="a map draw (half): the pair's alias entry, its column's, the texel"),
+            Limit("gather", per_eval=3.5, why="the texel's R, G, B and its pdf's .w"),
+            Limit("divide", per_eval=14,
+                  why="a BRDF draw 5 or a map draw's alias positions 2, its face 1, x and y 2, "
+                      "lanes_face_direction 2; lanes_texel_of 3, f/γ 3, γ/q 1, the strategy 1"),
+            Limit("serial_add", per_eval=1, why="the weights' total, as bis's"),
+            Limit("lockstep", per_sample=10, why="the resampling's search, as bis's")))
     Params = SMCParams
     # The re-init rules' settings: tests/test_smc.py holds each rule alone to its pixels.
     settings = (Setting("N", 4), Setting("nu", 1.0), Setting("local_degrees", 30.0),

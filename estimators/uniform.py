@@ -1,7 +1,7 @@
 """``uniform``: Lu 2013's baseline light sampling with μ_f = 1/6 of the samples per face."""
 from __future__ import annotations
 
-from iblbench.estimators.base import KernelCost, SweepPart
+from iblbench.estimators.base import KernelCost, Limit, SweepPart
 from iblbench.estimators.light_pool import PoolEstimator
 
 
@@ -22,5 +22,8 @@ class Uniform(PoolEstimator):
         add_samples 18 (β/D·cos 2, lobe 1, 3 × (kd/π + ks·lobe 2, ×L, ×weight, +=)); per pixel:
         shading 24 (reflection 12, Y(kd), Y(ks) 10, lobe choice 2), the face split 12 (μ_f = 1/6
         folds), hoisted factors 5, the 16-lane sums out 47; bytes: 64 in, 24 out (radiance,
-        used, effective, evaluations)""")
+        used, effective, evaluations)""",
+        lane_loops=((6, 1.0),), limits=(   # light_pool.cl's shade_light_faces: a loop a face
+            Limit("phong_power", per_eval=1, why="the lobe power of each lane"),
+            Limit("divide", per_eval=1, why="add_samples' β / D")))
     kernel_files = ("uniform.cl",)

@@ -13,9 +13,12 @@ Measure the throughput of every estimator (or the chosen ones) on this device, s
 one run: per (scene, estimator), Msamples/s and M evaluations/s, the device ms of the build,
 sample and shade stages (median, min and IQR of --repeats renders after one warm-up), the
 device's measured FMA and copy roofline and the fraction of it each shading kernel reaches
-(from analytic FLOP and byte counts per sample, estimates), and the speed-up over a
-single-threaded NumPy implementation of Lu 2013's shared-pool shading on the same inputs (the
-floor every kernel must beat; it must also agree with the uniform kernel on the same pool).
+(from analytic FLOP and byte counts per sample, estimates), the rates of probes of the other
+limits (lobe powers, Philox blocks, divisions, random and dependent gathers, scalar sums,
+LOCKSTEP search steps) and each kernel's speed over the time its declared uses of them take
+(limit), and the speed-up over a single-threaded NumPy implementation of Lu 2013's shared-pool
+shading on the same inputs (the floor every kernel must beat; it must also agree with the
+uniform kernel on the same pool).
 Where the mitsuba package is installed (pip install 'iblbench[peer]') and its llvm_ad_rgb variant
 runs a kernel here, also a production peer, row mitsuba3-envmap: Mitsuba 3's own envmap emitter
 sampling of the same map, Phong-shaded as envmap does, over the same pixels on every core, and
@@ -50,6 +53,10 @@ def add_parser(subparsers) -> None:
                            "estimator's own perf_budget: bis and smc 3)")
     perf.add_argument("--launch-shape", type=launch_shape, metavar="auto|pixel|sample-block",
                       help=flag_help("launch_shape"))
+    perf.add_argument("--lanes", type=int, choices=(8, 16), metavar="{8,16}",
+                      help="the estimators' explicit vector width (POOL_LANES) instead of the "
+                           "device's (16 where its preferred float width is 16, else 8): to "
+                           "measure the 8-lane kernels on an AVX-512 CPU")
     perf.add_argument("--out", type=pathlib.Path, default=pathlib.Path("results/perf"),
                       help="output directory for perf.csv and perf.html (default: results/perf)")
 
@@ -74,7 +81,8 @@ def run(args) -> None:
         out=args.out, scenes=tuple(args.scene or perf.DEFAULT_SCENES),
         estimators=tuple(args.estimator or ()), spp=args.spp,
         resolution=args.res or perf.DEFAULT_RESOLUTION, env_res=args.env_res or perf.DEFAULT_ENV_RES,
-        repeats=args.repeats, device=args.device, launch_shape=args.launch_shape)
+        repeats=args.repeats, device=args.device, launch_shape=args.launch_shape,
+        lanes=args.lanes)
     out = pathlib.Path(config.out)
     if out.exists() and not out.is_dir():
         raise InputError(out, "--out exists and is not a directory")

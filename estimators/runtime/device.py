@@ -428,10 +428,11 @@ def event_ms(event: cl.Event | list[cl.Event]) -> float:
 
 
 @functools.lru_cache(maxsize=None)
-def get_compute(spec: str | None = None, launch_shape: str | None = None) -> Compute:
-    """One shared Compute per device choice and launch shape (None: the device's), so programs
-    are built once per context."""
-    return Compute(choose_device(spec), launch_shape=launch_shape)
+def get_compute(spec: str | None = None, launch_shape: str | None = None,
+                lanes: int | None = None) -> Compute:
+    """One shared Compute per device choice, launch shape (None: the device's) and ``lanes``
+    (:func:`pool_lanes_for`'s override), so programs are built once per context."""
+    return Compute(choose_device(spec), lanes=lanes, launch_shape=launch_shape)
 
 
 class KeptBuffers:

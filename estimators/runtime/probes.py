@@ -28,27 +28,28 @@ def fma_width(compute) -> int:
     return max(w for w in (1, 2, 4, 8, 16) if w <= max(width, 1))
 
 
-def _probe_kernel(compute, name: str):
+def _probe_kernel(compute, name: str, width: int | None = None):
     return compute.kernel("iblbench.estimators.runtime", "probes.cl", name,
-                          {"FMA_WIDTH": fma_width(compute)})
+                          {"FMA_WIDTH": width or fma_width(compute)})
 
 
-def _launches(compute, kernel, items: int, args, launches: int) -> list[float]:
-    """Device ms of ``launches`` launches after an untimed one (first touch of the buffers'
-    pages, kernel compilation)."""
-    compute.run(kernel, items, *args)
-    return [event_ms(compute.run(kernel, items, *args)) for _ in range(launches)]
+def _launches(compute, kernel, items: int, args, launches: int, group: int | None = None) -> list[float]:
+    """Device ms of ``launches`` launches (in groups of ``group``; None: the device's choice)
+    after an untimed one (first touch of the buffers' pages, kernel compilation)."""
+    compute.run(kernel, items, *args, group=group)
+    return [event_ms(compute.run(kernel, items, *args, group=group)) for _ in range(launches)]
 
 
 def run_fma(compute, items: int, iterations: int, launches: int = 1, b: float = 0.999,
-            c: float = 1e-3):
-    """``launches`` timed launches of ``fma_throughput``: (the outputs ``[items, FMA_CHAINS,
-    fma_width]``, device ms of each launch, FLOPs per launch)."""
-    lanes = fma_width(compute)
+            c: float = 1e-3, width: int | None = None):
+    """``launches`` timed launches of ``fma_throughput`` with chains of ``width`` lanes (None:
+    :func:`fma_width`): (the outputs ``[items, FMA_CHAINS, width]``, device ms of each launch,
+    FLOPs per launch)."""
+    lanes = width or fma_width(compute)
     shape = (items, FMA_CHAINS, lanes)
     out = compute.empty(4 * math.prod(shape))
     args = (np.int32(iterations), np.float32(b), np.float32(c), out)
-    times = _launches(compute, _probe_kernel(compute, "fma_throughput"), items, args, launches)
+    times = _launches(compute, _probe_kernel(compute, "fma_throughput", lanes), items, args, launches)
     flops = 2 * lanes * FMA_CHAINS * iterations * items
     return compute.to_host(out, shape, np.float32), times, flops
 
@@ -110,3 +111,148 @@ class CopyProbe:
     def gbps(self) -> float:
         ms = event_ms(self.compute.run(self.kernel, self.items, *self.buffers))
         return 32 * self.items / (ms * 1e6)
+
+
+# ---- the other limits (limit_probes.cl): per lane-operation rates -------------------------------
+
+# Each limit probe's operation and its FLOPs by perf's counting rules (its docstring), which a
+# bound that times the operation by its probe must not count again at the FMA rate.
+PROBE_FLOPS = {
+    "phong_power": 35,      # phong_power_lanes: log2 half 16, exp2 half 19
+    "philox": 0,            # rng_block_lanes: integer work
+    "divide": 1,            # a division or a square root (both on the divider)
+    "gather": 0,            # one GATHER element, independent
+    "dependent_load": 0,    # one GATHER element whose index the previous load gave
+    "serial_add": 1,        # one acc_t addition of a scalar chain
+    "lockstep": 0,          # one work item's step of a search between LOCKSTEP barriers
+}
+LIMIT_MIN_MS = 10.0            # each limit probe's launch is sized to take at least this
+LIMIT_ITEMS = 1 << 12          # work items of a limit probe's launch (POOL_LANES lanes each)
+PHONG_M = 37.0                 # the lobe power's exponent (its cost does not depend on it)
+PHONG_SHRINK = 0.9999
+
+
+def _limit_kernel(compute, name: str, dependent: bool = False):
+    return compute.kernel("iblbench.estimators.runtime", "limit_probes.cl", name,
+                          {"DEPENDENT": int(dependent)})
+
+
+def run_phong_power(compute, items: int, iterations: int, launches: int = 1):
+    """``launches`` timed launches of ``phong_power_throughput``: (each lane's sum of its
+    ``iterations`` powers ``[items, pool_lanes]``, device ms of each launch, lane-powers per
+    launch)."""
+    lanes = compute.pool_lanes
+    out = compute.empty(4 * items * lanes)
+    args = (np.int32(iterations), np.float32(PHONG_M), np.float32(PHONG_SHRINK), out)
+    times = _launches(compute, _limit_kernel(compute, "phong_power_throughput"), items, args,
+                      launches)
+    return compute.to_host(out, (items, lanes), np.float32), times, items * lanes * iterations
+
+
+def run_philox(compute, items: int, iterations: int, launches: int = 1, seed: int = 0x1234):
+    """``launches`` timed launches of ``philox_throughput``: (the XOR of each lane's words
+    ``[items, pool_lanes]``, device ms of each launch, lane-blocks per launch).  Lane g =
+    pool_lanes·item + k draws rng_block(seed, 0, 0, 0, g·iterations + i, 0), i < iterations."""
+    lanes = compute.pool_lanes
+    out = compute.empty(4 * items * lanes)
+    args = (np.int32(iterations), np.uint32(seed), out)
+    times = _launches(compute, _limit_kernel(compute, "philox_throughput"), items, args, launches)
+    return compute.to_host(out, (items, lanes), np.uint32), times, items * lanes * iterations
+
+
+DIVIDE_STEP = 0.25
+
+
+def run_divide(compute, items: int, iterations: int, launches: int = 1):
+    """``launches`` timed launches of ``divide_throughput``: (each lane's sum of its four
+    chains ``[items, pool_lanes]``, device ms of each launch, lane-divisions per launch)."""
+    lanes = compute.pool_lanes
+    out = compute.empty(4 * items * lanes)
+    args = (np.int32(iterations), np.float32(DIVIDE_STEP), out)
+    times = _launches(compute, _limit_kernel(compute, "divide_throughput"), items, args, launches)
+    return compute.to_host(out, (items, lanes), np.float32), times, 4 * items * lanes * iterations
+
+
+def run_serial_adds(compute, items: int, iterations: int, launches: int = 1):
+    """``launches`` timed launches of ``serial_adds``: (each item's total ``[items]``, in the
+    kernels' acc_t, device ms of each launch, additions per launch)."""
+    dtype = np.float64 if compute.doubles else np.float32
+    out = compute.empty(np.dtype(dtype).itemsize * items)
+    args = (np.int32(iterations), np.float32(PHONG_SHRINK), out)
+    times = _launches(compute, _limit_kernel(compute, "serial_adds"), items, args, launches)
+    return compute.to_host(out, (items,), dtype), times, items * iterations
+
+
+LOCKSTEP_GROUP = 64   # estimators/bis.py's LOCKSTEP_GROUP (a probe cannot import an estimator)
+
+
+def run_lockstep_steps(compute, table: np.ndarray, items: int, steps: int, launches: int = 1):
+    """``launches`` timed launches of ``lockstep_steps`` on ``table`` in groups of
+    LOCKSTEP_GROUP (``items`` a multiple of it): (each item's last index ``[items]``, device ms
+    of each launch, work-item steps per launch)."""
+    out = compute.empty(4 * items)
+    args = (compute.to_device(np.ascontiguousarray(table, np.uint32)), np.uint32(len(table) - 1),
+            np.int32(steps), out)
+    times = _launches(compute, _limit_kernel(compute, "lockstep_steps"), items, args, launches,
+                      LOCKSTEP_GROUP)
+    return compute.to_host(out, (items,), np.uint32), times, items * steps
+
+
+def chase_table(entries: int, seed: int = 0) -> np.ndarray:
+    """``entries`` (a power of two) uint32: a random cyclic permutation, so that index →
+    table[index] visits every entry once in a random order (the dependent chain's table)."""
+    if entries & (entries - 1):
+        raise ValueError(f"a gather table's entries must be a power of two, got {entries}")
+    order = np.random.default_rng(seed).permutation(entries).astype(np.uint32)
+    table = np.empty(entries, np.uint32)
+    table[order] = np.roll(order, -1)
+    return table
+
+
+def run_gathers(compute, table: np.ndarray, items: int, steps: int, dependent: bool,
+                launches: int = 1, seed: int = 1):
+    """``launches`` timed launches of ``lane_gathers`` on ``table`` (uint32, a power-of-two
+    size): (the XOR of each lane's loaded values ``[items, pool_lanes]``, the start indices,
+    device ms of each launch, lane-gathers per launch)."""
+    lanes = compute.pool_lanes
+    start = np.random.default_rng(seed).integers(0, len(table), items * lanes, dtype=np.uint32)
+    out = compute.empty(4 * items * lanes)
+    args = (compute.to_device(np.ascontiguousarray(table, np.uint32)), np.uint32(len(table) - 1),
+            np.int32(steps), compute.to_device(start), out)
+    times = _launches(compute, _limit_kernel(compute, "lane_gathers", dependent), items, args,
+                      launches)
+    return (compute.to_host(out, (items, lanes), np.uint32), start.reshape(items, lanes), times,
+            items * lanes * steps)
+
+
+def gather_entries(env_res: int) -> int:
+    """The gather probes' table size: the power of two ≥ the cube map's floats, 6·R²·4 (the
+    texels the estimators gather from; their CDF words, pyramid and alias tables are as large)."""
+    return 1 << max(10, (6 * env_res * env_res * 4 - 1).bit_length())
+
+
+def sized(run, min_ms: float) -> int:
+    """The power-of-two count (of iterations or steps) for which ``run(count)`` (device ms)
+    takes ≥ ``min_ms``."""
+    count = 16
+    while True:
+        ms = run(count)
+        if ms >= min_ms or count >= 1 << 20:
+            return count
+        count *= 2 if ms > min_ms / 64 else 16
+
+
+
+def limit_outputs(compute, lanes_total: int = 32) -> dict[str, np.ndarray]:
+    """Small runs of every limit probe over ``lanes_total`` lanes (a multiple of 16), their
+    outputs by probe, flat: the same at either lane width (the portability set's ``probes``
+    case runs them on Oclgrind and compares them across devices)."""
+    table, items = chase_table(1 << 8), lanes_total // compute.pool_lanes
+    return {name: np.ravel(out) for name, out in {
+        "phong_power": run_phong_power(compute, items, 3)[0],
+        "philox": run_philox(compute, items, 2)[0],
+        "divide": run_divide(compute, items, 3)[0],
+        "gather": run_gathers(compute, table, items, 3, False)[0],
+        "dependent_load": run_gathers(compute, table, items, 3, True)[0],
+        "serial_add": run_serial_adds(compute, 2, 3)[0],
+        "lockstep": run_lockstep_steps(compute, table, LOCKSTEP_GROUP, 2)[0]}.items()}

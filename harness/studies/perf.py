@@ -75,6 +75,35 @@ fields of the estimator's ``cost`` (a ``KernelCost``, declared on its class besi
 with its derivation; perf.html lists those of the estimators measured).  An estimator that
 declares none gets NaN FLOP, byte and roofline figures.
 
+The other limits.  Most kernels are held by something other than FLOPs and DRAM bytes, so perf
+also measures, beside the roofline and on the same queue, the rate of each operation that
+holds one (``estimators/runtime/limit_probes.cl``, written in the estimators' explicit vectors
+of POOL_LANES lanes but independent of their code; :func:`measure_limits`, ns per
+lane-operation on the whole device, the median of ``repeats`` launches of ≥ 10 ms):
+``phong_power`` (a lobe power, common.cl's polynomial), ``philox`` (a Philox4x32-10 block),
+``divide`` (a correctly rounded division or square root: both run on the divider, at about 20
+FMAs' time each here), ``gather`` (one lane's element of an independent random gather from a
+table the size of the map), ``dependent_load`` (one step of a chain of such gathers, each
+index the value loaded before: a CDF search, a descent, an alias table's second read),
+``serial_add`` (one step of a scalar chain of acc_t additions: a vector's lanes leaving into a
+running sum) and ``lockstep`` (a scalar search step ended by a LOCKSTEP barrier, as bis's and
+smc's resampling searches are).  Each estimator's ``cost`` declares the operations its kernel
+runs (``limits``, each with where in the kernel, counts a reviewer checks against it) per
+evaluation slot, per sample and per pixel; an evaluation slot is a lane, masked or not, of the
+blocks its loops run (``lane_loops``: uniform at spp 64 runs 96 slots a pixel for 66 useful
+evaluations; restir a block of 16 for a chain's 8 candidates).  Per sample, each limit's time is its count × its probe's ns, and the FLOPs that
+its probes' operations do not hold (the count's FLOPs less 35 a lobe power and 1 a division)
+take their time at the FMA rate of POOL_LANES-wide vectors (``fma_ns``: at 8 lanes on an
+AVX-512 CPU half the roofline's peak, which is measured at the preferred width).  ``limit_ms`` is the sum of those times × pixels × spp: the
+bound if the operations do not overlap, which is the model here because on this kind of CPU
+they share the same two vector ports (FMA, integer, shuffle and a gather's inserts; only the
+divider is a unit apart, so where divisions dominate the sum may exceed the time); the largest
+term alone (``limiting_probe``, ``limiting_fraction``) is the bound if they overlapped fully.
+The true bound lies between.  ``limit_fraction`` = limit_ms / shade_ms: ≥ 0.5 is within 2× of
+the limits.  Per-pixel work runs scalar (a pixel a work item), so each of its operations and
+FLOPs counts POOL_LANES lane-operations, and so does all the work of a kernel that PoCL does not
+vectorise (``scalar``: havran's and cosine's, whose one-pixel loops hold a branch).
+
 The NumPy floor (``numpy_floor``).  Lu 2013's shared-pool shading, Algorithm 2 with Eq. 4 and
 μ_f = 1/6 (``uniform``'s estimator, shared sequence): every covered pixel reads the same first
 ⌈N_f⌉ entries of each lit face's pool, N_f = N_s/6, with the fractional last weight β of
@@ -113,8 +142,11 @@ import time
 
 import numpy as np
 
-from iblbench.estimators.runtime.probes import (FMA_ITEMS, CopyProbe, copy_size, fma_iterations,
-                                                run_copy, run_fma)
+from iblbench.estimators.runtime.probes import (FMA_ITEMS, LIMIT_ITEMS, LIMIT_MIN_MS, PROBE_FLOPS,
+                                                CopyProbe, chase_table, copy_size, fma_iterations,
+                                                gather_entries, run_copy, run_divide, run_fma,
+                                                run_gathers, run_lockstep_steps, run_philox,
+                                                run_phong_power, run_serial_adds, sized)
 from iblbench.harness.studies import mitsuba_peer
 from iblbench.harness.protocol.timing import (measure_timing_floor, required_build_ms, spread,
                                               timing_floor_text)
@@ -181,6 +213,14 @@ COLUMNS = {
     "roofline_fraction": "max(gflops/peak_gflops, gbytes_per_s/peak_gbps): achieved over "
                          "attainable at the kernel's intensity",
     "bound": "the roof that binds at the kernel's intensity: compute or memory",
+    "limit_ms": "the shading kernel's time bound by its limits: per sample, Σ over the probe "
+                "operations its cost declares (masked lanes included) of count × the probe's ns, "
+                "+ its other FLOPs at the FMA peak; × pixels × spp",
+    "limit_fraction": "limit_ms / shade_ms: the kernel's speed over its limits' (≥ 0.5: within "
+                      "2× of the bound)",
+    "limiting_probe": "the largest term of limit_ms: a probe's name, or flops",
+    "limiting_fraction": "that term's ms / shade_ms: the kernel's speed over its largest limit's "
+                         "alone (the bound where the limits overlap fully)",
     "speedup_vs_floor": "msamples_per_s over the NumPy floor's (same scene)",
     "speedup_vs_mitsuba": "msamples_per_s over the Mitsuba 3 peer's (same scene; NaN where the "
                           "peer does not run)",
@@ -188,13 +228,19 @@ COLUMNS = {
                           "(|uniform| + max|uniform|·ATOL/RTOL), on the same pool (≤ RTOL passes)",
     "peak_gflops": "the device's measured FMA throughput, GFLOP/s (median)",
     "peak_gbps": "the device's measured copy bandwidth, GB/s, read + written (median)",
+    **{f"{probe}_ns": f"ns per lane-operation of the {probe} limit probe on the whole device "
+                      "(median)" for probe in PROBE_FLOPS},
+    "fma_ns": "ns per FLOP of FMA chains in vectors of POOL_LANES on the whole device (median): "
+              "the rate of a limit's other FLOPs",
     "device": "OpenCL device | platform version | driver",
+    "lanes": "the estimators' explicit vector width (POOL_LANES: the device's, or --lanes)",
 }
 SHOWN = {"scene": "scene", "estimator": "estimator", "spp": "spp", "pixels": "pixels",
          "msamples_per_s": "Msamples/s", "mevals_per_s": "Mevals/s", "build_ms": "build ms",
          "sample_ms": "sample ms", "shade_ms": "shade ms", "shade_iqr_pct": "IQR %",
          "gflops": "GFLOP/s", "gbytes_per_s": "GB/s", "roofline_fraction": "roof",
-         "speedup_vs_floor": "× floor", "speedup_vs_mitsuba": "× mitsuba"}
+         "limit_fraction": "limit", "limiting_probe": "limited by", "speedup_vs_floor": "× floor",
+         "speedup_vs_mitsuba": "× mitsuba"}
 
 
 def columns_help() -> str:
@@ -216,6 +262,7 @@ class Roofline:
     gbps: float            # median copy bandwidth, bytes read + written
     fma_flops: int         # FLOPs per timed FMA launch
     copy_bytes: int        # bytes moved per timed copy launch
+    limit_ns: dict = dataclasses.field(default_factory=dict)   # probe -> ns per lane-operation
 
     def fraction(self, gflops: float, gbps: float) -> float:
         """Achieved over attainable, min(peak, intensity × bandwidth), for a kernel that reaches
@@ -227,14 +274,51 @@ class Roofline:
         return "compute" if flops_per_byte * self.gbps >= self.gflops else "memory"
 
 
-def measure_roofline(compute, repeats: int) -> Roofline:
+def measure_roofline(compute, repeats: int, env_res: int = DEFAULT_ENV_RES) -> Roofline:
     """The device's FMA throughput and copy bandwidth: the median of ``repeats`` launches each,
-    the FMA launch sized to take ≥ ROOF_MIN_MS."""
+    the FMA launch sized to take ≥ ROOF_MIN_MS; and its limit probes (:func:`measure_limits`)."""
     iterations = fma_iterations(compute, FMA_ITEMS, ROOF_MIN_MS)
     _, fma_ms, flops = run_fma(compute, FMA_ITEMS, iterations, repeats)
     _, copy_ms, moved = run_copy(compute, np.ones(copy_size(compute) // 4, np.float32), repeats)
     return Roofline(gflops=flops / spread(fma_ms)[0] / 1e6, gbps=moved / spread(copy_ms)[0] / 1e6,
-                    fma_flops=flops, copy_bytes=moved)
+                    fma_flops=flops, copy_bytes=moved,
+                    limit_ns=measure_limits(compute, env_res, repeats))
+
+
+def measure_limits(compute, env_res: int, repeats: int) -> dict[str, float]:
+    """ns per lane-operation of each limit probe (``probes.PROBE_FLOPS``) on the whole device,
+    and under ``"fma"`` ns per FLOP of FMA chains in vectors of POOL_LANES (the estimators'
+    width: at 8 lanes on an AVX-512 CPU, half the roofline's rate): the median of ``repeats``
+    launches of LIMIT_ITEMS work items, each sized to take ≥ LIMIT_MIN_MS; the gathers read a
+    table of ``gather_entries(env_res)`` entries."""
+    table = chase_table(gather_entries(env_res))
+    runs = {   # (count, launches) -> (device ms of each launch, lane-operations per launch)
+        "phong_power": lambda n, k: run_phong_power(compute, LIMIT_ITEMS, n, k)[1:],
+        "philox": lambda n, k: run_philox(compute, LIMIT_ITEMS, n, k)[1:],
+        "divide": lambda n, k: run_divide(compute, LIMIT_ITEMS, n, k)[1:],
+        "gather": lambda n, k: run_gathers(compute, table, LIMIT_ITEMS, n, False, k)[2:],
+        "dependent_load": lambda n, k: run_gathers(compute, table, LIMIT_ITEMS, n, True, k)[2:],
+        "serial_add": lambda n, k: run_serial_adds(compute, LIMIT_ITEMS, n, k)[1:],
+        "lockstep": lambda n, k: run_lockstep_steps(compute, table, LIMIT_ITEMS, n, k)[1:]}
+    runs["fma"] = lambda n, k: run_fma(compute, LIMIT_ITEMS, n, k, width=compute.pool_lanes)[1:]
+    rates = {}
+    for probe, run in runs.items():
+        count = sized(lambda n: run(n, 1)[0][0], LIMIT_MIN_MS)
+        times, operations = run(count, repeats)
+        rates[probe] = spread(times)[0] * 1e6 / operations
+    return rates
+
+
+def limit_terms(cost, spp: int, evaluations: float, lanes: int, roofline: Roofline) -> dict[str, float]:
+    """ns per sample of each limit of an estimator's ``cost`` at ``spp`` and ``evaluations``
+    per pixel in blocks of ``lanes``: each probe's operations × its ns, and under ``"flops"``
+    the FLOPs its probes' operations do not hold at the FMA rate of ``lanes``-wide vectors.
+    Their sum bounds the time (module docstring)."""
+    counts = cost.executed_per_sample(spp, evaluations, lanes)
+    flops = counts.pop("flops") - sum(count * PROBE_FLOPS[probe] for probe, count in counts.items())
+    terms = {probe: count * roofline.limit_ns[probe] for probe, count in counts.items()}
+    terms["flops"] = max(flops, 0.0) * roofline.limit_ns["fma"]
+    return terms
 
 
 # ---- the NumPy floor ---------------------------------------------------------------------------
@@ -389,6 +473,7 @@ class PerfConfig:
     repeats: int | None = None              # None: its perf_budget, else DEFAULT_REPEATS
     device: str | None = None
     launch_shape: str | None = None         # None: the device's (Compute.launch_shape)
+    lanes: int | None = None                # POOL_LANES override (8 or 16); None: the device's
 
 
 def command_line(config: PerfConfig) -> str:
@@ -397,7 +482,7 @@ def command_line(config: PerfConfig) -> str:
     words += [f"--estimator '{label}'" for label in config.estimators]
     words += [f"--spp {config.spp}"] * bool(config.spp) + [f"--repeats {config.repeats}"] * bool(config.repeats)
     words += [f"--res {config.resolution[0]}x{config.resolution[1]}", f"--env-res {config.env_res}"]
-    words += [f"--device '{config.device}'"] * bool(config.device)
+    words += [f"--device '{config.device}'"] * bool(config.device) + [f"--lanes {config.lanes}"] * bool(config.lanes)
     words += [f"--launch-shape {config.launch_shape}"] * bool(config.launch_shape)
     return " ".join(words + [f"--out {config.out}"])
 
@@ -410,7 +495,7 @@ def _budget(config: PerfConfig, cls) -> tuple[int, int]:
 
 
 def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
-         device: str) -> dict:
+         device: str, lanes: int) -> dict:
     build, sample, shade = spread(cell.build), spread(cell.sample), spread(cell.shade)
     frame = spread([b + s + h for b, s, h in zip(cell.build, cell.sample, cell.shade)])
     render_ms = spread([s + h for s, h in zip(cell.sample, cell.shade)])[0]
@@ -434,10 +519,17 @@ def _row(scene: str, cell: _Cell, pixels: int, env_res: int, roofline: Roofline,
     if cost is not None:
         flops, nbytes = cost.per_sample(cell.spp, cell.evaluations)
         gflops, gbps = flops * samples / (shade[0] * 1e6), nbytes * samples / (shade[0] * 1e6)
+    limit_ms, limiting, limiting_ms = math.nan, "", math.nan
+    if cost is not None and cost.limits:
+        terms = limit_terms(cost, cell.spp, cell.evaluations, lanes, roofline)
+        limiting = max(terms, key=terms.get)
+        limit_ms, limiting_ms = sum(terms.values()) * samples / 1e6, terms[limiting] * samples / 1e6
     row.update({"flops_per_sample": flops, "bytes_per_sample": nbytes, "gflops": gflops,
                 "gbytes_per_s": gbps,
                 "roofline_fraction": roofline.fraction(gflops, gbps) if cost else math.nan,
                 "bound": roofline.bound(flops / nbytes) if cost else "",
+                "limit_ms": limit_ms, "limit_fraction": limit_ms / shade[0], "limiting_probe": limiting,
+                "limiting_fraction": limiting_ms / shade[0],
                 "speedup_vs_floor": math.nan, "floor_max_rel_diff": math.nan,
                 "peak_gflops": roofline.gflops, "peak_gbps": roofline.gbps, "device": device})
     return row
@@ -455,6 +547,7 @@ def _host_row(scene: str, label: str, spp: int, evaluations: int, pixels: int, t
                 "shade_ms_min": low, "shade_ms_iqr": iqr, "render_ms": median, "host_ms": median,
                 "msamples_per_s": pixels * spp / (median * 1e3),
                 "mevals_per_s": pixels * evaluations / (median * 1e3), "bound": "",
+                "limiting_probe": "",
                 "peak_gflops": roofline.gflops, "peak_gbps": roofline.gbps, "device": device})
     return row
 
@@ -526,12 +619,15 @@ def run_perf(config: PerfConfig, log=print):
     if len(set(labels)) != len(labels):
         raise InputError(None, f"an estimator is listed twice: {', '.join(labels)}")
     scenes = [load_scene(name, env_res=config.env_res) for name in dict.fromkeys(config.scenes)]
-    compute = get_compute(config.device, config.launch_shape)
+    compute = get_compute(config.device, config.launch_shape, config.lanes)
     floor_spp = config.spp or DEFAULT_SPP
     rows = []
-    log(f"device: {compute.device_name}")
-    roofline = measure_roofline(compute, config.repeats or DEFAULT_REPEATS)
+    log(f"device: {compute.device_name}, {compute.pool_lanes} lanes")
+    roofline = measure_roofline(compute, config.repeats or DEFAULT_REPEATS, config.env_res)
     log(f"roofline: {roofline.gflops:.4g} GFLOP/s (FMA), {roofline.gbps:.4g} GB/s (copy)")
+    log("limit probes, ns per lane-operation: "
+        + ", ".join(f"{probe} {ns:.3g}" for probe, ns in roofline.limit_ns.items()))
+    probe_ns = {f"{probe}_ns": ns for probe, ns in roofline.limit_ns.items()}
     probe = CopyProbe(compute)
     peer_absent = mitsuba_peer.unavailable()
     log(f"{mitsuba_peer.PEER}: " + (f"absent, {peer_absent}" if peer_absent
@@ -571,12 +667,13 @@ def run_perf(config: PerfConfig, log=print):
                            device_gbuffer.count, floor_times, difference, roofline,
                            compute.device_name)
         scene_rows = [_row(scene.name, cell, device_gbuffer.count, env.shape[1], roofline,
-                           compute.device_name)
+                           compute.device_name, compute.pool_lanes)
                       for cell, _ in cells]
         if peer:
             scene_rows.append(_peer_row(scene.name, peer, floor_spp, peer_times, roofline,
                                         compute.device_name))
-        rows += _with_speedups(scene_rows, floor)
+        rows += [dict(row, lanes=compute.pool_lanes, **probe_ns)
+                 for row in _with_speedups(scene_rows, floor)]
         log(f"{scene.name}: {len(cells)} estimators and the floor{' and the peer' * bool(peer)} measured")
     return pd.DataFrame(rows, columns=list(COLUMNS)), roofline
 
@@ -605,7 +702,7 @@ def run_study(config: PerfConfig) -> PerfStudy:
 
     start = time.perf_counter()
     with host_threads_capped():   # the NumPy floor runs between timed kernels: no spinning BLAS
-        compute = get_compute(config.device)   # cached: run_perf gets the same context
+        compute = get_compute(config.device, config.launch_shape, config.lanes)   # cached: as run_perf
         floors = [measure_timing_floor(compute)]
         table, roofline = run_perf(config)
         floors.append(measure_timing_floor(compute))

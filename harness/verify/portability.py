@@ -139,7 +139,7 @@ def render(compute, case: str) -> dict[str, np.ndarray]:
 
         copied = probes.run_copy(compute, np.arange(64, dtype=np.float32))[0]
         lanes = probes.run_fma(compute, 16, 5, b=1.0)[0]   # [items, chains, the device's width]
-        return {"fma": lanes[..., 0], "copy": copied}
+        return {"fma": lanes[..., 0], "copy": copied, **probes.limit_outputs(compute)}
     light_only = parse_estimator("envmap").make()   # the light_pdf case
     cache.require(type(light_only).requires)
     return {"light_pdf": light_only.pdf(cache, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.6, 0.8]),
