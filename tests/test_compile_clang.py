@@ -2,7 +2,7 @@
 OpenCL front end compiles each program the portability set builds (harness/verify/portability.py),
 with the source and build options Compute gives it (device.program_options), at both lane widths,
 for ``spir64`` without fp64 (the float path: no cl_khr_fp64, no HAVE_FP64) and for
-``nvptx64-nvidia-nvcl`` with it, at ``-cl-std=CL1.2 -Werror``; and at ``-O0`` every function a
+``nvptx64-nvidia-nvcl`` with it and in the launch shape a GPU builds (SAMPLE_BLOCKS), at ``-cl-std=CL1.2 -Werror``; and at ``-O0`` every function a
 program calls is defined in it or is a built-in (a helper declared ``inline`` without ``static``
 has no definition of its own there, by C99's inline rule, and a compiler that does not inline it
 leaves an undefined symbol).  clang-15 is optional (the Makefile and .ci/run try to install it):
@@ -24,9 +24,10 @@ CLANG = shutil.which("clang-15")
 pytestmark = pytest.mark.skipif(CLANG is None, reason="clang-15 is not installed (Debian: "
                                                       "apt-get install clang-15; the Makefile tries)")
 
-# (clang's target options, whether the program is built with HAVE_FP64)
-TARGETS = {"spir64": (["-target", "spir64", "-Xclang", "-cl-ext=-cl_khr_fp64"], False),
-           "nvptx64": (["-target", "nvptx64-nvidia-nvcl"], True)}
+# (clang's target options, whether the program is built with HAVE_FP64, whether in the GPU's
+# sample-block launch shape, device.launch_shape_for)
+TARGETS = {"spir64": (["-target", "spir64", "-Xclang", "-cl-ext=-cl_khr_fp64"], False, False),
+           "nvptx64": (["-target", "nvptx64-nvidia-nvcl"], True, True)}
 FLAGS = ["-x", "cl", "-cl-std=CL1.2", "-Werror", "-Xclang", "-finclude-default-header",
          # clang 15 takes OpenCL C 2.0's loop attribute at CL1.2 without a word; under another
          # name it is an unknown attribute, which -Werror rejects.
@@ -41,7 +42,8 @@ def command(program: tuple, lanes: int, target: str) -> list[str]:
     """The clang command line that compiles ``program`` (package, file, defines) for ``target``
     at ``lanes``, its source read from standard input."""
     package, filename, defines = program
-    options = program_options(package, filename, dict(defines), lanes, TARGETS[target][1])
+    _, doubles, sample_blocks = TARGETS[target]
+    options = program_options(package, filename, dict(defines), lanes, doubles, sample_blocks)
     return [CLANG, *FLAGS, *TARGETS[target][0], *options, "-"]
 
 
