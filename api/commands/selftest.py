@@ -14,8 +14,9 @@ and run the check layers on it: the conformance suite
 (check_estimator), the stress battery at its quick size (the cases that guard the broken
 code), the error budgets of the quick sweep (budgets.toml) and the unit tests a mutant names
 (for bugs no render shows: bookkeeping, ranking rules, the checkers; the last two layers only
-in a source checkout, which has budgets.toml and tests/). By
-default each mutant stops at the first layer that rejects it; --all-layers runs every layer,
+in a source checkout, which has budgets.toml and tests/). A mutant that names unit tests runs
+them first: they are the layer its entry says catches it, and the cheapest. By default each
+mutant stops at the first layer that rejects it; --all-layers runs every layer,
 to show which layers catch what. Prints one row per mutant and, per layer, the mutants it
 caught. Exit 0 when every mutant is rejected (or survives as its catalogue entry expects, until
 the check it waits for lands), 1 otherwise."""

@@ -894,16 +894,11 @@ def yield_checks(estimator) -> Iterator[Callable]:
     yield check_output_shape
     if tags.deterministic:
         yield check_deterministic
-    # Of the class, so on its default instance only (a variant would repeat them); cheap, so early.
-    if dataclasses.fields(type(estimator).Params) and estimator.params == type(estimator).Params():
-        yield check_settings_differ
-        if any(setting.says for setting in type(estimator).settings):
-            yield check_setting_properties
-    if "check_work_counts" not in skipped_checks(estimator):
-        yield check_work_counts
+    # Cheap checks that see most bugs first, the ones that build and render every variant
+    # (settings, float path, counts) last: the mutation suite's conformance layer stops at the
+    # first failure, and check_estimator runs them all either way.
     yield check_stress_finite
     yield check_sample_counts
-    yield check_float_path
     yield check_white_furnace
     if tags.unbiased:
         yield check_unbiased
@@ -921,6 +916,14 @@ def yield_checks(estimator) -> Iterator[Callable]:
             yield check_unbiased_over_frames
     if "check_matches_twin" not in skipped_checks(estimator):
         yield check_matches_twin
+    # Of the class, so on its default instance only (a variant would repeat them).
+    if dataclasses.fields(type(estimator).Params) and estimator.params == type(estimator).Params():
+        yield check_settings_differ
+        if any(setting.says for setting in type(estimator).settings):
+            yield check_setting_properties
+    yield check_float_path
+    if "check_work_counts" not in skipped_checks(estimator):
+        yield check_work_counts
     yield check_timing
 
 

@@ -11,7 +11,9 @@ a temporary folder, applies the mutation there and runs the layers in a fresh in
 ``PYTHONPATH`` puts the copy first, with its own reference cache, so that neither the imports
 nor the kernel and reference caches of this process see the bug.
 
-Layers, in order (``run_mutant`` stops at the first that rejects unless asked for all):
+Layers, in order (``run_mutant`` stops at the first that rejects unless asked for all; the
+``tests`` layer comes first for a mutant that names tests, being the one its entry says catches
+it, and the cheapest):
 
 - ``conformance``: ``check_estimator``'s checks (``conformance.yield_checks``) on each of the
   mutant's estimators, stopping at the first failed check;
@@ -534,7 +536,10 @@ def _child(fields: str, layers: str, mode: str, budgets: str, tests: str) -> Non
                        for key, value in json.loads(fields).items()})
     compute = get_compute()
     results: dict[str, str] = {}
-    for layer in layers.split(","):
+    # The tests a mutant names are the layer its entry says catches it, and the cheapest (seconds,
+    # where conformance builds and renders every variant of its estimators): they run first.
+    ordered = sorted(layers.split(","), key=lambda layer: not (layer == "tests" and mutant.tests))
+    for layer in ordered:
         if layer == "conformance" and mutant.estimators:
             results[layer] = _conformance(mutant, compute)
         elif layer == "stress" and mutant.stress:
