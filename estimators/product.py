@@ -162,8 +162,8 @@ class Product(Hierarchical):
     other seeds per pixel: p uniform, 0.09–0.99), which needs a decision before the streams move
     again.  ``hierarchical{mis="brdf"}`` itself became about 2× faster (its choices read from the
     frame cache's descent tables, its density one lookup instead of a re-descent), so product
-    now takes about 7.5× its time a sample (``iblbench perf``, alternated with the code before:
-    3.7× before, 7.5× after): the weighed descent's 24 child factors a sample, each still about
+    now takes about 5.9× its time a sample (idle ``iblbench perf``, 7 rounds alternated with
+    the code before: 4.02× [3.80–4.11] before, 5.93× [5.71–6.19] after): the weighed descent's 24 child factors a sample, each still about
     100 vector operations, against ``hierarchical``'s three gathers a level.  Within 1.5× needs
     product levels that are not recomputed a sample, or far fewer of them: a per-pixel table of
     the coarse levels' widths pays little at 64 spp (a pixel's light draws are two batches of
