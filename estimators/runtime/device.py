@@ -278,10 +278,12 @@ ITEMS_PER_UNIT = 1024
 def sample_blocks(units: int, pixels: int, chunks: int) -> tuple[int, int]:
     """(lane chunks per block, blocks per pixel) of a sample-block launch over ``pixels`` on a
     device of ``units`` compute units, where a pixel has at most ``chunks`` chunks of POOL_LANES
-    draws: the most chunks per block that still give pixels × blocks ≥ units ×
-    :data:`ITEMS_PER_UNIT` work items (one chunk a block where even that is too few), so a work
-    item's setup (its pixel's shading, the pool's split) is shared by as many draws as the
-    device allows."""
+    draws: ⌊chunks / wanted⌋ chunks per block (at least one), wanted = ⌈units ×
+    :data:`ITEMS_PER_UNIT` / pixels⌉ blocks, so that pixels × blocks ≥ units × ITEMS_PER_UNIT
+    work items (one chunk a block where even that is too few) and a work item's setup (its
+    pixel's shading, the pool's split) is shared by many draws.  Not always the most chunks a
+    block that fill the device (10 chunks, 3 wanted: 3 a block in 4 blocks, where 4 in 3 would
+    do): a block or so more, for a simpler rule."""
     chunks = max(int(chunks), 1)
     wanted = -(-units * ITEMS_PER_UNIT // max(int(pixels), 1))
     per_block = max(1, chunks // wanted)
