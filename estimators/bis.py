@@ -33,6 +33,7 @@ from iblbench.estimators.base import (Estimator, KernelCost, Limit, Mutant, Sett
                                       WorkCounts, read_estimate, specular_lobe_defines)
 from iblbench.estimators.runtime.chunks import run_in_chunks
 from iblbench.estimators.runtime.device import event_ms
+from iblbench.estimators.runtime.device_gbuffer import LOCKSTEP_GROUP
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,7 +70,6 @@ def systematic_resample(weights, u: float, n: int | None = None) -> np.ndarray:
 # The most spp (resampled samples N) of bis and smc: N = 4096 weighs M = 20N = 81,920 candidates
 # a pixel, seconds a frame at 128² on a CPU; 40,000 spp ran past 25 s a cell (issue 23).
 MAX_SPP = 4096
-LOCKSTEP_GROUP = 64   # work items per group of a LOCKSTEP kernel (sir.cl): 4 AVX-512 vectors, 2 warps
 SCRATCH_BYTES = 64 << 20   # BIS scratch per launch (N chosen, M bounds, 3 sums a pixel); more pixels,
 #                             more launches
 

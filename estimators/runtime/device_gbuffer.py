@@ -18,6 +18,9 @@ from iblbench.scenes.gbuffer import GBuffer
 # IQR/median were as often or less often so (45-72% against 55-90%).  And the runner's
 # 64-pixel warm-up now compiles the local size the timed renders use.
 PIXEL_GROUP = 64
+# Work items per group of a kernel whose loop steps in LOCKSTEP (lanes.cl: bis's and smc's
+# resampling searches, the `lockstep` limit probe): 4 AVX-512 vectors, 2 warps.
+LOCKSTEP_GROUP = 64
 
 
 def _float4(xyz: np.ndarray, w: np.ndarray | float = 0.0) -> np.ndarray:

@@ -109,7 +109,7 @@ __kernel void serial_adds(const int iterations, const float shrink, __global acc
 }
 
 /* `steps` rounds of index = table[index] (work item id starts at id & mask), each ended by a
- * barrier: launched in groups of LOCKSTEP_GROUP (estimators/bis.py), as a LOCKSTEP loop is.
+ * barrier: launched in groups of LOCKSTEP_GROUP (estimators/runtime/device_gbuffer.py), as a LOCKSTEP loop is.
  * out[id] holds the last index. */
 __kernel void lockstep_steps(__global const uint *table, const uint mask, const int steps,
                              __global uint *out)

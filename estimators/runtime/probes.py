@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from iblbench.estimators.runtime.device import event_ms
+from iblbench.estimators.runtime.device_gbuffer import LOCKSTEP_GROUP
 
 FMA_CHAINS = 8                 # probes.cl's fma_throughput: chains of fma_width(compute) lanes
 FMA_ITEMS = 1 << 17
@@ -137,27 +138,31 @@ def _limit_kernel(compute, name: str, dependent: bool = False):
                           {"DEPENDENT": int(dependent)})
 
 
+def _run_lanes(compute, name: str, items: int, args: tuple, launches: int, dtype=np.float32,
+               dependent: bool = False):
+    """``launches`` timed launches of the limit probe ``name``, which writes one value a lane
+    after ``args``: (the outputs ``[items, pool_lanes]`` of ``dtype``, device ms of each launch)."""
+    out = compute.empty(4 * items * compute.pool_lanes)
+    times = _launches(compute, _limit_kernel(compute, name, dependent), items, (*args, out), launches)
+    return compute.to_host(out, (items, compute.pool_lanes), dtype), times
+
+
 def run_phong_power(compute, items: int, iterations: int, launches: int = 1):
     """``launches`` timed launches of ``phong_power_throughput``: (each lane's sum of its
     ``iterations`` powers ``[items, pool_lanes]``, device ms of each launch, lane-powers per
     launch)."""
-    lanes = compute.pool_lanes
-    out = compute.empty(4 * items * lanes)
-    args = (np.int32(iterations), np.float32(PHONG_M), np.float32(PHONG_SHRINK), out)
-    times = _launches(compute, _limit_kernel(compute, "phong_power_throughput"), items, args,
-                      launches)
-    return compute.to_host(out, (items, lanes), np.float32), times, items * lanes * iterations
+    out, times = _run_lanes(compute, "phong_power_throughput", items,
+                            (np.int32(iterations), np.float32(PHONG_M), np.float32(PHONG_SHRINK)), launches)
+    return out, times, items * compute.pool_lanes * iterations
 
 
 def run_philox(compute, items: int, iterations: int, launches: int = 1, seed: int = 0x1234):
     """``launches`` timed launches of ``philox_throughput``: (the XOR of each lane's words
     ``[items, pool_lanes]``, device ms of each launch, lane-blocks per launch).  Lane g =
     pool_lanes·item + k draws rng_block(seed, 0, 0, 0, g·iterations + i, 0), i < iterations."""
-    lanes = compute.pool_lanes
-    out = compute.empty(4 * items * lanes)
-    args = (np.int32(iterations), np.uint32(seed), out)
-    times = _launches(compute, _limit_kernel(compute, "philox_throughput"), items, args, launches)
-    return compute.to_host(out, (items, lanes), np.uint32), times, items * lanes * iterations
+    out, times = _run_lanes(compute, "philox_throughput", items, (np.int32(iterations), np.uint32(seed)),
+                            launches, np.uint32)
+    return out, times, items * compute.pool_lanes * iterations
 
 
 DIVIDE_STEP = 0.25
@@ -166,11 +171,9 @@ DIVIDE_STEP = 0.25
 def run_divide(compute, items: int, iterations: int, launches: int = 1):
     """``launches`` timed launches of ``divide_throughput``: (each lane's sum of its four
     chains ``[items, pool_lanes]``, device ms of each launch, lane-divisions per launch)."""
-    lanes = compute.pool_lanes
-    out = compute.empty(4 * items * lanes)
-    args = (np.int32(iterations), np.float32(DIVIDE_STEP), out)
-    times = _launches(compute, _limit_kernel(compute, "divide_throughput"), items, args, launches)
-    return compute.to_host(out, (items, lanes), np.float32), times, 4 * items * lanes * iterations
+    out, times = _run_lanes(compute, "divide_throughput", items, (np.int32(iterations), np.float32(DIVIDE_STEP)),
+                            launches)
+    return out, times, 4 * items * compute.pool_lanes * iterations
 
 
 def run_serial_adds(compute, items: int, iterations: int, launches: int = 1):
@@ -181,9 +184,6 @@ def run_serial_adds(compute, items: int, iterations: int, launches: int = 1):
     args = (np.int32(iterations), np.float32(PHONG_SHRINK), out)
     times = _launches(compute, _limit_kernel(compute, "serial_adds"), items, args, launches)
     return compute.to_host(out, (items,), dtype), times, items * iterations
-
-
-LOCKSTEP_GROUP = 64   # estimators/bis.py's LOCKSTEP_GROUP (a probe cannot import an estimator)
 
 
 def run_lockstep_steps(compute, table: np.ndarray, items: int, steps: int, launches: int = 1):
@@ -216,13 +216,10 @@ def run_gathers(compute, table: np.ndarray, items: int, steps: int, dependent: b
     device ms of each launch, lane-gathers per launch)."""
     lanes = compute.pool_lanes
     start = np.random.default_rng(seed).integers(0, len(table), items * lanes, dtype=np.uint32)
-    out = compute.empty(4 * items * lanes)
     args = (compute.to_device(np.ascontiguousarray(table, np.uint32)), np.uint32(len(table) - 1),
-            np.int32(steps), compute.to_device(start), out)
-    times = _launches(compute, _limit_kernel(compute, "lane_gathers", dependent), items, args,
-                      launches)
-    return (compute.to_host(out, (items, lanes), np.uint32), start.reshape(items, lanes), times,
-            items * lanes * steps)
+            np.int32(steps), compute.to_device(start))
+    out, times = _run_lanes(compute, "lane_gathers", items, args, launches, np.uint32, dependent)
+    return out, start.reshape(items, lanes), times, items * lanes * steps
 
 
 def gather_entries(env_res: int) -> int:
@@ -240,7 +237,6 @@ def sized(run, min_ms: float) -> int:
         if ms >= min_ms or count >= 1 << 20:
             return count
         count *= 2 if ms > min_ms / 64 else 16
-
 
 
 def limit_outputs(compute, lanes_total: int = 32) -> dict[str, np.ndarray]:
