@@ -80,6 +80,30 @@ ALWAYS_INLINE lanes3_t descent_point(int res, lane_ints_t face, lane_ints_t row,
     return lanes_face_direction(face, x, y);
 }
 
+/* The lanes' records, rows and columns one level down, at their children `child`. */
+ALWAYS_INLINE void descend_to(lane_ints_t child, lane_ints_t *record, lane_ints_t *row, lane_ints_t *col)
+{
+    *record = 4 * *record + child;
+    *row = 2 * *row + (child >> 1);
+    *col = 2 * *col + (child & 1);
+}
+
+/* The lanes' descents by the tables (header) from their nodes' records *record, at (*row, *col) of
+ * pyramid level l + 1, down to the texels: one choice a level l … 0, each by the draw's next
+ * word (*word). */
+ALWAYS_INLINE void descend_by_tables(__global const uint *bounds, int l, uint seed, uint frame, uint pixel,
+                                     lane_ints_t draw, int *word, lane_block_t *block, lane_ints_t *record,
+                                     lane_ints_t *row, lane_ints_t *col)
+{
+    for (; l >= 0; --l) {
+        lane_uints_t u = descent_word(seed, frame, pixel, draw, (*word)++, block) >> (32 - DESCENT_BITS);
+        lane_ints_t at = 4 * *record;
+        lane_uints_t b[3] = {GATHER(lane_uints_t, bounds, at), GATHER(lane_uints_t, bounds, at + 1),
+                             GATHER(lane_uints_t, bounds, at + 2)};
+        descend_to(record_pick(b, u), record, row, col);
+    }
+}
+
 /* A descent by the tables (header) with words 0 (the face) and 1 … L − 1 (the levels from the
  * coarsest) of the draw's stream, and the point in the texel from word L (descent_point).
  * *texel gets each lane's texel and *pdf its density in solid angle. */
@@ -95,16 +119,7 @@ ALWAYS_INLINE lanes3_t descent_sample(__global const uint *bounds, __global cons
     UNROLL
     for (int f = 0; f < 5; ++f) face -= convert_lane_ints((lane_uints_t)bounds[f] <= u);
     lane_ints_t record = 2 + face, row = 0, col = 0;
-    for (int l = levels - 2; l >= 0; --l) {
-        u = descent_word(seed, frame, pixel, draw, word++, &block) >> (32 - DESCENT_BITS);
-        lane_ints_t at = 4 * record;
-        lane_ints_t child = -(convert_lane_ints(GATHER(lane_uints_t, bounds, at) <= u)
-                              + convert_lane_ints(GATHER(lane_uints_t, bounds, at + 1) <= u)
-                              + convert_lane_ints(GATHER(lane_uints_t, bounds, at + 2) <= u));
-        record = 4 * record + child;
-        row = 2 * row + (child >> 1);
-        col = 2 * col + (child & 1);
-    }
+    descend_by_tables(bounds, levels - 2, seed, frame, pixel, draw, &word, &block, &record, &row, &col);
     *texel = (face * res + row) * res + col;
     return descent_point(res, face, row, col, descent_word(seed, frame, pixel, draw, word, &block),
                          GATHER(lanes_t, texel_probability, *texel), pdf);

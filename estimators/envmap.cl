@@ -19,8 +19,10 @@
  * parameters that hold its distribution), LIGHT_ARGS (their names), lanes_sample_light and
  * lanes_light_density (their signatures below) before it includes this one replaces the map's
  * CDFs with its own sampler (estimators/hierarchical.cl, estimators/product.cl); the budget,
- * MIS and hooks stay these.  Both take the pixel's shading, for a sampler whose distribution
- * depends on the pixel (product.cl); the map's own ignores it. */
+ * MIS and hooks stay these.  Both take the sampler's per-pixel state (lanes.cl's light_state_t),
+ * made once a work item by light_state_of from the pixel's shading, for a sampler whose
+ * distribution depends on the pixel (product.cl, which defines its own light_state_of); the
+ * others keep none. */
 #include "lanes.cl"
 
 #ifndef LIGHT_SAMPLES
@@ -103,10 +105,10 @@ ALWAYS_INLINE lanes3_t lanes_sample_map(__global const cdf_word_t *alias_words,
 }
 
 /* The light directions of draws `draw` of pixel stream `pixel` (their random numbers keyed by
- * seed and frame: blocks 0 and 1 of each draw) for the pixel of shading s; *texel gets each
- * one's texel and *pdf its density in solid angle. */
-ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const shading_t *s, int res, uint seed, uint frame,
-                                          uint pixel, lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
+ * seed and frame: blocks 0 and 1 of each draw); *texel gets each one's texel and *pdf its
+ * density in solid angle. */
+ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const light_state_t *state, int res, uint seed,
+                                          uint frame, uint pixel, lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
 {
     lane_uints_t index = convert_lane_uints(draw);
     lane_block_t xi = rng_block_lanes(seed, frame, STREAM_MAP_LIGHT, pixel, index, 0u);
@@ -114,14 +116,24 @@ ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const shading_t *s, int 
     return lanes_sample_map(alias_words, texel_probability, res, xi, at, texel, pdf);
 }
 
-/* The light density at the lanes' directions w for the pixel of shading s: their texels'
- * probabilities (texel_probabilities), with lanes_sample_map's Jacobian; *texel gets the texel of each. */
-ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const shading_t *s, int res, lanes3_t w, lane_ints_t *texel)
+/* The light density at the lanes' directions w: their texels' probabilities
+ * (texel_probabilities), with lanes_sample_map's Jacobian; *texel gets the texel of each. */
+ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const light_state_t *state, int res, lanes3_t w,
+                                          lane_ints_t *texel)
 {
     lane_ints_t face, row, col;
     lanes_t area = lanes_texel_of(res, w, &face, &row, &col);
     *texel = (face * res + row) * res + col;
     return GATHER(lanes_t, texel_probability, *texel) * area * (float)(res * res) / 4.0f;
+}
+#endif
+
+#ifndef PIXEL_LIGHT_STATE
+/* A sampler whose distribution is the same for every pixel keeps no per-pixel state. */
+ALWAYS_INLINE light_state_t light_state_of(LIGHT_PARAMS, const shading_t *s, int res)
+{
+    light_state_t none = {0};
+    return none;
 }
 #endif
 
@@ -136,10 +148,11 @@ ALWAYS_INLINE lanes3_t lanes_brdf_draw(const shading_t *s, vec3_t t_n, vec3_t b_
 }
 
 /* The light density at the lanes' directions (0 without light samples); *texel gets the texel. */
-ALWAYS_INLINE lanes_t lanes_map_pdf(LIGHT_PARAMS, const shading_t *s, int res, lanes3_t w, lane_ints_t *texel)
+ALWAYS_INLINE lanes_t lanes_map_pdf(LIGHT_PARAMS, const light_state_t *state, int res, lanes3_t w,
+                                    lane_ints_t *texel)
 {
 #if LIGHT_SAMPLES
-    return lanes_light_density(LIGHT_ARGS, s, res, w, texel);
+    return lanes_light_density(LIGHT_ARGS, state, res, w, texel);
 #else
     lane_ints_t face, row, col;
     lanes_texel_of(res, w, &face, &row, &col);
@@ -168,6 +181,7 @@ __kernel void render_map(__global const float4 *normal, __global const float4 *v
     launch_item_t item = LAUNCH_ITEM(n);
     int p = item.pixel, from, to;
     shading_t s = load_shading(normal, view, kd, ks_m, p);
+    light_state_t state = light_state_of(LIGHT_ARGS, &s, res);
     int light, brdf;
     strategy_split(spp, &light, &brdf);
     int light_draws = draws_for(light), brdf_draws = draws_for(brdf);
@@ -177,7 +191,7 @@ __kernel void render_map(__global const float4 *normal, __global const float4 *v
     for (int i = from; i < to; i += POOL_LANES) {
         lane_ints_t draw = i + LANE_NUMBERS, texel;
         lanes_t pdf_light;
-        lanes3_t w = lanes_sample_light(LIGHT_ARGS, &s, res, seed, frame, (uint)p, draw, &texel, &pdf_light);
+        lanes3_t w = lanes_sample_light(LIGHT_ARGS, &state, res, seed, frame, (uint)p, draw, &texel, &pdf_light);
         lanes_t cosine = lanes_dot(s.n, w);
         lanes_t power = phong_power_lanes(max(lanes_dot(s.r, w), 0.0f), (lanes_t)s.m);
         lanes_t other = BRDF_SAMPLES ? (float)brdf * phong_mixture_pdf_lanes(s.p_spec, s.m, cosine, power) : 0.0f;
@@ -196,7 +210,7 @@ __kernel void render_map(__global const float4 *normal, __global const float4 *v
         lanes3_t w = lanes_brdf_draw(&s, t_n, b_n, t_r, b_r, seed, frame, (uint)p, draw);
         lanes_t cosine = lanes_dot(s.n, w);
         lanes_t power = phong_power_lanes(max(lanes_dot(s.r, w), 0.0f), (lanes_t)s.m);
-        lanes_t other = (float)light * lanes_map_pdf(LIGHT_ARGS, &s, res, w, &texel);
+        lanes_t other = (float)light * lanes_map_pdf(LIGHT_ARGS, &state, res, w, &texel);
         lanes_t own = (float)brdf * phong_mixture_pdf_lanes(s.p_spec, s.m, cosine, power);
         add_samples(&acc, &s, draw < brdf_draws, lanes_beta(brdf, i), cosine, power,
                     lanes_texel_radiance(env, texel), mis_denominator(own, other),
@@ -227,6 +241,7 @@ __kernel void map_directions(__global const float4 *surface, LIGHT_PARAMS, const
 {
     int i = get_global_id(0), n = get_global_size(0) * POOL_LANES;
     shading_t s = load_shading(surface, surface + 1, surface + 2, surface + 3, 0);
+    light_state_t state = light_state_of(LIGHT_ARGS, &s, res);
     int light, brdf;
     strategy_split(spp, &light, &brdf);
     lane_ints_t draw = i * POOL_LANES + LANE_NUMBERS;
@@ -235,12 +250,12 @@ __kernel void map_directions(__global const float4 *surface, LIGHT_PARAMS, const
     direction_about_axis_basis(s.r, &t_r, &b_r);
     lanes3_t w = lanes_brdf_draw(&s, t_n, b_n, t_r, b_r, seed, 0u, 0u, draw);
     lane_ints_t texel;
-    lanes_t pdf_light = lanes_map_pdf(LIGHT_ARGS, &s, res, w, &texel);
+    lanes_t pdf_light = lanes_map_pdf(LIGHT_ARGS, &state, res, w, &texel);
 #if LIGHT_SAMPLES
     lane_block_t choice = rng_block_lanes(seed, 0u, STREAM_HOOK, 0u, convert_lane_uints(draw), 0u);
     lane_ints_t is_light = lanes_unit(choice.v[0]) * (float)(light + brdf) < (float)light;
     lanes_t pdf_sampled;
-    lanes3_t w_light = lanes_sample_light(LIGHT_ARGS, &s, res, seed, 0u, 0u, draw, &texel, &pdf_sampled);
+    lanes3_t w_light = lanes_sample_light(LIGHT_ARGS, &state, res, seed, 0u, 0u, draw, &texel, &pdf_sampled);
     w = select_lanes3(w, w_light, is_light);
     pdf_light = select(pdf_light, pdf_sampled, is_light);
 #endif
@@ -260,5 +275,6 @@ __kernel void map_direction_pdf(__global const float4 *surface, LIGHT_PARAMS, co
     shading_t s = load_shading(surface, surface + 1, surface + 2, surface + 3, 0);
     lanes3_t w = make_lanes3(vload_lanes(0, dirs + at), vload_lanes(0, dirs + n + at), vload_lanes(0, dirs + 2 * n + at));
     lane_ints_t texel;
-    vstore_lanes(pooled_map_density(&s, spp, w, lanes_map_pdf(LIGHT_ARGS, &s, res, w, &texel)), 0, out + at);
+    light_state_t state = light_state_of(LIGHT_ARGS, &s, res);
+    vstore_lanes(pooled_map_density(&s, spp, w, lanes_map_pdf(LIGHT_ARGS, &state, res, w, &texel)), 0, out + at);
 }

@@ -34,6 +34,13 @@ FORCE_INLINE float area_per_solid_angle(float u, float v);
  * their own lanes instead of PoCL's work-item vectorisation. */
 #include "light_pool.cl"
 
+/* A light sampler's per-pixel state (envmap.cl's hooks): none, unless the sampler's distribution
+ * depends on the pixel and its file defines PIXEL_LIGHT_STATE and its own light_state_t before
+ * it includes this one (product.cl: the pixel's table of product choices). */
+#ifndef PIXEL_LIGHT_STATE
+typedef struct { int none; } light_state_t;
+#endif
+
 /* Ends one iteration of a loop whose trip count is the same in every work item of the group (see
  * the header).  Every work item must reach it: no early exit before or inside such a loop, and
  * the host launches whole, padded groups (estimators/bis.py, run_lockstep). */

@@ -1,45 +1,53 @@
 /* `product`: envmap.cl's kernels (budget, MIS with BRDF samples, χ² hooks) with light samples
- * drawn by weighed_descent.cl's descent through the weight pyramid, each choice weighted by the
- * pyramid's sums times the pixel's BRDF·cos factor over the child (hierarchical product
- * sampling of L·ρ·cos⁺, after Clarberg et al. 2005 and Clarberg & Akenine-Möller 2008).
+ * drawn by descent through the weight pyramid whose PRODUCT_LEVELS coarsest choices (the faces',
+ * then the children's of the coarsest nodes) are weighed by the pyramid's sums times the pixel's
+ * BRDF·cos factor over the child, and whose finer choices are the frame's descent tables'
+ * (`hierarchical`'s): hierarchical product sampling of L·ρ·cos⁺ over the coarse levels, after
+ * Clarberg et al. 2005 and Clarberg & Akenine-Möller 2008.  The product choices are made once
+ * a work item, in the pixel's table (light_state_t, light_state_of), from the node cones of
+ * estimators/product.py's node_cone_table; a sample reads them as it reads the frame's tables.
  * Configured by the estimator's defines:
- *   CHILD_WEIGHT  0: the factor's bound over the child's cone of directions; 1: its value at the
- *                 child's centre direction, floored at CENTRE_FLOOR of that bound; 2: the bound
- *                 with the lobe's term capped at its integral over the child's least solid angle
- *                 (a bound of the child's mean factor)
- *   LIGHT_LEVELS  L: the choices among children of pyramid level l < L (0 = texels) weigh by the
- *                 sums alone, as hierarchical's (0: every choice, the faces' included, by the
- *                 product)
+ *   CHILD_WEIGHT    0: the factor's bound over the child's cone of directions; 1: its value at the
+ *                   child's centre direction, floored at CENTRE_FLOOR of that bound; 2: the bound
+ *                   with the lobe's term capped at its integral over the child's least solid
+ *                   angle (a bound of the child's mean factor)
+ *   PRODUCT_LEVELS  T ≥ 1: the choices weighed by the product, the faces' and the T − 1 coarsest
+ *                   levels' of children (all of them where the pyramid has fewer)
  *
  * The factor F(ω) = cos⁺(n, ω)·(Y(kd)/π + Y(ks)·(m+2)/(2π)·cos⁺(r, ω)^m) is the Phong BRDF·cos
  * of add_samples in luminance (no V: the target is map × BRDF × cos), divided by its largest
  * value Y(kd)/π + Y(ks)·(m+2)/(2π) so that it lies in [0, 1] and a weight never exceeds the
  * pyramid's sum (no overflow beside a 1e30 texel).  Over a child, the two cosines are bounded
  * over a cone that holds its directions (cone_cos_bound), each separately. */
+#define PIXEL_LIGHT_STATE 1   /* the table below (lanes.cl, envmap.cl) */
 #include "lanes.cl"
+#include "descent.cl"
 
 #ifndef CHILD_WEIGHT
 #define CHILD_WEIGHT 0
 #endif
-#ifndef LIGHT_LEVELS
-#define LIGHT_LEVELS 0
+#ifndef PRODUCT_LEVELS
+#define PRODUCT_LEVELS 1
 #endif
+
+/* The pixel's product choices in descent.cl's record layout: records 0 and 1 the faces', record
+ * 2·4^k + Q the choice among the children of node Q of depth k (k = 0 … T − 2): 2·4^{T−1}
+ * records of four words (32 bytes at the default T = 1, 512 at T = 3). */
+typedef struct {
+    uint bounds[4 * (2 << (2 * (PRODUCT_LEVELS - 1)))];
+} light_state_t;
 
 #define CENTRE_FLOOR (1.0f / 16.0f)   /* measured: 1/64 and 1/4 gave more error (the estimator's docstring) */
 #define BOUND_MARGIN 0x1p-12f      /* above the bound's float rounding (~1e-6): no child cut by it */
 #define FACE_COS 0.577350269f      /* a face's cone about its axis: its corners are 1/√3 off it */
 #define FACE_SIN 0.816496581f
 
-/* weighed_descent.cl's weigher: the pixel's normal n, mirror direction r and normalised factor
- * F = cos_n·(diffuse + specular·cos_r^m) (diffuse + specular = 1), and n and r in the frames of
- * the lanes' faces (n·U, n·V, n·W of the face's direction x·U + y·V + W at face point (x, y)). */
+/* The pixel's weigher: its normal n, mirror direction r and normalised factor
+ * F = cos_n·(diffuse + specular·cos_r^m) (diffuse + specular = 1). */
 typedef struct {
     vec3_t n, r;
     float diffuse, specular, m, lobe_integral;   /* lobe_integral: ∫ cos⁺_r^m dω = 2π/(m + 1) */
-    lanes_t n_u, n_v, n_w, r_u, r_v, r_w;
 } descent_weigher_t;
-
-#include "weighed_descent.cl"
 
 ALWAYS_INLINE descent_weigher_t product_weigher(const shading_t *s)
 {
@@ -55,22 +63,6 @@ ALWAYS_INLINE descent_weigher_t product_weigher(const shading_t *s)
     g.diffuse = scaled ? diffuse / largest : 1.0f;
     g.specular = scaled ? specular / largest : 0.0f;
     return g;
-}
-
-/* a·U, a·V, a·W of the lanes' faces (lanes_face_direction's table). */
-ALWAYS_INLINE void lanes_face_frame(lane_ints_t face, vec3_t a, lanes_t *u, lanes_t *v, lanes_t *w)
-{
-    lanes_t sign = select((lanes_t)1.0f, (lanes_t)-1.0f, (face & 1) != 0);
-    lane_ints_t x_major = face < 2, y_major = (face == 2) | (face == 3);
-    *u = select(select(sign * a.x, (lanes_t)a.x, y_major), -sign * a.z, x_major);
-    *v = select((lanes_t)-a.y, sign * a.z, y_major);
-    *w = sign * select(select((lanes_t)a.z, (lanes_t)a.y, y_major), (lanes_t)a.x, x_major);
-}
-
-ALWAYS_INLINE void weigher_at_face(descent_weigher_t *g, lane_ints_t face)
-{
-    lanes_face_frame(face, g->n, &g->n_u, &g->n_v, &g->n_w);
-    lanes_face_frame(face, g->r, &g->r_u, &g->r_v, &g->r_w);
 }
 
 /* An upper bound of cos⁺ of the angle between a unit vector and any direction of a cone of half
@@ -102,10 +94,10 @@ ALWAYS_INLINE lanes_t factor_of(const descent_weigher_t *g, lanes_t cos_n, lanes
 }
 
 /* A child's (or a face's) cone of directions: cos_n and cos_r the cosines of its centre direction
- * with n and r, its half angle θ with cos_lo ≤ cos θ ≤ cos_hi and sin θ ≤ sin_hi, and a lower
- * bound of its solid angle. */
+ * with n and r, its half angle θ with cos_lo ≤ cos θ ≤ cos_hi and sin θ ≤ sin_hi, and the
+ * reciprocal of a lower bound of its solid angle. */
 typedef struct {
-    lanes_t cos_n, cos_r, cos_lo, cos_hi, sin_hi, least_omega;
+    lanes_t cos_n, cos_r, cos_lo, cos_hi, sin_hi, inverse_omega;
 } cone_t;
 
 /* The bound of cos⁺_r over the cone; its lobe_bound bounds the lobe cos⁺_r^m. */
@@ -129,7 +121,7 @@ ALWAYS_INLINE lanes_t lobe_bound(lanes_t c, float m)
 }
 
 /* The factor of the cone's child by the CHILD_WEIGHT rule, given the lobe's bound (computed apart,
- * so that weigh_children runs the four children's powers side by side). */
+ * so that weigh_children runs the four children's bounds side by side). */
 ALWAYS_INLINE lanes_t cone_factor(const descent_weigher_t *g, const cone_t *c, lanes_t bound_lobe)
 {
     lanes_t bound_n = cone_cos_bound(c->cos_n, c->cos_lo, c->cos_hi, c->sin_hi);
@@ -138,90 +130,188 @@ ALWAYS_INLINE lanes_t cone_factor(const descent_weigher_t *g, const cone_t *c, l
                CENTRE_FLOOR * factor_with_lobe(g, bound_n, bound_lobe));
 #elif CHILD_WEIGHT == 2
     /* the lobe's mean over the child is at most its integral over the child's least solid angle */
-    return factor_with_lobe(g, bound_n, min(bound_lobe, g->lobe_integral / c->least_omega));
+    return factor_with_lobe(g, bound_n, min(bound_lobe, g->lobe_integral * c->inverse_omega));
 #else
     return factor_with_lobe(g, bound_n, bound_lobe);
 #endif
 }
 
-/* Faces: each face's cone is exact, half angle acos(1/√3) about its axis ±e_{f/2}; its solid
- * angle 2π/3. */
-ALWAYS_INLINE void weigh_faces(const descent_weigher_t *g, int l, lanes_t w[6])
+/* The faces' factors in lanes 0 … 5 (lane f: face f about ±e_{f/2}; the lanes past 5 repeat face
+ * 5): each face's cone is exact, half angle acos(1/√3) about its axis, solid angle 2π/3. */
+ALWAYS_INLINE lanes_t face_factors(const descent_weigher_t *g)
 {
-    if (l < LIGHT_LEVELS)
-        return;
-    float n_axis[3] = {g->n.x, g->n.y, g->n.z}, r_axis[3] = {g->r.x, g->r.y, g->r.z};
-    UNROLL
-    for (int f = 0; f < 6; ++f) {
-        float sign = (f & 1) ? -1.0f : 1.0f;
-        cone_t face = {(lanes_t)(sign * n_axis[f >> 1]), (lanes_t)(sign * r_axis[f >> 1]), (lanes_t)FACE_COS,
-                       (lanes_t)FACE_COS, (lanes_t)FACE_SIN, (lanes_t)(2.0f * IBL_PI / 3.0f)};
-        w[f] *= cone_factor(g, &face, lobe_bound(cone_r_bound(&face), g->m));
-    }
+    lane_ints_t f = min(LANE_NUMBERS, (lane_ints_t)5);   /* vector bounds: light_pool.cl's POOL_LANES */
+    lanes_t sign = select((lanes_t)1.0f, (lanes_t)-1.0f, (f & 1) != 0);
+    lane_ints_t x_axis = f < 2, y_axis = (f == 2) | (f == 3);
+    lanes_t cos_n = sign * select(select((lanes_t)g->n.z, (lanes_t)g->n.y, y_axis), (lanes_t)g->n.x, x_axis);
+    lanes_t cos_r = sign * select(select((lanes_t)g->r.z, (lanes_t)g->r.y, y_axis), (lanes_t)g->r.x, x_axis);
+    cone_t face = {cos_n, cos_r, (lanes_t)FACE_COS, (lanes_t)FACE_COS, (lanes_t)FACE_SIN,
+                   (lanes_t)(3.0f / (2.0f * IBL_PI))};
+    return cone_factor(g, &face, lobe_bound(cone_r_bound(&face), g->m));
 }
 
-/* A child at level l spans the texels [x0, x1) of its face (x1 = x0 + 2^l but for an odd size's
- * last), the face square [−1 + 2·x0/R, −1 + 2·x1/R]: its centre (x, y) and half extents (hx, hy).
- * The cone about the centre direction that holds it has half angle θ ≤ √(hx² + hy²)/√(1 + d²),
- * d the child's least distance from the face's centre: the gnomonic map's metric is at most
- * |dp|/√(1 + |p|²), so a straight path from the centre to a corner is no longer on the sphere.
- * cos θ and sin θ are bounded by cos's Taylor terms (1 − t²/2 ≤ cos t ≤ 1 − t²/2 + t⁴/24) and
- * sin t ≤ min(t, 1): no trigonometry.  Its solid angle is at least its face area 4·hx·hy times the
- * gnomonic Jacobian (1 + x² + y²)^{-3/2} at its farthest corner.  Child k of the lanes' parents
- * (row, col), texels 2^l = span wide, scale = 1/R. */
-ALWAYS_INLINE cone_t child_cone(const descent_weigher_t *g, int res, int span, float scale, lane_ints_t row,
-                                lane_ints_t col, int k)
+/* Child c's cone of the lanes' parents from node cones (product.py's node_cone_table: the
+ * depth's block from its first parent, planes of `stride` floats: component p of child c at
+ * (4p + c)·stride): its centre direction, cos θ's bounds, sin θ's and 1/Ω_least. */
+ALWAYS_INLINE cone_t child_cone(const descent_weigher_t *g, __global const float *cones, int stride, int c)
 {
-    lane_ints_t x0 = (2 * col + (k & 1)) * span, y0 = (2 * row + (k >> 1)) * span;
-    lane_ints_t x1 = min(x0 + span, (lane_ints_t)res), y1 = min(y0 + span, (lane_ints_t)res);
-    lanes_t x = convert_lanes(x0 + x1) * scale - 1.0f, y = convert_lanes(y0 + y1) * scale - 1.0f;
-    lanes_t hx = convert_lanes(x1 - x0) * scale, hy = convert_lanes(y1 - y0) * scale;
-    lanes_t k_centre = rsqrt(1.0f + x * x + y * y);
-    lanes_t dx = max(fabs(x) - hx, 0.0f), dy = max(fabs(y) - hy, 0.0f);
-    lanes_t t = sqrt(hx * hx + hy * hy) * rsqrt(1.0f + dx * dx + dy * dy);
-    lanes_t cos_lo = 1.0f - 0.5f * t * t;
-    lanes_t fx = fabs(x) + hx, fy = fabs(y) + hy, k_far = rsqrt(1.0f + fx * fx + fy * fy);
-    cone_t c = {(g->n_u * x + g->n_v * y + g->n_w) * k_centre, (g->r_u * x + g->r_v * y + g->r_w) * k_centre,
-                cos_lo, cos_lo + t * t * t * t * (1.0f / 24.0f), min(t, 1.0f), 4.0f * hx * hy * k_far * k_far * k_far};
-    return c;
+    __global const float *at = cones + c * stride;
+    lanes_t x = vload_lanes(0, at), y = vload_lanes(0, at + 4 * stride), z = vload_lanes(0, at + 8 * stride);
+    cone_t cone = {g->n.x * x + g->n.y * y + g->n.z * z, g->r.x * x + g->r.y * y + g->r.z * z,
+                   vload_lanes(0, at + 12 * stride), vload_lanes(0, at + 16 * stride),
+                   vload_lanes(0, at + 20 * stride), vload_lanes(0, at + 24 * stride)};
+    return cone;
 }
 
-/* The four children's factors stage by stage (their cones, the lobes' bounds, the factors), not
- * child after child: the same operations on the same values, so the same bits, but four
- * independent chains side by side for the core to overlap (10% less CPU time a sample than
- * child after child, measured with the lobe's exact power, whose division and polynomials are
- * long chains). */
-ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, int res, int l, lane_ints_t row, lane_ints_t col,
-                                  lanes_t w[4])
+/* Multiplies the sums w of the four children of the lanes' parents by their factors, stage by
+ * stage (their cones, the lobes' bounds, the factors): four independent chains side by side
+ * for the core to overlap. */
+ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, __global const float *cones, int stride, lanes_t w[4])
 {
-    if (l < LIGHT_LEVELS)
-        return;
     cone_t cone[4];
     lanes_t lobe[4];
     UNROLL
-    for (int k = 0; k < 4; ++k) cone[k] = child_cone(g, res, 1 << l, 1.0f / (float)res, row, col, k);
+    for (int k = 0; k < 4; ++k) cone[k] = child_cone(g, cones, stride, k);
     UNROLL
     for (int k = 0; k < 4; ++k) lobe[k] = lobe_bound(cone_r_bound(&cone[k]), g->m);
     UNROLL
     for (int k = 0; k < 4; ++k) w[k] *= cone_factor(g, &cone[k], lobe[k]);
 }
 
-#define LIGHT_PARAMS __global const float *pyramid
-#define LIGHT_ARGS pyramid
+#define LIGHT_PARAMS __global const float *pyramid, __global const float *cones, __global const uint *descent_bounds, \
+                     __global const float *node_probability, __global const float *texel_probability
+#define LIGHT_ARGS pyramid, cones, descent_bounds, node_probability, texel_probability
 
-/* envmap.cl's light sampler: weighed_descent.cl's descent weighted for the pixel of shading s. */
-ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const shading_t *s, int res, uint seed, uint frame,
-                                          uint pixel, lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
+/* The floats of a depth's block of node cones for `parents` parents: seven components of four
+ * children, each a plane padded to whole vectors of 16 lanes (product.py's node_cone_table). */
+ALWAYS_INLINE int cone_plane(int parents) { return (parents + 15) & ~15; }
+
+/* The pixel of shading s's product choices (light_state_t): each choice's widths are
+ * descent_choice.cl's of the pyramid's sums times the pixel's factors, the faces' in one vector,
+ * then depth by depth the children of POOL_LANES parents at a time. */
+ALWAYS_INLINE light_state_t light_state_of(LIGHT_PARAMS, const shading_t *s, int res)
 {
+    light_state_t t;
     descent_weigher_t g = product_weigher(s);
-    return weighed_descent_sample(pyramid, &g, res, seed, frame, pixel, draw, texel, pdf);
+    int level, levels = descent_levels(res, &level);
+    lanes_t factors = face_factors(&g);
+    const float *factor = (const float *)&factors;   /* lane i of a vector v at ((T *)&v)[i] */
+    lanes_t w[6];
+    lane_ints_t exists[6];
+    lane_uints_t q[6];
+    UNROLL
+    for (int f = 0; f < 6; ++f) {
+        w[f] = pyramid[level + f] * factor[f];
+        exists[f] = -1;
+    }
+    descent_widths6(w, exists, q);
+    face_record_words(q, t.bounds);
+    __global const float *block = cones;
+    for (int k = 0; k + 1 < min(PRODUCT_LEVELS, levels); ++k) {
+        int n = level_size(res, levels - 2 - k), parents = 6 << (2 * k), stride = cone_plane(parents);
+        level -= 6 * n * n;
+        for (int first = 0; first < parents; first += POOL_LANES) {
+            lane_ints_t node = min(first + LANE_NUMBERS, (lane_ints_t)(parents - 1)), morton = node & ((1 << (2 * k)) - 1);
+            lane_ints_t face = node >> (2 * k), row = morton_half(morton >> 1), col = morton_half(morton);
+            lanes_t sums[4];
+            lane_ints_t present[4];
+            lane_uints_t widths[4];
+            child_sums(pyramid, level, n, face, row, col, sums, present);
+            weigh_children(&g, block + first, stride, sums);
+            descent_widths4(sums, present, widths);
+            lane_uints_t words[3] = {widths[0], widths[0] + widths[1], widths[0] + widths[1] + widths[2]};
+            const uint *word = (const uint *)words;
+            for (int i = 0; i < POOL_LANES && first + i < parents; ++i) {
+                uint *record = t.bounds + 4 * ((2 << (2 * k)) + first + i);
+                for (int c = 0; c < 3; ++c) record[c] = word[c * POOL_LANES + i];
+                record[3] = 1u << DESCENT_BITS;
+            }
+        }
+        block += 28 * stride;
+    }
+    return t;
 }
 
-/* envmap.cl's light density: weighed_descent.cl's, with the same weights. */
-ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const shading_t *s, int res, lanes3_t w, lane_ints_t *texel)
+/* The probability q_face/2^31 of the lanes' faces from the table's face records. */
+ALWAYS_INLINE lanes_t face_probability(const light_state_t *t, lane_ints_t face)
 {
-    descent_weigher_t g = product_weigher(s);
-    return weighed_descent_density(pyramid, &g, res, w, texel);
+    lane_uints_t high = GATHER(lane_uints_t, t->bounds, face);
+    lane_uints_t low = select(GATHER(lane_uints_t, t->bounds, max(face - 1, (lane_ints_t)0)), (lane_uints_t)0, face == 0);
+    return convert_lanes(high - low) * (1.0f / DESCENT_ONE);
+}
+
+/* The prefix widths of the lanes' records of the table. */
+ALWAYS_INLINE void table_record(const light_state_t *t, lane_ints_t record, lane_uints_t b[3])
+{
+    lane_ints_t at = 4 * record;
+    UNROLL
+    for (int c = 0; c < 3; ++c) b[c] = GATHER(lane_uints_t, t->bounds, at + c);
+}
+
+/* The frame's probability of the lanes' texels given their nodes of record `node` (depth T − 1):
+ * the tables' P(texel)/P(node), node_probability in heap order from 2·(4^k − 1), so at record
+ * − 2; 1 where the product's choices reach the texels (`below` 0), and 0 where P(node)
+ * underflowed (a probability below float's least). */
+ALWAYS_INLINE lanes_t below_node(__global const float *node_probability, __global const float *texel_probability,
+                                 int below, lane_ints_t node, lane_ints_t texel)
+{
+    if (!below)
+        return 1.0f;
+    lanes_t p_node = GATHER(lanes_t, node_probability, node - 2);
+    return select((lanes_t)0.0f, GATHER(lanes_t, texel_probability, texel) / p_node, p_node > 0.0f);
+}
+
+/* envmap.cl's light sampler: the faces' and T − 1 levels' choices from the pixel's table t
+ * (words 0 … T − 1 of the draw's stream), the finer ones from the frame's tables
+ * (descend_by_tables), the point from the next word; P = the table's choices' q/2^31 times
+ * below_node's. */
+ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const light_state_t *t, int res, uint seed, uint frame,
+                                          uint pixel, lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
+{
+    int top, word = 0;
+    int levels = descent_levels(res, &top), choices = min(PRODUCT_LEVELS, levels);
+    lane_block_t block;
+    lane_uints_t u = descent_word(seed, frame, pixel, draw, word++, &block) >> (32 - DESCENT_BITS);
+    lane_ints_t face = 0;
+    UNROLL
+    for (int f = 0; f < 5; ++f) face -= convert_lane_ints((lane_uints_t)t->bounds[f] <= u);
+    lanes_t probability = face_probability(t, face);
+    lane_ints_t record = 2 + face, row = 0, col = 0;
+    for (int k = 1; k < choices; ++k) {
+        lane_uints_t b[3];
+        table_record(t, record, b);
+        lane_ints_t child = record_pick(b, descent_word(seed, frame, pixel, draw, word++, &block) >> (32 - DESCENT_BITS));
+        probability *= record_width(b, child);
+        descend_to(child, &record, &row, &col);
+    }
+    lane_ints_t node = record;
+    descend_by_tables(descent_bounds, levels - 1 - choices, seed, frame, pixel, draw, &word, &block, &record, &row, &col);
+    *texel = (face * res + row) * res + col;
+    probability *= below_node(node_probability, texel_probability, choices < levels, node, *texel);
+    return descent_point(res, face, row, col, descent_word(seed, frame, pixel, draw, word, &block), probability, pdf);
+}
+
+/* envmap.cl's light density: lanes_sample_light's P of the texels of the lanes' directions w,
+ * its choices' widths read from the same tables in the same order, with descent_point's
+ * Jacobian; *texel gets the texel. */
+ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const light_state_t *t, int res, lanes3_t w, lane_ints_t *texel)
+{
+    lane_ints_t face, row, col;
+    lanes_t area = lanes_texel_of(res, w, &face, &row, &col);
+    int top, levels = descent_levels(res, &top), choices = min(PRODUCT_LEVELS, levels);
+    lanes_t probability = face_probability(t, face);
+    lane_ints_t record = 2 + face;
+    for (int k = 1; k < choices; ++k) {
+        int l = levels - 1 - k;
+        lane_uints_t b[3];
+        table_record(t, record, b);
+        lane_ints_t child = 2 * ((row >> l) & 1) + ((col >> l) & 1);
+        probability *= record_width(b, child);
+        record = 4 * record + child;
+    }
+    *texel = (face * res + row) * res + col;
+    probability *= below_node(node_probability, texel_probability, choices < levels, record, *texel);
+    return probability * area * (float)(res * res) / 4.0f;
 }
 
 #include "envmap.cl"

@@ -73,7 +73,7 @@ __kernel void restir_presample(LIGHT_PARAMS, const int res, const uint seed,
     int at = get_global_id(0) * POOL_LANES, n = get_global_size(0) * POOL_LANES;
     lane_ints_t texel;
     lanes_t pdf;
-    shading_t none;   /* hierarchical's light sampler reads no shading (product's would) */
+    light_state_t none = {0};   /* hierarchical's light sampler keeps no per-pixel state */
     lanes3_t w = lanes_sample_light(LIGHT_ARGS, &none, res, seed, frame, 0u, at + LANE_NUMBERS, &texel, &pdf);
     vstore_lanes(w.x, 0, presamples + at);
     vstore_lanes(w.y, 0, presamples + n + at);

@@ -269,7 +269,7 @@ def test_the_walk_sees_every_folder(graph, includes):
             for path in (ROOT / top).rglob("*.py")} <= folders
     # The walk reads dynamic imports and includes.
     assert "iblbench.commands" in graph["iblbench.cli"]
-    assert includes["estimators/product.cl"] == {"estimators/lanes.cl", "estimators/weighed_descent.cl",
+    assert includes["estimators/product.cl"] == {"estimators/lanes.cl", "estimators/descent.cl",
                                                   "estimators/envmap.cl"}
     shared = cl_include_dirs()[0].relative_to(ROOT).as_posix()
     assert includes["estimators/uniform.cl"] == {f"{shared}/light_pool_kernels.cl"}

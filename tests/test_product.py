@@ -87,13 +87,16 @@ class Twin:
         axes = np.stack([cubemap.face_st_to_direction(f, 0.5, 0.5) for f in range(6)])
         return self.factor(axes, 1 / np.sqrt(3), 1 / np.sqrt(3), np.sqrt(2 / 3), 2 * np.pi / 3)
 
-    def texel_probabilities(self, weights: np.ndarray, light_levels: int) -> tuple[np.ndarray, np.ndarray]:
-        """(P(texel) ``[6, R, R]``: the product over the choices of w_k/Σ w, w = sum × factor;
-        the fixed-point bound on P/P_twin − 1: Σ_choices 6/(2^31·p_choice), as test_hierarchical's)."""
+    def texel_probabilities(self, weights: np.ndarray, product_levels: int) -> tuple[np.ndarray, np.ndarray]:
+        """(P(texel) ``[6, R, R]``: the product over the choices of w_k/Σ w, w = sum × factor for
+        the faces' choice and the children's of the ``product_levels`` − 1 coarsest levels, the
+        sum alone for the finer ones; the fixed-point bound on P/P_twin − 1: Σ_choices
+        6/(2^31·p_choice), as test_hierarchical's)."""
         res = weights.shape[1]
         levels = [level[..., 0] for level in numpy_chain(weights[..., None], average=False)]
         top = len(levels) - 1
-        faces = levels[top].reshape(6) * (self.face_factors() if top >= light_levels else 1.0)
+        light_levels = len(levels) - product_levels   # the levels whose children weigh their sums alone
+        faces = levels[top].reshape(6) * self.face_factors()
         p = np.broadcast_to((faces / faces.sum())[:, None, None], weights.shape).copy()
         with np.errstate(divide="ignore"):
             bound = 6.0 / (ONE * p)
@@ -106,8 +109,8 @@ class Twin:
             child = weighted[:, rows >> l, cols >> l]
             with np.errstate(divide="ignore", invalid="ignore"):
                 choice = child / parents[:, rows >> (l + 1), cols >> (l + 1)]
+                bound += 6.0 / (ONE * choice)
             p *= choice
-            bound += 6.0 / (ONE * choice)
         return p, bound
 
 
@@ -122,22 +125,23 @@ def texel_probabilities(estimator, cache, normal, view) -> np.ndarray:
     return pdf.reshape(6, res, res) * (4.0 / res ** 2) / ((1 + x * x + y * y) ** 1.5)[None]
 
 
-@pytest.mark.parametrize("rule,light_levels", [("bound", 0), ("centre", 0), ("capped", 0), ("bound", 2),
-                                               ("capped", 2), ("centre", 9)])
+@pytest.mark.parametrize("rule,product_levels", [("bound", 4), ("centre", 4), ("capped", 4), ("bound", 2),
+                                                 ("capped", 3), ("centre", 1)])
 @pytest.mark.parametrize("env", [conformance.face_pattern_map(8), conformance.sun_map(12, 1e6)],
                          ids=["face-pattern", "sun-1e6-res12"])
-def test_texel_probabilities_match_a_numpy_descent(compute, env, rule, light_levels):
+def test_texel_probabilities_match_a_numpy_descent(compute, env, rule, product_levels):
     """For two pixels, every texel's probability is the NumPy descent's within the fixed-point
     bound of its choices plus float rounding of the factors (2e-4; texels of P > 1e-9),
-    each lit texel above the pixel's horizon is reachable, and they sum to 1.  light_levels = 9
-    passes the pyramid's top: hierarchical's weights at every choice."""
-    estimator = Product(mis="none", child_weight=rule, light_levels=light_levels)
+    each lit texel above the pixel's horizon is reachable, and they sum to 1.  product_levels = 4
+    weighs every choice of the 8² map (4 levels) and 4 of the 12² map's 5; 1 the faces' alone,
+    the rest ``hierarchical``'s."""
+    estimator = Product(mis="none", child_weight=rule, product_levels=product_levels)
     cache = FrameCache(compute, env)
     cache.require(Product.requires)
     weights = numpy_weights(env, False)
     for normal, view in PIXELS:
         p = texel_probabilities(estimator, cache, normal, view)
-        expected, bound = Twin(normal, view, rule).texel_probabilities(weights, light_levels)
+        expected, bound = Twin(normal, view, rule).texel_probabilities(weights, product_levels)
         assert abs(p.sum() - 1) < 1e-4
         seen = expected > 1e-9
         relative = np.abs(p[seen] / expected[seen] - 1)
@@ -191,7 +195,7 @@ def test_the_capped_factor_bounds_the_childs_mean(kd, shininess):
 
 
 @pytest.mark.parametrize("label", ['product{mis="none"}', 'product{mis="none",child_weight="centre"}',
-                                   'product{mis="none",child_weight="bound"}', 'product{light_levels=2}',
+                                   'product{mis="none",child_weight="bound"}', 'product{product_levels=2}',
                                    'product{child_weight="centre"}'])
 def test_chi2_on_a_bright_sun(compute, label):
     """χ² of each variant's samples against its pdf hook for two pixels on a 1e6:1 sun map."""
@@ -288,7 +292,7 @@ def test_hot_texel_stress_passes(compute, label):
 
 def test_parameters_and_version():
     for bad, message in (('product{child_weight="corner"}', "child_weight must be one of"),
-                         ("product{light_levels=-1}", "light_levels must be in"),
+                         ("product{product_levels=0}", "product_levels must be in"),
                          ('product{mis="light"}', "mis must be one of")):
         with pytest.raises(InputError, match=message):
             parse_estimator(bad)

@@ -407,16 +407,6 @@ __kernel void sampling_weights(__global const float4 *env, __global const float 
 
 /* ---- descent tables (estimators/descent.cl's header has their layout) ------------------------ */
 
-/* The bits of m at even positions, packed: a Morton index's column (m) or row (m >> 1). */
-ALWAYS_INLINE lane_ints_t morton_half(lane_ints_t m)
-{
-    m &= 0x55555555;
-    m = (m | (m >> 1)) & 0x33333333;
-    m = (m | (m >> 2)) & 0x0f0f0f0f;
-    m = (m | (m >> 4)) & 0x00ff00ff;
-    return (m | (m >> 8)) & 0x0000ffff;
-}
-
 /* The records of depth k = `depth` (0 … L − 2) from the weight pyramid over faces of `res`, a
  * work item per POOL_LANES consecutive nodes Q of the 6·4^k, and their children's probabilities:
  * the node's (`node_probability` from 2·(4^k − 1), in heap order) times q_c/2^31, to the next
@@ -437,11 +427,9 @@ __kernel void descent_bounds(__global const float *pyramid, const int res, const
             exists[f] = -1;
         }
         descent_widths6(w, exists, q);
-        uint sum = 0;
-        for (int f = 0; f < 8; ++f) {
-            sum += f < 6 ? q[f].s0 : 0u;
-            bounds[f] = f < 5 ? sum : 1u << DESCENT_BITS;
-        }
+        uint words[8];
+        face_record_words(q, words);
+        for (int f = 0; f < 8; ++f) bounds[f] = words[f];
         for (int f = 0; f < 6; ++f)   /* a face size of 1: the faces are the texels */
             (levels > 1 ? node_probability : probability)[f] = (float)q[f].s0 * (1.0f / DESCENT_ONE);
         return;

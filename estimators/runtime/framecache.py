@@ -151,10 +151,12 @@ class DescentTables:
     """A weight pyramid's descent tables (estimators/descent.cl's header has the layout):
     ``bounds`` uint32, four words a record, each choice's children's prefix widths out of 2^31,
     records indexed as a 4-ary heap from the faces'; ``probability`` float ``[6·R·R]``, each
-    texel's probability P; ``build_ms`` the device time of the two."""
+    texel's probability P; ``node_probability`` float, each node's above the texels, in heap
+    order (depth k's 6·4^k from 2·(4^k − 1)); ``build_ms`` the device time of the three."""
 
     bounds: cl.Buffer
     probability: cl.Buffer
+    node_probability: cl.Buffer
     build_ms: float
 
 
@@ -419,7 +421,7 @@ class FrameCache:
                       for depth in range(-1, depths)]
             build_ms = sum(map(event_ms, events))
             self.timings_ms["compensated_descent_tables" if compensated else "descent_tables"] = build_ms
-            self._descent_tables[compensated] = DescentTables(bounds, probability, build_ms)
+            self._descent_tables[compensated] = DescentTables(bounds, probability, node_probability, build_ms)
         return self._descent_tables[compensated]
 
     def radiance_mips(self) -> mips.MipChain:

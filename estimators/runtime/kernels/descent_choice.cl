@@ -71,6 +71,44 @@ ALWAYS_INLINE lane_ints_t descent_pick##N(const lane_uints_t q[N], lane_uints_t 
 DEFINE_DESCENT_CHOICE(4)
 DEFINE_DESCENT_CHOICE(6)
 
+/* The faces' record words (estimators/descent.cl's tables, records 0 and 1) of their widths q
+ * (the same in every lane): the prefix sums Σ_{j≤f} q_j, f = 0 … 4, then 2^31 in words 5 … 7. */
+ALWAYS_INLINE void face_record_words(const lane_uints_t q[6], uint words[8])
+{
+    uint sum = 0;
+    UNROLL
+    for (int f = 0; f < 8; ++f) {
+        sum += f < 6 ? q[f].s0 : 0u;
+        words[f] = f < 5 ? sum : 1u << DESCENT_BITS;
+    }
+}
+
+/* A record's child picked by the lanes' top 31 bits u of a word: the child whose bin of the
+ * record's prefix widths b[0] ≤ b[1] ≤ b[2] (the fourth 2^31) holds u. */
+ALWAYS_INLINE lane_ints_t record_pick(const lane_uints_t b[3], lane_uints_t u)
+{
+    return -(convert_lane_ints(b[0] <= u) + convert_lane_ints(b[1] <= u) + convert_lane_ints(b[2] <= u));
+}
+
+/* The probability q_child/2^31 of a record's child, from its prefix widths b (record_pick's). */
+ALWAYS_INLINE lanes_t record_width(const lane_uints_t b[3], lane_ints_t child)
+{
+    lane_uints_t high = select(select(select((lane_uints_t)(1u << DESCENT_BITS), b[2], child == 2), b[1], child == 1),
+                               b[0], child == 0);
+    lane_uints_t low = select(select(select(b[2], b[1], child == 2), b[0], child == 1), (lane_uints_t)0, child == 0);
+    return convert_lanes(high - low) * (1.0f / DESCENT_ONE);
+}
+
+/* The bits of m at even positions, packed: a Morton index's column (m) or row (m >> 1). */
+ALWAYS_INLINE lane_ints_t morton_half(lane_ints_t m)
+{
+    m &= 0x55555555;
+    m = (m | (m >> 1)) & 0x33333333;
+    m = (m | (m >> 2)) & 0x0f0f0f0f;
+    m = (m | (m >> 4)) & 0x00ff00ff;
+    return (m | (m >> 8)) & 0x0000ffff;
+}
+
 /* The sums w of the four children (2·row + a, 2·col + b) of each lane's parent (row, col) of face
  * `face` at pyramid level l, of size n from float offset `level` (a row-major quad: k = 2a + b),
  * and which of them exist (0 past an odd size's edge). */
