@@ -5,8 +5,8 @@
  *
  * A sample picks a face by the faces' weights, then at each level one of the (up to) four
  * children of the texel picked so far by their weights, down to a texel, and a point uniform in
- * the texel's face square.  A weight is the pyramid's sum, times a per-pixel factor in
- * weighed_descent.cl's form (`product`'s BRDF·cos factor).  Each choice
+ * the texel's face square.  A weight is the pyramid's sum (times, for `product`'s coarse
+ * choices, the pixel's BRDF·cos factor).  Each choice
  * among n children (6 faces, or 4 children) is exact in fixed point (descent_widths##N): child k
  * gets an integer width q_k out of 2^31,
  *     q_k = max(1, ⌊2^31 · w_k / Σ w⌋) for w_k > 0,  q_k = 0 for w_k = 0,
@@ -16,21 +16,19 @@
  * rounding, ~1e-6 relative over a descent's factors).  So every child of positive weight has a
  * probability of at least 2^-31 ≈ 4.7e-10 at each level, whatever its siblings weigh (a 1e6:1
  * sun leaves every lit texel reachable), and a texel's probability P is the product of its
- * choices' q/2^31 in the order they are made, which the density looks up (descent_density) or
- * recomputes from the same pyramid words and factors (weighed_descent_density).  The density in solid angle is P·(1+x²+y²)^{3/2}/a_texel,
+ * choices' q/2^31 in the order they are made, which the density looks up (descent_density).
+ * The density in solid angle is P·(1+x²+y²)^{3/2}/a_texel,
  * a_texel = (2/R)² (ARCHITECTURE.md §Conventions).  Children of zero total (an all-black map, or past an odd size's
  * edge) fall back to widths 2^31/N for each child that exists, the remainder to the first of
  * them (so 1/2, 1/4, 1/4 for three of four: not equal, but the density has the same widths), so a black map still samples a valid texel with the density it is drawn from.
  *
- * Two forms (the same choices, bit for bit: both make them with descent_choice.cl's arithmetic
- * from the same sums):
- *   - from the frame cache's descent tables (FrameCache.descent_tables, framecache.cl's
- *     descent_bounds), here: `hierarchical`'s and `restir`'s weights
- *     are the sums alone, the same for every pixel, so each choice's widths are computed once per
- *     frame; a sample reads three bounds a level (three gathers, no division: 1.6× the speed of
- *     the widths computed per sample, issue 37), and its density is its texel's P, read;
- *   - weighed_descent.cl: the widths computed per sample from the sums times a weigher's
- *     per-pixel factors (`product`).
+ * The choices come from tables (made with descent_choice.cl's arithmetic, so bit for bit a
+ * descent's from the same sums): the frame cache's (FrameCache.descent_tables, framecache.cl's
+ * descent_bounds), whose weights are the sums alone, the same for every pixel, so each choice's
+ * widths are computed once per frame; a sample reads three bounds a level (three gathers, no
+ * division: 1.6× the speed of the widths computed per sample, issue 37), and its density is its
+ * texel's P, read.  `product` makes its coarse choices' table once a pixel in the same layout
+ * (product.cl's light_state_t) and continues below them with descend_by_tables.
  *
  * The tables (uint words; record r is the four words from 4r):
  *   - records 0 and 1: the faces' widths as prefix sums Σ_{j≤f} q_j, f = 0 … 4, then 2^31 in
@@ -45,7 +43,9 @@
  *     nodes past the edge never reached (their widths are 0);
  *   - the texels' probabilities P, float [6·R²], each the product of its descent's q/2^31 in
  *     float, formed in the order the descent makes them (the faces' first): bit for bit the
- *     product a descent forms. */
+ *     product a descent forms;
+ *   - the nodes' probabilities above the texels, likewise, in heap order: depth k's 6·4^k from
+ *     2·(4^k − 1), so the node of record r (k ≥ 0) at r − 2. */
 #ifndef IBLBENCH_DESCENT_CL
 #define IBLBENCH_DESCENT_CL
 #include "lanes.cl"

@@ -20,7 +20,9 @@
  * lanes_light_density (their signatures below) before it includes this one replaces the map's
  * CDFs with its own sampler (estimators/hierarchical.cl, estimators/product.cl); the budget,
  * MIS and hooks stay these.  Both take the sampler's per-pixel state (lanes.cl's light_state_t),
- * made once a work item by light_state_of from the pixel's shading, for a sampler whose
+ * made once a work item by light_state_of from the pixel's shading (written through a pointer:
+ * an inlined struct return leaves an llvm.experimental.noalias.scope.decl that Oclgrind 21.10
+ * cannot run), for a sampler whose
  * distribution depends on the pixel (product.cl, which defines its own light_state_of); the
  * others keep none. */
 #include "lanes.cl"
@@ -130,10 +132,9 @@ ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const light_state_t *sta
 
 #ifndef PIXEL_LIGHT_STATE
 /* A sampler whose distribution is the same for every pixel keeps no per-pixel state. */
-ALWAYS_INLINE light_state_t light_state_of(LIGHT_PARAMS, const shading_t *s, int res)
+ALWAYS_INLINE void light_state_of(LIGHT_PARAMS, const shading_t *s, int res, light_state_t *state)
 {
-    light_state_t none = {0};
-    return none;
+    state->none = 0;
 }
 #endif
 
@@ -181,7 +182,8 @@ __kernel void render_map(__global const float4 *normal, __global const float4 *v
     launch_item_t item = LAUNCH_ITEM(n);
     int p = item.pixel, from, to;
     shading_t s = load_shading(normal, view, kd, ks_m, p);
-    light_state_t state = light_state_of(LIGHT_ARGS, &s, res);
+    light_state_t state;
+    light_state_of(LIGHT_ARGS, &s, res, &state);
     int light, brdf;
     strategy_split(spp, &light, &brdf);
     int light_draws = draws_for(light), brdf_draws = draws_for(brdf);
@@ -241,7 +243,8 @@ __kernel void map_directions(__global const float4 *surface, LIGHT_PARAMS, const
 {
     int i = get_global_id(0), n = get_global_size(0) * POOL_LANES;
     shading_t s = load_shading(surface, surface + 1, surface + 2, surface + 3, 0);
-    light_state_t state = light_state_of(LIGHT_ARGS, &s, res);
+    light_state_t state;
+    light_state_of(LIGHT_ARGS, &s, res, &state);
     int light, brdf;
     strategy_split(spp, &light, &brdf);
     lane_ints_t draw = i * POOL_LANES + LANE_NUMBERS;
@@ -275,6 +278,7 @@ __kernel void map_direction_pdf(__global const float4 *surface, LIGHT_PARAMS, co
     shading_t s = load_shading(surface, surface + 1, surface + 2, surface + 3, 0);
     lanes3_t w = make_lanes3(vload_lanes(0, dirs + at), vload_lanes(0, dirs + n + at), vload_lanes(0, dirs + 2 * n + at));
     lane_ints_t texel;
-    light_state_t state = light_state_of(LIGHT_ARGS, &s, res);
+    light_state_t state;
+    light_state_of(LIGHT_ARGS, &s, res, &state);
     vstore_lanes(pooled_map_density(&s, spp, w, lanes_map_pdf(LIGHT_ARGS, &state, res, w, &texel)), 0, out + at);
 }

@@ -186,12 +186,11 @@ ALWAYS_INLINE void weigh_children(const descent_weigher_t *g, __global const flo
  * children, each a plane padded to whole vectors of 16 lanes (product.py's node_cone_table). */
 ALWAYS_INLINE int cone_plane(int parents) { return (parents + 15) & ~15; }
 
-/* The pixel of shading s's product choices (light_state_t): each choice's widths are
+/* The pixel of shading s's product choices (light_state_t, into *t): each choice's widths are
  * descent_choice.cl's of the pyramid's sums times the pixel's factors, the faces' in one vector,
  * then depth by depth the children of POOL_LANES parents at a time. */
-ALWAYS_INLINE light_state_t light_state_of(LIGHT_PARAMS, const shading_t *s, int res)
+ALWAYS_INLINE void light_state_of(LIGHT_PARAMS, const shading_t *s, int res, light_state_t *t)
 {
-    light_state_t t;
     descent_weigher_t g = product_weigher(s);
     int level, levels = descent_levels(res, &level);
     lanes_t factors = face_factors(&g);
@@ -205,7 +204,7 @@ ALWAYS_INLINE light_state_t light_state_of(LIGHT_PARAMS, const shading_t *s, int
         exists[f] = -1;
     }
     descent_widths6(w, exists, q);
-    face_record_words(q, t.bounds);
+    face_record_words(q, t->bounds);
     __global const float *block = cones;
     for (int k = 0; k + 1 < min(PRODUCT_LEVELS, levels); ++k) {
         int n = level_size(res, levels - 2 - k), parents = 6 << (2 * k), stride = cone_plane(parents);
@@ -222,14 +221,13 @@ ALWAYS_INLINE light_state_t light_state_of(LIGHT_PARAMS, const shading_t *s, int
             lane_uints_t words[3] = {widths[0], widths[0] + widths[1], widths[0] + widths[1] + widths[2]};
             const uint *word = (const uint *)words;
             for (int i = 0; i < POOL_LANES && first + i < parents; ++i) {
-                uint *record = t.bounds + 4 * ((2 << (2 * k)) + first + i);
+                uint *record = t->bounds + 4 * ((2 << (2 * k)) + first + i);
                 for (int c = 0; c < 3; ++c) record[c] = word[c * POOL_LANES + i];
                 record[3] = 1u << DESCENT_BITS;
             }
         }
         block += 28 * stride;
     }
-    return t;
 }
 
 /* The probability q_face/2^31 of the lanes' faces from the table's face records. */
