@@ -26,10 +26,11 @@ from iblbench.harness.verify import portability
 RTOL = 1e-5   # relative, per pixel: every radiance is a sum of non-negative terms
 SPP = 37      # envmap's light draws in 5 chunks of 8, the pool's faces' several each
 # Every estimator that renders through a kernel with LAUNCH_PARAMS, and each of its paths: light
-# and BRDF draws (render_map; hierarchical's and product's samplers in it), the pool with and
-# without BRDF draws, shared and per-pixel, and fis.
+# and BRDF draws (render_map; hierarchical's and product's samplers in it, product's table of
+# choices made per work item, at its default depth and at 3), the pool with and without BRDF
+# draws, shared and per-pixel, and fis.
 LABELS = ("envmap", 'envmap{mis="brdf"}', 'envmap{mis="brdf",heuristic="balance"}', "brdf",
-          "hierarchical", 'hierarchical{mis="brdf"}', "product", "uniform", "balanced",
+          "hierarchical", 'hierarchical{mis="brdf"}', "product", "product{product_levels=3}", "uniform", "balanced",
           "balanced_mis", "balanced_mis{shared_sequence=false}", "fis")
 # On Oclgrind, which interprets every work item: each kernel once, both strategies where it has two.
 OCLGRIND_LABELS = ('envmap{mis="brdf"}', "balanced_mis{shared_sequence=false}", "fis")
