@@ -31,10 +31,14 @@
 #endif
 
 /* The pixel's product choices in descent.cl's record layout: records 0 and 1 the faces', record
- * 2·4^k + Q the choice among the children of node Q of depth k (k = 0 … T − 2): 2·4^{T−1}
- * records of four words (32 bytes at the default T = 1, 512 at T = 3). */
+ * 2·4^k + Q the choice among the children of node Q of depth k (k = 0 … T − 2), 2·4^{T−1}
+ * records of four words; and each node's probability under them, in heap order (depth k's
+ * 6·4^k from 2·(4^k − 1), so node Q of depth k, record r = 2·4^k + Q, at r − 2), those of the
+ * last depth (T − 1) divided by the frame's own (light_state_of): 56 bytes at the default
+ * T = 1, 1 KiB at T = 3. */
 typedef struct {
     uint bounds[4 * (2 << (2 * (PRODUCT_LEVELS - 1)))];
+    float probability[2 * ((1 << (2 * PRODUCT_LEVELS)) - 1)];
 } light_state_t;
 
 #define CENTRE_FLOOR (1.0f / 16.0f)   /* measured: 1/64 and 1/4 gave more error (the estimator's docstring) */
@@ -188,11 +192,15 @@ ALWAYS_INLINE int cone_plane(int parents) { return (parents + 15) & ~15; }
 
 /* The pixel of shading s's product choices (light_state_t, into *t): each choice's widths are
  * descent_choice.cl's of the pyramid's sums times the pixel's factors, the faces' in one vector,
- * then depth by depth the children of POOL_LANES parents at a time. */
+ * then depth by depth the children of POOL_LANES parents at a time, each child's probability its
+ * parent's times q/2^31; then the last depth's probabilities over the frame's (node_probability,
+ * in the same heap order; the texels' P where the choices reach them, `below` 0), so that a
+ * texel's P is that ratio times the frame's P(texel) (0 where the frame's node probability
+ * underflowed). */
 ALWAYS_INLINE void light_state_of(LIGHT_PARAMS, const shading_t *s, int res, light_state_t *t)
 {
     descent_weigher_t g = product_weigher(s);
-    int level, levels = descent_levels(res, &level);
+    int level, levels = descent_levels(res, &level), choices = min(PRODUCT_LEVELS, levels);
     lanes_t factors = face_factors(&g);
     const float *factor = (const float *)&factors;   /* lane i of a vector v at ((T *)&v)[i] */
     lanes_t w[6];
@@ -205,9 +213,12 @@ ALWAYS_INLINE void light_state_of(LIGHT_PARAMS, const shading_t *s, int res, lig
     }
     descent_widths6(w, exists, q);
     face_record_words(q, t->bounds);
+    UNROLL
+    for (int f = 0; f < 6; ++f) t->probability[f] = (float)q[f].s0 * (1.0f / DESCENT_ONE);
     __global const float *block = cones;
-    for (int k = 0; k + 1 < min(PRODUCT_LEVELS, levels); ++k) {
+    for (int k = 0; k + 1 < choices; ++k) {
         int n = level_size(res, levels - 2 - k), parents = 6 << (2 * k), stride = cone_plane(parents);
+        int here = 2 * ((1 << (2 * k)) - 1), next = 2 * ((1 << (2 * k + 2)) - 1);
         level -= 6 * n * n;
         for (int first = 0; first < parents; first += POOL_LANES) {
             lane_ints_t node = min(first + LANE_NUMBERS, (lane_ints_t)(parents - 1)), morton = node & ((1 << (2 * k)) - 1);
@@ -218,51 +229,43 @@ ALWAYS_INLINE void light_state_of(LIGHT_PARAMS, const shading_t *s, int res, lig
             child_sums(pyramid, level, n, face, row, col, sums, present);
             weigh_children(&g, block + first, stride, sums);
             descent_widths4(sums, present, widths);
+            lanes_t parent = GATHER(lanes_t, t->probability, here + node), p[4];
+            UNROLL
+            for (int c = 0; c < 4; ++c) p[c] = parent * (convert_lanes(widths[c]) * (1.0f / DESCENT_ONE));
             lane_uints_t words[3] = {widths[0], widths[0] + widths[1], widths[0] + widths[1] + widths[2]};
             const uint *word = (const uint *)words;
+            const float *child = (const float *)p;
             for (int i = 0; i < POOL_LANES && first + i < parents; ++i) {
                 uint *record = t->bounds + 4 * ((2 << (2 * k)) + first + i);
                 for (int c = 0; c < 3; ++c) record[c] = word[c * POOL_LANES + i];
                 record[3] = 1u << DESCENT_BITS;
+                for (int c = 0; c < 4; ++c) t->probability[next + 4 * (first + i) + c] = child[c * POOL_LANES + i];
             }
         }
         block += 28 * stride;
     }
+    if (choices < levels) {
+        int last = 2 * ((1 << (2 * (choices - 1))) - 1);
+        for (int node = last; node < last + (6 << (2 * (choices - 1))); ++node) {
+            float frame = node_probability[node];
+            t->probability[node] = frame > 0.0f ? t->probability[node] / frame : 0.0f;
+        }
+    }
 }
 
-/* The probability q_face/2^31 of the lanes' faces from the table's face records. */
-ALWAYS_INLINE lanes_t face_probability(const light_state_t *t, lane_ints_t face)
+/* The probability P of the lanes' texels `texel`, reached through the table's nodes of record
+ * `node` (depth T − 1): the table's ratio there (light_state_of) times the frame's P(texel), or
+ * the table's probability where its choices reach the texels (`below` 0). */
+ALWAYS_INLINE lanes_t texel_chance(const light_state_t *t, __global const float *texel_probability, int below,
+                                   lane_ints_t node, lane_ints_t texel)
 {
-    lane_uints_t high = GATHER(lane_uints_t, t->bounds, face);
-    lane_uints_t low = select(GATHER(lane_uints_t, t->bounds, max(face - 1, (lane_ints_t)0)), (lane_uints_t)0, face == 0);
-    return convert_lanes(high - low) * (1.0f / DESCENT_ONE);
-}
-
-/* The prefix widths of the lanes' records of the table. */
-ALWAYS_INLINE void table_record(const light_state_t *t, lane_ints_t record, lane_uints_t b[3])
-{
-    lane_ints_t at = 4 * record;
-    UNROLL
-    for (int c = 0; c < 3; ++c) b[c] = GATHER(lane_uints_t, t->bounds, at + c);
-}
-
-/* The frame's probability of the lanes' texels given their nodes of record `node` (depth T − 1):
- * the tables' P(texel)/P(node), node_probability in heap order from 2·(4^k − 1), so at record
- * − 2; 1 where the product's choices reach the texels (`below` 0), and 0 where P(node)
- * underflowed (a probability below float's least). */
-ALWAYS_INLINE lanes_t below_node(__global const float *node_probability, __global const float *texel_probability,
-                                 int below, lane_ints_t node, lane_ints_t texel)
-{
-    if (!below)
-        return 1.0f;
-    lanes_t p_node = GATHER(lanes_t, node_probability, node - 2);
-    return select((lanes_t)0.0f, GATHER(lanes_t, texel_probability, texel) / p_node, p_node > 0.0f);
+    lanes_t p = GATHER(lanes_t, t->probability, node - 2);
+    return below ? p * GATHER(lanes_t, texel_probability, texel) : p;
 }
 
 /* envmap.cl's light sampler: the faces' and T − 1 levels' choices from the pixel's table t
  * (words 0 … T − 1 of the draw's stream), the finer ones from the frame's tables
- * (descend_by_tables), the point from the next word; P = the table's choices' q/2^31 times
- * below_node's. */
+ * (descend_by_tables), the point from the next word; P texel_chance's. */
 ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const light_state_t *t, int res, uint seed, uint frame,
                                           uint pixel, lane_ints_t draw, lane_ints_t *texel, lanes_t *pdf)
 {
@@ -273,43 +276,36 @@ ALWAYS_INLINE lanes3_t lanes_sample_light(LIGHT_PARAMS, const light_state_t *t, 
     lane_ints_t face = 0;
     UNROLL
     for (int f = 0; f < 5; ++f) face -= convert_lane_ints((lane_uints_t)t->bounds[f] <= u);
-    lanes_t probability = face_probability(t, face);
     lane_ints_t record = 2 + face, row = 0, col = 0;
     for (int k = 1; k < choices; ++k) {
-        lane_uints_t b[3];
-        table_record(t, record, b);
-        lane_ints_t child = record_pick(b, descent_word(seed, frame, pixel, draw, word++, &block) >> (32 - DESCENT_BITS));
-        probability *= record_width(b, child);
-        descend_to(child, &record, &row, &col);
+        lane_ints_t at = 4 * record;
+        lane_uints_t b[3] = {GATHER(lane_uints_t, t->bounds, at), GATHER(lane_uints_t, t->bounds, at + 1),
+                             GATHER(lane_uints_t, t->bounds, at + 2)};
+        u = descent_word(seed, frame, pixel, draw, word++, &block) >> (32 - DESCENT_BITS);
+        descend_to(record_pick(b, u), &record, &row, &col);
     }
     lane_ints_t node = record;
     descend_by_tables(descent_bounds, levels - 1 - choices, seed, frame, pixel, draw, &word, &block, &record, &row, &col);
     *texel = (face * res + row) * res + col;
-    probability *= below_node(node_probability, texel_probability, choices < levels, node, *texel);
-    return descent_point(res, face, row, col, descent_word(seed, frame, pixel, draw, word, &block), probability, pdf);
+    return descent_point(res, face, row, col, descent_word(seed, frame, pixel, draw, word, &block),
+                         texel_chance(t, texel_probability, choices < levels, node, *texel), pdf);
 }
 
-/* envmap.cl's light density: lanes_sample_light's P of the texels of the lanes' directions w,
- * its choices' widths read from the same tables in the same order, with descent_point's
- * Jacobian; *texel gets the texel. */
+/* envmap.cl's light density: texel_chance's P of the texels of the lanes' directions w, their
+ * nodes of depth T − 1 found from the texels' rows and columns, with descent_point's Jacobian;
+ * *texel gets the texel. */
 ALWAYS_INLINE lanes_t lanes_light_density(LIGHT_PARAMS, const light_state_t *t, int res, lanes3_t w, lane_ints_t *texel)
 {
     lane_ints_t face, row, col;
     lanes_t area = lanes_texel_of(res, w, &face, &row, &col);
     int top, levels = descent_levels(res, &top), choices = min(PRODUCT_LEVELS, levels);
-    lanes_t probability = face_probability(t, face);
     lane_ints_t record = 2 + face;
     for (int k = 1; k < choices; ++k) {
         int l = levels - 1 - k;
-        lane_uints_t b[3];
-        table_record(t, record, b);
-        lane_ints_t child = 2 * ((row >> l) & 1) + ((col >> l) & 1);
-        probability *= record_width(b, child);
-        record = 4 * record + child;
+        record = 4 * record + 2 * ((row >> l) & 1) + ((col >> l) & 1);
     }
     *texel = (face * res + row) * res + col;
-    probability *= below_node(node_probability, texel_probability, choices < levels, record, *texel);
-    return probability * area * (float)(res * res) / 4.0f;
+    return texel_chance(t, texel_probability, choices < levels, record, *texel) * area * (float)(res * res) / 4.0f;
 }
 
 #include "envmap.cl"

@@ -167,6 +167,26 @@ def host_threads_capped():
     return threadpoolctl.threadpool_limits(limits=1)
 
 
+QUIET_WINDOW_S = 0.02   # wait_for_quiet_threads' window
+QUIET_SHARE = 0.1       # of one core: below it over a window, the process's threads are quiet
+QUIET_LONGEST_S = 1.0   # it waits no longer
+
+
+def wait_for_quiet_threads() -> float:
+    """Waits until this process's threads use under QUIET_SHARE of a core over a QUIET_WINDOW_S
+    window, at most QUIET_LONGEST_S; returns the seconds waited.  A host library's worker pool
+    spins on after its work: OpenBLAS's about 0.1 s after a matrix product, Dr.Jit's after the
+    Mitsuba peer's render (``iblbench perf``), where the next render, on the same cores, ran
+    1.2-1.3× slower (sphere-sun, 256², issue 37)."""
+    start = time.perf_counter()
+    while time.perf_counter() - start < QUIET_LONGEST_S:
+        cpu, wall = time.process_time(), time.perf_counter()
+        time.sleep(QUIET_WINDOW_S)
+        if time.process_time() - cpu < QUIET_SHARE * (time.perf_counter() - wall):
+            break
+    return time.perf_counter() - start
+
+
 def timed_renders(renderers, gbuffer, cache, spp: int, seeds, build_ms: float) -> list[tuple]:
     """(estimate, TimedRender) of one render per (renderer, seed), back to back (module
     docstring, "Context"; callers hold :func:`host_threads_capped`)."""

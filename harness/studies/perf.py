@@ -2,9 +2,13 @@
 NumPy floor, measured side by side in one run.
 
 Per (scene, estimator) it renders one frame ``repeats`` times after one untimed warm-up render,
-interleaved in rounds (round r renders every estimator once, then the NumPy floor, so slow
-drifts of a shared machine hit them all alike), and reports the median, min and IQR of each
-device stage (OpenCL profiling events, ARCHITECTURE.md §Timing convention):
+interleaved in rounds (round r renders every estimator once, in an order of its own, seeded,
+then the NumPy floor and the peer, so slow drifts of a shared machine hit them all alike), and
+reports the median, min and IQR of each device stage (OpenCL profiling events, ARCHITECTURE.md
+§Timing convention).  Each round starts once the host's threads are quiet
+(``timing.wait_for_quiet_threads``): Dr.Jit's pool spins on after the peer's render, and with
+one fixed order the round's first estimator ran 1.2-1.3× slower than when placed later
+(hierarchical{mis="brdf"} 20.6 against 16.3 ms at sphere-sun, 256², issue 37):
 
 - ``build``: the per-frame FrameCache products the estimator requires (the map's upload and,
   where required, the CDFs), from ``FrameCache.timings_ms``; every repeat builds a fresh cache,
@@ -149,7 +153,7 @@ from iblbench.estimators.runtime.probes import (FMA_ITEMS, LIMIT_ITEMS, LIMIT_MI
                                                 run_phong_power, run_serial_adds, sized)
 from iblbench.harness.studies import mitsuba_peer
 from iblbench.harness.protocol.timing import (measure_timing_floor, required_build_ms, spread,
-                                              timing_floor_text)
+                                              timing_floor_text, wait_for_quiet_threads)
 from iblbench.foundation.errors import InputError
 
 DEFAULT_SCENES = ("sphere-sun", "blob-sun")
@@ -160,6 +164,7 @@ DEFAULT_REPEATS = 5
 FLOOR = "numpy-floor"
 FLOOR_SEED = 0xFFFFFF80        # a seed no benchmark cell uses
 WARMUP_SEED = 0xFFFFFFFF
+ROUND_ORDER_SEED = 0x5EED      # the rounds' orders (run_perf), as the runner's
 FLOOR_RTOL = 1e-4              # |floor − uniform| ≤ RTOL·|uniform| + ATOL·max|uniform| per channel
 FLOOR_ATOL = 1e-6
 FLOOR_BLOCK = 1 << 15          # pixels × pool entries per block of the floor (fits in L2)
@@ -651,8 +656,10 @@ def run_perf(config: PerfConfig, log=print):
         if peer:
             peer.render(floor_spp, WARMUP_SEED)   # Dr.Jit traces and compiles its kernel
         floor_times, peer_times, floor_repeats = [], [], config.repeats or DEFAULT_REPEATS
+        shuffle = np.random.default_rng(ROUND_ORDER_SEED).permutation
         for round_ in range(max([floor_repeats] + [repeats for _, repeats in cells])):
-            for cell, repeats in cells:
+            wait_for_quiet_threads()   # the peer's and the warm-ups' host threads
+            for cell, repeats in (cells[i] for i in shuffle(len(cells))):
                 if round_ < repeats:
                     if {"cdf", "pool"} & set(type(cell.estimator).requires):   # builds CDFs
                         cell.copy_gbps.append(probe.gbps())

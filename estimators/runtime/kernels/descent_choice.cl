@@ -90,15 +90,6 @@ ALWAYS_INLINE lane_ints_t record_pick(const lane_uints_t b[3], lane_uints_t u)
     return -(convert_lane_ints(b[0] <= u) + convert_lane_ints(b[1] <= u) + convert_lane_ints(b[2] <= u));
 }
 
-/* The probability q_child/2^31 of a record's child, from its prefix widths b (record_pick's). */
-ALWAYS_INLINE lanes_t record_width(const lane_uints_t b[3], lane_ints_t child)
-{
-    lane_uints_t high = select(select(select((lane_uints_t)(1u << DESCENT_BITS), b[2], child == 2), b[1], child == 1),
-                               b[0], child == 0);
-    lane_uints_t low = select(select(select(b[2], b[1], child == 2), b[0], child == 1), (lane_uints_t)0, child == 0);
-    return convert_lanes(high - low) * (1.0f / DESCENT_ONE);
-}
-
 /* The bits of m at even positions, packed: a Morton index's column (m) or row (m >> 1). */
 ALWAYS_INLINE lane_ints_t morton_half(lane_ints_t m)
 {
