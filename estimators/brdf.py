@@ -34,11 +34,12 @@ class Brdf(MapSampler):
         factors 6, the 16-lane sums out 47; bytes as uniform's""",
         lane_loops=((1, 1.0),), limits=(   # envmap.cl's BRDF loop, LIGHT_SAMPLES = 0
             Limit("philox", per_eval=1, why="draw_numbers' block"),
-            Limit("phong_power", per_eval=1, why="the lobe power"),
-            Limit("divide", per_eval=9,
-                  why="√ξ, log2 ξ's (f − 1)/(f + 1), the direction's sin θ and 1/|ω| 3, the "
-                      "mixture pdf's /π, lanes_texel_of's s/ma and t/ma (its √q is dead), "
-                      "add_samples' β / D"),
+            Limit("phong_power", per_eval=2,
+                  why="the draw's ξ^{1/(m+1)} (log2 ξ and the exp2 half: one power, its log2's "
+                      "quotient included) and the lobe power"),
+            Limit("divide", per_eval=8,
+                  why="√ξ, the direction's sin θ and 1/|ω| 3, the mixture pdf's /π, "
+                      "lanes_texel_of's s/ma and t/ma (its √q is dead), add_samples' β / D"),
             Limit("gather", per_eval=3, why="the texel's R, G, B"),
             Limit("divide", per_pixel=2, why="the bases about n and r")))
     kernel_files = ("brdf.cl", "envmap.cl", "lanes.cl")

@@ -108,11 +108,13 @@ class Fis(Brdf):
         log2 counted as the polynomial's 16); bytes as brdf's (the mip chain, 4/3 of the map,
         taken as cache-resident like the map)""",
         lane_loops=((1, 1.0),), limits=(   # render_fis's loop
-            Limit("phong_power", per_eval=1, why="the lobe power"),
-            Limit("divide", per_eval=14,
-                  why="ξ_cos's two quotients 2, √ξ 1, log2 ξ 1, the direction 3, the mixture "
-                      "pdf 1, lanes_texel_of 3, Jacobian / pdf 1, the lod's log2 1, add_samples "
-                      "1"),
+            Limit("phong_power", per_eval=2.5,
+                  why="the draw's ξ^{1/(m+1)} (log2 ξ and the exp2 half: one power, its log2's "
+                      "quotient included) 1, the lobe power 1, the lod's log2 (the power's first "
+                      "half) 0.5"),
+            Limit("divide", per_eval=12,
+                  why="ξ_cos's two quotients 2, √ξ 1, the direction 3, the mixture pdf 1, "
+                      "lanes_texel_of 3, Jacobian / pdf 1, add_samples 1"),
             Limit("gather", per_eval=6, why="R, G, B at the two mip levels")))
     Params = FisParams
     settings = (Setting("lod_bias", 0.0),)   # tests/test_fis.py: the filtered integral at 0-2.25

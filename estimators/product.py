@@ -137,15 +137,16 @@ class Product(Hierarchical):
     0.288 | 0.215, centre 0.200 | 0.218 | 0.197; ``mis = "none"`` raised it 3-4×,
     ``heuristic = "balance"`` lowered it 6-10%.
 
-    Cost (issue 37; sphere-sun, 256², env 64, 64 spp, ``iblbench perf``).  The full-depth
-    descent made 24 child factors a sample (about 100 vector operations each) and took 5.9×
-    ``hierarchical{mis="brdf"}``'s time a sample (4.02× before hierarchical read the frame's
-    tables).  A pixel's factors are now made once, in vectors of the nodes (the faces in one,
-    the children of POOL_LANES parents four at a time), from the tabled cones (two dot products,
-    two cone bounds and the lobe's bound a child, no geometry), and the choices below them
-    are the frame's: one run read 0.91× (T = 1), 1.09× (2), 1.38× (3) and 2.05× (4) of
-    ``hierarchical{mis="brdf"}``'s time a sample (docs/measurements.md has the alternated
-    rounds).
+    Cost (issue 37; sphere-sun, 256², env 64, 64 spp, ``iblbench perf`` on an idle 2-core
+    AVX-512 Xeon, 6 rounds alternated with the code before).  The full-depth descent made 24
+    child factors a sample (about 100 vector operations each) and took 5.91× [5.70–6.00]
+    ``hierarchical{mis="brdf"}``'s time a sample.  A pixel's factors are now made once, in
+    vectors of the nodes (the faces in one, the children of POOL_LANES parents four at a
+    time), from the tabled cones (two dot products, two cone bounds and the lobe's bound a
+    child, no geometry); a node of the last depth keeps P_pixel/P_frame, so a sample's and a
+    density's P is one table read times the frame's P(texel), and the choices below it are
+    the frame's: 1.08× [0.87–1.29] ``hierarchical{mis="brdf"}``'s time a sample at the default
+    T = 1 (22.7 → 123 Msamples/s), 1.62× [1.27–1.82] at T = 3 (docs/measurements.md).
 
     Deviations.  Clarberg et al. multiply wavelet (Haar) representations of the map and the
     BRDF and sample the product's quadtree; Clarberg & Akenine-Möller 2008 evaluate the BRDF on
@@ -167,31 +168,30 @@ class Product(Hierarchical):
                             'product{mis="none",child_weight="bound"}')
     cost = KernelCost(130, 0, 0, 190, 88, derivation="""\
         at the default product_levels = 1: a light sample is hierarchical's descent by the
-        frame's tables (97) after a face picked from the pixel's table, its width 3 and
-        below_node's quotient 2: about 102; a BRDF sample under MIS (mis="brdf") its draw 66
-        more and its density by the same lookups 10: about 180; half of each, about 130 an
-        evaluation; per pixel the faces' factors in one vector (the axes' cosines 10, two
-        cone_cos_bound 20, lobe_bound 8, the cap 3, the factor 4), the faces' widths 34, the
-        weigher 15 and envmap's 76: about 190 (each further level adds about 210 a POOL_LANES
-        parents: four children's factors 45 each from the tabled cones, their widths 30);
-        bytes as envmap's""",
+        frame's tables (97) after a face picked from the pixel's table, times its node's ratio
+        1: about 100; a BRDF sample under MIS (mis="brdf") its draw 66 more and its density by
+        the same lookups 5: about 170; half of each, about 130 an evaluation; per pixel the
+        faces' factors in one vector (the axes' cosines 10, two cone_cos_bound 20, lobe_bound 8,
+        the cap 3, the factor 4), the faces' widths 34, their probabilities and ratios 12, the
+        weigher 15 and envmap's 76: about 190 (each further level adds about 220 a POOL_LANES
+        parents: four children's factors 45 each from the tabled cones, their widths 30, their
+        probabilities 8); bytes as envmap's""",
         lane_loops=((1, 0.5), (1, 0.5)), limits=(   # render_map: light, then BRDF samples (mis="brdf")
             Limit("philox", per_eval=2, group=0, why="descent_word's two blocks"),
             Limit("philox", per_eval=1, group=1, why="draw_numbers' block"),
-            *(Limit("phong_power", per_eval=1, group=group, why="the sample's lobe power")
-              for group in (0, 1)),
-            Limit("divide", per_eval=7, group=0, why="hierarchical's 6, below_node's quotient 1"),
-            Limit("divide", per_eval=10, group=1, why="the BRDF draw and its pdf about 9 (brdf's), "
-                                                      "below_node's quotient 1"),
-            Limit("divide", per_pixel=7, why="the faces' two cone bounds' √ and lobe_bound's "
-                                             "reciprocal 3, their widths' 1, the weigher's 3"),
+            Limit("phong_power", per_eval=1, group=0, why="the lobe power"),
+            Limit("phong_power", per_eval=2, group=1, why="the draw's ξ^{1/(m+1)} and the lobe power"),
+            Limit("divide", per_eval=6, group=0, why="hierarchical's six"),
+            Limit("divide", per_eval=8, group=1, why="the BRDF draw and its pdf (brdf's)"),
+            Limit("divide", per_pixel=13,
+                  why="the faces' two cone bounds' √ and lobe_bound's reciprocal 3, their widths' "
+                      "1, the weigher's 3, the last depth's ratios 6"),
             Limit("dependent_load", per_eval=7, group=0, why="hierarchical's chain"),
-            Limit("gather", per_eval=18, group=0,
-                  why="hierarchical's other loads 15, the face's width 2 (the pixel's table), "
-                      "the node's probability 1"),
-            Limit("gather", per_eval=7, group=1,
-                  why="the density: the face's width 2, the node's and the texel's "
-                      "probabilities 2 (known from ω: independent), the texel's R, G, B 3")))
+            Limit("gather", per_eval=16, group=0,
+                  why="hierarchical's other loads 15, the node's ratio 1 (the pixel's table)"),
+            Limit("gather", per_eval=5, group=1,
+                  why="the density: the node's ratio and the texel's probability 2 (known from "
+                      "ω: independent), the texel's R, G, B 3")))
     Params = ProductParams
     settings = (Setting("mis", "none"), Setting("heuristic", "balance"),
                 Setting("child_weight", "centre"), Setting("child_weight", "bound"), Setting("product_levels", 2))
