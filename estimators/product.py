@@ -14,7 +14,7 @@ from iblbench.estimators.hierarchical import Hierarchical
 from iblbench.scenes import cubemap
 
 CHILD_WEIGHTS = ("bound", "centre", "capped")
-MAX_PRODUCT_LEVELS = 4   # the pixel's table: 2·4^(T−1) records of 16 bytes, 2 KiB at 4
+MAX_PRODUCT_LEVELS = 4   # the pixel's table (product.cl's light_state_t): about 4 KiB at 4, private
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +37,8 @@ class ProductParams:
     ones are ``hierarchical``'s, by the light weights alone (1 measured least error and time:
     the class docstring's table).  Where the pyramid has fewer levels
     (⌈log2 R⌉ + 1), every choice is the product's.  At most 4: the pixel's table of choices
-    holds 2·4^(T−1) records of 16 bytes.
+    holds 2·4^(T−1) records of 16 bytes and 2·(4^T − 1) probabilities (56 bytes at 1, 1 KiB at 3,
+    4 KiB at 4, in each work item's private memory).
     """
 
     mis: str = "brdf"
@@ -77,15 +78,16 @@ class Product(Hierarchical):
     then, for T ≥ 2, at each of the T − 1 coarsest levels one of the four children of the node
     picked so far ∝ W_k·F_k (W_k the child's pyramid sum, F_k the child-weight rule's factor for
     this pixel).  They depend on the pixel alone, so each work item makes their widths once, in
-    a table of 2·4^(T−1) records in the frame tables' layout (``light_state_of``: 32 bytes at
-    T = 1, 512 at 3), and a sample reads them as ``hierarchical`` reads the frame's.  Below the
+    a table of 2·4^(T−1) records in the frame tables' layout (``light_state_of``), and a sample
+    reads them as ``hierarchical`` reads the frame's.  Below the
     node so picked (depth T − 1) the choices are ``hierarchical``'s, from the frame's tables,
     down to a texel, and a point uniform in the texel's face square.  Each choice is
     ``hierarchical``'s exact 31-bit fixed-point choice (probability exactly q_k/2^31, every child
     of positive weight ≥ 2^-31).  The texel's probability P = (the table's choices' q/2^31) ×
     P_frame(texel)/P_frame(node), the frame's texel and node probabilities (the product of the
-    frame's choices down to them, in float), read for any direction by the same lookups
-    (``pdf``, MIS weights): the density sampled, to float rounding, so the estimator is
+    frame's choices down to them, in float); the table keeps each last-depth node's
+    P_table/P_frame, so a sample's P and a direction's (``pdf``, MIS weights) are one read of
+    it times the frame's P(texel): the density sampled, to float rounding, so the estimator is
     unbiased (a node whose frame probability underflows gets density 0).  The density is
     P·(1+x²+y²)^{3/2}/a_texel.  Where the pyramid has at most T levels every choice is the
     product's.
