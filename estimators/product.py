@@ -165,7 +165,7 @@ class Product(Hierarchical):
     """
 
     name = "product"
-    sweep = SweepPart(("product",), spp=(4, 16, 64, 256), order=12)
+    sweep = SweepPart(("product",), order=12)   # the default levels: about hierarchical's time a sample
     portability_variants = ('product{child_weight="centre",product_levels=4}',
                             'product{mis="none",child_weight="bound"}')
     cost = KernelCost(130, 0, 0, 190, 88, derivation="""\
@@ -183,11 +183,14 @@ class Product(Hierarchical):
             Limit("philox", per_eval=1, group=1, why="draw_numbers' block"),
             Limit("phong_power", per_eval=1, group=0, why="the lobe power"),
             Limit("phong_power", per_eval=2, group=1, why="the draw's ξ^{1/(m+1)} and the lobe power"),
-            Limit("divide", per_eval=6, group=0, why="hierarchical's six"),
-            Limit("divide", per_eval=8, group=1, why="the BRDF draw and its pdf (brdf's)"),
-            Limit("divide", per_pixel=13,
+            Limit("divide", per_eval=8, group=0,
+                  why="hierarchical's six, the mixture pdf's /π and the power heuristic's "
+                      "other/own (mis=\"brdf\")"),
+            Limit("divide", per_eval=9, group=1,
+                  why="the BRDF draw and its pdf (brdf's 8), the power heuristic's other/own"),
+            Limit("divide", per_pixel=15,
                   why="the faces' two cone bounds' √ and lobe_bound's reciprocal 3, their widths' "
-                      "1, the weigher's 3, the last depth's ratios 6"),
+                      "1, the weigher's 3, the last depth's ratios 6, the bases about n and r 2"),
             Limit("dependent_load", per_eval=7, group=0, why="hierarchical's chain"),
             Limit("gather", per_eval=16, group=0,
                   why="hierarchical's other loads 15, the node's ratio 1 (the pixel's table)"),

@@ -77,13 +77,14 @@ def test_quick_is_the_documented_sweep():
 
 # The default sweep's estimators and their spp levels, as harness/configs/default.toml listed them
 # before each estimator declared its own part (Estimator.sweep): the declarations must give the
-# very same cells, in the same order (the table's rows, the report's colours).
+# very same cells, in the same order (the table's rows, the report's colours); product at the
+# default levels since its sample cost about hierarchical's (issue 37), 4-256 before.
 DEFAULT_ESTIMATORS = ["uniform", "balanced", "balanced_mis", "havran", "bis", "smc", "brdf", "envmap",
                       'envmap{mis="brdf"}', 'envmap{mis="brdf",mis_compensation=true}',
                       "hierarchical", "fis", "restir", "product"]
 DEFAULT_SPP = {"uniform": (64, 256, 1024, 4096), "balanced": (64, 256, 1024, 4096),
                "balanced_mis": (16, 64, 256, 1024), "bis": (1, 4, 16), "smc": (1, 4, 16),
-               "restir": (1, 4, 16, 64), "product": (4, 16, 64, 256)}
+               "restir": (1, 4, 16, 64)}
 
 
 def test_default_and_full_parse():

@@ -1,7 +1,8 @@
 /* The choices of a descent through each face's pyramid of sampling-weight sums (estimators/descent.cl
- * has the method, estimators/runtime/mips.py the pyramid's layout), shared by the descents of the
- * estimators and by the frame cache's descent tables (framecache.cl's descent_bounds), so that a
- * choice made from a table is the one a descent makes from the sums, bit for bit.
+ * has the method, estimators/runtime/mips.py the pyramid's layout), shared by the tables that
+ * descents read: the frame cache's (framecache.cl's descent_bounds) and `product`'s per pixel
+ * (product.cl's light_state_of), so that a choice read from a table is the one a descent would
+ * make from the same weights, bit for bit.
  *
  * A choice among N children (N = 6 faces or 4 children: one copy per N, so that the loops over
  * the children unroll and their arrays stay in registers):
@@ -9,10 +10,7 @@
  *     q_k = max(1, ⌊2^31 · w_k / Σ w⌋) for w_k > 0, q_k = 0 for w_k = 0, the remainder
  *     2^31 − Σ q to the largest child (the first of equal ones); `exists` marks the children that
  *     exist (the fallback's support when Σ w is 0 or its inverse overflows: 2^31/N each, the
- *     remainder to the first); the widths' prefix sums never pass 2^31;
- *   descent_probability##N: q_child/2^31 of the lanes' children `child`;
- *   descent_pick##N: the child whose bin of widths q holds the top 31 bits of the words u, and
- *     its probability. */
+ *     remainder to the first); the widths' prefix sums never pass 2^31. */
 #ifndef IBLBENCH_DESCENT_CHOICE_CL
 #define IBLBENCH_DESCENT_CHOICE_CL
 #include "light_pool.cl"
@@ -45,27 +43,6 @@ ALWAYS_INLINE void descent_widths##N(const lanes_t w[N], const lane_ints_t exist
     for (int k = 0; k < N; ++k) others += select(q[k], (lane_uints_t)0, largest == k);                          \
     UNROLL                                                                                                      \
     for (int k = 0; k < N; ++k) q[k] = select(q[k], (lane_uints_t)(1u << DESCENT_BITS) - others, largest == k); \
-}                                                                                                               \
-                                                                                                                \
-ALWAYS_INLINE lanes_t descent_probability##N(const lane_uints_t q[N], lane_ints_t child)                        \
-{                                                                                                               \
-    lane_uints_t width = 0;                                                                                     \
-    UNROLL                                                                                                      \
-    for (int k = 0; k < N; ++k) width = select(width, q[k], child == k);                                        \
-    return convert_lanes(width) * (1.0f / DESCENT_ONE);                                                         \
-}                                                                                                               \
-                                                                                                                \
-ALWAYS_INLINE lane_ints_t descent_pick##N(const lane_uints_t q[N], lane_uints_t u, lanes_t *probability)        \
-{                                                                                                               \
-    lane_uints_t bound = 0, word = u >> (32 - DESCENT_BITS);                                                    \
-    lane_ints_t child = 0;                                                                                      \
-    UNROLL                                                                                                      \
-    for (int k = 0; k < N - 1; ++k) {                                                                           \
-        bound += q[k];                                                                                          \
-        child += convert_lane_ints(bound <= word) & 1;                                                          \
-    }                                                                                                           \
-    *probability = descent_probability##N(q, child);                                                            \
-    return child;                                                                                               \
 }
 
 DEFINE_DESCENT_CHOICE(4)
