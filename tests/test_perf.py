@@ -244,8 +244,10 @@ def test_perf_csv_has_the_documented_columns_and_positive_rates(tiny_perf):
     assert (table.lanes == get_compute().pool_lanes).all()
     for probe in [*probes.PROBE_FLOPS, "fma"]:
         assert np.all(table[f"{probe}_ns"] > 0), probe
-    # the FMA rate of the estimators' lanes is at most the roofline's peak (its widest vectors)
-    assert np.all(table.fma_ns * table.peak_gflops > 0.8)
+    # the FMA rate of the estimators' lanes is at most the roofline's peak (its widest vectors),
+    # within the noise of two launches timed apart: beside make test's other worker the peak read
+    # 185-257 GFLOP/s against 394 idle, a product of 0.60 (issue 37); a count off by 4× fails
+    assert np.all(table.fma_ns * table.peak_gflops > 0.4)
     with_cdf = kernels.estimator.map(lambda name: "cdf" in get_estimator_class(name).requires)
     assert with_cdf.any() and not with_cdf.all()
     cdf = kernels[with_cdf]
