@@ -300,10 +300,17 @@ class EqualAreaMap:
         i0 = np.floor(centre).astype(np.int64)
         t = centre - i0
         r0, r1 = np.clip(i0, 0, self.nz - 1), np.clip(i0 + 1, 0, self.nz - 1)
-        blend = (1.0 - t)[:, None] * self.col_cdf[r0] + t[:, None] * self.col_cdf[r1]
-        j = np.minimum((blend <= u2[:, None]).sum(axis=1), self.nphi - 1)
-        rows = np.arange(len(u))
-        lo = np.where(j > 0, blend[rows, np.maximum(j - 1, 0)], 0.0)
+        # The blend of rows r0 and r1's CDFs is non-decreasing (and stays so in rounding), so the
+        # count of its entries ≤ u2 is a binary search over columns, O(log nphi) a point.
+        blend = lambda col: (1.0 - t) * self.col_cdf[r0, col] + t * self.col_cdf[r1, col]
+        below, above = np.zeros(len(u), np.int64), np.full(len(u), self.nphi)
+        while np.any(below < above):
+            active = below < above
+            mid = np.minimum((below + above) // 2, self.nphi - 1)    # clamped for finished points
+            left = active & (blend(mid) <= u2)
+            below, above = np.where(left, mid + 1, below), np.where(active & ~left, mid, above)
+        j = np.minimum(below, self.nphi - 1)
+        lo = np.where(j > 0, blend(np.maximum(j - 1, 0)), 0.0)
         width = (1.0 - t) * self.col_prob[r0, j] + t * self.col_prob[r1, j]
         x = (j + np.clip((u2 - lo) / width, 0.0, 1.0)) / self.nphi
         pdf = self.row_prob[i] * self.nz * width * self.nphi / (4.0 * np.pi)
