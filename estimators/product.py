@@ -11,6 +11,7 @@ import numpy as np
 from iblbench.estimators.base import KernelCost, Limit, Mutant, Setting, SweepPart
 from iblbench.estimators.envmap import HEURISTICS, MIS_MODES
 from iblbench.estimators.hierarchical import Hierarchical
+from iblbench.estimators.runtime import mips
 from iblbench.scenes import cubemap
 
 CHILD_WEIGHTS = ("bound", "centre", "capped")
@@ -267,12 +268,10 @@ def node_cone_table(res: int, product_levels: int) -> np.ndarray:
     (|y| + hy)²)^{-3/2}, the Jacobian at its farthest corner.  A child past an odd size's edge
     (weight 0) gets its parent's last texels' cone and 1/Ω_least = 0.  Geometry of the face
     size alone, computed in float64."""
-    sizes = [res]
-    while sizes[-1] > 1:
-        sizes.append((sizes[-1] + 1) // 2)
+    levels = len(mips.level_sizes(res))
     blocks = []
-    for k in range(min(product_levels, len(sizes)) - 1):
-        span = 2 ** (len(sizes) - 2 - k)   # the children's texels a side
+    for k in range(min(product_levels, levels) - 1):
+        span = 2 ** (levels - 2 - k)   # the children's texels a side
         parents = 6 << (2 * k)
         node = np.arange(parents)
         morton = node & ((1 << (2 * k)) - 1)

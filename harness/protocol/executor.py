@@ -56,7 +56,7 @@ from iblbench.harness.protocol.run_plan import (TIMING_SEED, RunConfig, RunPlan,
                                                 cell_order, sequence_key)
 from iblbench.harness.protocol.shadows import attach_visibility
 from iblbench.harness.protocol.stats import RENDERS, renders_text
-from iblbench.harness.protocol.timing import (device_ms, required_build_ms, robust_ms,
+from iblbench.harness.protocol.timing import (device_ms, required_build_ms, robust_ms, round_orders,
                                               time_columns, timed_renders, too_wide)
 from iblbench.foundation.errors import InputError
 from iblbench.scenes.gbuffer import cached_trace
@@ -64,7 +64,6 @@ from iblbench.scenes.imageio import read_exr, write_exr
 
 WARMUP_SEED = 0xFFFFFFFF   # a seed no benchmark cell uses
 WARMUP_PIXELS = 64
-ROUND_ORDER_SEED = 0x5EED   # the rounds' orders (Executor._run_frame)
 
 
 def timing_seed(seed: int, repeat: int) -> int:
@@ -304,9 +303,8 @@ class Executor:
             cells += [self._prepare_cell(plan, spec, estimator, key, keys, gbuffer, cache,
                                          build_ms, sequences) for key in keys]
         rounds = max(len(cell.renderers) for cell in cells)
-        # Each round in its own order, the same in every run: a place in the round (the first
-        # render after the previous round's scores, say) then costs no cell more than another.
-        shuffle = np.random.default_rng([ROUND_ORDER_SEED, cache.frame]).permutation
+        # Each round in its own order, the same in every run (timing.round_orders).
+        shuffle = round_orders(cache.frame)
         for turn in range(rounds):
             self.progress.stage(f"rendering, round {turn + 1} of {rounds}", here)
             going = [cells[i] for i in shuffle(len(cells)) if turn < len(cells[i].renderers)]

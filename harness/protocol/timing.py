@@ -167,6 +167,17 @@ def host_threads_capped():
     return threadpoolctl.threadpool_limits(limits=1)
 
 
+ROUND_ORDER_SEED = 0x5EED
+
+
+def round_orders(*key: int):
+    """The rounds' orders: each call of the returned function with n gives the next round's
+    permutation of range(n), the same sequence in every run for the same ``key`` (``run``'s
+    rounds per frame, ``perf``'s), so that a place in the round (the first after the previous
+    round's host work, say) costs no cell more than another."""
+    return np.random.default_rng([ROUND_ORDER_SEED, *key]).permutation
+
+
 QUIET_WINDOW_S = 0.02   # wait_for_quiet_threads' window
 QUIET_SHARE = 0.1       # of one core: below it over a window, the process's threads are quiet
 QUIET_LONGEST_S = 1.0   # it waits no longer

@@ -153,7 +153,7 @@ from iblbench.estimators.runtime.probes import (FMA_ITEMS, LIMIT_ITEMS, LIMIT_MI
                                                 run_phong_power, run_serial_adds, sized)
 from iblbench.harness.studies import mitsuba_peer
 from iblbench.harness.protocol.timing import (measure_timing_floor, required_build_ms, spread,
-                                              timing_floor_text, wait_for_quiet_threads)
+                                              round_orders, timing_floor_text, wait_for_quiet_threads)
 from iblbench.foundation.errors import InputError
 
 DEFAULT_SCENES = ("sphere-sun", "blob-sun")
@@ -164,7 +164,6 @@ DEFAULT_REPEATS = 5
 FLOOR = "numpy-floor"
 FLOOR_SEED = 0xFFFFFF80        # a seed no benchmark cell uses
 WARMUP_SEED = 0xFFFFFFFF
-ROUND_ORDER_SEED = 0x5EED      # the rounds' orders (run_perf), as the runner's
 FLOOR_RTOL = 1e-4              # |floor − uniform| ≤ RTOL·|uniform| + ATOL·max|uniform| per channel
 FLOOR_ATOL = 1e-6
 FLOOR_BLOCK = 1 << 15          # pixels × pool entries per block of the floor (fits in L2)
@@ -656,7 +655,7 @@ def run_perf(config: PerfConfig, log=print):
         if peer:
             peer.render(floor_spp, WARMUP_SEED)   # Dr.Jit traces and compiles its kernel
         floor_times, peer_times, floor_repeats = [], [], config.repeats or DEFAULT_REPEATS
-        shuffle = np.random.default_rng(ROUND_ORDER_SEED).permutation
+        shuffle = round_orders()
         for round_ in range(max([floor_repeats] + [repeats for _, repeats in cells])):
             wait_for_quiet_threads()   # the peer's and the warm-ups' host threads
             for cell, repeats in (cells[i] for i in shuffle(len(cells))):
