@@ -19,7 +19,7 @@ import pytest
 
 from iblbench.harness.protocol import runner as runner_module
 from iblbench.cli import EXIT_DISK_FULL, main
-from iblbench.harness.protocol.results import JOURNAL, read_journal, read_results
+from iblbench.harness.protocol.results import JOURNAL, Journal, read_journal, read_results
 from iblbench.harness.protocol.runner import LOCK, RunConfig, Runner, _locked, run
 from iblbench.foundation.errors import InputError
 
@@ -205,6 +205,24 @@ def test_ctrl_c_before_the_first_cell_marks_the_manifest_interrupted(tmp_path, m
     code, err = cli(capsys, tmp_path / "out", "--spp", "4")
     assert code == 130 and "0 cells saved" in err, err
     assert json.loads((tmp_path / "out" / "manifest.json").read_text())["status"] == "interrupted"
+
+
+def test_a_ctrl_c_just_after_a_cell_is_journalled_keeps_that_cell(tmp_path, monkeypatch, capsys):
+    """The fold rewrites the table from the runner's rows and then drops the journal; a Ctrl-C
+    after the journal's write of a cell but before the runner recorded it lost that cell."""
+    append, appended = Journal.append, []
+
+    def append_then_interrupt_at_the_second(journal, row):
+        append(journal, row)
+        appended.append(row)
+        if len(appended) == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(Journal, "append", append_then_interrupt_at_the_second)
+    code, err = cli(capsys, tmp_path / "out", "--spp", "1,2,3,4")
+    assert code == 130 and "2 cells saved" in err, err
+    assert sorted(pd.read_parquet(tmp_path / "out" / "results.parquet").spp) == sorted(
+        row["spp"] for row in appended)
 
 
 # Stands in for the linker PoCL runs per kernel: its Nth run sends SIGINT to its process group

@@ -755,10 +755,12 @@ class Runner:
 
     def _journal_cell(self, row: dict) -> None:
         """The row goes to the journal (after its images: a journalled cell is complete), and
-        the journal is folded into the table every FOLD_SECONDS."""
-        self.journal.append(row)
+        the journal is folded into the table every FOLD_SECONDS.  Recorded before it is
+        journalled: a fold (a Ctrl-C's too) writes the table from ``rows`` and drops the journal,
+        so a Ctrl-C between the two would have lost a journalled cell."""
         self.rows[row_key(row)] = row
         self.journalled.add(row_key(row))
+        self.journal.append(row)
         if time.monotonic() - self._last_fold > FOLD_SECONDS:
             self._fold()
             self._last_fold = time.monotonic()
