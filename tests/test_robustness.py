@@ -19,7 +19,8 @@ import pytest
 
 from iblbench.harness.protocol import runner as runner_module
 from iblbench.cli import EXIT_DISK_FULL, main
-from iblbench.harness.protocol.results import JOURNAL, Journal, read_journal, read_results
+from iblbench.harness.protocol.results import (JOURNAL, Journal, read_journal, read_results,
+                                               write_results)
 from iblbench.harness.protocol.runner import LOCK, RunConfig, Runner, _locked, run
 from iblbench.foundation.errors import InputError
 
@@ -83,6 +84,24 @@ def test_another_resolution_in_a_used_out_is_refused_and_force_replaces(tmp_path
     assert list(zip(table.spp, table.width, table.height)) == [(4, 20, 12)]
 
 
+def test_a_ctrl_c_after_force_removed_the_other_cells_leaves_no_row_without_its_image(
+        tmp_path, capsys, monkeypatch):
+    """``force`` removed the other configuration's images before the run's first fold dropped
+    their rows: a Ctrl-C in between (planning, tracing) left rows whose images were gone."""
+    out = tmp_path / "out"
+    assert cli(capsys, out, "--spp", "4,8")[0] == 0
+
+    def interrupted(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Runner, "_new_manifest", interrupted)   # after the removal, before the fold
+    code, err = cli(capsys, out, "--spp", "4", "--res", "20x12", "--force")
+    assert code == 130, err
+    assert not any(path.exists() for path in (out / "images").rglob("*.exr")), \
+        "the removal had not run: the test no longer reaches the window"
+    assert read_results(out) == []
+
+
 def test_the_manifest_lists_every_sweep_that_shares_the_table(tmp_path, capsys):
     out = tmp_path / "out"
     assert cli(capsys, out, "--spp", "4")[0] == 0
@@ -137,6 +156,45 @@ def test_a_full_disk_leaves_the_manifest_failed_not_running(tmp_path, capsys, mo
     assert os.strerror(errno.ENOSPC) in manifest["failure"], manifest["failure"]
 
 
+def test_a_journal_line_a_full_disk_cut_short_is_taken_back(tmp_path, monkeypatch):
+    """A full disk can take part of a write without an error; the next line, glued to that part
+    once space was freed, was a damaged line mid-journal, which stops every reader."""
+    journal, real_write = Journal(tmp_path), os.write
+    rows = [dict(scene="sphere-sun", estimator="uniform", spp=spp, frame=0, seed=0)
+            for spp in (1, 2, 3)]
+    journal.append(rows[0])
+    monkeypatch.setattr(os, "write", lambda fd, data: real_write(fd, data[:len(data) // 2]))
+    with pytest.raises(OSError) as raised:
+        journal.append(rows[1])
+    assert raised.value.errno == errno.ENOSPC
+    monkeypatch.setattr(os, "write", real_write)
+    journal.append(rows[2])
+    journal.close()
+    lines = (tmp_path / JOURNAL).read_text().splitlines()
+    assert [json.loads(line)["spp"] for line in lines] == [1, 3]
+
+
+def test_a_full_disk_under_a_ctrl_c_save_leaves_the_manifest_failed(tmp_path, capsys, monkeypatch):
+    """The save a Ctrl-C makes folds the table; a full disk there left the manifest "running"."""
+    def interrupted(journal, row):
+        raise KeyboardInterrupt
+
+    folds = []
+
+    def full_after_the_first_fold(*args):   # the first is the fold at the run's start
+        folds.append(args)
+        if len(folds) > 1:
+            _pyarrow_no_space()
+        return write_results(*args)
+
+    monkeypatch.setattr(Journal, "append", interrupted)
+    monkeypatch.setattr(runner_module, "write_results", full_after_the_first_fold)
+    code, err = cli(capsys, tmp_path / "out", "--spp", "4")
+    assert code == EXIT_DISK_FULL and err.count("\n") == 1, err
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["status"] == "failed", manifest["status"]
+
+
 def test_a_full_disk_under_report_names_the_run_and_promises_no_resume(tmp_path, capsys, monkeypatch):
     """Issue 23: `report` on a full disk named no path and said "a run resumes"."""
     import iblbench.reports.report as report_module
@@ -178,13 +236,16 @@ def test_ctrl_c_saves_the_finished_cells_and_releases_the_folder(tmp_path):
         [sys.executable, "-c", RUN_THAT_WAITS_AFTER_TWO_CELLS, "run", "--out", str(out), *FLAGS,
          "--spp", "1,2,3,4,5,6,7,8", "--seeds", "4"],
         env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while len(read_journal(out)) < 2:
-        assert process.poll() is None, process.stderr.read()
-        assert time.monotonic() < deadline
-        time.sleep(0.005)
-    process.send_signal(signal.SIGINT)
-    _, stderr = process.communicate(timeout=60)
+    try:
+        deadline = time.monotonic() + 120
+        while len(read_results(out)) < 2:   # the table too: a fold may have taken the journal
+            assert process.poll() is None, process.stderr.read()
+            assert time.monotonic() < deadline
+            time.sleep(0.005)
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=60)
+    finally:
+        process.kill()
     assert process.returncode == 130, stderr
     table = pd.read_parquet(out / "results.parquet")
     assert len(table) == 2, stderr
@@ -223,6 +284,24 @@ def test_a_ctrl_c_just_after_a_cell_is_journalled_keeps_that_cell(tmp_path, monk
     assert code == 130 and "2 cells saved" in err, err
     assert sorted(pd.read_parquet(tmp_path / "out" / "results.parquet").spp) == sorted(
         row["spp"] for row in appended)
+
+
+def test_a_ctrl_c_right_after_the_journal_is_closed_does_not_close_it_again(tmp_path, monkeypatch):
+    """A Ctrl-C just after close(2) in a fold left the closed descriptor to the Ctrl-C's own
+    fold, which fsynced it again (EBADF: a traceback, the manifest left "running")."""
+    journal, real_close = Journal(tmp_path), os.close
+    journal.append(dict(scene="sphere-sun", estimator="uniform", spp=1, frame=0, seed=0))
+
+    def close_then_interrupt(fd):
+        real_close(fd)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(os, "close", close_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        journal.close()
+    monkeypatch.setattr(os, "close", real_close)
+    journal.close()
+    assert len((tmp_path / JOURNAL).read_text().splitlines()) == 1
 
 
 # Stands in for the linker PoCL runs per kernel: its Nth run sends SIGINT to its process group

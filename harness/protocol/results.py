@@ -50,7 +50,8 @@ reader never sees half a table.  While a run is going, each finished cell is app
 ``results.journal.jsonl`` (one JSON line, written to the OS before the next cell starts); the
 journal is folded into the table every ``FOLD_SECONDS``, at the end of a run, and when a run
 starts on a folder a killed run left behind.  A ``kill -9`` can cut only the line being written,
-which :func:`read_results` ignores: the cell in flight is lost, nothing else.  Every reader
+which :func:`read_results` ignores: the cell in flight is lost, nothing else.  A line that a
+full disk took only part of is truncated away (:meth:`Journal.append`).  Every reader
 (a resume, ``report``, ``check``, ``compare``: :func:`read_results`, :func:`load_table`) takes a
 cell's row from the journal where the table has one too, so a forced rerun killed before its
 fold reads as its new rows, never the old ones it replaces.  The journal is
@@ -60,6 +61,7 @@ time): a power cut, unlike a killed process, can lose the cells since the last f
 """
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -401,16 +403,27 @@ class Journal:
         self._fd: int | None = None
 
     def append(self, row: dict) -> None:
+        """One line, whole or not at all: a full disk can take part of a line without an error,
+        and the next line, glued to that part once space is freed, would be a damaged line
+        mid-journal, which stops every reader."""
         if self._fd is None:
             self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
-        line = json.dumps({k: _plain(v) for k, v in row.items()}, allow_nan=True) + "\n"
-        os.write(self._fd, line.encode())
+        line = (json.dumps({k: _plain(v) for k, v in row.items()}, allow_nan=True)
+                + "\n").encode()
+        end = os.lseek(self._fd, 0, os.SEEK_END)   # the run is the journal's one writer
+        if os.write(self._fd, line) < len(line):
+            os.ftruncate(self._fd, end)
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.path))
 
     def close(self) -> None:
-        if self._fd is not None:
-            os.fsync(self._fd)
-            os.close(self._fd)
-            self._fd = None
+        # Forgotten before it is closed: a Ctrl-C right after close(2) must not leave a closed
+        # descriptor for the fold that the Ctrl-C makes to close again.
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
 
 
 def _fsync(path: pathlib.Path) -> None:

@@ -247,6 +247,9 @@ class Runner:
                 same = (row["scene"] not in configured
                         or image_configuration(row) == configured[row["scene"]])
                 (kept if same else dropped).append(row)
+            # The table first: a Ctrl-C (or a full disk) before the run's first fold must not
+            # leave rows whose images are gone.
+            write_results(self.out, sorted(kept, key=self._table_order))
             remove_cells(self.out, dropped, kept)
             print(f"iblbench: {argument('force', True)}: removed the {len(dropped)} cells of "
                   f"another image configuration, rows, images and saved inputs "
@@ -449,7 +452,11 @@ class Runner:
             try:   # from here on a Ctrl-C, before the first cell too, ends "interrupted"
                 table = self._run_cells(gbuffers)
             except KeyboardInterrupt:
-                saved = len(self._save_interrupted())
+                try:
+                    saved = len(self._save_interrupted())
+                except OSError as error:   # a full disk under the save: the journal keeps the cells
+                    self._mark_failed(error)
+                    raise
                 raise KeyboardInterrupt(f"{saved} cells saved; rerun to resume") from None
             except Exception as error:   # a full disk above all: the manifest says so
                 self._mark_failed(error)
