@@ -449,16 +449,14 @@ class Runner:
             self._last_fold = time.monotonic()
             self.manifest["status"] = "running"   # a killed run leaves this, not a missing manifest
             write_manifest(self.out, self.manifest)
-            try:   # from here on a Ctrl-C, before the first cell too, ends "interrupted"
-                table = self._run_cells(gbuffers)
-            except KeyboardInterrupt:
-                try:
+            # An error (a full disk above all, also under a Ctrl-C's save) ends "failed".
+            try:
+                try:   # from here on a Ctrl-C, before the first cell too, ends "interrupted"
+                    table = self._run_cells(gbuffers)
+                except KeyboardInterrupt:
                     saved = len(self._save_interrupted())
-                except OSError as error:   # a full disk under the save: the journal keeps the cells
-                    self._mark_failed(error)
-                    raise
-                raise KeyboardInterrupt(f"{saved} cells saved; rerun to resume") from None
-            except Exception as error:   # a full disk above all: the manifest says so
+                    raise KeyboardInterrupt(f"{saved} cells saved; rerun to resume") from None
+            except Exception as error:
                 self._mark_failed(error)
                 raise
             finally:
